@@ -1,0 +1,58 @@
+//! The library's error type.
+
+use ash::vk;
+
+/// Everything that can go wrong inside the engine, with enough context to
+/// tell the user what to change.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// No Vulkan loader or no Vulkan device on this machine.
+    #[error("{0}")]
+    NoVulkan(String),
+    /// A Vulkan call failed.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan {
+        /// The Vulkan entry point that failed.
+        call: &'static str,
+        /// Its result code.
+        result: vk::Result,
+    },
+    /// GPU memory could not be allocated (device memory exhausted or the
+    /// configured budget reached).
+    #[error("GPU memory: {0}")]
+    OutOfMemory(String),
+    /// An argument is outside what the operation supports.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// The device lacks a feature or limit the engine needs.
+    #[error("unsupported device: {0}")]
+    Unsupported(String),
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Result alias used throughout the engine.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Attaches the Vulkan entry point name to an `ash` result.
+pub(crate) trait VkContext<T> {
+    fn vk(self, call: &'static str) -> Result<T>;
+}
+
+impl<T> VkContext<T> for std::result::Result<T, vk::Result> {
+    fn vk(self, call: &'static str) -> Result<T> {
+        self.map_err(|result| match result {
+            vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
+                Error::OutOfMemory(format!("{call}: {result}"))
+            }
+            _ => Error::Vulkan { call, result },
+        })
+    }
+}

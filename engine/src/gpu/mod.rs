@@ -1,0 +1,56 @@
+//! The Vulkan layer: device selection, memory, buffers with explicit staging,
+//! pipelines, command recording and profiling.
+//!
+//! Ownership rule: every Vulkan object belongs to exactly one Rust value and
+//! is destroyed when that value drops, deferred until the GPU has finished
+//! every submission made before the drop (see `retire.rs`). The device itself
+//! goes last, when the final [`Context`] clone and GPU object are gone.
+
+mod buffer;
+mod context;
+mod memory;
+mod pipeline;
+mod profiler;
+mod recorder;
+mod retire;
+#[cfg(test)]
+pub(crate) mod testing;
+
+pub use buffer::{Buffer, Readback};
+pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
+pub use memory::{ByteCount, MemoryReport};
+pub use profiler::{KernelStats, Profiler, Sample};
+pub use recorder::{QueueKind, Recorder, Submission, SyncPoint};
+
+impl Context {
+    /// Bytes allocated, per category and in total, with peaks.
+    pub fn memory_report(&self) -> MemoryReport {
+        self.dev.memory.report()
+    }
+
+    /// Sets (or clears) the GPU memory budget; later allocations that would
+    /// exceed it fail with [`crate::Error::OutOfMemory`].
+    pub fn set_memory_budget(&self, bytes: Option<u64>) {
+        self.dev.memory.set_budget(bytes)
+    }
+
+    /// A copy of the profiler's samples (empty unless profiling is on).
+    pub fn profiler_snapshot(&self) -> Profiler {
+        match &self.dev.profiler {
+            Some(p) => p.lock().unwrap_or_else(|e| e.into_inner()).clone(),
+            None => Profiler::default(),
+        }
+    }
+
+    /// Clears the profiler's samples.
+    pub fn profiler_reset(&self) {
+        if let Some(p) = &self.dev.profiler {
+            p.lock().unwrap_or_else(|e| e.into_inner()).clear();
+        }
+    }
+
+    /// Whether timestamps are being recorded.
+    pub fn profiling(&self) -> bool {
+        self.dev.profiler.is_some()
+    }
+}

@@ -1,0 +1,812 @@
+//! Command recording: the one way to dispatch a kernel. The recorder binds
+//! buffers by the kernel's declared bindings, inserts the memory barriers that
+//! read-after-write and write-after-read hazards need, writes profiler
+//! timestamps, and submits with a timeline-semaphore signal.
+
+use std::collections::HashSet;
+use std::marker::PhantomData;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use ash::vk;
+use latentam_shaders::KernelDef;
+
+use super::buffer::{Buffer, BufferKind, Readback};
+use super::context::{Context, Device, Queue};
+use super::retire::Retired;
+use crate::error::{Error, Result, VkContext};
+
+const SETS_PER_POOL: u32 = 64;
+const MAX_BINDINGS: u32 = 16;
+const QUERIES_PER_POOL: u32 = 512;
+
+/// Which queue a recorder submits to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum QueueKind {
+    /// The compute queue: kernels and copies.
+    Compute,
+    /// The dedicated transfer queue when the device has one (copies only),
+    /// otherwise the compute queue.
+    Transfer,
+}
+
+/// A point on a queue's timeline: "everything submitted up to here".
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SyncPoint {
+    pub(crate) transfer: bool,
+    pub(crate) value: u64,
+}
+
+struct QueryBlock {
+    pool: vk::QueryPool,
+    used: u32,
+}
+
+/// Records GPU work. Buffers used by recorded commands are borrowed for the
+/// recorder's lifetime, so they cannot be dropped before submission; after
+/// submission their deferred destruction keeps them alive until the GPU is
+/// done.
+///
+/// ```no_run
+/// # use latentam::gpu::*;
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let buf = Buffer::device(&ctx, "example/buf", 1024)?;
+/// let mut rec = ctx.recorder()?;
+/// rec.fill_u32(&buf, 0);
+/// rec.submit()?.wait()?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
+pub struct Recorder<'a> {
+    dev: Arc<Device>,
+    transfer: bool,
+    pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    desc_pools: Vec<vk::DescriptorPool>,
+    sets_left: u32,
+    written: HashSet<vk::Buffer>,
+    read: HashSet<vk::Buffer>,
+    keep: Vec<Buffer>,
+    queries: Vec<QueryBlock>,
+    labels: Vec<(&'static str, u32, u32)>,
+    waits: Vec<SyncPoint>,
+    host_reads: bool,
+    readbacks: Vec<Arc<AtomicU64>>,
+    _borrows: PhantomData<&'a Buffer>,
+}
+
+/// A submitted batch of work.
+#[must_use = "a submission should be waited on (or its sync point used)"]
+pub struct Submission {
+    dev: Arc<Device>,
+    point: SyncPoint,
+    queries: Vec<QueryBlock>,
+    labels: Vec<(&'static str, u32, u32)>,
+}
+
+impl Context {
+    /// Starts recording work for the compute queue.
+    pub fn recorder(&self) -> Result<Recorder<'_>> {
+        Recorder::new(self, QueueKind::Compute)
+    }
+
+    /// Starts recording copies for the transfer queue (the compute queue on
+    /// devices without a dedicated one).
+    pub fn transfer_recorder(&self) -> Result<Recorder<'_>> {
+        Recorder::new(self, QueueKind::Transfer)
+    }
+
+    /// Creates a device buffer holding `data` (uploads and waits).
+    pub fn upload_new<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
+        let buf = Buffer::device(self, name, std::mem::size_of_val(data) as u64)?;
+        self.upload(&buf, 0, data)?;
+        Ok(buf)
+    }
+
+    /// Writes `data` at byte `offset` of `buf` (uploads and waits).
+    pub fn upload<T: bytemuck::Pod>(&self, buf: &Buffer, offset: u64, data: &[T]) -> Result<()> {
+        let mut rec = self.recorder()?;
+        rec.upload(buf, offset, data)?;
+        rec.submit()?.wait()
+    }
+
+    /// Reads a whole device buffer as `T`s (waits).
+    pub fn download<T: bytemuck::Pod>(&self, buf: &Buffer) -> Result<Vec<T>> {
+        let mut rec = self.recorder()?;
+        let rb = rec.download(buf, 0, buf.bytes())?;
+        rec.submit()?.wait()?;
+        rb.read()
+    }
+}
+
+impl<'a> Recorder<'a> {
+    fn new(ctx: &'a Context, kind: QueueKind) -> Result<Self> {
+        let dev = ctx.dev.clone();
+        dev.collect();
+        let transfer = kind == QueueKind::Transfer && dev.transfer.is_some();
+        let family = if transfer {
+            dev.transfer
+                .as_ref()
+                .map(|q| q.family)
+                .unwrap_or(dev.compute.family)
+        } else {
+            dev.compute.family
+        };
+        // SAFETY: valid create/alloc infos; the pool is retired with the
+        // recorder or its submission.
+        unsafe {
+            let pool = dev
+                .raw
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default()
+                        .queue_family_index(family)
+                        .flags(vk::CommandPoolCreateFlags::TRANSIENT),
+                    None,
+                )
+                .vk("vkCreateCommandPool")?;
+            let cmd = match dev.raw.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .level(vk::CommandBufferLevel::PRIMARY)
+                    .command_buffer_count(1),
+            ) {
+                Ok(c) => c[0],
+                Err(e) => {
+                    dev.raw.destroy_command_pool(pool, None);
+                    return Err(e).vk("vkAllocateCommandBuffers");
+                }
+            };
+            if let Err(e) = dev.raw.begin_command_buffer(
+                cmd,
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+            ) {
+                dev.raw.destroy_command_pool(pool, None);
+                return Err(e).vk("vkBeginCommandBuffer");
+            }
+            Ok(Self {
+                dev,
+                transfer,
+                pool,
+                cmd,
+                desc_pools: Vec::new(),
+                sets_left: 0,
+                written: HashSet::new(),
+                read: HashSet::new(),
+                keep: Vec::new(),
+                queries: Vec::new(),
+                labels: Vec::new(),
+                waits: Vec::new(),
+                host_reads: false,
+                readbacks: Vec::new(),
+                _borrows: PhantomData,
+            })
+        }
+    }
+
+    /// The device this recorder records for.
+    pub fn info(&self) -> &super::DeviceInfo {
+        &self.dev.info
+    }
+
+    /// Makes this batch wait (on the GPU) for `point` before it starts.
+    pub fn wait_for(&mut self, point: SyncPoint) {
+        self.waits.push(point);
+    }
+
+    /// Inserts a barrier if the next command touches a buffer in a
+    /// conflicting way with commands since the last barrier.
+    fn track(&mut self, reads: &[vk::Buffer], writes: &[vk::Buffer]) {
+        let hazard = reads.iter().any(|b| self.written.contains(b))
+            || writes
+                .iter()
+                .any(|b| self.written.contains(b) || self.read.contains(b));
+        if hazard {
+            self.barrier();
+        }
+        self.read.extend(reads.iter().copied());
+        self.written.extend(writes.iter().copied());
+    }
+
+    /// A full memory barrier between all compute and transfer work recorded
+    /// before and after it. The recorder inserts these itself; call it only
+    /// around work it cannot see.
+    pub fn barrier(&mut self) {
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_READ
+                    | vk::AccessFlags::TRANSFER_WRITE,
+            )];
+        let stages = if self.transfer {
+            vk::PipelineStageFlags::TRANSFER
+        } else {
+            vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER
+        };
+        // SAFETY: recording into our own command buffer.
+        unsafe {
+            self.dev.raw.cmd_pipeline_barrier(
+                self.cmd,
+                stages,
+                stages,
+                vk::DependencyFlags::empty(),
+                &mb,
+                &[],
+                &[],
+            )
+        };
+        self.written.clear();
+        self.read.clear();
+    }
+
+    fn timestamp(&mut self, stage: vk::PipelineStageFlags) -> Option<u32> {
+        self.dev.profiler.as_ref()?;
+        let need_new = self
+            .queries
+            .last()
+            .is_none_or(|q| q.used == QUERIES_PER_POOL);
+        if need_new {
+            // SAFETY: valid create info; the pool is reset before first use
+            // and retired with the submission.
+            let pool = unsafe {
+                self.dev.raw.create_query_pool(
+                    &vk::QueryPoolCreateInfo::default()
+                        .query_type(vk::QueryType::TIMESTAMP)
+                        .query_count(QUERIES_PER_POOL),
+                    None,
+                )
+            };
+            let pool = match pool {
+                Ok(p) => p,
+                Err(e) => {
+                    log::warn!("profiling disabled for this batch: vkCreateQueryPool: {e}");
+                    return None;
+                }
+            };
+            // SAFETY: recording into our own command buffer.
+            unsafe {
+                self.dev
+                    .raw
+                    .cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL)
+            };
+            self.queries.push(QueryBlock { pool, used: 0 });
+        }
+        let block = self.queries.len() - 1;
+        let q = self.queries.last_mut()?;
+        let idx = q.used;
+        q.used += 1;
+        // SAFETY: the query was reset above in this command buffer.
+        unsafe {
+            self.dev
+                .raw
+                .cmd_write_timestamp(self.cmd, stage, q.pool, idx)
+        };
+        Some(block as u32 * QUERIES_PER_POOL + idx)
+    }
+
+    fn descriptor_set(&mut self, layout: vk::DescriptorSetLayout) -> Result<vk::DescriptorSet> {
+        if self.sets_left == 0 {
+            let sizes = [vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(SETS_PER_POOL * MAX_BINDINGS)];
+            // SAFETY: valid create info; retired with the recorder.
+            let pool = unsafe {
+                self.dev.raw.create_descriptor_pool(
+                    &vk::DescriptorPoolCreateInfo::default()
+                        .max_sets(SETS_PER_POOL)
+                        .pool_sizes(&sizes),
+                    None,
+                )
+            }
+            .vk("vkCreateDescriptorPool")?;
+            self.desc_pools.push(pool);
+            self.sets_left = SETS_PER_POOL;
+        }
+        let layouts = [layout];
+        // SAFETY: the pool has room (counted by `sets_left`).
+        let set = unsafe {
+            self.dev.raw.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(*self.desc_pools.last().unwrap())
+                    .set_layouts(&layouts),
+            )
+        }
+        .vk("vkAllocateDescriptorSets")?[0];
+        self.sets_left -= 1;
+        Ok(set)
+    }
+
+    /// Records one dispatch of `kernel` with `groups` workgroups, binding
+    /// `buffers[i]` to binding i and `push` as push constants.
+    pub fn dispatch<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: [u32; 3],
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        let k = &kernel.kernel;
+        if self.transfer {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` recorded on the transfer queue",
+                k.name
+            )));
+        }
+        if buffers.len() != k.bindings.len() {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` takes {} buffers ({}), got {}",
+                k.name,
+                k.bindings.len(),
+                k.bindings
+                    .iter()
+                    .map(|b| b.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                buffers.len()
+            )));
+        }
+        if k.bindings.len() as u32 > MAX_BINDINGS {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` has more than {MAX_BINDINGS} bindings",
+                k.name
+            )));
+        }
+        let max = self.dev.info.max_workgroup_count;
+        if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
+                k.name
+            )));
+        }
+        for b in buffers {
+            if b.kind() != BufferKind::Device {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: `{}` is a staging buffer",
+                    k.name,
+                    b.name()
+                )));
+            }
+        }
+        if groups.contains(&0) {
+            return Ok(());
+        }
+        let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
+        let mut reads = Vec::new();
+        let mut writes = Vec::new();
+        for (b, decl) in buffers.iter().zip(k.bindings) {
+            if decl.writable {
+                writes.push(b.raw);
+            } else {
+                reads.push(b.raw);
+            }
+        }
+        self.track(&reads, &writes);
+
+        let set = if buffers.is_empty() {
+            None
+        } else {
+            Some(self.descriptor_set(pipe.set_layout)?)
+        };
+        if let Some(set) = set {
+            let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+                .iter()
+                .map(|b| {
+                    [vk::DescriptorBufferInfo::default()
+                        .buffer(b.raw)
+                        .offset(0)
+                        .range(vk::WHOLE_SIZE)]
+                })
+                .collect();
+            let writes: Vec<vk::WriteDescriptorSet> = infos
+                .iter()
+                .enumerate()
+                .map(|(i, info)| {
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(set)
+                        .dst_binding(i as u32)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(info)
+                })
+                .collect();
+            // SAFETY: the set is fresh and not in use.
+            unsafe { self.dev.raw.update_descriptor_sets(&writes, &[]) };
+        }
+
+        let start = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        // SAFETY: recording into our own command buffer with objects that
+        // outlive the submission (pipeline cache, retired pools, borrowed
+        // buffers).
+        unsafe {
+            let d = &self.dev.raw;
+            d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipe.pipeline);
+            if let Some(set) = set {
+                d.cmd_bind_descriptor_sets(
+                    self.cmd,
+                    vk::PipelineBindPoint::COMPUTE,
+                    pipe.layout,
+                    0,
+                    &[set],
+                    &[],
+                );
+            }
+            if k.push_constant_size > 0 {
+                d.cmd_push_constants(
+                    self.cmd,
+                    pipe.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    bytemuck::bytes_of(push),
+                );
+            }
+            d.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
+        }
+        let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        if let (Some(s), Some(e)) = (start, end) {
+            self.labels.push((k.name, s, e));
+        }
+        Ok(())
+    }
+
+    /// Dispatches `groups` workgroups along one logical dimension, split over
+    /// x and y when it exceeds the x limit. Kernels recover the index with
+    /// `linear_group()` and must ignore indices past their work.
+    pub fn dispatch_linear<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: u32,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        let max_x = self.dev.info.max_workgroup_count[0].min(65535);
+        let x = groups.min(max_x);
+        let y = if x == 0 { 0 } else { groups.div_ceil(x) };
+        self.dispatch(
+            kernel,
+            [x, y.max(if x == 0 { 0 } else { 1 }), 1],
+            buffers,
+            push,
+        )
+    }
+
+    fn copy_raw(&mut self, src: vk::Buffer, dst: vk::Buffer, region: vk::BufferCopy) {
+        self.track(&[src], &[dst]);
+        let start = self.timestamp(vk::PipelineStageFlags::TRANSFER);
+        // SAFETY: recording a copy between live buffers with checked ranges.
+        unsafe { self.dev.raw.cmd_copy_buffer(self.cmd, src, dst, &[region]) };
+        let end = self.timestamp(vk::PipelineStageFlags::TRANSFER);
+        if let (Some(s), Some(e)) = (start, end) {
+            self.labels.push(("copy", s, e));
+        }
+    }
+
+    /// Copies `bytes` bytes between device buffers.
+    pub fn copy(
+        &mut self,
+        src: &'a Buffer,
+        src_offset: u64,
+        dst: &'a Buffer,
+        dst_offset: u64,
+        bytes: u64,
+    ) -> Result<()> {
+        if src_offset + bytes > src.bytes() || dst_offset + bytes > dst.bytes() {
+            return Err(Error::InvalidArgument(format!(
+                "copy of {bytes} bytes from `{}`+{src_offset} to `{}`+{dst_offset} is out of range",
+                src.name(),
+                dst.name()
+            )));
+        }
+        if bytes == 0 {
+            return Ok(());
+        }
+        self.copy_raw(
+            src.raw,
+            dst.raw,
+            vk::BufferCopy {
+                src_offset,
+                dst_offset,
+                size: bytes,
+            },
+        );
+        Ok(())
+    }
+
+    /// Fills a device buffer with a repeated 32-bit pattern (e.g. to poison
+    /// outputs before a test dispatch, or to zero accumulators).
+    pub fn fill_u32(&mut self, buf: &'a Buffer, value: u32) {
+        self.track(&[], &[buf.raw]);
+        // SAFETY: whole-buffer fill of a live buffer.
+        unsafe {
+            self.dev
+                .raw
+                .cmd_fill_buffer(self.cmd, buf.raw, 0, vk::WHOLE_SIZE, value)
+        };
+    }
+
+    /// Records an upload of `data` to byte `offset` of `dst` through a fresh
+    /// staging buffer.
+    pub fn upload<T: bytemuck::Pod>(
+        &mut self,
+        dst: &'a Buffer,
+        offset: u64,
+        data: &[T],
+    ) -> Result<()> {
+        let bytes = bytemuck::cast_slice::<T, u8>(data);
+        if offset + bytes.len() as u64 > dst.bytes() {
+            return Err(Error::InvalidArgument(format!(
+                "upload of {} bytes at offset {offset} overflows `{}` ({} bytes)",
+                bytes.len(),
+                dst.name(),
+                dst.bytes()
+            )));
+        }
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let ctx = Context {
+            dev: self.dev.clone(),
+        };
+        let mut staging = Buffer::new(
+            &ctx,
+            &format!("staging/{}", dst.name()),
+            bytes.len() as u64,
+            BufferKind::Upload,
+        )?;
+        staging.mapped_mut().copy_from_slice(bytes);
+        self.copy_raw(
+            staging.raw,
+            dst.raw,
+            vk::BufferCopy {
+                src_offset: 0,
+                dst_offset: offset,
+                size: bytes.len() as u64,
+            },
+        );
+        self.keep.push(staging);
+        Ok(())
+    }
+
+    /// Records a copy of `bytes` bytes at `offset` of `src` into a staging
+    /// buffer; read it with [`Readback::read`] after the submission completes.
+    pub fn download(&mut self, src: &'a Buffer, offset: u64, bytes: u64) -> Result<Readback> {
+        if offset + bytes > src.bytes() {
+            return Err(Error::InvalidArgument(format!(
+                "download of {bytes} bytes at offset {offset} overflows `{}` ({} bytes)",
+                src.name(),
+                src.bytes()
+            )));
+        }
+        let ctx = Context {
+            dev: self.dev.clone(),
+        };
+        let staging = Buffer::new(
+            &ctx,
+            &format!("staging/{}", src.name()),
+            bytes,
+            BufferKind::Readback,
+        )?;
+        if bytes > 0 {
+            self.copy_raw(
+                src.raw,
+                staging.raw,
+                vk::BufferCopy {
+                    src_offset: offset,
+                    dst_offset: 0,
+                    size: bytes,
+                },
+            );
+        }
+        self.host_reads = true;
+        // Not readable until the submission sets the value it signals.
+        let after = Arc::new(AtomicU64::new(u64::MAX));
+        self.readbacks.push(after.clone());
+        Ok(Readback {
+            staging,
+            transfer: self.transfer,
+            after,
+        })
+    }
+
+    fn queue(&self) -> &Queue {
+        if self.transfer {
+            self.dev.transfer.as_ref().unwrap_or(&self.dev.compute)
+        } else {
+            &self.dev.compute
+        }
+    }
+
+    /// Ends recording and submits. The returned [`Submission`] can be waited
+    /// on, or its [`SyncPoint`] passed to another recorder.
+    pub fn submit(mut self) -> Result<Submission> {
+        if self.host_reads {
+            let mb = [vk::MemoryBarrier::default()
+                .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                .dst_access_mask(vk::AccessFlags::HOST_READ)];
+            // SAFETY: recording into our own command buffer.
+            unsafe {
+                self.dev.raw.cmd_pipeline_barrier(
+                    self.cmd,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::PipelineStageFlags::HOST,
+                    vk::DependencyFlags::empty(),
+                    &mb,
+                    &[],
+                    &[],
+                )
+            };
+        }
+        // SAFETY: ending our own command buffer.
+        unsafe { self.dev.raw.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
+
+        let dev = self.dev.clone();
+        let q = self.queue();
+        let transfer = self.transfer;
+        let mut wait_sems = Vec::new();
+        let mut wait_values = Vec::new();
+        for w in &self.waits {
+            let sem = if w.transfer {
+                dev.transfer
+                    .as_ref()
+                    .map(|t| t.timeline)
+                    .unwrap_or(dev.compute.timeline)
+            } else {
+                dev.compute.timeline
+            };
+            wait_sems.push(sem);
+            wait_values.push(w.value);
+        }
+        let wait_stages = vec![vk::PipelineStageFlags::ALL_COMMANDS; wait_sems.len()];
+        let cmds = [self.cmd];
+        let signal = [q.timeline];
+        let value = {
+            let guard = q.queue.lock().unwrap_or_else(|p| p.into_inner());
+            let value = q.submitted.load(Ordering::SeqCst) + 1;
+            let values = [value];
+            let mut ti = vk::TimelineSemaphoreSubmitInfo::default()
+                .wait_semaphore_values(&wait_values)
+                .signal_semaphore_values(&values);
+            let submit = vk::SubmitInfo::default()
+                .wait_semaphores(&wait_sems)
+                .wait_dst_stage_mask(&wait_stages)
+                .command_buffers(&cmds)
+                .signal_semaphores(&signal)
+                .push_next(&mut ti);
+            // SAFETY: the command buffer is complete; the queue is externally
+            // synchronised by `guard`.
+            unsafe { dev.raw.queue_submit(*guard, &[submit], vk::Fence::null()) }
+                .vk("vkQueueSubmit")?;
+            q.submitted.store(value, Ordering::SeqCst);
+            value
+        };
+        for r in self.readbacks.drain(..) {
+            r.store(value, Ordering::SeqCst);
+        }
+        // Everything the batch used is retired behind this submission.
+        let pool = std::mem::replace(&mut self.pool, vk::CommandPool::null());
+        dev.retire(Retired::CommandPool(pool));
+        for p in self.desc_pools.drain(..) {
+            dev.retire(Retired::DescriptorPool(p));
+        }
+        self.keep.clear();
+        Ok(Submission {
+            dev,
+            point: SyncPoint { transfer, value },
+            queries: std::mem::take(&mut self.queries),
+            labels: std::mem::take(&mut self.labels),
+        })
+    }
+}
+
+impl Drop for Recorder<'_> {
+    fn drop(&mut self) {
+        // Only reached without submission (or after it, with nothing left).
+        if self.pool != vk::CommandPool::null() {
+            self.dev.retire(Retired::CommandPool(self.pool));
+        }
+        for p in self.desc_pools.drain(..) {
+            self.dev.retire(Retired::DescriptorPool(p));
+        }
+        for q in self.queries.drain(..) {
+            self.dev.retire(Retired::QueryPool(q.pool));
+        }
+    }
+}
+
+impl Submission {
+    /// Where this submission ends on its queue's timeline.
+    pub fn sync_point(&self) -> SyncPoint {
+        self.point
+    }
+
+    /// Whether the GPU has finished it.
+    pub fn is_done(&self) -> bool {
+        let done = self.dev.completed();
+        let reached = if self.point.transfer { done.1 } else { done.0 };
+        reached >= self.point.value
+    }
+
+    /// Blocks until the GPU has finished, then hands the batch's timestamps
+    /// to the profiler.
+    pub fn wait(mut self) -> Result<()> {
+        let sem = if self.point.transfer {
+            self.dev
+                .transfer
+                .as_ref()
+                .map(|t| t.timeline)
+                .unwrap_or(self.dev.compute.timeline)
+        } else {
+            self.dev.compute.timeline
+        };
+        let sems = [sem];
+        let values = [self.point.value];
+        // SAFETY: waiting on our own timeline semaphore.
+        unsafe {
+            self.dev.raw.wait_semaphores(
+                &vk::SemaphoreWaitInfo::default()
+                    .semaphores(&sems)
+                    .values(&values),
+                u64::MAX,
+            )
+        }
+        .vk("vkWaitSemaphores")?;
+        self.collect_timestamps();
+        self.dev.collect();
+        Ok(())
+    }
+
+    fn collect_timestamps(&mut self) {
+        let Some(profiler) = &self.dev.profiler else {
+            return;
+        };
+        if self.labels.is_empty() {
+            return;
+        }
+        let period = self.dev.info.timestamp_period_ns.unwrap_or(1.0);
+        let mask = if self.dev.timestamp_valid_bits >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << self.dev.timestamp_valid_bits) - 1
+        };
+        let mut values: Vec<Vec<u64>> = Vec::new();
+        for q in &self.queries {
+            let mut v = vec![0u64; q.used as usize];
+            // SAFETY: the submission completed, so every written query is
+            // available; we read only the used ones.
+            let r = unsafe {
+                self.dev.raw.get_query_pool_results(
+                    q.pool,
+                    0,
+                    &mut v,
+                    vk::QueryResultFlags::TYPE_64,
+                )
+            };
+            if r.is_err() {
+                return;
+            }
+            values.push(v);
+        }
+        let get = |i: u32| {
+            let b = (i / QUERIES_PER_POOL) as usize;
+            values[b][(i % QUERIES_PER_POOL) as usize] & mask
+        };
+        let mut p = profiler.lock().unwrap_or_else(|e| e.into_inner());
+        let queue = if self.point.transfer {
+            "transfer"
+        } else {
+            "compute"
+        };
+        for (name, s, e) in &self.labels {
+            let start = get(*s) as f64 * period;
+            let end = get(*e) as f64 * period;
+            p.record(name, queue, start, (end - start).max(0.0));
+        }
+    }
+}
+
+impl Drop for Submission {
+    fn drop(&mut self) {
+        for q in self.queries.drain(..) {
+            self.dev.retire(Retired::QueryPool(q.pool));
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! GPU primitives. Each type records its kernels into a [`crate::gpu::Recorder`];
+//! its CPU reference is the same-named module in [`crate::reference`].
+
+mod atomic;
+mod gemm;
+mod reduce;
+mod scan;
+mod softmax;
+mod sort;
+
+pub use atomic::{scatter_add_f32, SCATTER_THREADS};
+pub use gemm::{Gemm, Transpose, GEMM_TILE};
+pub use reduce::{ReduceOp, Reducer, REDUCE_BLOCK};
+pub use scan::{PrefixScan, SCAN_BLOCK};
+pub use softmax::row_softmax;
+pub use sort::{RadixSorter, RADIX_BITS, SORT_BLOCK};

@@ -1,0 +1,10 @@
+//! CPU implementations of every kernel's math, in plain readable Rust (f64
+//! where precision matters). They are the oracle of the GPU tests and the
+//! documentation of what each kernel computes.
+
+pub mod atomic;
+pub mod gemm;
+pub mod reduce;
+pub mod scan;
+pub mod softmax;
+pub mod sort;

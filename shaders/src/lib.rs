@@ -1,0 +1,85 @@
+//! latentam's compute kernels, compiled to SPIR-V 1.3 at build time.
+//!
+//! Every kernel is a [`KernelDef`] static named after it (`SCAN_BLOCKS`,
+//! `GEMM_NN`, ...); its push-constant block is mirrored by a `#[repr(C)]`
+//! struct in [`push`], so dispatching with the wrong parameters does not
+//! compile. Sources live in the workspace's `glsl/` (GLSL, the default) and in
+//! `shaders/wgsl/` (kernels that need atomics or subgroup operations); each
+//! entry's doc names its file.
+//!
+//! ```
+//! use latentam_shaders::{ALL, SCAN_BLOCKS};
+//! assert_eq!(SCAN_BLOCKS.kernel.name, "scan_blocks");
+//! assert!(ALL.iter().any(|k| k.source.ends_with("scan.comp")));
+//! ```
+
+#![deny(missing_docs)]
+
+use std::marker::PhantomData;
+
+/// One storage buffer of a kernel (set 0, binding = its index in
+/// [`Kernel::bindings`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Binding {
+    /// Name of the buffer variable in the kernel source.
+    pub name: &'static str,
+    /// Whether the kernel may write the buffer (not declared `readonly`).
+    pub writable: bool,
+}
+
+/// A compiled kernel, independent of its push-constant type.
+#[derive(Debug)]
+pub struct Kernel {
+    /// Unique kernel name (the profiler reports by it).
+    pub name: &'static str,
+    /// Source file, relative to the workspace root.
+    pub source: &'static str,
+    /// SPIR-V 1.3 words; the entry point is named `main` for GLSL kernels and
+    /// after the kernel for WGSL ones (see [`Kernel::entry_point`]).
+    pub spirv: &'static [u32],
+    /// Workgroup size declared in the source.
+    pub workgroup: [u32; 3],
+    /// Storage buffers, binding 0..n of set 0.
+    pub bindings: &'static [Binding],
+    /// Size in bytes of the push-constant block (0 when it has none).
+    pub push_constant_size: u32,
+}
+
+impl Kernel {
+    /// Name of the SPIR-V entry point.
+    pub fn entry_point(&self) -> &'static str {
+        if self.source.ends_with(".wgsl") {
+            self.name
+        } else {
+            "main"
+        }
+    }
+
+    /// Invocations per workgroup.
+    pub fn workgroup_invocations(&self) -> u32 {
+        self.workgroup[0] * self.workgroup[1] * self.workgroup[2]
+    }
+}
+
+/// A kernel together with the Rust type of its push constants.
+#[derive(Debug)]
+pub struct KernelDef<P> {
+    /// The untyped kernel.
+    pub kernel: Kernel,
+    _push: PhantomData<fn(P)>,
+}
+
+impl<P> KernelDef<P> {
+    /// Wraps a kernel; used by the generated table.
+    pub const fn new(kernel: Kernel) -> Self {
+        Self {
+            kernel,
+            _push: PhantomData,
+        }
+    }
+}
+
+include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
+
+#[cfg(test)]
+mod tests;
