@@ -1,1 +1,1 @@
-
+//! Cross-crate integration tests for latentam; the tests live in `tests/`.

@@ -14,7 +14,7 @@
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
-//! ```no_run
+//! ```
 //! use latentam::gpu::{Context, ContextOptions};
 //! use latentam::ops::PrefixScan;
 //!
@@ -36,3 +36,5 @@ pub mod ops;
 pub mod reference;
 
 pub use error::{Error, Result};
+/// The compiled kernel table (see the `latentam-shaders` crate).
+pub use latentam_shaders as kernels;

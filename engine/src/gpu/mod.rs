@@ -15,6 +15,8 @@ mod recorder;
 mod retire;
 #[cfg(test)]
 pub(crate) mod testing;
+#[cfg(test)]
+mod tests;
 
 pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
@@ -47,6 +49,24 @@ impl Context {
         if let Some(p) = &self.dev.profiler {
             p.lock().unwrap_or_else(|e| e.into_inner()).clear();
         }
+    }
+
+    /// Creates the pipeline of every kernel this device can run (all but the
+    /// native float-atomic ones on devices without float atomics). lavapipe
+    /// compiles a pipeline on first use; call this before timing anything.
+    /// Returns the number of pipelines ready.
+    pub fn warm_up(&self) -> crate::Result<usize> {
+        let mut n = 0;
+        for k in latentam_shaders::ALL {
+            if k.name == latentam_shaders::ATOMIC_ADD_F32.kernel.name
+                && !self.info().native_float_atomics
+            {
+                continue;
+            }
+            self.dev.pipelines.get(&self.dev.raw, k)?;
+            n += 1;
+        }
+        Ok(n)
     }
 
     /// Whether timestamps are being recorded.

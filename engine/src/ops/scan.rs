@@ -12,7 +12,7 @@ pub const SCAN_BLOCK: u64 = 1024;
 /// A reusable exclusive scan for up to `max_len` elements: owns the
 /// block-total buffers of every level, so recording allocates nothing.
 ///
-/// ```no_run
+/// ```
 /// # use latentam::{gpu::Context, ops::PrefixScan};
 /// # let ctx = Context::new(Default::default())?;
 /// let counts = ctx.upload_new("example/counts", &[2u32, 0, 3])?;

@@ -17,7 +17,7 @@ const RADIX: u64 = 1 << RADIX_BITS;
 /// A reusable sorter for up to `max_len` (u32 key, u32 value) pairs. Owns the
 /// ping-pong buffers and the histogram scan, so recording allocates nothing.
 ///
-/// ```no_run
+/// ```
 /// # use latentam::{gpu::Context, ops::RadixSorter};
 /// # let ctx = Context::new(Default::default())?;
 /// let keys = ctx.upload_new("example/keys", &[3u32, 1, 2, 1])?;

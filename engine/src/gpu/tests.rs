@@ -1,0 +1,175 @@
+//! Tests of the Vulkan layer itself: lifetimes, accounting, profiling,
+//! synchronisation and argument checks.
+
+use latentam_shaders::{push, SCAN_BLOCKS};
+
+use super::testing::{with_context, with_options};
+use super::*;
+use crate::ops::PrefixScan;
+
+#[test]
+fn buffers_dropped_while_in_flight_are_freed_after_the_gpu_is_done() {
+    with_context(|ctx| {
+        let data: Vec<u32> = (0..1_000_000).collect();
+        let sub = {
+            let buf = ctx.upload_new("inflight/data", &data).unwrap();
+            let scan = PrefixScan::new(ctx, data.len() as u64).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            scan.record(&mut rec, &buf, data.len() as u64).unwrap();
+            rec.submit().unwrap()
+            // `buf` and `scan` drop here, before the GPU finishes.
+        };
+        sub.wait().unwrap();
+        ctx.collect_garbage();
+        let m = ctx.memory_report();
+        assert_eq!(m.by_category["inflight"].current, 0, "{m:?}");
+        assert_eq!(m.by_category["scan"].current, 0, "{m:?}");
+        assert!(m.by_category["inflight"].peak >= 4_000_000);
+    });
+}
+
+#[test]
+fn memory_is_accounted_per_category_and_the_budget_is_enforced() {
+    with_context(|ctx| {
+        let a = Buffer::device(ctx, "gaussians/means", 1 << 20).unwrap();
+        let b = Buffer::device(ctx, "gaussians/colours", 1 << 20).unwrap();
+        let c = Buffer::device(ctx, "decoder/w", 4096).unwrap();
+        let m = ctx.memory_report();
+        assert!(m.by_category["gaussians"].current >= 2 << 20);
+        assert!(m.by_category["decoder"].current >= 4096);
+        assert_eq!(
+            m.total.current,
+            m.by_category.values().map(|c| c.current).sum::<u64>()
+        );
+        ctx.set_memory_budget(Some(m.total.current + (1 << 20)));
+        let err = Buffer::device(ctx, "gaussians/more", 2 << 20).unwrap_err();
+        assert!(matches!(err, crate::Error::OutOfMemory(_)), "{err}");
+        assert!(err.to_string().contains("budget"), "{err}");
+        // A refused allocation leaves the accounting unchanged.
+        assert_eq!(ctx.memory_report().total.current, m.total.current);
+        drop((a, b, c));
+        ctx.wait_idle().unwrap();
+        assert_eq!(ctx.memory_report().total.current, 0);
+    });
+}
+
+#[test]
+fn profiler_times_every_dispatch_and_writes_a_chrome_trace() {
+    let opts = ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    };
+    with_options(opts, |ctx| {
+        assert!(ctx.profiling(), "lavapipe and desktop GPUs have timestamps");
+        let data: Vec<u32> = vec![1; 5000];
+        let buf = ctx.upload_new("prof/data", &data).unwrap();
+        ctx.profiler_reset();
+        let scan = PrefixScan::new(ctx, 5000).unwrap();
+        let mut rec = ctx.recorder().unwrap();
+        scan.record(&mut rec, &buf, 5000).unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        let p = ctx.profiler_snapshot();
+        let stats = p.stats();
+        // 5000 elements: blocks at level 0, one block at level 1, then add.
+        assert_eq!(stats["scan_blocks"].count, 2);
+        assert_eq!(stats["scan_add"].count, 1);
+        for s in stats.values() {
+            assert!(s.min_ms >= 0.0 && s.min_ms <= s.mean_ms && s.mean_ms <= s.max_ms);
+        }
+        assert!(p.table().contains("scan_blocks"));
+        let path = std::env::temp_dir().join(format!("latentam-trace-{}.json", std::process::id()));
+        p.write_chrome_trace(&path).unwrap();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let events = v["traceEvents"].as_array().unwrap();
+        assert_eq!(events.len(), 3);
+        assert!(events
+            .iter()
+            .all(|e| e["ph"] == "X" && e["dur"].as_f64().unwrap() >= 0.0));
+        std::fs::remove_file(&path).ok();
+    });
+}
+
+#[test]
+fn transfer_work_waits_on_compute_through_the_timeline() {
+    with_context(|ctx| {
+        let n = 300_000u64;
+        let data = vec![1u32; n as usize];
+        let buf = ctx.upload_new("sync/data", &data).unwrap();
+        let out = Buffer::device(ctx, "sync/out", n * 4).unwrap();
+        let scan = PrefixScan::new(ctx, n).unwrap();
+        let mut rec = ctx.recorder().unwrap();
+        scan.record(&mut rec, &buf, n).unwrap();
+        let compute = rec.submit().unwrap();
+        let mut copy = ctx.transfer_recorder().unwrap();
+        copy.wait_for(compute.sync_point());
+        copy.copy(&buf, 0, &out, 0, n * 4).unwrap();
+        let rb = copy.download(&out, 0, n * 4).unwrap();
+        let done = copy.submit().unwrap();
+        assert!(rb.read::<u32>().is_err() || done.is_done());
+        done.wait().unwrap();
+        compute.wait().unwrap();
+        let got = rb.read::<u32>().unwrap();
+        assert!(got.iter().enumerate().all(|(i, &v)| v == i as u32));
+    });
+}
+
+#[test]
+fn dispatch_checks_its_arguments() {
+    with_context(|ctx| {
+        let a = Buffer::device(ctx, "args/a", 64).unwrap();
+        let mut rec = ctx.recorder().unwrap();
+        let err = rec
+            .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a], &push::ScanBlocks { n: 4 })
+            .unwrap_err();
+        assert!(err.to_string().contains("takes 2 buffers"), "{err}");
+        let too_many = ctx.info().max_workgroup_count[0] + 1;
+        let err = rec
+            .dispatch(
+                &SCAN_BLOCKS,
+                [too_many, 1, 1],
+                &[&a, &a],
+                &push::ScanBlocks { n: 4 },
+            )
+            .unwrap_err();
+        assert!(err.to_string().contains("exceed"), "{err}");
+        assert!(rec.upload(&a, 60, &[1u32, 2]).is_err());
+        assert!(rec.download(&a, 0, 65).is_err());
+        assert!(rec.copy(&a, 0, &a, 32, 64).is_err());
+        let mut t = ctx.transfer_recorder().unwrap();
+        if ctx.info().dedicated_transfer_queue {
+            assert!(t
+                .dispatch(
+                    &SCAN_BLOCKS,
+                    [1, 1, 1],
+                    &[&a, &a],
+                    &push::ScanBlocks { n: 4 }
+                )
+                .is_err());
+        }
+        t.fill_u32(&a, 0);
+    });
+}
+
+#[test]
+fn an_unknown_device_name_is_an_error_listing_the_devices() {
+    let err = Context::new(ContextOptions {
+        device: Some("no-such-device-xyz".into()),
+        ..ContextOptions::default()
+    })
+    .unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("matches no device") && msg.contains("0: "),
+        "{msg}"
+    );
+}
+
+#[test]
+fn buffers_larger_than_a_binding_are_refused() {
+    with_context(|ctx| {
+        let limit = ctx.info().max_storage_buffer_range;
+        let err = Buffer::device(ctx, "big/x", limit + 4).unwrap_err();
+        assert!(matches!(err, crate::Error::Unsupported(_)), "{err}");
+    });
+}

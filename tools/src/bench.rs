@@ -1,0 +1,342 @@
+//! `latentam bench ...`: benchmarks that print a table and write JSON.
+//! Times are GPU time from timestamp queries (the sum of the operation's
+//! commands), median over the measured runs after one warm-up run (lavapipe
+//! compiles a pipeline on its first dispatch).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context as _, Result};
+use clap::Subcommand;
+use latentam::gpu::{Buffer, Context, ContextOptions, Recorder};
+use latentam::ops::{self, Gemm, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+#[derive(Subcommand)]
+pub enum Which {
+    /// Time every GPU primitive at the sizes the mapper uses: sort of 1M and
+    /// 8M keys, scan and reduction of 16M, GEMM 2000x768x2000 in the three
+    /// layouts, softmax of 2000x2000, scatter-add, and a 64 MiB copy for the
+    /// memory bandwidth.
+    Primitives {
+        /// Write the results as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Measured runs per primitive (after one warm-up run); at least 5.
+        #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u32).range(5..))]
+        runs: u32,
+        /// Sizes divided by 16, for a fast smoke run (not for reporting).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+pub fn run(which: Which) -> Result<()> {
+    match which {
+        Which::Primitives { json, runs, quick } => primitives(json, runs as usize, quick),
+    }
+}
+
+#[derive(Serialize)]
+struct Row {
+    name: String,
+    size: String,
+    gpu_ms_median: f64,
+    gpu_ms_min: f64,
+    wall_ms_median: f64,
+    throughput: f64,
+    unit: &'static str,
+}
+
+#[derive(Serialize)]
+struct Report {
+    device: String,
+    device_type: String,
+    runs: usize,
+    quick: bool,
+    memory_bandwidth_gbps: f64,
+    peak_gflops: f64,
+    gemm_gflops: f64,
+    primitives: Vec<Row>,
+}
+
+struct Timing {
+    gpu_ms: Vec<f64>,
+    wall_ms: Vec<f64>,
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+/// Runs `record` once to warm up and `runs` more times. With `skip_copies`,
+/// buffer copies (set-up such as restoring inputs) are left out of the GPU
+/// time.
+fn time<'b>(
+    ctx: &'b Context,
+    runs: usize,
+    skip_copies: bool,
+    mut record: impl FnMut(&mut Recorder<'b>) -> latentam::Result<()>,
+) -> Result<Timing> {
+    let mut t = Timing {
+        gpu_ms: Vec::new(),
+        wall_ms: Vec::new(),
+    };
+    for i in 0..=runs {
+        ctx.profiler_reset();
+        let mut rec = ctx.recorder()?;
+        record(&mut rec)?;
+        let start = Instant::now();
+        rec.submit()?.wait()?;
+        let wall = start.elapsed().as_secs_f64() * 1e3;
+        let gpu: f64 = ctx
+            .profiler_snapshot()
+            .samples()
+            .iter()
+            .filter(|s| !(skip_copies && s.name == "copy"))
+            .map(|s| s.duration_ns * 1e-6)
+            .sum();
+        if i > 0 {
+            t.gpu_ms.push(gpu);
+            t.wall_ms.push(wall);
+        }
+    }
+    Ok(t)
+}
+
+fn row(name: &str, size: String, t: &Timing, work: f64, unit: &'static str) -> Row {
+    let med = median(&t.gpu_ms);
+    Row {
+        name: name.to_string(),
+        size,
+        gpu_ms_median: med,
+        gpu_ms_min: t.gpu_ms.iter().cloned().fold(f64::INFINITY, f64::min),
+        wall_ms_median: median(&t.wall_ms),
+        throughput: work / (med * 1e-3),
+        unit,
+    }
+}
+
+fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
+    let ctx = Context::new(ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    })?;
+    if !ctx.profiling() {
+        anyhow::bail!(
+            "{} has no timestamp queries on its compute queue",
+            ctx.info().name
+        );
+    }
+    let div = if quick { 16 } else { 1 };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let mut rows = Vec::new();
+    eprintln!("benchmarking on {} ({runs} runs each)...", ctx.info().name);
+
+    // Memory bandwidth: a buffer-to-buffer copy reads and writes every byte.
+    let bytes = (64u64 << 20) / div as u64;
+    {
+        let a = Buffer::device(&ctx, "bench/copy_src", bytes)?;
+        let b = Buffer::device(&ctx, "bench/copy_dst", bytes)?;
+        let t = time(&ctx, runs, false, |rec| rec.copy(&a, 0, &b, 0, bytes))?;
+        rows.push(row(
+            "copy",
+            format!("{} MiB", bytes >> 20),
+            &t,
+            2.0 * bytes as f64 * 1e-9,
+            "GB/s",
+        ));
+    }
+
+    // Attainable arithmetic rate: register-only multiply-adds.
+    let peak_gflops = {
+        let groups = 4096u32 / div;
+        let iters = 2048u32;
+        let sink = Buffer::device(&ctx, "bench/sink", groups as u64 * 256 * 4)?;
+        let p = latentam::kernels::push::FmaPeak { iters, seed: 0.5 };
+        let t = time(&ctx, runs, false, |rec| {
+            rec.dispatch_linear(&latentam::kernels::FMA_PEAK, groups, &[&sink], &p)
+        })?;
+        let flops = groups as f64 * 256.0 * iters as f64 * 16.0;
+        let r = row(
+            "fma_peak",
+            format!("{} threads x {iters}", groups * 256),
+            &t,
+            flops * 1e-9,
+            "GFLOP/s",
+        );
+        let peak = r.throughput;
+        rows.push(r);
+        peak
+    };
+
+    let n = 16_777_216u64 / div as u64;
+    {
+        let data: Vec<u32> = (0..n).map(|_| rng.random_range(0..4)).collect();
+        let buf = ctx.upload_new("bench/scan", &data)?;
+        let scan = PrefixScan::new(&ctx, n)?;
+        let t = time(&ctx, runs, false, |rec| scan.record(rec, &buf, n))?;
+        // One read and one write per element, plus a small second level.
+        rows.push(row(
+            "scan_u32",
+            format!("{n}"),
+            &t,
+            8.0 * n as f64 * 1e-9,
+            "GB/s",
+        ));
+    }
+    {
+        let data: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let src = ctx.upload_new("bench/reduce", &data)?;
+        let dst = Buffer::device(&ctx, "bench/reduce_out", 4)?;
+        let red = Reducer::new(&ctx, n)?;
+        let t = time(&ctx, runs, false, |rec| {
+            red.record(rec, ReduceOp::Sum, &src, n, &dst)
+        })?;
+        rows.push(row(
+            "reduce_sum_f32",
+            format!("{n}"),
+            &t,
+            4.0 * n as f64 * 1e-9,
+            "GB/s",
+        ));
+    }
+
+    for n in [1_048_576u64 / div as u64, 8_388_608u64 / div as u64] {
+        let keys: Vec<u32> = (0..n).map(|_| rng.random()).collect();
+        let vals: Vec<u32> = (0..n as u32).collect();
+        let kb = ctx.upload_new("bench/keys", &keys)?;
+        let vb = ctx.upload_new("bench/vals", &vals)?;
+        let sorter = RadixSorter::new(&ctx, n)?;
+        // Sorting sorted data is a different workload: restore the keys
+        // before every run (the copy is not part of the timing below).
+        let kb0 = ctx.upload_new("bench/keys0", &keys)?;
+        // 32-bit keys take an even number of passes, so the sort itself
+        // issues no copy.
+        let t = time(&ctx, runs, true, |rec| {
+            rec.copy(&kb0, 0, &kb, 0, n * 4)?;
+            sorter.record(rec, &kb, &vb, n, 32)
+        })?;
+        rows.push(row(
+            "radix_sort_kv",
+            format!("{n} keys, 32 bits"),
+            &t,
+            n as f64 * 1e-6,
+            "Mkeys/s",
+        ));
+    }
+
+    let (m, nn, k) = (2000u32 / div, 2000u32 / div, 768u32);
+    let mut best_gflops = 0.0f64;
+    for (name, tr) in [
+        ("gemm_nn", Transpose::None),
+        ("gemm_tn", Transpose::A),
+        ("gemm_nt", Transpose::B),
+    ] {
+        let a: Vec<f32> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let b: Vec<f32> = (0..k * nn).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let ab = ctx.upload_new("bench/a", &a)?;
+        let bb = ctx.upload_new("bench/b", &b)?;
+        let cb = Buffer::device(&ctx, "bench/c", (m * nn * 4) as u64)?;
+        let g = Gemm {
+            transpose: tr,
+            m,
+            n: nn,
+            k,
+            alpha: 1.0,
+            beta: 0.0,
+        };
+        let t = time(&ctx, runs, false, |rec| g.record(rec, &ab, &bb, &cb))?;
+        let r = row(
+            name,
+            format!("{m}x{k}x{nn}"),
+            &t,
+            g.flops() * 1e-9,
+            "GFLOP/s",
+        );
+        best_gflops = best_gflops.max(r.throughput);
+        rows.push(r);
+    }
+
+    {
+        let (r_, c_) = (2000u32 / div, 2000u32);
+        let x: Vec<f32> = (0..r_ * c_).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let xb = ctx.upload_new("bench/x", &x)?;
+        let yb = Buffer::device(&ctx, "bench/y", (r_ * c_ * 4) as u64)?;
+        let t = time(&ctx, runs, false, |rec| {
+            ops::row_softmax(rec, &xb, &yb, r_, c_, 20.0)
+        })?;
+        rows.push(row(
+            "softmax",
+            format!("{r_}x{c_}"),
+            &t,
+            3.0 * 4.0 * (r_ * c_) as f64 * 1e-9,
+            "GB/s",
+        ));
+    }
+
+    {
+        let n = 1_048_576u64 / div as u64;
+        let values: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let targets: Vec<u32> = (0..n).map(|_| rng.random_range(0..10_000)).collect();
+        let vb = ctx.upload_new("bench/values", &values)?;
+        let tb = ctx.upload_new("bench/targets", &targets)?;
+        let acc = Buffer::device(&ctx, "bench/acc", 10_000 * 4)?;
+        let t = time(&ctx, runs, false, |rec| {
+            ops::scatter_add_f32(rec, &vb, &tb, &acc, n)
+        })?;
+        let path = if ctx.info().native_float_atomics {
+            "native"
+        } else {
+            "cas"
+        };
+        rows.push(row(
+            &format!("scatter_add_f32_{path}"),
+            format!("{n} into 10000 bins"),
+            &t,
+            n as f64 * 1e-6,
+            "Madds/s",
+        ));
+    }
+
+    println!("device: {} ({:?})", ctx.info().name, ctx.info().device_type);
+    println!(
+        "{:<24} {:<24} {:>12} {:>12} {:>12} {:>14}",
+        "primitive", "size", "median ms", "min ms", "wall ms", "throughput"
+    );
+    for r in &rows {
+        println!(
+            "{:<24} {:<24} {:>12.3} {:>12.3} {:>12.3} {:>8.2} {}",
+            r.name, r.size, r.gpu_ms_median, r.gpu_ms_min, r.wall_ms_median, r.throughput, r.unit
+        );
+    }
+    let report = Report {
+        device: ctx.info().name.clone(),
+        device_type: format!("{:?}", ctx.info().device_type),
+        runs,
+        quick,
+        memory_bandwidth_gbps: rows[0].throughput,
+        peak_gflops,
+        gemm_gflops: best_gflops,
+        primitives: rows,
+    };
+    println!(
+        "memory bandwidth (copy): {:.2} GB/s; arithmetic peak (FMA): {:.2} GFLOP/s; best GEMM: \
+         {:.2} GFLOP/s",
+        report.memory_bandwidth_gbps, report.peak_gflops, report.gemm_gflops
+    );
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}

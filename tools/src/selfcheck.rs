@@ -1,0 +1,232 @@
+//! `latentam devices` and `latentam selfcheck`.
+
+use anyhow::{bail, Context as _, Result};
+use latentam::gpu::{Buffer, Context, ContextOptions, Validation};
+use latentam::ops::{self, Gemm, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose};
+use latentam::reference;
+use rand::{Rng, SeedableRng};
+
+pub fn devices() -> Result<()> {
+    let ctx = Context::new(ContextOptions::default())?;
+    let i = ctx.info();
+    println!("selected device: {}", i.name);
+    println!("  type:                  {:?}", i.device_type);
+    println!(
+        "  Vulkan:                {}.{}.{}",
+        ash_major(i.api_version),
+        (i.api_version >> 12) & 0x3ff,
+        i.api_version & 0xfff
+    );
+    println!("  native float atomics:  {}", i.native_float_atomics);
+    println!("  subgroup size:         {}", i.subgroup_size);
+    println!(
+        "  timestamps:            {}",
+        i.timestamp_period_ns.is_some()
+    );
+    println!("  dedicated transfer:    {}", i.dedicated_transfer_queue);
+    println!(
+        "  max storage buffer:    {} MiB",
+        i.max_storage_buffer_range >> 20
+    );
+    println!("set LATENTAM_DEVICE=<index or name> to choose another device");
+    Ok(())
+}
+
+fn ash_major(v: u32) -> u32 {
+    v >> 22
+}
+
+struct Check {
+    name: &'static str,
+    ok: bool,
+    detail: String,
+}
+
+pub fn run(validation: bool) -> Result<()> {
+    let opts = ContextOptions {
+        validation: if validation {
+            Validation::Required
+        } else {
+            ContextOptions::default().validation
+        },
+        ..ContextOptions::default()
+    };
+    let ctx = Context::new(opts)?;
+    let log = ctx.validation_log();
+    println!("device: {}", ctx.info().name);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let checks = vec![
+        check_scan(&ctx, &mut rng).context("scan")?,
+        check_reduce(&ctx, &mut rng).context("reduce")?,
+        check_gemm(&ctx, &mut rng).context("gemm")?,
+        check_softmax(&ctx, &mut rng).context("softmax")?,
+        check_sort(&ctx, &mut rng).context("sort")?,
+        check_atomic(&ctx, &mut rng).context("scatter-add")?,
+    ];
+    drop(ctx);
+    let mut failed = 0;
+    for c in &checks {
+        println!(
+            "  {:<12} {:<4} {}",
+            c.name,
+            if c.ok { "ok" } else { "FAIL" },
+            c.detail
+        );
+        failed += usize::from(!c.ok);
+    }
+    let errors = log.errors();
+    if !errors.is_empty() {
+        bail!(
+            "{} Vulkan validation error(s):\n{}",
+            errors.len(),
+            errors.join("\n")
+        );
+    }
+    if failed > 0 {
+        bail!("{failed} primitive(s) disagree with their CPU reference");
+    }
+    println!("all {} primitives match their CPU references", checks.len());
+    Ok(())
+}
+
+fn check_scan(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let data: Vec<u32> = (0..300_001).map(|_| r.random_range(0..100)).collect();
+    let buf = ctx.upload_new("check/scan", &data)?;
+    let scan = PrefixScan::new(ctx, data.len() as u64)?;
+    let mut rec = ctx.recorder()?;
+    scan.record(&mut rec, &buf, data.len() as u64)?;
+    rec.submit()?.wait()?;
+    let ok = ctx.download::<u32>(&buf)? == reference::scan::exclusive_scan_u32(&data);
+    Ok(Check {
+        name: "scan",
+        ok,
+        detail: format!("{} elements", data.len()),
+    })
+}
+
+fn check_reduce(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let data: Vec<f32> = (0..1_000_003).map(|_| r.random_range(-1.0..1.0)).collect();
+    let src = ctx.upload_new("check/reduce", &data)?;
+    let dst = Buffer::device(ctx, "check/reduce_out", 8)?;
+    let red = Reducer::new(ctx, data.len() as u64)?;
+    let mut rec = ctx.recorder()?;
+    red.record(&mut rec, ReduceOp::Sum, &src, data.len() as u64, &dst)?;
+    rec.submit()?.wait()?;
+    let got = ctx.download::<f32>(&dst)?[0] as f64;
+    let want = reference::reduce::sum(&data);
+    let err = (got - want).abs();
+    Ok(Check {
+        name: "reduce",
+        ok: err < 1e-1,
+        detail: format!("sum error {err:.2e}"),
+    })
+}
+
+fn check_gemm(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let (m, n, k) = (70u32, 90u32, 130u32);
+    let mut worst = 0.0f32;
+    for t in [Transpose::None, Transpose::A, Transpose::B] {
+        let a: Vec<f32> = (0..m * k).map(|_| r.random_range(-1.0..1.0)).collect();
+        let b: Vec<f32> = (0..k * n).map(|_| r.random_range(-1.0..1.0)).collect();
+        let ab = ctx.upload_new("check/a", &a)?;
+        let bb = ctx.upload_new("check/b", &b)?;
+        let cb = Buffer::device(ctx, "check/c", (m * n * 4) as u64)?;
+        let mut rec = ctx.recorder()?;
+        Gemm {
+            transpose: t,
+            m,
+            n,
+            k,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(&mut rec, &ab, &bb, &cb)?;
+        rec.submit()?.wait()?;
+        let got = ctx.download::<f32>(&cb)?;
+        let mut want = vec![0.0f32; (m * n) as usize];
+        reference::gemm::gemm(
+            t, m as usize, n as usize, k as usize, 1.0, &a, &b, 0.0, &mut want,
+        );
+        for (g, w) in got.iter().zip(&want) {
+            worst = worst.max((g - w).abs());
+        }
+    }
+    Ok(Check {
+        name: "gemm",
+        ok: worst < 1e-3,
+        detail: format!("max error {worst:.2e}"),
+    })
+}
+
+fn check_softmax(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let (rows, cols) = (50u32, 2000u32);
+    let x: Vec<f32> = (0..rows * cols)
+        .map(|_| r.random_range(-1.0..1.0))
+        .collect();
+    let xb = ctx.upload_new("check/x", &x)?;
+    let yb = Buffer::device(ctx, "check/y", (rows * cols * 4) as u64)?;
+    let mut rec = ctx.recorder()?;
+    ops::row_softmax(&mut rec, &xb, &yb, rows, cols, 20.0)?;
+    rec.submit()?.wait()?;
+    let got = ctx.download::<f32>(&yb)?;
+    let want = reference::softmax::row_softmax(&x, rows as usize, cols as usize, 20.0);
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(g, w)| ((*g as f64 - w) / w.max(1e-6)).abs())
+        .fold(0.0, f64::max);
+    Ok(Check {
+        name: "softmax",
+        ok: worst < 1e-3,
+        detail: format!("max rel. error {worst:.2e}"),
+    })
+}
+
+fn check_sort(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let n = 500_000u64;
+    let keys: Vec<u32> = (0..n).map(|_| r.random_range(0..1000)).collect();
+    let vals: Vec<u32> = (0..n as u32).collect();
+    let kb = ctx.upload_new("check/keys", &keys)?;
+    let vb = ctx.upload_new("check/vals", &vals)?;
+    let sorter = RadixSorter::new(ctx, n)?;
+    let mut rec = ctx.recorder()?;
+    sorter.record(&mut rec, &kb, &vb, n, 32)?;
+    rec.submit()?.wait()?;
+    let (wk, wv) = reference::sort::sort_pairs(&keys, &vals, 32);
+    let ok = ctx.download::<u32>(&kb)? == wk && ctx.download::<u32>(&vb)? == wv;
+    Ok(Check {
+        name: "sort",
+        ok,
+        detail: format!("{n} pairs, stable"),
+    })
+}
+
+fn check_atomic(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
+    let n = 100_000usize;
+    let values: Vec<f32> = (0..n).map(|_| r.random_range(-1.0..1.0)).collect();
+    let targets: Vec<u32> = (0..n).map(|_| r.random_range(0..64)).collect();
+    let vb = ctx.upload_new("check/values", &values)?;
+    let tb = ctx.upload_new("check/targets", &targets)?;
+    let acc = Buffer::device(ctx, "check/acc", 64 * 4)?;
+    let mut rec = ctx.recorder()?;
+    rec.fill_u32(&acc, 0);
+    ops::scatter_add_f32(&mut rec, &vb, &tb, &acc, n as u64)?;
+    rec.submit()?.wait()?;
+    let got = ctx.download::<f32>(&acc)?;
+    let want = reference::atomic::scatter_add(&values, &targets, 64);
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(g, w)| (*g as f64 - w).abs())
+        .fold(0.0, f64::max);
+    let path = if ctx.info().native_float_atomics {
+        "native"
+    } else {
+        "CAS"
+    };
+    Ok(Check {
+        name: "scatter-add",
+        ok: worst < 1e-2,
+        detail: format!("{path} float atomics, max error {worst:.2e}"),
+    })
+}

@@ -1,0 +1,91 @@
+//! End-to-end tests of the `latentam` binary.
+
+use std::process::Command;
+
+fn latentam() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
+    c.env("LATENTAM_VALIDATION", "1");
+    c
+}
+
+#[test]
+fn selfcheck_passes_with_validation() {
+    let out = latentam()
+        .args(["selfcheck", "--validation"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("all 6 primitives match"), "{stdout}");
+}
+
+#[test]
+fn bench_primitives_writes_json_with_every_primitive() {
+    let dir = std::env::temp_dir().join(format!("latentam-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("primitives.json");
+    let out = latentam()
+        .args(["bench", "primitives", "--quick", "--runs", "5", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(v["device"].as_str().is_some_and(|d| !d.is_empty()));
+    assert!(v["memory_bandwidth_gbps"].as_f64().unwrap() > 0.0);
+    assert!(v["gemm_gflops"].as_f64().unwrap() > 0.0);
+    let names: Vec<&str> = v["primitives"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect();
+    for want in [
+        "copy",
+        "fma_peak",
+        "scan_u32",
+        "reduce_sum_f32",
+        "radix_sort_kv",
+        "gemm_nn",
+        "gemm_tn",
+        "gemm_nt",
+        "softmax",
+    ] {
+        assert!(names.contains(&want), "{want} missing from {names:?}");
+    }
+    for r in v["primitives"].as_array().unwrap() {
+        let ms = r["gpu_ms_median"].as_f64().unwrap();
+        assert!(ms > 0.0 && ms.is_finite(), "{r}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bench_rejects_fewer_than_five_runs() {
+    let out = latentam()
+        .args(["bench", "primitives", "--runs", "2"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
+
+#[test]
+fn unknown_device_is_a_clear_error() {
+    let out = latentam()
+        .arg("devices")
+        .env("LATENTAM_DEVICE", "no-such-gpu")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("matches no device"), "{err}");
+}
