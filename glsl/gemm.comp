@@ -11,10 +11,10 @@
 // @kernel gemm_nt TRANS_A=0 TRANS_B=1
 #version 450
 
+#define T 16
 #define TILE 64
 #define DEPTH 16
-#define T 16
-#define R 4
+#define LOADS (TILE * DEPTH / (T * T))
 
 layout(local_size_x = T, local_size_y = T) in;
 
@@ -63,6 +63,26 @@ float load_b(uint kk, uint col) {
 #endif
 }
 
+void store(uint row, uint col, float acc) {
+    if (row >= pc.m || col >= pc.n) {
+        return;
+    }
+    uint idx = row * pc.ldc + col;
+    float v = pc.alpha * acc;
+    if (pc.beta != 0.0) {
+        v += pc.beta * c[idx];
+    }
+    c[idx] = v;
+}
+
+// Row `row` of this thread's 4x4 block: columns col, col+T, col+2T, col+3T.
+void store_row(uint row, uint col, vec4 v) {
+    store(row, col, v.x);
+    store(row, col + T, v.y);
+    store(row, col + 2u * T, v.z);
+    store(row, col + 3u * T, v.w);
+}
+
 void main() {
     uint tx = gl_LocalInvocationID.x;
     uint ty = gl_LocalInvocationID.y;
@@ -70,14 +90,16 @@ void main() {
     uint row0 = gl_WorkGroupID.y * TILE;
     uint col0 = gl_WorkGroupID.x * TILE;
 
-    float acc[R * R];
-    for (uint i = 0u; i < R * R; i++) {
-        acc[i] = 0.0;
-    }
+    // 4x4 accumulators as four vec4 rows, named rather than indexed: private
+    // arrays with loop indices stay in memory on some drivers (lavapipe).
+    vec4 c0 = vec4(0.0);
+    vec4 c1 = vec4(0.0);
+    vec4 c2 = vec4(0.0);
+    vec4 c3 = vec4(0.0);
 
     for (uint k0 = 0u; k0 < pc.k; k0 += DEPTH) {
-        // 64x16 elements of each operand, 4 per thread.
-        for (uint l = 0u; l < 4u; l++) {
+        // TILE x DEPTH elements of each operand, LOADS per thread.
+        for (uint l = 0u; l < LOADS; l++) {
             uint e = l * (T * T) + tid;
 #if TRANS_A == 0
             uint ar = e / DEPTH;
@@ -98,37 +120,19 @@ void main() {
         }
         barrier();
         for (uint kk = 0u; kk < DEPTH; kk++) {
-            float ar[R];
-            float br[R];
-            for (uint i = 0u; i < R; i++) {
-                ar[i] = as_[kk * LDS + ty + i * T];
-                br[i] = bs[kk * LDS + tx + i * T];
-            }
-            for (uint i = 0u; i < R; i++) {
-                for (uint j = 0u; j < R; j++) {
-                    acc[i * R + j] += ar[i] * br[j];
-                }
-            }
+            uint ao = kk * LDS + ty;
+            uint bo = kk * LDS + tx;
+            vec4 bv = vec4(bs[bo], bs[bo + T], bs[bo + 2u * T], bs[bo + 3u * T]);
+            c0 += as_[ao] * bv;
+            c1 += as_[ao + T] * bv;
+            c2 += as_[ao + 2u * T] * bv;
+            c3 += as_[ao + 3u * T] * bv;
         }
         barrier();
     }
 
-    for (uint i = 0u; i < R; i++) {
-        uint row = row0 + ty + i * T;
-        if (row >= pc.m) {
-            continue;
-        }
-        for (uint j = 0u; j < R; j++) {
-            uint col = col0 + tx + j * T;
-            if (col >= pc.n) {
-                continue;
-            }
-            uint idx = row * pc.ldc + col;
-            float v = pc.alpha * acc[i * R + j];
-            if (pc.beta != 0.0) {
-                v += pc.beta * c[idx];
-            }
-            c[idx] = v;
-        }
-    }
+    store_row(row0 + ty, col0 + tx, c0);
+    store_row(row0 + ty + T, col0 + tx, c1);
+    store_row(row0 + ty + 2u * T, col0 + tx, c2);
+    store_row(row0 + ty + 3u * T, col0 + tx, c3);
 }
