@@ -189,6 +189,14 @@ impl Device {
         f
     }
 
+    /// The transfer queue when asked for and present, else the compute queue.
+    pub fn queue(&self, transfer: bool) -> &Queue {
+        match (&self.transfer, transfer) {
+            (Some(t), true) => t,
+            _ => &self.compute,
+        }
+    }
+
     /// Current completed values of (compute, transfer) timelines.
     pub fn completed(&self) -> (u64, u64) {
         // SAFETY: the semaphores live as long as `self`.

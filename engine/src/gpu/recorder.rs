@@ -608,11 +608,7 @@ impl<'a> Recorder<'a> {
     }
 
     fn queue(&self) -> &Queue {
-        if self.transfer {
-            self.dev.transfer.as_ref().unwrap_or(&self.dev.compute)
-        } else {
-            &self.dev.compute
-        }
+        self.dev.queue(self.transfer)
     }
 
     /// Ends recording and submits. The returned [`Submission`] can be waited
@@ -644,15 +640,7 @@ impl<'a> Recorder<'a> {
         let mut wait_sems = Vec::new();
         let mut wait_values = Vec::new();
         for w in &self.waits {
-            let sem = if w.transfer {
-                dev.transfer
-                    .as_ref()
-                    .map(|t| t.timeline)
-                    .unwrap_or(dev.compute.timeline)
-            } else {
-                dev.compute.timeline
-            };
-            wait_sems.push(sem);
+            wait_sems.push(dev.queue(w.transfer).timeline);
             wait_values.push(w.value);
         }
         let wait_stages = vec![vk::PipelineStageFlags::ALL_COMMANDS; wait_sems.len()];
@@ -728,16 +716,7 @@ impl Submission {
     /// Blocks until the GPU has finished, then hands the batch's timestamps
     /// to the profiler.
     pub fn wait(mut self) -> Result<()> {
-        let sem = if self.point.transfer {
-            self.dev
-                .transfer
-                .as_ref()
-                .map(|t| t.timeline)
-                .unwrap_or(self.dev.compute.timeline)
-        } else {
-            self.dev.compute.timeline
-        };
-        let sems = [sem];
+        let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
         // SAFETY: waiting on our own timeline semaphore.
         unsafe {
