@@ -163,7 +163,8 @@ pub(crate) struct Queue {
 /// The device and everything tied to its lifetime. Held by `Arc` in every GPU
 /// object, so it is destroyed last.
 pub(crate) struct Device {
-    pub entry: ash::Entry,
+    /// Keeps the Vulkan loader loaded until the instance is destroyed.
+    _entry: ash::Entry,
     pub instance: ash::Instance,
     pub debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     pub validation_log: Arc<ValidationLog>,
@@ -270,7 +271,6 @@ impl Drop for Device {
             }
             self.instance.destroy_instance(None);
         }
-        let _ = &self.entry;
     }
 }
 
@@ -702,7 +702,7 @@ fn open_device(
     let profiler = (options.profiling && timestamp_period_ns.is_some())
         .then(|| Mutex::new(Profiler::default()));
     Ok(Device {
-        entry,
+        _entry: entry,
         instance,
         debug,
         validation_log,

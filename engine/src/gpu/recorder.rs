@@ -460,13 +460,9 @@ impl<'a> Recorder<'a> {
     ) -> Result<()> {
         let max_x = self.dev.info.max_workgroup_count[0].min(65535);
         let x = groups.min(max_x);
-        let y = if x == 0 { 0 } else { groups.div_ceil(x) };
-        self.dispatch(
-            kernel,
-            [x, y.max(if x == 0 { 0 } else { 1 }), 1],
-            buffers,
-            push,
-        )
+        // `dispatch` records nothing for zero groups.
+        let y = groups.div_ceil(x.max(1));
+        self.dispatch(kernel, [x, y, 1], buffers, push)
     }
 
     fn copy_raw(&mut self, src: vk::Buffer, dst: vk::Buffer, region: vk::BufferCopy) {
