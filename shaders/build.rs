@@ -8,9 +8,11 @@
 //!   point becomes one kernel, named after the entry point.
 //!
 //! Directives, written as comments anywhere in a kernel file:
-//! * `// @kernel NAME KEY=VALUE ...` declares one variant of a GLSL file,
-//!   compiled with those defines (a file without the directive is one kernel
-//!   named after its stem);
+//! * `// @kernel NAME KEY=VALUE ...` declares one variant of a file: GLSL
+//!   gets those `#define`s (a file without the directive is one kernel named
+//!   after its stem); WGSL, which has no preprocessor, selects lines with
+//!   `#if KEY` / `#else` / `#endif` handled here (a WGSL file with variants
+//!   has one entry point, renamed after each variant);
 //! * `// @capabilities NAME ...` lists the naga validator capabilities the
 //!   kernel needs beyond push constants (e.g. `SHADER_FLOAT32_ATOMIC`,
 //!   `SUBGROUP`); nothing else is enabled.
@@ -205,22 +207,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     let file = rel(path);
     let raw = std::fs::read_to_string(path).map_err(|e| format!("{file}: {e}"))?;
     let caps = capabilities(&raw, &file)?;
-    let mut variants: Vec<(String, Vec<(String, String)>)> = Vec::new();
-    for d in directives(&raw, "kernel") {
-        let mut parts = d.split_whitespace();
-        let name = parts
-            .next()
-            .ok_or_else(|| format!("{file}: `@kernel` needs a name"))?
-            .to_string();
-        let mut defs = Vec::new();
-        for p in parts {
-            let (k, v) = p
-                .split_once('=')
-                .ok_or_else(|| format!("{file}: `@kernel {name}`: `{p}` is not KEY=VALUE"))?;
-            defs.push((k.to_string(), v.to_string()));
-        }
-        variants.push((name, defs));
-    }
+    let mut variants = variants(&raw, &file)?;
     if variants.is_empty() {
         let stem = path.file_stem().unwrap().to_string_lossy().to_string();
         variants.push((stem, Vec::new()));
@@ -271,44 +258,140 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     Ok(out)
 }
 
+/// `KEY=VALUE` definitions of one variant.
+type Defines = Vec<(String, String)>;
+
+/// `@kernel` directives of a file: (variant name, definitions).
+fn variants(raw: &str, file: &str) -> Result<Vec<(String, Defines)>, String> {
+    let mut out = Vec::new();
+    for d in directives(raw, "kernel") {
+        let mut parts = d.split_whitespace();
+        let name = parts
+            .next()
+            .ok_or_else(|| format!("{file}: `@kernel` needs a name"))?
+            .to_string();
+        let mut defs = Vec::new();
+        for p in parts {
+            let (k, v) = p
+                .split_once('=')
+                .ok_or_else(|| format!("{file}: `@kernel {name}`: `{p}` is not KEY=VALUE"))?;
+            defs.push((k.to_string(), v.to_string()));
+        }
+        out.push((name, defs));
+    }
+    Ok(out)
+}
+
+/// WGSL has no preprocessor; variants select code with whole-line
+/// `#if KEY` / `#else` / `#endif` (KEY is true when defined and not `0`).
+/// Removed lines become empty so error positions stay those of the file.
+fn preprocess_wgsl(text: &str, defs: &[(String, String)], file: &str) -> Result<String, String> {
+    let truthy = |key: &str| defs.iter().any(|(k, v)| k == key && v != "0");
+    // Stack of (this branch active, some branch of this #if was taken).
+    let mut stack: Vec<(bool, bool)> = Vec::new();
+    let mut out = String::with_capacity(text.len());
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        let outer = stack.iter().all(|(a, _)| *a);
+        if let Some(key) = t.strip_prefix("#if ") {
+            let on = truthy(key.trim());
+            stack.push((on, on));
+        } else if t == "#else" {
+            let top = stack
+                .last_mut()
+                .ok_or_else(|| format!("{file}:{}: `#else` without `#if`", i + 1))?;
+            *top = (!top.1, true);
+        } else if t == "#endif" {
+            stack
+                .pop()
+                .ok_or_else(|| format!("{file}:{}: `#endif` without `#if`", i + 1))?;
+        } else if t.starts_with('#') {
+            return Err(format!(
+                "{file}:{}: unknown directive `{t}` (WGSL kernels support #if/#else/#endif)",
+                i + 1
+            ));
+        } else if outer {
+            out.push_str(line);
+        }
+        out.push('\n');
+    }
+    if !stack.is_empty() {
+        return Err(format!("{file}: `#if` without `#endif`"));
+    }
+    Ok(out)
+}
+
 fn compile_wgsl_file(path: &Path) -> Result<Vec<KernelOut>, String> {
     let file = rel(path);
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{file}: {e}"))?;
-    let caps = capabilities(&text, &file)?;
+    let raw = std::fs::read_to_string(path).map_err(|e| format!("{file}: {e}"))?;
+    let caps = capabilities(&raw, &file)?;
     let map = LineMap {
-        lines: (1..=text.lines().count() as u32)
+        lines: (1..=raw.lines().count() as u32)
             .map(|l| (PathBuf::from(&file), l))
             .collect(),
     };
-    let module = naga::front::wgsl::parse_str(&text).map_err(|e| {
-        let at = e
-            .location(&text)
-            .map(|l| map.describe(l.line_number))
-            .unwrap_or_else(|| file.clone());
-        format!("{at}: {}", e.emit_to_string(&text))
-    })?;
+    let declared = variants(&raw, &file)?;
+    let runs: Vec<(Option<String>, Defines)> = if declared.is_empty() {
+        vec![(None, Vec::new())]
+    } else {
+        declared.into_iter().map(|(n, d)| (Some(n), d)).collect()
+    };
     let mut out = Vec::new();
-    let entry_names: Vec<String> = module
-        .entry_points
-        .iter()
-        .filter(|e| e.stage == naga::ShaderStage::Compute)
-        .map(|e| e.name.clone())
-        .collect();
-    if entry_names.is_empty() {
-        return Err(format!("{file}: no @compute entry point"));
-    }
-    for ep in entry_names {
-        let what = format!("{file} (entry point `{ep}`)");
-        out.push(finish(
-            module.clone(),
-            &text,
-            &map,
-            caps,
-            &ep.clone(),
-            ep,
-            &what,
-            file.clone(),
-        )?);
+    for (variant, defs) in runs {
+        let text = preprocess_wgsl(&raw, &defs, &file)?;
+        let mut module = naga::front::wgsl::parse_str(&text).map_err(|e| {
+            let at = e
+                .location(&text)
+                .map(|l| map.describe(l.line_number))
+                .unwrap_or_else(|| file.clone());
+            let v = variant.as_deref().unwrap_or("");
+            format!("{at} {v}: {}", e.emit_to_string(&text))
+        })?;
+        let entry_names: Vec<String> = module
+            .entry_points
+            .iter()
+            .filter(|e| e.stage == naga::ShaderStage::Compute)
+            .map(|e| e.name.clone())
+            .collect();
+        if entry_names.is_empty() {
+            return Err(format!("{file}: no @compute entry point"));
+        }
+        if let Some(v) = &variant {
+            // A variant is one kernel: its entry point takes the variant's
+            // name, which is also what the SPIR-V exports.
+            if entry_names.len() != 1 {
+                return Err(format!(
+                    "{file}: `@kernel` variants need exactly one entry point, found {}",
+                    entry_names.len()
+                ));
+            }
+            module.entry_points[0].name = v.clone();
+            let what = format!("{file} (kernel `{v}`)");
+            out.push(finish(
+                module,
+                &text,
+                &map,
+                caps,
+                v,
+                v.clone(),
+                &what,
+                file.clone(),
+            )?);
+            continue;
+        }
+        for ep in entry_names {
+            let what = format!("{file} (entry point `{ep}`)");
+            out.push(finish(
+                module.clone(),
+                &text,
+                &map,
+                caps,
+                &ep.clone(),
+                ep,
+                &what,
+                file.clone(),
+            )?);
+        }
     }
     Ok(out)
 }

@@ -11,6 +11,7 @@
 //!   profiler;
 //! * [`ops`]: GPU primitives built on it (prefix scan, reduction, GEMM, row
 //!   softmax, radix sort, float scatter-add);
+//! * [`splat`]: Gaussian storage and the differentiable rasterizer;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
@@ -34,6 +35,7 @@ mod error;
 pub mod gpu;
 pub mod ops;
 pub mod reference;
+pub mod splat;
 
 pub use error::{Error, Result};
 /// The compiled kernel table (see the `latentam-shaders` crate).

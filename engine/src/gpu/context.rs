@@ -41,7 +41,8 @@ pub enum FloatAtomics {
 /// Options for [`Context::new`]. `Default` reads the environment:
 /// `LATENTAM_DEVICE` (index or case-insensitive name substring),
 /// `LATENTAM_VALIDATION=1` (require the validation layer),
-/// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback).
+/// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
+/// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic).
 #[derive(Clone, Debug)]
 pub struct ContextOptions {
     /// Device to use: an index into the enumeration or a name substring;
@@ -55,6 +56,9 @@ pub struct ContextOptions {
     pub float_atomics: FloatAtomics,
     /// GPU memory budget in bytes for this context (`None` = device limits).
     pub memory_budget: Option<u64>,
+    /// Use subgroup arithmetic (`subgroupAdd`) where the device supports it
+    /// in compute shaders; `false` selects kernels that do without.
+    pub subgroup_arithmetic: bool,
 }
 
 impl Default for ContextOptions {
@@ -73,6 +77,7 @@ impl Default for ContextOptions {
                 _ => FloatAtomics::Auto,
             },
             memory_budget: None,
+            subgroup_arithmetic: env("LATENTAM_SUBGROUPS").as_deref() != Some("off"),
         }
     }
 }
@@ -90,6 +95,9 @@ pub struct DeviceInfo {
     pub native_float_atomics: bool,
     /// Subgroup size of compute kernels.
     pub subgroup_size: u32,
+    /// Whether kernels use subgroup arithmetic (supported in compute and
+    /// allowed by [`ContextOptions::subgroup_arithmetic`]).
+    pub subgroup_arithmetic: bool,
     /// Nanoseconds per timestamp tick; `None` when the compute queue has no
     /// timestamps.
     pub timestamp_period_ns: Option<f64>,
@@ -693,6 +701,15 @@ fn open_device(
         api_version: c.props.api_version,
         native_float_atomics,
         subgroup_size: subgroup.subgroup_size,
+        subgroup_arithmetic: options.subgroup_arithmetic
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup.supported_operations.contains(
+                vk::SubgroupFeatureFlags::BASIC
+                    | vk::SubgroupFeatureFlags::VOTE
+                    | vk::SubgroupFeatureFlags::ARITHMETIC,
+            ),
         timestamp_period_ns,
         max_storage_buffer_range: limits.max_storage_buffer_range as u64,
         max_workgroup_count: limits.max_compute_work_group_count,

@@ -4,6 +4,7 @@
 
 pub mod atomic;
 pub mod gemm;
+pub mod raster;
 pub mod reduce;
 pub mod scan;
 pub mod softmax;

@@ -1,0 +1,197 @@
+//! Gaussian parameters, on the host and on the GPU, in the same
+//! structure-of-arrays layout.
+
+use crate::error::{Error, Result};
+use crate::gpu::{Buffer, Context, Recorder};
+
+/// Channels of a Gaussian's latent query vector.
+pub const QUERY_DIM: usize = 32;
+
+/// Gaussians on the host, one entry per Gaussian in every field.
+///
+/// Parameters are stored as the optimiser sees them: the scale as its log,
+/// the rotation as an unnormalised quaternion `(w, x, y, z)`, the opacity as
+/// a logit (opacity = sigmoid(logit)), the colour as view-independent linear
+/// RGB.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct HostGaussians {
+    /// Centres, world frame, metres.
+    pub means: Vec<[f32; 3]>,
+    /// Natural log of the per-axis standard deviations.
+    pub log_scales: Vec<[f32; 3]>,
+    /// Rotation quaternions `(w, x, y, z)`, normalised where used.
+    pub quats: Vec<[f32; 4]>,
+    /// RGB colour.
+    pub colors: Vec<[f32; 3]>,
+    /// Opacity logits.
+    pub opacity_logits: Vec<f32>,
+    /// Latent query vectors.
+    pub queries: Vec<[f32; QUERY_DIM]>,
+}
+
+impl HostGaussians {
+    /// `n` Gaussians with every parameter zero.
+    pub fn zeros(n: usize) -> Self {
+        Self {
+            means: vec![[0.0; 3]; n],
+            log_scales: vec![[0.0; 3]; n],
+            quats: vec![[0.0; 4]; n],
+            colors: vec![[0.0; 3]; n],
+            opacity_logits: vec![0.0; n],
+            queries: vec![[0.0; QUERY_DIM]; n],
+        }
+    }
+
+    /// Number of Gaussians; errors if the fields disagree.
+    pub fn len(&self) -> Result<usize> {
+        let n = self.means.len();
+        let lens = [
+            self.log_scales.len(),
+            self.quats.len(),
+            self.colors.len(),
+            self.opacity_logits.len(),
+            self.queries.len(),
+        ];
+        if lens.iter().any(|&l| l != n) {
+            return Err(Error::InvalidArgument(format!(
+                "Gaussian fields have different lengths: means {n}, log_scales {}, quats {}, \
+                 colors {}, opacity_logits {}, queries {}",
+                lens[0], lens[1], lens[2], lens[3], lens[4]
+            )));
+        }
+        Ok(n)
+    }
+
+    /// Whether there are no Gaussians.
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+}
+
+/// The fields of [`HostGaussians`] as GPU buffers, for a fixed capacity.
+/// Used both for parameters and for their gradients.
+pub struct GaussianBuffers {
+    capacity: u64,
+    /// 3 floats per Gaussian.
+    pub means: Buffer,
+    /// 3 floats per Gaussian.
+    pub log_scales: Buffer,
+    /// 4 floats per Gaussian.
+    pub quats: Buffer,
+    /// 3 floats per Gaussian.
+    pub colors: Buffer,
+    /// 1 float per Gaussian.
+    pub opacity_logits: Buffer,
+    /// [`QUERY_DIM`] floats per Gaussian.
+    pub queries: Buffer,
+}
+
+/// Floats per Gaussian in each field, in field order.
+const WIDTHS: [u64; 6] = [3, 3, 4, 3, 1, QUERY_DIM as u64];
+
+/// Bytes of GPU memory one Gaussian's parameters take.
+pub const GAUSSIAN_BYTES: u64 = (3 + 3 + 4 + 3 + 1 + QUERY_DIM as u64) * 4;
+
+impl GaussianBuffers {
+    /// Allocates room for `capacity` Gaussians; buffer names are
+    /// `{prefix}/means` etc. (the prefix is the memory-report category).
+    pub fn new(ctx: &Context, prefix: &str, capacity: u64) -> Result<Self> {
+        let c = capacity.max(1);
+        let mk = |field: &str, w: u64| Buffer::device(ctx, &format!("{prefix}/{field}"), c * w * 4);
+        Ok(Self {
+            capacity,
+            means: mk("means", 3)?,
+            log_scales: mk("log_scales", 3)?,
+            quats: mk("quats", 4)?,
+            colors: mk("colors", 3)?,
+            opacity_logits: mk("opacity_logits", 1)?,
+            queries: mk("queries", QUERY_DIM as u64)?,
+        })
+    }
+
+    /// How many Gaussians fit.
+    pub fn capacity(&self) -> u64 {
+        self.capacity
+    }
+
+    /// The six buffers, in field order.
+    pub fn fields(&self) -> [&Buffer; 6] {
+        [
+            &self.means,
+            &self.log_scales,
+            &self.quats,
+            &self.colors,
+            &self.opacity_logits,
+            &self.queries,
+        ]
+    }
+
+    /// Records zeroing every field.
+    pub fn record_zero<'a>(&'a self, rec: &mut Recorder<'a>) {
+        for b in self.fields() {
+            rec.fill_u32(b, 0);
+        }
+    }
+
+    /// Records a fill of every field with the bit pattern `bits` (tests
+    /// poison outputs this way).
+    pub fn record_fill<'a>(&'a self, rec: &mut Recorder<'a>, bits: u32) {
+        for b in self.fields() {
+            rec.fill_u32(b, bits);
+        }
+    }
+
+    /// Uploads `host` to slots `first..first + host.len()` and waits.
+    pub fn upload(&self, ctx: &Context, first: u64, host: &HostGaussians) -> Result<()> {
+        let n = host.len()? as u64;
+        if first + n > self.capacity {
+            return Err(Error::InvalidArgument(format!(
+                "uploading {n} Gaussians at slot {first} exceeds the capacity {}",
+                self.capacity
+            )));
+        }
+        let mut rec = ctx.recorder()?;
+        let data: [&[f32]; 6] = [
+            bytemuck::cast_slice(&host.means),
+            bytemuck::cast_slice(&host.log_scales),
+            bytemuck::cast_slice(&host.quats),
+            bytemuck::cast_slice(&host.colors),
+            &host.opacity_logits,
+            bytemuck::cast_slice(&host.queries),
+        ];
+        for ((buf, w), d) in self.fields().into_iter().zip(WIDTHS).zip(data) {
+            if !d.is_empty() {
+                rec.upload(buf, first * w * 4, d)?;
+            }
+        }
+        rec.submit()?.wait()
+    }
+
+    /// Downloads slots `0..count` and waits.
+    pub fn download(&self, ctx: &Context, count: u64) -> Result<HostGaussians> {
+        if count > self.capacity {
+            return Err(Error::InvalidArgument(format!(
+                "downloading {count} Gaussians from buffers of capacity {}",
+                self.capacity
+            )));
+        }
+        if count == 0 {
+            return Ok(HostGaussians::default());
+        }
+        let mut rec = ctx.recorder()?;
+        let mut reads = Vec::new();
+        for (buf, w) in self.fields().into_iter().zip(WIDTHS) {
+            reads.push(rec.download(buf, 0, count * w * 4)?);
+        }
+        rec.submit()?.wait()?;
+        let f = |i: usize| reads[i].read::<f32>();
+        Ok(HostGaussians {
+            means: bytemuck::cast_slice(&f(0)?).to_vec(),
+            log_scales: bytemuck::cast_slice(&f(1)?).to_vec(),
+            quats: bytemuck::cast_slice(&f(2)?).to_vec(),
+            colors: bytemuck::cast_slice(&f(3)?).to_vec(),
+            opacity_logits: f(4)?,
+            queries: bytemuck::cast_slice(&f(5)?).to_vec(),
+        })
+    }
+}

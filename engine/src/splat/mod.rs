@@ -1,0 +1,24 @@
+//! Gaussian splatting on the GPU: parameter storage, cameras, and the
+//! differentiable rasterizer (forward and backward).
+//!
+//! Where things are: kernels `glsl/project_forward.comp`,
+//! `glsl/tile_bins.comp`, `glsl/raster_forward.comp`,
+//! `shaders/wgsl/raster_backward.wgsl`, `glsl/project_backward.comp` (shared
+//! GLSL in `glsl/splat.glsl`); the f64 CPU reference, which also states the
+//! math, in [`crate::reference::raster`].
+
+mod camera;
+mod gaussians;
+mod rasterizer;
+mod views;
+
+#[cfg(test)]
+mod tests;
+
+pub use camera::Camera;
+pub use gaussians::{GaussianBuffers, HostGaussians, GAUSSIAN_BYTES, QUERY_DIM};
+pub use rasterizer::{ForwardStats, PixelBuffers, Rasterizer, RenderSettings, RenderedView};
+pub use views::{BatchLayout, ViewSlot};
+
+/// Tiles are `TILE_SIZE` × `TILE_SIZE` pixels.
+pub const TILE_SIZE: u32 = 16;

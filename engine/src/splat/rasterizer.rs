@@ -1,0 +1,606 @@
+//! The differentiable rasterizer: forward rendering of a batch of views and
+//! the backward pass to every Gaussian parameter.
+//!
+//! Forward, per batch:
+//! 1. `project_forward`: every (view, Gaussian) pair → image-space splat, tile
+//!    rectangle, tile count; the visible count and intersection total are
+//!    read back (one short wait) to size what follows;
+//! 2. `compact_visible` + radix sort by depth → visible pairs front to back;
+//! 3. `gather_counts` + scan + `emit_tiles` → one (tile, pair) entry per
+//!    covered tile, in depth order; a stable radix sort by tile id then
+//!    leaves each tile's list sorted front to back; `tile_ranges` finds it;
+//! 4. `raster_forward`: per-pixel blending.
+//!
+//! Backward: `raster_backward` (per pixel, replaying the forward walk) then
+//! `project_backward` (per Gaussian, through the projection).
+//!
+//! The math, conventions and constants are stated once, in
+//! [`crate::reference::raster`], the f64 CPU reference the tests compare
+//! against.
+
+use latentam_shaders::{
+    push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_BACKWARD, PROJECT_FORWARD,
+    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS,
+    RASTER_FORWARD, TILE_RANGES,
+};
+
+use super::views::BatchLayout;
+use super::{Camera, GaussianBuffers, QUERY_DIM};
+use crate::error::{Error, Result};
+use crate::gpu::{Buffer, Context, Recorder};
+use crate::ops::{PrefixScan, RadixSorter};
+
+/// How views are rendered and differentiated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Colour behind the Gaussians (linear RGB).
+    pub background: [f32; 3],
+    /// When set (the default), gradients of the query channels reach only the
+    /// Gaussians' queries, never their opacity or geometry, so the feature
+    /// loss cannot reshape the map (the Feature-3DGS choice).
+    pub detach_query_gradients: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            background: [0.0; 3],
+            detach_query_gradients: true,
+        }
+    }
+}
+
+/// Per-pixel buffers of a batch (all views back to back, each row-major; see
+/// [`BatchLayout`]). The forward pass writes them; the same layout carries
+/// the upstream gradients into the backward pass.
+pub struct PixelBuffers {
+    /// 4 floats per pixel: R, G, B (background included), depth Σ w·z.
+    pub rgbd: Buffer,
+    /// 1 float per pixel: accumulated alpha.
+    pub alpha: Buffer,
+    /// [`QUERY_DIM`] floats per pixel: the blended query vector.
+    pub query: Buffer,
+    pixels: u64,
+}
+
+impl PixelBuffers {
+    fn new(ctx: &Context, prefix: &str, pixels: u64) -> Result<Self> {
+        let p = pixels.max(1);
+        Ok(Self {
+            rgbd: Buffer::device(ctx, &format!("{prefix}/rgbd"), p * 16)?,
+            alpha: Buffer::device(ctx, &format!("{prefix}/alpha"), p * 4)?,
+            query: Buffer::device(ctx, &format!("{prefix}/query"), p * 4 * QUERY_DIM as u64)?,
+            pixels,
+        })
+    }
+
+    /// How many pixels the buffers hold.
+    pub fn pixels(&self) -> u64 {
+        self.pixels
+    }
+
+    /// Records a fill of all three buffers with a bit pattern.
+    pub fn record_fill<'a>(&'a self, rec: &mut Recorder<'a>, bits: u32) {
+        rec.fill_u32(&self.rgbd, bits);
+        rec.fill_u32(&self.alpha, bits);
+        rec.fill_u32(&self.query, bits);
+    }
+}
+
+/// One view's images on the host.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderedView {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Per pixel, row-major: R, G, B, depth.
+    pub rgbd: Vec<[f32; 4]>,
+    /// Per pixel: accumulated alpha.
+    pub alpha: Vec<f32>,
+    /// Per pixel: the query vector.
+    pub query: Vec<[f32; QUERY_DIM]>,
+}
+
+/// Counts from the last forward pass.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ForwardStats {
+    /// (view, Gaussian) pairs that survived culling.
+    pub visible: u64,
+    /// (tile, Gaussian) intersections blended.
+    pub intersections: u64,
+}
+
+/// A buffer that grows (by 25 % headroom) when a batch needs more.
+struct Grow {
+    name: &'static str,
+    buf: Option<Buffer>,
+}
+
+impl Grow {
+    const fn new(name: &'static str) -> Self {
+        Self { name, buf: None }
+    }
+
+    fn ensure(&mut self, ctx: &Context, bytes: u64) -> Result<()> {
+        let bytes = bytes.max(4);
+        if self.buf.as_ref().is_some_and(|b| b.bytes() >= bytes) {
+            return Ok(());
+        }
+        let limit = ctx.info().max_storage_buffer_range;
+        if bytes > limit {
+            return Err(Error::Unsupported(format!(
+                "`{}` needs {bytes} bytes, over the device's largest storage buffer ({limit}); \
+                 render fewer views or Gaussians per batch",
+                self.name
+            )));
+        }
+        self.buf = None;
+        let padded = (bytes + bytes / 4).min(limit).div_ceil(4) * 4;
+        self.buf = Some(Buffer::device(ctx, self.name, padded)?);
+        Ok(())
+    }
+
+    fn get(&self) -> &Buffer {
+        self.buf
+            .as_ref()
+            .expect("buffer sized by `ensure` before recording")
+    }
+}
+
+/// Renders batches of views of a set of Gaussians and back-propagates
+/// image-space gradients to them.
+///
+/// ```
+/// use latentam::gpu::Context;
+/// use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer};
+/// let ctx = Context::new(Default::default())?;
+/// let mut g = HostGaussians::zeros(1);
+/// g.quats[0] = [1.0, 0.0, 0.0, 0.0];
+/// g.log_scales[0] = [-2.0; 3];
+/// g.colors[0] = [1.0, 0.5, 0.0];
+/// g.opacity_logits[0] = 2.0;
+/// let gpu = GaussianBuffers::new(&ctx, "example", 1)?;
+/// gpu.upload(&ctx, 0, &g)?;
+/// let cam = Camera::looking_at(
+///     glam::DVec3::new(0.0, 0.0, -2.0), glam::DVec3::ZERO, glam::DVec3::NEG_Y, 32, 24, 40.0);
+/// let mut raster = Rasterizer::new(&ctx);
+/// let stats = raster.forward(&gpu, 1, &[cam])?;
+/// assert_eq!(stats.visible, 1);
+/// let img = raster.download_view(0)?;
+/// let centre = img.rgbd[(12 * 32 + 16) as usize];
+/// assert!(centre[0] > 0.5 && (centre[3] - 2.0 * img.alpha[12 * 32 + 16]).abs() < 1e-3);
+/// # Ok::<(), latentam::Error>(())
+/// ```
+pub struct Rasterizer {
+    ctx: Context,
+    /// Background and gradient routing; read by every forward/backward.
+    pub settings: RenderSettings,
+    layout: BatchLayout,
+    n_gaussians: u64,
+    stats: ForwardStats,
+    views: Grow,
+    splats: Grow,
+    rects: Grow,
+    tile_counts: Grow,
+    positions: Grow,
+    pair_offsets: Grow,
+    depth_keys: Grow,
+    depth_order: Grow,
+    sorted_offsets: Grow,
+    isect_keys: Grow,
+    isect_pairs: Grow,
+    ranges: Grow,
+    state: Grow,
+    grad_splats: Grow,
+    images: Option<PixelBuffers>,
+    image_grads: Option<PixelBuffers>,
+    scan: Option<PrefixScan>,
+    sorter: Option<RadixSorter>,
+}
+
+impl Rasterizer {
+    /// A rasterizer with default [`RenderSettings`]; buffers are allocated by
+    /// the first forward pass and grown as batches need.
+    pub fn new(ctx: &Context) -> Self {
+        Self {
+            ctx: ctx.clone(),
+            settings: RenderSettings::default(),
+            layout: BatchLayout::default(),
+            n_gaussians: 0,
+            stats: ForwardStats::default(),
+            views: Grow::new("raster/views"),
+            splats: Grow::new("raster/splats"),
+            rects: Grow::new("raster/rects"),
+            tile_counts: Grow::new("raster/tile_counts"),
+            positions: Grow::new("raster/positions"),
+            pair_offsets: Grow::new("raster/pair_offsets"),
+            depth_keys: Grow::new("raster/depth_keys"),
+            depth_order: Grow::new("raster/depth_order"),
+            sorted_offsets: Grow::new("raster/sorted_offsets"),
+            isect_keys: Grow::new("raster/isect_keys"),
+            isect_pairs: Grow::new("raster/isect_pairs"),
+            ranges: Grow::new("raster/ranges"),
+            state: Grow::new("raster/pixel_state"),
+            grad_splats: Grow::new("raster/grad_splats"),
+            images: None,
+            image_grads: None,
+            scan: None,
+            sorter: None,
+        }
+    }
+
+    /// Layout of the last forward batch.
+    pub fn layout(&self) -> &BatchLayout {
+        &self.layout
+    }
+
+    /// Counts of the last forward batch.
+    pub fn stats(&self) -> ForwardStats {
+        self.stats
+    }
+
+    /// The last forward pass's images.
+    pub fn images(&self) -> Result<&PixelBuffers> {
+        self.images.as_ref().ok_or_else(no_forward)
+    }
+
+    /// Buffers for ∂L/∂(images) of the last batch, laid out like
+    /// [`Rasterizer::images`]; fill them before the backward pass. Their
+    /// contents are undefined after a forward pass.
+    pub fn image_grads(&self) -> Result<&PixelBuffers> {
+        self.image_grads.as_ref().ok_or_else(no_forward)
+    }
+
+    fn ensure_scan(&mut self, len: u64) -> Result<()> {
+        if self.scan.as_ref().is_none_or(|s| s.max_len() < len) {
+            self.scan = None;
+            self.scan = Some(PrefixScan::new(&self.ctx, len + len / 4)?);
+        }
+        Ok(())
+    }
+
+    fn ensure_sorter(&mut self, len: u64) -> Result<()> {
+        if self.sorter.as_ref().is_none_or(|s| s.max_len() < len) {
+            self.sorter = None;
+            self.sorter = Some(RadixSorter::new(&self.ctx, len + len / 4)?);
+        }
+        Ok(())
+    }
+
+    fn ensure_pixels(&mut self, pixels: u64) -> Result<()> {
+        if self.images.as_ref().is_none_or(|b| b.pixels < pixels) {
+            self.images = None;
+            self.image_grads = None;
+            self.images = Some(PixelBuffers::new(&self.ctx, "raster/images", pixels)?);
+            self.image_grads = Some(PixelBuffers::new(&self.ctx, "raster/image_grads", pixels)?);
+        }
+        Ok(())
+    }
+
+    /// Renders `cameras` from Gaussians `0..count` of `gaussians` and waits
+    /// for the result (read it with [`Rasterizer::images`] or
+    /// [`Rasterizer::download_view`]).
+    pub fn forward(
+        &mut self,
+        gaussians: &GaussianBuffers,
+        count: u64,
+        cameras: &[Camera],
+    ) -> Result<ForwardStats> {
+        if cameras.is_empty() {
+            return Err(Error::InvalidArgument("no views to render".into()));
+        }
+        if count > gaussians.capacity() {
+            return Err(Error::InvalidArgument(format!(
+                "rendering {count} Gaussians from buffers of capacity {}",
+                gaussians.capacity()
+            )));
+        }
+        let (layout, gpu_views) = BatchLayout::new(cameras)?;
+        let pairs = count * cameras.len() as u64;
+        let max_view_tiles = layout
+            .views
+            .iter()
+            .map(|v| (v.tiles_x * v.tiles_y) as u64)
+            .max()
+            .unwrap_or(0);
+        // Every count below is a u32 on the GPU, intersections included.
+        if pairs.saturating_mul(max_view_tiles) >= u32::MAX as u64 {
+            return Err(Error::InvalidArgument(format!(
+                "a batch of {} views x {count} Gaussians could exceed 2^32 tile intersections; \
+                 render fewer views per batch",
+                cameras.len()
+            )));
+        }
+        let ctx = self.ctx.clone();
+        self.views.ensure(&ctx, gpu_views.len() as u64 * 128)?;
+        self.splats.ensure(&ctx, pairs * 32)?;
+        self.rects.ensure(&ctx, pairs * 8)?;
+        self.tile_counts.ensure(&ctx, pairs * 4)?;
+        self.positions.ensure(&ctx, (pairs + 1) * 4)?;
+        self.pair_offsets.ensure(&ctx, (pairs + 1) * 4)?;
+        self.depth_keys.ensure(&ctx, pairs * 4)?;
+        self.depth_order.ensure(&ctx, pairs * 4)?;
+        self.sorted_offsets.ensure(&ctx, (pairs + 1) * 4)?;
+        self.ensure_scan(pairs + 1)?;
+        ctx.upload(self.views.get(), 0, &gpu_views)?;
+
+        // Phase 1: project, then count visible pairs and intersections.
+        let n_views = cameras.len() as u32;
+        let (visible, intersections) = {
+            let mut rec = ctx.recorder()?;
+            let positions = self.positions.get();
+            let pair_offsets = self.pair_offsets.get();
+            rec.fill_u32(positions, 0);
+            rec.fill_u32(pair_offsets, 0);
+            rec.dispatch_linear(
+                &PROJECT_FORWARD,
+                pairs.div_ceil(256) as u32,
+                &[
+                    self.views.get(),
+                    &gaussians.means,
+                    &gaussians.log_scales,
+                    &gaussians.quats,
+                    &gaussians.opacity_logits,
+                    self.splats.get(),
+                    self.rects.get(),
+                    self.tile_counts.get(),
+                    positions,
+                ],
+                &push::ProjectForward {
+                    n_gaussians: count as u32,
+                    n_views,
+                },
+            )?;
+            rec.copy(self.tile_counts.get(), 0, pair_offsets, 0, pairs * 4)?;
+            let scan = self.scan.as_ref().expect("scan sized above");
+            scan.record(&mut rec, positions, pairs + 1)?;
+            scan.record(&mut rec, pair_offsets, pairs + 1)?;
+            let vis = rec.download(positions, pairs * 4, 4)?;
+            let isect = rec.download(pair_offsets, pairs * 4, 4)?;
+            rec.submit()?.wait()?;
+            (vis.read::<u32>()?[0] as u64, isect.read::<u32>()?[0] as u64)
+        };
+
+        // Phase 2: sort, bin and blend.
+        self.isect_keys.ensure(&ctx, intersections * 4)?;
+        self.isect_pairs.ensure(&ctx, intersections * 4)?;
+        self.ranges.ensure(&ctx, layout.tiles as u64 * 8)?;
+        self.state.ensure(&ctx, layout.pixels * 8)?;
+        self.grad_splats.ensure(&ctx, pairs * 32)?;
+        self.ensure_pixels(layout.pixels)?;
+        self.ensure_sorter(visible.max(intersections))?;
+        {
+            let mut rec = ctx.recorder()?;
+            let scan = self.scan.as_ref().expect("scan sized above");
+            let sorter = self.sorter.as_ref().expect("sorter sized above");
+            let images = self.images.as_ref().expect("images sized above");
+            let bins = |n: u64| push::CompactVisible {
+                n: n as u32,
+                n_gaussians: count as u32,
+                n_views,
+            };
+            rec.dispatch_linear(
+                &COMPACT_VISIBLE,
+                pairs.div_ceil(256) as u32,
+                &[
+                    self.splats.get(),
+                    self.tile_counts.get(),
+                    self.positions.get(),
+                    self.depth_keys.get(),
+                    self.depth_order.get(),
+                ],
+                &bins(pairs),
+            )?;
+            sorter.record(
+                &mut rec,
+                self.depth_keys.get(),
+                self.depth_order.get(),
+                visible,
+                32,
+            )?;
+            rec.dispatch_linear(
+                &GATHER_COUNTS,
+                visible.div_ceil(256) as u32,
+                &[
+                    self.tile_counts.get(),
+                    self.depth_order.get(),
+                    self.sorted_offsets.get(),
+                ],
+                bytemuck::cast_ref(&bins(visible)),
+            )?;
+            scan.record(&mut rec, self.sorted_offsets.get(), visible)?;
+            rec.dispatch_linear(
+                &EMIT_TILES,
+                visible.div_ceil(256) as u32,
+                &[
+                    self.views.get(),
+                    self.rects.get(),
+                    self.depth_order.get(),
+                    self.sorted_offsets.get(),
+                    self.isect_keys.get(),
+                    self.isect_pairs.get(),
+                ],
+                bytemuck::cast_ref(&bins(visible)),
+            )?;
+            let tile_bits = (32 - layout.tiles.saturating_sub(1).leading_zeros()).max(1);
+            sorter.record(
+                &mut rec,
+                self.isect_keys.get(),
+                self.isect_pairs.get(),
+                intersections,
+                tile_bits,
+            )?;
+            rec.fill_u32(self.ranges.get(), 0);
+            rec.dispatch_linear(
+                &TILE_RANGES,
+                intersections.div_ceil(256) as u32,
+                &[self.isect_keys.get(), self.ranges.get()],
+                bytemuck::cast_ref(&bins(intersections)),
+            )?;
+            let bg = self.settings.background;
+            rec.dispatch_linear(
+                &RASTER_FORWARD,
+                layout.tiles,
+                &[
+                    self.views.get(),
+                    &gaussians.colors,
+                    &gaussians.queries,
+                    self.splats.get(),
+                    self.isect_pairs.get(),
+                    self.ranges.get(),
+                    &images.rgbd,
+                    &images.alpha,
+                    &images.query,
+                    self.state.get(),
+                ],
+                &push::RasterForward {
+                    n_gaussians: count as u32,
+                    n_views,
+                    n_tiles: layout.tiles,
+                    bg_r: bg[0],
+                    bg_g: bg[1],
+                    bg_b: bg[2],
+                },
+            )?;
+            rec.submit()?.wait()?;
+        }
+        self.layout = layout;
+        self.n_gaussians = count;
+        self.stats = ForwardStats {
+            visible,
+            intersections,
+        };
+        Ok(self.stats)
+    }
+
+    /// Records the backward pass of the last forward batch: from the upstream
+    /// gradients in [`Rasterizer::image_grads`] to `grads` (same layout as
+    /// the parameters; Gaussians `0..count` of the forward pass are
+    /// overwritten). `gaussians` must be unchanged since the forward pass.
+    pub fn record_backward<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        gaussians: &'a GaussianBuffers,
+        grads: &'a GaussianBuffers,
+    ) -> Result<()> {
+        let upstream = self.image_grads()?;
+        let images = self.images()?;
+        let count = self.n_gaussians;
+        if grads.capacity() < count || gaussians.capacity() < count {
+            return Err(Error::InvalidArgument(format!(
+                "backward over {count} Gaussians into buffers of capacity {}",
+                grads.capacity().min(gaussians.capacity())
+            )));
+        }
+        let n_views = self.layout.views.len() as u32;
+        rec.fill_u32(&grads.colors, 0);
+        rec.fill_u32(&grads.queries, 0);
+        rec.fill_u32(self.grad_splats.get(), 0);
+        let bg = self.settings.background;
+        let p = push::RasterBackward {
+            n_gaussians: count as u32,
+            n_views,
+            n_tiles: self.layout.tiles,
+            detach_query: self.settings.detach_query_gradients as u32,
+            bg_r: bg[0],
+            bg_g: bg[1],
+            bg_b: bg[2],
+        };
+        let bufs = [
+            self.views.get(),
+            &gaussians.colors,
+            &gaussians.queries,
+            self.splats.get(),
+            self.isect_pairs.get(),
+            self.ranges.get(),
+            &images.rgbd,
+            &images.query,
+            self.state.get(),
+            &upstream.rgbd,
+            &upstream.alpha,
+            &upstream.query,
+            &grads.colors,
+            &grads.queries,
+            self.grad_splats.get(),
+        ];
+        let info = rec.info();
+        let groups = self.layout.tiles;
+        match (info.subgroup_arithmetic, info.native_float_atomics) {
+            (true, true) => rec.dispatch_linear(&RASTER_BACKWARD, groups, &bufs, &p)?,
+            (true, false) => {
+                rec.dispatch_linear(&RASTER_BACKWARD_CAS, groups, &bufs, bytemuck::cast_ref(&p))?
+            }
+            (false, true) => rec.dispatch_linear(
+                &RASTER_BACKWARD_PLAIN,
+                groups,
+                &bufs,
+                bytemuck::cast_ref(&p),
+            )?,
+            (false, false) => rec.dispatch_linear(
+                &RASTER_BACKWARD_PLAIN_CAS,
+                groups,
+                &bufs,
+                bytemuck::cast_ref(&p),
+            )?,
+        }
+        rec.dispatch_linear(
+            &PROJECT_BACKWARD,
+            count.div_ceil(256) as u32,
+            &[
+                self.views.get(),
+                &gaussians.means,
+                &gaussians.log_scales,
+                &gaussians.quats,
+                &gaussians.opacity_logits,
+                self.tile_counts.get(),
+                self.grad_splats.get(),
+                &grads.means,
+                &grads.log_scales,
+                &grads.quats,
+                &grads.opacity_logits,
+            ],
+            &push::ProjectBackward {
+                n_gaussians: count as u32,
+                n_views,
+            },
+        )
+    }
+
+    /// [`Rasterizer::record_backward`], submitted and waited for.
+    pub fn backward(&self, gaussians: &GaussianBuffers, grads: &GaussianBuffers) -> Result<()> {
+        let mut rec = self.ctx.recorder()?;
+        self.record_backward(&mut rec, gaussians, grads)?;
+        rec.submit()?.wait()
+    }
+
+    /// Downloads view `index` of the last forward batch.
+    pub fn download_view(&self, index: usize) -> Result<RenderedView> {
+        let slot = *self.layout.views.get(index).ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "view {index} of a batch of {}",
+                self.layout.views.len()
+            ))
+        })?;
+        let images = self.images()?;
+        let n = slot.width as u64 * slot.height as u64;
+        let first = slot.first_pixel;
+        let q = QUERY_DIM as u64 * 4;
+        let mut rec = self.ctx.recorder()?;
+        let rgbd = rec.download(&images.rgbd, first * 16, n * 16)?;
+        let alpha = rec.download(&images.alpha, first * 4, n * 4)?;
+        let query = rec.download(&images.query, first * q, n * q)?;
+        rec.submit()?.wait()?;
+        Ok(RenderedView {
+            width: slot.width,
+            height: slot.height,
+            rgbd: bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
+            alpha: alpha.read::<f32>()?,
+            query: bytemuck::cast_slice(&query.read::<f32>()?).to_vec(),
+        })
+    }
+}
+
+fn no_forward() -> Error {
+    Error::InvalidArgument("the rasterizer has not rendered a batch yet".into())
+}

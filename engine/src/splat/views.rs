@@ -1,0 +1,112 @@
+//! A batch of cameras as the kernels see it: per-view constants, and where
+//! each view's pixels and tiles start in the batch's flat buffers.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::Camera;
+use crate::error::Result;
+use crate::reference::raster::GUARD_BAND;
+
+/// One view's constants (mirrors `View` in `glsl/splat.glsl` and
+/// `shaders/wgsl/raster_backward.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub(crate) struct GpuView {
+    rows: [[f32; 4]; 3],
+    intrinsics: [f32; 4],
+    guard: [f32; 4],
+    clip: [f32; 4],
+    size: [u32; 4],
+    offsets: [u32; 4],
+}
+
+/// Where one view's data sits in the batch buffers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ViewSlot {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Index of the view's first pixel in the batch's per-pixel buffers
+    /// (row-major within the view).
+    pub first_pixel: u64,
+    /// Index of the view's first tile in the batch's tile list.
+    pub first_tile: u32,
+    /// Tiles across.
+    pub tiles_x: u32,
+    /// Tiles down.
+    pub tiles_y: u32,
+}
+
+/// The layout of a batch of views.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BatchLayout {
+    /// One entry per view, in batch order.
+    pub views: Vec<ViewSlot>,
+    /// Pixels over all views.
+    pub pixels: u64,
+    /// Tiles over all views.
+    pub tiles: u32,
+}
+
+impl BatchLayout {
+    pub(crate) fn new(cams: &[Camera]) -> Result<(Self, Vec<GpuView>)> {
+        let mut layout = BatchLayout::default();
+        let mut gpu = Vec::with_capacity(cams.len());
+        for cam in cams {
+            cam.validate()?;
+            let (tx, ty) = cam.tiles();
+            let slot = ViewSlot {
+                width: cam.width,
+                height: cam.height,
+                first_pixel: layout.pixels,
+                first_tile: layout.tiles,
+                tiles_x: tx,
+                tiles_y: ty,
+            };
+            let view = cam.world_to_cam();
+            let (m, t) = (view.matrix3, view.translation);
+            let row = |r: usize| {
+                [
+                    m.col(0)[r] as f32,
+                    m.col(1)[r] as f32,
+                    m.col(2)[r] as f32,
+                    t[r] as f32,
+                ]
+            };
+            let tan_x = 0.5 * cam.width as f64 / cam.fx;
+            let tan_y = 0.5 * cam.height as f64 / cam.fy;
+            gpu.push(GpuView {
+                rows: [row(0), row(1), row(2)],
+                intrinsics: [cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32],
+                guard: [
+                    (-(cam.cx / cam.fx + GUARD_BAND * tan_x)) as f32,
+                    ((cam.width as f64 - cam.cx) / cam.fx + GUARD_BAND * tan_x) as f32,
+                    (-(cam.cy / cam.fy + GUARD_BAND * tan_y)) as f32,
+                    ((cam.height as f64 - cam.cy) / cam.fy + GUARD_BAND * tan_y) as f32,
+                ],
+                clip: [cam.near as f32, cam.far as f32, 0.0, 0.0],
+                size: [cam.width, cam.height, tx, ty],
+                offsets: [layout.tiles, layout.pixels as u32, 0, 0],
+            });
+            layout.pixels += cam.pixels();
+            layout.tiles = layout
+                .tiles
+                .checked_add(tx * ty)
+                .filter(|&t| t < 1 << 24)
+                .ok_or_else(|| {
+                    crate::Error::InvalidArgument(
+                        "the batch has too many tiles (more than 2^24 16x16 tiles)".into(),
+                    )
+                })?;
+            if layout.pixels > u32::MAX as u64 / 8 {
+                return Err(crate::Error::InvalidArgument(format!(
+                    "the batch has too many pixels ({})",
+                    layout.pixels
+                )));
+            }
+            layout.views.push(slot);
+        }
+        Ok((layout, gpu))
+    }
+}

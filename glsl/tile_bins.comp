@@ -1,0 +1,83 @@
+// Tile binning, between projection and blending (orchestrated by
+// engine/src/splat/tile_bins.rs):
+//   compact_visible:  visible pairs -> (depth key, pair) lists, in pair order
+//   gather_counts:    tile counts in depth-sorted order (for the offset scan)
+//   emit_tiles:       one (global tile, pair) intersection per covered tile,
+//                     written in depth order so a stable sort by tile keeps
+//                     every tile's list sorted front to back
+//   tile_ranges:      [start, end) of each tile's run in the sorted list
+// @kernel compact_visible STEP=0
+// @kernel gather_counts STEP=1
+// @kernel emit_tiles STEP=2
+// @kernel tile_ranges STEP=3
+#version 450
+#include "common.glsl"
+#include "splat.glsl"
+
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Params {
+    uint n;          // items this step walks (pairs, visible, or intersections)
+    uint n_gaussians;
+    uint n_views;
+} pc;
+
+#if STEP == 0
+layout(std430, set = 0, binding = 0) readonly buffer Splats { vec4 splats[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Counts { uint tile_counts[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Positions { uint positions[]; };
+layout(std430, set = 0, binding = 3) buffer Keys { uint keys[]; };
+layout(std430, set = 0, binding = 4) buffer Vals { uint vals[]; };
+#elif STEP == 1
+layout(std430, set = 0, binding = 0) readonly buffer Counts { uint tile_counts[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Order { uint order[]; };
+layout(std430, set = 0, binding = 2) buffer Sorted { uint sorted_counts[]; };
+#elif STEP == 2
+layout(std430, set = 0, binding = 0) readonly buffer Views { View views[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Rects { uvec2 rects[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Order { uint order[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Offsets { uint offsets[]; };
+layout(std430, set = 0, binding = 4) buffer Keys { uint keys[]; };
+layout(std430, set = 0, binding = 5) buffer Vals { uint vals[]; };
+#else
+layout(std430, set = 0, binding = 0) readonly buffer Keys { uint keys[]; };
+// Per global tile: (start, end); zero-filled before this step.
+layout(std430, set = 0, binding = 1) buffer Ranges { uvec2 ranges[]; };
+#endif
+
+void main() {
+    uint i = linear_group() * 256u + gl_LocalInvocationIndex;
+    if (i >= pc.n) {
+        return;
+    }
+#if STEP == 0
+    if (tile_counts[i] > 0u) {
+        // Depth is positive, so its IEEE bits sort like the value.
+        keys[positions[i]] = floatBitsToUint(splats[2u * i].z);
+        vals[positions[i]] = i;
+    }
+#elif STEP == 1
+    sorted_counts[i] = tile_counts[order[i]];
+#elif STEP == 2
+    uint pair = order[i];
+    View v = views[pair / pc.n_gaussians];
+    uvec2 r = rects[pair];
+    uint x0 = r.x & 0xffffu, y0 = r.x >> 16, x1 = r.y & 0xffffu, y1 = r.y >> 16;
+    uint out_i = offsets[i];
+    for (uint y = y0; y <= y1; y++) {
+        for (uint x = x0; x <= x1; x++) {
+            keys[out_i] = v.offsets.x + y * v.size.z + x;
+            vals[out_i] = pair;
+            out_i++;
+        }
+    }
+#else
+    uint tile = keys[i];
+    if (i == 0u || keys[i - 1u] != tile) {
+        ranges[tile].x = i;
+    }
+    if (i + 1u == pc.n || keys[i + 1u] != tile) {
+        ranges[tile].y = i + 1u;
+    }
+#endif
+}

@@ -1,0 +1,303 @@
+// Backward pass of the blending kernel (glsl/raster_forward.comp): one
+// 256-thread workgroup per tile, one thread per pixel, walking the tile's
+// depth-sorted list front to back again up to each pixel's last contributor.
+// For every (pixel, Gaussian) it forms the gradients of the Gaussian's
+// colour, query, depth, opacity, image mean and conic, and adds them into
+// per-Gaussian (colour, query) and per-(view, Gaussian) (the rest) buffers.
+// CPU reference: engine/src/reference/raster.rs (`backward`).
+//
+// WGSL because the accumulation needs float atomics (or a compare-and-swap
+// loop where the device lacks them) and, where available, subgroup sums that
+// cut the atomics by the subgroup size; naga's GLSL front end has neither.
+//
+// With C_<=i the channels accumulated up to and including Gaussian i, the
+// gradient of the blending weight alpha_i is, per channel k,
+//   v_C_k * (f_ik T_i - (C_final_k - C_<=i,k) / (1 - alpha_i))
+// plus (v_alpha_out - background . v_rgb) * T_final / (1 - alpha_i): the
+// front-to-back form, which replays the forward order exactly.
+//
+// @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
+// @kernel raster_backward SUBGROUP=1 CAS=0
+// @kernel raster_backward_cas SUBGROUP=1 CAS=1
+// @kernel raster_backward_plain SUBGROUP=0 CAS=0
+// @kernel raster_backward_plain_cas SUBGROUP=0 CAS=1
+
+const TILE_SIZE: u32 = 16u;
+const BATCH: u32 = 256u;
+const MAX_ALPHA: f32 = 0.99;
+const MIN_ALPHA: f32 = 1.0 / 255.0;
+
+// Mirrors `View` in glsl/splat.glsl.
+struct View {
+    row0: vec4<f32>,
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    intrinsics: vec4<f32>,
+    guard: vec4<f32>,
+    clip: vec4<f32>,
+    size: vec4<u32>,
+    offsets: vec4<u32>,
+}
+
+struct Params {
+    n_gaussians: u32,
+    n_views: u32,
+    n_tiles: u32,
+    // 1: the query channels' gradients do not reach opacity or geometry.
+    detach_query: u32,
+    bg_r: f32,
+    bg_g: f32,
+    bg_b: f32,
+}
+
+var<immediate> pc: Params;
+
+@group(0) @binding(0) var<storage, read> views: array<View>;
+@group(0) @binding(1) var<storage, read> colors: array<f32>;
+@group(0) @binding(2) var<storage, read> queries: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> splats: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> pairs: array<u32>;
+@group(0) @binding(5) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(6) var<storage, read> rgbd: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read> query_image: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read> state: array<vec2<u32>>;
+@group(0) @binding(9) var<storage, read> grad_rgbd: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read> grad_alpha: array<f32>;
+@group(0) @binding(11) var<storage, read> grad_query: array<vec4<f32>>;
+#if CAS
+@group(0) @binding(12) var<storage, read_write> grad_colors: array<atomic<u32>>;
+@group(0) @binding(13) var<storage, read_write> grad_queries: array<atomic<u32>>;
+// Per (view, Gaussian) pair: (mean x, mean y, depth, opacity), (conic a, b, c, -).
+@group(0) @binding(14) var<storage, read_write> grad_splats: array<atomic<u32>>;
+#else
+@group(0) @binding(12) var<storage, read_write> grad_colors: array<atomic<f32>>;
+@group(0) @binding(13) var<storage, read_write> grad_queries: array<atomic<f32>>;
+@group(0) @binding(14) var<storage, read_write> grad_splats: array<atomic<f32>>;
+#endif
+
+#if CAS
+// One CAS loop per buffer: WGSL cannot pass storage pointers to functions.
+fn add_color(i: u32, v: f32) {
+    var old = atomicLoad(&grad_colors[i]);
+    loop {
+        let r = atomicCompareExchangeWeak(&grad_colors[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+        if (r.exchanged) { break; }
+        old = r.old_value;
+    }
+}
+fn add_query(i: u32, v: f32) {
+    var old = atomicLoad(&grad_queries[i]);
+    loop {
+        let r = atomicCompareExchangeWeak(&grad_queries[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+        if (r.exchanged) { break; }
+        old = r.old_value;
+    }
+}
+fn add_splat(i: u32, v: f32) {
+    var old = atomicLoad(&grad_splats[i]);
+    loop {
+        let r = atomicCompareExchangeWeak(&grad_splats[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+        if (r.exchanged) { break; }
+        old = r.old_value;
+    }
+}
+#else
+fn add_color(i: u32, v: f32) { atomicAdd(&grad_colors[i], v); }
+fn add_query(i: u32, v: f32) { atomicAdd(&grad_queries[i], v); }
+fn add_splat(i: u32, v: f32) { atomicAdd(&grad_splats[i], v); }
+#endif
+
+// One (pixel, Gaussian) contribution's gradients.
+struct Grads {
+    rgbd: vec4<f32>,            // colour, depth
+    query: array<vec4<f32>, 8>,
+    mean_opacity: vec4<f32>,    // mean x, mean y, opacity, -
+    conic: vec4<f32>,           // a, b, c, -
+}
+
+fn flush(g: Grads, gaussian: u32, pair: u32) {
+    add_color(3u * gaussian, g.rgbd.x);
+    add_color(3u * gaussian + 1u, g.rgbd.y);
+    add_color(3u * gaussian + 2u, g.rgbd.z);
+    for (var c = 0u; c < 8u; c++) {
+        add_query(32u * gaussian + 4u * c, g.query[c].x);
+        add_query(32u * gaussian + 4u * c + 1u, g.query[c].y);
+        add_query(32u * gaussian + 4u * c + 2u, g.query[c].z);
+        add_query(32u * gaussian + 4u * c + 3u, g.query[c].w);
+    }
+    add_splat(8u * pair, g.mean_opacity.x);
+    add_splat(8u * pair + 1u, g.mean_opacity.y);
+    add_splat(8u * pair + 2u, g.rgbd.w);
+    add_splat(8u * pair + 3u, g.mean_opacity.z);
+    add_splat(8u * pair + 4u, g.conic.x);
+    add_splat(8u * pair + 5u, g.conic.y);
+    add_splat(8u * pair + 6u, g.conic.z);
+}
+
+var<workgroup> sh_pair: array<u32, BATCH>;
+var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
+var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
+var<workgroup> wg_walk_atomic: atomic<u32>;
+var<workgroup> wg_walk: u32;
+
+@compute @workgroup_size(256)
+fn raster_backward(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) t: u32,
+#if SUBGROUP
+    @builtin(subgroup_invocation_id) lane: u32,
+#endif
+) {
+    let tile = wid.y * nwg.x + wid.x;
+    if (tile >= pc.n_tiles) {
+        return;
+    }
+    var vi = 0u;
+    for (var k = 1u; k < pc.n_views; k++) {
+        if (views[k].offsets.x <= tile) {
+            vi = k;
+        }
+    }
+    let v = views[vi];
+    let local_tile = tile - v.offsets.x;
+    let px = (local_tile % v.size.z) * TILE_SIZE + t % TILE_SIZE;
+    let py = (local_tile / v.size.z) * TILE_SIZE + t / TILE_SIZE;
+    let inside = px < v.size.x && py < v.size.y;
+    let pix = vec2<f32>(f32(px), f32(py));
+    let bg = vec3<f32>(pc.bg_r, pc.bg_g, pc.bg_b);
+    let detach = pc.detach_query != 0u;
+
+    // This pixel's forward results and upstream gradients.
+    var walked = 0u;
+    var t_final = 1.0;
+    var c_final = vec4<f32>(0.0);
+    var q_final: array<vec4<f32>, 8>;
+    var v_rgbd = vec4<f32>(0.0);
+    var v_q: array<vec4<f32>, 8>;
+    var v_alpha_out = 0.0;
+    if (inside) {
+        let p = v.offsets.y + py * v.size.x + px;
+        let s = state[p];
+        walked = s.x;
+        t_final = bitcast<f32>(s.y);
+        let out = rgbd[p];
+        c_final = vec4<f32>(out.xyz - t_final * bg, out.w);
+        v_rgbd = grad_rgbd[p];
+        v_alpha_out = grad_alpha[p];
+        for (var c = 0u; c < 8u; c++) {
+            q_final[c] = query_image[8u * p + c];
+            v_q[c] = grad_query[8u * p + c];
+        }
+    }
+    // The background term of every alpha gradient.
+    let bg_term = (v_alpha_out - dot(bg, v_rgbd.xyz)) * t_final;
+
+    if (t == 0u) {
+        atomicStore(&wg_walk_atomic, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&wg_walk_atomic, walked);
+    workgroupBarrier();
+    if (t == 0u) {
+        wg_walk = atomicLoad(&wg_walk_atomic);
+    }
+    let tile_walk = workgroupUniformLoad(&wg_walk);
+    let start = ranges[tile].x;
+
+    var trans = 1.0;
+    var c_acc = vec4<f32>(0.0);
+    var q_acc: array<vec4<f32>, 8>;
+    for (var c = 0u; c < 8u; c++) {
+        q_acc[c] = vec4<f32>(0.0);
+    }
+
+    for (var base = 0u; base < tile_walk; base += BATCH) {
+        workgroupBarrier();
+        if (base + t < tile_walk) {
+            let pair = pairs[start + base + t];
+            sh_pair[t] = pair;
+            sh_splat[t] = splats[2u * pair];
+            sh_conic[t] = splats[2u * pair + 1u];
+        }
+        workgroupBarrier();
+        let count = min(BATCH, tile_walk - base);
+        for (var j = 0u; j < count; j++) {
+            var g: Grads;
+            g.rgbd = vec4<f32>(0.0);
+            for (var c = 0u; c < 8u; c++) {
+                g.query[c] = vec4<f32>(0.0);
+            }
+            g.mean_opacity = vec4<f32>(0.0);
+            g.conic = vec4<f32>(0.0);
+            var contributes = false;
+            let pair = sh_pair[j];
+            let gaussian = pair % pc.n_gaussians;
+            if (base + j < walked) {
+                let s = sh_splat[j];
+                let conic = sh_conic[j].xyz;
+                let d = s.xy - pix;
+                let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
+                let vis = exp(-sigma);
+                let alpha = min(MAX_ALPHA, s.w * vis);
+                if (sigma >= 0.0 && alpha >= MIN_ALPHA) {
+                    contributes = true;
+                    let w = alpha * trans;
+                    let f_rgbd = vec4<f32>(
+                        colors[3u * gaussian],
+                        colors[3u * gaussian + 1u],
+                        colors[3u * gaussian + 2u],
+                        s.z
+                    );
+                    c_acc += w * f_rgbd;
+                    let ra = 1.0 / (1.0 - alpha);
+                    var v_alpha = bg_term * ra
+                        + dot(v_rgbd, f_rgbd * trans - (c_final - c_acc) * ra);
+                    g.rgbd = w * v_rgbd;
+                    for (var c = 0u; c < 8u; c++) {
+                        let f = queries[8u * gaussian + c];
+                        q_acc[c] += w * f;
+                        g.query[c] = w * v_q[c];
+                        if (!detach) {
+                            v_alpha += dot(v_q[c], f * trans - (q_final[c] - q_acc[c]) * ra);
+                        }
+                    }
+                    // Clamped alphas do not depend on opacity or shape.
+                    if (s.w * vis <= MAX_ALPHA) {
+                        let v_sigma = -s.w * vis * v_alpha;
+                        g.conic = vec4<f32>(
+                            0.5 * v_sigma * d.x * d.x,
+                            v_sigma * d.x * d.y,
+                            0.5 * v_sigma * d.y * d.y,
+                            0.0
+                        );
+                        g.mean_opacity = vec4<f32>(
+                            v_sigma * (conic.x * d.x + conic.y * d.y),
+                            v_sigma * (conic.y * d.x + conic.z * d.y),
+                            vis * v_alpha,
+                            0.0
+                        );
+                    }
+                    trans *= 1.0 - alpha;
+                }
+            }
+#if SUBGROUP
+            if (subgroupAny(contributes)) {
+                g.rgbd = subgroupAdd(g.rgbd);
+                for (var c = 0u; c < 8u; c++) {
+                    g.query[c] = subgroupAdd(g.query[c]);
+                }
+                g.mean_opacity = subgroupAdd(g.mean_opacity);
+                g.conic = subgroupAdd(g.conic);
+                if (lane == 0u) {
+                    flush(g, gaussian, pair);
+                }
+            }
+#else
+            if (contributes) {
+                flush(g, gaussian, pair);
+            }
+#endif
+        }
+    }
+}
