@@ -30,11 +30,49 @@ pub enum Which {
         #[arg(long)]
         quick: bool,
     },
+    /// Time the rasterizer's forward and backward passes over a batch of
+    /// views of a room whose walls are covered with Gaussians, with a
+    /// per-kernel breakdown.
+    Raster {
+        /// Image width in pixels.
+        #[arg(long, default_value_t = 320, value_parser = clap::value_parser!(u32).range(1..=16384))]
+        width: u32,
+        /// Image height in pixels.
+        #[arg(long, default_value_t = 240, value_parser = clap::value_parser!(u32).range(1..=16384))]
+        height: u32,
+        /// Number of Gaussians in the scene.
+        #[arg(long, default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+        gaussians: u64,
+        /// Views rendered per batch.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+        views: u32,
+        /// Measured runs (after one warm-up run); at least 3.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(3..))]
+        runs: u32,
+        /// Write the results as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 pub fn run(which: Which) -> Result<()> {
     match which {
         Which::Primitives { json, runs, quick } => primitives(json, runs as usize, quick),
+        Which::Raster {
+            width,
+            height,
+            gaussians,
+            views,
+            runs,
+            json,
+        } => crate::bench_raster::run(crate::bench_raster::RasterBench {
+            width,
+            height,
+            gaussians,
+            views,
+            runs: runs as usize,
+            json,
+        }),
     }
 }
 

@@ -70,6 +70,65 @@ fn bench_primitives_writes_json_with_every_primitive() {
 }
 
 #[test]
+fn bench_raster_writes_json_with_times_and_kernels() {
+    let dir = std::env::temp_dir().join(format!("latentam-raster-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("raster.json");
+    let out = latentam()
+        .args([
+            "bench",
+            "raster",
+            "--width",
+            "40",
+            "--height",
+            "30",
+            "--gaussians",
+            "2000",
+            "--views",
+            "2",
+            "--runs",
+            "3",
+            "--json",
+        ])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(v["device"].as_str().is_some_and(|d| !d.is_empty()));
+    assert_eq!(v["width"], 40);
+    assert_eq!(v["height"], 30);
+    assert_eq!(v["gaussians"], 2000);
+    assert_eq!(v["views"], 2);
+    assert!(v["intersections"].as_u64().unwrap() > 0);
+    assert!(v["forward_ms_median"].as_f64().unwrap() > 0.0);
+    assert!(v["backward_ms_median"].as_f64().unwrap() > 0.0);
+    let names: Vec<&str> = v["kernels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k["name"].as_str().unwrap())
+        .collect();
+    for want in [
+        "project_forward",
+        "raster_forward",
+        "raster_backward",
+        "project_backward",
+    ] {
+        assert!(
+            names.iter().any(|n| n.starts_with(want)),
+            "{want} missing from {names:?}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn bench_rejects_fewer_than_five_runs() {
     let out = latentam()
         .args(["bench", "primitives", "--runs", "2"])

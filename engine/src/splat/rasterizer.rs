@@ -574,6 +574,23 @@ impl Rasterizer {
         rec.submit()?.wait()
     }
 
+    /// Length of every tile's Gaussian list in the last forward batch, in
+    /// batch tile order (see [`BatchLayout`]); a diagnostic of the load.
+    pub fn tile_list_lengths(&self) -> Result<Vec<u32>> {
+        let tiles = self.layout.tiles as u64;
+        if tiles == 0 {
+            return Err(no_forward());
+        }
+        let mut rec = self.ctx.recorder()?;
+        let rb = rec.download(self.ranges.get(), 0, tiles * 8)?;
+        rec.submit()?.wait()?;
+        Ok(rb
+            .read::<u32>()?
+            .chunks_exact(2)
+            .map(|r| r[1].saturating_sub(r[0]))
+            .collect())
+    }
+
     /// Downloads view `index` of the last forward batch.
     pub fn download_view(&self, index: usize) -> Result<RenderedView> {
         let slot = *self.layout.views.get(index).ok_or_else(|| {

@@ -1,0 +1,324 @@
+//! `latentam bench raster`: forward and backward of the rasterizer on a
+//! room-like scene (Gaussians spread over the walls, floor and ceiling of a
+//! box room, cameras inside looking at them, as in a real map).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context as _, Result};
+use glam::DVec3;
+use latentam::gpu::{Context, ContextOptions};
+use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+/// Settings of one raster benchmark.
+pub struct RasterBench {
+    pub width: u32,
+    pub height: u32,
+    pub gaussians: u64,
+    pub views: u32,
+    pub runs: usize,
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct KernelRow {
+    name: String,
+    /// Dispatches per forward+backward.
+    count_per_run: f64,
+    /// GPU milliseconds per forward+backward, mean over runs.
+    ms_per_run: f64,
+    mean_ms: f64,
+    std_ms: f64,
+    min_ms: f64,
+    max_ms: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    device: String,
+    width: u32,
+    height: u32,
+    gaussians: u64,
+    views: u32,
+    runs: usize,
+    visible: u64,
+    intersections: u64,
+    /// Σ over tiles of (list length × pixels): the (pixel, Gaussian) pairs
+    /// blending may visit, an upper bound of the work.
+    pixel_gaussian_pairs: u64,
+    forward_ms_median: f64,
+    backward_ms_median: f64,
+    forward_wall_ms_median: f64,
+    backward_wall_ms_median: f64,
+    kernels: Vec<KernelRow>,
+}
+
+/// Gaussians on the far wall, floor, ceiling and side walls of a 4 x 2.4 x 4
+/// m room (x right, y down, z forward), roughly one per `spacing` x
+/// `spacing` patch, flat along the surface normal; the cameras stand at its
+/// open side looking in, so most Gaussians are in view, as in the local
+/// window around a mapping camera.
+fn room_scene(n: u64, rng: &mut impl Rng) -> HostGaussians {
+    let lo = DVec3::new(-2.0, -1.2, 0.0);
+    let hi = DVec3::new(2.0, 1.2, 4.0);
+    // (axis, coordinate) of each surface.
+    let faces = [(2usize, hi.z), (1, hi.y), (1, lo.y), (0, lo.x), (0, hi.x)];
+    let size = hi - lo;
+    let areas: Vec<f64> = faces
+        .iter()
+        .map(|&(axis, _)| size.x * size.y * size.z / size[axis])
+        .collect();
+    let area: f64 = areas.iter().sum();
+    let spacing = (area / n as f64).sqrt();
+    let mut g = HostGaussians::zeros(n as usize);
+    for i in 0..n as usize {
+        // Faces picked in proportion to their area.
+        let mut pick = rng.random_range(0.0..area);
+        let mut f = 0;
+        while f + 1 < faces.len() && pick >= areas[f] {
+            pick -= areas[f];
+            f += 1;
+        }
+        let (axis, at) = faces[f];
+        let mut p = [0.0f64; 3];
+        for (a, v) in p.iter_mut().enumerate() {
+            *v = if a == axis {
+                at + rng.random_range(-0.01..0.01)
+            } else {
+                rng.random_range(lo[a]..hi[a])
+            };
+        }
+        g.means[i] = p.map(|v| v as f32);
+        let mut ls = [(spacing * rng.random_range(0.4..0.8)).ln() as f32; 3];
+        ls[axis] = (spacing * 0.1).ln() as f32;
+        g.log_scales[i] = ls;
+        // A small random tilt.
+        g.quats[i] = [
+            1.0,
+            rng.random_range(-0.2..0.2),
+            rng.random_range(-0.2..0.2),
+            rng.random_range(-0.2..0.2),
+        ];
+        g.colors[i] = [0; 3].map(|_| rng.random_range(0.0..1.0));
+        g.opacity_logits[i] = rng.random_range(1.0..4.0);
+        g.queries[i] = [0; QUERY_DIM].map(|_| rng.random_range(-1.0..1.0));
+    }
+    g
+}
+
+/// Cameras near the room's open side looking in, a little apart, like the
+/// keyframes of one batch.
+fn cameras(b: &RasterBench, rng: &mut impl Rng) -> Vec<Camera> {
+    (0..b.views)
+        .map(|_| {
+            let eye = DVec3::new(
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.6..-0.2),
+            );
+            let target = DVec3::new(
+                rng.random_range(-0.8..0.8),
+                rng.random_range(-0.4..0.4),
+                4.0,
+            );
+            // About 60 degrees across, like common RGB-D cameras.
+            let focal = 0.87 * b.width as f64;
+            Camera::looking_at(eye, target, DVec3::NEG_Y, b.width, b.height, focal)
+        })
+        .collect()
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+pub fn run(b: RasterBench) -> Result<()> {
+    let ctx = Context::new(ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    })?;
+    if !ctx.profiling() {
+        anyhow::bail!(
+            "{} has no timestamp queries on its compute queue",
+            ctx.info().name
+        );
+    }
+    eprintln!(
+        "benchmarking the rasterizer on {}: {} view(s) of {}x{}, {} Gaussians, {} runs...",
+        ctx.info().name,
+        b.views,
+        b.width,
+        b.height,
+        b.gaussians,
+        b.runs
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let host = room_scene(b.gaussians, &mut rng);
+    let cams = cameras(&b, &mut rng);
+    let params = GaussianBuffers::new(&ctx, "bench_gaussians", b.gaussians)?;
+    params.upload(&ctx, 0, &host)?;
+    let grads = GaussianBuffers::new(&ctx, "bench_grads", b.gaussians)?;
+    let mut raster = Rasterizer::new(&ctx);
+
+    // Upstream gradients: any values exercise the same work.
+    raster.forward(&params, b.gaussians, &cams)?;
+    let pixels = raster.layout().pixels as usize;
+    let up_rgbd: Vec<f32> = (0..pixels * 4)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let up_alpha: Vec<f32> = (0..pixels).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let up_query: Vec<f32> = (0..pixels * QUERY_DIM)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+
+    let mut fwd = Vec::new();
+    let mut bwd = Vec::new();
+    let mut fwd_wall = Vec::new();
+    let mut bwd_wall = Vec::new();
+    let mut per_kernel: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+    let gpu_ms = |ctx: &Context| -> f64 {
+        ctx.profiler_snapshot()
+            .samples()
+            .iter()
+            .map(|s| s.duration_ns * 1e-6)
+            .sum()
+    };
+    for run in 0..=b.runs {
+        // Forward (its view upload included: it is part of every render).
+        ctx.profiler_reset();
+        let t = std::time::Instant::now();
+        raster.forward(&params, b.gaussians, &cams)?;
+        let fw = t.elapsed().as_secs_f64() * 1e3;
+        let f = gpu_ms(&ctx);
+        let mut samples = ctx.profiler_snapshot().samples().to_vec();
+
+        let g = raster.image_grads()?;
+        ctx.upload(&g.rgbd, 0, &up_rgbd)?;
+        ctx.upload(&g.alpha, 0, &up_alpha)?;
+        ctx.upload(&g.query, 0, &up_query)?;
+        ctx.profiler_reset();
+        let t = std::time::Instant::now();
+        raster.backward(&params, &grads)?;
+        let bw = t.elapsed().as_secs_f64() * 1e3;
+        let bk = gpu_ms(&ctx);
+        samples.extend(ctx.profiler_snapshot().samples().iter().cloned());
+        if run > 0 {
+            fwd.push(f);
+            bwd.push(bk);
+            fwd_wall.push(fw);
+            bwd_wall.push(bw);
+            for s in samples {
+                per_kernel
+                    .entry(s.name)
+                    .or_default()
+                    .push(s.duration_ns * 1e-6);
+            }
+        }
+    }
+
+    let stats = raster.stats();
+    // Work bound: every pixel of a tile walks (at most) the tile's list.
+    let pairs = pixel_gaussian_pairs(&raster)?;
+
+    let mut kernels: Vec<KernelRow> = per_kernel
+        .into_iter()
+        .map(|(name, v)| {
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+            KernelRow {
+                name: name.to_string(),
+                count_per_run: n / b.runs as f64,
+                ms_per_run: v.iter().sum::<f64>() / b.runs as f64,
+                mean_ms: mean,
+                std_ms: var.sqrt(),
+                min_ms: v.iter().cloned().fold(f64::INFINITY, f64::min),
+                max_ms: v.iter().cloned().fold(0.0, f64::max),
+            }
+        })
+        .collect();
+    kernels.sort_by(|a, b| b.ms_per_run.total_cmp(&a.ms_per_run));
+    let report = Report {
+        device: ctx.info().name.clone(),
+        width: b.width,
+        height: b.height,
+        gaussians: b.gaussians,
+        views: b.views,
+        runs: b.runs,
+        visible: stats.visible,
+        intersections: stats.intersections,
+        pixel_gaussian_pairs: pairs,
+        forward_ms_median: median(&fwd),
+        backward_ms_median: median(&bwd),
+        forward_wall_ms_median: median(&fwd_wall),
+        backward_wall_ms_median: median(&bwd_wall),
+        kernels,
+    };
+
+    println!(
+        "device: {}\n{} view(s) {}x{}, {} Gaussians: {} visible pairs, {} tile intersections, \
+         {} pixel-Gaussian pairs",
+        report.device,
+        b.views,
+        b.width,
+        b.height,
+        b.gaussians,
+        report.visible,
+        report.intersections,
+        report.pixel_gaussian_pairs
+    );
+    println!(
+        "forward  {:>10.3} ms GPU (median; wall {:.3} ms)\nbackward {:>10.3} ms GPU (median; wall \
+         {:.3} ms)",
+        report.forward_ms_median,
+        report.forward_wall_ms_median,
+        report.backward_ms_median,
+        report.backward_wall_ms_median
+    );
+    println!(
+        "{:<28} {:>8} {:>12} {:>12} {:>10} {:>10} {:>10}",
+        "kernel", "count", "ms/run", "mean ms", "std ms", "min ms", "max ms"
+    );
+    for k in &report.kernels {
+        println!(
+            "{:<28} {:>8.1} {:>12.3} {:>12.3} {:>10.3} {:>10.3} {:>10.3}",
+            k.name, k.count_per_run, k.ms_per_run, k.mean_ms, k.std_ms, k.min_ms, k.max_ms
+        );
+    }
+    if let Some(path) = &b.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// Σ over tiles of list length × pixels in the tile, from the last forward.
+fn pixel_gaussian_pairs(raster: &Rasterizer) -> Result<u64> {
+    let lens = raster.tile_list_lengths()?;
+    let layout = raster.layout();
+    let mut total = 0u64;
+    for v in &layout.views {
+        for ty in 0..v.tiles_y {
+            for tx in 0..v.tiles_x {
+                let w = (v.width - tx * 16).min(16) as u64;
+                let h = (v.height - ty * 16).min(16) as u64;
+                let len = lens[(v.first_tile + ty * v.tiles_x + tx) as usize] as u64;
+                total += len * w * h;
+            }
+        }
+    }
+    Ok(total)
+}
