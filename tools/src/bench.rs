@@ -104,7 +104,11 @@ struct Timing {
     wall_ms: Vec<f64>,
 }
 
-fn median(v: &[f64]) -> f64 {
+/// Median of a sample (NaN for an empty one).
+pub(crate) fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     let n = s.len();
@@ -163,7 +167,8 @@ fn row(name: &str, size: String, t: &Timing, work: f64, unit: &'static str) -> R
     }
 }
 
-fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
+/// A context with timestamp profiling, or an error on devices without it.
+pub(crate) fn profiling_context() -> Result<Context> {
     let ctx = Context::new(ContextOptions {
         profiling: true,
         ..ContextOptions::default()
@@ -174,6 +179,11 @@ fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
             ctx.info().name
         );
     }
+    Ok(ctx)
+}
+
+fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
+    let ctx = profiling_context()?;
     let div = if quick { 16 } else { 1 };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut rows = Vec::new();

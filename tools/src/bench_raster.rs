@@ -7,10 +7,12 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 use glam::DVec3;
-use latentam::gpu::{Context, ContextOptions};
+use latentam::gpu::Context;
 use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
+
+use crate::bench::{median, profiling_context};
 
 /// Settings of one raster benchmark.
 pub struct RasterBench {
@@ -130,31 +132,8 @@ fn cameras(b: &RasterBench, rng: &mut impl Rng) -> Vec<Camera> {
         .collect()
 }
 
-fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
 pub fn run(b: RasterBench) -> Result<()> {
-    let ctx = Context::new(ContextOptions {
-        profiling: true,
-        ..ContextOptions::default()
-    })?;
-    if !ctx.profiling() {
-        anyhow::bail!(
-            "{} has no timestamp queries on its compute queue",
-            ctx.info().name
-        );
-    }
+    let ctx = profiling_context()?;
     eprintln!(
         "benchmarking the rasterizer on {}: {} view(s) of {}x{}, {} Gaussians, {} runs...",
         ctx.info().name,
