@@ -7,7 +7,6 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 use glam::DVec3;
-use latentam::gpu::Context;
 use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
@@ -167,12 +166,8 @@ pub fn run(b: RasterBench) -> Result<()> {
     let mut fwd_wall = Vec::new();
     let mut bwd_wall = Vec::new();
     let mut per_kernel: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-    let gpu_ms = |ctx: &Context| -> f64 {
-        ctx.profiler_snapshot()
-            .samples()
-            .iter()
-            .map(|s| s.duration_ns * 1e-6)
-            .sum()
+    let gpu_ms = |samples: &[latentam::gpu::Sample]| -> f64 {
+        samples.iter().map(|s| s.duration_ns * 1e-6).sum()
     };
     for run in 0..=b.runs {
         // Forward (its view upload included: it is part of every render).
@@ -180,8 +175,8 @@ pub fn run(b: RasterBench) -> Result<()> {
         let t = std::time::Instant::now();
         raster.forward(&params, b.gaussians, &cams)?;
         let fw = t.elapsed().as_secs_f64() * 1e3;
-        let f = gpu_ms(&ctx);
         let mut samples = ctx.profiler_snapshot().samples().to_vec();
+        let f = gpu_ms(&samples);
 
         let g = raster.image_grads()?;
         ctx.upload(&g.rgbd, 0, &up_rgbd)?;
@@ -191,8 +186,9 @@ pub fn run(b: RasterBench) -> Result<()> {
         let t = std::time::Instant::now();
         raster.backward(&params, &grads)?;
         let bw = t.elapsed().as_secs_f64() * 1e3;
-        let bk = gpu_ms(&ctx);
-        samples.extend(ctx.profiler_snapshot().samples().iter().cloned());
+        let backward_samples = ctx.profiler_snapshot().samples().to_vec();
+        let bk = gpu_ms(&backward_samples);
+        samples.extend(backward_samples);
         if run > 0 {
             fwd.push(f);
             bwd.push(bk);

@@ -142,7 +142,6 @@ struct ProjectionState {
     j: [[f64; 3]; 2],
     clamped: [bool; 2],
     lim: [f64; 2], // the clamped tx/tz, ty/tz when clamped
-    cov2d: [f64; 3],
 }
 
 fn project_state(g: &Gaussian, cam: &Camera) -> Option<(Projected, ProjectionState)> {
@@ -163,16 +162,8 @@ fn project_state(g: &Gaussian, cam: &Camera) -> Option<(Projected, ProjectionSta
     let cov_c = w * cov * w.transpose();
 
     let (fx, fy) = (cam.fx, cam.fy);
-    let tan_x = 0.5 * cam.width as f64 / fx;
-    let tan_y = 0.5 * cam.height as f64 / fy;
-    let lim_x = [
-        -(cam.cx / fx + GUARD_BAND * tan_x),
-        (cam.width as f64 - cam.cx) / fx + GUARD_BAND * tan_x,
-    ];
-    let lim_y = [
-        -(cam.cy / fy + GUARD_BAND * tan_y),
-        (cam.height as f64 - cam.cy) / fy + GUARD_BAND * tan_y,
-    ];
+    let [lo_x, hi_x, lo_y, hi_y] = cam.guard_band();
+    let (lim_x, lim_y) = ([lo_x, hi_x], [lo_y, hi_y]);
     let (rx, ry) = (t.x / t.z, t.y / t.z);
     let cx_ = rx.clamp(lim_x[0], lim_x[1]);
     let cy_ = ry.clamp(lim_y[0], lim_y[1]);
@@ -234,7 +225,6 @@ fn project_state(g: &Gaussian, cam: &Camera) -> Option<(Projected, ProjectionSta
             j,
             clamped,
             lim: [cx_, cy_],
-            cov2d,
         },
     ))
 }
@@ -489,7 +479,6 @@ fn projection_backward(g: &Gaussian, cam: &Camera, pg: &ProjectedGrads, out: &mu
             }
         }
     }
-    let _ = st.cov2d;
 
     // Σ₂ = J Σc Jᵀ: ∂L/∂Σc = Jᵀ V₂ J, ∂L/∂J = 2 V₂ J Σc (both symmetric).
     let j = st.j;

@@ -86,6 +86,21 @@ impl Camera {
         )
     }
 
+    /// Range of tx/tz and ty/tz the projection's Jacobian is evaluated in,
+    /// `[lo_x, hi_x, lo_y, hi_y]`: the field of view widened on each side by
+    /// [`GUARD_BAND`](crate::reference::raster::GUARD_BAND) × tan(fov/2).
+    pub fn guard_band(&self) -> [f64; 4] {
+        use crate::reference::raster::GUARD_BAND;
+        let tan_x = 0.5 * self.width as f64 / self.fx;
+        let tan_y = 0.5 * self.height as f64 / self.fy;
+        [
+            -(self.cx / self.fx + GUARD_BAND * tan_x),
+            (self.width as f64 - self.cx) / self.fx + GUARD_BAND * tan_x,
+            -(self.cy / self.fy + GUARD_BAND * tan_y),
+            (self.height as f64 - self.cy) / self.fy + GUARD_BAND * tan_y,
+        ]
+    }
+
     /// Pixel count.
     pub fn pixels(&self) -> u64 {
         self.width as u64 * self.height as u64

@@ -126,15 +126,8 @@ impl GaussianBuffers {
         ]
     }
 
-    /// Records zeroing every field.
-    pub fn record_zero<'a>(&'a self, rec: &mut Recorder<'a>) {
-        for b in self.fields() {
-            rec.fill_u32(b, 0);
-        }
-    }
-
-    /// Records a fill of every field with the bit pattern `bits` (tests
-    /// poison outputs this way).
+    /// Records a fill of every field with the bit pattern `bits` (0 zeroes
+    /// them; tests poison outputs with a NaN pattern).
     pub fn record_fill<'a>(&'a self, rec: &mut Recorder<'a>, bits: u32) {
         for b in self.fields() {
             rec.fill_u32(b, bits);

@@ -323,12 +323,14 @@ impl Rasterizer {
         self.depth_order.ensure(&ctx, pairs * 4)?;
         self.sorted_offsets.ensure(&ctx, (pairs + 1) * 4)?;
         self.ensure_scan(pairs + 1)?;
-        ctx.upload(self.views.get(), 0, &gpu_views)?;
 
-        // Phase 1: project, then count visible pairs and intersections.
+        // Phase 1: project, then count visible pairs and intersections. The
+        // total is taken from a scan of the counts in pair order (an extra
+        // scan) so that one read-back sizes everything that follows.
         let n_views = cameras.len() as u32;
         let (visible, intersections) = {
             let mut rec = ctx.recorder()?;
+            rec.upload(self.views.get(), 0, &gpu_views)?;
             let positions = self.positions.get();
             let pair_offsets = self.pair_offsets.get();
             rec.fill_u32(positions, 0);

@@ -5,7 +5,6 @@ use bytemuck::{Pod, Zeroable};
 
 use super::Camera;
 use crate::error::Result;
-use crate::reference::raster::GUARD_BAND;
 
 /// One view's constants (mirrors `View` in `glsl/splat.glsl` and
 /// `shaders/wgsl/raster_backward.wgsl`).
@@ -74,17 +73,10 @@ impl BatchLayout {
                     t[r] as f32,
                 ]
             };
-            let tan_x = 0.5 * cam.width as f64 / cam.fx;
-            let tan_y = 0.5 * cam.height as f64 / cam.fy;
             gpu.push(GpuView {
                 rows: [row(0), row(1), row(2)],
                 intrinsics: [cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32],
-                guard: [
-                    (-(cam.cx / cam.fx + GUARD_BAND * tan_x)) as f32,
-                    ((cam.width as f64 - cam.cx) / cam.fx + GUARD_BAND * tan_x) as f32,
-                    (-(cam.cy / cam.fy + GUARD_BAND * tan_y)) as f32,
-                    ((cam.height as f64 - cam.cy) / cam.fy + GUARD_BAND * tan_y) as f32,
-                ],
+                guard: cam.guard_band().map(|v| v as f32),
                 clip: [cam.near as f32, cam.far as f32, 0.0, 0.0],
                 size: [cam.width, cam.height, tx, ty],
                 offsets: [layout.tiles, layout.pixels as u32, 0, 0],
