@@ -12,6 +12,8 @@
 //! * [`ops`]: GPU primitives built on it (prefix scan, reduction, GEMM, row
 //!   softmax, radix sort, float scatter-add);
 //! * [`splat`]: Gaussian storage and the differentiable rasterizer;
+//! * [`latent`]: region pooling, the dictionary attention decoder and the
+//!   streaming k-means that maintains the dictionary;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
@@ -33,6 +35,7 @@
 
 mod error;
 pub mod gpu;
+pub mod latent;
 pub mod ops;
 pub mod reference;
 pub mod splat;

@@ -3,6 +3,7 @@
 //! documentation of what each kernel computes.
 
 pub mod atomic;
+pub mod decoder;
 pub mod gemm;
 pub mod raster;
 pub mod reduce;

@@ -1,0 +1,276 @@
+//! The dictionary attention decoder (SPEC §2.5; kernels in
+//! `engine/src/latent/decoder.rs`), in f64.
+//!
+//! Region queries `Q` (n × d_s) are projected by `W` (d_s × d_f) to `E = QW`;
+//! each row is compared by cosine similarity with the dictionary atoms `D`
+//! (K × d_f); a softmax over the atoms at temperature τ gives the attention
+//! `A`; the decoded embedding is `F̂ = A·D` with the *un-normalised* atoms.
+//!
+//! ```text
+//! E = Q W ;  Ê_i = E_i / (‖E_i‖ + ε) ;  D̂_k = D_k / (‖D_k‖ + ε)
+//! S = Ê D̂ᵀ / τ ;  A = softmax_row(S) ;  F̂ = A D
+//! ```
+
+/// Shapes and constants of one decode.
+#[derive(Clone, Copy, Debug)]
+pub struct DecoderShape {
+    /// Rows (regions).
+    pub n: usize,
+    /// Query dimension d_s.
+    pub query_dim: usize,
+    /// Embedding dimension d_f.
+    pub dim: usize,
+    /// Atoms K.
+    pub atoms: usize,
+    /// Softmax temperature τ.
+    pub tau: f64,
+    /// Added to every norm before dividing.
+    pub eps: f64,
+}
+
+/// Everything the forward pass computes (the backward pass reuses it).
+#[derive(Clone, Debug)]
+pub struct DecoderForward {
+    /// E = QW, n × d_f.
+    pub e: Vec<f64>,
+    /// ‖E_i‖, n.
+    pub e_norm: Vec<f64>,
+    /// Ê, n × d_f.
+    pub e_hat: Vec<f64>,
+    /// ‖D_k‖, K.
+    pub d_norm: Vec<f64>,
+    /// D̂, K × d_f.
+    pub d_hat: Vec<f64>,
+    /// Attention A, n × K.
+    pub attention: Vec<f64>,
+    /// F̂ = A D, n × d_f.
+    pub output: Vec<f64>,
+}
+
+/// Gradients of the decoder's inputs.
+#[derive(Clone, Debug)]
+pub struct DecoderGrads {
+    /// ∂L/∂Q, n × d_s.
+    pub queries: Vec<f64>,
+    /// ∂L/∂W, d_s × d_f.
+    pub w: Vec<f64>,
+    /// ∂L/∂D, K × d_f.
+    pub d: Vec<f64>,
+}
+
+/// C (m×n) = A (m×k) · B (k×n), all row-major.
+fn matmul(a: &[f64], b: &[f64], m: usize, k: usize, n: usize) -> Vec<f64> {
+    let mut c = vec![0.0; m * n];
+    for i in 0..m {
+        for p in 0..k {
+            let aip = a[i * k + p];
+            for j in 0..n {
+                c[i * n + j] += aip * b[p * n + j];
+            }
+        }
+    }
+    c
+}
+
+/// Transpose of a rows × cols matrix.
+fn transpose(a: &[f64], rows: usize, cols: usize) -> Vec<f64> {
+    let mut t = vec![0.0; rows * cols];
+    for i in 0..rows {
+        for j in 0..cols {
+            t[j * rows + i] = a[i * cols + j];
+        }
+    }
+    t
+}
+
+/// Row-wise y = x / (‖x‖ + ε); returns (y, ‖x‖).
+pub fn normalize_rows(x: &[f64], rows: usize, cols: usize, eps: f64) -> (Vec<f64>, Vec<f64>) {
+    let mut y = vec![0.0; rows * cols];
+    let mut norms = vec![0.0; rows];
+    for r in 0..rows {
+        let row = &x[r * cols..(r + 1) * cols];
+        let norm = row.iter().map(|v| v * v).sum::<f64>().sqrt();
+        norms[r] = norm;
+        for c in 0..cols {
+            y[r * cols + c] = row[c] / (norm + eps);
+        }
+    }
+    (y, norms)
+}
+
+/// Vector-Jacobian product of [`normalize_rows`]: given y, ‖x‖ and g = ∂L/∂y,
+/// returns ∂L/∂x = g/(r+ε) − y (y·g)/r per row (the second term vanishes as
+/// r → 0, and is taken as 0 at r = 0).
+pub fn normalize_rows_vjp(y: &[f64], norms: &[f64], g: &[f64], cols: usize, eps: f64) -> Vec<f64> {
+    let mut dx = vec![0.0; y.len()];
+    for (r, &norm) in norms.iter().enumerate() {
+        let yr = &y[r * cols..(r + 1) * cols];
+        let gr = &g[r * cols..(r + 1) * cols];
+        let yg: f64 = yr.iter().zip(gr).map(|(a, b)| a * b).sum();
+        let k = if norm > 0.0 { yg / norm } else { 0.0 };
+        for c in 0..cols {
+            dx[r * cols + c] = gr[c] / (norm + eps) - yr[c] * k;
+        }
+    }
+    dx
+}
+
+/// The forward pass. `q` is n × d_s, `w` d_s × d_f, `d` K × d_f.
+pub fn forward(s: &DecoderShape, q: &[f32], w: &[f32], d: &[f32]) -> DecoderForward {
+    let q: Vec<f64> = q.iter().map(|&v| v as f64).collect();
+    let w: Vec<f64> = w.iter().map(|&v| v as f64).collect();
+    let d: Vec<f64> = d.iter().map(|&v| v as f64).collect();
+    let e = matmul(&q, &w, s.n, s.query_dim, s.dim);
+    let (e_hat, e_norm) = normalize_rows(&e, s.n, s.dim, s.eps);
+    let (d_hat, d_norm) = normalize_rows(&d, s.atoms, s.dim, s.eps);
+    let mut attention = matmul(
+        &e_hat,
+        &transpose(&d_hat, s.atoms, s.dim),
+        s.n,
+        s.dim,
+        s.atoms,
+    );
+    for row in attention.chunks_mut(s.atoms.max(1)) {
+        let m = row
+            .iter()
+            .map(|v| v / s.tau)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut sum = 0.0;
+        for v in row.iter_mut() {
+            *v = (*v / s.tau - m).exp();
+            sum += *v;
+        }
+        for v in row.iter_mut() {
+            *v /= sum;
+        }
+    }
+    let output = matmul(&attention, &d, s.n, s.atoms, s.dim);
+    DecoderForward {
+        e,
+        e_norm,
+        e_hat,
+        d_norm,
+        d_hat,
+        attention,
+        output,
+    }
+}
+
+/// The backward pass for ∂L/∂F̂ = `g` (n × d_f).
+pub fn backward(
+    s: &DecoderShape,
+    q: &[f32],
+    w: &[f32],
+    d: &[f32],
+    fwd: &DecoderForward,
+    g: &[f64],
+) -> DecoderGrads {
+    let q: Vec<f64> = q.iter().map(|&v| v as f64).collect();
+    let w: Vec<f64> = w.iter().map(|&v| v as f64).collect();
+    let d: Vec<f64> = d.iter().map(|&v| v as f64).collect();
+    let (n, k, df, ds) = (s.n, s.atoms, s.dim, s.query_dim);
+    // Direct path of F̂ = A D.
+    let d_attention = matmul(g, &transpose(&d, k, df), n, df, k);
+    let mut grad_d = matmul(&transpose(&fwd.attention, n, k), g, k, n, df);
+    // Softmax: ∂S = A ⊙ (∂A − rowsum(A ⊙ ∂A)), then the 1/τ of the logits.
+    let mut d_logits = vec![0.0; n * k];
+    for i in 0..n {
+        let a = &fwd.attention[i * k..(i + 1) * k];
+        let da = &d_attention[i * k..(i + 1) * k];
+        let dot: f64 = a.iter().zip(da).map(|(x, y)| x * y).sum();
+        for j in 0..k {
+            d_logits[i * k + j] = a[j] * (da[j] - dot) / s.tau;
+        }
+    }
+    let d_e_hat = matmul(&d_logits, &fwd.d_hat, n, k, df);
+    let d_d_hat = matmul(&transpose(&d_logits, n, k), &fwd.e_hat, k, n, df);
+    let via_norm = normalize_rows_vjp(&fwd.d_hat, &fwd.d_norm, &d_d_hat, df, s.eps);
+    for (a, b) in grad_d.iter_mut().zip(&via_norm) {
+        *a += b;
+    }
+    let d_e = normalize_rows_vjp(&fwd.e_hat, &fwd.e_norm, &d_e_hat, df, s.eps);
+    let grad_w = matmul(&transpose(&q, n, ds), &d_e, ds, n, df);
+    let grad_q = matmul(&d_e, &transpose(&w, ds, df), n, df, ds);
+    DecoderGrads {
+        queries: grad_q,
+        w: grad_w,
+        d: grad_d,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+
+    /// L = Σ F̂ ⊙ R for a fixed random R, so ∂L/∂F̂ = R.
+    fn loss(s: &DecoderShape, q: &[f32], w: &[f32], d: &[f32], r: &[f64]) -> f64 {
+        let f = forward(s, q, w, d);
+        f.output.iter().zip(r).map(|(a, b)| a * b).sum()
+    }
+
+    #[test]
+    fn backward_matches_central_differences() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let s = DecoderShape {
+            n: 3,
+            query_dim: 4,
+            dim: 6,
+            atoms: 5,
+            tau: 0.3,
+            eps: 1e-6,
+        };
+        let q: Vec<f32> = (0..s.n * s.query_dim)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let w: Vec<f32> = (0..s.query_dim * s.dim)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let d: Vec<f32> = (0..s.atoms * s.dim)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let r: Vec<f64> = (0..s.n * s.dim)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let fwd = forward(&s, &q, &w, &d);
+        let g = backward(&s, &q, &w, &d, &fwd, &r);
+        // f32 inputs limit the step; 1e-3 keeps truncation and rounding small.
+        let h = 1e-3f32;
+        let check = |name: &str, analytic: &[f64], which: usize| {
+            for i in 0..analytic.len() {
+                let (mut q2, mut w2, mut d2) = (q.clone(), w.clone(), d.clone());
+                let (mut q1, mut w1, mut d1) = (q.clone(), w.clone(), d.clone());
+                match which {
+                    0 => {
+                        q2[i] += h;
+                        q1[i] -= h;
+                    }
+                    1 => {
+                        w2[i] += h;
+                        w1[i] -= h;
+                    }
+                    _ => {
+                        d2[i] += h;
+                        d1[i] -= h;
+                    }
+                }
+                // The step actually taken after rounding to f32.
+                let step = match which {
+                    0 => q2[i] as f64 - q1[i] as f64,
+                    1 => w2[i] as f64 - w1[i] as f64,
+                    _ => d2[i] as f64 - d1[i] as f64,
+                };
+                let fd = (loss(&s, &q2, &w2, &d2, &r) - loss(&s, &q1, &w1, &d1, &r)) / step;
+                assert!(
+                    (fd - analytic[i]).abs() <= 1e-4 * (1.0 + fd.abs()),
+                    "{name}[{i}]: analytic {} vs finite difference {fd}",
+                    analytic[i]
+                );
+            }
+        };
+        check("Q", &g.queries, 0);
+        check("W", &g.w, 1);
+        check("D", &g.d, 2);
+    }
+}

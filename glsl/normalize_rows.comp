@@ -1,0 +1,52 @@
+// Row normalisation with an epsilon on the norm, as the attention decoder
+// uses it (SPEC §2.5):  y[r, :] = x[r, :] / (‖x[r, :]‖ + eps),  norm[r] = ‖x[r, :]‖.
+// One workgroup per row. CPU reference: engine/src/reference/decoder.rs
+// (`normalize_rows`).
+#version 450
+#include "common.glsl"
+
+#define THREADS 256
+
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer X { float x[]; };
+layout(std430, set = 0, binding = 1) buffer Y { float y[]; };
+layout(std430, set = 0, binding = 2) buffer Norm { float norm[]; };
+
+layout(push_constant) uniform Params {
+    uint rows;
+    uint cols;
+    float eps;
+} pc;
+
+shared float partial[THREADS];
+
+void main() {
+    uint row = linear_group();
+    if (row >= pc.rows) {
+        return;
+    }
+    uint t = gl_LocalInvocationID.x;
+    uint base = row * pc.cols;
+    float s = 0.0;
+    for (uint j = t; j < pc.cols; j += THREADS) {
+        float v = x[base + j];
+        s += v * v;
+    }
+    partial[t] = s;
+    barrier();
+    for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
+        if (t < h) {
+            partial[t] += partial[t + h];
+        }
+        barrier();
+    }
+    float r = sqrt(partial[0]);
+    float inv = 1.0 / (r + pc.eps);
+    for (uint j = t; j < pc.cols; j += THREADS) {
+        y[base + j] = x[base + j] * inv;
+    }
+    if (t == 0u) {
+        norm[row] = r;
+    }
+}
