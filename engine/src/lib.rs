@@ -14,6 +14,8 @@
 //! * [`splat`]: Gaussian storage and the differentiable rasterizer;
 //! * [`latent`]: region pooling, the dictionary attention decoder and the
 //!   streaming k-means that maintains the dictionary;
+//! * [`loss`]: the mapping objective (photometric, depth, feature and
+//!   trust-region terms) with its gradients;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
@@ -36,6 +38,7 @@
 mod error;
 pub mod gpu;
 pub mod latent;
+pub mod loss;
 pub mod ops;
 pub mod reference;
 pub mod splat;
