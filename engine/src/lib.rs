@@ -16,6 +16,7 @@
 //!   streaming k-means that maintains the dictionary;
 //! * [`loss`]: the mapping objective (photometric, depth, feature and
 //!   trust-region terms) with its gradients;
+//! * [`optim`]: Adam with per-tensor parameter groups;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
@@ -40,6 +41,7 @@ pub mod gpu;
 pub mod latent;
 pub mod loss;
 pub mod ops;
+pub mod optim;
 pub mod reference;
 pub mod splat;
 

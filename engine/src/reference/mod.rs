@@ -2,6 +2,7 @@
 //! where precision matters). They are the oracle of the GPU tests and the
 //! documentation of what each kernel computes.
 
+pub mod adam;
 pub mod atomic;
 pub mod decoder;
 pub mod gemm;

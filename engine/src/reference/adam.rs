@@ -1,0 +1,72 @@
+//! Adam with per-row step counts, row masks and moment reset (kernels
+//! `glsl/adam_step.comp`, `adam_count.comp`, `adam_reset.comp`; GPU side in
+//! `engine/src/optim/adam.rs`).
+
+use crate::optim::AdamHyper;
+
+/// State of one parameter tensor (rows × width) under Adam.
+#[derive(Clone, Debug)]
+pub struct AdamState {
+    /// Columns per row.
+    pub width: usize,
+    /// First moments.
+    pub m: Vec<f64>,
+    /// Second moments.
+    pub v: Vec<f64>,
+    /// Updates taken per row.
+    pub steps: Vec<u32>,
+}
+
+impl AdamState {
+    /// Zero state for `rows` × `width` parameters.
+    pub fn new(rows: usize, width: usize) -> Self {
+        Self {
+            width,
+            m: vec![0.0; rows * width],
+            v: vec![0.0; rows * width],
+            steps: vec![0; rows],
+        }
+    }
+
+    /// One update of the first `rows` rows; rows with `mask[row] == false`
+    /// are skipped, and so are elements whose gradient is not finite.
+    pub fn step(
+        &mut self,
+        h: &AdamHyper,
+        param: &mut [f64],
+        grad: &[f32],
+        rows: usize,
+        mask: Option<&[bool]>,
+    ) {
+        for row in 0..rows {
+            if mask.is_some_and(|m| !m[row]) {
+                continue;
+            }
+            let (lr, b1, b2, eps) = (h.lr as f64, h.beta1 as f64, h.beta2 as f64, h.eps as f64);
+            let t = (self.steps[row] + 1) as i32;
+            for i in row * self.width..(row + 1) * self.width {
+                let g = grad[i] as f64;
+                if !g.is_finite() {
+                    continue;
+                }
+                self.m[i] = b1 * self.m[i] + (1.0 - b1) * g;
+                self.v[i] = b2 * self.v[i] + (1.0 - b2) * g * g;
+                let mhat = self.m[i] / (1.0 - b1.powi(t));
+                let vhat = self.v[i] / (1.0 - b2.powi(t));
+                param[i] -= lr * mhat / (vhat.sqrt() + eps);
+            }
+            self.steps[row] += 1;
+        }
+    }
+
+    /// Forgets the history of the flagged rows.
+    pub fn reset(&mut self, flags: &[bool]) {
+        for (row, _) in flags.iter().enumerate().filter(|(_, &f)| f) {
+            for i in row * self.width..(row + 1) * self.width {
+                self.m[i] = 0.0;
+                self.v[i] = 0.0;
+            }
+            self.steps[row] = 0;
+        }
+    }
+}

@@ -1,0 +1,25 @@
+// Advances the per-row Adam step counts after adam_step.comp (a separate
+// pass, because every element of a row reads the count during the update).
+// CPU reference: engine/src/reference/adam.rs.
+#version 450
+#include "common.glsl"
+
+#define THREADS 256
+
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) buffer Steps { uint steps[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Mask { uint mask[]; };
+
+layout(push_constant) uniform Params {
+    uint rows;
+    uint use_mask;
+} pc;
+
+void main() {
+    uint row = linear_group() * THREADS + gl_LocalInvocationID.x;
+    if (row >= pc.rows || (pc.use_mask != 0u && mask[row] == 0u)) {
+        return;
+    }
+    steps[row] += 1u;
+}
