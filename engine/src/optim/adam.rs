@@ -113,7 +113,7 @@ impl AdamGroup {
         self.rows
     }
 
-    fn check<'a>(&self, what: &str, rows: u32, bufs: &[&'a Buffer], per_row: &[u64]) -> Result<()> {
+    fn check(&self, what: &str, rows: u32, bufs: &[&Buffer], per_row: &[u64]) -> Result<()> {
         if rows > self.rows {
             return Err(Error::InvalidArgument(format!(
                 "Adam group `{}` ({} rows): {what} of {rows} rows",
