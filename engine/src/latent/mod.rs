@@ -4,5 +4,7 @@
 //! [`crate::reference`].
 
 mod decoder;
+mod pooling;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
+pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};

@@ -7,6 +7,7 @@ pub mod atomic;
 pub mod decoder;
 pub mod gemm;
 pub mod loss;
+pub mod pooling;
 pub mod raster;
 pub mod reduce;
 pub mod scan;

@@ -49,6 +49,12 @@ pub struct BatchLayout {
 }
 
 impl BatchLayout {
+    /// The layout of a batch of these cameras' views, back to back (errors
+    /// for an invalid camera or a batch too large to index).
+    pub fn for_cameras(cams: &[Camera]) -> Result<Self> {
+        Ok(Self::new(cams)?.0)
+    }
+
     pub(crate) fn new(cams: &[Camera]) -> Result<(Self, Vec<GpuView>)> {
         let mut layout = BatchLayout::default();
         let mut gpu = Vec::with_capacity(cams.len());

@@ -1,0 +1,37 @@
+// Gradient of region pooling with respect to the rendered query image:
+//     grad_query[p, c] = grad_pooled[r(p), c] / |r(p)|,  0 for pixels in no region
+// Regions are disjoint (one label per pixel), so each pixel has at most one
+// region and the whole image gradient is overwritten without atomics. One
+// thread per (pixel, channel). CPU reference: engine/src/reference/pooling.rs.
+#version 450
+#include "common.glsl"
+
+#define CHANNELS 32
+#define THREADS 256
+#define NO_REGION 0xffffffffu
+
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer GradPooled { float grad_pooled[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Offsets { uint offsets[]; };
+layout(std430, set = 0, binding = 2) readonly buffer PixelRegion { uint pixel_region[]; };
+layout(std430, set = 0, binding = 3) buffer GradQuery { float grad_query[]; };
+
+layout(push_constant) uniform Params {
+    uint pixels;
+} pc;
+
+void main() {
+    uint i = linear_group() * THREADS + gl_LocalInvocationID.x;
+    if (i >= pc.pixels * CHANNELS) {
+        return;
+    }
+    uint p = i / CHANNELS;
+    uint c = i % CHANNELS;
+    uint r = pixel_region[p];
+    float g = 0.0;
+    if (r != NO_REGION) {
+        g = grad_pooled[r * CHANNELS + c] / float(offsets[r + 1u] - offsets[r]);
+    }
+    grad_query[i] = g;
+}
