@@ -6,8 +6,10 @@
 //! [`crate::reference::ssim`].
 
 mod feature;
+mod image;
 
-pub use feature::{FeatureLoss, TrustRegion};
+pub use feature::{FeatureLoss, TrustRegion, COSINE_EPS};
+pub use image::{depth_is_valid, ImageLoss, ImageLossReadback, ImageLossValues};
 
 /// Weights of every loss term. Defaults are the paper's values.
 ///

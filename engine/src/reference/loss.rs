@@ -79,6 +79,44 @@ pub fn trust_region(
     (loss, grad)
 }
 
+/// Photometric and depth L1 of one view, per-element weights folded in:
+/// `l1 = w_rgb · Σ_p Σ_c |r − t|` and `depth = w_depth · Σ_{valid p} |r_z − t_z|`
+/// where a target depth is valid when positive and finite. Pixels are
+/// (R, G, B, depth). Returns (l1, depth, ∂(l1 + depth)/∂rendered).
+pub fn image_l1_depth(
+    rendered: &[[f32; 4]],
+    target: &[[f32; 4]],
+    w_rgb: f64,
+    w_depth: f64,
+) -> (f64, f64, Vec<[f64; 4]>) {
+    let (mut l1, mut depth) = (0.0, 0.0);
+    let mut grad = vec![[0.0; 4]; rendered.len()];
+    for (p, (r, t)) in rendered.iter().zip(target).enumerate() {
+        for c in 0..3 {
+            let e = r[c] as f64 - t[c] as f64;
+            l1 += w_rgb * e.abs();
+            grad[p][c] = w_rgb * sign(e);
+        }
+        if t[3] > 0.0 && t[3].is_finite() {
+            let e = r[3] as f64 - t[3] as f64;
+            depth += w_depth * e.abs();
+            grad[p][3] = w_depth * sign(e);
+        }
+    }
+    (l1, depth, grad)
+}
+
+/// Sign with sign(0) = 0 (the subgradient L1 kernels use).
+fn sign(x: f64) -> f64 {
+    if x > 0.0 {
+        1.0
+    } else if x < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use rand::{Rng, SeedableRng};
