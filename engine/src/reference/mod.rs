@@ -6,6 +6,7 @@ pub mod adam;
 pub mod atomic;
 pub mod decoder;
 pub mod gemm;
+pub mod kmeans;
 pub mod loss;
 pub mod pooling;
 pub mod raster;

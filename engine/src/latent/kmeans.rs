@@ -1,0 +1,666 @@
+//! Streaming k-means with a fixed dictionary size (SPEC §4.2) on the GPU:
+//! the online initialisation of the decoder's dictionary. Kernels
+//! `glsl/kmeans_seed.comp`, `argmax_rows.comp`, `kmeans_update.comp`,
+//! `kmeans_novelty.comp`, `kmeans_moved.comp`, plus row normalisation and
+//! GEMM for the cosine similarities. CPU reference (and the statement of the
+//! algorithm): [`crate::reference::kmeans`].
+
+use latentam_shaders::{
+    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_SEED, KMEANS_UPDATE, NORMALIZE_ROWS,
+};
+
+use std::cell::Cell;
+
+use crate::error::{Error, Result};
+use crate::gpu::{Buffer, Context, Recorder};
+use crate::ops::{Gemm, Transpose};
+
+/// Largest dictionary the novelty kernel can track (its shared bit set).
+pub const MAX_KMEANS_ATOMS: u32 = 65536;
+
+/// Norms are divided by (norm + this) when comparing directions.
+const UNIT_EPS: f32 = 1e-12;
+
+/// Settings of [`StreamingKMeans`]; defaults follow SPEC §4.2 and §12.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KMeansConfig {
+    /// Dictionary capacity K (the paper's 2000).
+    pub atoms: u32,
+    /// Embedding dimension d_f.
+    pub dim: u32,
+    /// Most region embeddings per keyframe.
+    pub max_points: u32,
+    /// Micro-clusters per keyframe, m (the paper's 5).
+    pub micro_clusters: u32,
+    /// Lloyd iterations of the micro-clustering (≥ 1).
+    pub local_iterations: u32,
+    /// Lloyd iterations of the re-clustering into K (≥ 1).
+    pub global_iterations: u32,
+    /// Factor on the old atoms' weights per keyframe (1 = no forgetting).
+    pub decay: f32,
+    /// Cosine below which a micro-centre is a new concept that gets its own
+    /// atom once the dictionary is full (the closest pair of atoms is merged
+    /// to make room).
+    pub novelty_threshold: f32,
+    /// Re-normalise atoms to unit length after each update (targets are
+    /// unit-norm).
+    pub normalize: bool,
+    /// An atom that moved more than this (L2) is reported as moved.
+    pub moved_tolerance: f32,
+}
+
+impl Default for KMeansConfig {
+    fn default() -> Self {
+        Self {
+            atoms: 2000,
+            dim: 768,
+            max_points: 4096,
+            micro_clusters: 5,
+            local_iterations: 10,
+            global_iterations: 3,
+            decay: 1.0,
+            novelty_threshold: 0.5,
+            normalize: true,
+            moved_tolerance: 1e-4,
+        }
+    }
+}
+
+/// What one keyframe's update did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct KMeansStep {
+    /// Atoms in use before.
+    pub atoms_before: u32,
+    /// Atoms in use after.
+    pub atoms_after: u32,
+    /// Micro-centres formed from the keyframe.
+    pub micro_clusters: u32,
+    /// Whether the dictionary was full and re-clustered (rather than
+    /// appended to).
+    pub reclustered: bool,
+}
+
+/// Maintains a dictionary of at most K atoms from a stream of keyframes'
+/// region embeddings. The dictionary rows (`atoms`), its trust-region anchor
+/// D⁰ and the per-atom "moved" flags are the caller's buffers (the decoder
+/// and the optimiser share them); the atom weights live here.
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context, ContextOptions};
+/// use latentam::latent::{KMeansConfig, StreamingKMeans};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let cfg = KMeansConfig { atoms: 64, dim: 32, max_points: 100, ..Default::default() };
+/// let kmeans = StreamingKMeans::new(&ctx, cfg)?;
+/// let atoms = Buffer::device(&ctx, "D", 64 * 32 * 4)?;
+/// let anchor = Buffer::device(&ctx, "D0", 64 * 32 * 4)?;
+/// let moved = Buffer::device(&ctx, "moved", 64 * 4)?;
+/// let features = ctx.upload_new("F", &vec![0.1f32; 10 * 32])?; // 10 regions
+/// let mut rec = ctx.recorder()?;
+/// let step = kmeans.record_update(&mut rec, &features, None, 10, &atoms, &anchor, &moved)?;
+/// rec.submit()?.wait()?;
+/// assert_eq!(step.atoms_after, 5);
+/// # Ok::<(), latentam::Error>(())
+/// ```
+pub struct StreamingKMeans {
+    cfg: KMeansConfig,
+    /// Advances when an update is recorded (the recording must be submitted).
+    atom_count: Cell<u32>,
+    weights: Buffer,
+    ones: Buffer,
+    unit: Buffer,
+    closest: Buffer,
+    micro: Buffer,
+    micro_unit: Buffer,
+    micro_weights: Buffer,
+    points: Buffer,
+    point_mass: Buffer,
+    centre_unit: Buffer,
+    norms: Buffer,
+    sims: Buffer,
+    best_value: Buffer,
+    best_index: Buffer,
+}
+
+impl StreamingKMeans {
+    /// An empty dictionary state for `cfg`.
+    pub fn new(ctx: &Context, cfg: KMeansConfig) -> Result<Self> {
+        let ok = cfg.atoms > 0
+            && cfg.atoms <= MAX_KMEANS_ATOMS
+            && cfg.dim > 0
+            && cfg.max_points > 0
+            && cfg.micro_clusters > 0
+            && cfg.micro_clusters <= cfg.atoms
+            && cfg.local_iterations > 0
+            && cfg.global_iterations > 0
+            && (0.0..=1.0).contains(&cfg.decay)
+            && cfg.novelty_threshold.is_finite()
+            && cfg.moved_tolerance >= 0.0;
+        if !ok {
+            return Err(Error::InvalidArgument(format!(
+                "k-means settings out of range (need 1 ≤ K ≤ {MAX_KMEANS_ATOMS}, 1 ≤ m ≤ K, \
+                 iterations ≥ 1, decay in [0, 1]): {cfg:?}"
+            )));
+        }
+        let (k, m, n, d) = (
+            cfg.atoms as u64,
+            cfg.micro_clusters as u64,
+            cfg.max_points as u64,
+            cfg.dim as u64,
+        );
+        let rows = (k + m).max(n);
+        let buf =
+            |name: &str, elems: u64| Buffer::device(ctx, &format!("kmeans/{name}"), elems * 4);
+        let s = Self {
+            cfg,
+            atom_count: Cell::new(0),
+            weights: buf("weights", k)?,
+            ones: ctx.upload_new("kmeans/ones", &vec![1.0f32; n as usize])?,
+            unit: buf("unit", rows * d)?,
+            closest: buf("closest", n)?,
+            micro: buf("micro", m * d)?,
+            micro_unit: buf("micro_unit", m * d)?,
+            micro_weights: buf("micro_weights", m)?,
+            points: buf("points", (k + m) * d)?,
+            point_mass: buf("point_mass", k + m)?,
+            centre_unit: buf("centre_unit", k * d)?,
+            norms: buf("norms", rows)?,
+            sims: buf("sims", (n * m).max((k + m) * k))?,
+            best_value: buf("best_value", rows)?,
+            best_index: buf("best_index", rows)?,
+        };
+        Ok(s)
+    }
+
+    /// Atoms in use.
+    pub fn atom_count(&self) -> u32 {
+        self.atom_count.get()
+    }
+
+    /// Accumulated mass per atom (K floats; the first
+    /// [`Self::atom_count`] are in use).
+    pub fn weights(&self) -> &Buffer {
+        &self.weights
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &KMeansConfig {
+        &self.cfg
+    }
+
+    /// Restores the state of a saved dictionary of `atom_count` atoms whose
+    /// weights are in `weights` (e.g. when a map is loaded).
+    pub fn restore(&self, ctx: &Context, atom_count: u32, weights: &[f32]) -> Result<()> {
+        if atom_count > self.cfg.atoms || weights.len() != atom_count as usize {
+            return Err(Error::InvalidArgument(format!(
+                "restoring {atom_count} atoms with {} weights into a dictionary of {}",
+                weights.len(),
+                self.cfg.atoms
+            )));
+        }
+        ctx.upload(&self.weights, 0, weights)?;
+        self.atom_count.set(atom_count);
+        Ok(())
+    }
+
+    fn normalize<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        x: &'a Buffer,
+        y: &'a Buffer,
+        rows: u32,
+    ) -> Result<()> {
+        let p = push::NormalizeRows {
+            rows,
+            cols: self.cfg.dim,
+            eps: UNIT_EPS,
+        };
+        rec.dispatch_linear(&NORMALIZE_ROWS, rows, &[x, y, &self.norms], &p)
+    }
+
+    /// Cosine similarities of `rows` unit points to `cols` unit centres into
+    /// `sims`, then each row's best column.
+    fn best_centres<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        unit_points: &'a Buffer,
+        unit_centres: &'a Buffer,
+        rows: u32,
+        cols: u32,
+        exclude_diagonal: bool,
+    ) -> Result<()> {
+        Gemm {
+            transpose: Transpose::B,
+            m: rows,
+            n: cols,
+            k: self.cfg.dim,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(rec, unit_points, unit_centres, &self.sims)?;
+        rec.dispatch_linear(
+            &ARGMAX_ROWS,
+            rows,
+            &[&self.sims, &self.best_value, &self.best_index],
+            &push::ArgmaxRows {
+                rows,
+                cols,
+                exclude_diagonal: exclude_diagonal as u32,
+            },
+        )
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn lloyd_update<'a>(
+        &self,
+        rec: &mut Recorder<'a>,
+        points: &'a Buffer,
+        mass: &'a Buffer,
+        assignment: &'a Buffer,
+        centres: &'a Buffer,
+        weights: &'a Buffer,
+        points_count: u32,
+        centres_count: u32,
+        decayed: u32,
+    ) -> Result<()> {
+        let p = push::KmeansUpdate {
+            points_count,
+            centres_count,
+            dim: self.cfg.dim,
+            decayed,
+            decay: self.cfg.decay,
+            normalize: self.cfg.normalize as u32,
+        };
+        rec.dispatch_linear(
+            &KMEANS_UPDATE,
+            centres_count,
+            &[points, mass, assignment, centres, weights],
+            &p,
+        )
+    }
+
+    /// Records one keyframe's update from its `n` region embeddings
+    /// (`features`, n × d_f, ideally unit-norm) with optional per-region
+    /// masses (e.g. pixel areas; 1 each when `None`). Rewrites the rows of
+    /// `atoms` it changes, copies the result to `anchor` (D⁰ of the trust
+    /// region) and sets `moved[k]` to 1 for every atom that is new or moved.
+    /// With n = 0 nothing is recorded. The atom count advances when the
+    /// update is recorded, so the recording must be submitted.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_update<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        features: &'a Buffer,
+        mass: Option<&'a Buffer>,
+        n: u32,
+        atoms: &'a Buffer,
+        anchor: &'a Buffer,
+        moved: &'a Buffer,
+    ) -> Result<KMeansStep> {
+        let (k_max, d) = (self.cfg.atoms as u64, self.cfg.dim as u64);
+        if n > self.cfg.max_points {
+            return Err(Error::InvalidArgument(format!(
+                "k-means update with {n} regions; sized for {}",
+                self.cfg.max_points
+            )));
+        }
+        let sizes = [
+            (features, n as u64 * d * 4),
+            (atoms, k_max * d * 4),
+            (anchor, k_max * d * 4),
+            (moved, k_max * 4),
+        ];
+        if let Some((b, need)) = sizes.iter().find(|(b, need)| b.bytes() < *need) {
+            return Err(Error::InvalidArgument(format!(
+                "k-means: `{}` has {} bytes, needs {need}",
+                b.name(),
+                b.bytes()
+            )));
+        }
+        if mass.is_some_and(|b| b.bytes() < n as u64 * 4) {
+            return Err(Error::InvalidArgument(format!(
+                "k-means: the mass buffer is shorter than {n} regions"
+            )));
+        }
+        let before = self.atom_count.get();
+        let mut step = KMeansStep {
+            atoms_before: before,
+            atoms_after: before,
+            ..Default::default()
+        };
+        if n == 0 {
+            return Ok(step);
+        }
+        let this = self;
+        let mass = mass.unwrap_or(&this.ones);
+        let m = this.cfg.micro_clusters.min(n);
+        let dim = this.cfg.dim;
+
+        // 1. Micro-clusters of the keyframe.
+        this.normalize(rec, features, &this.unit, n)?;
+        rec.dispatch(
+            &KMEANS_SEED,
+            [1, 1, 1],
+            &[features, &this.unit, mass, &this.closest, &this.micro],
+            &push::KmeansSeed { n, dim, seeds: m },
+        )?;
+        for _ in 0..this.cfg.local_iterations {
+            this.normalize(rec, &this.micro, &this.micro_unit, m)?;
+            this.best_centres(rec, &this.unit, &this.micro_unit, n, m, false)?;
+            this.lloyd_update(
+                rec,
+                features,
+                mass,
+                &this.best_index,
+                &this.micro,
+                &this.micro_weights,
+                n,
+                m,
+                0,
+            )?;
+        }
+
+        // 2. The points of the re-clustering: [old atoms; micro-centres].
+        let (row, bytes) = (d * 4, before as u64 * d * 4);
+        rec.copy(atoms, 0, &this.points, 0, bytes)?;
+        rec.copy(&this.micro, 0, &this.points, bytes, m as u64 * row)?;
+        rec.copy(&this.weights, 0, &this.point_mass, 0, before as u64 * 4)?;
+        rec.copy(
+            &this.micro_weights,
+            0,
+            &this.point_mass,
+            before as u64 * 4,
+            m as u64 * 4,
+        )?;
+
+        let after = if before + m <= this.cfg.atoms {
+            // 3a. Room left: append.
+            rec.copy(&this.micro, 0, atoms, bytes, m as u64 * row)?;
+            rec.copy(
+                &this.micro_weights,
+                0,
+                &this.weights,
+                before as u64 * 4,
+                m as u64 * 4,
+            )?;
+            before + m
+        } else {
+            // 3b. Full: novelty, then weighted Lloyd warm-started from the atoms.
+            step.reclustered = true;
+            let total = before + m;
+            this.normalize(rec, &this.points, &this.unit, total)?;
+            this.normalize(rec, atoms, &this.centre_unit, before)?;
+            this.best_centres(rec, &this.unit, &this.centre_unit, total, before, true)?;
+            rec.dispatch(
+                &KMEANS_NOVELTY,
+                [1, 1, 1],
+                &[
+                    &this.best_value,
+                    &this.best_index,
+                    &this.weights,
+                    &this.micro,
+                    atoms,
+                ],
+                &push::KmeansNovelty {
+                    atoms: before,
+                    micro_count: m,
+                    dim,
+                    threshold: this.cfg.novelty_threshold,
+                },
+            )?;
+            for _ in 0..this.cfg.global_iterations {
+                this.normalize(rec, atoms, &this.centre_unit, before)?;
+                this.best_centres(rec, &this.unit, &this.centre_unit, total, before, false)?;
+                this.lloyd_update(
+                    rec,
+                    &this.points,
+                    &this.point_mass,
+                    &this.best_index,
+                    atoms,
+                    &this.weights,
+                    total,
+                    before,
+                    before,
+                )?;
+            }
+            before
+        };
+
+        // 4. Moved flags and the trust-region anchor.
+        rec.dispatch_linear(
+            &KMEANS_MOVED,
+            after,
+            &[atoms, &this.points, moved],
+            &push::KmeansMoved {
+                atoms_count: after,
+                old_count: before,
+                dim,
+                tolerance: this.cfg.moved_tolerance,
+            },
+        )?;
+        rec.copy(atoms, 0, anchor, 0, after as u64 * row)?;
+        self.atom_count.set(after);
+        step.atoms_after = after;
+        step.micro_clusters = m;
+        Ok(step)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::Rng;
+
+    use super::*;
+    use crate::gpu::testing::{rng, with_context};
+    use crate::reference::kmeans::{self as reference, Dictionary, KMeansSettings};
+
+    fn unit(v: Vec<f64>) -> Vec<f64> {
+        let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        v.into_iter().map(|x| x / n).collect()
+    }
+
+    /// One keyframe: `per` noisy unit points around each of the given
+    /// cluster directions, with distinct masses.
+    fn keyframe(
+        r: &mut impl Rng,
+        dirs: &[Vec<f64>],
+        clusters: &[usize],
+        per: usize,
+    ) -> (Vec<Vec<f64>>, Vec<f64>) {
+        let mut points = Vec::new();
+        let mut mass = Vec::new();
+        for &c in clusters {
+            for _ in 0..per {
+                let noise = 0.3 / (dirs[c].len() as f64).sqrt();
+                points.push(unit(
+                    dirs[c]
+                        .iter()
+                        .map(|x| x + noise * r.random_range(-1.0..1.0))
+                        .collect(),
+                ));
+                mass.push(r.random_range(0.5..2.0));
+            }
+        }
+        (points, mass)
+    }
+
+    fn settings(cfg: &KMeansConfig) -> KMeansSettings {
+        KMeansSettings {
+            micro_clusters: cfg.micro_clusters as usize,
+            local_iterations: cfg.local_iterations as usize,
+            global_iterations: cfg.global_iterations as usize,
+            decay: cfg.decay as f64,
+            novelty_threshold: cfg.novelty_threshold as f64,
+            normalize: cfg.normalize,
+            moved_tolerance: cfg.moved_tolerance as f64,
+        }
+    }
+
+    /// A stream with known clusters: the dictionary fills up (append), then
+    /// runs full (re-clustering), and two clusters first appear after it is
+    /// full. GPU and reference are compared after every keyframe; at the
+    /// end every cluster, the late ones included, has an atom, and no mass
+    /// was lost.
+    #[test]
+    fn streaming_kmeans_matches_reference_and_finds_late_clusters() {
+        let mut r = rng("streaming_kmeans_matches_reference_and_finds_late_clusters");
+        with_context(|ctx| {
+            let dim = 64usize;
+            let dirs: Vec<Vec<f64>> = (0..10)
+                .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
+                .collect();
+            let cfg = KMeansConfig {
+                atoms: 12,
+                dim: dim as u32,
+                max_points: 64,
+                micro_clusters: 3,
+                ..Default::default()
+            };
+            let s = settings(&cfg);
+            let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+            let k = cfg.atoms as usize;
+            let atoms = Buffer::device(ctx, "test/atoms", (k * dim * 4) as u64).unwrap();
+            let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
+            let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
+            let mut dict = Dictionary {
+                atoms: Vec::new(),
+                weights: Vec::new(),
+                capacity: k,
+            };
+            let mut total_mass = 0.0;
+            let mut reclustered = 0;
+            for frame in 0..16 {
+                let pool: Vec<usize> = if frame < 10 {
+                    (0..8).collect()
+                } else {
+                    (0..10).collect()
+                };
+                let mut clusters = Vec::new();
+                if frame >= 10 {
+                    clusters.push(8 + frame % 2); // the late clusters
+                }
+                while clusters.len() < 3 {
+                    let c = pool[r.random_range(0..pool.len())];
+                    if !clusters.contains(&c) {
+                        clusters.push(c);
+                    }
+                }
+                let (points, mass) = keyframe(&mut r, &dirs, &clusters, 7);
+                total_mass += mass.iter().sum::<f64>();
+                let flat: Vec<f32> = points.iter().flatten().map(|&v| v as f32).collect();
+                let mass32: Vec<f32> = mass.iter().map(|&v| v as f32).collect();
+                let fb = ctx.upload_new("test/features", &flat).unwrap();
+                let mb = ctx.upload_new("test/mass", &mass32).unwrap();
+                let mut rec = ctx.recorder().unwrap();
+                rec.fill_u32(&moved, 0x7fc0_0000);
+                let n = points.len() as u32;
+                let step = kmeans
+                    .record_update(&mut rec, &fb, Some(&mb), n, &atoms, &anchor, &moved)
+                    .unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                // The reference sees the same rounded inputs as the GPU.
+                let points64: Vec<Vec<f64>> = flat
+                    .chunks(dim)
+                    .map(|c| c.iter().map(|&v| v as f64).collect())
+                    .collect();
+                let mass64: Vec<f64> = mass32.iter().map(|&v| v as f64).collect();
+                let want_moved = reference::update_dictionary(&s, &mut dict, &points64, &mass64);
+                reclustered += step.reclustered as u32;
+                assert_eq!(step.atoms_after as usize, dict.atoms.len(), "frame {frame}");
+                let count = dict.atoms.len();
+                let got = ctx.download::<f32>(&atoms).unwrap();
+                let got_anchor = ctx.download::<f32>(&anchor).unwrap();
+                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+                let got_moved = ctx.download::<u32>(&moved).unwrap();
+                for a in 0..count {
+                    for j in 0..dim {
+                        let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
+                        assert!(
+                            (g - w).abs() < 1e-4,
+                            "frame {frame} atom {a}[{j}]: {g} vs {w}"
+                        );
+                        assert_eq!(got_anchor[a * dim + j], got[a * dim + j]);
+                    }
+                    let (g, w) = (got_w[a] as f64, dict.weights[a]);
+                    assert!(
+                        (g - w).abs() <= 1e-4 * w.max(1.0),
+                        "frame {frame} weight {a}: {g} vs {w}"
+                    );
+                    assert_eq!(got_moved[a] != 0, want_moved[a], "frame {frame} moved {a}");
+                }
+                // Mass is conserved: it moves between atoms, never vanishes.
+                let w_sum: f64 = got_w[..count].iter().map(|&v| v as f64).sum();
+                assert!(
+                    (w_sum - total_mass).abs() < 1e-3 * total_mass,
+                    "{w_sum} vs {total_mass}"
+                );
+            }
+            assert!(
+                reclustered >= 10,
+                "the dictionary should have been full for most frames"
+            );
+            let got = ctx.download::<f32>(&atoms).unwrap();
+            for (c, dir) in dirs.iter().enumerate() {
+                let best = (0..k)
+                    .map(|a| {
+                        (0..dim)
+                            .map(|j| got[a * dim + j] as f64 * dir[j])
+                            .sum::<f64>()
+                    })
+                    .fold(f64::NEG_INFINITY, f64::max);
+                assert!(best > 0.9, "cluster {c} has no atom (best cosine {best})");
+            }
+        });
+    }
+
+    #[test]
+    fn small_and_empty_keyframes() {
+        with_context(|ctx| {
+            let cfg = KMeansConfig {
+                atoms: 8,
+                dim: 16,
+                max_points: 4,
+                ..Default::default()
+            };
+            let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+            let atoms = Buffer::device(ctx, "test/atoms", 8 * 16 * 4).unwrap();
+            let anchor = Buffer::device(ctx, "test/anchor", 8 * 16 * 4).unwrap();
+            let moved = Buffer::device(ctx, "test/moved", 8 * 4).unwrap();
+            let f: Vec<f32> = (0..5 * 16).map(|i| ((i * 7) % 11) as f32 - 5.0).collect();
+            let fb = ctx.upload_new("test/f", &f).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let empty = kmeans
+                .record_update(&mut rec, &fb, None, 0, &atoms, &anchor, &moved)
+                .unwrap();
+            assert_eq!(empty.atoms_after, 0);
+            // Fewer regions than micro-clusters: one centre per region.
+            let two = kmeans
+                .record_update(&mut rec, &fb, None, 2, &atoms, &anchor, &moved)
+                .unwrap();
+            assert_eq!((two.micro_clusters, two.atoms_after), (2, 2));
+            assert!(kmeans
+                .record_update(&mut rec, &fb, None, 5, &atoms, &anchor, &moved)
+                .is_err());
+            rec.submit().unwrap().wait().unwrap();
+            assert_eq!(kmeans.atom_count(), 2);
+            for bad in [
+                KMeansConfig { atoms: 0, ..cfg },
+                KMeansConfig {
+                    micro_clusters: 9,
+                    ..cfg
+                },
+                KMeansConfig {
+                    global_iterations: 0,
+                    ..cfg
+                },
+                KMeansConfig { decay: 1.5, ..cfg },
+                KMeansConfig {
+                    atoms: MAX_KMEANS_ATOMS + 1,
+                    ..cfg
+                },
+            ] {
+                assert!(StreamingKMeans::new(ctx, bad).is_err(), "{bad:?}");
+            }
+        });
+    }
+}

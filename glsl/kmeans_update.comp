@@ -1,0 +1,84 @@
+// Weighted Lloyd update of one centre per workgroup (SPEC §4.2):
+//     C_j = sum_{a_i = j} m_i P_i / sum_{a_i = j} m_i,   weight_j = sum m_i
+// with m_i = decay * mass_i for the first `decayed` points (the old atoms)
+// and mass_i otherwise; re-normalised to unit length when `normalize` != 0.
+// A centre that receives no mass keeps its value and gets weight 0. Each
+// workgroup scans the assignments (cheap: one u32 per point) and reads only
+// its own points' rows, so no atomics are needed. CPU reference:
+// engine/src/reference/kmeans.rs.
+#version 450
+#include "common.glsl"
+
+#define THREADS 256
+
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer Points { float points[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Mass { float mass[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Assign { uint assign[]; };
+layout(std430, set = 0, binding = 3) buffer Centres { float centres[]; };
+layout(std430, set = 0, binding = 4) buffer Weights { float weights[]; };
+
+layout(push_constant) uniform Params {
+    uint points_count;
+    uint centres_count;
+    uint dim;
+    uint decayed;
+    float decay;
+    uint normalize;
+} pc;
+
+shared float partial[THREADS];
+
+float point_mass(uint i) {
+    return i < pc.decayed ? pc.decay * mass[i] : mass[i];
+}
+
+void main() {
+    uint j = linear_group();
+    if (j >= pc.centres_count) {
+        return;
+    }
+    uint t = gl_LocalInvocationID.x;
+    float total = 0.0;
+    for (uint i = 0u; i < pc.points_count; i++) {
+        if (assign[i] == j) {
+            total += point_mass(i);
+        }
+    }
+    if (!(total > 0.0)) {
+        if (t == 0u) {
+            weights[j] = 0.0;
+        }
+        return;
+    }
+    float sq = 0.0;
+    for (uint k = t; k < pc.dim; k += THREADS) {
+        float acc = 0.0;
+        for (uint i = 0u; i < pc.points_count; i++) {
+            if (assign[i] == j) {
+                acc += point_mass(i) * points[i * pc.dim + k];
+            }
+        }
+        float v = acc / total;
+        centres[j * pc.dim + k] = v;
+        sq += v * v;
+    }
+    partial[t] = sq;
+    barrier();
+    for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
+        if (t < h) {
+            partial[t] += partial[t + h];
+        }
+        barrier();
+    }
+    float norm = sqrt(partial[0]);
+    if (pc.normalize != 0u && norm > 0.0) {
+        for (uint k = t; k < pc.dim; k += THREADS) {
+            centres[j * pc.dim + k] /= norm;
+        }
+    }
+    if (t == 0u) {
+        weights[j] = total;
+    }
+}
