@@ -3,13 +3,16 @@
 // with m_i = decay * mass_i for the first `decayed` points (the old atoms)
 // and mass_i otherwise; re-normalised to unit length when `normalize` != 0.
 // A centre that receives no mass keeps its value and gets weight 0. Each
-// workgroup scans the assignments (cheap: one u32 per point) and reads only
-// its own points' rows, so no atomics are needed. CPU reference:
-// engine/src/reference/kmeans.rs.
+// workgroup scans the assignments once (one u32 per point, split over its
+// threads), gathers its members' indices in shared memory (count, scan,
+// scatter: no atomics) and then reads only their rows; a centre with more
+// members than the list holds reads them by rescanning the assignments.
+// CPU reference: engine/src/reference/kmeans.rs.
 #version 450
 #include "common.glsl"
 
 #define THREADS 256
+#define MAX_MEMBERS 2048u
 
 layout(local_size_x = THREADS) in;
 
@@ -29,6 +32,8 @@ layout(push_constant) uniform Params {
 } pc;
 
 shared float partial[THREADS];
+shared uint offsets[THREADS];
+shared uint members[MAX_MEMBERS];
 
 float point_mass(uint i) {
     return i < pc.decayed ? pc.decay * mass[i] : mass[i];
@@ -40,12 +45,44 @@ void main() {
         return;
     }
     uint t = gl_LocalInvocationID.x;
-    float total = 0.0;
-    for (uint i = 0u; i < pc.points_count; i++) {
+    // Members: per-thread counts and masses over a strided share of points.
+    uint count = 0u;
+    float m = 0.0;
+    for (uint i = t; i < pc.points_count; i += THREADS) {
         if (assign[i] == j) {
-            total += point_mass(i);
+            count++;
+            m += point_mass(i);
         }
     }
+    offsets[t] = count;
+    partial[t] = m;
+    barrier();
+    // Inclusive scan of the counts (Hillis-Steele) and sum of the masses.
+    for (uint h = 1u; h < THREADS; h *= 2u) {
+        uint add = t >= h ? offsets[t - h] : 0u;
+        barrier();
+        offsets[t] += add;
+        barrier();
+    }
+    for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
+        if (t < h) {
+            partial[t] += partial[t + h];
+        }
+        barrier();
+    }
+    float total = partial[0];
+    uint listed = offsets[THREADS - 1u];
+    bool in_list = listed <= MAX_MEMBERS;
+    if (in_list) {
+        uint o = offsets[t] - count;
+        for (uint i = t; i < pc.points_count; i += THREADS) {
+            if (assign[i] == j) {
+                members[o] = i;
+                o++;
+            }
+        }
+    }
+    barrier();
     if (!(total > 0.0)) {
         if (t == 0u) {
             weights[j] = 0.0;
@@ -55,15 +92,23 @@ void main() {
     float sq = 0.0;
     for (uint k = t; k < pc.dim; k += THREADS) {
         float acc = 0.0;
-        for (uint i = 0u; i < pc.points_count; i++) {
-            if (assign[i] == j) {
+        if (in_list) {
+            for (uint e = 0u; e < listed; e++) {
+                uint i = members[e];
                 acc += point_mass(i) * points[i * pc.dim + k];
+            }
+        } else {
+            for (uint i = 0u; i < pc.points_count; i++) {
+                if (assign[i] == j) {
+                    acc += point_mass(i) * points[i * pc.dim + k];
+                }
             }
         }
         float v = acc / total;
         centres[j * pc.dim + k] = v;
         sq += v * v;
     }
+    barrier();
     partial[t] = sq;
     barrier();
     for (uint h = THREADS / 2u; h > 0u; h /= 2u) {

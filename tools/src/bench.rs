@@ -53,6 +53,33 @@ pub enum Which {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Time the latent head: attention decoder forward and backward, one
+    /// Stage II iteration (decode, feature loss, backward, trust region, Adam
+    /// on W and D), a streaming k-means update on a full dictionary, and the
+    /// image losses (L1 + SSIM + depth) on one view.
+    Latent {
+        /// Regions decoded at once (n).
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+        regions: u32,
+        /// Dictionary atoms (K).
+        #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u32).range(1..=65_536))]
+        atoms: u32,
+        /// Embedding dimension (d_f).
+        #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(1..=16_384))]
+        dim: u32,
+        /// Width of the image of the SSIM measurement.
+        #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(1..=16384))]
+        ssim_width: u32,
+        /// Height of the image of the SSIM measurement.
+        #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(1..=16384))]
+        ssim_height: u32,
+        /// Measured runs (after one warm-up run); at least 3.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(3..))]
+        runs: u32,
+        /// Write the results as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -70,6 +97,23 @@ pub fn run(which: Which) -> Result<()> {
             height,
             gaussians,
             views,
+            runs: runs as usize,
+            json,
+        }),
+        Which::Latent {
+            regions,
+            atoms,
+            dim,
+            ssim_width,
+            ssim_height,
+            runs,
+            json,
+        } => crate::bench_latent::run(crate::bench_latent::LatentBench {
+            regions,
+            atoms,
+            dim,
+            ssim_width,
+            ssim_height,
             runs: runs as usize,
             json,
         }),
@@ -102,6 +146,71 @@ struct Report {
 struct Timing {
     gpu_ms: Vec<f64>,
     wall_ms: Vec<f64>,
+}
+
+/// One kernel's share of a benchmarked operation.
+#[derive(Serialize)]
+pub(crate) struct KernelRow {
+    pub name: String,
+    /// Dispatches per run.
+    pub count_per_run: f64,
+    /// GPU milliseconds per run, mean over runs.
+    pub ms_per_run: f64,
+    pub mean_ms: f64,
+    pub std_ms: f64,
+    pub min_ms: f64,
+    pub max_ms: f64,
+}
+
+/// Per-kernel statistics from the samples of `runs` measured runs, most
+/// expensive first.
+pub(crate) fn kernel_rows(
+    per_kernel: std::collections::BTreeMap<&'static str, Vec<f64>>,
+    runs: usize,
+) -> Vec<KernelRow> {
+    let mut rows: Vec<KernelRow> = per_kernel
+        .into_iter()
+        .map(|(name, v)| {
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+            KernelRow {
+                name: name.to_string(),
+                count_per_run: n / runs as f64,
+                ms_per_run: v.iter().sum::<f64>() / runs as f64,
+                mean_ms: mean,
+                std_ms: var.sqrt(),
+                min_ms: v.iter().cloned().fold(f64::INFINITY, f64::min),
+                max_ms: v.iter().cloned().fold(0.0, f64::max),
+            }
+        })
+        .collect();
+    rows.sort_by(|a, b| b.ms_per_run.total_cmp(&a.ms_per_run));
+    rows
+}
+
+/// Prints the per-kernel table.
+pub(crate) fn print_kernel_rows(rows: &[KernelRow]) {
+    println!(
+        "{:<28} {:>8} {:>12} {:>12} {:>10} {:>10} {:>10}",
+        "kernel", "count", "ms/run", "mean ms", "std ms", "min ms", "max ms"
+    );
+    for k in rows {
+        println!(
+            "{:<28} {:>8.1} {:>12.3} {:>12.3} {:>10.3} {:>10.3} {:>10.3}",
+            k.name, k.count_per_run, k.ms_per_run, k.mean_ms, k.std_ms, k.min_ms, k.max_ms
+        );
+    }
+}
+
+/// Writes a report as pretty JSON when a path was given.
+pub(crate) fn write_json(path: Option<&std::path::Path>, report: &impl Serialize) -> Result<()> {
+    if let Some(path) = path {
+        let text = serde_json::to_string_pretty(report)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
 }
 
 /// Median of a sample (NaN for an empty one).
@@ -381,10 +490,5 @@ fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
          {:.2} GFLOP/s",
         report.memory_bandwidth_gbps, report.peak_gflops, report.gemm_gflops
     );
-    if let Some(path) = json {
-        let text = serde_json::to_string_pretty(&report)?;
-        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
-        println!("wrote {}", path.display());
-    }
-    Ok(())
+    write_json(json.as_deref(), &report)
 }

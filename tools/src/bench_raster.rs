@@ -5,13 +5,15 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use glam::DVec3;
 use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::bench::{median, profiling_context};
+use crate::bench::{
+    kernel_rows, median, print_kernel_rows, profiling_context, write_json, KernelRow,
+};
 
 /// Settings of one raster benchmark.
 pub struct RasterBench {
@@ -21,19 +23,6 @@ pub struct RasterBench {
     pub views: u32,
     pub runs: usize,
     pub json: Option<PathBuf>,
-}
-
-#[derive(Serialize)]
-struct KernelRow {
-    name: String,
-    /// Dispatches per forward+backward.
-    count_per_run: f64,
-    /// GPU milliseconds per forward+backward, mean over runs.
-    ms_per_run: f64,
-    mean_ms: f64,
-    std_ms: f64,
-    min_ms: f64,
-    max_ms: f64,
 }
 
 #[derive(Serialize)]
@@ -207,24 +196,7 @@ pub fn run(b: RasterBench) -> Result<()> {
     // Work bound: every pixel of a tile walks (at most) the tile's list.
     let pairs = pixel_gaussian_pairs(&raster)?;
 
-    let mut kernels: Vec<KernelRow> = per_kernel
-        .into_iter()
-        .map(|(name, v)| {
-            let n = v.len() as f64;
-            let mean = v.iter().sum::<f64>() / n;
-            let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
-            KernelRow {
-                name: name.to_string(),
-                count_per_run: n / b.runs as f64,
-                ms_per_run: v.iter().sum::<f64>() / b.runs as f64,
-                mean_ms: mean,
-                std_ms: var.sqrt(),
-                min_ms: v.iter().cloned().fold(f64::INFINITY, f64::min),
-                max_ms: v.iter().cloned().fold(0.0, f64::max),
-            }
-        })
-        .collect();
-    kernels.sort_by(|a, b| b.ms_per_run.total_cmp(&a.ms_per_run));
+    let kernels = kernel_rows(per_kernel, b.runs);
     let report = Report {
         device: ctx.info().name.clone(),
         width: b.width,
@@ -262,21 +234,8 @@ pub fn run(b: RasterBench) -> Result<()> {
         report.backward_ms_median,
         report.backward_wall_ms_median
     );
-    println!(
-        "{:<28} {:>8} {:>12} {:>12} {:>10} {:>10} {:>10}",
-        "kernel", "count", "ms/run", "mean ms", "std ms", "min ms", "max ms"
-    );
-    for k in &report.kernels {
-        println!(
-            "{:<28} {:>8.1} {:>12.3} {:>12.3} {:>10.3} {:>10.3} {:>10.3}",
-            k.name, k.count_per_run, k.ms_per_run, k.mean_ms, k.std_ms, k.min_ms, k.max_ms
-        );
-    }
-    if let Some(path) = &b.json {
-        let text = serde_json::to_string_pretty(&report)?;
-        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
-        println!("wrote {}", path.display());
-    }
+    print_kernel_rows(&report.kernels);
+    write_json(b.json.as_deref(), &report)?;
     Ok(())
 }
 

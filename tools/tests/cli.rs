@@ -129,6 +129,75 @@ fn bench_raster_writes_json_with_times_and_kernels() {
 }
 
 #[test]
+fn bench_latent_writes_json_with_every_measurement() {
+    let dir = std::env::temp_dir().join(format!("latentam-latent-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("latent.json");
+    let out = latentam()
+        .args([
+            "bench",
+            "latent",
+            "--regions",
+            "20",
+            "--atoms",
+            "64",
+            "--dim",
+            "96",
+            "--ssim-width",
+            "40",
+            "--ssim-height",
+            "30",
+            "--runs",
+            "3",
+            "--json",
+        ])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(
+        (v["regions"].clone(), v["atoms"].clone(), v["dim"].clone()),
+        (20.into(), 64.into(), 96.into())
+    );
+    for key in [
+        "decode_forward_ms_median",
+        "decode_backward_ms_median",
+        "kmeans_ms_median",
+        "ssim_forward_backward_ms_median",
+        "stage2_iteration_ms_median",
+        "decode_gflops",
+    ] {
+        assert!(
+            v[key].as_f64().is_some_and(|t| t > 0.0),
+            "{key}: {}",
+            v[key]
+        );
+    }
+    let names: Vec<&str> = v["kernels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k["name"].as_str().unwrap())
+        .collect();
+    for want in [
+        "gemm_nt",
+        "softmax_backward",
+        "kmeans_update",
+        "ssim_map_v",
+        "adam_step",
+    ] {
+        assert!(names.contains(&want), "{want} missing from {names:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn bench_rejects_fewer_than_five_runs() {
     let out = latentam()
         .args(["bench", "primitives", "--runs", "2"])

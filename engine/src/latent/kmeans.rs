@@ -613,6 +613,65 @@ mod tests {
         });
     }
 
+    /// A centre with more members than the update kernel's shared list
+    /// (2048) takes the rescanning path; both paths must agree with the
+    /// reference.
+    #[test]
+    fn large_clusters_match_reference() {
+        let mut r = rng("large_clusters_match_reference");
+        with_context(|ctx| {
+            let dim = 32usize;
+            let dirs: Vec<Vec<f64>> = (0..2)
+                .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
+                .collect();
+            let (mut points, mut mass) = keyframe(&mut r, &dirs, &[0], 3000);
+            let (p2, m2) = keyframe(&mut r, &dirs, &[1], 500);
+            points.extend(p2);
+            mass.extend(m2);
+            let cfg = KMeansConfig {
+                atoms: 4,
+                dim: dim as u32,
+                max_points: points.len() as u32,
+                micro_clusters: 2,
+                ..Default::default()
+            };
+            let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+            let atoms = Buffer::device(ctx, "test/atoms", (4 * dim * 4) as u64).unwrap();
+            let anchor = Buffer::device(ctx, "test/anchor", (4 * dim * 4) as u64).unwrap();
+            let moved = Buffer::device(ctx, "test/moved", 16).unwrap();
+            let flat: Vec<f32> = points.iter().flatten().map(|&v| v as f32).collect();
+            let mass32: Vec<f32> = mass.iter().map(|&v| v as f32).collect();
+            let fb = ctx.upload_new("test/f", &flat).unwrap();
+            let mb = ctx.upload_new("test/m", &mass32).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let n = points.len() as u32;
+            kmeans
+                .record_update(&mut rec, &fb, Some(&mb), n, &atoms, &anchor, &moved)
+                .unwrap();
+            rec.submit().unwrap().wait().unwrap();
+            let points64: Vec<Vec<f64>> = flat
+                .chunks(dim)
+                .map(|c| c.iter().map(|&v| v as f64).collect())
+                .collect();
+            let mass64: Vec<f64> = mass32.iter().map(|&v| v as f64).collect();
+            let (want, want_w) = reference::micro_clusters(&settings(&cfg), &points64, &mass64);
+            let got = ctx.download::<f32>(&atoms).unwrap();
+            let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+            for c in 0..2 {
+                for j in 0..dim {
+                    assert!(
+                        (got[c * dim + j] as f64 - want[c][j]).abs() < 1e-4,
+                        "centre {c}[{j}]"
+                    );
+                }
+                assert!(
+                    (got_w[c] as f64 - want_w[c]).abs() < 1e-3 * want_w[c],
+                    "weight {c}"
+                );
+            }
+        });
+    }
+
     #[test]
     fn small_and_empty_keyframes() {
         with_context(|ctx| {

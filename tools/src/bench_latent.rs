@@ -1,0 +1,289 @@
+//! `latentam bench latent`: the latent head at the paper's sizes — the
+//! attention decoder forward and backward, one Stage II iteration (decode,
+//! feature loss, backward, trust region, Adam on W and D), one streaming
+//! k-means update on a full dictionary, and SSIM forward + backward on one
+//! image.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use latentam::gpu::{Buffer, Context, Sample};
+use latentam::latent::{
+    AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams, KMeansConfig, StreamingKMeans,
+};
+use latentam::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, LossWeights, TrustRegion};
+use latentam::optim::{AdamGroup, AdamHyper};
+use latentam::splat::{BatchLayout, Camera, QUERY_DIM};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+use crate::bench::{
+    kernel_rows, median, print_kernel_rows, profiling_context, write_json, KernelRow,
+};
+
+/// Settings of one latent-head benchmark.
+pub struct LatentBench {
+    pub regions: u32,
+    pub atoms: u32,
+    pub dim: u32,
+    pub ssim_width: u32,
+    pub ssim_height: u32,
+    pub runs: usize,
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct Report {
+    device: String,
+    regions: u32,
+    atoms: u32,
+    dim: u32,
+    ssim_width: u32,
+    ssim_height: u32,
+    runs: usize,
+    decode_forward_ms_median: f64,
+    decode_backward_ms_median: f64,
+    /// Multiply-adds ×2 of decoder forward + backward over their median time.
+    decode_gflops: f64,
+    stage2_iteration_ms_median: f64,
+    kmeans_ms_median: f64,
+    ssim_forward_backward_ms_median: f64,
+    image_loss_ms_median: f64,
+    kernels: Vec<KernelRow>,
+}
+
+fn random_buffer(
+    ctx: &Context,
+    name: &str,
+    n: usize,
+    scale: f32,
+    rng: &mut impl Rng,
+) -> Result<Buffer> {
+    let v: Vec<f32> = (0..n).map(|_| rng.random_range(-scale..scale)).collect();
+    Ok(ctx.upload_new(name, &v)?)
+}
+
+/// Rows of unit vectors, clustered around a few directions like real
+/// region embeddings.
+fn unit_rows(rows: usize, dim: usize, rng: &mut impl Rng) -> Vec<f32> {
+    let centres: Vec<Vec<f32>> = (0..32)
+        .map(|_| (0..dim).map(|_| rng.random_range(-1.0..1.0)).collect())
+        .collect();
+    let mut out = Vec::with_capacity(rows * dim);
+    for _ in 0..rows {
+        let c = &centres[rng.random_range(0..centres.len())];
+        let v: Vec<f32> = c.iter().map(|x| x + rng.random_range(-0.5..0.5)).collect();
+        let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        out.extend(v.iter().map(|x| x / n));
+    }
+    out
+}
+
+/// Runs `record` once to warm up and `runs` times measured; returns the
+/// median GPU time and adds every kernel's samples to `per_kernel`.
+fn time(
+    ctx: &Context,
+    runs: usize,
+    per_kernel: &mut BTreeMap<&'static str, Vec<f64>>,
+    mut op: impl FnMut() -> latentam::Result<()>,
+) -> Result<f64> {
+    let mut times = Vec::new();
+    for run in 0..=runs {
+        ctx.profiler_reset();
+        op()?;
+        let samples: Vec<Sample> = ctx.profiler_snapshot().samples().to_vec();
+        if run > 0 {
+            times.push(samples.iter().map(|s| s.duration_ns * 1e-6).sum());
+            for s in samples {
+                per_kernel
+                    .entry(s.name)
+                    .or_default()
+                    .push(s.duration_ns * 1e-6);
+            }
+        }
+    }
+    Ok(median(&times))
+}
+
+pub fn run(b: LatentBench) -> Result<()> {
+    let ctx = profiling_context()?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let (n, k, d) = (b.regions as usize, b.atoms as usize, b.dim as usize);
+    let weights = LossWeights::default();
+
+    let dec = AttentionDecoder::new(
+        &ctx,
+        DecoderConfig {
+            max_regions: b.regions,
+            max_atoms: b.atoms,
+            dim: b.dim,
+            ..Default::default()
+        },
+    )?;
+    let queries = random_buffer(&ctx, "bench/queries", n * QUERY_DIM, 1.0, &mut rng)?;
+    let w = random_buffer(&ctx, "bench/W", QUERY_DIM * d, 1.0, &mut rng)?;
+    let atoms = ctx.upload_new("bench/D", &unit_rows(k, d, &mut rng))?;
+    let anchor = ctx.upload_new("bench/D0", &unit_rows(k, d, &mut rng))?;
+    let targets = ctx.upload_new("bench/targets", &unit_rows(n, d, &mut rng))?;
+    let row_weights = ctx.upload_new("bench/row_weights", &mean_per_view_weights(&[b.regions]))?;
+    let grad_out = random_buffer(&ctx, "bench/dF", n * d, 1.0, &mut rng)?;
+    let grad_q = Buffer::device(&ctx, "bench/dQ", (n * QUERY_DIM * 4) as u64)?;
+    let grad_w = Buffer::device(&ctx, "bench/dW", (QUERY_DIM * d * 4) as u64)?;
+    let grad_d = Buffer::device(&ctx, "bench/dD", (k * d * 4) as u64)?;
+    let params = DecoderParams {
+        w: &w,
+        atoms: &atoms,
+        atom_count: b.atoms,
+    };
+    let grads = || DecoderGrads {
+        queries: Some(&grad_q),
+        w: &grad_w,
+        atoms: &grad_d,
+    };
+    let mut per_kernel = BTreeMap::new();
+
+    let forward = time(&ctx, b.runs, &mut per_kernel, || {
+        let mut rec = ctx.recorder()?;
+        dec.record_forward(&mut rec, params, &queries, b.regions)?;
+        rec.submit()?.wait()
+    })?;
+    let backward = time(&ctx, b.runs, &mut per_kernel, || {
+        let mut rec = ctx.recorder()?;
+        dec.record_backward(&mut rec, params, &queries, b.regions, &grad_out, grads())?;
+        rec.submit()?.wait()
+    })?;
+
+    // One Stage II iteration: W and D only, from cached pooled queries.
+    let feature = FeatureLoss::new(&ctx, b.regions, b.dim, weights)?;
+    let trust = TrustRegion::new(&ctx, b.atoms, b.dim, weights)?;
+    let adam_w = AdamGroup::new(
+        &ctx,
+        "W",
+        QUERY_DIM as u32,
+        b.dim,
+        AdamHyper::new(0.01, 1e-8),
+    )?;
+    let adam_d = AdamGroup::new(&ctx, "D", b.atoms, b.dim, AdamHyper::new(0.01, 1e-8))?;
+    let stage2 = time(&ctx, b.runs, &mut per_kernel, || {
+        let mut rec = ctx.recorder()?;
+        dec.record_forward(&mut rec, params, &queries, b.regions)?;
+        feature.record(&mut rec, dec.output(), &targets, &row_weights, b.regions)?;
+        let g = DecoderGrads {
+            queries: None,
+            w: &grad_w,
+            atoms: &grad_d,
+        };
+        dec.record_backward(&mut rec, params, &queries, b.regions, feature.grad(), g)?;
+        trust.record(&mut rec, &atoms, &anchor, &grad_d, b.atoms)?;
+        adam_w.record_step(&mut rec, &w, &grad_w, QUERY_DIM as u32, None)?;
+        adam_d.record_step(&mut rec, &atoms, &grad_d, b.atoms, None)?;
+        rec.submit()?.wait()
+    })?;
+
+    // Streaming k-means on a full dictionary (the expensive regime).
+    let kcfg = KMeansConfig {
+        atoms: b.atoms,
+        dim: b.dim,
+        max_points: b.regions.max(1),
+        ..Default::default()
+    };
+    let kmeans = StreamingKMeans::new(&ctx, kcfg)?;
+    let kd = ctx.upload_new("bench/kmeans_atoms", &unit_rows(k, d, &mut rng))?;
+    let k_anchor = Buffer::device(&ctx, "bench/kmeans_anchor", (k * d * 4) as u64)?;
+    let moved = Buffer::device(&ctx, "bench/moved", (k * 4) as u64)?;
+    let features = ctx.upload_new("bench/features", &unit_rows(n, d, &mut rng))?;
+    let full_weights = vec![1.0f32; k];
+    let kmeans_ms = time(&ctx, b.runs, &mut per_kernel, || {
+        kmeans.restore(&ctx, b.atoms, &full_weights)?;
+        let mut rec = ctx.recorder()?;
+        kmeans.record_update(&mut rec, &features, None, b.regions, &kd, &k_anchor, &moved)?;
+        rec.submit()?.wait()
+    })?;
+
+    // Image losses on one view; SSIM is the sum of its four passes.
+    let cam = Camera::looking_at(
+        [0.0, 0.0, 0.0].into(),
+        [0.0, 0.0, 1.0].into(),
+        [0.0, -1.0, 0.0].into(),
+        b.ssim_width,
+        b.ssim_height,
+        b.ssim_width as f64,
+    );
+    let layout = BatchLayout::for_cameras(&[cam])?;
+    let pixels = layout.pixels;
+    let img = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<[f32; 4]> {
+        (0..pixels)
+            .map(|_| {
+                [
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..1.0),
+                    2.0,
+                ]
+            })
+            .collect()
+    };
+    let rendered = ctx.upload_new("bench/rendered", &img(&mut rng))?;
+    let target = ctx.upload_new("bench/target", &img(&mut rng))?;
+    let grad_img = Buffer::device(&ctx, "bench/grad_image", pixels * 16)?;
+    let image_loss = ImageLoss::new(&ctx, pixels, 1, weights)?;
+    let mut image_kernels = BTreeMap::new();
+    let image_ms = time(&ctx, b.runs, &mut image_kernels, || {
+        let mut rec = ctx.recorder()?;
+        image_loss.record(&mut rec, &layout, &rendered, &target, &[pixels], &grad_img)?;
+        rec.submit()?.wait()
+    })?;
+    let ssim_runs: Vec<f64> = (0..b.runs)
+        .map(|r| {
+            image_kernels
+                .iter()
+                .filter(|(name, _)| name.starts_with("ssim_"))
+                .map(|(_, v)| v[r])
+                .sum()
+        })
+        .collect();
+    for (name, v) in image_kernels {
+        per_kernel.entry(name).or_default().extend(v);
+    }
+
+    let decode_flops = {
+        let (n, k, d, s) = (n as f64, k as f64, d as f64, QUERY_DIM as f64);
+        // Forward: E, S, F. Backward: dA, dD, dÊ, dD̂, dW, dQ.
+        2.0 * (n * s * d + 2.0 * n * k * d) + 2.0 * (4.0 * n * k * d + 2.0 * n * s * d)
+    };
+    let report = Report {
+        device: ctx.info().name.clone(),
+        regions: b.regions,
+        atoms: b.atoms,
+        dim: b.dim,
+        ssim_width: b.ssim_width,
+        ssim_height: b.ssim_height,
+        runs: b.runs,
+        decode_forward_ms_median: forward,
+        decode_backward_ms_median: backward,
+        decode_gflops: decode_flops / ((forward + backward) * 1e-3) * 1e-9,
+        stage2_iteration_ms_median: stage2,
+        kmeans_ms_median: kmeans_ms,
+        ssim_forward_backward_ms_median: median(&ssim_runs),
+        image_loss_ms_median: image_ms,
+        // Every measured run of every operation above, pooled by kernel.
+        kernels: kernel_rows(per_kernel, b.runs),
+    };
+    println!(
+        "device: {}\ndecoder n={} K={} d_f={}: forward {:.3} ms, backward {:.3} ms GPU (median), \
+         {:.2} GFLOP/s",
+        report.device, b.regions, b.atoms, b.dim, forward, backward, report.decode_gflops
+    );
+    println!("Stage II iteration (decode, feature loss, backward, trust region, Adam W+D): {stage2:.3} ms");
+    println!(
+        "streaming k-means, full dictionary, {} regions: {kmeans_ms:.3} ms",
+        b.regions
+    );
+    println!(
+        "image loss {}x{}: {:.3} ms (SSIM forward+backward {:.3} ms)",
+        b.ssim_width, b.ssim_height, image_ms, report.ssim_forward_backward_ms_median
+    );
+    print_kernel_rows(&report.kernels);
+    write_json(b.json.as_deref(), &report)
+}
