@@ -202,15 +202,7 @@ pub fn run(b: LatentBench) -> Result<()> {
     })?;
 
     // Image losses on one view; SSIM is the sum of its four passes.
-    let cam = Camera::looking_at(
-        [0.0, 0.0, 0.0].into(),
-        [0.0, 0.0, 1.0].into(),
-        [0.0, -1.0, 0.0].into(),
-        b.ssim_width,
-        b.ssim_height,
-        b.ssim_width as f64,
-    );
-    let layout = BatchLayout::for_cameras(&[cam])?;
+    let layout = BatchLayout::for_cameras(&[Camera::at_origin(b.ssim_width, b.ssim_height)])?;
     let pixels = layout.pixels;
     let img = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<[f32; 4]> {
         (0..pixels)

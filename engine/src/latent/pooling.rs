@@ -57,9 +57,7 @@ pub struct ViewRegions {
 /// use latentam::latent::{LabelImage, Regions};
 /// use latentam::splat::{BatchLayout, Camera};
 ///
-/// let cam = Camera::looking_at([0.0, 0.0, 0.0].into(), [0.0, 0.0, 1.0].into(),
-///                              [0.0, -1.0, 0.0].into(), 4, 2, 2.0);
-/// let layout = BatchLayout::for_cameras(&[cam])?;
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(4, 2)])?;
 /// let mut regions = Regions::new(&layout, 2);
 /// // A 2x1 label image: left half region 0, right half region 1.
 /// let labels = [0u16, 1];
@@ -398,16 +396,7 @@ mod tests {
     fn layout(sizes: &[(u32, u32)]) -> BatchLayout {
         let cams: Vec<Camera> = sizes
             .iter()
-            .map(|&(w, h)| {
-                Camera::looking_at(
-                    [0.0, 0.0, 0.0].into(),
-                    [0.0, 0.0, 1.0].into(),
-                    [0.0, -1.0, 0.0].into(),
-                    w,
-                    h,
-                    w as f64,
-                )
-            })
+            .map(|&(w, h)| Camera::at_origin(w, h))
             .collect();
         BatchLayout::for_cameras(&cams).unwrap()
     }

@@ -75,9 +75,7 @@ impl ImageLossReadback {
 /// use latentam::splat::{BatchLayout, Camera};
 ///
 /// let ctx = Context::new(ContextOptions::default())?;
-/// let cam = Camera::looking_at([0.0, 0.0, 0.0].into(), [0.0, 0.0, 1.0].into(),
-///                              [0.0, -1.0, 0.0].into(), 64, 48, 60.0);
-/// let layout = BatchLayout::for_cameras(&[cam])?;
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(64, 48)])?;
 /// let loss = ImageLoss::new(&ctx, 64 * 48, 1, LossWeights::default())?;
 /// let rendered = ctx.upload_new("rendered", &vec![[0.5f32, 0.5, 0.5, 2.0]; 64 * 48])?;
 /// let target = ctx.upload_new("target", &vec![[0.4f32, 0.5, 0.6, 2.1]; 64 * 48])?;
@@ -267,16 +265,7 @@ mod tests {
             let sizes = [(37u32, 29u32), (16, 16), (7, 5), (50, 21)];
             let cams: Vec<Camera> = sizes
                 .iter()
-                .map(|&(w, h)| {
-                    Camera::looking_at(
-                        [0.0, 0.0, 0.0].into(),
-                        [0.0, 0.0, 1.0].into(),
-                        [0.0, -1.0, 0.0].into(),
-                        w,
-                        h,
-                        w as f64,
-                    )
-                })
+                .map(|&(w, h)| Camera::at_origin(w, h))
                 .collect();
             let layout = BatchLayout::for_cameras(&cams).unwrap();
             let n = layout.pixels as usize;
@@ -396,14 +385,7 @@ mod tests {
     #[test]
     fn bad_batches_are_rejected() {
         with_context(|ctx| {
-            let cam = Camera::looking_at(
-                [0.0, 0.0, 0.0].into(),
-                [0.0, 0.0, 1.0].into(),
-                [0.0, -1.0, 0.0].into(),
-                8,
-                8,
-                8.0,
-            );
+            let cam = Camera::at_origin(8, 8);
             let layout = BatchLayout::for_cameras(&[cam, cam]).unwrap();
             let b = Buffer::device(ctx, "test/b", 128 * 16).unwrap();
             let one_view = ImageLoss::new(ctx, 64, 1, LossWeights::default()).unwrap();

@@ -16,6 +16,12 @@ use glam::{DAffine3, DVec3};
 ///     320, 240, 300.0);
 /// assert_eq!(cam.width, 320);
 /// assert!((cam.cx - 159.5).abs() < 1e-12);
+/// // `up` points up in the image: a point above the target projects above
+/// // the image centre (smaller row).
+/// let p = cam.world_to_cam().transform_point3(glam::DVec3::new(0.0, -0.5, 0.0));
+/// assert!(cam.fy * p.y / p.z + cam.cy < cam.cy);
+/// // The world frame itself, OpenCV axes:
+/// assert_eq!(Camera::at_origin(8, 6).cam_to_world, glam::DAffine3::IDENTITY);
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
@@ -57,8 +63,9 @@ impl Camera {
         focal: f64,
     ) -> Self {
         let z = (target - eye).normalize();
-        // Image y points down, so "up" maps to -y.
-        let x = z.cross(-up).normalize();
+        // Right-handed with y down: x = y × z and y = -up (made orthogonal),
+        // so x = z × up.
+        let x = z.cross(up).normalize();
         let y = z.cross(x);
         Self {
             cam_to_world: DAffine3::from_cols(x, y, z, eye),
@@ -71,6 +78,21 @@ impl Camera {
             near: Self::DEFAULT_NEAR,
             far: Self::DEFAULT_FAR,
         }
+    }
+
+    /// A camera whose frame is the world frame (at the origin, looking along
+    /// +z, y down), focal length `width` pixels (a 53° horizontal field of
+    /// view), principal point at the image centre. For work where only the
+    /// image size matters (losses, region pooling, tests).
+    pub fn at_origin(width: u32, height: u32) -> Self {
+        Self::looking_at(
+            DVec3::ZERO,
+            DVec3::Z,
+            DVec3::NEG_Y,
+            width,
+            height,
+            width as f64,
+        )
     }
 
     /// World-to-camera transform.
