@@ -459,29 +459,63 @@ mod tests {
         v.into_iter().map(|x| x / n).collect()
     }
 
-    /// One keyframe: `per` noisy unit points around each of the given
-    /// cluster directions, with distinct masses.
-    fn keyframe(
-        r: &mut impl Rng,
-        dirs: &[Vec<f64>],
-        clusters: &[usize],
-        per: usize,
-    ) -> (Vec<Vec<f64>>, Vec<f64>) {
-        let mut points = Vec::new();
-        let mut mass = Vec::new();
-        for &c in clusters {
-            for _ in 0..per {
-                let noise = 0.3 / (dirs[c].len() as f64).sqrt();
-                points.push(unit(
-                    dirs[c]
-                        .iter()
-                        .map(|x| x + noise * r.random_range(-1.0..1.0))
-                        .collect(),
-                ));
-                mass.push(r.random_range(0.5..2.0));
+    /// One keyframe's regions, rounded to f32 as the GPU sees them.
+    struct Frame {
+        points: Vec<f32>,
+        mass: Vec<f32>,
+    }
+
+    impl Frame {
+        /// `per` noisy unit points around each of the given cluster
+        /// directions, with distinct masses.
+        fn new(r: &mut impl Rng, dirs: &[Vec<f64>], clusters: &[usize], per: usize) -> Self {
+            let mut points = Vec::new();
+            let mut mass = Vec::new();
+            for &c in clusters {
+                for _ in 0..per {
+                    let noise = 0.3 / (dirs[c].len() as f64).sqrt();
+                    let p = unit(
+                        dirs[c]
+                            .iter()
+                            .map(|x| x + noise * r.random_range(-1.0..1.0))
+                            .collect(),
+                    );
+                    points.extend(p.iter().map(|&v| v as f32));
+                    mass.push(r.random_range(0.5f32..2.0));
+                }
             }
+            Self { points, mass }
         }
-        (points, mass)
+
+        fn rows(&self, dim: usize) -> Vec<Vec<f64>> {
+            self.points
+                .chunks(dim)
+                .map(|c| c.iter().map(|&v| v as f64).collect())
+                .collect()
+        }
+
+        fn mass(&self) -> Vec<f64> {
+            self.mass.iter().map(|&v| v as f64).collect()
+        }
+
+        /// Runs one GPU update with this keyframe.
+        fn update(
+            &self,
+            ctx: &Context,
+            kmeans: &StreamingKMeans,
+            out: &[&Buffer; 3],
+        ) -> KMeansStep {
+            let fb = ctx.upload_new("test/features", &self.points).unwrap();
+            let mb = ctx.upload_new("test/mass", &self.mass).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            rec.fill_u32(out[2], 0x7fc0_0000);
+            let n = self.mass.len() as u32;
+            let step = kmeans
+                .record_update(&mut rec, &fb, Some(&mb), n, out[0], out[1], out[2])
+                .unwrap();
+            rec.submit().unwrap().wait().unwrap();
+            step
+        }
     }
 
     fn settings(cfg: &KMeansConfig) -> KMeansSettings {
@@ -545,25 +579,10 @@ mod tests {
                         clusters.push(c);
                     }
                 }
-                let (points, mass) = keyframe(&mut r, &dirs, &clusters, 7);
-                total_mass += mass.iter().sum::<f64>();
-                let flat: Vec<f32> = points.iter().flatten().map(|&v| v as f32).collect();
-                let mass32: Vec<f32> = mass.iter().map(|&v| v as f32).collect();
-                let fb = ctx.upload_new("test/features", &flat).unwrap();
-                let mb = ctx.upload_new("test/mass", &mass32).unwrap();
-                let mut rec = ctx.recorder().unwrap();
-                rec.fill_u32(&moved, 0x7fc0_0000);
-                let n = points.len() as u32;
-                let step = kmeans
-                    .record_update(&mut rec, &fb, Some(&mb), n, &atoms, &anchor, &moved)
-                    .unwrap();
-                rec.submit().unwrap().wait().unwrap();
-                // The reference sees the same rounded inputs as the GPU.
-                let points64: Vec<Vec<f64>> = flat
-                    .chunks(dim)
-                    .map(|c| c.iter().map(|&v| v as f64).collect())
-                    .collect();
-                let mass64: Vec<f64> = mass32.iter().map(|&v| v as f64).collect();
+                let keyframe = Frame::new(&mut r, &dirs, &clusters, 7);
+                total_mass += keyframe.mass().iter().sum::<f64>();
+                let step = keyframe.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
+                let (points64, mass64) = (keyframe.rows(dim), keyframe.mass());
                 let want_moved = reference::update_dictionary(&s, &mut dict, &points64, &mass64);
                 reclustered += step.reclustered as u32;
                 assert_eq!(step.atoms_after as usize, dict.atoms.len(), "frame {frame}");
@@ -624,14 +643,14 @@ mod tests {
             let dirs: Vec<Vec<f64>> = (0..2)
                 .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
                 .collect();
-            let (mut points, mut mass) = keyframe(&mut r, &dirs, &[0], 3000);
-            let (p2, m2) = keyframe(&mut r, &dirs, &[1], 500);
-            points.extend(p2);
-            mass.extend(m2);
+            let mut frame = Frame::new(&mut r, &dirs, &[0], 3000);
+            let other = Frame::new(&mut r, &dirs, &[1], 500);
+            frame.points.extend(other.points);
+            frame.mass.extend(other.mass);
             let cfg = KMeansConfig {
                 atoms: 4,
                 dim: dim as u32,
-                max_points: points.len() as u32,
+                max_points: frame.mass.len() as u32,
                 micro_clusters: 2,
                 ..Default::default()
             };
@@ -639,21 +658,8 @@ mod tests {
             let atoms = Buffer::device(ctx, "test/atoms", (4 * dim * 4) as u64).unwrap();
             let anchor = Buffer::device(ctx, "test/anchor", (4 * dim * 4) as u64).unwrap();
             let moved = Buffer::device(ctx, "test/moved", 16).unwrap();
-            let flat: Vec<f32> = points.iter().flatten().map(|&v| v as f32).collect();
-            let mass32: Vec<f32> = mass.iter().map(|&v| v as f32).collect();
-            let fb = ctx.upload_new("test/f", &flat).unwrap();
-            let mb = ctx.upload_new("test/m", &mass32).unwrap();
-            let mut rec = ctx.recorder().unwrap();
-            let n = points.len() as u32;
-            kmeans
-                .record_update(&mut rec, &fb, Some(&mb), n, &atoms, &anchor, &moved)
-                .unwrap();
-            rec.submit().unwrap().wait().unwrap();
-            let points64: Vec<Vec<f64>> = flat
-                .chunks(dim)
-                .map(|c| c.iter().map(|&v| v as f64).collect())
-                .collect();
-            let mass64: Vec<f64> = mass32.iter().map(|&v| v as f64).collect();
+            frame.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
+            let (points64, mass64) = (frame.rows(dim), frame.mass());
             let (want, want_w) = reference::micro_clusters(&settings(&cfg), &points64, &mass64);
             let got = ctx.download::<f32>(&atoms).unwrap();
             let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
