@@ -157,6 +157,19 @@ impl Buffer {
         self.bytes
     }
 
+    /// An error naming `context`, this buffer and both sizes when it holds
+    /// fewer than `need` bytes (every kernel wrapper checks its operands so
+    /// a short buffer is an error rather than an out-of-bounds GPU access).
+    pub fn ensure_bytes(&self, need: u64, context: &str) -> Result<()> {
+        if self.bytes < need {
+            return Err(Error::InvalidArgument(format!(
+                "{context}: `{}` has {} bytes, needs {need}",
+                self.name, self.bytes
+            )));
+        }
+        Ok(())
+    }
+
     /// Number of `T` elements that fit.
     pub fn len_of<T>(&self) -> u64 {
         self.bytes / std::mem::size_of::<T>() as u64

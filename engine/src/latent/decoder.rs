@@ -1,14 +1,14 @@
 //! The dictionary attention decoder: rendered 32-d region queries back to full
 //! embeddings (SPEC §2.5). Forward and backward are GEMMs ([`Gemm`]) around
-//! three small row kernels (`glsl/normalize_rows.comp`,
-//! `glsl/normalize_rows_backward.comp`, `glsl/softmax_backward.comp`) and the
-//! row softmax. CPU reference: [`crate::reference::decoder`].
-
-use latentam_shaders::{push, NORMALIZE_ROWS, NORMALIZE_ROWS_BACKWARD, SOFTMAX_BACKWARD};
+//! row normalisation ([`normalize_rows`] and its backward) and the row
+//! softmax ([`row_softmax`] and its backward). CPU reference:
+//! [`crate::reference::decoder`].
 
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, Recorder};
-use crate::ops::{row_softmax, Gemm, Transpose};
+use crate::ops::{
+    normalize_rows, normalize_rows_backward, row_softmax, row_softmax_backward, Gemm, Transpose,
+};
 use crate::splat::QUERY_DIM;
 
 /// Sizes and constants of a decoder; the workspace is allocated for the
@@ -184,32 +184,7 @@ impl AttentionDecoder {
         norm: &'a Buffer,
         rows: u32,
     ) -> Result<()> {
-        let p = push::NormalizeRows {
-            rows,
-            cols: self.cfg.dim,
-            eps: self.cfg.eps,
-        };
-        rec.dispatch_linear(&NORMALIZE_ROWS, rows, &[x, y, norm], &p)
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn normalize_backward<'a>(
-        &self,
-        rec: &mut Recorder<'a>,
-        y: &'a Buffer,
-        norm: &'a Buffer,
-        g: &'a Buffer,
-        dx: &'a Buffer,
-        rows: u32,
-        beta: f32,
-    ) -> Result<()> {
-        let p = push::NormalizeRowsBackward {
-            rows,
-            cols: self.cfg.dim,
-            eps: self.cfg.eps,
-            beta,
-        };
-        rec.dispatch_linear(&NORMALIZE_ROWS_BACKWARD, rows, &[y, norm, g, dx], &p)
+        normalize_rows(rec, x, y, norm, rows, self.cfg.dim, self.cfg.eps)
     }
 
     /// Records the forward pass for `n` regions whose queries are the first
@@ -285,17 +260,8 @@ impl AttentionDecoder {
             p.atoms,
             &self.d_attention,
         )?;
-        let sp = push::SoftmaxBackward {
-            rows: n,
-            cols: k,
-            scale: 1.0 / self.cfg.temperature,
-        };
-        rec.dispatch_linear(
-            &SOFTMAX_BACKWARD,
-            n,
-            &[&self.attention, &self.d_attention],
-            &sp,
-        )?;
+        let inv_tau = 1.0 / self.cfg.temperature;
+        row_softmax_backward(rec, &self.attention, &self.d_attention, n, k, inv_tau)?;
         // Through the cosine similarities into both normalisations.
         self.gemm(Transpose::None, n, d, k, 1.0, 0.0).record(
             rec,
@@ -309,24 +275,11 @@ impl AttentionDecoder {
             &self.e_hat,
             &self.d_d_hat,
         )?;
-        self.normalize_backward(
-            rec,
-            &self.d_hat,
-            &self.d_norm,
-            &self.d_d_hat,
-            grads.atoms,
-            k,
-            1.0,
-        )?;
-        self.normalize_backward(
-            rec,
-            &self.e_hat,
-            &self.e_norm,
-            &self.d_e_hat,
-            &self.d_e,
-            n,
-            0.0,
-        )?;
+        let (dim, eps) = (self.cfg.dim, self.cfg.eps);
+        let (d_hat, d_norm, d_d_hat) = (&self.d_hat, &self.d_norm, &self.d_d_hat);
+        normalize_rows_backward(rec, d_hat, d_norm, d_d_hat, grads.atoms, k, dim, eps, 1.0)?;
+        let (e_hat, e_norm, d_e_hat) = (&self.e_hat, &self.e_norm, &self.d_e_hat);
+        normalize_rows_backward(rec, e_hat, e_norm, d_e_hat, &self.d_e, n, dim, eps, 0.0)?;
         self.gemm(Transpose::A, s, d, n, 1.0, 0.0)
             .record(rec, queries, &self.d_e, grads.w)?;
         if let Some(gq) = grads.queries {

@@ -6,14 +6,14 @@
 //! algorithm): [`crate::reference::kmeans`].
 
 use latentam_shaders::{
-    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_SEED, KMEANS_UPDATE, NORMALIZE_ROWS,
+    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_SEED, KMEANS_UPDATE,
 };
 
 use std::cell::Cell;
 
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, Recorder};
-use crate::ops::{Gemm, Transpose};
+use crate::ops::{normalize_rows, Gemm, Transpose};
 
 /// Largest dictionary the novelty kernel can track (its shared bit set).
 pub const MAX_KMEANS_ATOMS: u32 = 65536;
@@ -210,12 +210,7 @@ impl StreamingKMeans {
         y: &'a Buffer,
         rows: u32,
     ) -> Result<()> {
-        let p = push::NormalizeRows {
-            rows,
-            cols: self.cfg.dim,
-            eps: UNIT_EPS,
-        };
-        rec.dispatch_linear(&NORMALIZE_ROWS, rows, &[x, y, &self.norms], &p)
+        normalize_rows(rec, x, y, &self.norms, rows, self.cfg.dim, UNIT_EPS)
     }
 
     /// Cosine similarities of `rows` unit points to `cols` unit centres into
@@ -310,17 +305,11 @@ impl StreamingKMeans {
             (anchor, k_max * d * 4),
             (moved, k_max * 4),
         ];
-        if let Some((b, need)) = sizes.iter().find(|(b, need)| b.bytes() < *need) {
-            return Err(Error::InvalidArgument(format!(
-                "k-means: `{}` has {} bytes, needs {need}",
-                b.name(),
-                b.bytes()
-            )));
+        for (b, need) in sizes {
+            b.ensure_bytes(need, "k-means")?;
         }
-        if mass.is_some_and(|b| b.bytes() < n as u64 * 4) {
-            return Err(Error::InvalidArgument(format!(
-                "k-means: the mass buffer is shorter than {n} regions"
-            )));
+        if let Some(m) = mass {
+            m.ensure_bytes(n as u64 * 4, "k-means region masses")?;
         }
         let before = self.atom_count.get();
         let mut step = KMeansStep {
@@ -331,29 +320,28 @@ impl StreamingKMeans {
         if n == 0 {
             return Ok(step);
         }
-        let this = self;
-        let mass = mass.unwrap_or(&this.ones);
-        let m = this.cfg.micro_clusters.min(n);
-        let dim = this.cfg.dim;
+        let mass = mass.unwrap_or(&self.ones);
+        let m = self.cfg.micro_clusters.min(n);
+        let dim = self.cfg.dim;
 
         // 1. Micro-clusters of the keyframe.
-        this.normalize(rec, features, &this.unit, n)?;
+        self.normalize(rec, features, &self.unit, n)?;
         rec.dispatch(
             &KMEANS_SEED,
             [1, 1, 1],
-            &[features, &this.unit, mass, &this.closest, &this.micro],
+            &[features, &self.unit, mass, &self.closest, &self.micro],
             &push::KmeansSeed { n, dim, seeds: m },
         )?;
-        for _ in 0..this.cfg.local_iterations {
-            this.normalize(rec, &this.micro, &this.micro_unit, m)?;
-            this.best_centres(rec, &this.unit, &this.micro_unit, n, m, false)?;
-            this.lloyd_update(
+        for _ in 0..self.cfg.local_iterations {
+            self.normalize(rec, &self.micro, &self.micro_unit, m)?;
+            self.best_centres(rec, &self.unit, &self.micro_unit, n, m, false)?;
+            self.lloyd_update(
                 rec,
                 features,
                 mass,
-                &this.best_index,
-                &this.micro,
-                &this.micro_weights,
+                &self.best_index,
+                &self.micro,
+                &self.micro_weights,
                 n,
                 m,
                 0,
@@ -362,24 +350,24 @@ impl StreamingKMeans {
 
         // 2. The points of the re-clustering: [old atoms; micro-centres].
         let (row, bytes) = (d * 4, before as u64 * d * 4);
-        rec.copy(atoms, 0, &this.points, 0, bytes)?;
-        rec.copy(&this.micro, 0, &this.points, bytes, m as u64 * row)?;
-        rec.copy(&this.weights, 0, &this.point_mass, 0, before as u64 * 4)?;
+        rec.copy(atoms, 0, &self.points, 0, bytes)?;
+        rec.copy(&self.micro, 0, &self.points, bytes, m as u64 * row)?;
+        rec.copy(&self.weights, 0, &self.point_mass, 0, before as u64 * 4)?;
         rec.copy(
-            &this.micro_weights,
+            &self.micro_weights,
             0,
-            &this.point_mass,
+            &self.point_mass,
             before as u64 * 4,
             m as u64 * 4,
         )?;
 
-        let after = if before + m <= this.cfg.atoms {
+        let after = if before + m <= self.cfg.atoms {
             // 3a. Room left: append.
-            rec.copy(&this.micro, 0, atoms, bytes, m as u64 * row)?;
+            rec.copy(&self.micro, 0, atoms, bytes, m as u64 * row)?;
             rec.copy(
-                &this.micro_weights,
+                &self.micro_weights,
                 0,
-                &this.weights,
+                &self.weights,
                 before as u64 * 4,
                 m as u64 * 4,
             )?;
@@ -388,36 +376,36 @@ impl StreamingKMeans {
             // 3b. Full: novelty, then weighted Lloyd warm-started from the atoms.
             step.reclustered = true;
             let total = before + m;
-            this.normalize(rec, &this.points, &this.unit, total)?;
-            this.normalize(rec, atoms, &this.centre_unit, before)?;
-            this.best_centres(rec, &this.unit, &this.centre_unit, total, before, true)?;
+            self.normalize(rec, &self.points, &self.unit, total)?;
+            self.normalize(rec, atoms, &self.centre_unit, before)?;
+            self.best_centres(rec, &self.unit, &self.centre_unit, total, before, true)?;
             rec.dispatch(
                 &KMEANS_NOVELTY,
                 [1, 1, 1],
                 &[
-                    &this.best_value,
-                    &this.best_index,
-                    &this.weights,
-                    &this.micro,
+                    &self.best_value,
+                    &self.best_index,
+                    &self.weights,
+                    &self.micro,
                     atoms,
                 ],
                 &push::KmeansNovelty {
                     atoms: before,
                     micro_count: m,
                     dim,
-                    threshold: this.cfg.novelty_threshold,
+                    threshold: self.cfg.novelty_threshold,
                 },
             )?;
-            for _ in 0..this.cfg.global_iterations {
-                this.normalize(rec, atoms, &this.centre_unit, before)?;
-                this.best_centres(rec, &this.unit, &this.centre_unit, total, before, false)?;
-                this.lloyd_update(
+            for _ in 0..self.cfg.global_iterations {
+                self.normalize(rec, atoms, &self.centre_unit, before)?;
+                self.best_centres(rec, &self.unit, &self.centre_unit, total, before, false)?;
+                self.lloyd_update(
                     rec,
-                    &this.points,
-                    &this.point_mass,
-                    &this.best_index,
+                    &self.points,
+                    &self.point_mass,
+                    &self.best_index,
                     atoms,
-                    &this.weights,
+                    &self.weights,
                     total,
                     before,
                     before,
@@ -430,12 +418,12 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_MOVED,
             after,
-            &[atoms, &this.points, moved],
+            &[atoms, &self.points, moved],
             &push::KmeansMoved {
                 atoms_count: after,
                 old_count: before,
                 dim,
-                tolerance: this.cfg.moved_tolerance,
+                tolerance: self.cfg.moved_tolerance,
             },
         )?;
         rec.copy(atoms, 0, anchor, 0, after as u64 * row)?;

@@ -348,13 +348,10 @@ impl RegionPooling {
         grad_query_image: &'a Buffer,
     ) -> Result<()> {
         self.check_image(grad_query_image)?;
-        if grad_pooled.bytes() < self.regions as u64 * QUERY_DIM as u64 * 4 {
-            return Err(Error::InvalidArgument(format!(
-                "pooled gradient `{}` is smaller than {} regions",
-                grad_pooled.name(),
-                self.regions
-            )));
-        }
+        grad_pooled.ensure_bytes(
+            self.regions as u64 * QUERY_DIM as u64 * 4,
+            "region pooling backward: pooled gradient",
+        )?;
         let elems = self.pixels * QUERY_DIM as u64;
         rec.dispatch_linear(
             &REGION_POOL_BACKWARD,
@@ -372,15 +369,10 @@ impl RegionPooling {
     }
 
     fn check_image(&self, image: &Buffer) -> Result<()> {
-        if image.bytes() < self.pixels * QUERY_DIM as u64 * 4 {
-            return Err(Error::InvalidArgument(format!(
-                "query image `{}` ({} bytes) is smaller than the uploaded batch ({} pixels)",
-                image.name(),
-                image.bytes(),
-                self.pixels
-            )));
-        }
-        Ok(())
+        image.ensure_bytes(
+            self.pixels * QUERY_DIM as u64 * 4,
+            "region pooling: query image of the uploaded batch",
+        )
     }
 }
 

@@ -79,15 +79,9 @@ impl FeatureLoss {
     ) -> Result<()> {
         check_rows("feature loss", rows, self.max_rows)?;
         let elems = rows as u64 * self.dim as u64 * 4;
-        if pred.bytes() < elems || target.bytes() < elems || row_weights.bytes() < rows as u64 * 4 {
-            return Err(Error::InvalidArgument(format!(
-                "feature loss of {rows} x {}: `{}`, `{}` or `{}` is too small",
-                self.dim,
-                pred.name(),
-                target.name(),
-                row_weights.name()
-            )));
-        }
+        pred.ensure_bytes(elems, "feature loss predictions")?;
+        target.ensure_bytes(elems, "feature loss targets")?;
+        row_weights.ensure_bytes(rows as u64 * 4, "feature loss row weights")?;
         let w = &self.weights;
         let p = push::FeatureLoss {
             rows,
@@ -149,14 +143,8 @@ impl TrustRegion {
     ) -> Result<()> {
         check_rows("trust region", atoms, self.max_atoms)?;
         let elems = atoms as u64 * self.dim as u64 * 4;
-        if [dictionary, anchor, grad].iter().any(|b| b.bytes() < elems) {
-            return Err(Error::InvalidArgument(format!(
-                "trust region of {atoms} x {}: `{}`, `{}` or `{}` is too small",
-                self.dim,
-                dictionary.name(),
-                anchor.name(),
-                grad.name()
-            )));
+        for b in [dictionary, anchor, grad] {
+            b.ensure_bytes(elems, "trust region")?;
         }
         let w = &self.weights;
         let p = push::TrustRegion {

@@ -156,13 +156,7 @@ impl ImageLoss {
         }
         let need = layout.pixels * 16;
         for b in [rendered, target, grad] {
-            if b.bytes() < need {
-                return Err(Error::InvalidArgument(format!(
-                    "image loss: `{}` has {} bytes, the batch needs {need}",
-                    b.name(),
-                    b.bytes()
-                )));
-            }
+            b.ensure_bytes(need, "image loss")?;
         }
         for b in [&self.l1_partial, &self.depth_partial, &self.ssim_partial] {
             rec.fill_u32(b, 0);

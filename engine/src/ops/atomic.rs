@@ -4,7 +4,7 @@
 
 use latentam_shaders::{push, ATOMIC_ADD_F32, ATOMIC_ADD_F32_CAS};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
 
 /// Threads per workgroup of both kernels.
@@ -20,13 +20,8 @@ pub fn scatter_add_f32<'a>(
     acc: &'a Buffer,
     n: u64,
 ) -> Result<()> {
-    if values.bytes() < n * 4 || targets.bytes() < n * 4 {
-        return Err(Error::InvalidArgument(format!(
-            "scatter-add of {n} values from `{}`/`{}`",
-            values.name(),
-            targets.name()
-        )));
-    }
+    values.ensure_bytes(n * 4, "scatter-add values")?;
+    targets.ensure_bytes(n * 4, "scatter-add targets")?;
     let groups = n.div_ceil(SCATTER_THREADS) as u32;
     let p = push::AtomicAddF32 { n: n as u32 };
     if rec.info().native_float_atomics {

@@ -3,7 +3,7 @@
 
 use latentam_shaders::{push, GEMM_NN, GEMM_NT, GEMM_TN};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
 pub use crate::reference::gemm::Transpose;
 
@@ -44,17 +44,7 @@ impl Gemm {
     ) -> Result<()> {
         let (m, n, k) = (self.m as u64, self.n as u64, self.k as u64);
         for (buf, elems, what) in [(a, m * k, "A"), (b, k * n, "B"), (c, m * n, "C")] {
-            if buf.bytes() < elems * 4 {
-                return Err(Error::InvalidArgument(format!(
-                    "GEMM {}x{}x{}: {what} (`{}`) has {} bytes, needs {}",
-                    m,
-                    n,
-                    k,
-                    buf.name(),
-                    buf.bytes(),
-                    elems * 4
-                )));
-            }
+            buf.ensure_bytes(elems * 4, &format!("GEMM {m}x{n}x{k} operand {what}"))?;
         }
         let (lda, ldb) = match self.transpose {
             Transpose::None => (self.k, self.n),

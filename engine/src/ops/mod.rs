@@ -3,6 +3,7 @@
 
 mod atomic;
 mod gemm;
+mod normalize;
 mod reduce;
 mod scan;
 mod softmax;
@@ -10,7 +11,8 @@ mod sort;
 
 pub use atomic::{scatter_add_f32, SCATTER_THREADS};
 pub use gemm::{Gemm, Transpose, GEMM_TILE};
+pub use normalize::{normalize_rows, normalize_rows_backward};
 pub use reduce::{ReduceOp, Reducer, REDUCE_BLOCK};
 pub use scan::{PrefixScan, SCAN_BLOCK};
-pub use softmax::row_softmax;
+pub use softmax::{row_softmax, row_softmax_backward};
 pub use sort::{RadixSorter, RADIX_BITS, SORT_BLOCK};

@@ -1,9 +1,10 @@
-//! Row softmax with a scale (kernel `softmax` in `glsl/softmax.comp`; CPU
-//! reference [`crate::reference::softmax`]).
+//! Row softmax with a scale and its vector-Jacobian product (kernels
+//! `softmax` in `glsl/softmax.comp` and `softmax_backward` in
+//! `glsl/softmax_backward.comp`; CPU reference [`crate::reference::softmax`]).
 
-use latentam_shaders::{push, SOFTMAX};
+use latentam_shaders::{push, SOFTMAX, SOFTMAX_BACKWARD};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
 
 /// Records y[r, :] = softmax(scale · x[r, :]) for a rows × cols row-major
@@ -18,18 +19,35 @@ pub fn row_softmax<'a>(
     scale: f32,
 ) -> Result<()> {
     let need = rows as u64 * cols as u64 * 4;
-    if x.bytes() < need || y.bytes() < need {
-        return Err(Error::InvalidArgument(format!(
-            "softmax of {rows}x{cols} needs {need} bytes in `{}` and `{}`",
-            x.name(),
-            y.name()
-        )));
-    }
+    x.ensure_bytes(need, "softmax input")?;
+    y.ensure_bytes(need, "softmax output")?;
     rec.dispatch_linear(
         &SOFTMAX,
         rows,
         &[x, y],
         &push::Softmax { rows, cols, scale },
+    )
+}
+
+/// Records the backward pass of [`row_softmax`] in place: given
+/// a = softmax(scale · s) in `a` and ∂L/∂a in `grad`, overwrites `grad` with
+/// ∂L/∂s = scale · a ⊙ (∂L/∂a − Σⱼ aⱼ ∂L/∂aⱼ).
+pub fn row_softmax_backward<'a>(
+    rec: &mut Recorder<'a>,
+    a: &'a Buffer,
+    grad: &'a Buffer,
+    rows: u32,
+    cols: u32,
+    scale: f32,
+) -> Result<()> {
+    let need = rows as u64 * cols as u64 * 4;
+    a.ensure_bytes(need, "softmax backward")?;
+    grad.ensure_bytes(need, "softmax backward")?;
+    rec.dispatch_linear(
+        &SOFTMAX_BACKWARD,
+        rows,
+        &[a, grad],
+        &push::SoftmaxBackward { rows, cols, scale },
     )
 }
 

@@ -121,15 +121,10 @@ impl AdamGroup {
             )));
         }
         for (b, &bytes) in bufs.iter().zip(per_row) {
-            if b.bytes() < rows as u64 * bytes {
-                return Err(Error::InvalidArgument(format!(
-                    "Adam group `{}`: {what} of {rows} rows needs {} bytes in `{}`, it has {}",
-                    self.name,
-                    rows as u64 * bytes,
-                    b.name(),
-                    b.bytes()
-                )));
-            }
+            b.ensure_bytes(
+                rows as u64 * bytes,
+                &format!("Adam group `{}` {what}", self.name),
+            )?;
         }
         Ok(())
     }

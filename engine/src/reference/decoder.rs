@@ -11,6 +11,9 @@
 //! S = Ê D̂ᵀ / τ ;  A = softmax_row(S) ;  F̂ = A D
 //! ```
 
+use super::normalize::{normalize_rows, normalize_rows_vjp};
+use super::softmax::{row_softmax_f64, row_softmax_vjp};
+
 /// Shapes and constants of one decode.
 #[derive(Clone, Copy, Debug)]
 pub struct DecoderShape {
@@ -83,38 +86,6 @@ fn transpose(a: &[f64], rows: usize, cols: usize) -> Vec<f64> {
     t
 }
 
-/// Row-wise y = x / (‖x‖ + ε); returns (y, ‖x‖).
-pub fn normalize_rows(x: &[f64], rows: usize, cols: usize, eps: f64) -> (Vec<f64>, Vec<f64>) {
-    let mut y = vec![0.0; rows * cols];
-    let mut norms = vec![0.0; rows];
-    for r in 0..rows {
-        let row = &x[r * cols..(r + 1) * cols];
-        let norm = row.iter().map(|v| v * v).sum::<f64>().sqrt();
-        norms[r] = norm;
-        for c in 0..cols {
-            y[r * cols + c] = row[c] / (norm + eps);
-        }
-    }
-    (y, norms)
-}
-
-/// Vector-Jacobian product of [`normalize_rows`]: given y, ‖x‖ and g = ∂L/∂y,
-/// returns ∂L/∂x = g/(r+ε) − y (y·g)/r per row (the second term vanishes as
-/// r → 0, and is taken as 0 at r = 0).
-pub fn normalize_rows_vjp(y: &[f64], norms: &[f64], g: &[f64], cols: usize, eps: f64) -> Vec<f64> {
-    let mut dx = vec![0.0; y.len()];
-    for (r, &norm) in norms.iter().enumerate() {
-        let yr = &y[r * cols..(r + 1) * cols];
-        let gr = &g[r * cols..(r + 1) * cols];
-        let yg: f64 = yr.iter().zip(gr).map(|(a, b)| a * b).sum();
-        let k = if norm > 0.0 { yg / norm } else { 0.0 };
-        for c in 0..cols {
-            dx[r * cols + c] = gr[c] / (norm + eps) - yr[c] * k;
-        }
-    }
-    dx
-}
-
 /// The forward pass. `q` is n × d_s, `w` d_s × d_f, `d` K × d_f.
 pub fn forward(s: &DecoderShape, q: &[f32], w: &[f32], d: &[f32]) -> DecoderForward {
     let q: Vec<f64> = q.iter().map(|&v| v as f64).collect();
@@ -123,27 +94,14 @@ pub fn forward(s: &DecoderShape, q: &[f32], w: &[f32], d: &[f32]) -> DecoderForw
     let e = matmul(&q, &w, s.n, s.query_dim, s.dim);
     let (e_hat, e_norm) = normalize_rows(&e, s.n, s.dim, s.eps);
     let (d_hat, d_norm) = normalize_rows(&d, s.atoms, s.dim, s.eps);
-    let mut attention = matmul(
+    let logits = matmul(
         &e_hat,
         &transpose(&d_hat, s.atoms, s.dim),
         s.n,
         s.dim,
         s.atoms,
     );
-    for row in attention.chunks_mut(s.atoms.max(1)) {
-        let m = row
-            .iter()
-            .map(|v| v / s.tau)
-            .fold(f64::NEG_INFINITY, f64::max);
-        let mut sum = 0.0;
-        for v in row.iter_mut() {
-            *v = (*v / s.tau - m).exp();
-            sum += *v;
-        }
-        for v in row.iter_mut() {
-            *v /= sum;
-        }
-    }
+    let attention = row_softmax_f64(&logits, s.n, s.atoms, 1.0 / s.tau);
     let output = matmul(&attention, &d, s.n, s.atoms, s.dim);
     DecoderForward {
         e,
@@ -172,16 +130,8 @@ pub fn backward(
     // Direct path of F̂ = A D.
     let d_attention = matmul(g, &transpose(&d, k, df), n, df, k);
     let mut grad_d = matmul(&transpose(&fwd.attention, n, k), g, k, n, df);
-    // Softmax: ∂S = A ⊙ (∂A − rowsum(A ⊙ ∂A)), then the 1/τ of the logits.
-    let mut d_logits = vec![0.0; n * k];
-    for i in 0..n {
-        let a = &fwd.attention[i * k..(i + 1) * k];
-        let da = &d_attention[i * k..(i + 1) * k];
-        let dot: f64 = a.iter().zip(da).map(|(x, y)| x * y).sum();
-        for j in 0..k {
-            d_logits[i * k + j] = a[j] * (da[j] - dot) / s.tau;
-        }
-    }
+    // Softmax, with the 1/τ of the logits.
+    let d_logits = row_softmax_vjp(&fwd.attention, &d_attention, n, k, 1.0 / s.tau);
     let d_e_hat = matmul(&d_logits, &fwd.d_hat, n, k, df);
     let d_d_hat = matmul(&transpose(&d_logits, n, k), &fwd.e_hat, k, n, df);
     let via_norm = normalize_rows_vjp(&fwd.d_hat, &fwd.d_norm, &d_d_hat, df, s.eps);
