@@ -5,8 +5,10 @@
 // follows then merges that pair's points into the other atom and gives the
 // new concept its own (the STREAM scheme's re-clustering into K, SPEC §4).
 // Rows 0..atoms-1 of best_value/best_index are each atom's most similar
-// other atom, rows atoms.. the micro-centres' most similar atom. A single
-// workgroup; atoms <= 65536. CPU reference: engine/src/reference/kmeans.rs.
+// other atom, rows atoms.. the micro-centres' most similar atom.
+// replaced[j] receives the atom slot micro-centre j took, or 0xffffffff, so
+// that the first Lloyd assignment only recomputes those columns of the
+// similarities (kmeans_patch_sims.comp). A single workgroup; atoms <= 65536. CPU reference: engine/src/reference/kmeans.rs.
 #version 450
 
 #define THREADS 256
@@ -20,6 +22,7 @@ layout(std430, set = 0, binding = 1) readonly buffer BestIndex { uint best_index
 layout(std430, set = 0, binding = 2) readonly buffer Weights { float weights[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Micro { float micro[]; };
 layout(std430, set = 0, binding = 4) buffer Centres { float centres[]; };
+layout(std430, set = 0, binding = 5) buffer Replaced { uint replaced[]; };
 
 layout(push_constant) uniform Params {
     uint atoms;
@@ -44,6 +47,9 @@ void main() {
     uint t = gl_LocalInvocationID.x;
     for (uint w = t; w < MAX_ATOMS / 32u; w += THREADS) {
         touched[w] = 0u;
+    }
+    for (uint j = t; j < pc.micro_count; j += THREADS) {
+        replaced[j] = NONE;
     }
     barrier();
     for (uint j = 0u; j < pc.micro_count; j++) {
@@ -83,6 +89,7 @@ void main() {
             centres[lighter * pc.dim + k] = micro[j * pc.dim + k];
         }
         if (t == 0u) {
+            replaced[j] = lighter;
             touched[a / 32u] |= 1u << (a % 32u);
             touched[b / 32u] |= 1u << (b % 32u);
         }

@@ -1,12 +1,12 @@
 //! Streaming k-means with a fixed dictionary size (SPEC §4.2) on the GPU:
 //! the online initialisation of the decoder's dictionary. Kernels
 //! `glsl/kmeans_seed.comp`, `argmax_rows.comp`, `kmeans_update.comp`,
-//! `kmeans_novelty.comp`, `kmeans_moved.comp`, plus row normalisation and
-//! GEMM for the cosine similarities. CPU reference (and the statement of the
+//! `kmeans_novelty.comp`, `kmeans_patch_sims.comp`, `kmeans_moved.comp`,
+//! plus row normalisation and GEMM for the cosine similarities. CPU reference (and the statement of the
 //! algorithm): [`crate::reference::kmeans`].
 
 use latentam_shaders::{
-    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_SEED, KMEANS_UPDATE,
+    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_SEED, KMEANS_UPDATE,
 };
 
 use std::cell::Cell;
@@ -120,6 +120,7 @@ pub struct StreamingKMeans {
     sims: Buffer,
     best_value: Buffer,
     best_index: Buffer,
+    replaced: Buffer,
 }
 
 impl StreamingKMeans {
@@ -168,6 +169,7 @@ impl StreamingKMeans {
             sims: buf("sims", (n * m).max((k + m) * k))?,
             best_value: buf("best_value", rows)?,
             best_index: buf("best_index", rows)?,
+            replaced: buf("replaced", m)?,
         };
         Ok(s)
     }
@@ -214,15 +216,14 @@ impl StreamingKMeans {
     }
 
     /// Cosine similarities of `rows` unit points to `cols` unit centres into
-    /// `sims`, then each row's best column.
-    fn best_centres<'a>(
+    /// `sims`.
+    fn similarities<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
         unit_points: &'a Buffer,
         unit_centres: &'a Buffer,
         rows: u32,
         cols: u32,
-        exclude_diagonal: bool,
     ) -> Result<()> {
         Gemm {
             transpose: Transpose::B,
@@ -232,7 +233,17 @@ impl StreamingKMeans {
             alpha: 1.0,
             beta: 0.0,
         }
-        .record(rec, unit_points, unit_centres, &self.sims)?;
+        .record(rec, unit_points, unit_centres, &self.sims)
+    }
+
+    /// Each row's best column of `sims` (optionally not its own index).
+    fn best_centres<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        rows: u32,
+        cols: u32,
+        exclude_diagonal: bool,
+    ) -> Result<()> {
         rec.dispatch_linear(
             &ARGMAX_ROWS,
             rows,
@@ -334,7 +345,8 @@ impl StreamingKMeans {
         )?;
         for _ in 0..self.cfg.local_iterations {
             self.normalize(rec, &self.micro, &self.micro_unit, m)?;
-            self.best_centres(rec, &self.unit, &self.micro_unit, n, m, false)?;
+            self.similarities(rec, &self.unit, &self.micro_unit, n, m)?;
+            self.best_centres(rec, n, m, false)?;
             self.lloyd_update(
                 rec,
                 features,
@@ -378,7 +390,8 @@ impl StreamingKMeans {
             let total = before + m;
             self.normalize(rec, &self.points, &self.unit, total)?;
             self.normalize(rec, atoms, &self.centre_unit, before)?;
-            self.best_centres(rec, &self.unit, &self.centre_unit, total, before, true)?;
+            self.similarities(rec, &self.unit, &self.centre_unit, total, before)?;
+            self.best_centres(rec, total, before, true)?;
             rec.dispatch(
                 &KMEANS_NOVELTY,
                 [1, 1, 1],
@@ -388,6 +401,7 @@ impl StreamingKMeans {
                     &self.weights,
                     &self.micro,
                     atoms,
+                    &self.replaced,
                 ],
                 &push::KmeansNovelty {
                     atoms: before,
@@ -396,9 +410,26 @@ impl StreamingKMeans {
                     threshold: self.cfg.novelty_threshold,
                 },
             )?;
-            for _ in 0..self.cfg.global_iterations {
-                self.normalize(rec, atoms, &self.centre_unit, before)?;
-                self.best_centres(rec, &self.unit, &self.centre_unit, total, before, false)?;
+            for iteration in 0..self.cfg.global_iterations {
+                if iteration == 0 {
+                    // The similarities to the atoms are known but for the
+                    // columns the novelty step replaced.
+                    rec.dispatch_linear(
+                        &KMEANS_PATCH_SIMS,
+                        (total * m).div_ceil(256),
+                        &[&self.unit, &self.replaced, &self.sims],
+                        &push::KmeansPatchSims {
+                            rows: total,
+                            atoms: before,
+                            micro_count: m,
+                            dim,
+                        },
+                    )?;
+                } else {
+                    self.normalize(rec, atoms, &self.centre_unit, before)?;
+                    self.similarities(rec, &self.unit, &self.centre_unit, total, before)?;
+                }
+                self.best_centres(rec, total, before, false)?;
                 self.lloyd_update(
                     rec,
                     &self.points,
@@ -527,97 +558,106 @@ mod tests {
     fn streaming_kmeans_matches_reference_and_finds_late_clusters() {
         let mut r = rng("streaming_kmeans_matches_reference_and_finds_late_clusters");
         with_context(|ctx| {
-            let dim = 64usize;
-            let dirs: Vec<Vec<f64>> = (0..10)
-                .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
-                .collect();
-            let cfg = KMeansConfig {
-                atoms: 12,
-                dim: dim as u32,
-                max_points: 64,
-                micro_clusters: 3,
-                ..Default::default()
-            };
-            let s = settings(&cfg);
-            let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
-            let k = cfg.atoms as usize;
-            let atoms = Buffer::device(ctx, "test/atoms", (k * dim * 4) as u64).unwrap();
-            let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
-            let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
-            let mut dict = Dictionary {
-                atoms: Vec::new(),
-                weights: Vec::new(),
-                capacity: k,
-            };
-            let mut total_mass = 0.0;
-            let mut reclustered = 0;
-            for frame in 0..16 {
-                let pool: Vec<usize> = if frame < 10 {
-                    (0..8).collect()
-                } else {
-                    (0..10).collect()
-                };
-                let mut clusters = Vec::new();
-                if frame >= 10 {
-                    clusters.push(8 + frame % 2); // the late clusters
-                }
-                while clusters.len() < 3 {
-                    let c = pool[r.random_range(0..pool.len())];
-                    if !clusters.contains(&c) {
-                        clusters.push(c);
-                    }
-                }
-                let keyframe = Frame::new(&mut r, &dirs, &clusters, 7);
-                total_mass += keyframe.mass().iter().sum::<f64>();
-                let step = keyframe.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
-                let (points64, mass64) = (keyframe.rows(dim), keyframe.mass());
-                let want_moved = reference::update_dictionary(&s, &mut dict, &points64, &mass64);
-                reclustered += step.reclustered as u32;
-                assert_eq!(step.atoms_after as usize, dict.atoms.len(), "frame {frame}");
-                let count = dict.atoms.len();
-                let got = ctx.download::<f32>(&atoms).unwrap();
-                let got_anchor = ctx.download::<f32>(&anchor).unwrap();
-                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
-                let got_moved = ctx.download::<u32>(&moved).unwrap();
-                for a in 0..count {
-                    for j in 0..dim {
-                        let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
-                        assert!(
-                            (g - w).abs() < 1e-4,
-                            "frame {frame} atom {a}[{j}]: {g} vs {w}"
-                        );
-                        assert_eq!(got_anchor[a * dim + j], got[a * dim + j]);
-                    }
-                    let (g, w) = (got_w[a] as f64, dict.weights[a]);
-                    assert!(
-                        (g - w).abs() <= 1e-4 * w.max(1.0),
-                        "frame {frame} weight {a}: {g} vs {w}"
-                    );
-                    assert_eq!(got_moved[a] != 0, want_moved[a], "frame {frame} moved {a}");
-                }
-                // Mass is conserved: it moves between atoms, never vanishes.
-                let w_sum: f64 = got_w[..count].iter().map(|&v| v as f64).sum();
-                assert!(
-                    (w_sum - total_mass).abs() < 1e-3 * total_mass,
-                    "{w_sum} vs {total_mass}"
-                );
-            }
-            assert!(
-                reclustered >= 10,
-                "the dictionary should have been full for most frames"
-            );
-            let got = ctx.download::<f32>(&atoms).unwrap();
-            for (c, dir) in dirs.iter().enumerate() {
-                let best = (0..k)
-                    .map(|a| {
-                        (0..dim)
-                            .map(|j| got[a * dim + j] as f64 * dir[j])
-                            .sum::<f64>()
-                    })
-                    .fold(f64::NEG_INFINITY, f64::max);
-                assert!(best > 0.9, "cluster {c} has no atom (best cosine {best})");
+            // One Lloyd iteration leaves the first (patched) assignment
+            // visible in the result; three are the default.
+            for global_iterations in [3, 1] {
+                check_stream(ctx, &mut r, global_iterations);
             }
         });
+    }
+
+    fn check_stream(ctx: &Context, r: &mut impl Rng, global_iterations: u32) {
+        let dim = 64usize;
+        let dirs: Vec<Vec<f64>> = (0..10)
+            .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
+            .collect();
+        let cfg = KMeansConfig {
+            atoms: 12,
+            dim: dim as u32,
+            max_points: 64,
+            micro_clusters: 3,
+            global_iterations,
+            ..Default::default()
+        };
+        let s = settings(&cfg);
+        let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+        let k = cfg.atoms as usize;
+        let atoms = Buffer::device(ctx, "test/atoms", (k * dim * 4) as u64).unwrap();
+        let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
+        let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
+        let mut dict = Dictionary {
+            atoms: Vec::new(),
+            weights: Vec::new(),
+            capacity: k,
+        };
+        let mut total_mass = 0.0;
+        let mut reclustered = 0;
+        for frame in 0..16 {
+            let pool: Vec<usize> = if frame < 10 {
+                (0..8).collect()
+            } else {
+                (0..10).collect()
+            };
+            let mut clusters = Vec::new();
+            if frame >= 10 {
+                clusters.push(8 + frame % 2); // the late clusters
+            }
+            while clusters.len() < 3 {
+                let c = pool[r.random_range(0..pool.len())];
+                if !clusters.contains(&c) {
+                    clusters.push(c);
+                }
+            }
+            let keyframe = Frame::new(r, &dirs, &clusters, 7);
+            total_mass += keyframe.mass().iter().sum::<f64>();
+            let step = keyframe.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
+            let (points64, mass64) = (keyframe.rows(dim), keyframe.mass());
+            let want_moved = reference::update_dictionary(&s, &mut dict, &points64, &mass64);
+            reclustered += step.reclustered as u32;
+            assert_eq!(step.atoms_after as usize, dict.atoms.len(), "frame {frame}");
+            let count = dict.atoms.len();
+            let got = ctx.download::<f32>(&atoms).unwrap();
+            let got_anchor = ctx.download::<f32>(&anchor).unwrap();
+            let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+            let got_moved = ctx.download::<u32>(&moved).unwrap();
+            for a in 0..count {
+                for j in 0..dim {
+                    let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
+                    assert!(
+                        (g - w).abs() < 1e-4,
+                        "frame {frame} atom {a}[{j}]: {g} vs {w}"
+                    );
+                    assert_eq!(got_anchor[a * dim + j], got[a * dim + j]);
+                }
+                let (g, w) = (got_w[a] as f64, dict.weights[a]);
+                assert!(
+                    (g - w).abs() <= 1e-4 * w.max(1.0),
+                    "frame {frame} weight {a}: {g} vs {w}"
+                );
+                assert_eq!(got_moved[a] != 0, want_moved[a], "frame {frame} moved {a}");
+            }
+            // Mass is conserved: it moves between atoms, never vanishes.
+            let w_sum: f64 = got_w[..count].iter().map(|&v| v as f64).sum();
+            assert!(
+                (w_sum - total_mass).abs() < 1e-3 * total_mass,
+                "{w_sum} vs {total_mass}"
+            );
+        }
+        assert!(
+            reclustered >= 10,
+            "the dictionary should have been full for most frames"
+        );
+        let got = ctx.download::<f32>(&atoms).unwrap();
+        for (c, dir) in dirs.iter().enumerate() {
+            let best = (0..k)
+                .map(|a| {
+                    (0..dim)
+                        .map(|j| got[a * dim + j] as f64 * dir[j])
+                        .sum::<f64>()
+                })
+                .fold(f64::NEG_INFINITY, f64::max);
+            assert!(best > 0.9, "cluster {c} has no atom (best cosine {best})");
+        }
     }
 
     /// A centre with more members than the update kernel's shared list
