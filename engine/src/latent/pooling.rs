@@ -8,6 +8,8 @@
 
 use latentam_shaders::{push, REGION_POOL, REGION_POOL_BACKWARD};
 
+use std::cell::Cell;
+
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, Recorder};
 use crate::splat::{BatchLayout, QUERY_DIM};
@@ -262,8 +264,9 @@ fn nearest(i: u32, n: u32, m: u32) -> u32 {
 pub struct RegionPooling {
     max_regions: u32,
     max_pixels: u64,
-    regions: u32,
-    pixels: u64,
+    /// Regions and pixels of the last recorded upload.
+    regions: Cell<u32>,
+    pixels: Cell<u64>,
     offsets: Buffer,
     members: Buffer,
     pixel_region: Buffer,
@@ -277,8 +280,8 @@ impl RegionPooling {
         Ok(Self {
             max_regions,
             max_pixels,
-            regions: 0,
-            pixels: 0,
+            regions: Cell::new(0),
+            pixels: Cell::new(0),
             offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
             members: Buffer::device(ctx, "pooling/members", p * 4)?,
             pixel_region: Buffer::device(ctx, "pooling/pixel_region", p * 4)?,
@@ -295,13 +298,14 @@ impl RegionPooling {
         &self.pooled
     }
 
-    /// Regions of the current upload.
+    /// Regions of the last recorded upload.
     pub fn regions(&self) -> u32 {
-        self.regions
+        self.regions.get()
     }
 
-    /// Uploads the region lists of a batch (waits for the copy).
-    pub fn upload(&mut self, ctx: &Context, regions: &Regions) -> Result<()> {
+    /// Records the upload of a batch's region lists, to run before the
+    /// pooling passes recorded after it (in the same or a later submission).
+    pub fn record_upload<'a>(&'a self, rec: &mut Recorder<'a>, regions: &Regions) -> Result<()> {
         let pixels = regions.pixel_region.len() as u64;
         if regions.len() > self.max_regions || pixels > self.max_pixels {
             return Err(Error::InvalidArgument(format!(
@@ -311,13 +315,11 @@ impl RegionPooling {
                 self.max_pixels
             )));
         }
-        let mut rec = ctx.recorder()?;
         rec.upload(&self.offsets, 0, &regions.offsets)?;
         rec.upload(&self.members, 0, &regions.pixels)?;
         rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
-        rec.submit()?.wait()?;
-        self.regions = regions.len();
-        self.pixels = pixels;
+        self.regions.set(regions.len());
+        self.pixels.set(pixels);
         Ok(())
     }
 
@@ -331,10 +333,10 @@ impl RegionPooling {
         self.check_image(query_image)?;
         rec.dispatch_linear(
             &REGION_POOL,
-            self.regions,
+            self.regions(),
             &[query_image, &self.offsets, &self.members, &self.pooled],
             &push::RegionPool {
-                regions: self.regions,
+                regions: self.regions(),
             },
         )
     }
@@ -349,10 +351,10 @@ impl RegionPooling {
     ) -> Result<()> {
         self.check_image(grad_query_image)?;
         grad_pooled.ensure_bytes(
-            self.regions as u64 * QUERY_DIM as u64 * 4,
+            self.regions() as u64 * QUERY_DIM as u64 * 4,
             "region pooling backward: pooled gradient",
         )?;
-        let elems = self.pixels * QUERY_DIM as u64;
+        let elems = self.pixels.get() * QUERY_DIM as u64;
         rec.dispatch_linear(
             &REGION_POOL_BACKWARD,
             elems.div_ceil(256) as u32,
@@ -363,14 +365,14 @@ impl RegionPooling {
                 grad_query_image,
             ],
             &push::RegionPoolBackward {
-                pixels: self.pixels as u32,
+                pixels: self.pixels.get() as u32,
             },
         )
     }
 
     fn check_image(&self, image: &Buffer) -> Result<()> {
         image.ensure_bytes(
-            self.pixels * QUERY_DIM as u64 * 4,
+            self.pixels.get() * QUERY_DIM as u64 * 4,
             "region pooling: query image of the uploaded batch",
         )
     }
@@ -522,12 +524,12 @@ mod tests {
             let image: Vec<f32> = (0..pixels * c).map(|_| r.random_range(-1.0..1.0)).collect();
             let n = regions.len() as usize;
             let grad: Vec<f32> = (0..n * c).map(|_| r.random_range(-1.0..1.0)).collect();
-            let mut pool = RegionPooling::new(ctx, 64, layout.pixels).unwrap();
-            pool.upload(ctx, &regions).unwrap();
+            let pool = RegionPooling::new(ctx, 64, layout.pixels).unwrap();
             let ib = ctx.upload_new("test/image", &image).unwrap();
             let gb = ctx.upload_new("test/grad_pooled", &grad).unwrap();
             let gi = Buffer::device(ctx, "test/grad_image", (pixels * c * 4) as u64).unwrap();
             let mut rec = ctx.recorder().unwrap();
+            pool.record_upload(&mut rec, &regions).unwrap();
             rec.fill_u32(pool.pooled(), 0x7fc0_0000);
             rec.fill_u32(&gi, 0x7fc0_0000);
             pool.record_forward(&mut rec, &ib).unwrap();
@@ -567,10 +569,11 @@ mod tests {
         let mut r = rng("oversized_uploads_are_rejected");
         with_context(|ctx| {
             let (layout, regions, _) = random_regions(&mut r);
-            let mut small = RegionPooling::new(ctx, 2, layout.pixels).unwrap();
-            assert!(small.upload(ctx, &regions).is_err());
-            let mut few_pixels = RegionPooling::new(ctx, 64, 100).unwrap();
-            assert!(few_pixels.upload(ctx, &regions).is_err());
+            let small = RegionPooling::new(ctx, 2, layout.pixels).unwrap();
+            let few_pixels = RegionPooling::new(ctx, 64, 100).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            assert!(small.record_upload(&mut rec, &regions).is_err());
+            assert!(few_pixels.record_upload(&mut rec, &regions).is_err());
         });
     }
 }
