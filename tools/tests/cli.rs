@@ -8,6 +8,38 @@ fn latentam() -> Command {
     c
 }
 
+/// Runs `latentam bench <args> --json FILE`, checks it succeeded and
+/// returns the parsed JSON.
+fn bench_json(name: &str, args: &[&str]) -> serde_json::Value {
+    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join(format!("{name}.json"));
+    let out = latentam()
+        .arg("bench")
+        .args(args)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    std::fs::remove_dir_all(&dir).ok();
+    v
+}
+
+/// Names of a JSON array's objects' `name` fields.
+fn names(rows: &serde_json::Value) -> Vec<&str> {
+    rows.as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect()
+}
+
 #[test]
 fn selfcheck_passes_with_validation() {
     let out = latentam()
@@ -25,30 +57,11 @@ fn selfcheck_passes_with_validation() {
 
 #[test]
 fn bench_primitives_writes_json_with_every_primitive() {
-    let dir = std::env::temp_dir().join(format!("latentam-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let json = dir.join("primitives.json");
-    let out = latentam()
-        .args(["bench", "primitives", "--quick", "--runs", "5", "--json"])
-        .arg(&json)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let v = bench_json("primitives", &["primitives", "--quick", "--runs", "5"]);
     assert!(v["device"].as_str().is_some_and(|d| !d.is_empty()));
     assert!(v["memory_bandwidth_gbps"].as_f64().unwrap() > 0.0);
     assert!(v["gemm_gflops"].as_f64().unwrap() > 0.0);
-    let names: Vec<&str> = v["primitives"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|r| r["name"].as_str().unwrap())
-        .collect();
+    let names = names(&v["primitives"]);
     for want in [
         "copy",
         "fma_peak",
@@ -66,17 +79,13 @@ fn bench_primitives_writes_json_with_every_primitive() {
         let ms = r["gpu_ms_median"].as_f64().unwrap();
         assert!(ms > 0.0 && ms.is_finite(), "{r}");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn bench_raster_writes_json_with_times_and_kernels() {
-    let dir = std::env::temp_dir().join(format!("latentam-raster-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let json = dir.join("raster.json");
-    let out = latentam()
-        .args([
-            "bench",
+    let v = bench_json(
+        "raster",
+        &[
             "raster",
             "--width",
             "40",
@@ -88,18 +97,8 @@ fn bench_raster_writes_json_with_times_and_kernels() {
             "2",
             "--runs",
             "3",
-            "--json",
-        ])
-        .arg(&json)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        ],
     );
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert!(v["device"].as_str().is_some_and(|d| !d.is_empty()));
     assert_eq!(v["width"], 40);
     assert_eq!(v["height"], 30);
@@ -108,12 +107,7 @@ fn bench_raster_writes_json_with_times_and_kernels() {
     assert!(v["intersections"].as_u64().unwrap() > 0);
     assert!(v["forward_ms_median"].as_f64().unwrap() > 0.0);
     assert!(v["backward_ms_median"].as_f64().unwrap() > 0.0);
-    let names: Vec<&str> = v["kernels"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|k| k["name"].as_str().unwrap())
-        .collect();
+    let names = names(&v["kernels"]);
     for want in [
         "project_forward",
         "raster_forward",
@@ -125,17 +119,13 @@ fn bench_raster_writes_json_with_times_and_kernels() {
             "{want} missing from {names:?}"
         );
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn bench_latent_writes_json_with_every_measurement() {
-    let dir = std::env::temp_dir().join(format!("latentam-latent-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let json = dir.join("latent.json");
-    let out = latentam()
-        .args([
-            "bench",
+    let v = bench_json(
+        "latent",
+        &[
             "latent",
             "--regions",
             "20",
@@ -149,18 +139,8 @@ fn bench_latent_writes_json_with_every_measurement() {
             "30",
             "--runs",
             "3",
-            "--json",
-        ])
-        .arg(&json)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        ],
     );
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(
         (v["regions"].clone(), v["atoms"].clone(), v["dim"].clone()),
         (20.into(), 64.into(), 96.into())
@@ -179,12 +159,7 @@ fn bench_latent_writes_json_with_every_measurement() {
             v[key]
         );
     }
-    let names: Vec<&str> = v["kernels"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|k| k["name"].as_str().unwrap())
-        .collect();
+    let names = names(&v["kernels"]);
     for want in [
         "gemm_nt",
         "softmax_backward",
@@ -194,7 +169,6 @@ fn bench_latent_writes_json_with_every_measurement() {
     ] {
         assert!(names.contains(&want), "{want} missing from {names:?}");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

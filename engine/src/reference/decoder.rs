@@ -187,40 +187,22 @@ mod tests {
         let g = backward(&s, &q, &w, &d, &fwd, &r);
         // f32 inputs limit the step; 1e-3 keeps truncation and rounding small.
         let h = 1e-3f32;
-        let check = |name: &str, analytic: &[f64], which: usize| {
+        let inputs = [q, w, d];
+        let loss_at = |x: &[Vec<f32>; 3]| loss(&s, &x[0], &x[1], &x[2], &r);
+        for (which, name, analytic) in [(0, "Q", &g.queries), (1, "W", &g.w), (2, "D", &g.d)] {
             for i in 0..analytic.len() {
-                let (mut q2, mut w2, mut d2) = (q.clone(), w.clone(), d.clone());
-                let (mut q1, mut w1, mut d1) = (q.clone(), w.clone(), d.clone());
-                match which {
-                    0 => {
-                        q2[i] += h;
-                        q1[i] -= h;
-                    }
-                    1 => {
-                        w2[i] += h;
-                        w1[i] -= h;
-                    }
-                    _ => {
-                        d2[i] += h;
-                        d1[i] -= h;
-                    }
-                }
+                let (mut plus, mut minus) = (inputs.clone(), inputs.clone());
+                plus[which][i] += h;
+                minus[which][i] -= h;
                 // The step actually taken after rounding to f32.
-                let step = match which {
-                    0 => q2[i] as f64 - q1[i] as f64,
-                    1 => w2[i] as f64 - w1[i] as f64,
-                    _ => d2[i] as f64 - d1[i] as f64,
-                };
-                let fd = (loss(&s, &q2, &w2, &d2, &r) - loss(&s, &q1, &w1, &d1, &r)) / step;
+                let step = plus[which][i] as f64 - minus[which][i] as f64;
+                let fd = (loss_at(&plus) - loss_at(&minus)) / step;
                 assert!(
                     (fd - analytic[i]).abs() <= 1e-4 * (1.0 + fd.abs()),
                     "{name}[{i}]: analytic {} vs finite difference {fd}",
                     analytic[i]
                 );
             }
-        };
-        check("Q", &g.queries, 0);
-        check("W", &g.w, 1);
-        check("D", &g.d, 2);
+        }
     }
 }
