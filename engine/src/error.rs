@@ -27,6 +27,9 @@ pub enum Error {
     /// The device lacks a feature or limit the engine needs.
     #[error("unsupported device: {0}")]
     Unsupported(String),
+    /// An input log or one of its messages is unusable.
+    #[error(transparent)]
+    Input(#[from] crate::io::InputError),
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

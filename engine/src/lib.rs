@@ -17,6 +17,8 @@
 //! * [`loss`]: the mapping objective (photometric, depth, feature and
 //!   trust-region terms) with its gradients;
 //! * [`optim`]: Adam with per-tensor parameter groups;
+//! * [`io`]: MCAP logs of ROS 2 messages in, checked frames out, and log
+//!   writing;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
 //!   the tests and the readable statement of what each kernel computes.
 //!
@@ -38,6 +40,7 @@
 
 mod error;
 pub mod gpu;
+pub mod io;
 pub mod latent;
 pub mod loss;
 pub mod ops;

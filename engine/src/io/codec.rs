@@ -1,0 +1,468 @@
+//! Image messages to owned pixels: raw `sensor_msgs/Image` rows are packed
+//! with one copy per row (one per image when rows carry no padding);
+//! compressed ones are decoded (JPEG, PNG, `compressedDepth`).
+
+use std::io::Cursor;
+
+use super::frame::{ColorImage, DepthData, DepthImage, LabelImage, PixelFormat};
+use super::messages::{CompressedImage, Image};
+use super::report::Rejection;
+
+/// Rejects images larger than this many pixels per side: no camera makes
+/// them, and a corrupt size field must not make the engine allocate
+/// gigabytes.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+fn check_size(what: &'static str, width: u32, height: u32) -> Result<(), Rejection> {
+    if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(Rejection::new(
+            what,
+            format!("image size {width}×{height} is empty or beyond {MAX_IMAGE_SIDE} per side"),
+        ));
+    }
+    Ok(())
+}
+
+/// The rows of `msg` without their padding, checking `step` and the data
+/// length against the declared size.
+fn packed_rows(
+    msg: &Image<'_>,
+    bytes_per_pixel: usize,
+    what: &'static str,
+) -> Result<Vec<u8>, Rejection> {
+    check_size(what, msg.width, msg.height)?;
+    let row = msg.width as usize * bytes_per_pixel;
+    let step = msg.step as usize;
+    let rows = msg.height as usize;
+    if step < row {
+        return Err(Rejection::new(
+            what,
+            format!(
+                "step {step} is shorter than a row of {} {} pixels ({row} bytes)",
+                msg.width, msg.encoding
+            ),
+        ));
+    }
+    let need = step * (rows - 1) + row;
+    if msg.data.len() < need || msg.data.len() > step * rows {
+        return Err(Rejection::new(
+            what,
+            format!(
+                "data has {} bytes; {}×{} {} with step {step} needs {}",
+                msg.data.len(),
+                msg.width,
+                msg.height,
+                msg.encoding,
+                step * rows
+            ),
+        ));
+    }
+    if step == row {
+        return Ok(msg.data[..row * rows].to_vec());
+    }
+    let mut out = Vec::with_capacity(row * rows);
+    for y in 0..rows {
+        out.extend_from_slice(&msg.data[y * step..y * step + row]);
+    }
+    Ok(out)
+}
+
+fn u16_samples(bytes: &[u8], big_endian: bool) -> Vec<u16> {
+    if big_endian != cfg!(target_endian = "big") {
+        bytes
+            .chunks_exact(2)
+            .map(|b| u16::from_ne_bytes([b[1], b[0]]))
+            .collect()
+    } else {
+        bytemuck::pod_collect_to_vec(bytes)
+    }
+}
+
+/// A colour image from a raw image message.
+pub fn color_from_image(msg: &Image<'_>) -> Result<ColorImage, Rejection> {
+    let format = PixelFormat::from_ros(msg.encoding).ok_or_else(|| {
+        Rejection::new(
+            "colour: unsupported encoding",
+            format!(
+                "encoding `{}` (accepted: rgb8, bgr8, rgba8, bgra8, mono8)",
+                msg.encoding
+            ),
+        )
+    })?;
+    let data = packed_rows(msg, format.bytes_per_pixel(), "colour: size mismatch")?;
+    Ok(ColorImage {
+        width: msg.width,
+        height: msg.height,
+        format,
+        data,
+    })
+}
+
+/// A colour image from a JPEG or PNG `CompressedImage`.
+pub fn color_from_compressed(msg: &CompressedImage<'_>) -> Result<ColorImage, Rejection> {
+    let format = msg.format.to_ascii_lowercase();
+    let is_png = msg.data.starts_with(b"\x89PNG");
+    if format.contains("png") || (is_png && !format.contains("jp")) {
+        decode_png_color(msg.data)
+    } else if format.contains("jpeg")
+        || format.contains("jpg")
+        || msg.data.starts_with(&[0xff, 0xd8])
+    {
+        decode_jpeg(msg.data)
+    } else {
+        Err(Rejection::new(
+            "colour: unsupported encoding",
+            format!("compressed format `{}` (accepted: jpeg, png)", msg.format),
+        ))
+    }
+}
+
+/// Decodes a JPEG file to RGB (grey JPEGs to mono).
+pub fn decode_jpeg(bytes: &[u8]) -> Result<ColorImage, Rejection> {
+    let bad = |e: String| Rejection::new("colour: corrupt compressed image", format!("JPEG: {e}"));
+    let mut decoder = zune_jpeg::JpegDecoder::new(Cursor::new(bytes));
+    decoder.decode_headers().map_err(|e| bad(e.to_string()))?;
+    let info = decoder
+        .info()
+        .ok_or_else(|| bad("no image header".into()))?;
+    check_size(
+        "colour: size mismatch",
+        info.width as u32,
+        info.height as u32,
+    )?;
+    let pixels = decoder.decode().map_err(|e| bad(e.to_string()))?;
+    let (width, height) = (info.width as u32, info.height as u32);
+    let n = width as usize * height as usize;
+    let format = match pixels.len() / n.max(1) {
+        3 => PixelFormat::Rgb8,
+        4 => PixelFormat::Rgba8,
+        1 => PixelFormat::Mono8,
+        c => return Err(bad(format!("{c} channels per pixel"))),
+    };
+    if pixels.len() != n * format.bytes_per_pixel() {
+        return Err(bad("decoded size disagrees with the header".into()));
+    }
+    Ok(ColorImage {
+        width,
+        height,
+        format,
+        data: pixels,
+    })
+}
+
+/// Decodes a PNG to packed samples: (width, height, colour type, bit depth,
+/// bytes).
+fn decode_png(
+    bytes: &[u8],
+    what: &'static str,
+    strip_16: bool,
+) -> Result<(u32, u32, png::ColorType, png::BitDepth, Vec<u8>), Rejection> {
+    let bad = |e: String| Rejection::new(what, format!("PNG: {e}"));
+    let mut decoder = png::Decoder::new(Cursor::new(bytes));
+    let mut t = png::Transformations::EXPAND;
+    if strip_16 {
+        t |= png::Transformations::STRIP_16;
+    }
+    decoder.set_transformations(t);
+    let mut reader = decoder.read_info().map_err(|e| bad(e.to_string()))?;
+    let (w, h) = (reader.info().width, reader.info().height);
+    check_size(what, w, h)?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| bad("image too large".into()))?;
+    let mut buf = vec![0u8; size];
+    let info = reader
+        .next_frame(&mut buf)
+        .map_err(|e| bad(e.to_string()))?;
+    buf.truncate(info.buffer_size());
+    Ok((
+        info.width,
+        info.height,
+        info.color_type,
+        info.bit_depth,
+        buf,
+    ))
+}
+
+fn decode_png_color(bytes: &[u8]) -> Result<ColorImage, Rejection> {
+    let what = "colour: corrupt compressed image";
+    let (width, height, color, _, mut data) = decode_png(bytes, what, true)?;
+    let format = match color {
+        png::ColorType::Rgb => PixelFormat::Rgb8,
+        png::ColorType::Rgba => PixelFormat::Rgba8,
+        png::ColorType::Grayscale => PixelFormat::Mono8,
+        png::ColorType::GrayscaleAlpha => {
+            data = data.chunks_exact(2).map(|p| p[0]).collect();
+            PixelFormat::Mono8
+        }
+        png::ColorType::Indexed => {
+            return Err(Rejection::new(what, "PNG palette was not expanded"))
+        }
+    };
+    Ok(ColorImage {
+        width,
+        height,
+        format,
+        data,
+    })
+}
+
+/// A depth image from a raw image message: `16UC1`/`mono16` in units of
+/// `metres_per_unit`, or `32FC1` in metres.
+pub fn depth_from_image(msg: &Image<'_>, metres_per_unit: f32) -> Result<DepthImage, Rejection> {
+    let data = match msg.encoding {
+        "16UC1" | "mono16" => {
+            let bytes = packed_rows(msg, 2, "depth: size mismatch")?;
+            DepthData::Units {
+                values: u16_samples(&bytes, msg.is_bigendian),
+                metres_per_unit,
+            }
+        }
+        "32FC1" => {
+            let bytes = packed_rows(msg, 4, "depth: size mismatch")?;
+            let swap = msg.is_bigendian != cfg!(target_endian = "big");
+            DepthData::Metres(
+                bytes
+                    .chunks_exact(4)
+                    .map(|b| {
+                        let raw = [b[0], b[1], b[2], b[3]];
+                        if swap {
+                            f32::from_bits(u32::from_ne_bytes(raw).swap_bytes())
+                        } else {
+                            f32::from_ne_bytes(raw)
+                        }
+                    })
+                    .collect(),
+            )
+        }
+        other => {
+            return Err(Rejection::new(
+                "depth: unsupported encoding",
+                format!("encoding `{other}` (accepted: 16UC1, mono16, 32FC1)"),
+            ))
+        }
+    };
+    Ok(DepthImage {
+        width: msg.width,
+        height: msg.height,
+        data,
+    })
+}
+
+/// A depth image from a `compressedDepth` message (`16UC1; compressedDepth
+/// png`, or `32FC1; compressedDepth png` with inverse-depth quantisation):
+/// a 12-byte configuration header (format, quantisation A and B) then a PNG.
+pub fn depth_from_compressed(
+    msg: &CompressedImage<'_>,
+    metres_per_unit: f32,
+) -> Result<DepthImage, Rejection> {
+    let what = "depth: corrupt compressed image";
+    let original = msg.format.split(';').next().unwrap_or("").trim();
+    if !msg.format.contains("compressedDepth") {
+        return Err(Rejection::new(
+            "depth: unsupported encoding",
+            format!(
+                "compressed depth format `{}` (accepted: `16UC1; compressedDepth png`, \
+                 `32FC1; compressedDepth png`)",
+                msg.format
+            ),
+        ));
+    }
+    let (png_bytes, quant) = if msg.data.starts_with(b"\x89PNG") {
+        (msg.data, None)
+    } else if msg.data.len() > 12 && msg.data[12..].starts_with(b"\x89PNG") {
+        let a = f32::from_le_bytes(msg.data[4..8].try_into().expect("4 bytes"));
+        let b = f32::from_le_bytes(msg.data[8..12].try_into().expect("4 bytes"));
+        (&msg.data[12..], Some((a, b)))
+    } else {
+        return Err(Rejection::new(
+            what,
+            "no PNG after the compressedDepth header",
+        ));
+    };
+    let (width, height, color, depth, bytes) = decode_png(png_bytes, what, false)?;
+    if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
+        return Err(Rejection::new(
+            what,
+            format!("PNG is {color:?} {depth:?}, expected 16-bit grey"),
+        ));
+    }
+    // PNG stores 16-bit samples big-endian.
+    let values = u16_samples(&bytes, true);
+    let data = match original {
+        "32FC1" => {
+            let (a, b) = quant.ok_or_else(|| {
+                Rejection::new(
+                    what,
+                    "32FC1 compressedDepth without its quantisation header",
+                )
+            })?;
+            DepthData::Metres(
+                values
+                    .iter()
+                    .map(|&v| if v == 0 { 0.0 } else { a / (v as f32 - b) })
+                    .collect(),
+            )
+        }
+        _ => DepthData::Units {
+            values,
+            metres_per_unit,
+        },
+    };
+    Ok(DepthImage {
+        width,
+        height,
+        data,
+    })
+}
+
+/// Writes `values` (row-major, `width × height`) as a 16-bit grey PNG.
+pub fn encode_png_u16(width: u32, height: u32, values: &[u16]) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, width, height);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Sixteen);
+        let mut w = enc.write_header().expect("writing to a Vec cannot fail");
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+        w.write_image_data(&bytes).expect("size matches the header");
+    }
+    out
+}
+
+/// The `compressedDepth` payload for 16-bit depth: a zeroed 12-byte
+/// configuration header, then the PNG.
+pub fn encode_compressed_depth_u16(width: u32, height: u32, values: &[u16]) -> Vec<u8> {
+    let mut out = vec![0u8; 12];
+    out.extend_from_slice(&encode_png_u16(width, height, values));
+    out
+}
+
+/// Class or region labels from a `16UC1`/`mono16` image message.
+pub fn labels_from_image(msg: &Image<'_>) -> Result<LabelImage, Rejection> {
+    if !matches!(msg.encoding, "16UC1" | "mono16") {
+        return Err(Rejection::new(
+            "labels: unsupported encoding",
+            format!("encoding `{}` (accepted: 16UC1, mono16)", msg.encoding),
+        ));
+    }
+    let bytes = packed_rows(msg, 2, "labels: size mismatch")?;
+    Ok(LabelImage {
+        width: msg.width,
+        height: msg.height,
+        labels: u16_samples(&bytes, msg.is_bigendian),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::messages::Header;
+
+    fn image<'a>(encoding: &'a str, w: u32, h: u32, step: u32, data: &'a [u8]) -> Image<'a> {
+        Image {
+            header: Header::default(),
+            height: h,
+            width: w,
+            encoding,
+            is_bigendian: false,
+            step,
+            data,
+        }
+    }
+
+    #[test]
+    fn row_padding_is_removed_and_sizes_are_checked() {
+        // 2×2 bgr8 with 2 bytes of row padding.
+        let data = [1, 2, 3, 4, 5, 6, 0, 0, 7, 8, 9, 10, 11, 12, 0, 0];
+        let c = color_from_image(&image("bgr8", 2, 2, 8, &data)).unwrap();
+        assert_eq!(c.data, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
+        assert_eq!(c.rgb(1, 1), [12, 11, 10]);
+        assert_eq!(c.to_rgb8()[..3], [3, 2, 1]);
+        for (step, len) in [(8, 13), (5, 16), (8, 17)] {
+            let e = color_from_image(&image("bgr8", 2, 2, step, &data_of(len))).unwrap_err();
+            assert_eq!(e.kind, "colour: size mismatch", "{e}");
+        }
+        assert_eq!(
+            color_from_image(&image("yuv422", 2, 2, 8, &data))
+                .unwrap_err()
+                .kind,
+            "colour: unsupported encoding"
+        );
+        assert!(color_from_image(&image("rgb8", 0, 2, 0, &[])).is_err());
+        assert!(color_from_image(&image("rgb8", 100_000, 1, 300_000, &[])).is_err());
+    }
+
+    fn data_of(n: usize) -> Vec<u8> {
+        vec![0; n]
+    }
+
+    #[test]
+    fn depth_encodings_and_invalid_samples() {
+        let mm: Vec<u8> = [0u16, 1500, 65535, 2]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let d = depth_from_image(&image("16UC1", 2, 2, 4, &mm), 0.001).unwrap();
+        assert_eq!(d.metres(0), None);
+        assert!((d.metres(1).unwrap() - 1.5).abs() < 1e-6);
+        assert!((d.to_metres()[3] - 0.002).abs() < 1e-9);
+        let mut be = image("mono16", 2, 2, 4, &mm);
+        be.is_bigendian = true;
+        let swapped = depth_from_image(&be, 0.001).unwrap();
+        let want = u16::from_be_bytes(1500u16.to_le_bytes()) as f32 * 0.001;
+        assert!((swapped.metres(1).unwrap() - want).abs() < 1e-6);
+        let f: Vec<u8> = [1.25f32, f32::NAN, -1.0, f32::INFINITY]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let d = depth_from_image(&image("32FC1", 2, 2, 8, &f), 0.001).unwrap();
+        assert_eq!(d.to_metres(), vec![1.25, 0.0, 0.0, 0.0]);
+        assert!(d.has_valid_sample());
+        let zeros = depth_from_image(&image("16UC1", 2, 2, 4, &[0; 8]), 0.001).unwrap();
+        assert!(!zeros.has_valid_sample());
+    }
+
+    #[test]
+    fn compressed_depth_round_trip_and_corruption() {
+        let values: Vec<u16> = (0..12).map(|i| i * 1000).collect();
+        let payload = encode_compressed_depth_u16(4, 3, &values);
+        let msg = CompressedImage {
+            header: Header::default(),
+            format: "16UC1; compressedDepth png",
+            data: &payload,
+        };
+        let d = depth_from_compressed(&msg, 0.001).unwrap();
+        assert_eq!((d.width, d.height), (4, 3));
+        assert_eq!(
+            d.data,
+            DepthData::Units {
+                values: values.clone(),
+                metres_per_unit: 0.001
+            }
+        );
+        for cut in [5, 20, 40] {
+            let bad = CompressedImage {
+                data: &payload[..cut],
+                ..msg
+            };
+            assert!(depth_from_compressed(&bad, 0.001).is_err(), "cut {cut}");
+        }
+        let jpeg = CompressedImage {
+            format: "jpeg",
+            ..msg
+        };
+        assert_eq!(
+            depth_from_compressed(&jpeg, 0.001).unwrap_err().kind,
+            "depth: unsupported encoding"
+        );
+        // A colour PNG is not depth.
+        let grey8 = CompressedImage {
+            format: "png",
+            data: &payload[12..],
+            ..msg
+        };
+        let c = color_from_compressed(&grey8).unwrap();
+        assert_eq!((c.width, c.height, c.format), (4, 3, PixelFormat::Mono8));
+    }
+}

@@ -1,0 +1,1012 @@
+//! Frame assembly: pairs colour, depth, intrinsics, pose and embeddings by
+//! `header.stamp`, and checks each part, counting every message it cannot
+//! use by reason.
+//!
+//! A colour image at stamp `t` is resolved once every stream it needs has
+//! moved past `t + tolerance` (or ended): then the nearest depth and
+//! embeddings within the tolerance are taken, the pose is interpolated at
+//! `t`, and the intrinsics are the latest camera info. Messages that no
+//! colour image claims are counted as unpaired; frames with a bad part are
+//! skipped and counted, or stop the run, as [`BadInputPolicy`] says.
+
+use std::collections::VecDeque;
+use std::path::Path;
+
+use super::codec;
+use super::frame::{
+    ColorImage, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage,
+};
+use super::log::{Channel, McapLog, MessageReader, RawMessage, ReadFilter};
+use super::messages::{
+    CameraInfo, CompressedImage, FeatureGrid, Image, MaskFeatures, Odometry, PoseStamped,
+    RosMessage, TextEmbeddings, TfMessage,
+};
+use super::report::{IngestReport, Rejection};
+use super::schema::normalize_type_name;
+use super::tf::{PoseTrack, TfBuffer};
+use super::{CameraPose, InputError};
+
+/// Where camera poses come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PoseSource {
+    /// `geometry_msgs/PoseStamped` or `nav_msgs/Odometry` messages giving
+    /// the camera optical frame in the world (camera-to-world).
+    Topic(String),
+    /// `/tf` + `/tf_static`, chained from `world_frame` to the camera
+    /// frame (the colour image's `header.frame_id` unless given).
+    Tf {
+        /// The fixed frame poses are expressed in, e.g. `map` or `odom`.
+        world_frame: String,
+        /// The camera optical frame; `None` = the colour image's frame.
+        camera_frame: Option<String>,
+    },
+}
+
+/// Topic names (DESIGN §3 defaults).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Topics {
+    /// Colour images.
+    pub color: String,
+    /// Depth images registered to the colour images.
+    pub depth: String,
+    /// Colour camera calibration (ignored when intrinsics are given in
+    /// [`AssemblyConfig::intrinsics`]).
+    pub camera_info: String,
+    /// Camera poses.
+    pub pose: PoseSource,
+    /// Region embeddings (`MaskFeatures` or `FeatureGrid`); used when the
+    /// log has the topic.
+    pub embeddings: String,
+    /// Semantic class-id images for evaluation; used when present.
+    pub semantic: String,
+    /// The query vocabulary; used when present.
+    pub vocabulary: String,
+}
+
+impl Default for Topics {
+    fn default() -> Self {
+        Topics {
+            color: "/camera/color/image_raw".into(),
+            depth: "/camera/depth/image_raw".into(),
+            camera_info: "/camera/color/camera_info".into(),
+            pose: PoseSource::Topic("/camera/pose".into()),
+            embeddings: "/camera/embeddings".into(),
+            semantic: "/camera/semantic".into(),
+            vocabulary: "/vocabulary".into(),
+        }
+    }
+}
+
+/// What to do with a frame or message that is malformed or inconsistent.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BadInputPolicy {
+    /// Skip it, count it in the [`IngestReport`] and go on.
+    #[default]
+    Skip,
+    /// Stop with an error naming the message.
+    Stop,
+}
+
+/// How frames are assembled.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AssemblyConfig {
+    /// Topic names.
+    pub topics: Topics,
+    /// Largest stamp difference between a colour image and the depth or
+    /// embeddings paired with it, nanoseconds (default 20 ms).
+    pub tolerance_ns: i64,
+    /// Largest gap between the two poses a frame's pose is interpolated
+    /// from, nanoseconds (default 200 ms).
+    pub max_pose_gap_ns: i64,
+    /// Metres per unit of integer depth (default 0.001: millimetres).
+    pub depth_metres_per_unit: f32,
+    /// Intrinsics to use instead of the camera-info topic.
+    pub intrinsics: Option<Intrinsics>,
+    /// Bad frames: skip and count, or stop.
+    pub on_bad_input: BadInputPolicy,
+    /// Messages held per stream while waiting for partners; beyond it the
+    /// oldest is resolved as if its partners had ended (bounds memory when
+    /// a stream stalls).
+    pub max_pending: usize,
+}
+
+impl Default for AssemblyConfig {
+    fn default() -> Self {
+        AssemblyConfig {
+            topics: Topics::default(),
+            tolerance_ns: 20_000_000,
+            max_pose_gap_ns: 200_000_000,
+            depth_metres_per_unit: 0.001,
+            intrinsics: None,
+            on_bad_input: BadInputPolicy::Skip,
+            max_pending: 64,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    Color,
+    Depth,
+    CameraInfo,
+    Pose,
+    Tf,
+    TfStatic,
+    Embeddings,
+    Semantic,
+    Vocabulary,
+}
+
+impl Role {
+    fn accepted_types(self) -> &'static [&'static str] {
+        match self {
+            Role::Color | Role::Depth => &[Image::TYPE_NAME, CompressedImage::TYPE_NAME],
+            Role::CameraInfo => &[CameraInfo::TYPE_NAME],
+            Role::Pose => &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME],
+            Role::Tf | Role::TfStatic => &[TfMessage::TYPE_NAME],
+            Role::Embeddings => &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME],
+            Role::Semantic => &[Image::TYPE_NAME],
+            Role::Vocabulary => &[TextEmbeddings::TYPE_NAME],
+        }
+    }
+    fn stream(self) -> &'static str {
+        match self {
+            Role::Color => "colour",
+            Role::Depth => "depth",
+            Role::CameraInfo => "camera info",
+            Role::Pose => "pose",
+            Role::Tf | Role::TfStatic => "tf",
+            Role::Embeddings => "embeddings",
+            Role::Semantic => "semantic",
+            Role::Vocabulary => "vocabulary",
+        }
+    }
+}
+
+/// A colour image waiting for its partners; compressed ones are decoded
+/// only once the frame is complete.
+enum PendingColor {
+    Raw(Result<ColorImage, Rejection>),
+    Compressed { format: String, data: Vec<u8> },
+}
+
+struct Stamped<T> {
+    stamp: i64,
+    value: T,
+}
+
+/// A stream's pending messages, sorted by stamp, and the latest stamp seen.
+struct Queue<T> {
+    items: VecDeque<Stamped<T>>,
+    watermark: Option<i64>,
+}
+
+impl<T> Default for Queue<T> {
+    fn default() -> Self {
+        Queue {
+            items: VecDeque::new(),
+            watermark: None,
+        }
+    }
+}
+
+impl<T> Queue<T> {
+    fn push(&mut self, stamp: i64, value: T) {
+        self.watermark = Some(self.watermark.map_or(stamp, |w| w.max(stamp)));
+        let i = self.items.partition_point(|s| s.stamp <= stamp);
+        self.items.insert(i, Stamped { stamp, value });
+    }
+    /// Removes and returns the item nearest `t` within `tol`.
+    fn take_nearest(&mut self, t: i64, tol: i64) -> Option<Stamped<T>> {
+        let (i, _) = self
+            .items
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| (s.stamp - t).abs() <= tol)
+            .min_by_key(|(_, s)| (s.stamp - t).abs())?;
+        self.items.remove(i)
+    }
+    /// Removes items no colour image at or after `t` can claim.
+    fn drain_older_than(&mut self, t: i64) -> usize {
+        let n = self.items.partition_point(|s| s.stamp < t);
+        self.items.drain(..n);
+        n
+    }
+}
+
+/// The vocabulary found in a log.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Vocabulary {
+    /// Class names.
+    pub names: Vec<String>,
+    /// Class id of each name.
+    pub ids: Vec<u16>,
+    /// Embedding dimension.
+    pub dim: u32,
+    /// `names.len() × dim` vectors.
+    pub vectors: Vec<f32>,
+    /// Embedding model id.
+    pub model: String,
+}
+
+/// Turns a stream of log messages into [`Frame`]s.
+pub struct FrameAssembler {
+    config: AssemblyConfig,
+    color: Queue<PendingColor>,
+    depth: Queue<Result<DepthImage, Rejection>>,
+    embeddings: Queue<Embeddings>,
+    semantic: Queue<LabelImage>,
+    /// The latest camera info (a bad one is kept so frames are rejected
+    /// for the right reason).
+    camera_info: Option<Result<Intrinsics, Rejection>>,
+    poses: PoseTrack,
+    tf: TfBuffer,
+    color_frame_id: Option<String>,
+    has_embeddings: bool,
+    has_semantic: bool,
+    embedding_signature: Option<(u32, String)>,
+    vocabulary: Option<Vocabulary>,
+    ready: VecDeque<Frame>,
+    report: IngestReport,
+    ended: bool,
+}
+
+impl FrameAssembler {
+    /// An assembler for `config`; `has_embeddings` / `has_semantic` say
+    /// whether the log carries those optional streams (frames wait for
+    /// them only if so).
+    pub fn new(config: AssemblyConfig, has_embeddings: bool, has_semantic: bool) -> Self {
+        FrameAssembler {
+            config,
+            color: Queue::default(),
+            depth: Queue::default(),
+            embeddings: Queue::default(),
+            semantic: Queue::default(),
+            camera_info: None,
+            poses: PoseTrack::default(),
+            tf: TfBuffer::default(),
+            color_frame_id: None,
+            has_embeddings,
+            has_semantic,
+            embedding_signature: None,
+            vocabulary: None,
+            ready: VecDeque::new(),
+            report: IngestReport::default(),
+            ended: false,
+        }
+    }
+
+    /// The counts so far.
+    pub fn report(&self) -> &IngestReport {
+        &self.report
+    }
+
+    /// The latest vocabulary message, if the log has one.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.vocabulary.as_ref()
+    }
+
+    /// The next complete frame.
+    pub fn pop(&mut self) -> Option<Frame> {
+        self.ready.pop_front()
+    }
+
+    fn role(&self, topic: &str) -> Option<Role> {
+        let t = &self.config.topics;
+        if topic == t.color {
+            Some(Role::Color)
+        } else if topic == t.depth {
+            Some(Role::Depth)
+        } else if topic == t.camera_info && self.config.intrinsics.is_none() {
+            Some(Role::CameraInfo)
+        } else if matches!(&t.pose, PoseSource::Topic(p) if p == topic) {
+            Some(Role::Pose)
+        } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf" {
+            Some(Role::Tf)
+        } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf_static" {
+            Some(Role::TfStatic)
+        } else if topic == t.embeddings {
+            Some(Role::Embeddings)
+        } else if topic == t.semantic {
+            Some(Role::Semantic)
+        } else if topic == t.vocabulary {
+            Some(Role::Vocabulary)
+        } else {
+            None
+        }
+    }
+
+    /// The topics this configuration reads, for a [`ReadFilter`].
+    pub fn topics(&self) -> Vec<String> {
+        let t = &self.config.topics;
+        let mut v = vec![t.color.clone(), t.depth.clone()];
+        if self.config.intrinsics.is_none() {
+            v.push(t.camera_info.clone());
+        }
+        match &t.pose {
+            PoseSource::Topic(p) => v.push(p.clone()),
+            PoseSource::Tf { .. } => v.extend(["/tf".to_string(), "/tf_static".to_string()]),
+        }
+        v.extend([
+            t.embeddings.clone(),
+            t.semantic.clone(),
+            t.vocabulary.clone(),
+        ]);
+        v
+    }
+
+    fn reject(&mut self, topic: &str, stamp: i64, r: Rejection) -> Result<(), InputError> {
+        match self.config.on_bad_input {
+            BadInputPolicy::Skip => {
+                log::debug!("skipping {topic} at {stamp} ns: {r}");
+                self.report.count(&r);
+                Ok(())
+            }
+            BadInputPolicy::Stop => Err(InputError::Rejected {
+                topic: topic.to_string(),
+                stamp_ns: stamp,
+                rejection: r,
+            }),
+        }
+    }
+
+    /// Takes one message. Errors only for undecodable messages under
+    /// [`BadInputPolicy::Stop`] and for rejected frames under it.
+    pub fn push(&mut self, msg: RawMessage<'_>) -> Result<(), InputError> {
+        let Some(role) = self.role(&msg.channel.topic) else {
+            return Ok(());
+        };
+        self.report.messages += 1;
+        let topic = msg.channel.topic.as_str();
+        let log_stamp = msg.log_time as i64;
+        match self.decode(role, msg) {
+            Ok(()) => {}
+            Err(r) => self.reject(topic, log_stamp, r)?,
+        }
+        self.resolve(false)
+    }
+
+    fn decode(&mut self, role: Role, msg: RawMessage<'_>) -> Result<(), Rejection> {
+        let ty = normalize_type_name(&msg.channel.schema_name);
+        let undecodable = |e: super::cdr::CdrError| {
+            Rejection::new(
+                match role {
+                    Role::Color => "colour: undecodable message",
+                    Role::Depth => "depth: undecodable message",
+                    Role::CameraInfo => "camera info: undecodable message",
+                    Role::Pose => "pose: undecodable message",
+                    Role::Tf | Role::TfStatic => "tf: undecodable message",
+                    Role::Embeddings => "embeddings: undecodable message",
+                    Role::Semantic => "semantic: undecodable message",
+                    Role::Vocabulary => "vocabulary: undecodable message",
+                },
+                e.to_string(),
+            )
+        };
+        let data = msg.data;
+        match role {
+            Role::Color if ty == CompressedImage::TYPE_NAME => {
+                let m = CompressedImage::decode(data).map_err(undecodable)?;
+                self.note_color_frame(m.header.frame_id);
+                self.color.push(
+                    m.header.stamp.as_nanos(),
+                    PendingColor::Compressed {
+                        format: m.format.to_string(),
+                        data: m.data.to_vec(),
+                    },
+                );
+            }
+            Role::Color => {
+                let m = Image::decode(data).map_err(undecodable)?;
+                self.note_color_frame(m.header.frame_id);
+                self.color.push(
+                    m.header.stamp.as_nanos(),
+                    PendingColor::Raw(codec::color_from_image(&m)),
+                );
+            }
+            Role::Depth => {
+                let scale = self.config.depth_metres_per_unit;
+                let (stamp, depth) = if ty == CompressedImage::TYPE_NAME {
+                    let m = CompressedImage::decode(data).map_err(undecodable)?;
+                    (
+                        m.header.stamp.as_nanos(),
+                        codec::depth_from_compressed(&m, scale),
+                    )
+                } else {
+                    let m = Image::decode(data).map_err(undecodable)?;
+                    (
+                        m.header.stamp.as_nanos(),
+                        codec::depth_from_image(&m, scale),
+                    )
+                };
+                // A bad depth image is kept as such so the colour image it
+                // belongs to is rejected for the right reason.
+                self.depth.push(stamp, depth);
+            }
+            Role::CameraInfo => {
+                let m = CameraInfo::decode(data).map_err(undecodable)?;
+                self.camera_info = Some(intrinsics_of(&m));
+            }
+            Role::Pose => {
+                let (stamp, pose) = if ty == Odometry::TYPE_NAME {
+                    let m = Odometry::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), m.pose)
+                } else {
+                    let m = PoseStamped::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), m.pose)
+                };
+                self.poses.insert(stamp, pose.checked()?);
+            }
+            Role::Tf | Role::TfStatic => {
+                let m = TfMessage::decode(data).map_err(undecodable)?;
+                for t in &m.transforms {
+                    self.tf.insert(t, role == Role::TfStatic)?;
+                }
+            }
+            Role::Embeddings => {
+                let (stamp, e) = if ty == FeatureGrid::TYPE_NAME {
+                    let m = FeatureGrid::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), grid_embeddings(&m)?)
+                } else {
+                    let m = MaskFeatures::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), mask_embeddings(&m)?)
+                };
+                self.check_signature(&e)?;
+                self.embeddings.push(stamp, e);
+            }
+            Role::Semantic => {
+                let m = Image::decode(data).map_err(undecodable)?;
+                let labels = codec::labels_from_image(&m)?;
+                self.semantic.push(m.header.stamp.as_nanos(), labels);
+            }
+            Role::Vocabulary => {
+                let m = TextEmbeddings::decode(data).map_err(undecodable)?;
+                self.vocabulary = Some(vocabulary_of(&m)?);
+            }
+        }
+        Ok(())
+    }
+
+    fn note_color_frame(&mut self, frame_id: &str) {
+        if self.color_frame_id.as_deref() != Some(frame_id) {
+            self.color_frame_id = Some(frame_id.to_string());
+        }
+    }
+
+    fn check_signature(&mut self, e: &Embeddings) -> Result<(), Rejection> {
+        let model = e
+            .model
+            .strip_prefix("oracle:")
+            .unwrap_or(&e.model)
+            .to_string();
+        match &self.embedding_signature {
+            None => {
+                self.embedding_signature = Some((e.dim, model));
+                Ok(())
+            }
+            Some((dim, _)) if *dim != e.dim => Err(Rejection::new(
+                "embeddings: dimension changed",
+                format!(
+                    "dimension {} after earlier messages of dimension {dim}",
+                    e.dim
+                ),
+            )),
+            Some((_, m)) if *m != model => Err(Rejection::new(
+                "embeddings: model changed",
+                format!("model `{model}` after earlier messages from `{m}`"),
+            )),
+            Some(_) => Ok(()),
+        }
+    }
+
+    /// Declares the end of the log: every pending colour image is resolved
+    /// with what arrived, and leftover messages are counted as unpaired.
+    pub fn finish(&mut self) -> Result<(), InputError> {
+        self.ended = true;
+        self.resolve(true)?;
+        for (kind, n) in [
+            ("depth: unpaired", self.depth.items.len()),
+            ("embeddings: unpaired", self.embeddings.items.len()),
+            ("semantic: unpaired", self.semantic.items.len()),
+        ] {
+            for _ in 0..n {
+                self.report.count(&Rejection::new(
+                    kind,
+                    "no colour image within the tolerance",
+                ));
+            }
+        }
+        self.depth.items.clear();
+        self.embeddings.items.clear();
+        self.semantic.items.clear();
+        Ok(())
+    }
+
+    /// Whether everything a colour image at `t` waits for has arrived.
+    fn can_resolve(&self, t: i64) -> bool {
+        if self.ended {
+            return true;
+        }
+        let tol = self.config.tolerance_ns;
+        let past = |w: Option<i64>, until: i64| w.is_some_and(|w| w >= until);
+        let pose_ready = match &self.config.topics.pose {
+            PoseSource::Topic(_) => past(self.poses.latest(), t),
+            PoseSource::Tf { .. } => past(self.tf.latest(), t),
+        };
+        past(self.depth.watermark, t + tol)
+            && (self.config.intrinsics.is_some() || self.camera_info.is_some())
+            && pose_ready
+            && (!self.has_embeddings || past(self.embeddings.watermark, t + tol))
+            && (!self.has_semantic || past(self.semantic.watermark, t + tol))
+    }
+
+    fn resolve(&mut self, all: bool) -> Result<(), InputError> {
+        while let Some(front) = self.color.items.front() {
+            let t = front.stamp;
+            let forced = all || self.color.items.len() > self.config.max_pending;
+            if !forced && !self.can_resolve(t) {
+                break;
+            }
+            let pending = self.color.items.pop_front().expect("front exists");
+            let result = self.assemble(t, pending.value);
+            let tol = self.config.tolerance_ns;
+            // Whatever is now too old for any later colour image is unpaired.
+            for (kind, n) in [
+                ("depth: unpaired", self.depth.drain_older_than(t - tol)),
+                (
+                    "embeddings: unpaired",
+                    self.embeddings.drain_older_than(t - tol),
+                ),
+                (
+                    "semantic: unpaired",
+                    self.semantic.drain_older_than(t - tol),
+                ),
+            ] {
+                for _ in 0..n {
+                    self.report.count(&Rejection::new(
+                        kind,
+                        "no colour image within the tolerance",
+                    ));
+                }
+            }
+            self.poses.forget_before(t - self.config.max_pose_gap_ns);
+            self.tf.forget_before(t - self.config.max_pose_gap_ns);
+            match result {
+                Ok(frame) => {
+                    self.report.frames += 1;
+                    self.report.frames_with_embeddings += frame.embeddings.is_some() as u64;
+                    self.ready.push_back(frame);
+                }
+                Err(r) => {
+                    let topic = self.config.topics.color.clone();
+                    self.reject(&topic, t, r)?;
+                }
+            }
+        }
+        // Bound the partner queues too.
+        let max = self.config.max_pending;
+        while self.depth.items.len() > max {
+            self.depth.items.pop_front();
+            self.report.count(&Rejection::new(
+                "depth: unpaired",
+                "no colour image arrived for it before the queue filled",
+            ));
+        }
+        while self.embeddings.items.len() > max {
+            self.embeddings.items.pop_front();
+            self.report.count(&Rejection::new(
+                "embeddings: unpaired",
+                "no colour image arrived for it before the queue filled",
+            ));
+        }
+        while self.semantic.items.len() > max {
+            self.semantic.items.pop_front();
+        }
+        Ok(())
+    }
+
+    fn assemble(&mut self, t: i64, pending: PendingColor) -> Result<Frame, Rejection> {
+        let tol = self.config.tolerance_ns;
+        let depth = self.depth.take_nearest(t, tol);
+        let embeddings = self.embeddings.take_nearest(t, tol);
+        let semantic = self.semantic.take_nearest(t, tol);
+        let Some(depth) = depth else {
+            return Err(Rejection::new(
+                "frame: no depth within tolerance",
+                format!("colour image at {t} ns"),
+            ));
+        };
+        let depth = depth.value?;
+        let intrinsics = match (&self.config.intrinsics, &self.camera_info) {
+            (Some(k), _) => *k,
+            (None, Some(k)) => k.clone()?,
+            (None, None) => {
+                return Err(Rejection::new(
+                    "frame: no camera info",
+                    format!("colour image at {t} ns arrived before any camera info"),
+                ))
+            }
+        };
+        let pose = self.pose_at(t)?;
+        let color = match pending {
+            PendingColor::Raw(c) => c?,
+            PendingColor::Compressed { format, data } => {
+                codec::color_from_compressed(&CompressedImage {
+                    header: Default::default(),
+                    format: &format,
+                    data: &data,
+                })?
+            }
+        };
+        if (depth.width, depth.height) != (color.width, color.height) {
+            return Err(Rejection::new(
+                "frame: depth size differs from colour",
+                format!(
+                    "depth {}×{}, colour {}×{} (depth must be registered to the colour image)",
+                    depth.width, depth.height, color.width, color.height
+                ),
+            ));
+        }
+        let intrinsics = Intrinsics {
+            width: color.width,
+            height: color.height,
+            ..match (intrinsics.width, intrinsics.height) {
+                (0, 0) => intrinsics,
+                (w, h) if (w, h) == (color.width, color.height) => intrinsics,
+                (w, h) => {
+                    return Err(Rejection::new(
+                        "frame: intrinsics size differs from colour",
+                        format!(
+                            "camera info is for {w}×{h}, colour image is {}×{}",
+                            color.width, color.height
+                        ),
+                    ))
+                }
+            }
+        };
+        if !depth.has_valid_sample() {
+            return Err(Rejection::new(
+                "frame: no valid depth",
+                format!("every depth sample of the image at {t} ns is invalid"),
+            ));
+        }
+        Ok(Frame {
+            stamp_ns: t,
+            pose,
+            intrinsics,
+            color,
+            depth,
+            embeddings: embeddings.map(|e| e.value),
+            semantic: semantic.map(|s| s.value),
+        })
+    }
+
+    fn pose_at(&self, t: i64) -> Result<CameraPose, Rejection> {
+        let gap = self.config.max_pose_gap_ns;
+        let pose = match &self.config.topics.pose {
+            PoseSource::Topic(_) => self
+                .poses
+                .at(t, self.config.tolerance_ns, gap)
+                .map_err(|why| Rejection::new("frame: no pose", format!("at {t} ns: {why}")))?,
+            PoseSource::Tf {
+                world_frame,
+                camera_frame,
+            } => {
+                let camera = camera_frame
+                    .as_deref()
+                    .or(self.color_frame_id.as_deref())
+                    .unwrap_or_default();
+                self.tf
+                    .lookup(world_frame, camera, t, gap)
+                    .map_err(|why| Rejection::new("frame: no pose", format!("at {t} ns: {why}")))?
+            }
+        };
+        Ok(CameraPose {
+            rotation: pose.rotation,
+            translation: pose.translation,
+        })
+    }
+}
+
+fn intrinsics_of(m: &CameraInfo<'_>) -> Result<Intrinsics, Rejection> {
+    let [fx, _, cx, _, fy, cy, ..] = m.k;
+    if ![fx, fy, cx, cy].iter().all(|v| v.is_finite()) || fx <= 0.0 || fy <= 0.0 {
+        return Err(Rejection::new(
+            "camera info: invalid intrinsics",
+            format!("fx {fx}, fy {fy}, cx {cx}, cy {cy}"),
+        ));
+    }
+    if m.d.iter().any(|c| c != 0.0) {
+        return Err(Rejection::new(
+            "camera info: distortion not supported",
+            format!(
+                "`{}` coefficients {:?}; rectify the images first (undistortion is not implemented)",
+                m.distortion_model,
+                m.d.to_vec()
+            ),
+        ));
+    }
+    if m.binning_x > 1 || m.binning_y > 1 || m.roi.0 != [0; 4] {
+        return Err(Rejection::new(
+            "camera info: binning or ROI not supported",
+            format!("binning {}×{}, roi {:?}", m.binning_x, m.binning_y, m.roi.0),
+        ));
+    }
+    Ok(Intrinsics {
+        width: m.width,
+        height: m.height,
+        fx,
+        fy,
+        cx,
+        cy,
+    })
+}
+
+fn check_vectors(
+    kind: &'static str,
+    count: u64,
+    dim: u32,
+    dtype: &str,
+    len: usize,
+) -> Result<Dtype, Rejection> {
+    let dt = Dtype::parse(dtype).ok_or_else(|| {
+        Rejection::new(
+            "embeddings: unknown dtype",
+            format!("dtype `{dtype}` (accepted: f16, f32)"),
+        )
+    })?;
+    if dim == 0 {
+        return Err(Rejection::new(kind, "dim is 0"));
+    }
+    let need = count
+        .saturating_mul(dim as u64)
+        .saturating_mul(dt.size() as u64);
+    if need != len as u64 {
+        return Err(Rejection::new(
+            kind,
+            format!("{count} vectors × {dim} × {dtype} need {need} bytes, data has {len}"),
+        ));
+    }
+    Ok(dt)
+}
+
+fn mask_embeddings(m: &MaskFeatures<'_>) -> Result<Embeddings, Rejection> {
+    let kind = "embeddings: size mismatch";
+    let dtype = check_vectors(kind, m.count as u64, m.dim, m.dtype, m.data.len())?;
+    let pixels = m.width as u64 * m.height as u64;
+    if pixels == 0 || m.width > codec::MAX_IMAGE_SIDE || m.height > codec::MAX_IMAGE_SIDE {
+        return Err(Rejection::new(
+            kind,
+            format!("label image {}×{}", m.width, m.height),
+        ));
+    }
+    if m.labels.len() as u64 != pixels {
+        return Err(Rejection::new(
+            kind,
+            format!(
+                "{} labels for a {}×{} label image",
+                m.labels.len(),
+                m.width,
+                m.height
+            ),
+        ));
+    }
+    let labels = m.labels.to_vec();
+    if let Some(bad) = labels
+        .iter()
+        .find(|&&l| l != u16::MAX && l as u32 >= m.count)
+    {
+        return Err(Rejection::new(
+            "embeddings: label out of range",
+            format!("region label {bad} with only {} regions", m.count),
+        ));
+    }
+    Ok(Embeddings {
+        layout: EmbeddingLayout::Regions(LabelImage {
+            width: m.width,
+            height: m.height,
+            labels,
+        }),
+        count: m.count,
+        dim: m.dim,
+        dtype,
+        data: m.data.to_vec(),
+        model: m.model.to_string(),
+    })
+}
+
+fn grid_embeddings(m: &FeatureGrid<'_>) -> Result<Embeddings, Rejection> {
+    let cells = m.rows as u64 * m.cols as u64;
+    if cells == 0 || cells > u32::MAX as u64 {
+        return Err(Rejection::new(
+            "embeddings: size mismatch",
+            format!("grid of {}×{} cells", m.rows, m.cols),
+        ));
+    }
+    let dtype = check_vectors(
+        "embeddings: size mismatch",
+        cells,
+        m.dim,
+        m.dtype,
+        m.data.len(),
+    )?;
+    Ok(Embeddings {
+        layout: EmbeddingLayout::Grid {
+            rows: m.rows,
+            cols: m.cols,
+        },
+        count: cells as u32,
+        dim: m.dim,
+        dtype,
+        data: m.data.to_vec(),
+        model: m.model.to_string(),
+    })
+}
+
+fn vocabulary_of(m: &TextEmbeddings<'_>) -> Result<Vocabulary, Rejection> {
+    if m.names.len() != m.ids.len() {
+        return Err(Rejection::new(
+            "vocabulary: size mismatch",
+            format!("{} names but {} ids", m.names.len(), m.ids.len()),
+        ));
+    }
+    let dtype = check_vectors(
+        "vocabulary: size mismatch",
+        m.names.len() as u64,
+        m.dim,
+        m.dtype,
+        m.data.len(),
+    )?;
+    Ok(Vocabulary {
+        names: m.names.iter().map(|s| s.to_string()).collect(),
+        ids: m.ids.to_vec(),
+        dim: m.dim,
+        vectors: super::frame::decode_floats(m.data, dtype),
+        model: m.model.to_string(),
+    })
+}
+
+/// Frames from an MCAP log, in stamp order.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, McapFrames};
+///
+/// let mut frames = McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())?;
+/// for frame in &mut frames {
+///     let frame = frame?;
+///     println!("{} ns: {}×{}", frame.stamp_ns, frame.color.width, frame.color.height);
+/// }
+/// eprintln!("{}", frames.report());
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
+pub struct McapFrames {
+    reader: MessageReader,
+    assembler: FrameAssembler,
+    done: bool,
+}
+
+impl McapFrames {
+    /// Opens a log and checks that the topics the configuration needs are
+    /// there with accepted message types.
+    pub fn open(path: &Path, config: AssemblyConfig) -> Result<Self, InputError> {
+        Self::from_log(McapLog::open(path)?, config)
+    }
+
+    /// Frames from an already opened log.
+    pub fn from_log(log: McapLog, config: AssemblyConfig) -> Result<Self, InputError> {
+        let channels = log.channels();
+        let probe = FrameAssembler::new(config.clone(), false, false);
+        let find = |topic: &str| channels.iter().find(|c| c.topic == topic);
+        let mut required = vec![config.topics.color.as_str(), config.topics.depth.as_str()];
+        if config.intrinsics.is_none() {
+            required.push(&config.topics.camera_info);
+        }
+        match &config.topics.pose {
+            PoseSource::Topic(p) => required.push(p),
+            PoseSource::Tf { .. } => {
+                if find("/tf").is_none() && find("/tf_static").is_none() {
+                    required.push("/tf");
+                }
+            }
+        }
+        let missing: Vec<&str> = required
+            .iter()
+            .copied()
+            .filter(|t| find(t).is_none())
+            .collect();
+        if !missing.is_empty() {
+            return Err(InputError::Topic {
+                topic: missing.join(", "),
+                reason: format!(
+                    "not in the log; it has: {}",
+                    channels
+                        .iter()
+                        .map(|c| format!("{} ({})", c.topic, c.schema_name))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
+        }
+        for c in &channels {
+            if let Some(role) = probe.role(&c.topic) {
+                check_channel(c, role)?;
+            }
+        }
+        let topics = probe.topics();
+        let assembler = FrameAssembler::new(
+            config.clone(),
+            find(&config.topics.embeddings).is_some(),
+            find(&config.topics.semantic).is_some(),
+        );
+        Ok(McapFrames {
+            reader: log.reader(ReadFilter {
+                topics: Some(topics),
+                ..Default::default()
+            }),
+            assembler,
+            done: false,
+        })
+    }
+
+    /// Counts so far (complete once the iterator has ended).
+    pub fn report(&self) -> &IngestReport {
+        self.assembler.report()
+    }
+
+    /// The log's vocabulary, once its message has been read.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.assembler.vocabulary()
+    }
+}
+
+fn check_channel(c: &Channel, role: Role) -> Result<(), InputError> {
+    let ty = normalize_type_name(&c.schema_name);
+    let accepted = role.accepted_types();
+    if !accepted.contains(&ty.as_str()) {
+        return Err(InputError::Topic {
+            topic: c.topic.clone(),
+            reason: format!(
+                "carries `{}` but the {} stream needs one of {}",
+                c.schema_name,
+                role.stream(),
+                accepted.join(", ")
+            ),
+        });
+    }
+    if c.message_encoding != "cdr" {
+        return Err(InputError::Topic {
+            topic: c.topic.clone(),
+            reason: format!(
+                "message encoding `{}`, only `cdr` is read",
+                c.message_encoding
+            ),
+        });
+    }
+    Ok(())
+}
+
+impl Iterator for McapFrames {
+    type Item = Result<Frame, InputError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(frame) = self.assembler.pop() {
+                return Some(Ok(frame));
+            }
+            if self.done {
+                return None;
+            }
+            let assembler = &mut self.assembler;
+            match self.reader.next_with(|m| assembler.push(m)) {
+                None => {
+                    self.done = true;
+                    if let Err(e) = self.assembler.finish() {
+                        return Some(Err(e));
+                    }
+                }
+                Some(Err(e)) | Some(Ok(Err(e))) => return Some(Err(e)),
+                Some(Ok(Ok(()))) => {}
+            }
+        }
+    }
+}

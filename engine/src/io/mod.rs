@@ -1,0 +1,101 @@
+//! The engine's input side: MCAP logs of ROS 2 messages in, [`Frame`]s out.
+//!
+//! * [`cdr`]: zero-copy CDR decoding (and encoding, for writers and tests);
+//! * [`messages`]: the message types, borrowed from the serialized bytes;
+//! * [`schema`]: their `ros2msg` schema texts (the engine's own `.msg`
+//!   files live in `engine/msg/`);
+//! * [`McapLog`]: memory-mapped, indexed reading of a file or a rosbag2
+//!   directory;
+//! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
+//!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
+//!   unused message counted in an [`IngestReport`];
+//! * [`LogWriter`]: writing logs (converters, the demo scene, tests).
+//!
+//! ```no_run
+//! use latentam::io::{AssemblyConfig, McapFrames};
+//!
+//! let frames = McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())?;
+//! for frame in frames {
+//!     let frame = frame?;
+//!     println!("frame at {} ns, pose {:?}", frame.stamp_ns, frame.pose.translation);
+//! }
+//! # Ok::<(), latentam::io::InputError>(())
+//! ```
+
+pub mod cdr;
+pub mod codec;
+mod frame;
+mod frames;
+mod log;
+pub mod messages;
+mod report;
+pub mod schema;
+mod tf;
+mod writer;
+
+use std::path::PathBuf;
+
+pub use frame::{
+    decode_floats, encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype,
+    EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
+};
+pub use frames::{
+    AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource, Topics, Vocabulary,
+};
+pub use log::{
+    Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,
+};
+pub use messages::{
+    CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
+    PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
+};
+pub use report::{IngestReport, ReasonCount, Rejection};
+pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
+pub use writer::{Compression, LogWriter};
+
+/// What went wrong reading or writing a log.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    /// The file system refused.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The MCAP structure is damaged (truncated, corrupt chunk, bad
+    /// record).
+    #[error("{path}: {reason}")]
+    Log {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A topic the configuration needs is missing or has the wrong type.
+    #[error("topic {topic}: {reason}")]
+    Topic {
+        /// The topic(s).
+        topic: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A message or frame was rejected under [`BadInputPolicy::Stop`].
+    #[error("{topic} at stamp {stamp_ns} ns: {rejection}")]
+    Rejected {
+        /// The topic of the message (the colour topic for whole frames).
+        topic: String,
+        /// Its stamp (log time for undecodable messages).
+        stamp_ns: i64,
+        /// Why.
+        rejection: Rejection,
+    },
+    /// Writing a log failed.
+    #[error("writing MCAP: {0}")]
+    Write(String),
+}
+
+#[cfg(test)]
+mod tests;

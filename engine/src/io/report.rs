@@ -1,0 +1,93 @@
+//! Why messages and frames were not used, counted by reason.
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+/// Why one message or frame was not used.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Rejection {
+    /// A stable short reason, `"stream: what"`, the key counts are kept by.
+    pub kind: &'static str,
+    /// The specifics of this instance (sizes, values, stamps).
+    pub detail: String,
+}
+
+impl Rejection {
+    /// A rejection of kind `kind`.
+    pub fn new(kind: &'static str, detail: impl Into<String>) -> Self {
+        Rejection {
+            kind,
+            detail: detail.into(),
+        }
+    }
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.kind, self.detail)
+    }
+}
+
+impl std::error::Error for Rejection {}
+
+/// How often one reason occurred, with its first instance as an example.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ReasonCount {
+    /// Occurrences.
+    pub count: u64,
+    /// The detail of the first occurrence.
+    pub first: String,
+}
+
+/// What the ingest did with a log: messages read, frames produced, and
+/// every message or frame not used, by reason. Nothing is dropped without
+/// being counted here.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct IngestReport {
+    /// Messages read on the configured topics.
+    pub messages: u64,
+    /// Frames assembled and handed out.
+    pub frames: u64,
+    /// Frames that carried embeddings.
+    pub frames_with_embeddings: u64,
+    /// Messages or frames not used, by reason.
+    pub skipped: BTreeMap<&'static str, ReasonCount>,
+}
+
+impl IngestReport {
+    /// Counts one rejection.
+    pub fn count(&mut self, r: &Rejection) {
+        self.skipped
+            .entry(r.kind)
+            .and_modify(|c| c.count += 1)
+            .or_insert_with(|| ReasonCount {
+                count: 1,
+                first: r.detail.clone(),
+            });
+    }
+    /// Total of all skips.
+    pub fn total_skipped(&self) -> u64 {
+        self.skipped.values().map(|c| c.count).sum()
+    }
+    /// Occurrences of one reason.
+    pub fn skipped_for(&self, kind: &str) -> u64 {
+        self.skipped.get(kind).map_or(0, |c| c.count)
+    }
+}
+
+impl fmt::Display for IngestReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{} messages read, {} frames assembled ({} with embeddings), {} skipped",
+            self.messages,
+            self.frames,
+            self.frames_with_embeddings,
+            self.total_skipped()
+        )?;
+        for (kind, c) in &self.skipped {
+            writeln!(f, "  {:>6} × {kind} (first: {})", c.count, c.first)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,631 @@
+//! Round trips through the writer and the reader, pairing, and bad input.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::{DQuat, DVec3};
+
+use super::*;
+
+/// A directory removed on drop.
+pub(crate) struct TempDir(PathBuf);
+
+impl TempDir {
+    pub(crate) fn new(tag: &str) -> Self {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        static N: AtomicUsize = AtomicUsize::new(0);
+        let p = std::env::temp_dir().join(format!(
+            "latentam-{tag}-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::create_dir_all(&p).unwrap();
+        TempDir(p)
+    }
+    pub(crate) fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+const W: u32 = 8;
+const H: u32 = 6;
+const MS: i64 = 1_000_000;
+
+fn depth_bytes(fill: u16) -> Vec<u8> {
+    (0..W * H)
+        .flat_map(|i| (fill + i as u16).to_le_bytes())
+        .collect()
+}
+
+fn color_bytes(seed: u8) -> Vec<u8> {
+    (0..W * H * 3)
+        .map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed))
+        .collect()
+}
+
+fn pose_at(t: i64) -> Pose {
+    let s = t as f64 * 1e-9;
+    Pose {
+        translation: DVec3::new(s, 2.0 * s, -s),
+        rotation: DQuat::from_rotation_y(0.3 * s),
+    }
+}
+
+/// What a synthetic log holds; each field can be broken by a test.
+struct Spec {
+    frames: usize,
+    color_period: i64,
+    depth_period: i64,
+    depth_offset: i64,
+    pose_period: i64,
+    embeddings: bool,
+    compression: Compression,
+}
+
+impl Default for Spec {
+    fn default() -> Self {
+        Spec {
+            frames: 6,
+            color_period: 100 * MS,
+            depth_period: 50 * MS,
+            depth_offset: 3 * MS,
+            pose_period: 20 * MS,
+            embeddings: true,
+            compression: Compression::Zstd,
+        }
+    }
+}
+
+type Tweak<'a> = &'a dyn Fn(&mut LogWriter<std::io::BufWriter<std::fs::File>>, usize, i64);
+
+fn write_log(path: &Path, spec: &Spec, tweak: Tweak<'_>) {
+    let mut log = LogWriter::create(path, spec.compression).unwrap();
+    let t0 = 1_000_000_000_000i64;
+    let end = t0 + spec.color_period * spec.frames as i64;
+    let mut events: Vec<(i64, u8)> = Vec::new();
+    for i in 0..spec.frames as i64 {
+        events.push((t0 + i * spec.color_period, 0));
+    }
+    let mut t = t0 + spec.depth_offset;
+    while t < end {
+        events.push((t, 1));
+        t += spec.depth_period;
+    }
+    let mut t = t0 - spec.pose_period;
+    while t <= end + spec.pose_period {
+        events.push((t, 2));
+        t += spec.pose_period;
+    }
+    events.sort();
+    let mut frame = 0;
+    for (t, kind) in events {
+        let lt = t as u64;
+        match kind {
+            0 => {
+                let info = CameraInfo::pinhole(Header::at(t, "cam"), W, H, [5.0, 5.0, 3.5, 2.5]);
+                log.write("/camera/color/camera_info", lt, &info).unwrap();
+                let data = color_bytes(frame as u8);
+                let img = Image {
+                    header: Header::at(t, "cam"),
+                    height: H,
+                    width: W,
+                    encoding: "rgb8",
+                    is_bigendian: false,
+                    step: W * 3,
+                    data: &data,
+                };
+                log.write("/camera/color/image_raw", lt, &img).unwrap();
+                if spec.embeddings {
+                    let labels: Vec<u16> = (0..W * H)
+                        .map(|i| if i % 5 == 0 { u16::MAX } else { (i % 3) as u16 })
+                        .collect();
+                    let values: Vec<f32> = (0..3 * 4).map(|i| i as f32 + frame as f32).collect();
+                    let data = encode_floats(&values, Dtype::F16);
+                    let lbytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
+                    let m = MaskFeatures {
+                        header: Header::at(t + MS, "cam"),
+                        height: H,
+                        width: W,
+                        labels: cdr::Seq::new(&lbytes, cdr::Endian::Little),
+                        count: 3,
+                        dim: 4,
+                        dtype: "f16",
+                        data: &data,
+                        model: "test-model",
+                    };
+                    log.write("/camera/embeddings", lt + MS as u64, &m).unwrap();
+                }
+                tweak(&mut log, frame, t);
+                frame += 1;
+            }
+            1 => {
+                let data = depth_bytes(1000 + (t / MS % 100) as u16);
+                let img = Image {
+                    header: Header::at(t, "cam"),
+                    height: H,
+                    width: W,
+                    encoding: "16UC1",
+                    is_bigendian: false,
+                    step: W * 2,
+                    data: &data,
+                };
+                log.write("/camera/depth/image_raw", lt, &img).unwrap();
+            }
+            _ => {
+                let p = PoseStamped {
+                    header: Header::at(t, "map"),
+                    pose: pose_at(t),
+                };
+                log.write("/camera/pose", lt, &p).unwrap();
+            }
+        }
+    }
+    log.metadata(
+        "latentam",
+        BTreeMap::from([("source".to_string(), "test".to_string())]),
+    )
+    .unwrap();
+    log.finish().unwrap();
+}
+
+fn read_all(path: &Path, config: AssemblyConfig) -> (Vec<Frame>, IngestReport) {
+    let mut frames = McapFrames::open(path, config).unwrap();
+    let v: Vec<Frame> = (&mut frames).map(|f| f.unwrap()).collect();
+    (v, frames.report().clone())
+}
+
+#[test]
+fn frames_are_paired_by_stamp_with_interpolated_poses() {
+    for compression in [Compression::Zstd, Compression::Lz4, Compression::None] {
+        let dir = TempDir::new("pairing");
+        let path = dir.path().join("log.mcap");
+        let spec = Spec {
+            compression,
+            ..Spec::default()
+        };
+        write_log(&path, &spec, &|_, _, _| {});
+        let (frames, report) = read_all(&path, AssemblyConfig::default());
+        assert_eq!(frames.len(), 6, "{report}");
+        assert_eq!(report.frames_with_embeddings, 6);
+        // 12 depth images, 6 used: the rest are counted, not lost.
+        assert_eq!(report.skipped_for("depth: unpaired"), 6, "{report}");
+        assert_eq!(report.total_skipped(), 6, "{report}");
+        for (i, f) in frames.iter().enumerate() {
+            assert_eq!(f.color.data, color_bytes(i as u8));
+            // The depth 3 ms after the colour image, not the one 47 ms later.
+            let dt = f.stamp_ns + 3 * MS;
+            assert_eq!(
+                f.depth.metres(0),
+                Some((1000 + (dt / MS % 100) as u16) as f32 * 0.001)
+            );
+            assert_eq!(f.intrinsics.fx, 5.0);
+            assert_eq!((f.intrinsics.width, f.intrinsics.height), (W, H));
+            let want = pose_at(f.stamp_ns);
+            assert!((f.pose.translation - want.translation).length() < 1e-9);
+            assert!(f.pose.rotation.angle_between(want.rotation) < 1e-9);
+            let e = f.embeddings.as_ref().unwrap();
+            assert_eq!((e.count, e.dim, e.dtype), (3, 4, Dtype::F16));
+            assert_eq!(e.to_f32()[5], 5.0 + i as f32);
+            assert!(
+                matches!(&e.layout, EmbeddingLayout::Regions(l) if l.labels[0] == u16::MAX && l.labels[1] == 1)
+            );
+        }
+        let log = McapLog::open(&path).unwrap();
+        assert_eq!(log.message_count("/camera/pose"), Some(33));
+        assert_eq!(log.metadata().unwrap()[0].1["source"], "test");
+    }
+}
+
+#[test]
+fn a_rosbag2_directory_of_split_files_reads_as_one_log() {
+    let dir = TempDir::new("split");
+    let one = dir.path().join("one.mcap");
+    write_log(&one, &Spec::default(), &|_, _, _| {});
+    let (want, _) = read_all(&one, AssemblyConfig::default());
+    // Split the same messages by time into three files named so that name
+    // order (2 < 10) differs from lexical order.
+    let bag = dir.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    let log = McapLog::open(&one).unwrap();
+    let mut reader = log.reader(ReadFilter::default());
+    let mut all = Vec::new();
+    while let Some(m) = reader.next_with(|m| {
+        (
+            m.channel.topic.clone(),
+            m.channel.schema_name.clone(),
+            m.log_time,
+            m.data.to_vec(),
+        )
+    }) {
+        all.push(m.unwrap());
+    }
+    let third = all.len() / 3;
+    for (k, part) in all.chunks(third + 1).enumerate() {
+        let name = ["bag_0.mcap", "bag_2.mcap", "bag_10.mcap"][k];
+        let mut w = LogWriter::create(&bag.join(name), Compression::Lz4).unwrap();
+        for (topic, ty, t, data) in part {
+            match ty.as_str() {
+                "sensor_msgs/msg/Image" => w.write_raw::<Image>(topic, *t, data),
+                "sensor_msgs/msg/CameraInfo" => w.write_raw::<CameraInfo>(topic, *t, data),
+                "geometry_msgs/msg/PoseStamped" => w.write_raw::<PoseStamped>(topic, *t, data),
+                "latentam_msgs/msg/MaskFeatures" => w.write_raw::<MaskFeatures>(topic, *t, data),
+                other => panic!("{other}"),
+            }
+            .unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let (got, _) = read_all(&bag, AssemblyConfig::default());
+    assert_eq!(got, want);
+}
+
+#[test]
+fn tf_poses_are_chained_to_the_camera_frame() {
+    let dir = TempDir::new("tf");
+    let path = dir.path().join("log.mcap");
+    let optical = Pose {
+        translation: DVec3::new(0.0, 0.1, 0.2),
+        rotation: DQuat::from_rotation_x(-1.0),
+    };
+    let spec = Spec {
+        embeddings: false,
+        ..Spec::default()
+    };
+    write_log(&path, &spec, &|log, i, t| {
+        if i == 0 {
+            let s = TfMessage {
+                transforms: vec![TransformStamped {
+                    header: Header::at(0, "base_link"),
+                    child_frame_id: "cam",
+                    transform: optical,
+                }],
+            };
+            log.write("/tf_static", t as u64, &s).unwrap();
+        }
+        for dt in [-60 * MS, 60 * MS] {
+            let d = TfMessage {
+                transforms: vec![TransformStamped {
+                    header: Header::at(t + dt, "odom"),
+                    child_frame_id: "base_link",
+                    transform: pose_at(t + dt),
+                }],
+            };
+            log.write("/tf", (t + dt).max(0) as u64, &d).unwrap();
+        }
+    });
+    let config = AssemblyConfig {
+        topics: Topics {
+            pose: PoseSource::Tf {
+                world_frame: "odom".into(),
+                camera_frame: None,
+            },
+            ..Topics::default()
+        },
+        ..AssemblyConfig::default()
+    };
+    let (frames, report) = read_all(&path, config);
+    assert_eq!(frames.len(), 6, "{report}");
+    for f in &frames {
+        let base = pose_at(f.stamp_ns - 60 * MS).interpolate(&pose_at(f.stamp_ns + 60 * MS), 0.5);
+        let want = base.compose(&optical);
+        assert!((f.pose.translation - want.translation).length() < 1e-9);
+        assert!(f.pose.rotation.angle_between(want.rotation) < 1e-9);
+    }
+}
+
+/// Writes a log with `tweak`, checks `kind` is counted once and `frames`
+/// frames come out, then that the stop policy turns it into an error.
+fn bad_input(kind: &str, frames_expected: usize, tweak: Tweak<'_>) {
+    let dir = TempDir::new("bad");
+    let path = dir.path().join("log.mcap");
+    write_log(&path, &Spec::default(), tweak);
+    let (frames, report) = read_all(&path, AssemblyConfig::default());
+    assert_eq!(report.skipped_for(kind), 1, "{kind}: {report}");
+    assert_eq!(frames.len(), frames_expected, "{kind}: {report}");
+    // The same log under the stop policy ends with an error naming it.
+    let config = AssemblyConfig {
+        on_bad_input: BadInputPolicy::Stop,
+        ..AssemblyConfig::default()
+    };
+    let result: Result<Vec<Frame>, InputError> = McapFrames::open(&path, config).unwrap().collect();
+    let err = result.unwrap_err().to_string();
+    assert!(err.contains(kind), "{kind}: {err}");
+}
+
+#[test]
+fn bad_messages_are_counted_or_stop_the_run() {
+    // A pose with NaN, and one with a non-unit quaternion, right at the
+    // third frame's stamp replace the good one.
+    for (kind, q) in [
+        (
+            "pose: not finite",
+            DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0),
+        ),
+        (
+            "pose: non-unit quaternion",
+            DQuat::from_xyzw(0.0, 0.0, 0.0, 0.5),
+        ),
+    ] {
+        // The message is rejected; the frame's pose comes from the others.
+        bad_input(kind, 6, &move |log, i, t| {
+            if i == 2 {
+                let p = PoseStamped {
+                    header: Header::at(t, "map"),
+                    pose: Pose {
+                        translation: DVec3::ZERO,
+                        rotation: q,
+                    },
+                };
+                log.write("/camera/pose", t as u64, &p).unwrap();
+            }
+        });
+    }
+    // Embeddings whose data length disagrees with count × dim, whose labels
+    // reach past the region count, with an unknown dtype, or whose
+    // dimension changes mid-log: the embeddings are rejected (the frame
+    // keeps its geometry).
+    let cases: [(&str, u32, u16, &str); 4] = [
+        ("embeddings: size mismatch", 4, 0, "f32"),
+        ("embeddings: label out of range", 4, 7, "f16"),
+        ("embeddings: unknown dtype", 4, 0, "bf16"),
+        ("embeddings: dimension changed", 2, 0, "f16"),
+    ];
+    for (kind, dim, label, dtype) in cases {
+        let dir = TempDir::new("emb");
+        let path = dir.path().join("log.mcap");
+        write_log(&path, &Spec::default(), &move |log, i, t| {
+            if i == 3 {
+                let labels: Vec<u8> = [label; (W * H) as usize]
+                    .iter()
+                    .flat_map(|l| l.to_le_bytes())
+                    .collect();
+                let data = encode_floats(&vec![1.0; 3 * dim as usize], Dtype::F16);
+                let m = MaskFeatures {
+                    header: Header::at(t, "cam"),
+                    height: H,
+                    width: W,
+                    labels: cdr::Seq::new(&labels, cdr::Endian::Little),
+                    count: 3,
+                    dim,
+                    dtype,
+                    data: &data,
+                    model: "test-model",
+                };
+                log.write("/camera/embeddings", t as u64, &m).unwrap();
+            }
+        });
+        let (frames, report) = read_all(&path, AssemblyConfig::default());
+        assert_eq!(report.skipped_for(kind), 1, "{kind}: {report}");
+        assert_eq!(frames.len(), 6, "{kind}: {report}");
+    }
+}
+
+#[test]
+fn bad_images_are_rejected_with_their_reason() {
+    let depth_image = |encoding: &'static str, fill: u8, len: usize| {
+        move |log: &mut LogWriter<std::io::BufWriter<std::fs::File>>, i: usize, t: i64| {
+            if i == 1 {
+                let data = vec![fill; len];
+                let img = Image {
+                    header: Header::at(t, "cam"),
+                    height: H,
+                    width: W,
+                    encoding,
+                    is_bigendian: false,
+                    step: W * 2,
+                    data: &data,
+                };
+                log.write("/camera/depth/image_raw", t as u64, &img)
+                    .unwrap();
+            }
+        }
+    };
+    bad_input(
+        "frame: no valid depth",
+        5,
+        &depth_image("16UC1", 0, (W * H * 2) as usize),
+    );
+    bad_input(
+        "depth: size mismatch",
+        5,
+        &depth_image("16UC1", 1, (W * H * 2 - 3) as usize),
+    );
+    bad_input(
+        "depth: unsupported encoding",
+        5,
+        &depth_image("8UC3", 1, (W * H * 2) as usize),
+    );
+    // A message whose bytes are not a valid Image at all.
+    bad_input("colour: undecodable message", 6, &|log, i, t| {
+        if i == 4 {
+            log.write_raw::<Image>("/camera/color/image_raw", t as u64 + 1, &[0, 1, 0, 0, 9])
+                .unwrap();
+        }
+    });
+}
+
+#[test]
+fn damaged_files_give_clear_errors() {
+    let dir = TempDir::new("damaged");
+    let path = dir.path().join("log.mcap");
+    write_log(&path, &Spec::default(), &|_, _, _| {});
+    let bytes = std::fs::read(&path).unwrap();
+
+    // Truncated: the summary is gone, the file is read linearly up to the
+    // damage, then the error says where.
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let log = McapLog::open(&cut).unwrap();
+    assert_eq!(log.unindexed_files().len(), 1);
+    let mut frames = McapFrames::from_log(log, AssemblyConfig::default()).unwrap();
+    let mut ok = 0;
+    let mut err = None;
+    for f in &mut frames {
+        match f {
+            Ok(_) => ok += 1,
+            Err(e) => {
+                err = Some(e.to_string());
+                break;
+            }
+        }
+    }
+    let err = err.expect("a truncated log must end in an error");
+    assert!(err.contains("truncated"), "{err}");
+    assert!(ok >= 1, "frames before the damage are still delivered");
+
+    // A corrupt chunk: flip bytes inside the first chunk's compressed data.
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let chunk = &summary.chunk_indexes[0];
+    let start = chunk.compressed_data_offset().unwrap() as usize;
+    let mut corrupt = bytes.clone();
+    for b in &mut corrupt[start + 10..start + 40] {
+        *b ^= 0x5a;
+    }
+    let bad = dir.path().join("corrupt.mcap");
+    std::fs::write(&bad, &corrupt).unwrap();
+    let result: Result<Vec<Frame>, InputError> = McapFrames::open(&bad, AssemblyConfig::default())
+        .unwrap()
+        .collect();
+    let err = result.unwrap_err().to_string();
+    assert!(err.contains("corrupt"), "{err}");
+
+    // Not an MCAP file at all, and an empty directory.
+    std::fs::write(dir.path().join("text.mcap"), b"hello").unwrap();
+    let err = McapLog::open(&dir.path().join("text.mcap"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("not an MCAP file"), "{err}");
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    assert!(McapLog::open(&empty).is_err());
+    assert!(McapLog::open(&dir.path().join("missing.mcap")).is_err());
+}
+
+#[test]
+fn missing_topics_and_wrong_schemas_are_named() {
+    let dir = TempDir::new("schema");
+    let path = dir.path().join("log.mcap");
+    let mut log = LogWriter::create(&path, Compression::Zstd).unwrap();
+    let p = PoseStamped {
+        header: Header::at(0, "map"),
+        pose: Pose::IDENTITY,
+    };
+    // A pose where the colour images should be.
+    log.write("/camera/color/image_raw", 0, &p).unwrap();
+    log.finish().unwrap();
+    let err = McapFrames::open(&path, AssemblyConfig::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("/camera/depth/image_raw") && err.contains("not in the log"),
+        "{err}"
+    );
+    let config = AssemblyConfig {
+        topics: Topics {
+            depth: "/camera/color/image_raw".into(),
+            camera_info: "/camera/color/image_raw".into(),
+            pose: PoseSource::Topic("/camera/color/image_raw".into()),
+            ..Topics::default()
+        },
+        ..AssemblyConfig::default()
+    };
+    let err = McapFrames::open(&path, config).err().unwrap().to_string();
+    assert!(
+        err.contains("carries `geometry_msgs/msg/PoseStamped`"),
+        "{err}"
+    );
+}
+
+#[test]
+fn every_message_type_round_trips_in_both_byte_orders() {
+    fn round<'a, M: RosMessage<'a>>(m: &M, bytes: &mut Vec<Vec<u8>>) {
+        for endian in [cdr::Endian::Little, cdr::Endian::Big] {
+            bytes.push(m.encode_with(endian));
+        }
+    }
+    let labels: Vec<u8> = [1u16, 2, 3, 65535]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let data = [9u8; 16];
+    let mask = MaskFeatures {
+        header: Header::at(-5, "x"),
+        height: 2,
+        width: 2,
+        labels: cdr::Seq::new(&labels, cdr::Endian::Little),
+        count: 2,
+        dim: 4,
+        dtype: "f16",
+        data: &data,
+        model: "m",
+    };
+    let mut store = Vec::new();
+    round(&mask, &mut store);
+    for b in &store {
+        let back = MaskFeatures::decode(b).unwrap();
+        assert_eq!(back.header.stamp.as_nanos(), -5);
+        assert_eq!(back.labels.to_vec(), vec![1, 2, 3, 65535]);
+        assert_eq!(
+            (back.count, back.dim, back.dtype, back.data, back.model),
+            (2, 4, "f16", &data[..], "m")
+        );
+    }
+    let vocab = TextEmbeddings {
+        header: Header::at(7, ""),
+        names: vec!["chair", "", "table lamp"],
+        ids: cdr::Seq::new(&[1, 0, 2, 0, 3, 0], cdr::Endian::Little),
+        dim: 1,
+        dtype: "f32",
+        data: &[0; 12],
+        model: "clip",
+    };
+    for endian in [cdr::Endian::Little, cdr::Endian::Big] {
+        let b = vocab.encode_with(endian);
+        let back = TextEmbeddings::decode(&b).unwrap();
+        assert_eq!(back.names, vocab.names);
+        assert_eq!(back.ids.to_vec(), vec![1, 2, 3]);
+        let odo = Odometry {
+            header: Header::at(3, "odom"),
+            child_frame_id: "base",
+            pose: pose_at(1_500_000_000),
+        };
+        let b = odo.encode_with(endian);
+        let back = Odometry::decode(&b).unwrap();
+        assert_eq!((back.child_frame_id, back.pose), ("base", odo.pose));
+        let info = CameraInfo::pinhole(Header::at(1, "c"), 640, 480, [500.0, 501.0, 320.0, 240.0]);
+        let b = info.encode_with(endian);
+        let back = CameraInfo::decode(&b).unwrap();
+        assert_eq!(
+            (back.k, back.p, back.d.to_vec()),
+            (info.k, info.p, vec![0.0; 5])
+        );
+        let grid = FeatureGrid {
+            header: Header::at(2, "c"),
+            rows: 2,
+            cols: 3,
+            dim: 1,
+            dtype: "f16",
+            data: &[1; 12],
+            model: "lseg",
+        };
+        let b = grid.encode_with(endian);
+        let back = FeatureGrid::decode(&b).unwrap();
+        assert_eq!((back.rows, back.cols, back.data.len()), (2, 3, 12));
+        let c = CompressedImage {
+            header: Header::at(2, "c"),
+            format: "jpeg",
+            data: &[1, 2, 3],
+        };
+        let b = c.encode_with(endian);
+        let back = CompressedImage::decode(&b).unwrap();
+        assert_eq!((back.format, back.data), ("jpeg", &[1u8, 2, 3][..]));
+    }
+}
