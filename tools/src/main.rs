@@ -8,6 +8,9 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod bench_latent;
 mod bench_raster;
+mod convert_cmd;
+mod gen_scene;
+mod inspect;
 mod selfcheck;
 
 #[derive(Parser)]
@@ -38,6 +41,15 @@ enum Command {
         #[arg(long, default_value = "latentam-demo")]
         out: PathBuf,
     },
+    /// Write the built-in demo scene (two rooms and a corridor, a dozen
+    /// labelled objects, synthetic region embeddings) as an MCAP log.
+    GenScene(gen_scene::Args),
+    /// Convert a TUM RGB-D, 7-Scenes or Replica (NICE-SLAM layout) folder
+    /// to an MCAP log, optionally with per-frame embeddings.
+    Convert(convert_cmd::Args),
+    /// List a log's topics and assemble its frames, reporting every message
+    /// the engine would not use, by reason.
+    Inspect(inspect::Args),
     /// Benchmarks that print a table and write JSON.
     Bench {
         #[command(subcommand)]
@@ -58,6 +70,9 @@ fn main() -> ExitCode {
             );
             selfcheck::run(false)
         }
+        Command::GenScene(args) => gen_scene::run(args),
+        Command::Convert(args) => convert_cmd::run(args),
+        Command::Inspect(args) => inspect::run(args),
         Command::Bench { which } => bench::run(which),
     };
     match result {

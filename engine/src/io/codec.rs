@@ -280,15 +280,8 @@ pub fn depth_from_compressed(
             "no PNG after the compressedDepth header",
         ));
     };
-    let (width, height, color, depth, bytes) = decode_png(png_bytes, what, false)?;
-    if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
-        return Err(Rejection::new(
-            what,
-            format!("PNG is {color:?} {depth:?}, expected 16-bit grey"),
-        ));
-    }
-    // PNG stores 16-bit samples big-endian.
-    let values = u16_samples(&bytes, true);
+    let (width, height, values) =
+        decode_png_u16(png_bytes).map_err(|e| Rejection::new(what, e.detail))?;
     let data = match original {
         "32FC1" => {
             let (a, b) = quant.ok_or_else(|| {
@@ -314,6 +307,65 @@ pub fn depth_from_compressed(
         height,
         data,
     })
+}
+
+/// Decodes a 16-bit grey PNG (depth or label images) to row-major samples.
+pub fn decode_png_u16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), Rejection> {
+    let what = "depth: corrupt compressed image";
+    let (width, height, color, depth, bytes) = decode_png(bytes, what, false)?;
+    if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
+        return Err(Rejection::new(
+            what,
+            format!("PNG is {color:?} {depth:?}, expected 16-bit grey"),
+        ));
+    }
+    // PNG stores 16-bit samples big-endian.
+    Ok((width, height, u16_samples(&bytes, true)))
+}
+
+/// Decodes an 8- or 16-bit grey PNG to row-major samples (label images
+/// written either way).
+pub fn decode_png_labels(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), Rejection> {
+    let what = "labels: corrupt image";
+    let (width, height, color, depth, bytes) = decode_png(bytes, what, false)?;
+    match (color, depth) {
+        (png::ColorType::Grayscale, png::BitDepth::Sixteen) => {
+            Ok((width, height, u16_samples(&bytes, true)))
+        }
+        (png::ColorType::Grayscale, png::BitDepth::Eight) => {
+            Ok((width, height, bytes.iter().map(|&b| b as u16).collect()))
+        }
+        _ => Err(Rejection::new(
+            what,
+            format!("PNG is {color:?} {depth:?}, expected 8- or 16-bit grey"),
+        )),
+    }
+}
+
+/// Size and format (`"jpeg"` or `"png"`) of a compressed colour image,
+/// from its header only.
+pub fn compressed_image_size(bytes: &[u8]) -> Result<(u32, u32, &'static str), Rejection> {
+    let what = "colour: corrupt compressed image";
+    if bytes.starts_with(b"\x89PNG") {
+        let reader = png::Decoder::new(Cursor::new(bytes))
+            .read_info()
+            .map_err(|e| Rejection::new(what, format!("PNG: {e}")))?;
+        Ok((reader.info().width, reader.info().height, "png"))
+    } else if bytes.starts_with(&[0xff, 0xd8]) {
+        let mut decoder = zune_jpeg::JpegDecoder::new(Cursor::new(bytes));
+        decoder
+            .decode_headers()
+            .map_err(|e| Rejection::new(what, format!("JPEG: {e}")))?;
+        let info = decoder
+            .info()
+            .ok_or_else(|| Rejection::new(what, "JPEG: no image header"))?;
+        Ok((info.width as u32, info.height as u32, "jpeg"))
+    } else {
+        Err(Rejection::new(
+            "colour: unsupported encoding",
+            "neither a PNG nor a JPEG file",
+        ))
+    }
 }
 
 /// Writes `values` (row-major, `width × height`) as a 16-bit grey PNG.

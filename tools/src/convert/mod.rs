@@ -1,0 +1,381 @@
+//! `latentam convert`: public RGB-D datasets to the engine's MCAP layout
+//! (DESIGN §3 topics), with embeddings from per-frame feature files or,
+//! for evaluation, oracle embeddings from label images.
+//!
+//! Colour files are copied into `CompressedImage` messages as they are
+//! (no re-encoding); depth is rescaled to millimetres and written as
+//! `16UC1; compressedDepth png`.
+
+pub mod datasets;
+pub mod features;
+pub mod npy;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use latentam::io::{
+    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
+    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings,
+};
+
+pub use datasets::Dataset;
+use features::{FeatureDir, FrameFeatures, LoadedFeatures, Oracle};
+
+/// Where a log's embeddings come from.
+pub enum EmbeddingSource {
+    /// None: geometry and colour only.
+    None,
+    /// A folder of per-frame feature files.
+    Features(FeatureDir),
+    /// Label images + class vectors (evaluation only).
+    Oracle(Oracle),
+}
+
+/// How to convert.
+pub struct ConvertOptions {
+    /// Embeddings.
+    pub embeddings: EmbeddingSource,
+    /// `[fx, fy, cx, cy]` instead of the dataset's.
+    pub intrinsics: Option<[f64; 4]>,
+    /// Depth units per metre instead of the dataset's.
+    pub depth_units_per_metre: Option<f64>,
+    /// Element type of written embeddings.
+    pub dtype: Dtype,
+    /// Chunk compression.
+    pub compression: Compression,
+    /// Convert at most this many colour frames.
+    pub max_frames: Option<usize>,
+    /// Name of the dataset kind, for the log's metadata.
+    pub kind: String,
+    /// The source folder, for the log's metadata.
+    pub source: PathBuf,
+}
+
+/// What was written.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct ConvertSummary {
+    /// Colour frames written.
+    pub frames: usize,
+    /// Depth images written.
+    pub depth: usize,
+    /// Pose messages written.
+    pub poses: usize,
+    /// Frames written with embeddings.
+    pub with_embeddings: usize,
+    /// Frames for which an embedding source had no file.
+    pub without_embeddings: usize,
+    /// Frames left out by the dataset reader, with why.
+    pub skipped: Vec<String>,
+    /// Facts about the conversion.
+    pub notes: Vec<String>,
+}
+
+const FRAME: &str = "camera_color_optical_frame";
+
+fn u16_bytes(v: &[u16]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+enum Event<'a> {
+    Color(&'a datasets::Stamped),
+    Depth(&'a datasets::Stamped),
+    Pose(i64, &'a latentam::io::Pose),
+}
+
+impl Event<'_> {
+    fn stamp(&self) -> i64 {
+        match self {
+            Event::Color(s) | Event::Depth(s) => s.stamp_ns,
+            Event::Pose(t, _) => *t,
+        }
+    }
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Writes `dataset` to `out` (through `out.partial`, renamed at the end),
+/// calling `progress(colour frames done, total)`.
+pub fn convert(
+    mut dataset: Dataset,
+    options: &ConvertOptions,
+    out: &Path,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<ConvertSummary> {
+    let intrinsics = options
+        .intrinsics
+        .or(dataset.intrinsics)
+        .context("the dataset does not state its intrinsics; pass --intrinsics fx,fy,cx,cy")?;
+    if intrinsics.iter().any(|v| !v.is_finite()) || intrinsics[0] <= 0.0 || intrinsics[1] <= 0.0 {
+        bail!("intrinsics {intrinsics:?} are not valid");
+    }
+    let units = options
+        .depth_units_per_metre
+        .unwrap_or(dataset.depth_units_per_metre);
+    if !(units.is_finite() && units > 0.0) {
+        bail!("depth units per metre must be positive, got {units}");
+    }
+    if let Some(n) = options.max_frames {
+        dataset.color.truncate(n);
+        if let Some(last) = dataset.color.last().map(|c| c.stamp_ns) {
+            // Depth within the pairing tolerance of the last frame, poses
+            // within the interpolation gap.
+            dataset.depth.retain(|d| d.stamp_ns <= last + 20_000_000);
+            dataset.poses.retain(|p| p.0 <= last + 200_000_000);
+        }
+    }
+    if dataset.color.is_empty() {
+        bail!("no frames to convert");
+    }
+    // ROS stamps are absolute times; datasets without them start at 0.
+    let offset = if dataset.color[0].stamp_ns < 1_000_000_000_000 {
+        latentam_cli_epoch()
+    } else {
+        0
+    };
+    let mut events: Vec<Event<'_>> = dataset.color.iter().map(Event::Color).collect();
+    events.extend(dataset.depth.iter().map(Event::Depth));
+    events.extend(dataset.poses.iter().map(|(t, p)| Event::Pose(*t, p)));
+    events.sort_by_key(|e| (e.stamp(), matches!(e, Event::Color(_)) as u8));
+
+    let tmp = out.with_extension("mcap.partial");
+    let mut log = LogWriter::create(&tmp, options.compression)?;
+    let mut summary = ConvertSummary {
+        skipped: std::mem::take(&mut dataset.skipped),
+        notes: std::mem::take(&mut dataset.notes),
+        ..ConvertSummary::default()
+    };
+    if let EmbeddingSource::Oracle(o) = &options.embeddings {
+        let names: Vec<&str> = o.names[1..].iter().map(String::as_str).collect();
+        let ids: Vec<u16> = (1..o.names.len() as u16).collect();
+        let ids_bytes = u16_bytes(&ids);
+        let data = encode_floats(&o.vectors[1..].concat(), options.dtype);
+        let t = dataset.color[0].stamp_ns + offset;
+        log.write(
+            "/vocabulary",
+            t as u64,
+            &TextEmbeddings {
+                header: Header::at(t, "map"),
+                names,
+                ids: cdr::Seq::new(&ids_bytes, cdr::Endian::Little),
+                dim: o.dim() as u32,
+                dtype: options.dtype.name(),
+                data: &data,
+                model: &o.model,
+            },
+        )?;
+    }
+    let total = dataset.color.len();
+    let mut first_dim: Option<(usize, String)> = None;
+    for e in &events {
+        let t = e.stamp() + offset;
+        let lt = t as u64;
+        let header = Header::at(t, FRAME);
+        match e {
+            Event::Pose(_, p) => {
+                log.write(
+                    "/camera/pose",
+                    lt,
+                    &PoseStamped {
+                        header: Header::at(t, "world"),
+                        pose: **p,
+                    },
+                )?;
+                summary.poses += 1;
+            }
+            Event::Depth(s) => {
+                let bytes = std::fs::read(&s.path)
+                    .with_context(|| format!("reading {}", s.path.display()))?;
+                let (w, h, mut values) = codec::decode_png_u16(&bytes)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
+                if (units - 1000.0).abs() > 1e-9 {
+                    let k = 1000.0 / units;
+                    for v in &mut values {
+                        *v = (*v as f64 * k).round().min(u16::MAX as f64) as u16;
+                    }
+                }
+                let data = codec::encode_compressed_depth_u16(w, h, &values);
+                log.write(
+                    "/camera/depth/image_raw",
+                    lt,
+                    &CompressedImage {
+                        header,
+                        format: "16UC1; compressedDepth png",
+                        data: &data,
+                    },
+                )?;
+                summary.depth += 1;
+            }
+            Event::Color(s) => {
+                let bytes = std::fs::read(&s.path)
+                    .with_context(|| format!("reading {}", s.path.display()))?;
+                let (w, h, format) = codec::compressed_image_size(&bytes)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
+                log.write(
+                    "/camera/color/camera_info",
+                    lt,
+                    &CameraInfo::pinhole(header, w, h, intrinsics),
+                )?;
+                log.write(
+                    "/camera/color/image_raw",
+                    lt,
+                    &CompressedImage {
+                        header,
+                        format,
+                        data: &bytes,
+                    },
+                )?;
+                let name = stem(&s.path);
+                let loaded = match &options.embeddings {
+                    EmbeddingSource::None => None,
+                    EmbeddingSource::Features(dir) => dir.load(&name)?,
+                    EmbeddingSource::Oracle(o) => match o.load(&name)? {
+                        Some(frame) => {
+                            let (lw, lh) = (frame.width, frame.height);
+                            let class_bytes = u16_bytes(&frame.classes);
+                            log.write(
+                                "/camera/semantic",
+                                lt,
+                                &Image {
+                                    header,
+                                    height: lh,
+                                    width: lw,
+                                    encoding: "16UC1",
+                                    is_bigendian: false,
+                                    step: lw * 2,
+                                    data: &class_bytes,
+                                },
+                            )?;
+                            Some(LoadedFeatures {
+                                features: frame.features,
+                                dim: o.dim(),
+                                model: o.model.clone(),
+                            })
+                        }
+                        None => None,
+                    },
+                };
+                match loaded {
+                    Some(f) => {
+                        match &first_dim {
+                            None => first_dim = Some((f.dim, f.model.clone())),
+                            Some((d, m)) if *d != f.dim || *m != f.model => bail!(
+                                "{name}: embeddings of dimension {} from `{}` after {d} from `{m}`; one log holds one embedding space",
+                                f.dim,
+                                f.model
+                            ),
+                            Some(_) => {}
+                        }
+                        write_features(&mut log, header, lt, &f, options.dtype)?;
+                        summary.with_embeddings += 1;
+                    }
+                    None if !matches!(options.embeddings, EmbeddingSource::None) => {
+                        summary.without_embeddings += 1
+                    }
+                    None => {}
+                }
+                summary.frames += 1;
+                progress(summary.frames, total);
+            }
+        }
+    }
+    let mut meta = BTreeMap::from([
+        (
+            "converter".to_string(),
+            format!("latentam convert {}", options.kind),
+        ),
+        ("source".to_string(), options.source.display().to_string()),
+        (
+            "depth".to_string(),
+            format!("millimetres, converted from {units} units per metre"),
+        ),
+        (
+            "embeddings".to_string(),
+            match &options.embeddings {
+                EmbeddingSource::None => "none".to_string(),
+                EmbeddingSource::Features(_) => "per-frame feature files".to_string(),
+                EmbeddingSource::Oracle(_) => {
+                    "oracle: label images and class vectors (evaluation only)".to_string()
+                }
+            },
+        ),
+    ]);
+    if offset != 0 {
+        meta.insert("stamps".into(), "synthetic (the dataset has none)".into());
+    }
+    for (i, n) in summary.notes.iter().enumerate() {
+        meta.insert(format!("note_{i}"), n.clone());
+    }
+    log.metadata("latentam", meta)?;
+    log.finish()?;
+    std::fs::rename(&tmp, out)
+        .with_context(|| format!("moving {} to {}", tmp.display(), out.display()))?;
+    Ok(summary)
+}
+
+/// Stamps given to datasets without time stamps start here
+/// (2023-11-14T22:13:20Z), so they look like real ROS times.
+fn latentam_cli_epoch() -> i64 {
+    1_700_000_000_000_000_000
+}
+
+fn write_features<W: std::io::Write + std::io::Seek>(
+    log: &mut LogWriter<W>,
+    header: Header<'_>,
+    lt: u64,
+    f: &LoadedFeatures,
+    dtype: Dtype,
+) -> anyhow::Result<()> {
+    match &f.features {
+        FrameFeatures::Regions {
+            width,
+            height,
+            labels,
+            count,
+            vectors,
+        } => {
+            let label_bytes = u16_bytes(labels);
+            let data = encode_floats(vectors, dtype);
+            log.write(
+                "/camera/embeddings",
+                lt,
+                &MaskFeatures {
+                    header,
+                    height: *height,
+                    width: *width,
+                    labels: cdr::Seq::new(&label_bytes, cdr::Endian::Little),
+                    count: *count,
+                    dim: f.dim as u32,
+                    dtype: dtype.name(),
+                    data: &data,
+                    model: &f.model,
+                },
+            )?;
+        }
+        FrameFeatures::Grid {
+            rows,
+            cols,
+            vectors,
+        } => {
+            let data = encode_floats(vectors, dtype);
+            log.write(
+                "/camera/embeddings",
+                lt,
+                &FeatureGrid {
+                    header,
+                    rows: *rows,
+                    cols: *cols,
+                    dim: f.dim as u32,
+                    dtype: dtype.name(),
+                    data: &data,
+                    model: &f.model,
+                },
+            )?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,136 @@
+//! `latentam convert`: dataset folders to MCAP logs.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use clap::ValueEnum;
+use latentam_cli::convert::features::{FeatureDir, Oracle};
+use latentam_cli::convert::{convert, datasets, ConvertOptions, EmbeddingSource};
+use latentam_cli::progress::Progress;
+
+use crate::gen_scene::{CompressionArg, DtypeArg};
+
+/// Dataset folder layouts.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Kind {
+    /// TUM RGB-D (rgb.txt, depth.txt, groundtruth.txt).
+    Tum,
+    /// Microsoft 7-Scenes (frame-XXXXXX.{color.jpg,depth.png,pose.txt}).
+    #[value(name = "7scenes")]
+    SevenScenes,
+    /// Replica in the NICE-SLAM layout (results/, traj.txt, cam_params.json).
+    Replica,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Layout of the dataset folder.
+    #[arg(value_enum)]
+    kind: Kind,
+    /// The dataset folder.
+    dir: PathBuf,
+    /// Output MCAP file (written to OUT.mcap.partial, then renamed).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Folder of per-frame feature files (`S.safetensors`, or `.npy`; see
+    /// the README's "Embedding files" section).
+    #[arg(long, conflicts_with = "oracle_labels")]
+    features: Option<PathBuf>,
+    /// Embedding model id for the feature files (overrides their metadata;
+    /// required for .npy files without a model.txt).
+    #[arg(long, requires = "features")]
+    model: Option<String>,
+    /// Folder of per-frame class-id images for ORACLE embeddings
+    /// (evaluation only): each class present becomes a region whose
+    /// target is its class vector.
+    #[arg(long, requires = "class_vectors")]
+    oracle_labels: Option<PathBuf>,
+    /// Class vectors for --oracle-labels: .npy [C, D] or .safetensors with
+    /// `vectors` (and optional `names`, `model` metadata).
+    #[arg(long, requires = "oracle_labels")]
+    class_vectors: Option<PathBuf>,
+    /// Intrinsics `fx,fy,cx,cy` in pixels, instead of the dataset's.
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    intrinsics: Option<Vec<f64>>,
+    /// Depth units per metre of the dataset's PNGs, instead of the layout's
+    /// default (7-Scenes 1000, TUM 5000, Replica 6553.5).
+    #[arg(long)]
+    depth_units_per_metre: Option<f64>,
+    /// Frame rate given to datasets without time stamps (7-Scenes, Replica).
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Convert only the first N frames.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// Element type of written embeddings.
+    #[arg(long, value_enum, default_value_t = DtypeArg::F16)]
+    dtype: DtypeArg,
+    /// Chunk compression.
+    #[arg(long, value_enum, default_value_t = CompressionArg::Zstd)]
+    compression: CompressionArg,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.fps > 0.0 && args.fps.is_finite()) {
+        bail!("--fps must be positive");
+    }
+    let dataset = match args.kind {
+        Kind::Tum => datasets::tum(&args.dir),
+        Kind::SevenScenes => datasets::seven_scenes(&args.dir, args.fps),
+        Kind::Replica => datasets::replica(&args.dir, args.fps),
+    }
+    .with_context(|| format!("reading {}", args.dir.display()))?;
+    let embeddings = match (&args.features, &args.oracle_labels, &args.class_vectors) {
+        (Some(dir), _, _) => EmbeddingSource::Features(FeatureDir::new(dir, args.model.clone())?),
+        (None, Some(labels), Some(vectors)) => {
+            EmbeddingSource::Oracle(Oracle::new(labels, vectors)?)
+        }
+        _ => EmbeddingSource::None,
+    };
+    let options = ConvertOptions {
+        embeddings,
+        intrinsics: args.intrinsics.as_ref().map(|v| [v[0], v[1], v[2], v[3]]),
+        depth_units_per_metre: args.depth_units_per_metre,
+        dtype: args.dtype.into(),
+        compression: args.compression.into(),
+        max_frames: args.max_frames,
+        kind: args
+            .kind
+            .to_possible_value()
+            .map_or_else(String::new, |v| v.get_name().to_string()),
+        source: args.dir.clone(),
+    };
+    let total = args
+        .max_frames
+        .unwrap_or(usize::MAX)
+        .min(dataset.color.len());
+    let mut progress = Progress::new("convert", total);
+    let summary = convert(dataset, &options, &args.out, |done, _| progress.set(done))?;
+    for note in &summary.notes {
+        eprintln!("note: {note}");
+    }
+    if !summary.skipped.is_empty() {
+        eprintln!("{} frames left out:", summary.skipped.len());
+        for s in summary.skipped.iter().take(10) {
+            eprintln!("  {s}");
+        }
+        if summary.skipped.len() > 10 {
+            eprintln!("  … and {} more", summary.skipped.len() - 10);
+        }
+    }
+    if summary.without_embeddings > 0 {
+        eprintln!(
+            "warning: {} frames had no embedding file and were written without embeddings",
+            summary.without_embeddings
+        );
+    }
+    println!(
+        "wrote {}: {} frames, {} depth images, {} poses, {} frames with embeddings",
+        args.out.display(),
+        summary.frames,
+        summary.depth,
+        summary.poses,
+        summary.with_embeddings
+    );
+    Ok(())
+}

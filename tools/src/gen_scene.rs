@@ -1,0 +1,108 @@
+//! `latentam gen-scene`: the demo scene as an MCAP log.
+
+use std::path::PathBuf;
+
+use clap::ValueEnum;
+use latentam::io::{Compression, Dtype};
+use latentam_cli::progress::Progress;
+use latentam_cli::scene::{generate, SceneConfig};
+
+/// Chunk compression of written logs.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum CompressionArg {
+    /// zstd: smallest files.
+    Zstd,
+    /// lz4: fastest to read.
+    Lz4,
+    /// No compression.
+    None,
+}
+
+impl From<CompressionArg> for Compression {
+    fn from(c: CompressionArg) -> Self {
+        match c {
+            CompressionArg::Zstd => Compression::Zstd,
+            CompressionArg::Lz4 => Compression::Lz4,
+            CompressionArg::None => Compression::None,
+        }
+    }
+}
+
+/// Element type of written embeddings.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum DtypeArg {
+    /// IEEE half precision.
+    F16,
+    /// IEEE single precision.
+    F32,
+}
+
+impl From<DtypeArg> for Dtype {
+    fn from(d: DtypeArg) -> Self {
+        match d {
+            DtypeArg::F16 => Dtype::F16,
+            DtypeArg::F32 => Dtype::F32,
+        }
+    }
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Output MCAP file (written to OUT.mcap.partial, then renamed).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Number of frames along the trajectory (the path is the same length
+    /// whatever the count; more frames = smaller steps).
+    #[arg(long, default_value_t = 300)]
+    frames: usize,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 160)]
+    width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 120)]
+    height: u32,
+    /// Dimension of the synthetic region embeddings.
+    #[arg(long, default_value_t = 512)]
+    dim: usize,
+    /// Element type of the embeddings.
+    #[arg(long, value_enum, default_value_t = DtypeArg::F16)]
+    dtype: DtypeArg,
+    /// Seed of the synthetic embeddings (same seed, same log).
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+    /// Frame rate: stamps are 1/FPS seconds apart.
+    #[arg(long, default_value_t = 10.0)]
+    fps: f64,
+    /// Chunk compression.
+    #[arg(long, value_enum, default_value_t = CompressionArg::Zstd)]
+    compression: CompressionArg,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = SceneConfig {
+        frames: args.frames,
+        width: args.width,
+        height: args.height,
+        dim: args.dim,
+        dtype: args.dtype.into(),
+        seed: args.seed,
+        fps: args.fps,
+        compression: args.compression.into(),
+        ..SceneConfig::default()
+    };
+    let mut progress = Progress::new("gen-scene", config.frames);
+    let summary = generate(&config, &args.out, |done| progress.set(done))?;
+    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    println!(
+        "wrote {}: {} frames of {}×{}, {} regions ({} objects, {} classes), {:.1} MB",
+        args.out.display(),
+        summary.frames,
+        config.width,
+        config.height,
+        summary.regions,
+        summary.objects,
+        summary.classes,
+        bytes as f64 / 1e6
+    );
+    Ok(())
+}

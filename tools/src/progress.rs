@@ -1,0 +1,52 @@
+//! Progress of long commands on stderr: a line redrawn in place on a
+//! terminal, a plain line every tenth of the work otherwise (logs, CI).
+
+use std::io::{IsTerminal, Write};
+use std::time::Instant;
+
+/// Reports `done / total` for one task.
+pub struct Progress {
+    label: String,
+    total: usize,
+    start: Instant,
+    terminal: bool,
+    last_tenth: usize,
+}
+
+impl Progress {
+    /// Starts reporting `label` out of `total` steps.
+    pub fn new(label: &str, total: usize) -> Self {
+        Progress {
+            label: label.to_string(),
+            total: total.max(1),
+            start: Instant::now(),
+            terminal: std::io::stderr().is_terminal(),
+            last_tenth: 0,
+        }
+    }
+
+    /// Records that `done` steps are finished.
+    pub fn set(&mut self, done: usize) {
+        let elapsed = self.start.elapsed().as_secs_f64();
+        let rate = done as f64 / elapsed.max(1e-9);
+        let line = format!(
+            "{}: {done}/{} ({:.0}%, {rate:.1}/s)",
+            self.label,
+            self.total,
+            100.0 * done as f64 / self.total as f64
+        );
+        let mut err = std::io::stderr().lock();
+        if self.terminal {
+            let _ = write!(err, "\r{line}\x1b[K");
+            if done >= self.total {
+                let _ = writeln!(err);
+            }
+        } else {
+            let tenth = done * 10 / self.total;
+            if tenth > self.last_tenth || done == self.total {
+                self.last_tenth = tenth;
+                let _ = writeln!(err, "{line}");
+            }
+        }
+    }
+}

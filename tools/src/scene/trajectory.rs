@@ -1,0 +1,111 @@
+//! The demo camera path: around room A, through the corridor, around room
+//! B, and back into room A, so a mapper's local window has to page.
+
+use glam::{Mat3, Vec2, Vec3};
+
+/// Eye height above the floor, metres.
+pub const EYE_HEIGHT: f32 = 1.4;
+const PITCH: f32 = -0.18;
+
+const WAYPOINTS: [[f32; 2]; 15] = [
+    [1.4, 1.4],
+    [3.6, 1.3],
+    [3.8, 2.6],
+    [1.4, 2.7],
+    [1.3, 2.0],
+    [4.2, 2.0],
+    [7.0, 2.0],
+    [10.0, 2.0],
+    [12.6, 1.3],
+    [12.8, 2.7],
+    [10.3, 2.7],
+    [10.0, 2.0],
+    [7.0, 2.0],
+    [3.8, 2.0],
+    [2.4, 1.6],
+];
+
+fn catmull_rom(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, t: f32) -> Vec2 {
+    let t2 = t * t;
+    let t3 = t2 * t;
+    0.5 * (2.0 * p1
+        + (p2 - p0) * t
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
+}
+
+fn point(s: f32) -> Vec2 {
+    let n = WAYPOINTS.len();
+    let s = s.clamp(0.0, (n - 1) as f32 - 1e-4);
+    let i = s.floor() as usize;
+    let p = |k: isize| Vec2::from(WAYPOINTS[(i as isize + k).clamp(0, n as isize - 1) as usize]);
+    catmull_rom(p(-1), p(0), p(1), p(2), s - i as f32)
+}
+
+/// Camera-to-world rotation (columns: camera x right, y down, z forward;
+/// world z up) and position of frame `i` of `frames`.
+pub fn camera_pose(i: usize, frames: usize) -> (Mat3, Vec3) {
+    // Sample the spline densely, then walk it at constant speed.
+    const STEPS: usize = 4000;
+    let seg = (WAYPOINTS.len() - 1) as f32;
+    let mut lengths = vec![0.0f32; STEPS + 1];
+    for k in 1..=STEPS {
+        let a = point((k - 1) as f32 / STEPS as f32 * seg);
+        let b = point(k as f32 / STEPS as f32 * seg);
+        lengths[k] = lengths[k - 1] + (b - a).length();
+    }
+    let target = lengths[STEPS] * i as f32 / (frames.max(2) - 1) as f32;
+    let k = lengths.partition_point(|&l| l < target).min(STEPS);
+    let s = k as f32 / STEPS as f32 * seg;
+    let pos = point(s);
+    let ahead = point((s + 0.05).min(seg)) - point((s - 0.05).max(0.0));
+    let mut yaw = ahead.y.atan2(ahead.x);
+    // Look around while walking, less in the corridor.
+    let in_corridor = (5.0..9.0).contains(&pos.x);
+    yaw += if in_corridor { 0.15 } else { 0.6 } * (s * 2.1).sin();
+    let forward = Vec3::new(
+        yaw.cos() * PITCH.cos(),
+        yaw.sin() * PITCH.cos(),
+        PITCH.sin(),
+    );
+    let right = forward.cross(Vec3::Z).normalize();
+    let down = forward.cross(right);
+    (
+        Mat3::from_cols(right, down, forward),
+        Vec3::new(pos.x, pos.y, EYE_HEIGHT),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn path_is_smooth_inside_the_building_and_visits_both_rooms() {
+        let n = 400;
+        let mut prev = camera_pose(0, n).1;
+        let mut rooms = Vec::new();
+        for i in 0..n {
+            let (r, p) = camera_pose(i, n);
+            assert!((r.determinant() - 1.0).abs() < 1e-4);
+            assert!((r * Vec3::Y).z < 0.0, "camera y points down");
+            assert!((p - prev).length() < 0.2, "frame {i} jumps");
+            assert!(
+                (0.3..13.7).contains(&p.x) && (0.3..3.7).contains(&p.y),
+                "{p}"
+            );
+            prev = p;
+            let room = if p.x < 5.0 {
+                'A'
+            } else if p.x > 9.0 {
+                'B'
+            } else {
+                'c'
+            };
+            if rooms.last() != Some(&room) {
+                rooms.push(room);
+            }
+        }
+        assert_eq!(rooms, ['A', 'c', 'B', 'c', 'A']);
+    }
+}
