@@ -142,8 +142,8 @@ pub fn convert(
     events.extend(dataset.poses.iter().map(|(t, p)| Event::Pose(*t, p)));
     events.sort_by_key(|e| (e.stamp(), matches!(e, Event::Color(_)) as u8));
 
-    let tmp = out.with_extension("mcap.partial");
-    let mut log = LogWriter::create(&tmp, options.compression)?;
+    let partial = crate::partial::PartialFile::new(out);
+    let mut log = LogWriter::create(partial.path(), options.compression)?;
     let mut summary = ConvertSummary {
         skipped: std::mem::take(&mut dataset.skipped),
         notes: std::mem::take(&mut dataset.notes),
@@ -171,6 +171,7 @@ pub fn convert(
     }
     let total = dataset.color.len();
     let mut first_dim: Option<(usize, String)> = None;
+    let mut first_layout: Option<bool> = None;
     for e in &events {
         let t = e.stamp() + offset;
         let lt = t as u64;
@@ -261,6 +262,14 @@ pub fn convert(
                 };
                 match loaded {
                     Some(f) => {
+                        let grid = matches!(f.features, FrameFeatures::Grid { .. });
+                        if *first_layout.get_or_insert(grid) != grid {
+                            bail!(
+                                "{name}: {} after frames with {}; one log holds one kind (mask regions or a feature grid)",
+                                if grid { "a feature grid" } else { "mask regions" },
+                                if grid { "mask regions" } else { "a feature grid" }
+                            );
+                        }
                         match &first_dim {
                             None => first_dim = Some((f.dim, f.model.clone())),
                             Some((d, m)) if *d != f.dim || *m != f.model => bail!(
@@ -312,8 +321,7 @@ pub fn convert(
     }
     log.metadata("latentam", meta)?;
     log.finish()?;
-    std::fs::rename(&tmp, out)
-        .with_context(|| format!("moving {} to {}", tmp.display(), out.display()))?;
+    partial.commit()?;
     Ok(summary)
 }
 

@@ -198,9 +198,9 @@ pub fn generate(
     check(config)?;
     let scene = Scene::two_rooms();
     let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
-    let tmp = out.with_extension("mcap.partial");
-    let mut log = LogWriter::create(&tmp, config.compression)
-        .with_context(|| format!("creating {}", tmp.display()))?;
+    let partial = crate::partial::PartialFile::new(out);
+    let mut log = LogWriter::create(partial.path(), config.compression)
+        .with_context(|| format!("creating {}", partial.path().display()))?;
     let (w, h) = (config.width, config.height);
     let k = intrinsics(w, h);
     let frame_id = "camera_color_optical_frame";
@@ -315,8 +315,7 @@ pub fn generate(
     ]);
     log.metadata("latentam", meta)?;
     log.finish()?;
-    std::fs::rename(&tmp, out)
-        .with_context(|| format!("moving {} to {}", tmp.display(), out.display()))?;
+    partial.commit()?;
     Ok(SceneSummary {
         frames: config.frames,
         regions: regions_total,
