@@ -80,6 +80,29 @@ pub enum Which {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Time the input side on the CPU: CDR decoding, frame assembly and
+    /// reading frames from an MCAP log (uncompressed, lz4, zstd), for
+    /// frame sets of a colour image, 16UC1 depth and region embeddings.
+    Ingest {
+        /// Image width in pixels.
+        #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(16..=8192))]
+        width: u32,
+        /// Image height in pixels.
+        #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(16..=8192))]
+        height: u32,
+        /// Regions per frame.
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(1..=65_535))]
+        regions: u32,
+        /// Embedding dimension.
+        #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(1..=16_384))]
+        dim: u32,
+        /// Frame sets (at least 4).
+        #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(4..=100_000))]
+        frames: u64,
+        /// Write the results as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -115,6 +138,21 @@ pub fn run(which: Which) -> Result<()> {
             ssim_width,
             ssim_height,
             runs: runs as usize,
+            json,
+        }),
+        Which::Ingest {
+            width,
+            height,
+            regions,
+            dim,
+            frames,
+            json,
+        } => crate::bench_ingest::run(crate::bench_ingest::IngestBench {
+            width,
+            height,
+            regions,
+            dim,
+            frames: frames as usize,
             json,
         }),
     }

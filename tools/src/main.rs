@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod bench_ingest;
 mod bench_latent;
 mod bench_raster;
 mod convert_cmd;

@@ -25,11 +25,15 @@ fn check_size(what: &'static str, width: u32, height: u32) -> Result<(), Rejecti
 
 /// The rows of `msg` without their padding, checking `step` and the data
 /// length against the declared size.
-fn packed_rows(
+///
+/// The rows go into `out` (cleared first; pass a recycled buffer to avoid
+/// fresh page faults).
+fn packed_rows<T: bytemuck::Pod>(
     msg: &Image<'_>,
     bytes_per_pixel: usize,
     what: &'static str,
-) -> Result<Vec<u8>, Rejection> {
+    mut out: Vec<T>,
+) -> Result<Vec<T>, Rejection> {
     check_size(what, msg.width, msg.height)?;
     let row = msg.width as usize * bytes_per_pixel;
     let step = msg.step as usize;
@@ -57,18 +61,28 @@ fn packed_rows(
             ),
         ));
     }
+    // One copy straight into the typed buffer (message bytes may be
+    // unaligned, so they cannot be reinterpreted in place).
+    out.clear();
+    out.resize(row * rows / size_of::<T>(), T::zeroed());
+    let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
     if step == row {
-        return Ok(msg.data[..row * rows].to_vec());
-    }
-    let mut out = Vec::with_capacity(row * rows);
-    for y in 0..rows {
-        out.extend_from_slice(&msg.data[y * step..y * step + row]);
+        bytes.copy_from_slice(&msg.data[..row * rows]);
+    } else {
+        for (y, dst) in bytes.chunks_exact_mut(row).enumerate() {
+            dst.copy_from_slice(&msg.data[y * step..y * step + row]);
+        }
     }
     Ok(out)
 }
 
+/// Whether samples of a message with `is_bigendian` need byte swapping.
+fn needs_swap(is_bigendian: bool) -> bool {
+    is_bigendian != cfg!(target_endian = "big")
+}
+
 fn u16_samples(bytes: &[u8], big_endian: bool) -> Vec<u16> {
-    if big_endian != cfg!(target_endian = "big") {
+    if needs_swap(big_endian) {
         bytes
             .chunks_exact(2)
             .map(|b| u16::from_ne_bytes([b[1], b[0]]))
@@ -80,6 +94,14 @@ fn u16_samples(bytes: &[u8], big_endian: bool) -> Vec<u16> {
 
 /// A colour image from a raw image message.
 pub fn color_from_image(msg: &Image<'_>) -> Result<ColorImage, Rejection> {
+    color_from_image_into(msg, Vec::new())
+}
+
+/// [`color_from_image`] into a given (recycled) buffer.
+pub(crate) fn color_from_image_into(
+    msg: &Image<'_>,
+    buf: Vec<u8>,
+) -> Result<ColorImage, Rejection> {
     let format = PixelFormat::from_ros(msg.encoding).ok_or_else(|| {
         Rejection::new(
             "colour: unsupported encoding",
@@ -89,7 +111,7 @@ pub fn color_from_image(msg: &Image<'_>) -> Result<ColorImage, Rejection> {
             ),
         )
     })?;
-    let data = packed_rows(msg, format.bytes_per_pixel(), "colour: size mismatch")?;
+    let data = packed_rows(msg, format.bytes_per_pixel(), "colour: size mismatch", buf)?;
     Ok(ColorImage {
         width: msg.width,
         height: msg.height,
@@ -210,30 +232,34 @@ fn decode_png_color(bytes: &[u8]) -> Result<ColorImage, Rejection> {
 /// A depth image from a raw image message: `16UC1`/`mono16` in units of
 /// `metres_per_unit`, or `32FC1` in metres.
 pub fn depth_from_image(msg: &Image<'_>, metres_per_unit: f32) -> Result<DepthImage, Rejection> {
+    depth_from_image_into(msg, metres_per_unit, Vec::new())
+}
+
+/// [`depth_from_image`] with a given (recycled) buffer for integer depth.
+pub(crate) fn depth_from_image_into(
+    msg: &Image<'_>,
+    metres_per_unit: f32,
+    buf: Vec<u16>,
+) -> Result<DepthImage, Rejection> {
     let data = match msg.encoding {
         "16UC1" | "mono16" => {
-            let bytes = packed_rows(msg, 2, "depth: size mismatch")?;
+            let mut values: Vec<u16> = packed_rows(msg, 2, "depth: size mismatch", buf)?;
+            if needs_swap(msg.is_bigendian) {
+                values.iter_mut().for_each(|v| *v = v.swap_bytes());
+            }
             DepthData::Units {
-                values: u16_samples(&bytes, msg.is_bigendian),
+                values,
                 metres_per_unit,
             }
         }
         "32FC1" => {
-            let bytes = packed_rows(msg, 4, "depth: size mismatch")?;
-            let swap = msg.is_bigendian != cfg!(target_endian = "big");
-            DepthData::Metres(
-                bytes
-                    .chunks_exact(4)
-                    .map(|b| {
-                        let raw = [b[0], b[1], b[2], b[3]];
-                        if swap {
-                            f32::from_bits(u32::from_ne_bytes(raw).swap_bytes())
-                        } else {
-                            f32::from_ne_bytes(raw)
-                        }
-                    })
-                    .collect(),
-            )
+            let mut values: Vec<f32> = packed_rows(msg, 4, "depth: size mismatch", Vec::new())?;
+            if needs_swap(msg.is_bigendian) {
+                values
+                    .iter_mut()
+                    .for_each(|v| *v = f32::from_bits(v.to_bits().swap_bytes()));
+            }
+            DepthData::Metres(values)
         }
         other => {
             return Err(Rejection::new(
@@ -398,11 +424,14 @@ pub fn labels_from_image(msg: &Image<'_>) -> Result<LabelImage, Rejection> {
             format!("encoding `{}` (accepted: 16UC1, mono16)", msg.encoding),
         ));
     }
-    let bytes = packed_rows(msg, 2, "labels: size mismatch")?;
+    let mut labels: Vec<u16> = packed_rows(msg, 2, "labels: size mismatch", Vec::new())?;
+    if needs_swap(msg.is_bigendian) {
+        labels.iter_mut().for_each(|v| *v = v.swap_bytes());
+    }
     Ok(LabelImage {
         width: msg.width,
         height: msg.height,
-        labels: u16_samples(&bytes, msg.is_bigendian),
+        labels,
     })
 }
 

@@ -28,6 +28,7 @@ mod frame;
 mod frames;
 mod log;
 pub mod messages;
+mod pool;
 mod report;
 pub mod schema;
 mod tf;

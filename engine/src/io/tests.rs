@@ -629,3 +629,19 @@ fn every_message_type_round_trips_in_both_byte_orders() {
         assert_eq!((back.format, back.data), ("jpeg", &[1u8, 2, 3][..]));
     }
 }
+
+#[test]
+fn recycled_buffers_give_identical_frames() {
+    let dir = TempDir::new("recycle");
+    let path = dir.path().join("log.mcap");
+    write_log(&path, &Spec::default(), &|_, _, _| {});
+    let (want, _) = read_all(&path, AssemblyConfig::default());
+    let mut frames = McapFrames::open(&path, AssemblyConfig::default()).unwrap();
+    let mut got = Vec::new();
+    while let Some(f) = frames.next() {
+        let f = f.unwrap();
+        got.push(f.clone());
+        frames.recycle(f);
+    }
+    assert_eq!(got, want);
+}
