@@ -191,3 +191,168 @@ fn unknown_device_is_a_clear_error() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("matches no device"), "{err}");
 }
+
+#[test]
+fn bench_ingest_writes_json_with_every_measurement() {
+    let v = bench_json(
+        "ingest",
+        &[
+            "ingest",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--regions",
+            "8",
+            "--dim",
+            "16",
+            "--frames",
+            "6",
+        ],
+    );
+    assert_eq!(
+        (v["width"].as_u64(), v["regions"].as_u64()),
+        (Some(64), Some(8))
+    );
+    for key in [
+        "decode_us_median",
+        "assemble_ms_median",
+        "assemble_ms_p90",
+        "assemble_fresh_buffers_ms_median",
+    ] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}");
+    }
+    let rows = v["from_mcap"].as_array().unwrap();
+    let kinds: Vec<&str> = rows
+        .iter()
+        .map(|r| r["compression"].as_str().unwrap())
+        .collect();
+    assert_eq!(kinds, ["none", "lz4", "zstd"]);
+    assert!(rows
+        .iter()
+        .all(|r| r["cpu_ms_per_frame"].as_f64().unwrap() > 0.0));
+}
+
+fn run_ok(args: &[&std::ffi::OsStr]) -> String {
+    let out = latentam().args(args).output().unwrap();
+    assert!(
+        out.status.success(),
+        "latentam {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn gen_scene_and_convert_write_logs_that_inspect_reads() {
+    let dir = std::env::temp_dir().join(format!("latentam-cli-logs-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("scene.mcap");
+    let args = [
+        "gen-scene",
+        "--frames",
+        "5",
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--dim",
+        "16",
+        "--compression",
+        "lz4",
+        "-o",
+    ];
+    let mut a: Vec<&std::ffi::OsStr> = args.iter().map(|s| s.as_ref()).collect();
+    a.push(scene.as_os_str());
+    assert!(run_ok(&a).contains("5 frames"));
+    let report: serde_json::Value = serde_json::from_str(&run_ok(&[
+        "inspect".as_ref(),
+        scene.as_os_str(),
+        "--json".as_ref(),
+    ]))
+    .unwrap();
+    assert_eq!(
+        (
+            report["frames"].as_u64(),
+            report["frames_with_embeddings"].as_u64()
+        ),
+        (Some(5), Some(5))
+    );
+    assert_eq!(report["skipped"], serde_json::json!({}));
+
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/7scenes-redkitchen");
+    let converted = dir.join("7s.mcap");
+    let out = run_ok(&[
+        "convert".as_ref(),
+        "7scenes".as_ref(),
+        data.as_os_str(),
+        "--max-frames".as_ref(),
+        "3".as_ref(),
+        "-o".as_ref(),
+        converted.as_os_str(),
+    ]);
+    assert!(out.contains("3 frames"), "{out}");
+    let text = run_ok(&["inspect".as_ref(), converted.as_os_str()]);
+    assert!(
+        text.contains("3 frames assembled") && text.contains("640×480"),
+        "{text}"
+    );
+    assert!(
+        text.contains("latentam.converter: latentam convert 7scenes"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("latentam-cli-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let junk = dir.join("junk.mcap");
+    std::fs::write(&junk, b"not a log").unwrap();
+    let missing = dir.join("missing.mcap");
+    let out = dir.join("o.mcap");
+    let scene = dir.join("s.mcap");
+    let cases: Vec<(Vec<&std::ffi::OsStr>, &str)> = vec![
+        (
+            vec!["inspect".as_ref(), junk.as_os_str()],
+            "not an MCAP file",
+        ),
+        (
+            vec!["inspect".as_ref(), missing.as_os_str()],
+            "No such file",
+        ),
+        (
+            vec![
+                "convert".as_ref(),
+                "replica".as_ref(),
+                dir.as_os_str(),
+                "-o".as_ref(),
+                out.as_os_str(),
+            ],
+            "results",
+        ),
+        (
+            vec![
+                "gen-scene".as_ref(),
+                "--frames".as_ref(),
+                "0".as_ref(),
+                "-o".as_ref(),
+                scene.as_os_str(),
+            ],
+            "--frames",
+        ),
+    ];
+    for (args, want) in cases {
+        let out = latentam().args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(
+            err.contains(want) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+    assert!(!scene.exists() && !out.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
