@@ -25,24 +25,15 @@ enum Msg {
 
 const ENCODINGS: [&str; 6] = ["rgb8", "bgr8", "mono8", "16UC1", "32FC1", "yuv422"];
 
-fn channel(topic: &str, ty: &str) -> Channel {
-    Channel {
-        topic: topic.into(),
-        schema_name: ty.into(),
-        schema_encoding: "ros2msg".into(),
-        message_encoding: "cdr".into(),
-    }
-}
-
 fuzz_target!(|input: (bool, Vec<Msg>)| {
     let (stop, msgs) = input;
     let channels = [
-        channel("/camera/color/image_raw", Image::TYPE_NAME),
-        channel("/camera/depth/image_raw", Image::TYPE_NAME),
-        channel("/camera/color/camera_info", CameraInfo::TYPE_NAME),
-        channel("/camera/pose", PoseStamped::TYPE_NAME),
-        channel("/camera/embeddings", MaskFeatures::TYPE_NAME),
-        channel("/camera/color/image_raw", CompressedImage::TYPE_NAME),
+        Channel::ros2("/camera/color/image_raw", Image::TYPE_NAME),
+        Channel::ros2("/camera/depth/image_raw", Image::TYPE_NAME),
+        Channel::ros2("/camera/color/camera_info", CameraInfo::TYPE_NAME),
+        Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
+        Channel::ros2("/camera/embeddings", MaskFeatures::TYPE_NAME),
+        Channel::ros2("/camera/color/image_raw", CompressedImage::TYPE_NAME),
     ];
     let config = AssemblyConfig {
         on_bad_input: if stop { BadInputPolicy::Stop } else { BadInputPolicy::Skip },

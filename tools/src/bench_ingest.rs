@@ -94,15 +94,6 @@ struct Topics {
     embeddings: Channel,
 }
 
-fn channel(topic: &str, ty: &str) -> Channel {
-    Channel {
-        topic: topic.into(),
-        schema_name: ty.into(),
-        schema_encoding: "ros2msg".into(),
-        message_encoding: "cdr".into(),
-    }
-}
-
 /// One frame set's serialized messages, in publication order.
 fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
     let (w, h) = (b.width, b.height);
@@ -119,18 +110,7 @@ fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
     let data: Vec<u8> = (0..b.regions * b.dim)
         .flat_map(|k| half::f16::from_f32((k % 97) as f32 / 97.0).to_le_bytes())
         .collect();
-    let image = |encoding, step, data: &[u8]| {
-        Image {
-            header,
-            height: h,
-            width: w,
-            encoding,
-            is_bigendian: false,
-            step,
-            data,
-        }
-        .encode()
-    };
+    let image = |encoding, data: &[u8]| Image::packed(header, w, h, encoding, data).encode();
     vec![
         (
             2,
@@ -146,8 +126,8 @@ fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
             }
             .encode(),
         ),
-        (0, t, image("rgb8", w * 3, &color)),
-        (1, t, image("16UC1", w * 2, &depth)),
+        (0, t, image("rgb8", &color)),
+        (1, t, image("16UC1", &depth)),
         (
             4,
             t,
@@ -170,11 +150,11 @@ fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
 pub fn run(b: IngestBench) -> Result<()> {
     anyhow::ensure!(b.frames >= 4, "--frames must be at least 4");
     let topics = Topics {
-        color: channel("/camera/color/image_raw", Image::TYPE_NAME),
-        depth: channel("/camera/depth/image_raw", Image::TYPE_NAME),
-        info: channel("/camera/color/camera_info", CameraInfo::TYPE_NAME),
-        pose: channel("/camera/pose", PoseStamped::TYPE_NAME),
-        embeddings: channel("/camera/embeddings", MaskFeatures::TYPE_NAME),
+        color: Channel::ros2("/camera/color/image_raw", Image::TYPE_NAME),
+        depth: Channel::ros2("/camera/depth/image_raw", Image::TYPE_NAME),
+        info: Channel::ros2("/camera/color/camera_info", CameraInfo::TYPE_NAME),
+        pose: Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
+        embeddings: Channel::ros2("/camera/embeddings", MaskFeatures::TYPE_NAME),
     };
     let by_role = [
         &topics.color,

@@ -30,6 +30,18 @@ pub struct Channel {
     pub message_encoding: String,
 }
 
+impl Channel {
+    /// A ROS 2 channel (`ros2msg` schema, `cdr` messages) of type `ty`.
+    pub fn ros2(topic: &str, ty: &str) -> Self {
+        Channel {
+            topic: topic.into(),
+            schema_name: ty.into(),
+            schema_encoding: "ros2msg".into(),
+            message_encoding: "cdr".into(),
+        }
+    }
+}
+
 /// One message, borrowed from the reader for the duration of a callback.
 #[derive(Clone, Copy, Debug)]
 pub struct RawMessage<'a> {

@@ -139,6 +139,28 @@ impl<'a> RosMessage<'a> for Image<'a> {
     }
 }
 
+impl<'a> Image<'a> {
+    /// A little-endian image whose rows are packed (`step` = the data
+    /// length over the rows), as writers produce.
+    pub fn packed(
+        header: Header<'a>,
+        width: u32,
+        height: u32,
+        encoding: &'a str,
+        data: &'a [u8],
+    ) -> Self {
+        Image {
+            header,
+            height,
+            width,
+            encoding,
+            is_bigendian: false,
+            step: (data.len() / height.max(1) as usize) as u32,
+            data,
+        }
+    }
+}
+
 /// `sensor_msgs/CompressedImage`.
 #[derive(Clone, Copy, Debug)]
 pub struct CompressedImage<'a> {

@@ -35,6 +35,21 @@ pub struct Dataset {
     pub notes: Vec<String>,
 }
 
+impl Dataset {
+    /// A frame whose colour, depth and pose share one stamp.
+    fn push_frame(&mut self, stamp_ns: i64, color: PathBuf, depth: PathBuf, pose: Pose) {
+        self.color.push(Stamped {
+            stamp_ns,
+            path: color,
+        });
+        self.depth.push(Stamped {
+            stamp_ns,
+            path: depth,
+        });
+        self.poses.push((stamp_ns, pose));
+    }
+}
+
 fn read_text(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
 }
@@ -141,16 +156,7 @@ pub fn seven_scenes(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
                 continue;
             }
         };
-        let t = stamp_of(i, fps);
-        d.color.push(Stamped {
-            stamp_ns: t,
-            path: dir.join(name),
-        });
-        d.depth.push(Stamped {
-            stamp_ns: t,
-            path: depth,
-        });
-        d.poses.push((t, pose));
+        d.push_frame(stamp_of(i, fps), dir.join(name), depth, pose);
     }
     d.notes.push(format!(
         "7-Scenes depth is not registered to colour (a few pixels of misalignment); stamps are synthetic at {fps} Hz"
@@ -225,16 +231,7 @@ pub fn replica(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
                 continue;
             }
         };
-        let t = stamp_of(i, fps);
-        d.color.push(Stamped {
-            stamp_ns: t,
-            path: results.join(name),
-        });
-        d.depth.push(Stamped {
-            stamp_ns: t,
-            path: depth,
-        });
-        d.poses.push((t, pose));
+        d.push_frame(stamp_of(i, fps), results.join(name), depth, pose);
     }
     d.notes.push(format!(
         "Replica has no time stamps; frames are placed at {fps} Hz"

@@ -62,6 +62,12 @@ pub enum FrameFeatures {
     },
 }
 
+/// File stems a frame's files may have: its image's stem, and that stem
+/// without a trailing `.color` (7-Scenes names images `X.color.jpg`).
+fn candidate_stems(stem: &str) -> impl Iterator<Item = &str> {
+    std::iter::once(stem).chain(stem.strip_suffix(".color"))
+}
+
 /// A tensor from either file format.
 struct Tensor {
     dtype: NpyType,
@@ -248,11 +254,7 @@ impl FeatureDir {
     /// The features of the frame with file stem `stem`, `None` if it has
     /// no file.
     pub fn load(&self, stem: &str) -> anyhow::Result<Option<LoadedFeatures>> {
-        let mut stems = vec![stem.to_string()];
-        if let Some(s) = stem.strip_suffix(".color") {
-            stems.push(s.to_string());
-        }
-        for s in &stems {
+        for s in candidate_stems(stem) {
             let st = self.dir.join(format!("{s}.safetensors"));
             if st.is_file() {
                 return self.load_safetensors(&st).map(Some);
@@ -408,11 +410,7 @@ impl Oracle {
     /// The class-id image of frame `stem` (`None` if it has none), and its
     /// embeddings: one region per class present.
     pub fn load(&self, stem: &str) -> anyhow::Result<Option<OracleFrame>> {
-        let mut stems = vec![stem.to_string()];
-        if let Some(s) = stem.strip_suffix(".color") {
-            stems.push(s.to_string());
-        }
-        for s in &stems {
+        for s in candidate_stems(stem) {
             let png = self.labels_dir.join(format!("{s}.png"));
             let npy_path = self.labels_dir.join(format!("{s}.npy"));
             let (w, h, classes) = if png.is_file() {

@@ -241,15 +241,7 @@ pub fn convert(
                             log.write(
                                 "/camera/semantic",
                                 lt,
-                                &Image {
-                                    header,
-                                    height: lh,
-                                    width: lw,
-                                    encoding: "16UC1",
-                                    is_bigendian: false,
-                                    step: lw * 2,
-                                    data: &class_bytes,
-                                },
+                                &Image::packed(header, lw, lh, "16UC1", &class_bytes),
                             )?;
                             Some(LoadedFeatures {
                                 features: frame.features,

@@ -248,26 +248,14 @@ pub fn generate(
                 },
             },
         )?;
-        let image = |encoding, step, data| Image {
-            header,
-            height: h,
-            width: w,
-            encoding,
-            is_bigendian: false,
-            step,
-            data,
-        };
-        log.write(
-            "/camera/color/image_raw",
-            t,
-            &image("rgb8", w * 3, &view.color),
-        )?;
+        let image = |encoding, data| Image::packed(header, w, h, encoding, data);
+        log.write("/camera/color/image_raw", t, &image("rgb8", &view.color))?;
         let depth = bytes_u16(&view.depth_mm);
-        log.write("/camera/depth/image_raw", t, &image("16UC1", w * 2, &depth))?;
+        log.write("/camera/depth/image_raw", t, &image("16UC1", &depth))?;
         let class = bytes_u16(&view.class);
-        log.write("/camera/semantic", t, &image("16UC1", w * 2, &class))?;
+        log.write("/camera/semantic", t, &image("16UC1", &class))?;
         let instance = bytes_u16(&view.instance);
-        log.write("/camera/instances", t, &image("16UC1", w * 2, &instance))?;
+        log.write("/camera/instances", t, &image("16UC1", &instance))?;
 
         let (labels, order) = regions(&view.instance, config.min_region_pixels);
         let mut rng = ChaCha8Rng::seed_from_u64(
