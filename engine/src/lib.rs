@@ -17,6 +17,8 @@
 //! * [`loss`]: the mapping objective (photometric, depth, feature and
 //!   trust-region terms) with its gradients;
 //! * [`optim`]: Adam with per-tensor parameter groups;
+//! * [`map`]: the CPU global map (voxel hash), keyframe selection and
+//!   Gaussian seeding;
 //! * [`io`]: MCAP logs of ROS 2 messages in, checked frames out, and log
 //!   writing;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
@@ -43,6 +45,7 @@ pub mod gpu;
 pub mod io;
 pub mod latent;
 pub mod loss;
+pub mod map;
 pub mod ops;
 pub mod optim;
 pub mod reference;

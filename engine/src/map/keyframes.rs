@@ -1,0 +1,144 @@
+//! Which frames become keyframes.
+
+use glam::DVec3;
+
+use super::global::GlobalMap;
+use crate::io::{CameraPose, Frame};
+
+/// The rule that proposes keyframes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum KeyframePolicy {
+    /// Every `n`-th frame (ORB-SLAM3-style trackers; the paper reports
+    /// n ≈ 4 to 10).
+    Interval(u32),
+    /// When the share of the frame's back-projected depth points (every
+    /// `stride`-th pixel) on mapped surface ([`GlobalMap::is_near_occupied`])
+    /// drops below `min_overlap` (GS-ICP-style).
+    Overlap {
+        /// Keyframe when the overlap is below this (0..1).
+        min_overlap: f32,
+        /// Pixel subsampling of the check.
+        stride: u32,
+    },
+}
+
+/// Keyframe selection settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KeyframeConfig {
+    /// The proposing rule.
+    pub policy: KeyframePolicy,
+    /// A proposal is dropped unless the camera moved at least this far
+    /// (metres) ...
+    pub min_translation: f64,
+    /// ... or turned at least this much (degrees) since the last keyframe.
+    pub min_rotation_deg: f64,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        KeyframeConfig {
+            policy: KeyframePolicy::Interval(4),
+            min_translation: 0.0,
+            min_rotation_deg: 0.0,
+        }
+    }
+}
+
+/// The decision for one frame, with what it was based on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KeyframeDecision {
+    /// Whether the frame is a keyframe.
+    pub keyframe: bool,
+    /// Overlap with the map, when the policy measured it.
+    pub overlap: Option<f32>,
+}
+
+/// Decides frame by frame.
+#[derive(Clone, Debug)]
+pub struct KeyframeSelector {
+    config: KeyframeConfig,
+    last: Option<CameraPose>,
+    since_last: u32,
+}
+
+/// Share of `frame`'s subsampled valid depth points on mapped surface
+/// ([`GlobalMap::is_near_occupied`]); 1 for a frame without valid depth.
+pub fn overlap(frame: &Frame, map: &GlobalMap, stride: u32) -> f32 {
+    let k = frame.intrinsics;
+    let (w, h) = (frame.color.width, frame.color.height);
+    let stride = stride.max(1) as usize;
+    let (mut hits, mut total) = (0u32, 0u32);
+    for v in (0..h).step_by(stride) {
+        for u in (0..w).step_by(stride) {
+            let Some(z) = frame.depth.metres((v * w + u) as usize) else {
+                continue;
+            };
+            let z = z as f64;
+            let cam = DVec3::new(
+                (u as f64 - k.cx) / k.fx * z,
+                (v as f64 - k.cy) / k.fy * z,
+                z,
+            );
+            let p = frame.pose.rotation * cam + frame.pose.translation;
+            total += 1;
+            hits += map.is_near_occupied(p) as u32;
+        }
+    }
+    if total == 0 {
+        1.0
+    } else {
+        hits as f32 / total as f32
+    }
+}
+
+impl KeyframeSelector {
+    /// A selector with no keyframe yet (the first frame always is one).
+    pub fn new(config: KeyframeConfig) -> Self {
+        KeyframeSelector {
+            config,
+            last: None,
+            since_last: 0,
+        }
+    }
+
+    /// Decides whether `frame` is a keyframe given the current map, and
+    /// remembers it if so.
+    pub fn decide(&mut self, frame: &Frame, map: &GlobalMap) -> KeyframeDecision {
+        self.since_last += 1;
+        let Some(last) = self.last else {
+            self.accept(frame);
+            return KeyframeDecision {
+                keyframe: true,
+                overlap: None,
+            };
+        };
+        let (proposed, overlap) = match self.config.policy {
+            KeyframePolicy::Interval(n) => (self.since_last >= n.max(1), None),
+            KeyframePolicy::Overlap {
+                min_overlap,
+                stride,
+            } => {
+                let o = overlap(frame, map, stride);
+                (o < min_overlap, Some(o))
+            }
+        };
+        let moved = (frame.pose.translation - last.translation).length()
+            >= self.config.min_translation
+            || frame
+                .pose
+                .rotation
+                .angle_between(last.rotation)
+                .to_degrees()
+                >= self.config.min_rotation_deg;
+        let keyframe = proposed && moved;
+        if keyframe {
+            self.accept(frame);
+        }
+        KeyframeDecision { keyframe, overlap }
+    }
+
+    fn accept(&mut self, frame: &Frame) {
+        self.last = Some(frame.pose);
+        self.since_last = 0;
+    }
+}

@@ -1,0 +1,156 @@
+//! New Gaussians from a keyframe: back-projected depth where the map does
+//! not yet explain the view, one per free voxel.
+
+use std::collections::HashSet;
+
+use glam::DVec3;
+
+use super::global::{Gaussian, GlobalMap};
+use super::voxel::VoxelKey;
+use crate::io::Frame;
+use crate::splat::QUERY_DIM;
+
+/// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
+/// variant: scale from depth over focal length, identity rotation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SeedingConfig {
+    /// Every `stride`-th pixel along rows and columns is a candidate.
+    pub stride: u32,
+    /// Depths beyond this (metres) are not seeded.
+    pub max_depth: f32,
+    /// A pixel is unexplained where the rendered alpha is below this.
+    pub alpha_threshold: f32,
+    /// ... or where the rendered depth is off by more than this fraction
+    /// of the measured depth.
+    pub depth_error: f32,
+    /// Initial opacity (0..1).
+    pub opacity: f32,
+    /// Initial standard deviation as a multiple of the spacing between
+    /// seeds (`stride × depth / focal`), at least half a voxel.
+    pub scale_factor: f32,
+}
+
+impl Default for SeedingConfig {
+    fn default() -> Self {
+        SeedingConfig {
+            stride: 2,
+            max_depth: 10.0,
+            alpha_threshold: 0.5,
+            depth_error: 0.05,
+            opacity: 0.5,
+            scale_factor: 0.5,
+        }
+    }
+}
+
+/// What the current map renders at the keyframe's pose, per pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderedView<'a> {
+    /// Accumulated alpha.
+    pub alpha: &'a [f32],
+    /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output).
+    pub depth: &'a [f32],
+}
+
+/// A small deterministic generator (SplitMix64) so a Gaussian's initial
+/// query depends only on its voxel and the seed, not on insertion order.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self) -> f32 {
+        ((self.next() >> 40) as f32 + 0.5) / (1u64 << 24) as f32
+    }
+    fn normal(&mut self) -> f32 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+    }
+}
+
+/// An initial query: a neighbour's (so a surface keeps one latent code
+/// while it grows), else N(0, 1) from the voxel and seed. Never all-zero:
+/// zero queries make the decoder's normalisation degenerate (SPEC §12).
+fn initial_query(key: VoxelKey, map: &GlobalMap, seed: u64) -> [f32; QUERY_DIM] {
+    if let Some(g) = key.neighbourhood().find_map(|n| map.get(n)) {
+        if g.query.iter().any(|&q| q != 0.0) {
+            return g.query;
+        }
+    }
+    let mut rng = SplitMix(
+        seed ^ (key.x as u32 as u64)
+            ^ ((key.y as u32 as u64) << 21)
+            ^ ((key.z as u32 as u64) << 42),
+    );
+    std::array::from_fn(|_| rng.normal())
+}
+
+/// Gaussians to add for `frame`: one per free voxel hit by a candidate
+/// pixel with valid depth that the map does not explain (`rendered` says
+/// what it shows there; without it every candidate is unexplained).
+pub fn seed_from_frame(
+    frame: &Frame,
+    rendered: Option<RenderedView<'_>>,
+    map: &GlobalMap,
+    config: &SeedingConfig,
+    seed: u64,
+) -> Vec<Gaussian> {
+    let k = frame.intrinsics;
+    let (w, h) = (frame.color.width, frame.color.height);
+    let rotation = frame.pose.rotation;
+    let translation = frame.pose.translation;
+    let focal = 0.5 * (k.fx + k.fy);
+    let voxel = map.voxel_size();
+    let opacity = config.opacity.clamp(1e-4, 1.0 - 1e-4);
+    let opacity_logit = (opacity / (1.0 - opacity)).ln();
+    let stride = config.stride.max(1);
+    let mut taken: HashSet<VoxelKey> = HashSet::new();
+    let mut out = Vec::new();
+    let start = stride / 2;
+    for v in (start..h).step_by(stride as usize) {
+        for u in (start..w).step_by(stride as usize) {
+            let i = (v * w + u) as usize;
+            let Some(z) = frame.depth.metres(i) else {
+                continue;
+            };
+            if z > config.max_depth {
+                continue;
+            }
+            if let Some(r) = rendered {
+                let a = r.alpha[i];
+                let explained = a >= config.alpha_threshold
+                    && ((r.depth[i] / a.max(1e-6)) - z).abs() <= config.depth_error * z;
+                if explained {
+                    continue;
+                }
+            }
+            let z = z as f64;
+            let cam = DVec3::new(
+                (u as f64 - k.cx) / k.fx * z,
+                (v as f64 - k.cy) / k.fy * z,
+                z,
+            );
+            let p = rotation * cam + translation;
+            let Some(key) = map.key_of(p) else { continue };
+            if map.contains(key) || !taken.insert(key) {
+                continue;
+            }
+            let sigma = (config.scale_factor as f64 * stride as f64 * z / focal).max(0.5 * voxel);
+            let rgb = frame.color.rgb(u, v);
+            out.push(Gaussian {
+                mean: p.as_vec3().to_array(),
+                log_scale: [sigma.ln() as f32; 3],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                color: rgb.map(|c| c as f32 / 255.0),
+                opacity_logit,
+                query: initial_query(key, map, seed),
+            });
+        }
+    }
+    out
+}
