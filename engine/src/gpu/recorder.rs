@@ -466,10 +466,14 @@ impl<'a> Recorder<'a> {
     }
 
     fn copy_raw(&mut self, src: vk::Buffer, dst: vk::Buffer, region: vk::BufferCopy) {
+        self.copy_raw_regions(src, dst, &[region]);
+    }
+
+    fn copy_raw_regions(&mut self, src: vk::Buffer, dst: vk::Buffer, regions: &[vk::BufferCopy]) {
         self.track(&[src], &[dst]);
         let start = self.timestamp(vk::PipelineStageFlags::TRANSFER);
         // SAFETY: recording a copy between live buffers with checked ranges.
-        unsafe { self.dev.raw.cmd_copy_buffer(self.cmd, src, dst, &[region]) };
+        unsafe { self.dev.raw.cmd_copy_buffer(self.cmd, src, dst, regions) };
         let end = self.timestamp(vk::PipelineStageFlags::TRANSFER);
         if let (Some(s), Some(e)) = (start, end) {
             self.labels.push(("copy", s, e));
@@ -504,6 +508,58 @@ impl<'a> Recorder<'a> {
                 size: bytes,
             },
         );
+        Ok(())
+    }
+
+    /// Copies many `(src_offset, dst_offset, bytes)` regions from `src` to
+    /// `dst` in one command: they run in no particular order, so no
+    /// destination may overlap another region (checked, since Vulkan
+    /// leaves it undefined).
+    pub fn copy_regions(
+        &mut self,
+        src: &'a Buffer,
+        dst: &'a Buffer,
+        regions: &[(u64, u64, u64)],
+    ) -> Result<()> {
+        let mut spans: Vec<(u64, u64, bool)> = Vec::with_capacity(regions.len() * 2);
+        for &(s, d, n) in regions {
+            if s + n > src.bytes() || d + n > dst.bytes() {
+                return Err(Error::InvalidArgument(format!(
+                    "copy region of {n} bytes from `{}`+{s} to `{}`+{d} is out of range",
+                    src.name(),
+                    dst.name()
+                )));
+            }
+            spans.push((d, d + n, true));
+            if src.raw == dst.raw {
+                spans.push((s, s + n, false));
+            }
+        }
+        spans.sort_unstable();
+        for w in spans.windows(2) {
+            if w[1].0 < w[0].1 && (w[0].2 || w[1].2) {
+                return Err(Error::InvalidArgument(format!(
+                    "copy regions into `{}` overlap (bytes {}..{} and {}..{})",
+                    dst.name(),
+                    w[0].0,
+                    w[0].1,
+                    w[1].0,
+                    w[1].1
+                )));
+            }
+        }
+        let regions: Vec<vk::BufferCopy> = regions
+            .iter()
+            .filter(|r| r.2 > 0)
+            .map(|&(src_offset, dst_offset, size)| vk::BufferCopy {
+                src_offset,
+                dst_offset,
+                size,
+            })
+            .collect();
+        if !regions.is_empty() {
+            self.copy_raw_regions(src.raw, dst.raw, &regions);
+        }
         Ok(())
     }
 

@@ -1,15 +1,17 @@
-//! The map: the CPU global map keyed by voxel, keyframe selection and the
-//! seeding of new Gaussians from keyframes.
+//! The map: the CPU global map keyed by voxel, the GPU local window paged
+//! to and from it, keyframe selection and the seeding of new Gaussians.
 
 mod global;
 mod keyframes;
 mod seeding;
 mod voxel;
+mod window;
 
 pub use global::{Gaussian, GlobalMap, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
-pub use seeding::{seed_from_frame, RenderedView, SeedingConfig};
+pub use seeding::{seed_from_frame, SeedingConfig, ViewCoverage};
 pub use voxel::VoxelKey;
+pub use window::{gaussian_at, Companion, LocalWindow, PendingSync, SyncPlan};
 
 #[cfg(test)]
 mod tests;

@@ -43,9 +43,10 @@ impl Default for SeedingConfig {
     }
 }
 
-/// What the current map renders at the keyframe's pose, per pixel.
+/// How much of a keyframe the current map covers: what it renders at the
+/// keyframe's pose, per pixel.
 #[derive(Clone, Copy, Debug)]
-pub struct RenderedView<'a> {
+pub struct ViewCoverage<'a> {
     /// Accumulated alpha.
     pub alpha: &'a [f32],
     /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output).
@@ -95,7 +96,7 @@ fn initial_query(key: VoxelKey, map: &GlobalMap, seed: u64) -> [f32; QUERY_DIM] 
 /// what it shows there; without it every candidate is unexplained).
 pub fn seed_from_frame(
     frame: &Frame,
-    rendered: Option<RenderedView<'_>>,
+    rendered: Option<ViewCoverage<'_>>,
     map: &GlobalMap,
     config: &SeedingConfig,
     seed: u64,

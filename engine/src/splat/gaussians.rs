@@ -87,7 +87,9 @@ pub struct GaussianBuffers {
 }
 
 /// Floats per Gaussian in each field, in field order.
-const WIDTHS: [u64; 6] = [3, 3, 4, 3, 1, QUERY_DIM as u64];
+/// Floats per Gaussian in each field buffer, in [`GaussianBuffers::fields`]
+/// order.
+pub const FIELD_WIDTHS: [u64; 6] = [3, 3, 4, 3, 1, QUERY_DIM as u64];
 
 /// Bytes of GPU memory one Gaussian's parameters take.
 pub const GAUSSIAN_BYTES: u64 = (3 + 3 + 4 + 3 + 1 + QUERY_DIM as u64) * 4;
@@ -136,6 +138,19 @@ impl GaussianBuffers {
 
     /// Uploads `host` to slots `first..first + host.len()` and waits.
     pub fn upload(&self, ctx: &Context, first: u64, host: &HostGaussians) -> Result<()> {
+        let mut rec = ctx.recorder()?;
+        self.record_upload(&mut rec, first, host)?;
+        rec.submit()?.wait()
+    }
+
+    /// Records an upload of `host` to slots `first..first + host.len()`
+    /// (through staging buffers, on whichever queue `rec` records for).
+    pub fn record_upload<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        first: u64,
+        host: &HostGaussians,
+    ) -> Result<()> {
         let n = host.len()? as u64;
         if first + n > self.capacity {
             return Err(Error::InvalidArgument(format!(
@@ -143,7 +158,6 @@ impl GaussianBuffers {
                 self.capacity
             )));
         }
-        let mut rec = ctx.recorder()?;
         let data: [&[f32]; 6] = [
             bytemuck::cast_slice(&host.means),
             bytemuck::cast_slice(&host.log_scales),
@@ -152,32 +166,58 @@ impl GaussianBuffers {
             &host.opacity_logits,
             bytemuck::cast_slice(&host.queries),
         ];
-        for ((buf, w), d) in self.fields().into_iter().zip(WIDTHS).zip(data) {
+        for ((buf, w), d) in self.fields().into_iter().zip(FIELD_WIDTHS).zip(data) {
             if !d.is_empty() {
                 rec.upload(buf, first * w * 4, d)?;
             }
         }
-        rec.submit()?.wait()
+        Ok(())
     }
 
     /// Downloads slots `0..count` and waits.
     pub fn download(&self, ctx: &Context, count: u64) -> Result<HostGaussians> {
+        let mut rec = ctx.recorder()?;
+        let pending = self.record_download(&mut rec, count)?;
+        rec.submit()?.wait()?;
+        pending.read()
+    }
+
+    /// Records a download of slots `0..count`; read it with
+    /// [`GaussianReadback::read`] once the submission has completed.
+    pub fn record_download<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        count: u64,
+    ) -> Result<GaussianReadback> {
         if count > self.capacity {
             return Err(Error::InvalidArgument(format!(
                 "downloading {count} Gaussians from buffers of capacity {}",
                 self.capacity
             )));
         }
-        if count == 0 {
+        let mut reads = Vec::new();
+        if count > 0 {
+            for (buf, w) in self.fields().into_iter().zip(FIELD_WIDTHS) {
+                reads.push(rec.download(buf, 0, count * w * 4)?);
+            }
+        }
+        Ok(GaussianReadback { reads })
+    }
+}
+
+/// A recorded download of Gaussians (see
+/// [`GaussianBuffers::record_download`]).
+pub struct GaussianReadback {
+    reads: Vec<crate::gpu::Readback>,
+}
+
+impl GaussianReadback {
+    /// The downloaded Gaussians; errors if the submission has not completed.
+    pub fn read(&self) -> Result<HostGaussians> {
+        if self.reads.is_empty() {
             return Ok(HostGaussians::default());
         }
-        let mut rec = ctx.recorder()?;
-        let mut reads = Vec::new();
-        for (buf, w) in self.fields().into_iter().zip(WIDTHS) {
-            reads.push(rec.download(buf, 0, count * w * 4)?);
-        }
-        rec.submit()?.wait()?;
-        let f = |i: usize| reads[i].read::<f32>();
+        let f = |i: usize| self.reads[i].read::<f32>();
         Ok(HostGaussians {
             means: bytemuck::cast_slice(&f(0)?).to_vec(),
             log_scales: bytemuck::cast_slice(&f(1)?).to_vec(),

@@ -16,7 +16,9 @@ mod views;
 mod tests;
 
 pub use camera::Camera;
-pub use gaussians::{GaussianBuffers, HostGaussians, GAUSSIAN_BYTES, QUERY_DIM};
+pub use gaussians::{
+    GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS, GAUSSIAN_BYTES, QUERY_DIM,
+};
 pub use rasterizer::{ForwardStats, PixelBuffers, Rasterizer, RenderSettings, RenderedView};
 pub use views::{BatchLayout, ViewSlot};
 

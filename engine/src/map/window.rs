@@ -1,0 +1,260 @@
+//! The local window: the Gaussians near the camera, on the GPU.
+//!
+//! Rows `0..len` of the window's buffers hold the resident Gaussians; the
+//! CPU keeps each row's voxel key. Re-synchronising with the global map
+//! ([`LocalWindow::plan`], [`LocalWindow::record_sync`]) is all transfer
+//! commands, so it can run on the dedicated transfer queue while Stage II
+//! (which reads no Gaussian) runs on the compute queue:
+//! 1. every resident row is downloaded (write-back of what Stage I changed);
+//! 2. rows from the tail are copied into the rows of evicted Gaussians,
+//!    keeping residents contiguous (sources and destinations are disjoint,
+//!    so the copies are order-free);
+//! 3. fetched Gaussians are uploaded after the last resident row.
+//!
+//! Per-Gaussian state kept beside the parameters (Adam moments, step
+//! counts) is moved the same way through [`Companion`] buffers, and zeroed
+//! for fetched rows.
+
+use std::collections::HashSet;
+
+use glam::DVec3;
+
+use super::global::{Gaussian, GlobalMap};
+use super::voxel::VoxelKey;
+use crate::error::{Error, Result};
+use crate::gpu::{Buffer, Context, Recorder};
+use crate::splat::{GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS};
+
+/// A buffer with one fixed-size row per window row, moved along with the
+/// Gaussians (e.g. an Adam moment buffer: `row_bytes` = 4 × width).
+#[derive(Clone, Copy)]
+pub struct Companion<'a> {
+    /// The buffer (at least capacity × `row_bytes`).
+    pub buffer: &'a Buffer,
+    /// Bytes per row.
+    pub row_bytes: u64,
+}
+
+/// What a re-synchronisation changes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SyncPlan {
+    /// Rows whose Gaussians leave the window (outside the radius, or the
+    /// farthest when the capacity is exceeded), ascending.
+    pub evict: Vec<u32>,
+    /// Gaussians that come in, nearest first.
+    pub fetch: Vec<VoxelKey>,
+    /// Residents within the radius that stay.
+    pub keep: usize,
+    /// Gaussians within the radius left out for lack of capacity.
+    pub over_capacity: usize,
+}
+
+/// A recorded synchronisation: apply it once its submission completed.
+#[must_use = "the write-back must be applied to the global map"]
+pub struct PendingSync {
+    readback: GaussianReadback,
+    keys: Vec<VoxelKey>,
+}
+
+impl PendingSync {
+    /// Writes the downloaded Gaussians back to the global map by key.
+    /// Errors if the submission has not completed.
+    pub fn apply(self, global: &mut GlobalMap) -> Result<usize> {
+        let host = self.readback.read()?;
+        for (i, key) in self.keys.iter().enumerate() {
+            if !global.write_back(*key, gaussian_at(&host, i)) {
+                return Err(Error::InvalidArgument(format!(
+                    "window row {i} holds voxel {key:?}, which the global map does not have"
+                )));
+            }
+        }
+        Ok(self.keys.len())
+    }
+}
+
+/// One Gaussian out of a host SoA.
+pub fn gaussian_at(h: &HostGaussians, i: usize) -> Gaussian {
+    Gaussian {
+        mean: h.means[i],
+        log_scale: h.log_scales[i],
+        quat: h.quats[i],
+        color: h.colors[i],
+        opacity_logit: h.opacity_logits[i],
+        query: h.queries[i],
+    }
+}
+
+fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
+    h.means.push(g.mean);
+    h.log_scales.push(g.log_scale);
+    h.quats.push(g.quat);
+    h.colors.push(g.color);
+    h.opacity_logits.push(g.opacity_logit);
+    h.queries.push(g.query);
+}
+
+/// The resident Gaussians and their GPU buffers.
+pub struct LocalWindow {
+    params: GaussianBuffers,
+    keys: Vec<VoxelKey>,
+}
+
+impl LocalWindow {
+    /// A window for at most `capacity` Gaussians (buffers named
+    /// `window/...` in the memory report).
+    pub fn new(ctx: &Context, capacity: u64) -> Result<Self> {
+        if capacity == 0 {
+            return Err(Error::InvalidArgument(
+                "a window needs room for at least one Gaussian".into(),
+            ));
+        }
+        Ok(LocalWindow {
+            params: GaussianBuffers::new(ctx, "window", capacity)?,
+            keys: Vec::new(),
+        })
+    }
+
+    /// Rows available.
+    pub fn capacity(&self) -> u64 {
+        self.params.capacity()
+    }
+
+    /// Resident Gaussians (rows `0..len`).
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether nothing is resident.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// The voxel key of every resident row.
+    pub fn keys(&self) -> &[VoxelKey] {
+        &self.keys
+    }
+
+    /// The parameter buffers (rows `0..len` are valid).
+    pub fn params(&self) -> &GaussianBuffers {
+        &self.params
+    }
+
+    /// Which residents leave and which Gaussians come in for a camera at
+    /// `centre` keeping everything within `radius`: residents outside the
+    /// radius leave; when the Gaussians within it exceed the capacity, the
+    /// farthest are left out (residents among them evicted).
+    pub fn plan(&self, global: &GlobalMap, centre: DVec3, radius: f64) -> SyncPlan {
+        let mut wanted: Vec<(f64, VoxelKey)> = global
+            .within(centre, radius)
+            .into_iter()
+            .map(|k| {
+                let g = global.get(k).expect("within() returns present keys");
+                (
+                    DVec3::from(g.mean.map(f64::from)).distance_squared(centre),
+                    k,
+                )
+            })
+            .collect();
+        wanted.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let cap = self.capacity() as usize;
+        let over_capacity = wanted.len().saturating_sub(cap);
+        wanted.truncate(cap);
+        let wanted_set: HashSet<VoxelKey> = wanted.iter().map(|w| w.1).collect();
+        let resident: HashSet<VoxelKey> = self.keys.iter().copied().collect();
+        let evict: Vec<u32> = (0..self.keys.len() as u32)
+            .filter(|&r| !wanted_set.contains(&self.keys[r as usize]))
+            .collect();
+        let fetch: Vec<VoxelKey> = wanted
+            .iter()
+            .map(|w| w.1)
+            .filter(|k| !resident.contains(k))
+            .collect();
+        SyncPlan {
+            keep: self.keys.len() - evict.len(),
+            evict,
+            fetch,
+            over_capacity,
+        }
+    }
+
+    /// Records a synchronisation on `rec` (a transfer recorder, normally):
+    /// write-back download of every resident row, compaction over the
+    /// evicted rows, upload of the fetched Gaussians from `global`, and the
+    /// same moves for `companions` (fetched rows zeroed). The row → key
+    /// table is updated now; apply the returned [`PendingSync`] to the
+    /// global map once the submission has completed.
+    pub fn record_sync<'a>(
+        &'a mut self,
+        rec: &mut Recorder<'a>,
+        plan: &SyncPlan,
+        global: &GlobalMap,
+        companions: &[Companion<'a>],
+    ) -> Result<PendingSync> {
+        let n = self.keys.len();
+        let keep = n - plan.evict.len();
+        if keep + plan.fetch.len() > self.capacity() as usize {
+            return Err(Error::InvalidArgument(format!(
+                "sync plan keeps {keep} and fetches {} Gaussians into a window of {}",
+                plan.fetch.len(),
+                self.capacity()
+            )));
+        }
+        for c in companions {
+            c.buffer
+                .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
+        }
+        let mut fetched = HostGaussians::default();
+        for k in &plan.fetch {
+            let g = global.get(*k).ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "sync plan fetches voxel {k:?}, which the global map does not have"
+                ))
+            })?;
+            push_gaussian(&mut fetched, g);
+        }
+        let (params, keys) = (&self.params, &mut self.keys);
+
+        // 1. Write-back of every resident row, before anything moves.
+        let readback = params.record_download(rec, n as u64)?;
+        let pending = PendingSync {
+            readback,
+            keys: keys.clone(),
+        };
+
+        // 2. Compaction: live rows from the tail fill the holes below `keep`.
+        let evicted: HashSet<u32> = plan.evict.iter().copied().collect();
+        let holes = plan.evict.iter().copied().filter(|&r| (r as usize) < keep);
+        let movers = (keep as u32..n as u32).filter(|r| !evicted.contains(r));
+        let moves: Vec<(u32, u32)> = holes.zip(movers).collect();
+        for (buf, w) in params.fields().into_iter().zip(FIELD_WIDTHS) {
+            let row = w * 4;
+            let regions: Vec<(u64, u64, u64)> = moves
+                .iter()
+                .map(|&(d, s)| (s as u64 * row, d as u64 * row, row))
+                .collect();
+            rec.copy_regions(buf, buf, &regions)?;
+        }
+        for c in companions {
+            let r = c.row_bytes;
+            let regions: Vec<(u64, u64, u64)> = moves
+                .iter()
+                .map(|&(d, s)| (s as u64 * r, d as u64 * r, r))
+                .collect();
+            rec.copy_regions(c.buffer, c.buffer, &regions)?;
+        }
+        for &(dst, src) in &moves {
+            keys[dst as usize] = keys[src as usize];
+        }
+        keys.truncate(keep);
+
+        // 3. Fetched Gaussians after the residents; their companion rows
+        // start from zero.
+        params.record_upload(rec, keep as u64, &fetched)?;
+        for c in companions {
+            let zeros = vec![0u8; (plan.fetch.len() as u64 * c.row_bytes) as usize];
+            rec.upload(c.buffer, keep as u64 * c.row_bytes, &zeros)?;
+        }
+        keys.extend_from_slice(&plan.fetch);
+        Ok(pending)
+    }
+}
