@@ -221,7 +221,9 @@ impl Drop for Buffer {
 /// Data read back from the GPU, available after the submission that recorded
 /// it has completed (see [`super::Recorder::download`]).
 pub struct Readback {
-    pub(crate) staging: Buffer,
+    /// Shared with the recorder, so dropping the readback before the
+    /// submission cannot free the buffer the copy writes into.
+    pub(crate) staging: std::sync::Arc<Buffer>,
     pub(crate) transfer: bool,
     pub(crate) after: std::sync::Arc<std::sync::atomic::AtomicU64>,
 }

@@ -65,7 +65,9 @@ pub struct Recorder<'a> {
     sets_left: u32,
     written: HashSet<vk::Buffer>,
     read: HashSet<vk::Buffer>,
-    keep: Vec<Buffer>,
+    /// Staging buffers the recorded copies use, released (into deferred
+    /// destruction) only once the work is submitted.
+    keep: Vec<Arc<Buffer>>,
     queries: Vec<QueryBlock>,
     labels: Vec<(&'static str, u32, u32)>,
     waits: Vec<SyncPoint>,
@@ -614,7 +616,7 @@ impl<'a> Recorder<'a> {
                 size: bytes.len() as u64,
             },
         );
-        self.keep.push(staging);
+        self.keep.push(Arc::new(staging));
         Ok(())
     }
 
@@ -631,12 +633,12 @@ impl<'a> Recorder<'a> {
         let ctx = Context {
             dev: self.dev.clone(),
         };
-        let staging = Buffer::new(
+        let staging = Arc::new(Buffer::new(
             &ctx,
             &format!("staging/{}", src.name()),
             bytes,
             BufferKind::Readback,
-        )?;
+        )?);
         if bytes > 0 {
             self.copy_raw(
                 src.raw,
@@ -648,6 +650,7 @@ impl<'a> Recorder<'a> {
                 },
             );
         }
+        self.keep.push(staging.clone());
         self.host_reads = true;
         // Not readable until the submission sets the value it signals.
         let after = Arc::new(AtomicU64::new(u64::MAX));

@@ -29,6 +29,34 @@ fn buffers_dropped_while_in_flight_are_freed_after_the_gpu_is_done() {
 }
 
 #[test]
+fn a_readback_dropped_before_submission_keeps_its_staging_alive() {
+    with_context(|ctx| {
+        let staging = |ctx: &Context| {
+            ctx.memory_report()
+                .by_category
+                .get("staging")
+                .map_or(0, |c| c.current)
+        };
+        let src = ctx.upload_new("test/src", &vec![7u32; 1 << 20]).unwrap();
+        let base = staging(ctx);
+        let mut rec = ctx.recorder().unwrap();
+        drop(rec.download(&src, 0, src.bytes()).unwrap());
+        ctx.collect_garbage();
+        // The recorded copy still writes into it: it must not be freed yet.
+        assert!(
+            staging(ctx) >= base + src.bytes(),
+            "staging freed before submission"
+        );
+        let kept = rec.download(&src, 0, 16).unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        assert_eq!(kept.read::<u32>().unwrap(), vec![7; 4]);
+        drop(kept);
+        ctx.collect_garbage();
+        assert_eq!(staging(ctx), base, "and freed once the GPU is done");
+    });
+}
+
+#[test]
 fn memory_is_accounted_per_category_and_the_budget_is_enforced() {
     with_context(|ctx| {
         let a = Buffer::device(ctx, "gaussians/means", 1 << 20).unwrap();
