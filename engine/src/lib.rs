@@ -48,6 +48,7 @@ pub mod loss;
 pub mod map;
 pub mod ops;
 pub mod optim;
+mod random;
 pub mod reference;
 pub mod splat;
 

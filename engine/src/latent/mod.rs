@@ -1,12 +1,15 @@
 //! The latent feature head: region pooling of rendered queries, the
 //! dictionary attention decoder, and the streaming k-means that maintains the
-//! dictionary. CPU references live in the same-named modules of
+//! dictionary, and [`LatentHead`], which owns W, D and D⁰ and trains them.
+//! CPU references live in the same-named modules of
 //! [`crate::reference`].
 
 mod decoder;
+mod head;
 mod kmeans;
 mod pooling;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
+pub use head::{LatentHead, LatentHeadConfig};
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
 pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};

@@ -8,6 +8,7 @@ use glam::DVec3;
 use super::global::{Gaussian, GlobalMap};
 use super::voxel::VoxelKey;
 use crate::io::Frame;
+use crate::random::SplitMix;
 use crate::splat::QUERY_DIM;
 
 /// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
@@ -51,27 +52,6 @@ pub struct ViewCoverage<'a> {
     pub alpha: &'a [f32],
     /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output).
     pub depth: &'a [f32],
-}
-
-/// A small deterministic generator (SplitMix64) so a Gaussian's initial
-/// query depends only on its voxel and the seed, not on insertion order.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f32 {
-        ((self.next() >> 40) as f32 + 0.5) / (1u64 << 24) as f32
-    }
-    fn normal(&mut self) -> f32 {
-        let (u1, u2) = (self.uniform(), self.uniform());
-        (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
-    }
 }
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
