@@ -451,9 +451,13 @@ mod tests {
                 let want = reference::backward(&s, &p.q, &p.w, &p.d, &fwd, &g);
                 let case = format!("n={n} K={atoms} d_f={dim} tau={tau}");
                 assert_close(&format!("{case}: F"), &got.output, &fwd.output, 1e-4);
-                assert_close(&format!("{case}: dQ"), &got.grad_q, &want.queries, 2e-3);
-                assert_close(&format!("{case}: dW"), &got.grad_w, &want.w, 2e-3);
-                assert_close(&format!("{case}: dD"), &got.grad_d, &want.d, 2e-3);
+                // f32 rounding through the two normalisations and the 1/τ
+                // softmax backward reaches ~2.3e-3 of the largest gradient
+                // entry on rare seeds (seen with seed 1795395001825213157);
+                // a real error in any VJP is tens of times larger.
+                assert_close(&format!("{case}: dQ"), &got.grad_q, &want.queries, 5e-3);
+                assert_close(&format!("{case}: dW"), &got.grad_w, &want.w, 5e-3);
+                assert_close(&format!("{case}: dD"), &got.grad_d, &want.d, 5e-3);
             }
         });
     }
