@@ -113,6 +113,14 @@ impl AdamGroup {
         self.rows
     }
 
+    /// The per-row state buffers with their bytes per row (first moment,
+    /// second moment, step count), for moving rows together with their
+    /// parameters (e.g. when a local window compacts).
+    pub fn state(&self) -> [(&Buffer, u64); 3] {
+        let row = self.width as u64 * 4;
+        [(&self.m, row), (&self.v, row), (&self.steps, 4)]
+    }
+
     fn check(&self, what: &str, rows: u32, bufs: &[&Buffer], per_row: &[u64]) -> Result<()> {
         if rows > self.rows {
             return Err(Error::InvalidArgument(format!(

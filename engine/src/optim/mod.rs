@@ -3,5 +3,7 @@
 //! with its own hyper-parameters. CPU reference: [`crate::reference::adam`].
 
 mod adam;
+mod gaussians;
 
 pub use adam::{AdamGroup, AdamHyper};
+pub use gaussians::{GaussianLearningRates, GaussianOptimizer};
