@@ -19,6 +19,8 @@
 //! * [`optim`]: Adam with per-tensor parameter groups;
 //! * [`map`]: the CPU global map (voxel hash), keyframe selection and
 //!   Gaussian seeding;
+//! * [`mapper`]: the per-keyframe mapping loop (in progress: keyframe
+//!   history);
 //! * [`io`]: MCAP logs of ROS 2 messages in, checked frames out, and log
 //!   writing;
 //! * [`reference`]: CPU implementations of every kernel's math, the oracle of
@@ -46,6 +48,7 @@ pub mod io;
 pub mod latent;
 pub mod loss;
 pub mod map;
+pub mod mapper;
 pub mod ops;
 pub mod optim;
 mod random;
