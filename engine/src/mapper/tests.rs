@@ -1,0 +1,215 @@
+//! Stage I and II on a small synthetic keyframe: the losses fall.
+
+use glam::{DQuat, DVec3};
+
+use super::*;
+use crate::gpu::testing::with_context;
+use crate::io::{
+    encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype, EmbeddingLayout,
+    Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
+};
+use crate::latent::{LatentHead, LatentHeadConfig};
+use crate::loss::LossWeights;
+use crate::map::{seed_from_frame, GlobalMap, LocalWindow, SeedingConfig};
+use crate::optim::GaussianLearningRates;
+
+const W: u32 = 48;
+const H: u32 = 36;
+const DIM: usize = 32;
+
+/// A wall 1.5 m ahead: red left half (region 0), blue right half with a
+/// gradient (region 1), each with its own target embedding.
+fn keyframe(eye: DVec3) -> Frame {
+    let n = (W * H) as usize;
+    let mut rgb = Vec::with_capacity(n * 3);
+    let mut labels = Vec::with_capacity(n);
+    for i in 0..n as u32 {
+        let (u, v) = (i % W, i / W);
+        if u < W / 2 {
+            rgb.extend([200, 40, 30]);
+            labels.push(0);
+        } else {
+            rgb.extend([20, (v * 6) as u8, 220]);
+            labels.push(1);
+        }
+    }
+    let mut vectors = vec![0.0f32; 2 * DIM];
+    vectors[3] = 1.0;
+    vectors[DIM + 17] = 1.0;
+    Frame {
+        stamp_ns: 0,
+        pose: CameraPose {
+            rotation: DQuat::IDENTITY,
+            translation: eye,
+        },
+        intrinsics: Intrinsics {
+            width: W,
+            height: H,
+            fx: 50.0,
+            fy: 50.0,
+            cx: 23.5,
+            cy: 17.5,
+        },
+        color: ColorImage {
+            width: W,
+            height: H,
+            format: PixelFormat::Rgb8,
+            data: rgb,
+        },
+        depth: DepthImage {
+            width: W,
+            height: H,
+            data: DepthData::Units {
+                values: vec![1500; n],
+                metres_per_unit: 0.001,
+            },
+        },
+        embeddings: Some(Embeddings {
+            layout: EmbeddingLayout::Regions(LabelImage {
+                width: W,
+                height: H,
+                labels,
+            }),
+            count: 2,
+            dim: DIM as u32,
+            dtype: Dtype::F32,
+            data: encode_floats(&vectors, Dtype::F32),
+            model: "test".into(),
+        }),
+        semantic: None,
+    }
+}
+
+#[test]
+fn stage_one_and_two_reduce_the_image_and_feature_losses() {
+    with_context(|ctx| {
+        let frames = [keyframe(DVec3::ZERO), keyframe(DVec3::new(0.1, 0.0, 0.0))];
+        let records: Vec<KeyframeRecord> = frames.iter().map(KeyframeRecord::from_frame).collect();
+        // Seed the map from the first keyframe, then grey out every colour so
+        // there is something to learn.
+        let mut global = GlobalMap::new(0.01);
+        let seeding = SeedingConfig {
+            stride: 1,
+            ..SeedingConfig::default()
+        };
+        for mut g in seed_from_frame(&frames[0], None, &global, &seeding, 1) {
+            g.color = [0.5; 3];
+            global.insert(g);
+        }
+        assert!(global.len() > 1000);
+        let mut window = LocalWindow::new(ctx, 4096).unwrap();
+        let plan = window.plan(&global, DVec3::ZERO, 5.0);
+        let mut rec = ctx.transfer_recorder().unwrap();
+        let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        pending.apply(&mut global).unwrap();
+        assert_eq!(window.len(), global.len());
+
+        let head = LatentHead::new(
+            ctx,
+            LatentHeadConfig {
+                dim: DIM as u32,
+                atoms: 16,
+                max_regions: 16,
+                seed: 3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let targets = ctx
+            .upload_new(
+                "test/regions",
+                &records[0].regions.as_ref().unwrap().vectors,
+            )
+            .unwrap();
+        let mut rec = ctx.recorder().unwrap();
+        head.record_dictionary_update(&mut rec, &targets, None, 2)
+            .unwrap();
+        rec.submit().unwrap().wait().unwrap();
+
+        let mut trainer = Trainer::new(
+            ctx,
+            TrainerConfig {
+                capacity: window.capacity(),
+                max_view_pixels: (W * H) as u64,
+                max_views: 2,
+                max_regions: 16,
+                min_region_pixels: 4,
+                weights: LossWeights::default(),
+                learning_rates: GaussianLearningRates {
+                    colors: 0.02,
+                    ..GaussianLearningRates::default()
+                },
+            },
+            DIM as u32,
+        )
+        .unwrap();
+        let batch: Vec<&KeyframeRecord> = records.iter().collect();
+        let queries_before = window
+            .params()
+            .download(ctx, window.len() as u64)
+            .unwrap()
+            .queries;
+        let first = trainer.stage_one(ctx, &window, &head, &batch).unwrap();
+        assert_eq!(first.regions, 4, "two regions in each of two views");
+        assert!(
+            first.image.total() > 0.0 && first.feature > 0.0,
+            "{first:?}"
+        );
+        let stage_two_first = trainer.stage_two(ctx, &head, 5).unwrap();
+        let mut last = first;
+        let mut stage_two_last = stage_two_first;
+        for _ in 0..40 {
+            last = trainer.stage_one(ctx, &window, &head, &batch).unwrap();
+            stage_two_last = trainer.stage_two(ctx, &head, 5).unwrap();
+        }
+        assert!(
+            last.image.total() < 0.6 * first.image.total(),
+            "image loss {:?} → {:?}",
+            first.image,
+            last.image
+        );
+        assert!(
+            last.feature < 0.5 * first.feature,
+            "feature loss {} → {}",
+            first.feature,
+            last.feature
+        );
+        assert!(
+            stage_two_last < stage_two_first,
+            "Stage II {stage_two_first} → {stage_two_last}"
+        );
+        assert!(last.image.total().is_finite() && last.feature.is_finite());
+        eprintln!(
+            "image {:.4} → {:.4}, feature {:.4} → {:.4}, Stage II {:.4} → {:.4}",
+            first.image.total(),
+            last.image.total(),
+            first.feature,
+            last.feature,
+            stage_two_first,
+            stage_two_last
+        );
+        // The feature loss reached the Gaussians' queries through pooling and
+        // the rasterizer.
+        let queries_after = window
+            .params()
+            .download(ctx, window.len() as u64)
+            .unwrap()
+            .queries;
+        let changed = queries_before
+            .iter()
+            .zip(&queries_after)
+            .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| (x - y).abs() > 1e-4))
+            .count();
+        assert!(
+            changed > window.len() / 2,
+            "{changed} of {} queries moved",
+            window.len()
+        );
+
+        // Batches are checked.
+        assert!(trainer.stage_one(ctx, &window, &head, &[]).is_err());
+        let three: Vec<&KeyframeRecord> = vec![&records[0]; 3];
+        assert!(trainer.stage_one(ctx, &window, &head, &three).is_err());
+    });
+}
