@@ -150,18 +150,22 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
             .download(ctx, window.len() as u64)
             .unwrap()
             .queries;
-        let first = trainer.stage_one(ctx, &window, &head, &batch).unwrap();
+        let first = trainer
+            .stage_one(ctx, &window, Some(&head), &batch)
+            .unwrap();
         assert_eq!(first.regions, 4, "two regions in each of two views");
         assert!(
             first.image.total() > 0.0 && first.feature > 0.0,
             "{first:?}"
         );
-        let stage_two_first = trainer.stage_two(ctx, &head, 5).unwrap();
+        let stage_two_first = trainer.stage_two(ctx, Some(&head), 5).unwrap();
         let mut last = first;
         let mut stage_two_last = stage_two_first;
         for _ in 0..40 {
-            last = trainer.stage_one(ctx, &window, &head, &batch).unwrap();
-            stage_two_last = trainer.stage_two(ctx, &head, 5).unwrap();
+            last = trainer
+                .stage_one(ctx, &window, Some(&head), &batch)
+                .unwrap();
+            stage_two_last = trainer.stage_two(ctx, Some(&head), 5).unwrap();
         }
         assert!(
             last.image.total() < 0.6 * first.image.total(),
@@ -208,8 +212,99 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
         );
 
         // Batches are checked.
-        assert!(trainer.stage_one(ctx, &window, &head, &[]).is_err());
+        assert!(trainer.stage_one(ctx, &window, Some(&head), &[]).is_err());
         let three: Vec<&KeyframeRecord> = vec![&records[0]; 3];
-        assert!(trainer.stage_one(ctx, &window, &head, &three).is_err());
+        assert!(trainer
+            .stage_one(ctx, &window, Some(&head), &three)
+            .is_err());
     });
+}
+
+#[test]
+fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: KeyframeConfig {
+                policy: KeyframePolicy::Interval(1),
+                ..KeyframeConfig::default()
+            },
+            seeding: SeedingConfig {
+                stride: 2,
+                ..SeedingConfig::default()
+            },
+            window_capacity: 8192,
+            replay: 2,
+            atoms: 16,
+            max_regions: 64,
+            min_region_pixels: 4,
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut added_total = 0;
+        let mut psnr_after_first = 0.0;
+        for i in 0..8 {
+            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            if i % 3 == 1 {
+                f.embeddings = None;
+            }
+            match mapper.integrate(&f).unwrap() {
+                Integrated::Keyframe {
+                    added, stage_one, ..
+                } => {
+                    added_total += added;
+                    assert!(stage_one.image.total().is_finite());
+                }
+                Integrated::Skipped => panic!("every frame is a keyframe here"),
+            }
+            if i == 0 {
+                psnr_after_first = psnr_of_first_keyframe(ctx, &mapper);
+            }
+        }
+        assert_eq!(mapper.history().len(), 8);
+        assert_eq!(mapper.global().len(), added_total);
+        assert!(mapper.head().unwrap().atom_count() >= 2);
+        // Every Gaussian of the map is in the window (it is large enough),
+        // once.
+        let keys: std::collections::HashSet<_> = mapper.window().keys().iter().copied().collect();
+        assert_eq!(keys.len(), mapper.window().len());
+        assert_eq!(keys.len(), mapper.global().len());
+        let psnr = psnr_of_first_keyframe(ctx, &mapper);
+        eprintln!(
+            "PSNR of keyframe 0: {psnr_after_first:.1} dB after it, {psnr:.1} dB after 8 keyframes ({} Gaussians)",
+            mapper.global().len()
+        );
+        assert!(
+            psnr > 15.0 && psnr > psnr_after_first + 1.0,
+            "PSNR {psnr_after_first:.1} → {psnr:.1} dB"
+        );
+    });
+}
+
+/// PSNR of the map's rendering of the first keyframe against its image.
+fn psnr_of_first_keyframe(ctx: &crate::gpu::Context, mapper: &OnlineMapper) -> f64 {
+    let first = mapper.history().get(0).unwrap();
+    let mut raster = crate::splat::Rasterizer::new(ctx);
+    raster
+        .forward(
+            mapper.window().params(),
+            mapper.window().len() as u64,
+            &[first.camera],
+        )
+        .unwrap();
+    let img = raster.download_view(0).unwrap();
+    let target = first.target_rgbd();
+    let mse: f64 = img
+        .rgbd
+        .iter()
+        .zip(&target)
+        .map(|(p, t)| {
+            (0..3)
+                .map(|c| (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2))
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / (3 * target.len()) as f64;
+    -10.0 * mse.log10()
 }

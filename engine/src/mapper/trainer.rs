@@ -101,12 +101,14 @@ impl Trainer {
     /// Stage I on `batch` (first the new keyframe): render, image and
     /// feature losses, backward through the decoder, pooling and
     /// rasterizer, one Adam step on the window's Gaussians and on W and D.
-    /// Requires a non-empty dictionary when any keyframe has regions.
+    /// Without a head (no embeddings seen yet) only the image losses train
+    /// the Gaussians. Requires a non-empty dictionary when any keyframe has
+    /// regions.
     pub fn stage_one(
         &mut self,
         ctx: &Context,
         window: &LocalWindow,
-        head: &LatentHead,
+        head: Option<&LatentHead>,
         batch: &[&KeyframeRecord],
     ) -> Result<StageOneReport> {
         if batch.is_empty() || batch.len() > self.cfg.max_views as usize {
@@ -131,9 +133,11 @@ impl Trainer {
         // Regions and their target rows.
         let mut regions = Regions::new(&layout, self.cfg.min_region_pixels);
         let mut rows: Vec<f32> = Vec::new();
-        let dim = head.config().dim as usize;
+        let dim = head.map_or(0, |h| h.config().dim as usize);
         for (v, k) in batch.iter().enumerate() {
-            let Some(r) = &k.regions else { continue };
+            let (Some(r), Some(_)) = (&k.regions, head) else {
+                continue;
+            };
             if r.dim as usize != dim {
                 return Err(Error::InvalidArgument(format!(
                     "keyframe at {} ns has {}-d embeddings; the head is {dim}-d",
@@ -187,7 +191,7 @@ impl Trainer {
         )?;
         rec.fill_u32(&image_grads.alpha, 0);
         let mut feature_readback = None;
-        if n > 0 {
+        if let (true, Some(head)) = (n > 0, head) {
             rec.upload(region_targets, 0, &rows)?;
             rec.upload(&self.row_weights, 0, &weights)?;
             self.pooling.record_upload(&mut rec, &regions)?;
@@ -226,8 +230,14 @@ impl Trainer {
     /// Stage II: `iterations` steps on W and D from the region queries of
     /// the last Stage I; returns the feature loss of the last step (before
     /// its update). Nothing to do when the batch had no regions.
-    pub fn stage_two(&self, ctx: &Context, head: &LatentHead, iterations: u32) -> Result<f64> {
+    pub fn stage_two(
+        &self,
+        ctx: &Context,
+        head: Option<&LatentHead>,
+        iterations: u32,
+    ) -> Result<f64> {
         let n = self.regions;
+        let Some(head) = head else { return Ok(0.0) };
         if n == 0 || iterations == 0 {
             return Ok(0.0);
         }
