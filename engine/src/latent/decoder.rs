@@ -412,10 +412,10 @@ mod tests {
         }
     }
 
-    /// max |got − want| ≤ rel · max |want| (+ a floor for all-zero tensors).
-    fn assert_close(what: &str, got: &[f32], want: &[f64], rel: f64) {
+    /// max |got − want| ≤ rel · max(max |want|, floor).
+    fn assert_close(what: &str, got: &[f32], want: &[f64], rel: f64, floor: f64) {
         assert_eq!(got.len(), want.len(), "{what}: length");
-        let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-6);
+        let scale = max_abs(want).max(floor).max(1e-12);
         for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
             assert!(
                 (g as f64 - w).abs() <= rel * scale,
@@ -423,6 +423,10 @@ mod tests {
                 rel * scale
             );
         }
+    }
+
+    fn max_abs(v: &[f64]) -> f64 {
+        v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
     }
 
     #[test]
@@ -450,14 +454,26 @@ mod tests {
                 let g: Vec<f64> = p.g.iter().map(|&v| v as f64).collect();
                 let want = reference::backward(&s, &p.q, &p.w, &p.d, &fwd, &g);
                 let case = format!("n={n} K={atoms} d_f={dim} tau={tau}");
-                assert_close(&format!("{case}: F"), &got.output, &fwd.output, 1e-4);
-                // f32 rounding through the two normalisations and the 1/τ
-                // softmax backward reaches ~2.3e-3 of the largest gradient
-                // entry on rare seeds (seen with seed 1795395001825213157);
-                // a real error in any VJP is tens of times larger.
-                assert_close(&format!("{case}: dQ"), &got.grad_q, &want.queries, 5e-3);
-                assert_close(&format!("{case}: dW"), &got.grad_w, &want.w, 5e-3);
-                assert_close(&format!("{case}: dD"), &got.grad_d, &want.d, 5e-3);
+                assert_close(&format!("{case}: F"), &got.output, &fwd.output, 1e-4, 1e-6);
+                // ∂L/∂D = Aᵀ·∂L/∂F̂ is the direct path; ∂L/∂Q and ∂L/∂W pass
+                // through the 1/τ softmax backward, which nearly vanishes
+                // when the attention saturates, leaving them tiny and their
+                // f32 rounding (set by the upstream scale) large relative
+                // to them. Their tolerance is therefore relative to the
+                // larger of their own size and 1e-4 of ∂L/∂D's (seen: max
+                // ∂L/∂Q 4e-6 against ∂L/∂D 1 at n=7, K=37, d_f=65, with
+                // errors up to 9e-8). Unsaturated shapes keep the check
+                // tight, and finite differences check ∂L/∂Q separately.
+                let upstream = 1e-4 * max_abs(&want.d);
+                assert_close(
+                    &format!("{case}: dQ"),
+                    &got.grad_q,
+                    &want.queries,
+                    5e-3,
+                    upstream,
+                );
+                assert_close(&format!("{case}: dW"), &got.grad_w, &want.w, 5e-3, upstream);
+                assert_close(&format!("{case}: dD"), &got.grad_d, &want.d, 5e-3, 1e-6);
             }
         });
     }
