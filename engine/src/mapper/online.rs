@@ -51,6 +51,13 @@ pub struct MapperConfig {
     pub max_regions: u32,
     /// Regions smaller than this (pixels) are ignored.
     pub min_region_pixels: u32,
+    /// Prune every this many keyframes (0 = never).
+    pub prune_interval: u32,
+    /// Gaussians less opaque than this are pruned (GS-ICP's 0.005).
+    pub prune_min_opacity: f32,
+    /// Gaussians with a standard deviation above this (metres) are pruned
+    /// (GS-ICP's 0.1 × scene extent, for a 5 m indoor extent).
+    pub prune_max_scale: f32,
     /// Seed of every random choice (W init, queries, replay sampling).
     pub seed: u64,
 }
@@ -73,6 +80,9 @@ impl Default for MapperConfig {
             latent_lr: 0.01,
             max_regions: 2048,
             min_region_pixels: 16,
+            prune_interval: 10,
+            prune_min_opacity: 0.005,
+            prune_max_scale: 0.5,
             seed: 0,
         }
     }
@@ -91,6 +101,8 @@ pub enum Integrated {
         stage_one: StageOneReport,
         /// Feature loss of the last Stage II iteration.
         stage_two: f64,
+        /// Gaussians pruned after this keyframe.
+        pruned: usize,
     },
 }
 
@@ -300,10 +312,77 @@ impl OnlineMapper {
             trainer.stage_two(&self.ctx, self.head.as_ref(), self.cfg.stage_two_iterations)?;
         self.history.push(record);
         self.keyframes += 1;
+        let interval = self.cfg.prune_interval as u64;
+        let pruned = if interval > 0 && self.keyframes % interval == 0 {
+            self.prune()?
+        } else {
+            0
+        };
         Ok(Integrated::Keyframe {
             added,
             stage_one,
             stage_two,
+            pruned,
         })
+    }
+
+    /// Removes the resident Gaussians that are nearly transparent or too
+    /// large ([`MapperConfig::prune_min_opacity`], `prune_max_scale`) from
+    /// the window and the global map, after writing the window back.
+    /// Returns how many were removed.
+    pub fn prune(&mut self) -> Result<usize> {
+        let n = self.window.len();
+        if n == 0 {
+            return Ok(0);
+        }
+        let host = self.window.params().download(&self.ctx, n as u64)?;
+        let min_logit = {
+            let o = self.cfg.prune_min_opacity.clamp(1e-7, 1.0 - 1e-7);
+            (o / (1.0 - o)).ln()
+        };
+        let max_log_scale = self.cfg.prune_max_scale.max(1e-9).ln();
+        let evict: Vec<u32> = (0..n)
+            .filter(|&i| {
+                let o = host.opacity_logits[i];
+                let s = host.log_scales[i].iter().copied().fold(f32::MIN, f32::max);
+                // NaN parameters are pruned too.
+                let keep = o >= min_logit && s <= max_log_scale;
+                !keep
+            })
+            .map(|i| i as u32)
+            .collect();
+        if evict.is_empty() {
+            return Ok(0);
+        }
+        let doomed: Vec<_> = evict
+            .iter()
+            .map(|&r| self.window.keys()[r as usize])
+            .collect();
+        let plan = crate::map::SyncPlan {
+            keep: n - evict.len(),
+            evict,
+            fetch: Vec::new(),
+            over_capacity: 0,
+        };
+        let trainer = self
+            .trainer
+            .as_ref()
+            .expect("a window is only filled by a keyframe");
+        let companions: Vec<Companion<'_>> = trainer
+            .optimizer()
+            .state()
+            .into_iter()
+            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+            .collect();
+        let mut rec = self.ctx.transfer_recorder()?;
+        let pending = self
+            .window
+            .record_sync(&mut rec, &plan, &self.global, &companions)?;
+        rec.submit()?.wait()?;
+        pending.apply(&mut self.global)?;
+        for key in &doomed {
+            self.global.remove(*key);
+        }
+        Ok(doomed.len())
     }
 }
