@@ -83,6 +83,8 @@ struct LogFile {
     summary: Option<mcap::Summary>,
     /// Why the summary could not be used, when it could not.
     summary_problem: Option<String>,
+    /// Channels found by scanning a file without a summary (scanned once).
+    scanned: std::sync::OnceLock<Vec<Channel>>,
 }
 
 /// An opened MCAP log.
@@ -197,11 +199,8 @@ impl McapLog {
                     }
                 }
                 None => {
-                    let mut reader = FileReader::linear(f, &ReadFilter::default());
-                    // A damaged file still lists the channels before the damage.
-                    while let Some(Ok(())) = reader.next_with(f, &ReadFilter::default(), |_| ()) {}
-                    for c in reader.channels.into_values() {
-                        out.entry(c.topic.clone()).or_insert_with(|| (*c).clone());
+                    for c in f.scanned_channels() {
+                        out.entry(c.topic.clone()).or_insert_with(|| c.clone());
                     }
                 }
             }
@@ -312,6 +311,24 @@ impl LogFile {
             map,
             summary,
             summary_problem,
+            scanned: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// The channels of a file without a summary, found by reading it once
+    /// (a damaged file still lists those before the damage).
+    fn scanned_channels(&self) -> &[Channel] {
+        self.scanned.get_or_init(|| {
+            let filter = ReadFilter::default();
+            let mut reader = FileReader::linear(self, &filter);
+            while let Some(Ok(())) = reader.next_with(self, &filter, |_| ()) {}
+            let mut v: Vec<Channel> = reader
+                .channels
+                .into_values()
+                .map(|c| (*c).clone())
+                .collect();
+            v.sort_by(|a, b| a.topic.cmp(&b.topic));
+            v
         })
     }
 

@@ -82,6 +82,8 @@ pub struct LatentHead {
     grad_queries: Buffer,
     adam_w: AdamGroup,
     adam_d: AdamGroup,
+    /// A keyframe's region embeddings, uploaded for the dictionary update.
+    keyframe_features: Buffer,
 }
 
 impl LatentHead {
@@ -139,6 +141,7 @@ impl LatentHead {
                 AdamHyper::new(cfg.lr_w, 1e-8),
             )?,
             adam_d: AdamGroup::new(ctx, "D", k, d, AdamHyper::new(cfg.lr_d, 1e-8))?,
+            keyframe_features: buf("keyframe_features", n as u64 * d as u64 * 4)?,
             cfg,
         })
     }
@@ -208,6 +211,26 @@ impl LatentHead {
             self.adam_d.record_reset(rec, &self.moved, self.cfg.atoms)?;
         }
         Ok(step)
+    }
+
+    /// [`Self::record_dictionary_update`] from host rows (`n × d_f`
+    /// unit-norm embeddings; at most `max_regions` of them are used),
+    /// uploaded into a buffer the head keeps for this.
+    pub fn record_keyframe_update<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        rows: &[f32],
+    ) -> Result<KMeansStep> {
+        let d = self.cfg.dim as usize;
+        if rows.len() % d != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "{} values are not whole {d}-d embeddings",
+                rows.len()
+            )));
+        }
+        let n = (rows.len() / d).min(self.cfg.max_regions as usize);
+        rec.upload(&self.keyframe_features, 0, &rows[..n * d])?;
+        self.record_dictionary_update(rec, &self.keyframe_features, None, n as u32)
     }
 
     /// Records one training step on `n` regions: decode `queries` (n × 32),

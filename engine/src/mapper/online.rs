@@ -12,7 +12,7 @@ use crate::latent::{LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
 use crate::map::{
     seed_from_frame, Companion, GlobalMap, KeyframeConfig, KeyframeSelector, LocalWindow,
-    SeedingConfig, ViewCoverage,
+    SeedingConfig, SyncPlan, ViewCoverage,
 };
 use crate::optim::GaussianLearningRates;
 
@@ -165,8 +165,7 @@ impl OnlineMapper {
 
     fn ensure_trainer(&mut self, frame: &Frame, dim: u32) -> Result<()> {
         let pixels = frame.color.width as u64 * frame.color.height as u64;
-        let fits = self.trainer.is_some();
-        if !fits {
+        if self.trainer.is_none() {
             self.trainer = Some(Trainer::new(
                 &self.ctx,
                 TrainerConfig {
@@ -227,16 +226,9 @@ impl OnlineMapper {
                 .flatten()
                 .copied()
                 .collect();
-            let n = (rows.len() / r.dim as usize) as u32;
-            if n > 0 {
-                let features = self.ctx.upload_new("mapper/keyframe_features", &rows)?;
+            if !rows.is_empty() {
                 let mut rec = self.ctx.recorder()?;
-                head.record_dictionary_update(
-                    &mut rec,
-                    &features,
-                    None,
-                    n.min(self.cfg.max_regions),
-                )?;
+                head.record_keyframe_update(&mut rec, &rows)?;
                 rec.submit()?.wait()?;
             }
         }
@@ -247,27 +239,19 @@ impl OnlineMapper {
         let coverage = if self.window.is_empty() {
             None
         } else {
-            let trainer = self.trainer.as_mut().expect("ensured");
-            let raster = trainer.rasterizer();
+            let raster = self.trainer.as_mut().expect("ensured").rasterizer();
             raster.forward(
                 self.window.params(),
                 self.window.len() as u64,
                 &[record.camera],
             )?;
-            Some(raster.download_view(0)?)
+            Some(raster.download_alpha_depth(0)?)
         };
-        let depth: Option<Vec<f32>> = coverage
-            .as_ref()
-            .map(|c| c.rgbd.iter().map(|p| p[3]).collect());
         let seeds = seed_from_frame(
             frame,
             coverage
                 .as_ref()
-                .zip(depth.as_ref())
-                .map(|(c, d)| ViewCoverage {
-                    alpha: &c.alpha,
-                    depth: d,
-                }),
+                .map(|(alpha, depth)| ViewCoverage { alpha, depth }),
             &self.global,
             &self.cfg.seeding,
             seed,
@@ -286,19 +270,7 @@ impl OnlineMapper {
             let plan = self
                 .window
                 .plan(&self.global, centre, self.cfg.window_radius);
-            let trainer = self.trainer.as_ref().expect("ensured");
-            let companions: Vec<Companion<'_>> = trainer
-                .optimizer()
-                .state()
-                .into_iter()
-                .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
-                .collect();
-            let mut rec = self.ctx.transfer_recorder()?;
-            let pending = self
-                .window
-                .record_sync(&mut rec, &plan, &self.global, &companions)?;
-            rec.submit()?.wait()?;
-            pending.apply(&mut self.global)?;
+            self.sync_window(&plan)?;
             self.last_sync = Some(centre);
         }
 
@@ -324,6 +296,28 @@ impl OnlineMapper {
             stage_two,
             pruned,
         })
+    }
+
+    /// Pages the window as `plan` says, moving the Gaussian optimiser's
+    /// state with its rows, and writes the window back to the global map.
+    fn sync_window(&mut self, plan: &SyncPlan) -> Result<()> {
+        let trainer = self
+            .trainer
+            .as_ref()
+            .expect("the trainer exists before the first sync");
+        let companions: Vec<Companion<'_>> = trainer
+            .optimizer()
+            .state()
+            .into_iter()
+            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+            .collect();
+        let mut rec = self.ctx.transfer_recorder()?;
+        let pending = self
+            .window
+            .record_sync(&mut rec, plan, &self.global, &companions)?;
+        rec.submit()?.wait()?;
+        pending.apply(&mut self.global)?;
+        Ok(())
     }
 
     /// Removes the resident Gaussians that are nearly transparent or too
@@ -358,28 +352,13 @@ impl OnlineMapper {
             .iter()
             .map(|&r| self.window.keys()[r as usize])
             .collect();
-        let plan = crate::map::SyncPlan {
+        let plan = SyncPlan {
             keep: n - evict.len(),
             evict,
             fetch: Vec::new(),
             over_capacity: 0,
         };
-        let trainer = self
-            .trainer
-            .as_ref()
-            .expect("a window is only filled by a keyframe");
-        let companions: Vec<Companion<'_>> = trainer
-            .optimizer()
-            .state()
-            .into_iter()
-            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
-            .collect();
-        let mut rec = self.ctx.transfer_recorder()?;
-        let pending = self
-            .window
-            .record_sync(&mut rec, &plan, &self.global, &companions)?;
-        rec.submit()?.wait()?;
-        pending.apply(&mut self.global)?;
+        self.sync_window(&plan)?;
         for key in &doomed {
             self.global.remove(*key);
         }

@@ -595,12 +595,7 @@ impl Rasterizer {
 
     /// Downloads view `index` of the last forward batch.
     pub fn download_view(&self, index: usize) -> Result<RenderedView> {
-        let slot = *self.layout.views.get(index).ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "view {index} of a batch of {}",
-                self.layout.views.len()
-            ))
-        })?;
+        let slot = self.view_slot(index)?;
         let images = self.images()?;
         let n = slot.width as u64 * slot.height as u64;
         let first = slot.first_pixel;
@@ -617,6 +612,33 @@ impl Rasterizer {
             alpha: alpha.read::<f32>()?,
             query: bytemuck::cast_slice(&query.read::<f32>()?).to_vec(),
         })
+    }
+}
+
+impl Rasterizer {
+    fn view_slot(&self, index: usize) -> Result<super::ViewSlot> {
+        self.layout.views.get(index).copied().ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "view {index} of a batch of {}",
+                self.layout.views.len()
+            ))
+        })
+    }
+
+    /// Accumulated alpha and unnormalised depth (Σ wᵢzᵢ) of view `index`
+    /// of the last forward batch: what seeding needs, without the 32 query
+    /// channels [`Rasterizer::download_view`] also fetches.
+    pub fn download_alpha_depth(&self, index: usize) -> Result<(Vec<f32>, Vec<f32>)> {
+        let slot = self.view_slot(index)?;
+        let images = self.images()?;
+        let n = slot.width as u64 * slot.height as u64;
+        let first = slot.first_pixel;
+        let mut rec = self.ctx.recorder()?;
+        let rgbd = rec.download(&images.rgbd, first * 16, n * 16)?;
+        let alpha = rec.download(&images.alpha, first * 4, n * 4)?;
+        rec.submit()?.wait()?;
+        let depth = rgbd.read::<f32>()?.chunks_exact(4).map(|p| p[3]).collect();
+        Ok((alpha.read::<f32>()?, depth))
     }
 }
 
