@@ -109,6 +109,13 @@ pub struct DeviceInfo {
     pub max_shared_memory: u32,
     /// Whether a dedicated transfer queue is in use.
     pub dedicated_transfer_queue: bool,
+    /// Whether copies on the transfer queue can be timed (timestamps on
+    /// its family and host query reset, since transfer queues cannot reset
+    /// query pools themselves).
+    pub transfer_timestamps: bool,
+    /// Size of the largest device-local memory heap, bytes (system memory
+    /// on CPU drivers).
+    pub device_local_bytes: u64,
 }
 
 /// Validation messages collected from the debug messenger. Tests hold a clone
@@ -166,6 +173,8 @@ pub(crate) struct Queue {
     pub timeline: vk::Semaphore,
     /// Last value handed to a submission.
     pub submitted: AtomicU64,
+    /// Valid bits of this family's timestamps (0: none).
+    pub timestamp_bits: u32,
 }
 
 /// The device and everything tied to its lifetime. Held by `Arc` in every GPU
@@ -185,7 +194,8 @@ pub(crate) struct Device {
     pub retired: RetireQueue,
     pub pipelines: PipelineCache,
     pub profiler: Option<Mutex<Profiler>>,
-    pub timestamp_valid_bits: u32,
+    /// Query pools can be reset from the host (Vulkan 1.2 `hostQueryReset`).
+    pub host_query_reset: bool,
 }
 
 impl Device {
@@ -619,7 +629,10 @@ fn open_device(
                 .queue_priorities(&priorities),
         );
     }
-    let mut enable12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+    let host_query_reset = v12.host_query_reset == vk::TRUE;
+    let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
+        .timeline_semaphore(true)
+        .host_query_reset(host_query_reset);
     let mut enable_atomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
         .shader_buffer_float32_atomic_add(true);
     let mut ext_names: Vec<*const i8> = Vec::new();
@@ -647,6 +660,7 @@ fn open_device(
             queue: Mutex::new(unsafe { raw.get_device_queue(family, 0) }),
             timeline,
             submitted: AtomicU64::new(0),
+            timestamp_bits: families[family as usize].timestamp_valid_bits,
         })
     };
     let compute = match make_queue(compute_family) {
@@ -694,6 +708,14 @@ fn open_device(
     };
 
     let limits = c.props.limits;
+    // SAFETY: valid physical device.
+    let mem = unsafe { instance.get_physical_device_memory_properties(p) };
+    let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
     let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
     let info = DeviceInfo {
         name: c.name,
@@ -715,6 +737,11 @@ fn open_device(
         max_workgroup_count: limits.max_compute_work_group_count,
         max_shared_memory: limits.max_compute_shared_memory_size,
         dedicated_transfer_queue: transfer.is_some(),
+        transfer_timestamps: match &transfer {
+            Some(t) => t.timestamp_bits > 0 && host_query_reset && timestamp_valid_bits > 0,
+            None => timestamp_valid_bits > 0,
+        },
+        device_local_bytes,
     };
     let profiler = (options.profiling && timestamp_period_ns.is_some())
         .then(|| Mutex::new(Profiler::default()));
@@ -732,6 +759,6 @@ fn open_device(
         retired: RetireQueue::default(),
         pipelines: PipelineCache::default(),
         profiler,
-        timestamp_valid_bits,
+        host_query_reset,
     })
 }

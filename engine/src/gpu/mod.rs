@@ -22,7 +22,7 @@ pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
 pub use memory::{ByteCount, MemoryReport};
 pub use profiler::{KernelStats, Profiler, Sample};
-pub use recorder::{QueueKind, Recorder, Submission, SyncPoint};
+pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
 
 impl Context {
     /// Bytes allocated, per category and in total, with peaks.

@@ -73,6 +73,7 @@ pub struct Recorder<'a> {
     waits: Vec<SyncPoint>,
     host_reads: bool,
     readbacks: Vec<Arc<AtomicU64>>,
+    span_start: Option<u32>,
     _borrows: PhantomData<&'a Buffer>,
 }
 
@@ -83,6 +84,29 @@ pub struct Submission {
     point: SyncPoint,
     queries: Vec<QueryBlock>,
     labels: Vec<(&'static str, u32, u32)>,
+    span: Option<(u32, u32)>,
+}
+
+/// When a timed batch ran on the GPU ([`Recorder::start_span`]), in
+/// nanoseconds of the device's timestamp clock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuSpan {
+    /// First command started.
+    pub start_ns: f64,
+    /// Last command finished.
+    pub end_ns: f64,
+}
+
+impl GpuSpan {
+    /// Duration in milliseconds.
+    pub fn ms(&self) -> f64 {
+        (self.end_ns - self.start_ns).max(0.0) * 1e-6
+    }
+
+    /// Milliseconds during which both spans ran.
+    pub fn overlap_ms(&self, other: &GpuSpan) -> f64 {
+        (self.end_ns.min(other.end_ns) - self.start_ns.max(other.start_ns)).max(0.0) * 1e-6
+    }
 }
 
 impl Context {
@@ -180,6 +204,7 @@ impl<'a> Recorder<'a> {
                 waits: Vec::new(),
                 host_reads: false,
                 readbacks: Vec::new(),
+                span_start: None,
                 _borrows: PhantomData,
             })
         }
@@ -244,6 +269,20 @@ impl<'a> Recorder<'a> {
 
     fn timestamp(&mut self, stage: vk::PipelineStageFlags) -> Option<u32> {
         self.dev.profiler.as_ref()?;
+        self.write_query(stage)
+    }
+
+    /// Writes a timestamp into the recorder's query pools; `None` where
+    /// this queue cannot write (or reset) timestamps.
+    fn write_query(&mut self, stage: vk::PipelineStageFlags) -> Option<u32> {
+        if self.queue().timestamp_bits == 0 {
+            return None;
+        }
+        // Only graphics and compute queues can reset a query pool in a
+        // command buffer; elsewhere it must be reset from the host.
+        if self.transfer && !self.dev.host_query_reset {
+            return None;
+        }
         let need_new = self
             .queries
             .last()
@@ -262,29 +301,43 @@ impl<'a> Recorder<'a> {
             let pool = match pool {
                 Ok(p) => p,
                 Err(e) => {
-                    log::warn!("profiling disabled for this batch: vkCreateQueryPool: {e}");
+                    log::warn!("timestamps disabled for this batch: vkCreateQueryPool: {e}");
                     return None;
                 }
             };
-            // SAFETY: recording into our own command buffer.
+            // SAFETY: the pool is new and unused by any submission.
             unsafe {
-                self.dev
-                    .raw
-                    .cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL)
-            };
+                if self.dev.host_query_reset {
+                    self.dev.raw.reset_query_pool(pool, 0, QUERIES_PER_POOL);
+                } else {
+                    self.dev
+                        .raw
+                        .cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL);
+                }
+            }
             self.queries.push(QueryBlock { pool, used: 0 });
         }
         let block = self.queries.len() - 1;
         let q = self.queries.last_mut()?;
         let idx = q.used;
         q.used += 1;
-        // SAFETY: the query was reset above in this command buffer.
+        // SAFETY: the query was reset above.
         unsafe {
             self.dev
                 .raw
                 .cmd_write_timestamp(self.cmd, stage, q.pool, idx)
         };
         Some(block as u32 * QUERIES_PER_POOL + idx)
+    }
+
+    /// Times this batch on the GPU: a timestamp is written now and one when
+    /// the batch ends, read by [`Submission::wait_span`]. Call it first,
+    /// before recording the work to be timed. No effect on queues without
+    /// timestamps.
+    pub fn start_span(&mut self) {
+        if self.span_start.is_none() {
+            self.span_start = self.write_query(vk::PipelineStageFlags::TOP_OF_PIPE);
+        }
     }
 
     fn descriptor_set(&mut self, layout: vk::DescriptorSetLayout) -> Result<vk::DescriptorSet> {
@@ -577,6 +630,34 @@ impl<'a> Recorder<'a> {
         };
     }
 
+    /// Fills `bytes` bytes of `buf` from byte `offset` with `value` (both
+    /// multiples of 4; allowed on the transfer queue).
+    pub fn fill_range_u32(
+        &mut self,
+        buf: &'a Buffer,
+        offset: u64,
+        bytes: u64,
+        value: u32,
+    ) -> Result<()> {
+        if offset % 4 != 0 || bytes % 4 != 0 || offset + bytes > buf.bytes() {
+            return Err(Error::InvalidArgument(format!(
+                "fill of {bytes} bytes at {offset} in a {}-byte buffer (multiples of 4 within it)",
+                buf.bytes()
+            )));
+        }
+        if bytes == 0 {
+            return Ok(());
+        }
+        self.track(&[], &[buf.raw]);
+        // SAFETY: range checked against the live buffer above.
+        unsafe {
+            self.dev
+                .raw
+                .cmd_fill_buffer(self.cmd, buf.raw, offset, bytes, value)
+        };
+        Ok(())
+    }
+
     /// Records an upload of `data` to byte `offset` of `dst` through a fresh
     /// staging buffer.
     pub fn upload<T: bytemuck::Pod>(
@@ -669,6 +750,12 @@ impl<'a> Recorder<'a> {
     /// Ends recording and submits. The returned [`Submission`] can be waited
     /// on, or its [`SyncPoint`] passed to another recorder.
     pub fn submit(mut self) -> Result<Submission> {
+        let span = match self.span_start {
+            Some(s) => self
+                .write_query(vk::PipelineStageFlags::BOTTOM_OF_PIPE)
+                .map(|e| (s, e)),
+            None => None,
+        };
         if self.host_reads {
             let mb = [vk::MemoryBarrier::default()
                 .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
@@ -690,8 +777,20 @@ impl<'a> Recorder<'a> {
         unsafe { self.dev.raw.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
 
         let dev = self.dev.clone();
-        let q = self.queue();
         let transfer = self.transfer;
+        // With two queues, a batch waits for everything submitted earlier
+        // to the other queue: submission order is dependency order across
+        // queues (and the semaphore makes the other queue's writes visible).
+        // To overlap two batches, submit the one that must not wait first.
+        if dev.transfer.is_some() {
+            let other = dev.queue(!transfer).submitted.load(Ordering::SeqCst);
+            if other > 0 {
+                self.waits.push(SyncPoint {
+                    transfer: !transfer,
+                    value: other,
+                });
+            }
+        }
         let mut wait_sems = Vec::new();
         let mut wait_values = Vec::new();
         for w in &self.waits {
@@ -699,6 +798,7 @@ impl<'a> Recorder<'a> {
             wait_values.push(w.value);
         }
         let wait_stages = vec![vk::PipelineStageFlags::ALL_COMMANDS; wait_sems.len()];
+        let q = dev.queue(transfer);
         let cmds = [self.cmd];
         let signal = [q.timeline];
         let value = {
@@ -736,6 +836,7 @@ impl<'a> Recorder<'a> {
             point: SyncPoint { transfer, value },
             queries: std::mem::take(&mut self.queries),
             labels: std::mem::take(&mut self.labels),
+            span,
         })
     }
 }
@@ -770,7 +871,13 @@ impl Submission {
 
     /// Blocks until the GPU has finished, then hands the batch's timestamps
     /// to the profiler.
-    pub fn wait(mut self) -> Result<()> {
+    pub fn wait(self) -> Result<()> {
+        self.wait_span().map(|_| ())
+    }
+
+    /// [`Submission::wait`], returning when the batch ran if it was timed
+    /// ([`Recorder::start_span`]) and the queue has timestamps.
+    pub fn wait_span(mut self) -> Result<Option<GpuSpan>> {
         let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
         // SAFETY: waiting on our own timeline semaphore.
@@ -783,23 +890,21 @@ impl Submission {
             )
         }
         .vk("vkWaitSemaphores")?;
-        self.collect_timestamps();
+        let span = self.collect_timestamps();
         self.dev.collect();
-        Ok(())
+        Ok(span)
     }
 
-    fn collect_timestamps(&mut self) {
-        let Some(profiler) = &self.dev.profiler else {
-            return;
-        };
-        if self.labels.is_empty() {
-            return;
+    fn collect_timestamps(&mut self) -> Option<GpuSpan> {
+        if self.labels.is_empty() && self.span.is_none() {
+            return None;
         }
         let period = self.dev.info.timestamp_period_ns.unwrap_or(1.0);
-        let mask = if self.dev.timestamp_valid_bits >= 64 {
+        let bits = self.dev.queue(self.point.transfer).timestamp_bits;
+        let mask = if bits >= 64 {
             u64::MAX
         } else {
-            (1u64 << self.dev.timestamp_valid_bits) - 1
+            (1u64 << bits) - 1
         };
         let mut values: Vec<Vec<u64>> = Vec::new();
         for q in &self.queries {
@@ -815,13 +920,20 @@ impl Submission {
                 )
             };
             if r.is_err() {
-                return;
+                return None;
             }
             values.push(v);
         }
         let get = |i: u32| {
             let b = (i / QUERIES_PER_POOL) as usize;
             values[b][(i % QUERIES_PER_POOL) as usize] & mask
+        };
+        let span = self.span.map(|(s, e)| GpuSpan {
+            start_ns: get(s) as f64 * period,
+            end_ns: get(e) as f64 * period,
+        });
+        let Some(profiler) = &self.dev.profiler else {
+            return span;
         };
         let mut p = profiler.lock().unwrap_or_else(|e| e.into_inner());
         let queue = if self.point.transfer {
@@ -834,6 +946,7 @@ impl Submission {
             let end = get(*e) as f64 * period;
             p.record(name, queue, start, (end - start).max(0.0));
         }
+        span
     }
 }
 

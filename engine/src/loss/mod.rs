@@ -17,7 +17,8 @@ pub use image::{depth_is_valid, ImageLoss, ImageLossReadback, ImageLossValues};
 /// feature · (cosine · L_cos + l2 · L_l2 + trust_region · L_trust)`. The
 /// paper's 0.2/0.8 split between L1 and SSIM is the reverse of every
 /// reference 3DGS system (0.8/0.2); swap it here if wanted.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LossWeights {
     /// λ_rgb, weight of the photometric term (not given by the paper).
     pub rgb: f32,

@@ -6,7 +6,8 @@ use super::global::GlobalMap;
 use crate::io::{CameraPose, Frame};
 
 /// The rule that proposes keyframes.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum KeyframePolicy {
     /// Every `n`-th frame (ORB-SLAM3-style trackers; the paper reports
     /// n ≈ 4 to 10).
@@ -23,7 +24,8 @@ pub enum KeyframePolicy {
 }
 
 /// Keyframe selection settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct KeyframeConfig {
     /// The proposing rule.
     pub policy: KeyframePolicy,

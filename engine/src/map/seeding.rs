@@ -13,7 +13,8 @@ use crate::splat::QUERY_DIM;
 
 /// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
 /// variant: scale from depth over focal length, identity rotation).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SeedingConfig {
     /// Every `stride`-th pixel along rows and columns is a candidate.
     pub stride: u32,

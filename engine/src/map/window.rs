@@ -203,15 +203,7 @@ impl LocalWindow {
             c.buffer
                 .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
         }
-        let mut fetched = HostGaussians::default();
-        for k in &plan.fetch {
-            let g = global.get(*k).ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "sync plan fetches voxel {k:?}, which the global map does not have"
-                ))
-            })?;
-            push_gaussian(&mut fetched, g);
-        }
+        let fetched = gather(global, &plan.fetch)?;
         let (params, keys) = (&self.params, &mut self.keys);
 
         // 1. Write-back of every resident row, before anything moves.
@@ -247,14 +239,76 @@ impl LocalWindow {
         }
         keys.truncate(keep);
 
-        // 3. Fetched Gaussians after the residents; their companion rows
-        // start from zero.
-        params.record_upload(rec, keep as u64, &fetched)?;
-        for c in companions {
-            let zeros = vec![0u8; (plan.fetch.len() as u64 * c.row_bytes) as usize];
-            rec.upload(c.buffer, keep as u64 * c.row_bytes, &zeros)?;
-        }
+        // 3. Fetched Gaussians after the residents.
+        record_fetch(rec, params, keep as u64, &fetched, companions)?;
         keys.extend_from_slice(&plan.fetch);
         Ok(pending)
     }
+
+    /// Records the upload of `keys` (present in `global`, not resident)
+    /// after the resident rows, without write-back or eviction: the cheap
+    /// way to bring a keyframe's new Gaussians in before Stage I. Errors
+    /// when they do not fit.
+    pub fn record_append<'a>(
+        &'a mut self,
+        rec: &mut Recorder<'a>,
+        keys: &[VoxelKey],
+        global: &GlobalMap,
+        companions: &[Companion<'a>],
+    ) -> Result<()> {
+        let n = self.keys.len();
+        if n + keys.len() > self.capacity() as usize {
+            return Err(Error::InvalidArgument(format!(
+                "appending {} Gaussians to a window holding {n} of {}",
+                keys.len(),
+                self.capacity()
+            )));
+        }
+        for c in companions {
+            c.buffer
+                .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
+        }
+        let fetched = gather(global, keys)?;
+        record_fetch(rec, &self.params, n as u64, &fetched, companions)?;
+        self.keys.extend_from_slice(keys);
+        Ok(())
+    }
+
+    /// Rows still free.
+    pub fn free(&self) -> usize {
+        self.capacity() as usize - self.keys.len()
+    }
+}
+
+/// The Gaussians of `keys`, as host SoA.
+fn gather(global: &GlobalMap, keys: &[VoxelKey]) -> Result<HostGaussians> {
+    let mut fetched = HostGaussians::default();
+    for k in keys {
+        let g = global.get(*k).ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "sync fetches voxel {k:?}, which the global map does not have"
+            ))
+        })?;
+        push_gaussian(&mut fetched, g);
+    }
+    Ok(fetched)
+}
+
+/// Uploads `fetched` at row `first`; their companion rows start from zero.
+fn record_fetch<'a>(
+    rec: &mut Recorder<'a>,
+    params: &'a GaussianBuffers,
+    first: u64,
+    fetched: &HostGaussians,
+    companions: &[Companion<'a>],
+) -> Result<()> {
+    if fetched.means.is_empty() {
+        return Ok(());
+    }
+    params.record_upload(rec, first, fetched)?;
+    for c in companions {
+        let bytes = fetched.means.len() as u64 * c.row_bytes;
+        rec.fill_range_u32(c.buffer, first * c.row_bytes, bytes, 0)?;
+    }
+    Ok(())
 }

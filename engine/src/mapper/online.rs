@@ -1,24 +1,37 @@
 //! The per-keyframe loop (paper Alg. 1) over the pieces in `map`,
 //! `latent` and the [`Trainer`].
 
+use std::time::Instant;
+
 use glam::DVec3;
 
+use super::budget::{head_bytes, pixel_bytes, window_budget, WindowBudget};
 use super::history::{History, KeyframeRecord};
 use super::trainer::{StageOneReport, Trainer, TrainerConfig};
 use crate::error::{Error, Result};
-use crate::gpu::Context;
+use crate::gpu::{Context, GpuSpan, Submission};
 use crate::io::Frame;
 use crate::latent::{LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
 use crate::map::{
     seed_from_frame, Companion, GlobalMap, KeyframeConfig, KeyframeSelector, LocalWindow,
-    SeedingConfig, SyncPlan, ViewCoverage,
+    PendingSync, SeedingConfig, SyncPlan, ViewCoverage, VoxelKey,
 };
 use crate::optim::GaussianLearningRates;
 
 /// Every setting of the mapper; defaults are the paper's values where it
-/// gives them and SPEC §12's otherwise.
-#[derive(Clone, Debug, PartialEq)]
+/// gives them and SPEC §12's otherwise. Reads from and writes to TOML
+/// ([`MapperConfig::from_toml`]); every field may be left out.
+///
+/// ```
+/// let cfg = latentam::mapper::MapperConfig::from_toml(
+///     "replay = 3\ngpu_budget = 2_000_000_000\n[keyframes]\npolicy = { interval = 5 }",
+/// )?;
+/// assert_eq!(cfg.replay, 3);
+/// # Ok::<(), latentam::Error>(())
+/// ```
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct MapperConfig {
     /// Voxel edge of the global map, metres (s_v).
     pub voxel_size: f64,
@@ -26,8 +39,13 @@ pub struct MapperConfig {
     pub keyframes: KeyframeConfig,
     /// Gaussian seeding.
     pub seeding: SeedingConfig,
-    /// Gaussians the GPU window holds.
-    pub window_capacity: u64,
+    /// GPU memory budget in bytes for everything the mapper allocates;
+    /// unset: half of the device's largest device-local heap. The context
+    /// refuses allocations past it.
+    pub gpu_budget: Option<u64>,
+    /// Gaussians the GPU window holds; unset: as many as the budget allows
+    /// (see [`crate::mapper::budget`]).
+    pub window_capacity: Option<u64>,
     /// Radius of the local window around the camera, metres.
     pub window_radius: f64,
     /// Re-synchronise the window when the camera has moved this far since
@@ -68,7 +86,8 @@ impl Default for MapperConfig {
             voxel_size: 0.01,
             keyframes: KeyframeConfig::default(),
             seeding: SeedingConfig::default(),
-            window_capacity: 200_000,
+            gpu_budget: None,
+            window_capacity: None,
             window_radius: 6.0,
             sync_distance: 0.5,
             replay: 5,
@@ -88,22 +107,194 @@ impl Default for MapperConfig {
     }
 }
 
+impl MapperConfig {
+    /// Parses TOML (unknown keys are errors; missing keys keep defaults)
+    /// and checks the values.
+    pub fn from_toml(text: &str) -> Result<Self> {
+        let cfg: MapperConfig = toml::from_str(text)
+            .map_err(|e| Error::InvalidArgument(format!("mapper configuration: {e}")))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The configuration as TOML (every field).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("the configuration is plain data")
+    }
+
+    /// Checks ranges; names the first offending field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str| {
+            Err(Error::InvalidArgument(format!(
+                "mapper configuration: {what}"
+            )))
+        };
+        let positive = |x: f64| x > 0.0 && x.is_finite();
+        if !positive(self.voxel_size) {
+            return bad(&format!("voxel_size {} must be positive", self.voxel_size));
+        }
+        if !positive(self.window_radius) {
+            return bad(&format!(
+                "window_radius {} must be positive",
+                self.window_radius
+            ));
+        }
+        if !(self.sync_distance >= 0.0 && self.sync_distance.is_finite()) {
+            return bad(&format!("sync_distance {} must be ≥ 0", self.sync_distance));
+        }
+        if self.window_capacity == Some(0) {
+            return bad("window_capacity must be at least 1");
+        }
+        if self.gpu_budget == Some(0) {
+            return bad("gpu_budget must be positive");
+        }
+        if self.atoms == 0 || self.max_regions == 0 {
+            return bad("atoms and max_regions must be at least 1");
+        }
+        if !(positive(self.temperature as f64)) {
+            return bad(&format!(
+                "temperature {} must be positive",
+                self.temperature
+            ));
+        }
+        if self.seeding.stride == 0 {
+            return bad("seeding.stride must be at least 1");
+        }
+        if let crate::map::KeyframePolicy::Interval(0) = self.keyframes.policy {
+            return bad("keyframes.policy interval must be at least 1");
+        }
+        Ok(())
+    }
+}
+
 /// What [`OnlineMapper::integrate`] did with a frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Integrated {
     /// Not a keyframe.
     Skipped,
-    /// A keyframe: Gaussians added and Stage I's measurements.
-    Keyframe {
-        /// New Gaussians.
-        added: usize,
-        /// Stage I of this keyframe.
-        stage_one: StageOneReport,
-        /// Feature loss of the last Stage II iteration.
-        stage_two: f64,
-        /// Gaussians pruned after this keyframe.
-        pruned: usize,
-    },
+    /// A keyframe.
+    Keyframe(Box<KeyframeReport>),
+}
+
+/// One re-synchronisation of the window with the global map.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PagingReport {
+    /// Resident Gaussians written back to the global map.
+    pub written_back: usize,
+    /// Gaussians that left the window (outside the radius, or farthest
+    /// first when the window was full).
+    pub evicted: usize,
+    /// Gaussians brought in from the global map.
+    pub fetched: usize,
+    /// Gaussians within the radius left out because the window was full.
+    pub over_capacity: usize,
+    /// Whether it ran before Stage I (new Gaussians did not fit), rather
+    /// than beside Stage II.
+    pub blocking: bool,
+}
+
+/// Where a keyframe's time went (milliseconds of wall time unless named
+/// GPU).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct KeyframeTimings {
+    /// Dictionary (streaming k-means) update.
+    pub kmeans_ms: f64,
+    /// Coverage render, seeding and bringing new Gaussians into the window.
+    pub insertion_ms: f64,
+    /// Stage I.
+    pub stage_one_ms: f64,
+    /// Stage II and the paging beside it, until both finished.
+    pub stage_two_ms: f64,
+    /// GPU time of Stage II's batch, when timestamps are available.
+    pub stage_two_gpu_ms: Option<f64>,
+    /// Paging on the host: planning, recording, and writing back to the
+    /// global map.
+    pub paging_cpu_ms: f64,
+    /// GPU time of the paging copies, when the transfer queue has
+    /// timestamps.
+    pub paging_gpu_ms: Option<f64>,
+    /// Of that, the time during which Stage II was running too.
+    pub paging_hidden_ms: Option<f64>,
+    /// Pruning.
+    pub prune_ms: f64,
+    /// The whole keyframe.
+    pub total_ms: f64,
+}
+
+/// What a keyframe did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct KeyframeReport {
+    /// Keyframe number (0-based).
+    pub index: u64,
+    /// Frame number within the stream (0-based).
+    pub frame: u64,
+    /// Frame stamp, ns.
+    pub stamp_ns: i64,
+    /// New Gaussians in the global map.
+    pub added: usize,
+    /// Stage I's measurements.
+    #[serde(skip)]
+    pub stage_one: StageOneReport,
+    /// Stage I image loss (weighted total).
+    pub image_loss: f64,
+    /// Stage I feature loss.
+    pub feature_loss: f64,
+    /// Feature loss of the last Stage II iteration.
+    pub stage_two: f64,
+    /// Gaussians pruned after this keyframe.
+    pub pruned: usize,
+    /// Window re-synchronisations of this keyframe.
+    pub paging: Vec<PagingReport>,
+    /// Timings.
+    pub timings: KeyframeTimings,
+    /// Gaussians in the global map afterwards.
+    pub gaussians: usize,
+    /// Gaussians resident on the GPU afterwards.
+    pub resident: usize,
+    /// GPU bytes allocated afterwards (allocator accounting).
+    pub gpu_bytes: u64,
+    /// CPU bytes of the global map and the keyframe history afterwards.
+    pub cpu_bytes: u64,
+}
+
+/// Running totals ([`OnlineMapper::stats`]).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MapperStats {
+    /// Frames offered.
+    pub frames: u64,
+    /// Keyframes mapped.
+    pub keyframes: u64,
+    /// Gaussians in the global map.
+    pub gaussians: usize,
+    /// Gaussians resident on the GPU.
+    pub resident: usize,
+    /// How the window was sized (once mapping started).
+    pub window: Option<WindowBudget>,
+    /// GPU bytes allocated now and at most (allocator accounting, the
+    /// whole context).
+    pub gpu_bytes: u64,
+    /// Highest GPU bytes.
+    pub gpu_peak_bytes: u64,
+    /// CPU bytes of the global map and keyframe history.
+    pub cpu_bytes: u64,
+    /// Highest CPU bytes after a keyframe.
+    pub cpu_peak_bytes: u64,
+    /// Gaussians left out of the window for lack of capacity, summed over
+    /// syncs.
+    pub over_capacity: u64,
+    /// Gaussians evicted, summed over syncs.
+    pub evicted: u64,
+    /// Gaussians fetched, summed over syncs.
+    pub fetched: u64,
+    /// Timings summed over keyframes.
+    pub timings: KeyframeTimings,
+}
+
+/// A paging batch in flight on the transfer queue.
+struct PagingRun {
+    submission: Submission,
+    pending: PendingSync,
+    report: PagingReport,
 }
 
 /// The online mapper's state.
@@ -111,46 +302,69 @@ pub struct OnlineMapper {
     ctx: Context,
     cfg: MapperConfig,
     global: GlobalMap,
-    window: LocalWindow,
+    window: Option<LocalWindow>,
+    window_budget: Option<WindowBudget>,
     selector: KeyframeSelector,
     history: History,
     head: Option<LatentHead>,
     trainer: Option<Trainer>,
     last_sync: Option<DVec3>,
-    keyframes: u64,
+    frames: u64,
+    stats: MapperStats,
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
 }
 
 impl OnlineMapper {
-    /// An empty map on `ctx`.
+    /// An empty map on `ctx`. Sets the context's memory budget to
+    /// [`MapperConfig::gpu_budget`] (or its default); the window is sized
+    /// at the first keyframe, when the image size is known.
     pub fn new(ctx: &Context, cfg: MapperConfig) -> Result<Self> {
-        if !(cfg.voxel_size > 0.0 && cfg.voxel_size.is_finite()) {
-            return Err(Error::InvalidArgument(format!(
-                "voxel size {} must be positive",
-                cfg.voxel_size
-            )));
-        }
+        cfg.validate()?;
+        ctx.set_memory_budget(Some(Self::budget_of(ctx, &cfg)));
         Ok(OnlineMapper {
             ctx: ctx.clone(),
             global: GlobalMap::new(cfg.voxel_size),
-            window: LocalWindow::new(ctx, cfg.window_capacity)?,
+            window: None,
+            window_budget: None,
             selector: KeyframeSelector::new(cfg.keyframes),
             history: History::default(),
             head: None,
             trainer: None,
             last_sync: None,
-            keyframes: 0,
+            frames: 0,
+            stats: MapperStats::default(),
             cfg,
         })
     }
 
-    /// The global map (current up to the last window sync).
+    fn budget_of(ctx: &Context, cfg: &MapperConfig) -> u64 {
+        cfg.gpu_budget
+            .unwrap_or(ctx.info().device_local_bytes / 2)
+            .max(1)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MapperConfig {
+        &self.cfg
+    }
+
+    /// The GPU context.
+    pub fn context(&self) -> &Context {
+        &self.ctx
+    }
+
+    /// The global map (current up to the last window sync; see
+    /// [`OnlineMapper::flush`]).
     pub fn global(&self) -> &GlobalMap {
         &self.global
     }
 
-    /// The GPU window.
-    pub fn window(&self) -> &LocalWindow {
-        &self.window
+    /// The GPU window, once the first keyframe sized it.
+    pub fn window(&self) -> Option<&LocalWindow> {
+        self.window.as_ref()
     }
 
     /// The latent head, once a frame with embeddings has been seen.
@@ -163,91 +377,271 @@ impl OnlineMapper {
         &self.history
     }
 
-    fn ensure_trainer(&mut self, frame: &Frame, dim: u32) -> Result<()> {
-        let pixels = frame.color.width as u64 * frame.color.height as u64;
-        if self.trainer.is_none() {
-            self.trainer = Some(Trainer::new(
+    /// Counts, memory and summed timings.
+    pub fn stats(&self) -> MapperStats {
+        let mem = self.ctx.memory_report();
+        let mut s = self.stats.clone();
+        s.frames = self.frames;
+        s.gaussians = self.global.len();
+        s.resident = self.window.as_ref().map_or(0, |w| w.len());
+        s.window = self.window_budget;
+        s.gpu_bytes = mem.total.current;
+        s.gpu_peak_bytes = mem.total.peak;
+        s.cpu_bytes = self.cpu_bytes();
+        s.cpu_peak_bytes = s.cpu_peak_bytes.max(s.cpu_bytes);
+        s
+    }
+
+    fn cpu_bytes(&self) -> u64 {
+        self.global.bytes()
+            + self.history.bytes()
+            + self.window.as_ref().map_or(0, |w| {
+                w.len() as u64 * std::mem::size_of::<VoxelKey>() as u64
+            })
+    }
+
+    /// Creates the latent head on the first keyframe with embeddings and
+    /// folds the keyframe's region embeddings into the dictionary.
+    fn update_dictionary(&mut self, record: &KeyframeRecord) -> Result<()> {
+        let Some(r) = &record.regions else {
+            return Ok(());
+        };
+        if self.head.is_none() {
+            self.head = Some(LatentHead::new(
                 &self.ctx,
-                TrainerConfig {
-                    capacity: self.cfg.window_capacity,
-                    max_view_pixels: pixels,
-                    max_views: self.cfg.replay + 1,
+                LatentHeadConfig {
+                    dim: r.dim,
+                    atoms: self.cfg.atoms,
                     max_regions: self.cfg.max_regions,
-                    min_region_pixels: self.cfg.min_region_pixels,
+                    temperature: self.cfg.temperature,
+                    lr_w: self.cfg.latent_lr,
+                    lr_d: self.cfg.latent_lr,
                     weights: self.cfg.weights,
-                    learning_rates: self.cfg.learning_rates,
+                    seed: self.cfg.seed,
+                    ..Default::default()
                 },
-                dim.max(1),
             )?);
+        }
+        let head = self.head.as_ref().expect("created above");
+        if head.config().dim != r.dim {
+            return Err(Error::InvalidArgument(format!(
+                "keyframe at {} ns has {}-d embeddings, the map's are {}-d",
+                record.stamp_ns,
+                r.dim,
+                head.config().dim
+            )));
+        }
+        let rows: Vec<f32> = r
+            .vectors
+            .chunks(r.dim as usize)
+            .filter(|row| row.iter().any(|&x| x != 0.0))
+            .flatten()
+            .copied()
+            .collect();
+        if !rows.is_empty() {
+            let mut rec = self.ctx.recorder()?;
+            head.record_keyframe_update(&mut rec, &rows)?;
+            rec.submit()?.wait()?;
         }
         Ok(())
     }
 
+    /// Sizes the window from the budget and creates it and the trainer
+    /// (first keyframe only).
+    fn ensure_workspace(&mut self, frame: &Frame, dim: u32) -> Result<()> {
+        if self.trainer.is_some() {
+            return Ok(());
+        }
+        let pixels = frame.color.width as u64 * frame.color.height as u64;
+        let views = self.cfg.replay as u64 + 1;
+        let budget = Self::budget_of(&self.ctx, &self.cfg);
+        // A head created later (embeddings arriving after the first
+        // keyframes) must still fit: room for a 1024-d one is kept.
+        let later_head = match &self.head {
+            Some(_) => 0,
+            None => head_bytes(self.cfg.atoms as u64, 1024, self.cfg.max_regions as u64),
+        };
+        let in_use = self.ctx.memory_report().total.current;
+        let later = pixel_bytes(pixels, views) + later_head;
+        let sized = match self.cfg.window_capacity {
+            Some(capacity) => WindowBudget {
+                budget,
+                reserved: in_use + later,
+                bytes_per_row: super::budget::bytes_per_window_row(views),
+                capacity,
+            },
+            None => window_budget(budget, in_use, later, views)?,
+        };
+        log::info!(
+            "window: {} Gaussians ({} bytes each) in a GPU budget of {} bytes",
+            sized.capacity,
+            sized.bytes_per_row,
+            budget
+        );
+        let window = LocalWindow::new(&self.ctx, sized.capacity)?;
+        let trainer = Trainer::new(
+            &self.ctx,
+            TrainerConfig {
+                capacity: sized.capacity,
+                max_view_pixels: pixels,
+                max_views: self.cfg.replay + 1,
+                max_regions: self.cfg.max_regions,
+                min_region_pixels: self.cfg.min_region_pixels,
+                weights: self.cfg.weights,
+                learning_rates: self.cfg.learning_rates,
+            },
+            dim.max(1),
+        )?;
+        self.window = Some(window);
+        self.trainer = Some(trainer);
+        self.window_budget = Some(sized);
+        Ok(())
+    }
+
     /// Integrates one frame: keyframe selection, then for a keyframe the
-    /// dictionary update, Gaussian seeding, window sync, Stage I over the
-    /// keyframe and B past ones, Stage II, and the history append.
+    /// dictionary update, Gaussian seeding (new Gaussians go straight into
+    /// the window), Stage I over the keyframe and B past ones, Stage II
+    /// with the window's re-synchronisation running beside it on the
+    /// transfer queue, the history append and, at its interval, pruning.
     pub fn integrate(&mut self, frame: &Frame) -> Result<Integrated> {
+        let frame_index = self.frames;
+        self.frames += 1;
         if !self.selector.decide(frame, &self.global).keyframe {
             return Ok(Integrated::Skipped);
         }
+        let t_start = Instant::now();
+        let mut timings = KeyframeTimings::default();
+        let mut paging = Vec::new();
         let record = KeyframeRecord::from_frame(frame);
-        let seed = self.cfg.seed ^ self.keyframes.wrapping_mul(0x9e37_79b9);
+        let keyframe = self.stats.keyframes;
+        let seed = self.cfg.seed ^ keyframe.wrapping_mul(0x9e37_79b9);
 
-        // Dictionary update from the keyframe's region embeddings.
-        if let Some(r) = &record.regions {
-            if self.head.is_none() {
-                self.head = Some(LatentHead::new(
-                    &self.ctx,
-                    LatentHeadConfig {
-                        dim: r.dim,
-                        atoms: self.cfg.atoms,
-                        max_regions: self.cfg.max_regions,
-                        temperature: self.cfg.temperature,
-                        lr_w: self.cfg.latent_lr,
-                        lr_d: self.cfg.latent_lr,
-                        weights: self.cfg.weights,
-                        seed: self.cfg.seed,
-                        ..Default::default()
-                    },
-                )?);
-            }
-            let head = self.head.as_ref().expect("created above");
-            if head.config().dim != r.dim {
-                return Err(Error::InvalidArgument(format!(
-                    "keyframe embeddings are {}-d, the map's are {}-d",
-                    r.dim,
-                    head.config().dim
-                )));
-            }
-            let rows: Vec<f32> = r
-                .vectors
-                .chunks(r.dim as usize)
-                .filter(|row| row.iter().any(|&x| x != 0.0))
-                .flatten()
-                .copied()
-                .collect();
-            if !rows.is_empty() {
-                let mut rec = self.ctx.recorder()?;
-                head.record_keyframe_update(&mut rec, &rows)?;
-                rec.submit()?.wait()?;
-            }
-        }
+        let t = Instant::now();
+        self.update_dictionary(&record)?;
+        timings.kmeans_ms = ms_since(t);
         let dim = self.head.as_ref().map_or(1, |h| h.config().dim);
-        self.ensure_trainer(frame, dim)?;
+        self.ensure_workspace(frame, dim)?;
 
-        // What the map already explains at this pose, then new Gaussians.
-        let coverage = if self.window.is_empty() {
+        // What the map already explains at this pose, then new Gaussians,
+        // which must be resident for Stage I.
+        let t = Instant::now();
+        let new_keys = self.seed(frame, &record, seed)?;
+        let centre = frame.pose.translation;
+        let window = self.window.as_ref().expect("ensured");
+        if new_keys.len() <= window.free() {
+            self.append(&new_keys)?;
+        } else {
+            let t_page = Instant::now();
+            let plan = window.plan(&self.global, centre, self.cfg.window_radius);
+            let run = self.submit_sync(&plan, true)?;
+            let (report, _) = self.finish_sync(run, None)?;
+            timings.paging_cpu_ms += ms_since(t_page);
+            paging.push(report);
+            self.last_sync = Some(centre);
+        }
+        timings.insertion_ms = ms_since(t);
+
+        // Stage I on the keyframe and B past ones.
+        let t = Instant::now();
+        let picks = self.history.sample(self.cfg.replay as usize, seed);
+        let mut batch: Vec<&KeyframeRecord> = vec![&record];
+        batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
+        let trainer = self.trainer.as_mut().expect("ensured");
+        let window = self.window.as_ref().expect("ensured");
+        let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
+        timings.stage_one_ms = ms_since(t);
+
+        // Stage II reads no Gaussian: the window pages beside it. The
+        // paging batch is submitted first so that it waits for Stage I
+        // only (see `Recorder::submit`).
+        let t = Instant::now();
+        let moved = self
+            .last_sync
+            .is_none_or(|p| p.distance(centre) > self.cfg.sync_distance);
+        let run = if moved {
+            let t_page = Instant::now();
+            let plan = self.window.as_ref().expect("ensured").plan(
+                &self.global,
+                centre,
+                self.cfg.window_radius,
+            );
+            let run = self.submit_sync(&plan, false)?;
+            timings.paging_cpu_ms += ms_since(t_page);
+            self.last_sync = Some(centre);
+            Some(run)
+        } else {
+            None
+        };
+        let stage_two_run = self.trainer.as_ref().expect("ensured").submit_stage_two(
+            &self.ctx,
+            self.head.as_ref(),
+            self.cfg.stage_two_iterations,
+        )?;
+        let (stage_two, stage_two_span) = stage_two_run.finish()?;
+        timings.stage_two_gpu_ms = stage_two_span.map(|s| s.ms());
+        if let Some(run) = run {
+            let t_page = Instant::now();
+            let (report, span) = self.finish_sync(run, stage_two_span.as_ref())?;
+            timings.paging_cpu_ms += ms_since(t_page);
+            timings.paging_gpu_ms = span.map(|s| s.0);
+            timings.paging_hidden_ms = span.and_then(|s| s.1);
+            paging.push(report);
+        }
+        timings.stage_two_ms = ms_since(t);
+
+        self.history.push(record);
+        self.stats.keyframes += 1;
+        let t = Instant::now();
+        let interval = self.cfg.prune_interval as u64;
+        let pruned = if interval > 0 && self.stats.keyframes % interval == 0 {
+            self.prune()?
+        } else {
+            0
+        };
+        timings.prune_ms = ms_since(t);
+        timings.total_ms = ms_since(t_start);
+
+        for p in &paging {
+            self.stats.evicted += p.evicted as u64;
+            self.stats.fetched += p.fetched as u64;
+            self.stats.over_capacity += p.over_capacity as u64;
+        }
+        add_timings(&mut self.stats.timings, &timings);
+        let cpu_bytes = self.cpu_bytes();
+        self.stats.cpu_peak_bytes = self.stats.cpu_peak_bytes.max(cpu_bytes);
+        let last = self.history.get(self.history.len() - 1).expect("pushed");
+        Ok(Integrated::Keyframe(Box::new(KeyframeReport {
+            index: keyframe,
+            frame: frame_index,
+            stamp_ns: last.stamp_ns,
+            added: new_keys.len(),
+            stage_one,
+            image_loss: stage_one.image.total(),
+            feature_loss: stage_one.feature,
+            stage_two,
+            pruned,
+            paging,
+            timings,
+            gaussians: self.global.len(),
+            resident: self.window.as_ref().map_or(0, |w| w.len()),
+            gpu_bytes: self.ctx.memory_report().total.current,
+            cpu_bytes,
+        })))
+    }
+
+    /// Renders the window at the keyframe's pose, seeds Gaussians where
+    /// the map does not explain the view, and inserts them into the global
+    /// map, nearest first. Returns their keys.
+    fn seed(&mut self, frame: &Frame, record: &KeyframeRecord, seed: u64) -> Result<Vec<VoxelKey>> {
+        let window = self.window.as_ref().expect("ensured");
+        let coverage = if window.is_empty() {
             None
         } else {
             let raster = self.trainer.as_mut().expect("ensured").rasterizer();
-            raster.forward(
-                self.window.params(),
-                self.window.len() as u64,
-                &[record.camera],
-            )?;
+            raster.forward(window.params(), window.len() as u64, &[record.camera])?;
             Some(raster.download_alpha_depth(0)?)
         };
-        let seeds = seed_from_frame(
+        let mut seeds = seed_from_frame(
             frame,
             coverage
                 .as_ref()
@@ -256,67 +650,94 @@ impl OnlineMapper {
             &self.cfg.seeding,
             seed,
         );
-        let added = seeds
+        let centre = frame.pose.translation;
+        let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);
+        seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
+        Ok(seeds
             .into_iter()
             .filter_map(|g| self.global.insert(g))
-            .count();
-
-        // Window sync when there is something new or the camera moved.
-        let centre = frame.pose.translation;
-        let moved = self
-            .last_sync
-            .is_none_or(|p| p.distance(centre) > self.cfg.sync_distance);
-        if added > 0 || moved {
-            let plan = self
-                .window
-                .plan(&self.global, centre, self.cfg.window_radius);
-            self.sync_window(&plan)?;
-            self.last_sync = Some(centre);
-        }
-
-        // Stage I on the keyframe and B past ones, then Stage II.
-        let picks = self.history.sample(self.cfg.replay as usize, seed);
-        let mut batch: Vec<&KeyframeRecord> = vec![&record];
-        batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
-        let trainer = self.trainer.as_mut().expect("ensured");
-        let stage_one = trainer.stage_one(&self.ctx, &self.window, self.head.as_ref(), &batch)?;
-        let stage_two =
-            trainer.stage_two(&self.ctx, self.head.as_ref(), self.cfg.stage_two_iterations)?;
-        self.history.push(record);
-        self.keyframes += 1;
-        let interval = self.cfg.prune_interval as u64;
-        let pruned = if interval > 0 && self.keyframes % interval == 0 {
-            self.prune()?
-        } else {
-            0
-        };
-        Ok(Integrated::Keyframe {
-            added,
-            stage_one,
-            stage_two,
-            pruned,
-        })
+            .collect())
     }
 
-    /// Pages the window as `plan` says, moving the Gaussian optimiser's
-    /// state with its rows, and writes the window back to the global map.
-    fn sync_window(&mut self, plan: &SyncPlan) -> Result<()> {
-        let trainer = self
-            .trainer
-            .as_ref()
-            .expect("the trainer exists before the first sync");
+    /// Uploads Gaussians of the global map into free window rows.
+    fn append(&mut self, keys: &[VoxelKey]) -> Result<()> {
+        if keys.is_empty() {
+            return Ok(());
+        }
+        let trainer = self.trainer.as_ref().expect("ensured");
+        let window = self.window.as_mut().expect("ensured");
         let companions: Vec<Companion<'_>> = trainer
             .optimizer()
             .state()
             .into_iter()
             .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
             .collect();
+        let mut rec = self.ctx.recorder()?;
+        window.record_append(&mut rec, keys, &self.global, &companions)?;
+        rec.submit()?.wait()
+    }
+
+    /// Records and submits a window sync on the transfer queue (timed).
+    fn submit_sync(&mut self, plan: &SyncPlan, blocking: bool) -> Result<PagingRun> {
+        let trainer = self
+            .trainer
+            .as_ref()
+            .expect("the trainer exists before the first sync");
+        let window = self.window.as_mut().expect("ensured");
+        let companions: Vec<Companion<'_>> = trainer
+            .optimizer()
+            .state()
+            .into_iter()
+            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+            .collect();
+        let report = PagingReport {
+            written_back: window.len(),
+            evicted: plan.evict.len(),
+            fetched: plan.fetch.len(),
+            over_capacity: plan.over_capacity,
+            blocking,
+        };
         let mut rec = self.ctx.transfer_recorder()?;
-        let pending = self
-            .window
-            .record_sync(&mut rec, plan, &self.global, &companions)?;
-        rec.submit()?.wait()?;
-        pending.apply(&mut self.global)?;
+        rec.start_span();
+        let pending = window.record_sync(&mut rec, plan, &self.global, &companions)?;
+        let submission = rec.submit()?;
+        Ok(PagingRun {
+            submission,
+            pending,
+            report,
+        })
+    }
+
+    /// Waits for a sync and writes the window back to the global map.
+    /// Returns the report and, when timed, (GPU ms, ms overlapping
+    /// `beside`).
+    #[allow(clippy::type_complexity)]
+    fn finish_sync(
+        &mut self,
+        run: PagingRun,
+        beside: Option<&GpuSpan>,
+    ) -> Result<(PagingReport, Option<(f64, Option<f64>)>)> {
+        let span = run.submission.wait_span()?;
+        run.pending.apply(&mut self.global)?;
+        let timing = span.map(|s| (s.ms(), beside.map(|b| s.overlap_ms(b))));
+        Ok((run.report, timing))
+    }
+
+    /// Writes the window back to the global map (nothing moves), so that
+    /// [`OnlineMapper::global`] is current.
+    pub fn flush(&mut self) -> Result<()> {
+        let Some(window) = &self.window else {
+            return Ok(());
+        };
+        if window.is_empty() {
+            return Ok(());
+        }
+        let plan = SyncPlan {
+            keep: window.len(),
+            ..SyncPlan::default()
+        };
+        let run = self.submit_sync(&plan, true)?;
+        self.finish_sync(run, None)?;
         Ok(())
     }
 
@@ -325,11 +746,14 @@ impl OnlineMapper {
     /// the window and the global map, after writing the window back.
     /// Returns how many were removed.
     pub fn prune(&mut self) -> Result<usize> {
-        let n = self.window.len();
+        let Some(window) = &self.window else {
+            return Ok(0);
+        };
+        let n = window.len();
         if n == 0 {
             return Ok(0);
         }
-        let host = self.window.params().download(&self.ctx, n as u64)?;
+        let host = window.params().download(&self.ctx, n as u64)?;
         let min_logit = {
             let o = self.cfg.prune_min_opacity.clamp(1e-7, 1.0 - 1e-7);
             (o / (1.0 - o)).ln()
@@ -348,20 +772,35 @@ impl OnlineMapper {
         if evict.is_empty() {
             return Ok(0);
         }
-        let doomed: Vec<_> = evict
-            .iter()
-            .map(|&r| self.window.keys()[r as usize])
-            .collect();
+        let doomed: Vec<_> = evict.iter().map(|&r| window.keys()[r as usize]).collect();
         let plan = SyncPlan {
             keep: n - evict.len(),
             evict,
             fetch: Vec::new(),
             over_capacity: 0,
         };
-        self.sync_window(&plan)?;
+        let run = self.submit_sync(&plan, true)?;
+        self.finish_sync(run, None)?;
         for key in &doomed {
             self.global.remove(*key);
         }
         Ok(doomed.len())
     }
+}
+
+fn add_timings(sum: &mut KeyframeTimings, t: &KeyframeTimings) {
+    let opt = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (None, None) => None,
+        (a, b) => Some(a.unwrap_or(0.0) + b.unwrap_or(0.0)),
+    };
+    sum.kmeans_ms += t.kmeans_ms;
+    sum.insertion_ms += t.insertion_ms;
+    sum.stage_one_ms += t.stage_one_ms;
+    sum.stage_two_ms += t.stage_two_ms;
+    sum.stage_two_gpu_ms = opt(sum.stage_two_gpu_ms, t.stage_two_gpu_ms);
+    sum.paging_cpu_ms += t.paging_cpu_ms;
+    sum.paging_gpu_ms = opt(sum.paging_gpu_ms, t.paging_gpu_ms);
+    sum.paging_hidden_ms = opt(sum.paging_hidden_ms, t.paging_hidden_ms);
+    sum.prune_ms += t.prune_ms;
+    sum.total_ms += t.total_ms;
 }

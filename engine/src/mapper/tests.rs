@@ -233,7 +233,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
                 stride: 2,
                 ..SeedingConfig::default()
             },
-            window_capacity: 8192,
+            window_capacity: Some(8192),
             replay: 2,
             atoms: 16,
             max_regions: 64,
@@ -250,11 +250,9 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
                 f.embeddings = None;
             }
             match mapper.integrate(&f).unwrap() {
-                Integrated::Keyframe {
-                    added, stage_one, ..
-                } => {
-                    added_total += added;
-                    assert!(stage_one.image.total().is_finite());
+                Integrated::Keyframe(k) => {
+                    added_total += k.added;
+                    assert!(k.stage_one.image.total().is_finite());
                 }
                 Integrated::Skipped => panic!("every frame is a keyframe here"),
             }
@@ -267,8 +265,9 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
         assert!(mapper.head().unwrap().atom_count() >= 2);
         // Every Gaussian of the map is in the window (it is large enough),
         // once.
-        let keys: std::collections::HashSet<_> = mapper.window().keys().iter().copied().collect();
-        assert_eq!(keys.len(), mapper.window().len());
+        let window = mapper.window().unwrap();
+        let keys: std::collections::HashSet<_> = window.keys().iter().copied().collect();
+        assert_eq!(keys.len(), window.len());
         assert_eq!(keys.len(), mapper.global().len());
         let psnr = psnr_of_first_keyframe(ctx, &mapper);
         eprintln!(
@@ -286,12 +285,9 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
 fn psnr_of_first_keyframe(ctx: &crate::gpu::Context, mapper: &OnlineMapper) -> f64 {
     let first = mapper.history().get(0).unwrap();
     let mut raster = crate::splat::Rasterizer::new(ctx);
+    let window = mapper.window().unwrap();
     raster
-        .forward(
-            mapper.window().params(),
-            mapper.window().len() as u64,
-            &[first.camera],
-        )
+        .forward(window.params(), window.len() as u64, &[first.camera])
         .unwrap();
     let img = raster.download_view(0).unwrap();
     let target = first.target_rgbd();

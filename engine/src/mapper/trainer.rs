@@ -6,7 +6,7 @@
 
 use super::history::KeyframeRecord;
 use crate::error::{Error, Result};
-use crate::gpu::{Buffer, Context};
+use crate::gpu::{Buffer, Context, GpuSpan, Readback, Submission};
 use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
 use crate::map::LocalWindow;
@@ -236,13 +236,27 @@ impl Trainer {
         head: Option<&LatentHead>,
         iterations: u32,
     ) -> Result<f64> {
+        Ok(self.submit_stage_two(ctx, head, iterations)?.finish()?.0)
+    }
+
+    /// [`Trainer::stage_two`] without waiting: the work is submitted (and
+    /// timed) on the compute queue, so paging can run beside it.
+    pub fn submit_stage_two(
+        &self,
+        ctx: &Context,
+        head: Option<&LatentHead>,
+        iterations: u32,
+    ) -> Result<StageTwoRun> {
         let n = self.regions;
-        let Some(head) = head else { return Ok(0.0) };
+        let Some(head) = head else {
+            return Ok(StageTwoRun(None));
+        };
         if n == 0 || iterations == 0 {
-            return Ok(0.0);
+            return Ok(StageTwoRun(None));
         }
         let region_targets = &self.region_targets;
         let mut rec = ctx.recorder()?;
+        rec.start_span();
         let mut last = None;
         for i in 0..iterations {
             head.record_step(
@@ -257,7 +271,28 @@ impl Trainer {
                 last = Some(head.record_loss_readback(&mut rec, n)?.0);
             }
         }
-        rec.submit()?.wait()?;
-        FeatureLoss::sum(&last.expect("at least one iteration"))
+        let submission = rec.submit()?;
+        Ok(StageTwoRun(Some((
+            submission,
+            last.expect("at least one iteration"),
+        ))))
+    }
+}
+
+/// A submitted Stage II.
+#[must_use = "Stage II must be finished"]
+pub struct StageTwoRun(Option<(Submission, Readback)>);
+
+impl StageTwoRun {
+    /// Waits; returns the feature loss of the last step and when the work
+    /// ran on the GPU (when it could be timed).
+    pub fn finish(self) -> Result<(f64, Option<GpuSpan>)> {
+        match self.0 {
+            None => Ok((0.0, None)),
+            Some((submission, readback)) => {
+                let span = submission.wait_span()?;
+                Ok((FeatureLoss::sum(&readback)?, span))
+            }
+        }
     }
 }

@@ -7,7 +7,8 @@ use crate::splat::{GaussianBuffers, FIELD_WIDTHS};
 
 /// Learning rates per Gaussian field (SPEC §6/§12: GS-ICP's values, the
 /// colour rate converted from SH DC to RGB, the query rate of OLS).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct GaussianLearningRates {
     /// Means (effectively frozen: poses come from the tracker).
     pub means: f32,

@@ -1,0 +1,110 @@
+//! How many Gaussians the GPU window can hold within a memory budget.
+//!
+//! Everything the mapper allocates on the GPU is either per Gaussian of the
+//! window (parameters, gradients, Adam moments, the rasterizer's per-view
+//! projection and tile-intersection buffers, staging for paging), per pixel
+//! of a batch (images, their gradients, loss and pooling workspaces), or
+//! fixed (the latent head). The window gets what the budget leaves after
+//! the pixels and the head. The context enforces the budget on every
+//! allocation, so an estimate that is too small fails loudly instead of
+//! overrunning it.
+
+use crate::error::{Error, Result};
+use crate::splat::FIELD_WIDTHS;
+
+/// Tile intersections budgeted per visible (view, Gaussian) pair; the
+/// demo and 7-Scenes runs average 2–3.
+pub const INTERSECTIONS_PER_PAIR: u64 = 8;
+
+/// Smallest window worth mapping with.
+pub const MIN_WINDOW: u64 = 1024;
+
+/// Bytes of one Gaussian's parameters.
+pub fn gaussian_bytes() -> u64 {
+    FIELD_WIDTHS.iter().sum::<u64>() * 4
+}
+
+/// GPU bytes each window row costs with batches of `views` views.
+pub fn bytes_per_window_row(views: u64) -> u64 {
+    let p = gaussian_bytes();
+    // parameters + gradients + two Adam moments + staging for a full
+    // write-back and a full fetch
+    let per_gaussian = 4 * p + 2 * p + 8;
+    // rasterizer, per (view, Gaussian) pair, with the 25 % growth headroom:
+    // projections, rectangles, counts, offsets, keys, order, scan, and the
+    // projection gradients (≈ 101 bytes), plus per tile intersection the
+    // keys, pairs and the sorter's ping-pong buffers (16 bytes) and scan.
+    let per_pair = (101 + INTERSECTIONS_PER_PAIR * 20) * 5 / 4;
+    per_gaussian + views * per_pair
+}
+
+/// GPU bytes that scale with the pixels of a batch.
+pub fn pixel_bytes(view_pixels: u64, views: u64) -> u64 {
+    // per batch pixel: image + image gradient (RGBD, alpha, 32 query
+    // channels), blending state, target, pooling index; per view pixel: the
+    // SSIM workspaces.
+    let per_batch_pixel = 2 * (16 + 4 + 128) + 10 + 16 + 8;
+    let per_view_pixel = 132;
+    view_pixels * (views * per_batch_pixel + per_view_pixel)
+}
+
+/// GPU bytes of a latent head with `atoms` atoms of `dim` dimensions
+/// (D, D⁰, its gradient and Adam moments, k-means workspace, W and its
+/// state, region buffers).
+pub fn head_bytes(atoms: u64, dim: u64, max_regions: u64) -> u64 {
+    atoms * dim * 4 * 8 + 32 * dim * 4 * 4 + max_regions * dim * 4 * 6
+}
+
+/// The window's share of a budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct WindowBudget {
+    /// The whole GPU budget, bytes.
+    pub budget: u64,
+    /// Set aside for pixels, the latent head and what was already
+    /// allocated.
+    pub reserved: u64,
+    /// Bytes per window row.
+    pub bytes_per_row: u64,
+    /// Window rows that fit.
+    pub capacity: u64,
+}
+
+/// Sizes the window: `in_use` bytes are already allocated (e.g. the
+/// latent head), `later` bytes will be (pixel buffers, a head not yet
+/// created); 10 % of the rest is kept free for allocator granularity.
+pub fn window_budget(budget: u64, in_use: u64, later: u64, views: u64) -> Result<WindowBudget> {
+    let reserved = in_use + later;
+    let bytes_per_row = bytes_per_window_row(views);
+    let free = budget.saturating_sub(reserved) / 10 * 9;
+    let capacity = free / bytes_per_row;
+    if capacity < MIN_WINDOW {
+        return Err(Error::OutOfMemory(format!(
+            "a GPU budget of {budget} bytes leaves room for {capacity} Gaussians in the window \
+             ({reserved} bytes go to images and the latent head, {bytes_per_row} per Gaussian); \
+             at least {MIN_WINDOW} are needed: raise the budget, or lower the image size, \
+             replayed keyframes or dictionary size"
+        )));
+    }
+    Ok(WindowBudget {
+        budget,
+        reserved,
+        bytes_per_row,
+        capacity,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn capacity_shrinks_with_views_and_reservations() {
+        let a = window_budget(1 << 30, 0, 0, 1).unwrap();
+        let b = window_budget(1 << 30, 0, 0, 6).unwrap();
+        let c = window_budget(1 << 30, 1 << 29, 0, 6).unwrap();
+        assert!(a.capacity > b.capacity && b.capacity > c.capacity);
+        assert!(b.capacity * b.bytes_per_row <= (1 << 30));
+        assert!(window_budget(1 << 20, 0, 0, 6).is_err());
+        assert!(window_budget(1 << 20, 1 << 21, 0, 6).is_err());
+    }
+}
