@@ -58,3 +58,4 @@ pub mod splat;
 pub use error::{Error, Result};
 /// The compiled kernel table (see the `latentam-shaders` crate).
 pub use latentam_shaders as kernels;
+pub use mapper::{Mapper, MapperConfig as Config};

@@ -146,6 +146,15 @@ impl LatentHead {
         })
     }
 
+    /// Adam state of W then D (moments and step counts), for saving.
+    pub fn optimizer_state(&self) -> Vec<(&Buffer, u64)> {
+        self.adam_w
+            .state()
+            .into_iter()
+            .chain(self.adam_d.state())
+            .collect()
+    }
+
     /// The configuration.
     pub fn config(&self) -> &LatentHeadConfig {
         &self.cfg

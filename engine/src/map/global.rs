@@ -119,8 +119,14 @@ impl GlobalMap {
     /// if that voxel is taken or the mean is not finite.
     pub fn insert(&mut self, g: Gaussian) -> Option<VoxelKey> {
         let key = self.key_of(DVec3::from(g.mean.map(f64::from)))?;
+        self.insert_at(key, g).then_some(key)
+    }
+
+    /// Inserts `g` under `key` (a saved map's key: optimised means may
+    /// have left their seeding voxel); false if the voxel is taken.
+    pub fn insert_at(&mut self, key: VoxelKey, g: Gaussian) -> bool {
         if self.slot_of.contains_key(&key) {
-            return None;
+            return false;
         }
         let slot = self.keys.len() as u32;
         self.slot_of.insert(key, slot);
@@ -133,7 +139,7 @@ impl GlobalMap {
             .occupancy
             .entry(key.coarse(OCCUPANCY_VOXELS))
             .or_default() += 1;
-        Some(key)
+        true
     }
 
     /// The Gaussian in voxel `key`.

@@ -139,6 +139,18 @@ impl KeyframeSelector {
         KeyframeDecision { keyframe, overlap }
     }
 
+    /// The pose of the last keyframe and the frames offered since (what
+    /// a saved map keeps).
+    pub fn state(&self) -> (Option<CameraPose>, u32) {
+        (self.last, self.since_last)
+    }
+
+    /// Restores [`KeyframeSelector::state`].
+    pub fn restore(&mut self, last: Option<CameraPose>, since_last: u32) {
+        self.last = last;
+        self.since_last = since_last;
+    }
+
     fn accept(&mut self, frame: &Frame) {
         self.last = Some(frame.pose);
         self.since_last = 0;

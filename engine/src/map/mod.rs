@@ -11,7 +11,7 @@ pub use global::{Gaussian, GlobalMap, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
 pub use seeding::{seed_from_frame, SeedingConfig, ViewCoverage};
 pub use voxel::VoxelKey;
-pub use window::{gaussian_at, Companion, LocalWindow, PendingSync, SyncPlan};
+pub use window::{gaussian_at, push_gaussian, Companion, LocalWindow, PendingSync, SyncPlan};
 
 #[cfg(test)]
 mod tests;

@@ -53,6 +53,12 @@ pub struct ViewCoverage<'a> {
     pub alpha: &'a [f32],
     /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output).
     pub depth: &'a [f32],
+    /// The render shows only part of the map near the camera (the GPU
+    /// window was too small for all of it): a pixel it does not explain
+    /// is still explained when its point lies on mapped surface
+    /// ([`GlobalMap::is_near_occupied`]), so Gaussians that are paged out
+    /// are not seeded again beside themselves.
+    pub partial: bool,
 }
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
@@ -119,6 +125,9 @@ pub fn seed_from_frame(
             );
             let p = rotation * cam + translation;
             let Some(key) = map.key_of(p) else { continue };
+            if rendered.is_some_and(|r| r.partial) && map.is_near_occupied(p) {
+                continue;
+            }
             if map.contains(key) || !taken.insert(key) {
                 continue;
             }

@@ -110,6 +110,7 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         })
         .collect();
     let rendered = ViewCoverage {
+        partial: false,
         alpha: &alpha,
         depth: &depth,
     };

@@ -84,7 +84,8 @@ pub fn gaussian_at(h: &HostGaussians, i: usize) -> Gaussian {
     }
 }
 
-fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
+/// Appends one Gaussian to a host SoA.
+pub fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
     h.means.push(g.mean);
     h.log_scales.push(g.log_scale);
     h.quats.push(g.quat);
@@ -95,8 +96,11 @@ fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
 
 /// The resident Gaussians and their GPU buffers.
 pub struct LocalWindow {
+    ctx: Context,
     params: GaussianBuffers,
     keys: Vec<VoxelKey>,
+    /// Rows in transit during compaction (grown as needed).
+    scratch: Option<Buffer>,
 }
 
 impl LocalWindow {
@@ -109,8 +113,10 @@ impl LocalWindow {
             ));
         }
         Ok(LocalWindow {
+            ctx: ctx.clone(),
             params: GaussianBuffers::new(ctx, "window", capacity)?,
             keys: Vec::new(),
+            scratch: None,
         })
     }
 
@@ -204,7 +210,26 @@ impl LocalWindow {
                 .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
         }
         let fetched = gather(global, &plan.fetch)?;
-        let (params, keys) = (&self.params, &mut self.keys);
+        let largest_row = FIELD_WIDTHS
+            .iter()
+            .map(|w| w * 4)
+            .chain(companions.iter().map(|c| c.row_bytes))
+            .max()
+            .unwrap_or(4);
+        let scratch_bytes = plan.evict.len().min(keep.max(1)) as u64 * largest_row;
+        if self
+            .scratch
+            .as_ref()
+            .is_none_or(|b| b.bytes() < scratch_bytes)
+        {
+            self.scratch = None;
+            self.scratch = Some(Buffer::device(
+                &self.ctx,
+                "window/compaction",
+                scratch_bytes.max(largest_row),
+            )?);
+        }
+        let (params, keys, scratch) = (&self.params, &mut self.keys, &self.scratch);
 
         // 1. Write-back of every resident row, before anything moves.
         let readback = params.record_download(rec, n as u64)?;
@@ -213,26 +238,48 @@ impl LocalWindow {
             keys: keys.clone(),
         };
 
-        // 2. Compaction: live rows from the tail fill the holes below `keep`.
-        let evicted: HashSet<u32> = plan.evict.iter().copied().collect();
+        // 2. Compaction: live rows from the tail fill the holes below `keep`,
+        // through the scratch buffer (a copy within one buffer makes
+        // validation layers compare every pair of regions for overlap).
+        let evicted: HashSet<u32> = plan
+            .evict
+            .iter()
+            .copied()
+            .filter(|&r| (r as usize) < n)
+            .collect();
         let holes = plan.evict.iter().copied().filter(|&r| (r as usize) < keep);
         let movers = (keep as u32..n as u32).filter(|r| !evicted.contains(r));
         let moves: Vec<(u32, u32)> = holes.zip(movers).collect();
-        for (buf, w) in params.fields().into_iter().zip(FIELD_WIDTHS) {
-            let row = w * 4;
-            let regions: Vec<(u64, u64, u64)> = moves
+        let gather: Vec<(u64, u64, u64)> = runs(
+            moves
                 .iter()
-                .map(|&(d, s)| (s as u64 * row, d as u64 * row, row))
-                .collect();
-            rec.copy_regions(buf, buf, &regions)?;
-        }
-        for c in companions {
-            let r = c.row_bytes;
-            let regions: Vec<(u64, u64, u64)> = moves
+                .enumerate()
+                .map(|(i, &(_, s))| (s as u64, i as u64)),
+        );
+        let scatter: Vec<(u64, u64, u64)> = runs(
+            moves
                 .iter()
-                .map(|&(d, s)| (s as u64 * r, d as u64 * r, r))
-                .collect();
-            rec.copy_regions(c.buffer, c.buffer, &regions)?;
+                .enumerate()
+                .map(|(i, &(d, _))| (i as u64, d as u64)),
+        );
+        let rows: Vec<(&Buffer, u64)> = params
+            .fields()
+            .into_iter()
+            .zip(FIELD_WIDTHS)
+            .map(|(b, w)| (b, w * 4))
+            .chain(companions.iter().map(|c| (c.buffer, c.row_bytes)))
+            .collect();
+        if !moves.is_empty() {
+            let scratch = scratch.as_ref().expect("sized above");
+            for (buf, row) in rows {
+                let scale = |r: &[(u64, u64, u64)]| -> Vec<(u64, u64, u64)> {
+                    r.iter()
+                        .map(|&(s, d, len)| (s * row, d * row, len * row))
+                        .collect()
+                };
+                rec.copy_regions(buf, scratch, &scale(&gather))?;
+                rec.copy_regions(scratch, buf, &scale(&scatter))?;
+            }
         }
         for &(dst, src) in &moves {
             keys[dst as usize] = keys[src as usize];
@@ -278,6 +325,19 @@ impl LocalWindow {
     pub fn free(&self) -> usize {
         self.capacity() as usize - self.keys.len()
     }
+}
+
+/// Copy regions (source row, destination row, rows) covering the
+/// (source, destination) row pairs, merging runs where both advance by one.
+fn runs(pairs: impl Iterator<Item = (u64, u64)>) -> Vec<(u64, u64, u64)> {
+    let mut out: Vec<(u64, u64, u64)> = Vec::new();
+    for (s, d) in pairs {
+        match out.last_mut() {
+            Some((ls, ld, len)) if *ls + *len == s && *ld + *len == d => *len += 1,
+            _ => out.push((s, d, 1)),
+        }
+    }
+    out
 }
 
 /// The Gaussians of `keys`, as host SoA.

@@ -50,9 +50,14 @@ pub fn pixel_bytes(view_pixels: u64, views: u64) -> u64 {
 
 /// GPU bytes of a latent head with `atoms` atoms of `dim` dimensions
 /// (D, D⁰, its gradient and Adam moments, k-means workspace, W and its
-/// state, region buffers).
+/// state, region buffers, the regions × atoms attention matrices and the
+/// k-means similarity matrix).
 pub fn head_bytes(atoms: u64, dim: u64, max_regions: u64) -> u64 {
-    atoms * dim * 4 * 8 + 32 * dim * 4 * 4 + max_regions * dim * 4 * 6
+    atoms * dim * 4 * 8
+        + 32 * dim * 4 * 4
+        + max_regions * dim * 4 * 6
+        + max_regions * atoms * 4 * 4
+        + atoms * atoms * 4 * 2
 }
 
 /// The window's share of a budget.

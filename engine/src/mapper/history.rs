@@ -177,9 +177,28 @@ impl History {
     /// there are at most `b`), in drawing order; the same `seed` draws the
     /// same keyframes.
     pub fn sample(&self, b: usize, seed: u64) -> Vec<usize> {
+        self.sample_from((0..self.records.len()).collect(), b, seed)
+    }
+
+    /// Like [`History::sample`], among the keyframes whose camera lies
+    /// within `radius` of `centre` (those the local window can render).
+    pub fn sample_near(&self, b: usize, seed: u64, centre: glam::DVec3, radius: f64) -> Vec<usize> {
+        let near = (0..self.records.len())
+            .filter(|&i| {
+                self.records[i]
+                    .camera
+                    .cam_to_world
+                    .translation
+                    .distance(centre)
+                    <= radius
+            })
+            .collect();
+        self.sample_from(near, b, seed)
+    }
+
+    fn sample_from(&self, mut idx: Vec<usize>, b: usize, seed: u64) -> Vec<usize> {
         let mut rng = SplitMix(seed);
-        let n = self.records.len();
-        let mut idx: Vec<usize> = (0..n).collect();
+        let n = idx.len();
         let take = b.min(n);
         // Partial Fisher–Yates.
         for i in 0..take {
@@ -194,6 +213,33 @@ impl History {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn near_sampling_draws_only_keyframes_within_the_radius() {
+        let mut h = History::default();
+        for i in 0..20 {
+            let mut camera = Camera::at_origin(2, 2);
+            camera.cam_to_world.translation = glam::DVec3::new(i as f64, 0.0, 0.0);
+            h.push(KeyframeRecord {
+                stamp_ns: i,
+                camera,
+                rgb: vec![0; 12],
+                depth_mm: vec![0; 4],
+                regions: None,
+            });
+        }
+        for seed in 0..50 {
+            let picks = h.sample_near(4, seed, glam::DVec3::new(10.0, 0.0, 0.0), 3.0);
+            assert_eq!(picks.len(), 4);
+            assert!(picks.iter().all(|&i| (7..=13).contains(&i)), "{picks:?}");
+            let distinct: std::collections::HashSet<_> = picks.iter().collect();
+            assert_eq!(distinct.len(), 4);
+        }
+        assert!(h
+            .sample_near(4, 1, glam::DVec3::new(100.0, 0.0, 0.0), 3.0)
+            .is_empty());
+        assert_eq!(h.sample_near(9, 1, glam::DVec3::ZERO, 1.5).len(), 2);
+    }
 
     #[test]
     fn records_keep_targets_compact_and_normalise_embeddings() {

@@ -51,7 +51,8 @@ pub struct MapperConfig {
     /// Re-synchronise the window when the camera has moved this far since
     /// the last sync (new Gaussians are always brought in).
     pub sync_distance: f64,
-    /// Past keyframes per Stage I batch (B).
+    /// Past keyframes per Stage I batch (B), drawn uniformly among those
+    /// whose camera lies within `window_radius` of the current one.
     pub replay: u32,
     /// Stage II iterations per keyframe (R2).
     pub stage_two_iterations: u32,
@@ -299,18 +300,20 @@ struct PagingRun {
 
 /// The online mapper's state.
 pub struct OnlineMapper {
-    ctx: Context,
-    cfg: MapperConfig,
-    global: GlobalMap,
-    window: Option<LocalWindow>,
-    window_budget: Option<WindowBudget>,
-    selector: KeyframeSelector,
-    history: History,
-    head: Option<LatentHead>,
-    trainer: Option<Trainer>,
-    last_sync: Option<DVec3>,
-    frames: u64,
-    stats: MapperStats,
+    pub(super) ctx: Context,
+    pub(super) cfg: MapperConfig,
+    pub(super) global: GlobalMap,
+    pub(super) window: Option<LocalWindow>,
+    pub(super) window_budget: Option<WindowBudget>,
+    pub(super) selector: KeyframeSelector,
+    pub(super) history: History,
+    pub(super) head: Option<LatentHead>,
+    pub(super) trainer: Option<Trainer>,
+    pub(super) last_sync: Option<DVec3>,
+    /// The last sync left Gaussians within the radius out of the window.
+    pub(super) window_partial: bool,
+    pub(super) frames: u64,
+    pub(super) stats: MapperStats,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -334,6 +337,7 @@ impl OnlineMapper {
             head: None,
             trainer: None,
             last_sync: None,
+            window_partial: false,
             frames: 0,
             stats: MapperStats::default(),
             cfg,
@@ -400,6 +404,23 @@ impl OnlineMapper {
             })
     }
 
+    pub(super) fn make_head(&self, dim: u32) -> Result<LatentHead> {
+        LatentHead::new(
+            &self.ctx,
+            LatentHeadConfig {
+                dim,
+                atoms: self.cfg.atoms,
+                max_regions: self.cfg.max_regions,
+                temperature: self.cfg.temperature,
+                lr_w: self.cfg.latent_lr,
+                lr_d: self.cfg.latent_lr,
+                weights: self.cfg.weights,
+                seed: self.cfg.seed,
+                ..Default::default()
+            },
+        )
+    }
+
     /// Creates the latent head on the first keyframe with embeddings and
     /// folds the keyframe's region embeddings into the dictionary.
     fn update_dictionary(&mut self, record: &KeyframeRecord) -> Result<()> {
@@ -407,20 +428,7 @@ impl OnlineMapper {
             return Ok(());
         };
         if self.head.is_none() {
-            self.head = Some(LatentHead::new(
-                &self.ctx,
-                LatentHeadConfig {
-                    dim: r.dim,
-                    atoms: self.cfg.atoms,
-                    max_regions: self.cfg.max_regions,
-                    temperature: self.cfg.temperature,
-                    lr_w: self.cfg.latent_lr,
-                    lr_d: self.cfg.latent_lr,
-                    weights: self.cfg.weights,
-                    seed: self.cfg.seed,
-                    ..Default::default()
-                },
-            )?);
+            self.head = Some(self.make_head(r.dim)?);
         }
         let head = self.head.as_ref().expect("created above");
         if head.config().dim != r.dim {
@@ -448,11 +456,10 @@ impl OnlineMapper {
 
     /// Sizes the window from the budget and creates it and the trainer
     /// (first keyframe only).
-    fn ensure_workspace(&mut self, frame: &Frame, dim: u32) -> Result<()> {
+    pub(super) fn ensure_workspace(&mut self, pixels: u64, dim: u32) -> Result<()> {
         if self.trainer.is_some() {
             return Ok(());
         }
-        let pixels = frame.color.width as u64 * frame.color.height as u64;
         let views = self.cfg.replay as u64 + 1;
         let budget = Self::budget_of(&self.ctx, &self.cfg);
         // A head created later (embeddings arriving after the first
@@ -520,7 +527,7 @@ impl OnlineMapper {
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);
         let dim = self.head.as_ref().map_or(1, |h| h.config().dim);
-        self.ensure_workspace(frame, dim)?;
+        self.ensure_workspace(frame.color.width as u64 * frame.color.height as u64, dim)?;
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
@@ -533,6 +540,7 @@ impl OnlineMapper {
         } else {
             let t_page = Instant::now();
             let plan = window.plan(&self.global, centre, self.cfg.window_radius);
+            self.window_partial = plan.over_capacity > 0;
             let run = self.submit_sync(&plan, true)?;
             let (report, _) = self.finish_sync(run, None)?;
             timings.paging_cpu_ms += ms_since(t_page);
@@ -543,7 +551,13 @@ impl OnlineMapper {
 
         // Stage I on the keyframe and B past ones.
         let t = Instant::now();
-        let picks = self.history.sample(self.cfg.replay as usize, seed);
+        // Replayed keyframes are drawn among those the window can render.
+        let picks = self.history.sample_near(
+            self.cfg.replay as usize,
+            seed,
+            centre,
+            self.cfg.window_radius,
+        );
         let mut batch: Vec<&KeyframeRecord> = vec![&record];
         batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
         let trainer = self.trainer.as_mut().expect("ensured");
@@ -643,9 +657,11 @@ impl OnlineMapper {
         };
         let mut seeds = seed_from_frame(
             frame,
-            coverage
-                .as_ref()
-                .map(|(alpha, depth)| ViewCoverage { alpha, depth }),
+            coverage.as_ref().map(|(alpha, depth)| ViewCoverage {
+                alpha,
+                depth,
+                partial: self.window_partial,
+            }),
             &self.global,
             &self.cfg.seeding,
             seed,
@@ -660,7 +676,7 @@ impl OnlineMapper {
     }
 
     /// Uploads Gaussians of the global map into free window rows.
-    fn append(&mut self, keys: &[VoxelKey]) -> Result<()> {
+    pub(super) fn append(&mut self, keys: &[VoxelKey]) -> Result<()> {
         if keys.is_empty() {
             return Ok(());
         }

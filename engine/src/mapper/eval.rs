@@ -1,0 +1,245 @@
+//! Quality of a map on a view (SPEC §10): the view is rendered from the
+//! global map's Gaussians near the camera and compared with the frame's
+//! colour (PSNR), depth (L1 over valid pixels), region embeddings (cosine
+//! loss of the decoded pooled queries) and, with a vocabulary and
+//! semantic labels, per-class intersections and unions for mIoU: each of
+//! the frame's regions is classified from its pooled rendered query (the
+//! mask pooling training supervises), and its pixels take that class;
+//! labelled pixels outside every region count as misses.
+
+use std::collections::BTreeMap;
+
+use super::history::{camera_of, KeyframeRecord};
+use super::online::OnlineMapper;
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::io::{Frame, Vocabulary};
+use crate::latent::RelevanceScorer;
+use crate::map::push_gaussian;
+use crate::splat::{GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
+
+/// Metrics of one view.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ViewMetrics {
+    /// Colour PSNR (dB), colours clamped to 0..1.
+    pub psnr: f64,
+    /// Mean absolute error (metres) of the rendered depth (Σ w·z / α)
+    /// over pixels with valid measured depth and α > 0.5.
+    pub depth_l1: f64,
+    /// Share of pixels with α > 0.5.
+    pub coverage: f64,
+    /// Mean over regions of 1 − cos(decoded pooled query, target).
+    pub cosine_loss: Option<f64>,
+    /// Regions compared.
+    pub regions: usize,
+    /// Per class id: (intersection, union) pixel counts of the predicted
+    /// and true class masks.
+    pub class_iou: BTreeMap<u16, (u64, u64)>,
+    /// Gaussians rendered.
+    pub gaussians: usize,
+}
+
+/// mIoU over the classes present (union > 0) in summed counts.
+pub fn mean_iou(counts: &BTreeMap<u16, (u64, u64)>) -> Option<f64> {
+    let ious: Vec<f64> = counts
+        .values()
+        .filter(|(_, u)| *u > 0)
+        .map(|&(i, u)| i as f64 / u as f64)
+        .collect();
+    (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
+}
+
+/// Adds `b`'s counts into `a`.
+pub fn add_iou(a: &mut BTreeMap<u16, (u64, u64)>, b: &BTreeMap<u16, (u64, u64)>) {
+    for (&c, &(i, u)) in b {
+        let e = a.entry(c).or_default();
+        e.0 += i;
+        e.1 += u;
+    }
+}
+
+/// Renders and scores views of a map.
+pub struct Evaluator {
+    ctx: Context,
+    raster: Rasterizer,
+    scorer: Option<RelevanceScorer>,
+    scorer_texts: u32,
+    /// Gaussians within this distance of the camera are rendered (metres).
+    pub radius: f64,
+}
+
+impl Evaluator {
+    /// An evaluator on `ctx`.
+    pub fn new(ctx: &Context) -> Self {
+        Evaluator {
+            ctx: ctx.clone(),
+            raster: Rasterizer::new(ctx),
+            scorer: None,
+            scorer_texts: 0,
+            radius: 8.0,
+        }
+    }
+
+    /// Metrics of `frame` rendered from `mapper`'s map (written back
+    /// first). Segmentation needs `vocabulary` and the frame's semantic
+    /// labels; embeddings need the latent head.
+    pub fn evaluate(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+        vocabulary: Option<&Vocabulary>,
+    ) -> Result<ViewMetrics> {
+        mapper.flush()?;
+        let record = KeyframeRecord::from_frame(frame);
+        let camera = camera_of(frame);
+        let global = mapper.global();
+        let mut host = HostGaussians::default();
+        for key in global.within(frame.pose.translation, self.radius) {
+            let g = global.get(key).expect("within() returns present keys");
+            push_gaussian(&mut host, g);
+        }
+        let n = host.means.len();
+        if n == 0 {
+            return Err(Error::InvalidArgument(
+                "no Gaussians near this view: nothing to evaluate".into(),
+            ));
+        }
+        let buffers = GaussianBuffers::new(&self.ctx, "eval/gaussians", n as u64)?;
+        buffers.upload(&self.ctx, 0, &host)?;
+        self.raster.forward(&buffers, n as u64, &[camera])?;
+        let view = self.raster.download_view(0)?;
+        let target = record.target_rgbd();
+
+        let mut se = 0.0f64;
+        let (mut l1, mut valid) = (0.0f64, 0u64);
+        for ((p, t), &a) in view.rgbd.iter().zip(&target).zip(&view.alpha) {
+            for c in 0..3 {
+                se += (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2);
+            }
+            if t[3] > 0.0 && a > 0.5 {
+                l1 += (p[3] as f64 / a as f64 - t[3] as f64).abs();
+                valid += 1;
+            }
+        }
+        let mse = se / (3 * target.len()).max(1) as f64;
+        let covered = view.alpha.iter().filter(|&&a| a > 0.5).count();
+        let mut m = ViewMetrics {
+            coverage: covered as f64 / view.alpha.len().max(1) as f64,
+            psnr: -10.0 * mse.max(1e-12).log10(),
+            depth_l1: if valid > 0 { l1 / valid as f64 } else { 0.0 },
+            gaussians: n,
+            ..ViewMetrics::default()
+        };
+
+        let Some(head) = mapper.head() else {
+            return Ok(m);
+        };
+        if head.atom_count() == 0 {
+            return Ok(m);
+        }
+        let texts_needed = vocabulary
+            .map_or(0, |v| v.names.len())
+            .max(record.regions.as_ref().map_or(0, |r| r.count as usize));
+        let rebuild = match &self.scorer {
+            None => true,
+            Some(_) => self.scorer_texts < texts_needed as u32,
+        };
+        if rebuild && texts_needed > 0 {
+            self.scorer = None;
+            self.scorer_texts = (texts_needed as u32).max(16);
+            self.scorer = Some(RelevanceScorer::new(&self.ctx, head, self.scorer_texts)?);
+        }
+        let Some(scorer) = &self.scorer else {
+            return Ok(m);
+        };
+        let (w, h) = (view.width as usize, view.height as usize);
+
+        // Regions: pooled rendered queries against their targets and, with a
+        // vocabulary, classified (the class scoring highest) for the
+        // region's pixels — the same mask pooling that training supervises.
+        let Some(r) = record.regions.as_ref().filter(|r| !r.grid) else {
+            return Ok(m);
+        };
+        let dim = r.dim as usize;
+        let mut sums = vec![[0.0f64; QUERY_DIM]; r.count as usize];
+        let mut counts = vec![0u64; r.count as usize];
+        let region_of = |x: usize, y: usize| {
+            let ly = y * r.height as usize / h;
+            let lx = x * r.width as usize / w;
+            r.labels[ly * r.width as usize + lx] as usize
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let l = region_of(x, y);
+                if l < sums.len() {
+                    counts[l] += 1;
+                    for (s, q) in sums[l].iter_mut().zip(&view.query[y * w + x]) {
+                        *s += *q as f64;
+                    }
+                }
+            }
+        }
+        let used: Vec<usize> = (0..sums.len()).filter(|&i| counts[i] > 0).collect();
+        if used.is_empty() {
+            return Ok(m);
+        }
+        let pooled: Vec<[f32; QUERY_DIM]> = used
+            .iter()
+            .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
+            .collect();
+        let with_target: Vec<usize> = (0..used.len())
+            .filter(|&j| {
+                r.vectors[used[j] * dim..(used[j] + 1) * dim]
+                    .iter()
+                    .any(|&x| x != 0.0)
+            })
+            .collect();
+        if !with_target.is_empty() {
+            let targets: Vec<f32> = with_target
+                .iter()
+                .flat_map(|&j| {
+                    r.vectors[used[j] * dim..(used[j] + 1) * dim]
+                        .iter()
+                        .copied()
+                })
+                .collect();
+            let q: Vec<[f32; QUERY_DIM]> = with_target.iter().map(|&j| pooled[j]).collect();
+            let s = scorer.score(&self.ctx, head, &q, &targets)?;
+            let k = q.len();
+            m.cosine_loss = Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
+            m.regions = k;
+        }
+        if let (Some(vocab), Some(sem)) = (vocabulary, frame.semantic.as_ref()) {
+            if vocab.dim == head.config().dim && !vocab.names.is_empty() {
+                let c = vocab.names.len();
+                let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
+                let mut predicted = vec![None; sums.len()];
+                for (j, &i) in used.iter().enumerate() {
+                    let row = &s[j * c..(j + 1) * c];
+                    let best = (0..c)
+                        .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+                        .expect("non-empty vocabulary");
+                    predicted[i] = Some(vocab.ids[best]);
+                }
+                for y in 0..h {
+                    for x in 0..w {
+                        let sy = y * sem.height as usize / h;
+                        let sx = x * sem.width as usize / w;
+                        let truth = sem.labels[sy * sem.width as usize + sx];
+                        if truth == 0 {
+                            continue;
+                        }
+                        let pred = predicted.get(region_of(x, y)).copied().flatten();
+                        m.class_iou.entry(truth).or_default().1 += 1;
+                        match pred {
+                            Some(p) if p == truth => m.class_iou.entry(truth).or_default().0 += 1,
+                            Some(p) => m.class_iou.entry(p).or_default().1 += 1,
+                            None => {}
+                        }
+                    }
+                }
+            }
+        }
+        Ok(m)
+    }
+}

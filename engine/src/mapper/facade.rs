@@ -1,0 +1,135 @@
+//! The library façade: one value that owns the GPU context and the online
+//! mapper, with the calls a robot program needs.
+
+use std::borrow::Borrow;
+use std::path::{Path, PathBuf};
+
+use super::online::{Integrated, MapperConfig, MapperStats, OnlineMapper};
+use crate::error::{Error, Result};
+use crate::gpu::{Context, ContextOptions};
+use crate::io::Frame;
+use crate::latent::RelevanceScorer;
+use crate::map::GlobalMap;
+
+/// File name of the resumable state inside a save directory.
+pub const STATE_FILE: &str = "state.latentam";
+
+/// A latent Gaussian map built online.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, McapFrames};
+///
+/// let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
+/// for frame in McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())? {
+///     mapper.integrate(&frame?)?;
+/// }
+/// let text_embedding = vec![0.0f32; 512]; // from your vision-language model
+/// let scores: Vec<f32> = mapper.query(&text_embedding)?; // one per Gaussian
+/// mapper.save("out/")?;
+/// println!("{} Gaussians", mapper.stats().gaussians);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct Mapper {
+    inner: OnlineMapper,
+    scorer: Option<RelevanceScorer>,
+    texts: u32,
+}
+
+impl Mapper {
+    /// A mapper on the first suitable Vulkan device.
+    pub fn new(config: MapperConfig) -> Result<Self> {
+        let ctx = Context::new(ContextOptions::default())?;
+        Self::with_context(&ctx, config)
+    }
+
+    /// A mapper on a context of your choosing (device, validation,
+    /// profiling). It sets the context's memory budget.
+    pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
+        Ok(Mapper {
+            inner: OnlineMapper::new(ctx, config)?,
+            scorer: None,
+            texts: 0,
+        })
+    }
+
+    /// Offers one frame; keyframes are mapped (see
+    /// [`OnlineMapper::integrate`]).
+    pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {
+        self.inner.integrate(frame.borrow())
+    }
+
+    /// Relevance of every Gaussian to `text_embedding` (cosine similarity
+    /// of its decoded embedding), in the order of
+    /// [`GlobalMap::iter`] on [`Mapper::global`].
+    pub fn query(&mut self, text_embedding: &[f32]) -> Result<Vec<f32>> {
+        self.query_many(text_embedding)
+    }
+
+    /// Relevance of every Gaussian to each of several embeddings given
+    /// back to back: Gaussians × embeddings scores, row-major.
+    pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
+        let head = self.inner.head().ok_or_else(|| {
+            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
+        })?;
+        let dim = head.config().dim as usize;
+        if embeddings.is_empty() || embeddings.len() % dim != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "query of {} values; the map's embeddings are {dim}-d",
+                embeddings.len()
+            )));
+        }
+        let count = (embeddings.len() / dim) as u32;
+        self.inner.flush()?;
+        let ctx = self.inner.context().clone();
+        let head = self.inner.head().expect("checked above");
+        if self.scorer.is_none() || self.texts < count {
+            self.scorer = None;
+            self.scorer = Some(RelevanceScorer::new(&ctx, head, count.max(8))?);
+            self.texts = count.max(8);
+        }
+        let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
+        self.scorer
+            .as_ref()
+            .expect("created above")
+            .score(&ctx, head, &queries, embeddings)
+    }
+
+    /// Saves the whole state into directory `dir` (created if missing) as
+    /// [`STATE_FILE`]; returns the file's path.
+    pub fn save(&mut self, dir: impl AsRef<Path>) -> Result<PathBuf> {
+        let dir = dir.as_ref();
+        std::fs::create_dir_all(dir).map_err(|e| Error::Io {
+            path: dir.to_path_buf(),
+            source: e,
+        })?;
+        let path = dir.join(STATE_FILE);
+        self.inner.save(&path)?;
+        Ok(path)
+    }
+
+    /// Loads a state saved by [`Mapper::save`] from directory `dir` onto
+    /// `ctx`, to continue mapping or to query.
+    pub fn load(ctx: &Context, dir: impl AsRef<Path>) -> Result<Self> {
+        let path = dir.as_ref().join(STATE_FILE);
+        Ok(Mapper {
+            inner: OnlineMapper::load(ctx, &path, None)?,
+            scorer: None,
+            texts: 0,
+        })
+    }
+
+    /// Counts, memory and timings.
+    pub fn stats(&self) -> MapperStats {
+        self.inner.stats()
+    }
+
+    /// The global map (current as of the last sync, query or save).
+    pub fn global(&self) -> &GlobalMap {
+        self.inner.global()
+    }
+
+    /// The mapper underneath, for everything else.
+    pub fn online(&mut self) -> &mut OnlineMapper {
+        &mut self.inner
+    }
+}
