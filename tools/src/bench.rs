@@ -103,6 +103,39 @@ pub enum Which {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Map a log end to end (the generated scene unless --log is given):
+    /// keyframes/s, ms per keyframe by stage, paging and the share Stage II
+    /// hid, peak GPU and CPU bytes, Gaussians, per-keyframe memory curves,
+    /// and the PSNR of re-rendered keyframes.
+    Map {
+        /// Frames to map (of the generated scene, or the first N of --log).
+        #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        frames: u64,
+        /// Generated scene image width.
+        #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(16..=4096))]
+        width: u32,
+        /// Generated scene image height.
+        #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u32).range(16..=4096))]
+        height: u32,
+        /// Generated scene embedding dimension.
+        #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..=8192))]
+        dim: u64,
+        /// Map this MCAP log instead of a generated scene.
+        #[arg(long)]
+        log: Option<PathBuf>,
+        /// Mapper configuration (TOML; unknown keys are errors).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// GPU memory budget in bytes (overrides the configuration).
+        #[arg(long)]
+        budget: Option<u64>,
+        /// Keyframes re-rendered for the PSNR at the end (0: none).
+        #[arg(long, default_value_t = 20)]
+        eval_keyframes: u64,
+        /// Write the results (with the per-keyframe curves) as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -138,6 +171,27 @@ pub fn run(which: Which) -> Result<()> {
             ssim_width,
             ssim_height,
             runs: runs as usize,
+            json,
+        }),
+        Which::Map {
+            frames,
+            width,
+            height,
+            dim,
+            log,
+            config,
+            budget,
+            eval_keyframes,
+            json,
+        } => crate::bench_map::run(crate::bench_map::MapBench {
+            frames: frames as usize,
+            width,
+            height,
+            dim: dim as usize,
+            log,
+            config,
+            budget,
+            eval_keyframes: eval_keyframes as usize,
             json,
         }),
         Which::Ingest {

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod bench_ingest;
 mod bench_latent;
+mod bench_map;
 mod bench_raster;
 mod convert_cmd;
 mod gen_scene;

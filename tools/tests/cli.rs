@@ -122,6 +122,54 @@ fn bench_raster_writes_json_with_times_and_kernels() {
 }
 
 #[test]
+fn bench_map_writes_json_with_stages_memory_and_curves() {
+    let v = bench_json(
+        "map",
+        &[
+            "map",
+            "--frames",
+            "12",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--dim",
+            "32",
+            "--eval-keyframes",
+            "2",
+        ],
+    );
+    assert_eq!(v["frames"], 12);
+    assert_eq!(v["keyframes"], 3, "interval 4 over 12 frames");
+    assert!(v["keyframes_per_s"].as_f64().unwrap() > 0.0);
+    let m = &v["ms_per_keyframe"];
+    for k in [
+        "kmeans_ms",
+        "insertion_ms",
+        "stage_one_ms",
+        "stage_two_ms",
+        "total_ms",
+    ] {
+        assert!(m[k].as_f64().is_some_and(|x| x >= 0.0), "{k}: {m}");
+    }
+    assert!(m["stage_one_ms"].as_f64().unwrap() > 0.0);
+    let peak = v["peak_gpu_bytes"].as_u64().unwrap();
+    assert!(peak > 0 && peak <= v["gpu_budget"].as_u64().unwrap());
+    assert!(v["peak_cpu_bytes"].as_u64().unwrap() > 0);
+    let curve = v["curve"].as_array().unwrap();
+    assert_eq!(curve.len(), 3);
+    let g: Vec<u64> = curve
+        .iter()
+        .map(|p| p["gaussians"].as_u64().unwrap())
+        .collect();
+    assert!(g[0] > 0 && g.windows(2).all(|w| w[1] >= w[0]), "{g:?}");
+    assert_eq!(curve[2]["gaussians"], v["gaussians"]);
+    let psnr = v["psnr_keyframes"].as_f64().unwrap();
+    assert!(psnr > 10.0 && psnr < 60.0, "{psnr}");
+    assert_eq!(v["keyframes_evaluated"], 2);
+}
+
+#[test]
 fn bench_latent_writes_json_with_every_measurement() {
     let v = bench_json(
         "latent",

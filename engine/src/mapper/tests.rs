@@ -304,3 +304,32 @@ fn psnr_of_first_keyframe(ctx: &crate::gpu::Context, mapper: &OnlineMapper) -> f
         / (3 * target.len()) as f64;
     -10.0 * mse.log10()
 }
+
+#[test]
+fn frames_without_embeddings_map_geometry_and_colour_only() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: KeyframeConfig {
+                policy: KeyframePolicy::Interval(1),
+                ..KeyframeConfig::default()
+            },
+            window_capacity: Some(8192),
+            replay: 2,
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        for i in 0..4 {
+            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            f.embeddings = None;
+            let Integrated::Keyframe(k) = mapper.integrate(&f).unwrap() else {
+                panic!("every frame is a keyframe here");
+            };
+            assert!(k.stage_one.image.total().is_finite());
+            assert_eq!(k.stage_one.regions, 0);
+        }
+        assert!(mapper.head().is_none());
+        assert!(!mapper.global().is_empty());
+    });
+}

@@ -169,7 +169,7 @@ impl Trainer {
             )));
         }
         let mut weights = mean_per_view_weights(&regions.rows_per_view());
-        for (w, row) in weights.iter_mut().zip(rows.chunks(dim)) {
+        for (w, row) in weights.iter_mut().zip(rows.chunks(dim.max(1))) {
             if row.iter().all(|&x| x == 0.0) {
                 *w = 0.0;
             }

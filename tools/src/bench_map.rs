@@ -1,0 +1,249 @@
+//! `latentam bench map`: the online mapper end to end on the generated
+//! scene (or any log): keyframes per second, milliseconds per keyframe by
+//! stage, paging and how much of it Stage II hid, peak GPU and CPU bytes,
+//! and per keyframe the curves of GPU bytes, CPU bytes and Gaussians. At
+//! the end, the PSNR of re-rendered keyframes.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context as _, Result};
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::{AssemblyConfig, Frame, McapFrames};
+use latentam::mapper::eval::Evaluator;
+use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, MapperConfig, OnlineMapper};
+use serde::Serialize;
+
+pub struct MapBench {
+    pub frames: usize,
+    pub width: u32,
+    pub height: u32,
+    pub dim: usize,
+    pub log: Option<PathBuf>,
+    pub config: Option<PathBuf>,
+    pub budget: Option<u64>,
+    pub eval_keyframes: usize,
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct CurvePoint {
+    keyframe: u64,
+    frame: u64,
+    gaussians: usize,
+    resident: usize,
+    gpu_bytes: u64,
+    cpu_bytes: u64,
+    total_ms: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    device: String,
+    source: String,
+    frames: u64,
+    width: u32,
+    height: u32,
+    keyframes: u64,
+    wall_s: f64,
+    keyframes_per_s: f64,
+    ms_per_keyframe: KeyframeTimings,
+    paging_gpu_ms_total: Option<f64>,
+    paging_hidden_ms_total: Option<f64>,
+    paging_hidden_share: Option<f64>,
+    dedicated_transfer_queue: bool,
+    gpu_budget: u64,
+    window_capacity: u64,
+    peak_gpu_bytes: u64,
+    peak_cpu_bytes: u64,
+    gaussians: usize,
+    evicted: u64,
+    fetched: u64,
+    psnr_keyframes: Option<f64>,
+    keyframes_evaluated: usize,
+    curve: Vec<CurvePoint>,
+}
+
+fn scale(t: &KeyframeTimings, n: f64) -> KeyframeTimings {
+    let s = |x: f64| x / n;
+    KeyframeTimings {
+        kmeans_ms: s(t.kmeans_ms),
+        insertion_ms: s(t.insertion_ms),
+        stage_one_ms: s(t.stage_one_ms),
+        stage_two_ms: s(t.stage_two_ms),
+        stage_two_gpu_ms: t.stage_two_gpu_ms.map(s),
+        paging_cpu_ms: s(t.paging_cpu_ms),
+        paging_gpu_ms: t.paging_gpu_ms.map(s),
+        paging_hidden_ms: t.paging_hidden_ms.map(s),
+        prune_ms: s(t.prune_ms),
+        total_ms: s(t.total_ms),
+    }
+}
+
+pub fn run(b: MapBench) -> Result<()> {
+    let mut cfg = match &b.config {
+        Some(p) => MapperConfig::from_toml(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )?,
+        None => MapperConfig::default(),
+    };
+    if b.budget.is_some() {
+        cfg.gpu_budget = b.budget;
+    }
+    let scratch = std::env::temp_dir().join(format!("latentam-bench-map-{}", std::process::id()));
+    let (path, source) = match &b.log {
+        Some(p) => (p.clone(), p.display().to_string()),
+        None => {
+            use latentam_cli::scene::{generate, SceneConfig};
+            std::fs::create_dir_all(&scratch)?;
+            let p = scratch.join("scene.mcap");
+            let sc = SceneConfig {
+                frames: b.frames,
+                width: b.width,
+                height: b.height,
+                dim: b.dim,
+                ..SceneConfig::default()
+            };
+            let mut progress = latentam_cli::progress::Progress::new("generating scene", b.frames);
+            generate(&sc, &p, |d| progress.set(d))?;
+            (p, format!("generated scene, {} frames", b.frames))
+        }
+    };
+    let result = map(&b, cfg, &path, source);
+    let _ = std::fs::remove_dir_all(&scratch);
+    result
+}
+
+fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) -> Result<()> {
+    let ctx = Context::new(ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    })?;
+    ctx.warm_up()?;
+    let mut mapper = OnlineMapper::new(&ctx, cfg)?;
+    let frames = McapFrames::open(path, AssemblyConfig::default())
+        .with_context(|| format!("opening {}", path.display()))?;
+    let limit = if b.log.is_some() {
+        b.frames
+    } else {
+        usize::MAX
+    };
+    let mut progress = latentam_cli::progress::Progress::new("mapping", b.frames);
+    let mut curve = Vec::new();
+    let mut kept: Vec<Frame> = Vec::new();
+    let (mut width, mut height, mut n) = (0, 0, 0u64);
+    let start = Instant::now();
+    for (i, frame) in frames.take(limit).enumerate() {
+        let frame = frame?;
+        (width, height) = (frame.color.width, frame.color.height);
+        n += 1;
+        if let Integrated::Keyframe(k) = mapper.integrate(&frame)? {
+            let k: &KeyframeReport = &k;
+            curve.push(CurvePoint {
+                keyframe: k.index,
+                frame: k.frame,
+                gaussians: k.gaussians,
+                resident: k.resident,
+                gpu_bytes: k.gpu_bytes,
+                cpu_bytes: k.cpu_bytes,
+                total_ms: k.timings.total_ms,
+            });
+            kept.push(frame);
+        }
+        progress.set(i + 1);
+    }
+    let wall = start.elapsed().as_secs_f64();
+    drop(progress);
+    if curve.is_empty() {
+        bail!("no keyframes: the log has no usable frames");
+    }
+    let stats = mapper.stats();
+    let keyframes = stats.keyframes;
+
+    // PSNR of re-rendered keyframes, spread over the run.
+    let every = (kept.len() / b.eval_keyframes.max(1)).max(1);
+    let mut ev = Evaluator::new(&ctx);
+    let mut psnr = Vec::new();
+    if b.eval_keyframes > 0 {
+        ctx.set_memory_budget(None);
+        for f in kept.iter().step_by(every).take(b.eval_keyframes) {
+            psnr.push(ev.evaluate(&mut mapper, f, None)?.psnr);
+        }
+    }
+    let t = &stats.timings;
+    let hidden_share = match (t.paging_gpu_ms, t.paging_hidden_ms) {
+        (Some(g), Some(h)) if g > 0.0 => Some(h / g),
+        _ => None,
+    };
+    let report = Report {
+        device: ctx.info().name.clone(),
+        source,
+        frames: n,
+        width,
+        height,
+        keyframes,
+        wall_s: wall,
+        keyframes_per_s: keyframes as f64 / wall,
+        ms_per_keyframe: scale(t, keyframes as f64),
+        paging_gpu_ms_total: t.paging_gpu_ms,
+        paging_hidden_ms_total: t.paging_hidden_ms,
+        paging_hidden_share: hidden_share,
+        dedicated_transfer_queue: ctx.info().dedicated_transfer_queue,
+        gpu_budget: stats.window.map_or(0, |w| w.budget),
+        window_capacity: stats.window.map_or(0, |w| w.capacity),
+        peak_gpu_bytes: stats.gpu_peak_bytes,
+        peak_cpu_bytes: stats.cpu_peak_bytes,
+        gaussians: stats.gaussians,
+        evicted: stats.evicted,
+        fetched: stats.fetched,
+        psnr_keyframes: (!psnr.is_empty()).then(|| psnr.iter().sum::<f64>() / psnr.len() as f64),
+        keyframes_evaluated: psnr.len(),
+        curve,
+    };
+    print_report(&report);
+    if let Some(p) = &b.json {
+        std::fs::write(p, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(())
+}
+
+fn print_report(r: &Report) {
+    let m = &r.ms_per_keyframe;
+    let opt = |x: Option<f64>| x.map_or("n/a".to_string(), |v| format!("{v:.1}"));
+    println!("device: {}   source: {}", r.device, r.source);
+    println!(
+        "{} frames ({}×{}), {} keyframes in {:.1} s: {:.3} keyframes/s",
+        r.frames, r.width, r.height, r.keyframes, r.wall_s, r.keyframes_per_s
+    );
+    println!("ms per keyframe (wall):");
+    println!("  k-means           {:>10.1}", m.kmeans_ms);
+    println!("  insertion         {:>10.1}", m.insertion_ms);
+    println!("  Stage I           {:>10.1}", m.stage_one_ms);
+    println!("  Stage II + paging {:>10.1}", m.stage_two_ms);
+    println!("  paging (host)     {:>10.1}", m.paging_cpu_ms);
+    println!("  paging (GPU)      {:>10}", opt(m.paging_gpu_ms));
+    println!("  paging hidden     {:>10}", opt(m.paging_hidden_ms));
+    println!("  pruning           {:>10.1}", m.prune_ms);
+    println!("  total             {:>10.1}", m.total_ms);
+    println!(
+        "paging hidden behind Stage II: {} (dedicated transfer queue: {})",
+        r.paging_hidden_share
+            .map_or("n/a".into(), |s| format!("{:.0} %", s * 100.0)),
+        r.dedicated_transfer_queue
+    );
+    println!(
+        "GPU budget {} B, window {} Gaussians; peak GPU {} B, peak CPU {} B",
+        r.gpu_budget, r.window_capacity, r.peak_gpu_bytes, r.peak_cpu_bytes
+    );
+    println!(
+        "Gaussians {} (evicted {}, fetched {} over the run)",
+        r.gaussians, r.evicted, r.fetched
+    );
+    if let Some(p) = r.psnr_keyframes {
+        println!(
+            "PSNR of {} re-rendered keyframes: {p:.2} dB",
+            r.keyframes_evaluated
+        );
+    }
+}
