@@ -59,6 +59,26 @@ impl RelevanceScorer {
         })
     }
 
+    /// The scorer in `slot`, (re)built when missing, too small for
+    /// `texts` embeddings, or made for another head's sizes.
+    pub fn ensure<'s>(
+        slot: &'s mut Option<Self>,
+        ctx: &Context,
+        head: &LatentHead,
+        texts: u32,
+    ) -> Result<&'s Self> {
+        let fits = slot.as_ref().is_some_and(|s| {
+            s.max_texts >= texts
+                && s.dim == head.config().dim
+                && s.rows == head.config().max_regions
+        });
+        if !fits {
+            *slot = None;
+            *slot = Some(RelevanceScorer::new(ctx, head, texts.max(16))?);
+        }
+        Ok(slot.as_ref().expect("built above"))
+    }
+
     /// Cosine similarity between each decoded query and each row of
     /// `texts` (`m` × d_f, any norm; zero rows score 0). Returns
     /// `queries.len()` × m scores, row-major. Errors when the head has no

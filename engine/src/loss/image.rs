@@ -26,7 +26,7 @@ pub fn depth_is_valid(z: f32) -> bool {
 
 /// The weighted terms of the last evaluation; they sum to the image part of
 /// the objective (averaged over the batch's views).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct ImageLossValues {
     /// λ_rgb · λ_I1 · mean |Î − I|.
     pub l1: f64,

@@ -198,17 +198,7 @@ impl LocalWindow {
     ) -> Result<PendingSync> {
         let n = self.keys.len();
         let keep = n - plan.evict.len();
-        if keep + plan.fetch.len() > self.capacity() as usize {
-            return Err(Error::InvalidArgument(format!(
-                "sync plan keeps {keep} and fetches {} Gaussians into a window of {}",
-                plan.fetch.len(),
-                self.capacity()
-            )));
-        }
-        for c in companions {
-            c.buffer
-                .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
-        }
+        self.check_room(keep, plan.fetch.len(), companions)?;
         let fetched = gather(global, &plan.fetch)?;
         let largest_row = FIELD_WIDTHS
             .iter()
@@ -304,10 +294,19 @@ impl LocalWindow {
         companions: &[Companion<'a>],
     ) -> Result<()> {
         let n = self.keys.len();
-        if n + keys.len() > self.capacity() as usize {
+        self.check_room(n, keys.len(), companions)?;
+        let fetched = gather(global, keys)?;
+        record_fetch(rec, &self.params, n as u64, &fetched, companions)?;
+        self.keys.extend_from_slice(keys);
+        Ok(())
+    }
+
+    /// Errors unless `keep` residents and `incoming` Gaussians fit and every
+    /// companion buffer covers the capacity.
+    fn check_room(&self, keep: usize, incoming: usize, companions: &[Companion<'_>]) -> Result<()> {
+        if keep + incoming > self.capacity() as usize {
             return Err(Error::InvalidArgument(format!(
-                "appending {} Gaussians to a window holding {n} of {}",
-                keys.len(),
+                "keeping {keep} and bringing in {incoming} Gaussians overflows a window of {}",
                 self.capacity()
             )));
         }
@@ -315,9 +314,6 @@ impl LocalWindow {
             c.buffer
                 .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
         }
-        let fetched = gather(global, keys)?;
-        record_fetch(rec, &self.params, n as u64, &fetched, companions)?;
-        self.keys.extend_from_slice(keys);
         Ok(())
     }
 

@@ -131,6 +131,7 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 pub(crate) struct Archive {
     bytes: Vec<u8>,
     meta: HashMap<String, String>,
+    names: std::collections::HashSet<String>,
     path: PathBuf,
 }
 
@@ -157,10 +158,16 @@ impl Archive {
             )));
         }
         // Check every tensor's extent now, so later reads cannot fail on it.
-        SafeTensors::deserialize(&bytes).map_err(|e| not_ours(e.to_string()))?;
+        let names = SafeTensors::deserialize(&bytes)
+            .map_err(|e| not_ours(e.to_string()))?
+            .names()
+            .into_iter()
+            .map(str::to_string)
+            .collect();
         Ok(Archive {
             bytes,
             meta,
+            names,
             path: path.to_path_buf(),
         })
     }
@@ -186,9 +193,7 @@ impl Archive {
 
     /// Whether tensor `name` is present.
     pub fn has(&self, name: &str) -> bool {
-        SafeTensors::deserialize(&self.bytes)
-            .map(|s| s.tensor(name).is_ok())
-            .unwrap_or(false)
+        self.names.contains(name)
     }
 
     /// Tensor `name` as `T`s with its shape; the stored type must be `T`.

@@ -62,8 +62,9 @@ pub fn add_iou(a: &mut BTreeMap<u16, (u64, u64)>, b: &BTreeMap<u16, (u64, u64)>)
 pub struct Evaluator {
     ctx: Context,
     raster: Rasterizer,
+    /// The rendered Gaussians (grown as views need).
+    gaussians: Option<GaussianBuffers>,
     scorer: Option<RelevanceScorer>,
-    scorer_texts: u32,
     /// Gaussians within this distance of the camera are rendered (metres).
     pub radius: f64,
 }
@@ -74,8 +75,8 @@ impl Evaluator {
         Evaluator {
             ctx: ctx.clone(),
             raster: Rasterizer::new(ctx),
+            gaussians: None,
             scorer: None,
-            scorer_texts: 0,
             radius: 8.0,
         }
     }
@@ -104,9 +105,17 @@ impl Evaluator {
                 "no Gaussians near this view: nothing to evaluate".into(),
             ));
         }
-        let buffers = GaussianBuffers::new(&self.ctx, "eval/gaussians", n as u64)?;
+        if self
+            .gaussians
+            .as_ref()
+            .is_none_or(|b| b.capacity() < n as u64)
+        {
+            self.gaussians = None;
+            self.gaussians = Some(GaussianBuffers::new(&self.ctx, "eval/gaussians", n as u64)?);
+        }
+        let buffers = self.gaussians.as_ref().expect("sized above");
         buffers.upload(&self.ctx, 0, &host)?;
-        self.raster.forward(&buffers, n as u64, &[camera])?;
+        self.raster.forward(buffers, n as u64, &[camera])?;
         let view = self.raster.download_view(0)?;
         let target = record.target_rgbd();
 
@@ -140,18 +149,11 @@ impl Evaluator {
         let texts_needed = vocabulary
             .map_or(0, |v| v.names.len())
             .max(record.regions.as_ref().map_or(0, |r| r.count as usize));
-        let rebuild = match &self.scorer {
-            None => true,
-            Some(_) => self.scorer_texts < texts_needed as u32,
-        };
-        if rebuild && texts_needed > 0 {
-            self.scorer = None;
-            self.scorer_texts = (texts_needed as u32).max(16);
-            self.scorer = Some(RelevanceScorer::new(&self.ctx, head, self.scorer_texts)?);
-        }
-        let Some(scorer) = &self.scorer else {
+        if texts_needed == 0 {
             return Ok(m);
-        };
+        }
+        let scorer =
+            RelevanceScorer::ensure(&mut self.scorer, &self.ctx, head, texts_needed as u32)?;
         let (w, h) = (view.width as usize, view.height as usize);
 
         // Regions: pooled rendered queries against their targets and, with a

@@ -32,7 +32,6 @@ pub const STATE_FILE: &str = "state.latentam";
 pub struct Mapper {
     inner: OnlineMapper,
     scorer: Option<RelevanceScorer>,
-    texts: u32,
 }
 
 impl Mapper {
@@ -48,7 +47,6 @@ impl Mapper {
         Ok(Mapper {
             inner: OnlineMapper::new(ctx, config)?,
             scorer: None,
-            texts: 0,
         })
     }
 
@@ -82,16 +80,9 @@ impl Mapper {
         self.inner.flush()?;
         let ctx = self.inner.context().clone();
         let head = self.inner.head().expect("checked above");
-        if self.scorer.is_none() || self.texts < count {
-            self.scorer = None;
-            self.scorer = Some(RelevanceScorer::new(&ctx, head, count.max(8))?);
-            self.texts = count.max(8);
-        }
+        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, count)?;
         let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
-        self.scorer
-            .as_ref()
-            .expect("created above")
-            .score(&ctx, head, &queries, embeddings)
+        scorer.score(&ctx, head, &queries, embeddings)
     }
 
     /// Saves the whole state into directory `dir` (created if missing) as
@@ -114,7 +105,6 @@ impl Mapper {
         Ok(Mapper {
             inner: OnlineMapper::load(ctx, &path, None)?,
             scorer: None,
-            texts: 0,
         })
     }
 

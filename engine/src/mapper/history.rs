@@ -177,7 +177,7 @@ impl History {
     /// there are at most `b`), in drawing order; the same `seed` draws the
     /// same keyframes.
     pub fn sample(&self, b: usize, seed: u64) -> Vec<usize> {
-        self.sample_from((0..self.records.len()).collect(), b, seed)
+        draw((0..self.records.len()).collect(), b, seed)
     }
 
     /// Like [`History::sample`], among the keyframes whose camera lies
@@ -193,21 +193,22 @@ impl History {
                     <= radius
             })
             .collect();
-        self.sample_from(near, b, seed)
+        draw(near, b, seed)
     }
+}
 
-    fn sample_from(&self, mut idx: Vec<usize>, b: usize, seed: u64) -> Vec<usize> {
-        let mut rng = SplitMix(seed);
-        let n = idx.len();
-        let take = b.min(n);
-        // Partial Fisher–Yates.
-        for i in 0..take {
-            let j = i + (rng.next() % (n - i) as u64) as usize;
-            idx.swap(i, j);
-        }
-        idx.truncate(take);
-        idx
+/// `b` distinct entries of `idx` drawn uniformly, in drawing order.
+fn draw(mut idx: Vec<usize>, b: usize, seed: u64) -> Vec<usize> {
+    let mut rng = SplitMix(seed);
+    let n = idx.len();
+    let take = b.min(n);
+    // Partial Fisher–Yates.
+    for i in 0..take {
+        let j = i + (rng.next() % (n - i) as u64) as usize;
+        idx.swap(i, j);
     }
+    idx.truncate(take);
+    idx
 }
 
 #[cfg(test)]

@@ -234,12 +234,7 @@ pub struct KeyframeReport {
     /// New Gaussians in the global map.
     pub added: usize,
     /// Stage I's measurements.
-    #[serde(skip)]
     pub stage_one: StageOneReport,
-    /// Stage I image loss (weighted total).
-    pub image_loss: f64,
-    /// Stage I feature loss.
-    pub feature_loss: f64,
     /// Feature loss of the last Stage II iteration.
     pub stage_two: f64,
     /// Gaussians pruned after this keyframe.
@@ -312,6 +307,8 @@ pub struct OnlineMapper {
     pub(super) last_sync: Option<DVec3>,
     /// The last sync left Gaussians within the radius out of the window.
     pub(super) window_partial: bool,
+    /// Stage I changed resident Gaussians since the last write-back.
+    pub(super) window_dirty: bool,
     pub(super) frames: u64,
     pub(super) stats: MapperStats,
 }
@@ -338,6 +335,7 @@ impl OnlineMapper {
             trainer: None,
             last_sync: None,
             window_partial: false,
+            window_dirty: false,
             frames: 0,
             stats: MapperStats::default(),
             cfg,
@@ -563,6 +561,7 @@ impl OnlineMapper {
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.window.as_ref().expect("ensured");
         let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
+        self.window_dirty = true;
         timings.stage_one_ms = ms_since(t);
 
         // Stage II reads no Gaussian: the window pages beside it. The
@@ -630,8 +629,6 @@ impl OnlineMapper {
             stamp_ns: last.stamp_ns,
             added: new_keys.len(),
             stage_one,
-            image_loss: stage_one.image.total(),
-            feature_loss: stage_one.feature,
             stage_two,
             pruned,
             paging,
@@ -682,12 +679,7 @@ impl OnlineMapper {
         }
         let trainer = self.trainer.as_ref().expect("ensured");
         let window = self.window.as_mut().expect("ensured");
-        let companions: Vec<Companion<'_>> = trainer
-            .optimizer()
-            .state()
-            .into_iter()
-            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
-            .collect();
+        let companions = optimizer_rows(trainer);
         let mut rec = self.ctx.recorder()?;
         window.record_append(&mut rec, keys, &self.global, &companions)?;
         rec.submit()?.wait()
@@ -700,12 +692,7 @@ impl OnlineMapper {
             .as_ref()
             .expect("the trainer exists before the first sync");
         let window = self.window.as_mut().expect("ensured");
-        let companions: Vec<Companion<'_>> = trainer
-            .optimizer()
-            .state()
-            .into_iter()
-            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
-            .collect();
+        let companions = optimizer_rows(trainer);
         let report = PagingReport {
             written_back: window.len(),
             evicted: plan.evict.len(),
@@ -735,17 +722,19 @@ impl OnlineMapper {
     ) -> Result<(PagingReport, Option<(f64, Option<f64>)>)> {
         let span = run.submission.wait_span()?;
         run.pending.apply(&mut self.global)?;
+        self.window_dirty = false;
         let timing = span.map(|s| (s.ms(), beside.map(|b| s.overlap_ms(b))));
         Ok((run.report, timing))
     }
 
     /// Writes the window back to the global map (nothing moves), so that
-    /// [`OnlineMapper::global`] is current.
+    /// [`OnlineMapper::global`] is current; nothing to do when no training
+    /// step ran since the last write-back.
     pub fn flush(&mut self) -> Result<()> {
         let Some(window) = &self.window else {
             return Ok(());
         };
-        if window.is_empty() {
+        if window.is_empty() || !self.window_dirty {
             return Ok(());
         }
         let plan = SyncPlan {
@@ -802,6 +791,16 @@ impl OnlineMapper {
         }
         Ok(doomed.len())
     }
+}
+
+/// The Gaussian optimiser's per-row state, moved with the window's rows.
+fn optimizer_rows(trainer: &Trainer) -> Vec<Companion<'_>> {
+    trainer
+        .optimizer()
+        .state()
+        .into_iter()
+        .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+        .collect()
 }
 
 fn add_timings(sum: &mut KeyframeTimings, t: &KeyframeTimings) {

@@ -33,7 +33,7 @@ pub struct TrainerConfig {
 }
 
 /// What a Stage I step measured (before its update).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct StageOneReport {
     /// Weighted image losses (mean over views).
     pub image: ImageLossValues,

@@ -103,7 +103,7 @@ pub struct RenderedView {
 }
 
 /// Counts from the last forward pass.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ForwardStats {
     /// (view, Gaussian) pairs that survived culling.
     pub visible: u64,
