@@ -1,6 +1,5 @@
 //! `latentam`: the command-line front end of the engine.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -10,9 +9,18 @@ mod bench_ingest;
 mod bench_latent;
 mod bench_map;
 mod bench_raster;
+mod config_cmd;
 mod convert_cmd;
+mod demo_cmd;
+mod eval_cmd;
 mod gen_scene;
 mod inspect;
+mod interrupt;
+mod map_cmd;
+mod mapping;
+mod png_out;
+mod profile_cmd;
+mod query_cmd;
 mod selfcheck;
 
 #[derive(Parser)]
@@ -36,13 +44,24 @@ enum Command {
         #[arg(long)]
         validation: bool,
     },
-    /// The end-to-end demo. The built-in demo scene and mapper are not part
-    /// of the engine yet, so this currently runs the GPU self-check.
-    Demo {
-        /// Output folder for the demo's results.
-        #[arg(long, default_value = "latentam-demo")]
-        out: PathBuf,
-    },
+    /// The built-in scene end to end: generate it, map it, evaluate the
+    /// map on held-out views, query it, and print a summary.
+    Demo(demo_cmd::Args),
+    /// Map a log into a run folder: map.ply, decoder.safetensors,
+    /// config.toml, report.json, trace.json, trajectory.txt and the
+    /// resumable state. Ctrl-C stops cleanly and still writes the folder.
+    Map(map_cmd::Args),
+    /// Relevance of every Gaussian of a mapped run to a text embedding or
+    /// a vocabulary entry: heat-map PLY, top-k summary, relevance image.
+    Query(query_cmd::Args),
+    /// Re-render a log's frames from a mapped run and report PSNR, depth
+    /// L1, embedding cosine loss and L2, and mIoU.
+    Eval(eval_cmd::Args),
+    /// Map a log with every kernel timed: per-kernel table and trace.json.
+    Profile(profile_cmd::Args),
+    /// Print the configuration: documented defaults, or the effective one
+    /// of --config/--set.
+    Config(config_cmd::Args),
     /// Write the built-in demo scene (two rooms and a corridor, a dozen
     /// labelled objects, synthetic region embeddings) as an MCAP log.
     GenScene(gen_scene::Args),
@@ -64,14 +83,16 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Devices => selfcheck::devices(),
         Command::Selfcheck { validation } => selfcheck::run(validation),
-        Command::Demo { out } => {
-            eprintln!(
-                "note: the demo scene and the mapper are not implemented yet; running the GPU \
-                 self-check instead (results would go to {}).",
-                out.display()
-            );
-            selfcheck::run(false)
-        }
+        Command::Demo(args) => demo_cmd::run(args),
+        Command::Map(args) => match map_cmd::run(args) {
+            Ok(true) => return ExitCode::from(map_cmd::INTERRUPTED),
+            Ok(false) => Ok(()),
+            Err(e) => Err(e),
+        },
+        Command::Query(args) => query_cmd::run(args),
+        Command::Eval(args) => eval_cmd::run(args),
+        Command::Profile(args) => profile_cmd::run(args),
+        Command::Config(args) => config_cmd::run(args),
         Command::GenScene(args) => gen_scene::run(args),
         Command::Convert(args) => convert_cmd::run(args),
         Command::Inspect(args) => inspect::run(args),

@@ -21,7 +21,7 @@ mod tests;
 pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
 pub use memory::{ByteCount, MemoryReport};
-pub use profiler::{KernelStats, Profiler, Sample};
+pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};
 pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
 
 impl Context {

@@ -40,58 +40,126 @@ pub struct KernelStats {
     pub max_ms: f64,
 }
 
-/// Collected samples. Obtain it with [`super::Context::profiler_snapshot`].
-#[derive(Clone, Debug, Default)]
+/// Samples kept for the trace by default: a long run times millions of
+/// dispatches, and a trace of the first hundred thousand (about 10 MB)
+/// shows every kernel many times over. Statistics cover every sample.
+pub const DEFAULT_TRACE_SAMPLES: usize = 100_000;
+
+/// Running statistics of one kernel (Welford's mean and variance, so they
+/// stay exact over any number of samples without keeping them).
+#[derive(Clone, Copy, Debug, Default)]
+struct Running {
+    count: u64,
+    mean: f64,
+    m2: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Running {
+    fn add(&mut self, x: f64) {
+        if self.count == 0 {
+            self.min = x;
+            self.max = x;
+        }
+        self.count += 1;
+        let delta = x - self.mean;
+        self.mean += delta / self.count as f64;
+        self.m2 += delta * (x - self.mean);
+        self.min = self.min.min(x);
+        self.max = self.max.max(x);
+    }
+}
+
+/// Collected timings. Obtain it with [`super::Context::profiler_snapshot`].
+#[derive(Clone, Debug)]
 pub struct Profiler {
     samples: Vec<Sample>,
+    running: BTreeMap<&'static str, Running>,
+    trace_limit: usize,
+    dropped: u64,
+}
+
+impl Default for Profiler {
+    fn default() -> Self {
+        Profiler {
+            samples: Vec::new(),
+            running: BTreeMap::new(),
+            trace_limit: DEFAULT_TRACE_SAMPLES,
+            dropped: 0,
+        }
+    }
 }
 
 impl Profiler {
     pub(crate) fn record(&mut self, name: &'static str, queue: &'static str, start: f64, dur: f64) {
-        self.samples.push(Sample {
-            name,
-            queue,
-            start_ns: start,
-            duration_ns: dur,
-        });
+        self.running.entry(name).or_default().add(dur * 1e-6);
+        if self.samples.len() < self.trace_limit {
+            self.samples.push(Sample {
+                name,
+                queue,
+                start_ns: start,
+                duration_ns: dur,
+            });
+        } else {
+            self.dropped += 1;
+        }
     }
 
-    /// Every sample, in the order the batches were waited on.
+    /// Keeps at most `limit` samples for [`Profiler::samples`] and the
+    /// trace (the first ones); statistics still cover every sample.
+    pub fn set_trace_limit(&mut self, limit: usize) {
+        self.trace_limit = limit;
+        self.samples.truncate(limit);
+    }
+
+    /// The samples kept for the trace, in the order the batches were
+    /// waited on.
     pub fn samples(&self) -> &[Sample] {
         &self.samples
     }
 
-    /// Per-kernel statistics, keyed by kernel name.
+    /// Samples timed but not kept for the trace.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Per-kernel statistics over every timed sample, keyed by kernel name.
     pub fn stats(&self) -> BTreeMap<&'static str, KernelStats> {
-        let mut by: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-        for s in &self.samples {
-            by.entry(s.name).or_default().push(s.duration_ns * 1e-6);
-        }
-        by.into_iter()
-            .map(|(k, v)| {
-                let n = v.len() as f64;
-                let total: f64 = v.iter().sum();
-                let mean = total / n;
-                let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+        self.running
+            .iter()
+            .map(|(&k, r)| {
                 (
                     k,
                     KernelStats {
-                        count: v.len() as u64,
-                        total_ms: total,
-                        mean_ms: mean,
-                        std_ms: var.sqrt(),
-                        min_ms: v.iter().cloned().fold(f64::INFINITY, f64::min),
-                        max_ms: v.iter().cloned().fold(0.0, f64::max),
+                        count: r.count,
+                        total_ms: r.mean * r.count as f64,
+                        mean_ms: r.mean,
+                        std_ms: (r.m2 / r.count.max(1) as f64).max(0.0).sqrt(),
+                        min_ms: r.min,
+                        max_ms: r.max,
                     },
                 )
             })
             .collect()
     }
 
-    /// A plain-text table sorted by total time.
+    /// GPU time of every timed command, milliseconds.
+    pub fn total_ms(&self) -> f64 {
+        self.running.values().map(|r| r.mean * r.count as f64).sum()
+    }
+
+    /// A plain-text table sorted by total time; the share column is of
+    /// the total GPU time.
     pub fn table(&self) -> String {
+        self.table_with_share_of(self.total_ms())
+    }
+
+    /// The table with the share column taken of `frame_ms` (e.g. the wall
+    /// time of the frames profiled).
+    pub fn table_with_share_of(&self, frame_ms: f64) -> String {
         let stats = self.stats();
-        let all: f64 = stats.values().map(|s| s.total_ms).sum();
+        let all = frame_ms;
         let mut rows: Vec<_> = stats.into_iter().collect();
         rows.sort_by(|a, b| b.1.total_ms.total_cmp(&a.1.total_ms));
         let mut out = format!(
@@ -118,42 +186,69 @@ impl Profiler {
         out
     }
 
-    /// Writes the samples as a Chrome trace (`chrome://tracing`, Perfetto):
-    /// one complete event per command, one track per queue, times relative
-    /// to the first sample.
+    /// Writes the kept samples as a Chrome trace (`chrome://tracing`,
+    /// Perfetto): one complete event per command, one track per queue,
+    /// times relative to the first sample.
     pub fn write_chrome_trace(&self, path: &Path) -> Result<()> {
+        #[derive(serde::Serialize)]
+        struct Event {
+            name: &'static str,
+            cat: &'static str,
+            ph: &'static str,
+            ts: f64,
+            dur: f64,
+            pid: u32,
+            tid: &'static str,
+        }
+        #[derive(serde::Serialize)]
+        struct Other {
+            samples_not_traced: u64,
+        }
+        #[derive(serde::Serialize)]
+        #[serde(rename_all = "camelCase")]
+        struct Trace {
+            trace_events: Vec<Event>,
+            display_time_unit: &'static str,
+            other_data: Other,
+        }
         let t0 = self
             .samples
             .iter()
             .map(|s| s.start_ns)
             .fold(f64::INFINITY, f64::min);
-        let events: Vec<serde_json::Value> = self
-            .samples
-            .iter()
-            .map(|s| {
-                serde_json::json!({
-                    "name": s.name,
-                    "cat": "gpu",
-                    "ph": "X",
-                    "ts": (s.start_ns - t0) * 1e-3,
-                    "dur": s.duration_ns * 1e-3,
-                    "pid": 1,
-                    "tid": s.queue,
+        let doc = Trace {
+            trace_events: self
+                .samples
+                .iter()
+                .map(|s| Event {
+                    name: s.name,
+                    cat: "gpu",
+                    ph: "X",
+                    ts: (s.start_ns - t0) * 1e-3,
+                    dur: s.duration_ns * 1e-3,
+                    pid: 1,
+                    tid: s.queue,
                 })
-            })
-            .collect();
-        let doc = serde_json::json!({ "traceEvents": events, "displayTimeUnit": "ms" });
+                .collect(),
+            display_time_unit: "ms",
+            other_data: Other {
+                samples_not_traced: self.dropped,
+            },
+        };
         let io = |source| Error::Io {
             path: path.to_path_buf(),
             source,
         };
-        let mut f = std::fs::File::create(path).map_err(io)?;
-        f.write_all(doc.to_string().as_bytes()).map_err(io)?;
+        let mut f = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+        serde_json::to_writer(&mut f, &doc).map_err(|e| io(e.into()))?;
+        f.flush().map_err(io)?;
         Ok(())
     }
 
     /// Forgets every sample.
     pub fn clear(&mut self) {
         self.samples.clear();
+        self.running.clear();
+        self.dropped = 0;
     }
 }

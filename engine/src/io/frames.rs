@@ -863,6 +863,43 @@ fn grid_embeddings(m: &FeatureGrid<'_>, pool: &mut BufferPool) -> Result<Embeddi
     })
 }
 
+/// The first query vocabulary (`TextEmbeddings`) on `topic` of the log at
+/// `path`, without assembling frames: `Ok(None)` when the topic carries
+/// none. A vocabulary message that does not decode is an error, since the
+/// caller asked for exactly that message.
+///
+/// ```no_run
+/// let vocab = latentam::io::read_vocabulary("scene.mcap".as_ref(), "/vocabulary")?;
+/// if let Some(v) = vocab {
+///     println!("{} classes of {}-d {} embeddings", v.names.len(), v.dim, v.model);
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
+pub fn read_vocabulary(path: &Path, topic: &str) -> Result<Option<Vocabulary>, InputError> {
+    let log = McapLog::open(path)?;
+    let mut reader = log.reader(ReadFilter {
+        topics: Some(vec![topic.to_string()]),
+        ..Default::default()
+    });
+    let Some(next) = reader.next_with(|m| {
+        let reject = |rejection| InputError::Rejected {
+            topic: topic.to_string(),
+            stamp_ns: m.log_time as i64,
+            rejection,
+        };
+        let msg = TextEmbeddings::decode(m.data).map_err(|e| {
+            reject(Rejection::new(
+                "vocabulary: undecodable message",
+                e.to_string(),
+            ))
+        })?;
+        vocabulary_of(&msg).map_err(reject)
+    }) else {
+        return Ok(None);
+    };
+    Ok(Some(next??))
+}
+
 fn vocabulary_of(m: &TextEmbeddings<'_>) -> Result<Vocabulary, Rejection> {
     if m.names.len() != m.ids.len() {
         return Err(Rejection::new(

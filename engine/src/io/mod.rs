@@ -1,4 +1,5 @@
-//! The engine's input side: MCAP logs of ROS 2 messages in, [`Frame`]s out.
+//! The engine's file formats: MCAP logs of ROS 2 messages in, [`Frame`]s
+//! out, and the maps and trajectories a run writes.
 //!
 //! * [`cdr`]: zero-copy CDR decoding (and encoding, for writers and tests);
 //! * [`messages`]: the message types, borrowed from the serialized bytes;
@@ -9,7 +10,11 @@
 //! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
-//! * [`LogWriter`]: writing logs (converters, the demo scene, tests).
+//! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
+//! * [`ply`]: Gaussian maps as PLY in the Inria 3DGS layout, for splat
+//!   viewers ([`write_ply`] / [`read_ply`]);
+//! * [`trajectory`]: camera trajectories in the TUM RGB-D format
+//!   ([`write_tum`] / [`read_tum`]).
 //!
 //! ```no_run
 //! use latentam::io::{AssemblyConfig, McapFrames};
@@ -28,10 +33,12 @@ mod frame;
 mod frames;
 mod log;
 pub mod messages;
+pub mod ply;
 mod pool;
 mod report;
 pub mod schema;
 mod tf;
+pub mod trajectory;
 mod writer;
 
 use std::path::PathBuf;
@@ -41,7 +48,8 @@ pub use frame::{
     EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
 };
 pub use frames::{
-    AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource, Topics, Vocabulary,
+    read_vocabulary, AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource,
+    Topics, Vocabulary,
 };
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,
@@ -50,8 +58,10 @@ pub use messages::{
     CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
+pub use ply::{read_ply, write_ply, PlyMap};
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
+pub use trajectory::{read_tum, write_tum};
 pub use writer::{Compression, LogWriter};
 
 /// What went wrong reading or writing a log.

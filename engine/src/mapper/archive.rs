@@ -42,9 +42,19 @@ element!(u32, U32);
 pub(crate) struct ArchiveWriter {
     tensors: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
     meta: HashMap<String, String>,
+    /// Format name and version; unset: the map's.
+    format: Option<(&'static str, u32)>,
 }
 
 impl ArchiveWriter {
+    /// An archive of another format than the saved map.
+    pub fn with_format(name: &'static str, version: u32) -> Self {
+        ArchiveWriter {
+            format: Some((name, version)),
+            ..Default::default()
+        }
+    }
+
     pub fn meta(&mut self, key: &str, value: impl ToString) {
         self.meta.insert(key.to_string(), value.to_string());
     }
@@ -70,8 +80,9 @@ impl ArchiveWriter {
 
     /// Writes the archive to `path` atomically.
     pub fn write(mut self, path: &Path) -> Result<()> {
-        self.meta.insert("format".into(), FORMAT.into());
-        self.meta.insert("version".into(), VERSION.to_string());
+        let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
+        self.meta.insert("format".into(), format.into());
+        self.meta.insert("version".into(), version.to_string());
         let views = self
             .tensors
             .iter()
@@ -139,21 +150,30 @@ impl Archive {
     /// Reads and checks `path`: a safetensors file of this format and a
     /// version this build reads.
     pub fn open(path: &Path) -> Result<Self> {
+        Self::open_as(path, FORMAT, VERSION, "map")
+    }
+
+    /// Reads and checks `path` as an archive of format `format`, version
+    /// `version`; `what` names it in errors.
+    pub fn open_as(path: &Path, format: &str, version: u32, what: &str) -> Result<Self> {
         let bytes = std::fs::read(path).map_err(|e| io_error(path, "reading", e))?;
         let not_ours = |why: String| {
-            Error::InvalidArgument(format!("{} is not a latentam map: {why}", path.display()))
+            Error::InvalidArgument(format!(
+                "{} is not a latentam {what}: {why}",
+                path.display()
+            ))
         };
         let (_, header) =
             SafeTensors::read_metadata(&bytes).map_err(|e| not_ours(e.to_string()))?;
         let meta = header.metadata().clone().unwrap_or_default();
         match meta.get("format").map(String::as_str) {
-            Some(FORMAT) => {}
+            Some(f) if f == format => {}
             other => return Err(not_ours(format!("format is {other:?}"))),
         }
-        let version = meta.get("version").map(String::as_str).unwrap_or("none");
-        if version != VERSION.to_string() {
+        let found = meta.get("version").map(String::as_str).unwrap_or("none");
+        if found != version.to_string() {
             return Err(Error::InvalidArgument(format!(
-                "{} is a version {version} map; this build reads version {VERSION}",
+                "{} is a version {found} {what}; this build reads version {version}",
                 path.display()
             )));
         }

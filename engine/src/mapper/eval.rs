@@ -5,7 +5,9 @@
 //! semantic labels, per-class intersections and unions for mIoU: each of
 //! the frame's regions is classified from its pooled rendered query (the
 //! mask pooling training supervises), and its pixels take that class;
-//! labelled pixels outside every region count as misses.
+//! labelled pixels outside every region count as misses. Without semantic
+//! labels the true class of a region is the one its target embedding is
+//! closest to (the teacher/student variant).
 
 use std::collections::BTreeMap;
 
@@ -16,7 +18,7 @@ use crate::gpu::Context;
 use crate::io::{Frame, Vocabulary};
 use crate::latent::RelevanceScorer;
 use crate::map::push_gaussian;
-use crate::splat::{GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
+use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
 
 /// Metrics of one view.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
@@ -30,6 +32,14 @@ pub struct ViewMetrics {
     pub coverage: f64,
     /// Mean over regions of 1 − cos(decoded pooled query, target).
     pub cosine_loss: Option<f64>,
+    /// Mean over regions of the L2 distance between the unit-normalised
+    /// decoded pooled query and the (unit) target, √(2 − 2 cos).
+    pub l2: Option<f64>,
+    /// Where the true classes of `class_iou` come from: `"labels"` (the
+    /// frame's semantic image) or `"teacher"` (no labels: each region's
+    /// class is the vocabulary entry closest to its target embedding,
+    /// the Feature-3DGS teacher/student variant of SPEC §10).
+    pub segmentation: Option<&'static str>,
     /// Regions compared.
     pub regions: usize,
     /// Per class id: (intersection, union) pixel counts of the predicted
@@ -81,28 +91,25 @@ impl Evaluator {
         }
     }
 
-    /// Metrics of `frame` rendered from `mapper`'s map (written back
-    /// first). Segmentation needs `vocabulary` and the frame's semantic
-    /// labels; embeddings need the latent head.
-    pub fn evaluate(
+    /// Renders `camera`'s view of `mapper`'s map (written back first) from
+    /// the Gaussians within [`Evaluator::radius`] of the camera; returns
+    /// the view and the number of Gaussians rendered.
+    pub fn render(
         &mut self,
         mapper: &mut OnlineMapper,
-        frame: &Frame,
-        vocabulary: Option<&Vocabulary>,
-    ) -> Result<ViewMetrics> {
+        camera: &Camera,
+    ) -> Result<(RenderedView, usize)> {
         mapper.flush()?;
-        let record = KeyframeRecord::from_frame(frame);
-        let camera = camera_of(frame);
         let global = mapper.global();
         let mut host = HostGaussians::default();
-        for key in global.within(frame.pose.translation, self.radius) {
+        for key in global.within(camera.cam_to_world.translation, self.radius) {
             let g = global.get(key).expect("within() returns present keys");
             push_gaussian(&mut host, g);
         }
         let n = host.means.len();
         if n == 0 {
             return Err(Error::InvalidArgument(
-                "no Gaussians near this view: nothing to evaluate".into(),
+                "no Gaussians near this view: nothing to render".into(),
             ));
         }
         if self
@@ -115,8 +122,23 @@ impl Evaluator {
         }
         let buffers = self.gaussians.as_ref().expect("sized above");
         buffers.upload(&self.ctx, 0, &host)?;
-        self.raster.forward(buffers, n as u64, &[camera])?;
-        let view = self.raster.download_view(0)?;
+        self.raster
+            .forward(buffers, n as u64, std::slice::from_ref(camera))?;
+        Ok((self.raster.download_view(0)?, n))
+    }
+
+    /// Metrics of `frame` rendered from `mapper`'s map (written back
+    /// first). Segmentation needs `vocabulary` and the frame's semantic
+    /// labels; embeddings need the latent head.
+    pub fn evaluate(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+        vocabulary: Option<&Vocabulary>,
+    ) -> Result<ViewMetrics> {
+        let record = KeyframeRecord::from_frame(frame);
+        let camera = camera_of(frame);
+        let (view, n) = self.render(mapper, &camera)?;
         let target = record.target_rgbd();
 
         let mut se = 0.0f64;
@@ -209,36 +231,86 @@ impl Evaluator {
             let s = scorer.score(&self.ctx, head, &q, &targets)?;
             let k = q.len();
             m.cosine_loss = Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
+            m.l2 = Some(
+                (0..k)
+                    .map(|i| (2.0 - 2.0 * s[i * k + i] as f64).max(0.0).sqrt())
+                    .sum::<f64>()
+                    / k as f64,
+            );
             m.regions = k;
         }
-        if let (Some(vocab), Some(sem)) = (vocabulary, frame.semantic.as_ref()) {
-            if vocab.dim == head.config().dim && !vocab.names.is_empty() {
-                let c = vocab.names.len();
-                let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
-                let mut predicted = vec![None; sums.len()];
-                for (j, &i) in used.iter().enumerate() {
-                    let row = &s[j * c..(j + 1) * c];
-                    let best = (0..c)
-                        .max_by(|&a, &b| row[a].total_cmp(&row[b]))
-                        .expect("non-empty vocabulary");
-                    predicted[i] = Some(vocab.ids[best]);
-                }
-                for y in 0..h {
-                    for x in 0..w {
+        let Some(vocab) = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty())
+        else {
+            return Ok(m);
+        };
+        let c = vocab.names.len();
+        let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
+        let argmax = |row: &[f32]| {
+            (0..row.len())
+                .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+                .expect("non-empty vocabulary")
+        };
+        let mut predicted = vec![None; sums.len()];
+        for (j, &i) in used.iter().enumerate() {
+            predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
+        }
+        // The true class of a pixel: its label, or without labels its
+        // region's teacher class (targets are unit-norm, so the cosine
+        // ranking is the dot product with the normalised class vectors).
+        let teacher: Option<Vec<Option<u16>>> = match frame.semantic {
+            Some(_) => None,
+            None => {
+                let texts: Vec<Vec<f32>> = vocab
+                    .vectors
+                    .chunks_exact(dim)
+                    .map(|t| {
+                        let n = t.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+                        t.iter().map(|x| x / n).collect()
+                    })
+                    .collect();
+                Some(
+                    (0..sums.len())
+                        .map(|i| {
+                            let target = &r.vectors[i * dim..(i + 1) * dim];
+                            if target.iter().all(|&x| x == 0.0) {
+                                return None;
+                            }
+                            let row: Vec<f32> = texts
+                                .iter()
+                                .map(|t| t.iter().zip(target).map(|(a, b)| a * b).sum())
+                                .collect();
+                            Some(vocab.ids[argmax(&row)])
+                        })
+                        .collect(),
+                )
+            }
+        };
+        m.segmentation = Some(if teacher.is_some() {
+            "teacher"
+        } else {
+            "labels"
+        });
+        for y in 0..h {
+            for x in 0..w {
+                let region = region_of(x, y);
+                let truth = match (&frame.semantic, &teacher) {
+                    (Some(sem), _) => {
                         let sy = y * sem.height as usize / h;
                         let sx = x * sem.width as usize / w;
-                        let truth = sem.labels[sy * sem.width as usize + sx];
-                        if truth == 0 {
-                            continue;
-                        }
-                        let pred = predicted.get(region_of(x, y)).copied().flatten();
-                        m.class_iou.entry(truth).or_default().1 += 1;
-                        match pred {
-                            Some(p) if p == truth => m.class_iou.entry(truth).or_default().0 += 1,
-                            Some(p) => m.class_iou.entry(p).or_default().1 += 1,
-                            None => {}
-                        }
+                        sem.labels[sy * sem.width as usize + sx]
                     }
+                    (None, Some(t)) => t.get(region).copied().flatten().unwrap_or(0),
+                    (None, None) => 0,
+                };
+                if truth == 0 {
+                    continue;
+                }
+                let pred = predicted.get(region).copied().flatten();
+                m.class_iou.entry(truth).or_default().1 += 1;
+                match pred {
+                    Some(p) if p == truth => m.class_iou.entry(truth).or_default().0 += 1,
+                    Some(p) => m.class_iou.entry(p).or_default().1 += 1,
+                    None => {}
                 }
             }
         }

@@ -122,4 +122,9 @@ impl Mapper {
     pub fn online(&mut self) -> &mut OnlineMapper {
         &mut self.inner
     }
+
+    /// The mapper underneath, read-only.
+    pub fn online_ref(&self) -> &OnlineMapper {
+        &self.inner
+    }
 }

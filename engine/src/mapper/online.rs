@@ -311,6 +311,8 @@ pub struct OnlineMapper {
     pub(super) window_dirty: bool,
     pub(super) frames: u64,
     pub(super) stats: MapperStats,
+    /// The embedding model of the map's region embeddings (first seen).
+    pub(super) model: Option<String>,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -338,6 +340,7 @@ impl OnlineMapper {
             window_dirty: false,
             frames: 0,
             stats: MapperStats::default(),
+            model: None,
             cfg,
         })
     }
@@ -400,6 +403,30 @@ impl OnlineMapper {
             + self.window.as_ref().map_or(0, |w| {
                 w.len() as u64 * std::mem::size_of::<VoxelKey>() as u64
             })
+    }
+
+    /// The model id of the region embeddings mapped so far (`None` before
+    /// the first keyframe with embeddings).
+    pub fn embedding_model(&self) -> Option<&str> {
+        self.model.as_deref()
+    }
+
+    /// Refuses embeddings from a second model: their spaces differ, so one
+    /// dictionary cannot serve both. An `oracle:` prefix (embeddings built
+    /// from labels for a model's space) does not count as a difference.
+    fn check_model(&mut self, model: &str, stamp_ns: i64) -> Result<()> {
+        let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
+        match &self.model {
+            None => self.model = Some(model.to_string()),
+            Some(m) if bare(m) == bare(model) => {}
+            Some(m) => {
+                return Err(Error::InvalidArgument(format!(
+                    "keyframe at {stamp_ns} ns has embeddings of model `{model}`, the map's are \
+                     of `{m}`"
+                )))
+            }
+        }
+        Ok(())
     }
 
     pub(super) fn make_head(&self, dim: u32) -> Result<LatentHead> {
@@ -521,6 +548,9 @@ impl OnlineMapper {
         let keyframe = self.stats.keyframes;
         let seed = self.cfg.seed ^ keyframe.wrapping_mul(0x9e37_79b9);
 
+        if let Some(e) = &frame.embeddings {
+            self.check_model(&e.model, frame.stamp_ns)?;
+        }
         let t = Instant::now();
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);

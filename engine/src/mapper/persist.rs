@@ -74,6 +74,9 @@ impl OnlineMapper {
         w.meta("evicted", self.stats.evicted);
         w.meta("fetched", self.stats.fetched);
         w.meta("over_capacity", self.stats.over_capacity);
+        if let Some(model) = &self.model {
+            w.meta("model", model);
+        }
         let (last, since) = self.selector.state();
         w.meta("selector_since", since);
         if let Some(p) = last {
@@ -193,6 +196,7 @@ impl OnlineMapper {
         m.stats.evicted = a.meta_parse("evicted")?;
         m.stats.fetched = a.meta_parse("fetched")?;
         m.stats.over_capacity = a.meta_parse("over_capacity")?;
+        m.model = a.meta("model").ok().map(str::to_string);
         let since: u32 = a.meta_parse("selector_since")?;
         let pose = if a.has("selector/pose") {
             let v = a.rows::<f64>("selector/pose", 7, 0)?;

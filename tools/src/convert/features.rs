@@ -471,3 +471,44 @@ impl Oracle {
         Ok(None)
     }
 }
+
+/// Reads one embedding vector (e.g. a text embedding to query with) from
+/// a `.npy` file (F16/F32, shape `[D]` or `[1, D]`) or a `.safetensors`
+/// file holding one such tensor (or several, one named `embedding`).
+pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
+    let bytes = read(path)?;
+    let origin = path.display();
+    let tensor = if path.extension().is_some_and(|e| e == "safetensors") {
+        let st = safetensors::SafeTensors::deserialize(&bytes)
+            .with_context(|| format!("{origin}: not a safetensors file"))?;
+        let names = st.names();
+        let name = match names.as_slice() {
+            [one] => one.to_string(),
+            _ if names.contains(&"embedding") => "embedding".to_string(),
+            _ => bail!(
+                "{origin}: {} tensors ({}); keep one, or name the query `embedding`",
+                names.len(),
+                names
+                    .iter()
+                    .map(|n| n.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        };
+        safetensors_tensor(&st, &name, path)?.expect("listed above")
+    } else {
+        Tensor::from(npy::parse(&bytes).with_context(|| format!("{origin}: not a .npy array"))?)
+    };
+    let len: usize = tensor.shape.iter().product();
+    if tensor.shape.iter().filter(|&&d| d != 1).count() > 1 || len == 0 {
+        bail!(
+            "{origin}: shape {:?}; one vector ([D] or [1, D]) is expected",
+            tensor.shape
+        );
+    }
+    let v = floats(&tensor, &format!("{origin}"))?;
+    if v.iter().all(|&x| x == 0.0) {
+        bail!("{origin}: the vector is all zeros");
+    }
+    Ok(v)
+}

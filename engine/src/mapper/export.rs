@@ -1,0 +1,160 @@
+//! The decoder as a file of its own (`decoder.safetensors` in a run
+//! folder): with the `latent_*` properties of an exported PLY it turns any
+//! Gaussian's 32-d query back into a full embedding without the engine or
+//! a GPU, e.g. in a Python viewer.
+//!
+//! Tensors: `W` (32 × d_f), `D` and `D0` (K × d_f, the atoms in use and
+//! their trust-region anchors), `atom_weights` (K, the streaming k-means
+//! counts), `tau` (1). Metadata: `format` = `latentam-decoder`, `version`,
+//! `model` (the embedding model id), `dim` (d_f), `query_dim`, `atoms`,
+//! `eps`. Decoding (SPEC §2.5): `E = qW`, cosine similarity of `E` with
+//! every atom, softmax at temperature `tau`, weighted sum of the atoms.
+
+use std::path::Path;
+
+use super::archive::{Archive, ArchiveWriter};
+use super::online::OnlineMapper;
+use crate::error::{Error, Result};
+use crate::reference::decoder::{forward, DecoderShape};
+use crate::splat::QUERY_DIM;
+
+/// File name of the decoder in a run folder.
+pub const DECODER_FILE: &str = "decoder.safetensors";
+/// Format name of decoder files.
+pub const DECODER_FORMAT: &str = "latentam-decoder";
+/// Version this build writes and reads.
+pub const DECODER_VERSION: u32 = 1;
+
+/// A map's decoder, on the host.
+///
+/// ```no_run
+/// use latentam::mapper::DecoderFile;
+///
+/// let decoder = DecoderFile::read("run/decoder.safetensors".as_ref())?;
+/// let query = [0.1f32; 32]; // a Gaussian's latent_0..31 from map.ply
+/// let embedding = decoder.decode(&[query]); // d_f values
+/// assert_eq!(embedding.len(), decoder.dim as usize);
+/// # Ok::<(), latentam::Error>(())
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecoderFile {
+    /// Embedding dimension d_f.
+    pub dim: u32,
+    /// Projection, `QUERY_DIM × dim`, row-major.
+    pub w: Vec<f32>,
+    /// Atoms in use, `atoms × dim`.
+    pub atoms: Vec<f32>,
+    /// Trust-region anchors of the atoms, `atoms × dim`.
+    pub anchors: Vec<f32>,
+    /// Streaming k-means weight of each atom.
+    pub atom_weights: Vec<f32>,
+    /// Softmax temperature.
+    pub temperature: f32,
+    /// Added to norms before dividing.
+    pub eps: f32,
+    /// Embedding model id of the map's region embeddings.
+    pub model: String,
+}
+
+impl DecoderFile {
+    /// Number of atoms.
+    pub fn atom_count(&self) -> usize {
+        self.atom_weights.len()
+    }
+
+    /// Decodes queries to embeddings (`queries.len() × dim`, row-major),
+    /// in f64 on the CPU.
+    pub fn decode(&self, queries: &[[f32; QUERY_DIM]]) -> Vec<f32> {
+        if queries.is_empty() || self.atom_count() == 0 {
+            return vec![0.0; queries.len() * self.dim as usize];
+        }
+        let shape = DecoderShape {
+            n: queries.len(),
+            query_dim: QUERY_DIM,
+            dim: self.dim as usize,
+            atoms: self.atom_count(),
+            tau: self.temperature as f64,
+            eps: self.eps as f64,
+        };
+        let flat: Vec<f32> = queries.iter().flatten().copied().collect();
+        forward(&shape, &flat, &self.w, &self.atoms)
+            .output
+            .into_iter()
+            .map(|x| x as f32)
+            .collect()
+    }
+
+    /// Writes the decoder to `path` atomically.
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let (d, k) = (self.dim as usize, self.atom_count());
+        let mut a = ArchiveWriter::with_format(DECODER_FORMAT, DECODER_VERSION);
+        a.meta("model", &self.model);
+        a.meta("dim", d);
+        a.meta("query_dim", QUERY_DIM);
+        a.meta("atoms", k);
+        a.meta("eps", self.eps);
+        a.tensor("W", &[QUERY_DIM, d], &self.w);
+        a.tensor("D", &[k, d], &self.atoms);
+        a.tensor("D0", &[k, d], &self.anchors);
+        a.tensor("atom_weights", &[k], &self.atom_weights);
+        a.tensor("tau", &[1], &[self.temperature]);
+        a.write(path)
+    }
+
+    /// Reads a decoder written by [`DecoderFile::write`].
+    pub fn read(path: &Path) -> Result<Self> {
+        let a = Archive::open_as(path, DECODER_FORMAT, DECODER_VERSION, "decoder")?;
+        let dim: u32 = a.meta_parse("dim")?;
+        let k: usize = a.meta_parse("atoms")?;
+        let query_dim: usize = a.meta_parse("query_dim")?;
+        if query_dim != QUERY_DIM || dim == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "{}: a decoder of {query_dim}-d queries to {dim}-d embeddings; this build \
+                 decodes {QUERY_DIM}-d queries",
+                path.display()
+            )));
+        }
+        let d = dim as usize;
+        let tau = a.rows::<f32>("tau", 1, 1)?[0];
+        Ok(DecoderFile {
+            dim,
+            w: a.rows("W", QUERY_DIM, d)?,
+            atoms: a.rows("D", k, d)?,
+            anchors: a.rows("D0", k, d)?,
+            atom_weights: a.rows("atom_weights", k, 1)?,
+            temperature: tau,
+            eps: a.meta_parse("eps")?,
+            model: a.meta("model")?.to_string(),
+        })
+    }
+}
+
+impl OnlineMapper {
+    /// The decoder as it stands (`None` before the first keyframe with
+    /// embeddings).
+    pub fn decoder_file(&self) -> Result<Option<DecoderFile>> {
+        let Some(head) = &self.head else {
+            return Ok(None);
+        };
+        let ctx = &self.ctx;
+        let d = head.config().dim as usize;
+        let k = head.atom_count() as usize;
+        let w: Vec<f32> = ctx.download(head.w())?;
+        let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
+        atoms.truncate(k * d);
+        let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
+        anchors.truncate(k * d);
+        let mut atom_weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
+        atom_weights.truncate(k);
+        Ok(Some(DecoderFile {
+            dim: d as u32,
+            w: w[..QUERY_DIM * d].to_vec(),
+            atoms,
+            anchors,
+            atom_weights,
+            temperature: head.decoder().config().temperature,
+            eps: head.decoder().config().eps,
+            model: self.model.clone().unwrap_or_default(),
+        }))
+    }
+}

@@ -1,0 +1,57 @@
+//! `latentam config`, and the `--config FILE` / `--set KEY=VALUE` options
+//! every mapping command shares.
+
+use std::path::PathBuf;
+
+use anyhow::{Context as _, Result};
+use latentam::mapper::{apply_overrides, documented_defaults, MapperConfig};
+
+/// Where the mapper's configuration comes from.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ConfigArgs {
+    /// Configuration file (TOML; unknown keys are errors). Every key is
+    /// listed and documented by `latentam config --print-defaults`.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Sets one configuration key, after --config; repeatable. Dotted keys
+    /// reach into sections: `--set keyframes.policy.interval=4 --set
+    /// gpu_budget=500000000`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+}
+
+impl ConfigArgs {
+    /// The effective configuration.
+    pub fn load(&self) -> Result<MapperConfig> {
+        let base = match &self.config {
+            Some(p) => {
+                let text = std::fs::read_to_string(p)
+                    .with_context(|| format!("reading {}", p.display()))?;
+                MapperConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
+            }
+            None => MapperConfig::default(),
+        };
+        Ok(apply_overrides(&base, &self.sets)?)
+    }
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Print the default configuration with every key documented, as a
+    /// TOML file to start from.
+    #[arg(long)]
+    print_defaults: bool,
+    #[command(flatten)]
+    config: ConfigArgs,
+}
+
+/// Prints the documented defaults, or the effective configuration of
+/// `--config`/`--set` (checking it).
+pub fn run(args: Args) -> Result<()> {
+    if args.print_defaults {
+        print!("{}", documented_defaults());
+    } else {
+        print!("{}", args.config.load()?.to_toml());
+    }
+    Ok(())
+}

@@ -1,0 +1,139 @@
+//! `latentam demo`: the built-in scene end to end — generate, map,
+//! evaluate on views that were not keyframes, query one class, and print
+//! a summary with where everything went.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+use latentam::io::read_vocabulary;
+use latentam_cli::progress::Progress;
+use latentam_cli::scene::{generate, SceneConfig};
+
+use crate::config_cmd::ConfigArgs;
+use crate::mapping::{map_log, summary, Ending, RunOptions, RUN_FILES};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Folder for the scene log, the run folder and the evaluation.
+    #[arg(long, default_value = "latentam-demo")]
+    out: PathBuf,
+    /// Frames along the scene's trajectory (the path is the same; more
+    /// frames, smaller steps and a longer run). With the default keyframe
+    /// interval of 4, 120 frames give 30 keyframes.
+    #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(8..))]
+    frames: u64,
+    /// Image width of the scene.
+    #[arg(long, default_value_t = 160)]
+    width: u32,
+    /// Image height of the scene.
+    #[arg(long, default_value_t = 120)]
+    height: u32,
+    #[command(flatten)]
+    config: ConfigArgs,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let config = args.config.load()?;
+    std::fs::create_dir_all(&args.out)?;
+    let log = args.out.join("scene.mcap");
+    let run_dir = args.out.join("run");
+    let scene = SceneConfig {
+        frames: args.frames as usize,
+        width: args.width,
+        height: args.height,
+        ..SceneConfig::default()
+    };
+    println!(
+        "1/4 generating the demo scene: two rooms and a corridor, {} frames of {}×{} with \
+         synthetic {}-d region embeddings",
+        scene.frames, scene.width, scene.height, scene.dim
+    );
+    let mut progress = Progress::new("scene", scene.frames);
+    generate(&scene, &log, |d| progress.set(d))?;
+
+    println!("2/4 mapping it (every kernel timed)");
+    let mut run = map_log(&RunOptions {
+        log: log.clone(),
+        config,
+        max_frames: None,
+        resume: None,
+        profile: true,
+    })?;
+    let report = run.write_folder(&run_dir)?;
+    match &run.ending {
+        Ending::Failed(e) => bail!("{e}"),
+        Ending::Interrupted => bail!("interrupted; what was mapped is in {}", run_dir.display()),
+        _ => {}
+    }
+    let profile = run.ctx.profiler_snapshot();
+    drop(run);
+
+    println!("3/4 evaluating on views that were not keyframes (frames 2, 10, 18, …)");
+    let eval_json = args.out.join("eval.json");
+    crate::eval_cmd::run(crate::eval_cmd::Args {
+        dir: run_dir.clone(),
+        log: log.clone(),
+        json: Some(eval_json.clone()),
+        every: 8,
+        offset: 2,
+        frames: None,
+        quiet: true,
+    })?;
+
+    let vocab = read_vocabulary(&log, "/vocabulary")?;
+    let class = vocab.as_ref().and_then(|v| v.names.first().cloned());
+    if let Some(name) = &class {
+        println!("4/4 querying the map for `{name}`");
+        crate::query_cmd::run(crate::query_cmd::Args {
+            dir: run_dir.clone(),
+            embedding: None,
+            name: Some(name.clone()),
+            vocabulary: Some(log.clone()),
+            vocabulary_topic: "/vocabulary".into(),
+            temperature: 0.1,
+            out: None,
+            top: 5,
+            view: None,
+            png: None,
+        })?;
+    }
+
+    println!();
+    println!("mapping:");
+    for line in summary(&report).lines() {
+        println!("  {line}");
+    }
+    println!("slowest kernels (share of the mapping wall time):");
+    let table = profile.table_with_share_of(report.wall_s * 1e3);
+    for line in table.lines().take(9) {
+        println!("  {line}");
+    }
+    println!("outputs:");
+    println!("  {}  (the scene log)", log.display());
+    for f in RUN_FILES.iter().chain(&["heatmap.ply"]) {
+        let p = run_dir.join(f);
+        if p.exists() {
+            println!("  {}", p.display());
+        }
+    }
+    println!("  {}  (evaluation)", eval_json.display());
+    println!("next:");
+    if let Some(name) = &class {
+        println!(
+            "  latentam query {} --name {name} --vocabulary {}",
+            run_dir.display(),
+            log.display()
+        );
+    }
+    println!(
+        "  latentam eval {} {} --every 8 --offset 2",
+        run_dir.display(),
+        log.display()
+    );
+    println!("  latentam profile {} --frames 40", log.display());
+    println!(
+        "  open {} in a 3DGS viewer (e.g. SuperSplat)",
+        run_dir.join("map.ply").display()
+    );
+    Ok(())
+}

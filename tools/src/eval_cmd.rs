@@ -1,0 +1,224 @@
+//! `latentam eval`: re-renders a log's frames from a mapped run and scores
+//! them (SPEC §10): colour PSNR, depth L1, the cosine loss and L2 of the
+//! decoded embeddings against the log's region embeddings, and mIoU over
+//! the vocabulary's classes (against the semantic labels when the log has
+//! them, else the teacher/student variant).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::mapper::eval::{add_iou, mean_iou, Evaluator, ViewMetrics};
+use latentam::mapper::Mapper;
+use serde::Serialize;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run folder written by `latentam map`.
+    pub dir: PathBuf,
+    /// Log whose frames are re-rendered and compared (the mapped log, or
+    /// another one of the same place).
+    pub log: PathBuf,
+    /// Write the per-frame and mean metrics here as JSON.
+    #[arg(long, value_name = "PATH")]
+    pub json: Option<PathBuf>,
+    /// Evaluate every N-th frame (with --offset: e.g. `--every 8 --offset 2`
+    /// takes frames 2, 10, 18, …, views that were not keyframes when
+    /// mapping kept every 4th).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub every: u64,
+    /// Index of the first frame evaluated.
+    #[arg(long, default_value_t = 0)]
+    pub offset: u64,
+    /// Evaluate at most this many frames.
+    #[arg(long, value_name = "N")]
+    pub frames: Option<usize>,
+    /// Only the summary, not a line per frame.
+    #[arg(skip)]
+    pub quiet: bool,
+}
+
+#[derive(Serialize)]
+struct FrameRow {
+    frame: u64,
+    stamp_ns: i64,
+    #[serde(flatten)]
+    metrics: ViewMetrics,
+}
+
+#[derive(Serialize)]
+struct ClassRow {
+    id: u16,
+    name: String,
+    iou: f64,
+}
+
+#[derive(Serialize, Default)]
+struct Means {
+    psnr: f64,
+    depth_l1: f64,
+    coverage: f64,
+    cosine_loss: Option<f64>,
+    l2: Option<f64>,
+    miou: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct EvalReport {
+    run: String,
+    log: String,
+    frames_evaluated: usize,
+    mean: Means,
+    /// `labels` or `teacher` (see `ViewMetrics::segmentation`).
+    segmentation: Option<&'static str>,
+    classes: Vec<ClassRow>,
+    /// From the run's report.json: end-to-end frames per second of the
+    /// mapping run and its peak GPU memory.
+    run_fps: Option<f64>,
+    run_peak_gpu_bytes: Option<u64>,
+    per_frame: Vec<FrameRow>,
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    (n > 0).then(|| s / n as f64)
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let ctx = Context::new(ContextOptions::default())?;
+    let mut mapper = Mapper::load(&ctx, &args.dir)
+        .with_context(|| format!("loading the map in {}", args.dir.display()))?;
+    let assembly = AssemblyConfig::default();
+    let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
+    let frames = McapFrames::open(&args.log, assembly)
+        .with_context(|| format!("opening {}", args.log.display()))?;
+    let mut ev = Evaluator::new(&ctx);
+    // Evaluation renders views of any size; the mapping budget is not
+    // meant for it.
+    ctx.set_memory_budget(None);
+    let limit = args.frames.unwrap_or(usize::MAX);
+    let mut rows = Vec::new();
+    if !args.quiet {
+        println!(
+            "{:>6} {:>9} {:>10} {:>9} {:>9} {:>8}",
+            "frame", "PSNR dB", "depth L1 m", "cos loss", "L2", "coverage"
+        );
+    }
+    for (i, frame) in frames.enumerate() {
+        let i = i as u64;
+        if rows.len() >= limit {
+            break;
+        }
+        if i < args.offset || (i - args.offset) % args.every != 0 {
+            continue;
+        }
+        let frame = frame.with_context(|| format!("reading {}", args.log.display()))?;
+        let m = match ev.evaluate(mapper.online(), &frame, vocabulary.as_ref()) {
+            Ok(m) => m,
+            Err(latentam::Error::InvalidArgument(why)) => {
+                eprintln!("frame {i}: skipped ({why})");
+                continue;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let opt = |x: Option<f64>| x.map_or("-".into(), |v| format!("{v:.4}"));
+        if !args.quiet {
+            println!(
+                "{i:>6} {:>9.2} {:>10.4} {:>9} {:>9} {:>8.3}",
+                m.psnr,
+                m.depth_l1,
+                opt(m.cosine_loss),
+                opt(m.l2),
+                m.coverage
+            );
+        }
+        rows.push(FrameRow {
+            frame: i,
+            stamp_ns: frame.stamp_ns,
+            metrics: m,
+        });
+    }
+    if rows.is_empty() {
+        bail!("no frame of {} could be evaluated", args.log.display());
+    }
+    let mut counts = BTreeMap::new();
+    for r in &rows {
+        add_iou(&mut counts, &r.metrics.class_iou);
+    }
+    let means = Means {
+        psnr: mean(rows.iter().map(|r| r.metrics.psnr)).unwrap_or(0.0),
+        depth_l1: mean(rows.iter().map(|r| r.metrics.depth_l1)).unwrap_or(0.0),
+        coverage: mean(rows.iter().map(|r| r.metrics.coverage)).unwrap_or(0.0),
+        cosine_loss: mean(rows.iter().filter_map(|r| r.metrics.cosine_loss)),
+        l2: mean(rows.iter().filter_map(|r| r.metrics.l2)),
+        miou: mean_iou(&counts),
+    };
+    let name_of = |id: u16| {
+        vocabulary
+            .as_ref()
+            .and_then(|v| {
+                v.ids
+                    .iter()
+                    .position(|&x| x == id)
+                    .map(|i| v.names[i].clone())
+            })
+            .unwrap_or_else(|| format!("class {id}"))
+    };
+    let classes: Vec<ClassRow> = counts
+        .iter()
+        .filter(|(_, &(_, u))| u > 0)
+        .map(|(&id, &(i, u))| ClassRow {
+            id,
+            name: name_of(id),
+            iou: i as f64 / u as f64,
+        })
+        .collect();
+    let run_report: Option<serde_json::Value> =
+        std::fs::read_to_string(args.dir.join("report.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+    let report = EvalReport {
+        run: args.dir.display().to_string(),
+        log: args.log.display().to_string(),
+        frames_evaluated: rows.len(),
+        segmentation: rows.iter().find_map(|r| r.metrics.segmentation),
+        mean: means,
+        classes,
+        run_fps: run_report.as_ref().and_then(|r| r["fps"].as_f64()),
+        run_peak_gpu_bytes: run_report
+            .as_ref()
+            .and_then(|r| r["peak_gpu_bytes"].as_u64()),
+        per_frame: rows,
+    };
+    print_summary(&report);
+    if let Some(p) = &args.json {
+        crate::mapping::write_text(p, &serde_json::to_string_pretty(&report)?)?;
+    }
+    Ok(())
+}
+
+fn print_summary(r: &EvalReport) {
+    let m = &r.mean;
+    let opt = |x: Option<f64>| x.map_or("n/a".into(), |v| format!("{v:.4}"));
+    println!("mean over {} frames:", r.frames_evaluated);
+    println!("  PSNR          {:.2} dB", m.psnr);
+    println!("  depth L1      {:.4} m", m.depth_l1);
+    println!("  coverage      {:.3}", m.coverage);
+    println!("  cosine loss   {}", opt(m.cosine_loss));
+    println!("  L2            {}", opt(m.l2));
+    match r.segmentation {
+        Some(s) => println!("  mIoU          {} ({s})", opt(m.miou)),
+        None => println!("  mIoU          n/a (no vocabulary in the log)"),
+    }
+    for c in &r.classes {
+        println!("    {:<16} {:.3}", c.name, c.iou);
+    }
+    if let (Some(fps), Some(gpu)) = (r.run_fps, r.run_peak_gpu_bytes) {
+        println!(
+            "mapping run: {fps:.2} frames/s end to end, peak GPU {:.1} MB",
+            gpu as f64 / 1e6
+        );
+    }
+}

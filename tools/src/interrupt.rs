@@ -1,0 +1,33 @@
+//! Ctrl-C during mapping: the first SIGINT (or SIGTERM) asks the run to
+//! stop after the frame in progress, so the run folder is still written
+//! with everything mapped so far; a second one exits at once.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+static REQUESTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    // Only async-signal-safe calls here: an atomic swap and _exit.
+    if REQUESTED.swap(true, Ordering::SeqCst) {
+        unsafe { libc::_exit(130) };
+    }
+}
+
+/// Installs the handler for SIGINT and SIGTERM.
+pub fn install() {
+    // SAFETY: `on_signal` only touches an atomic and calls `_exit`, both
+    // async-signal-safe; the sigaction struct is fully initialised.
+    unsafe {
+        let mut action: libc::sigaction = std::mem::zeroed();
+        action.sa_sigaction = on_signal as extern "C" fn(libc::c_int) as usize;
+        libc::sigemptyset(&mut action.sa_mask);
+        action.sa_flags = libc::SA_RESTART;
+        libc::sigaction(libc::SIGINT, &action, std::ptr::null_mut());
+        libc::sigaction(libc::SIGTERM, &action, std::ptr::null_mut());
+    }
+}
+
+/// Whether a stop was asked for.
+pub fn requested() -> bool {
+    REQUESTED.load(Ordering::SeqCst)
+}

@@ -1,0 +1,341 @@
+//! The user's workflow through the `latentam` binary on a small generated
+//! log: map → query → eval → profile, with every output's contents checked
+//! against the engine (PLY against the saved state, the decoder file
+//! against the GPU relevance, the trajectory against the log's poses),
+//! and Ctrl-C during mapping followed by `--resume`.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::{read_ply, read_tum, read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
+
+const FRAMES: usize = 32;
+const DIM: usize = 64;
+
+fn latentam() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
+    c.env("LATENTAM_VALIDATION", "1");
+    c
+}
+
+fn ok(out: Output) -> String {
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn gen_scene(dir: &Path, frames: usize) -> PathBuf {
+    let log = dir.join("scene.mcap");
+    ok(latentam()
+        .args(["gen-scene", "--width", "120", "--height", "90"])
+        .args(["--frames", &frames.to_string(), "--dim", &DIM.to_string()])
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap());
+    log
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// A `.npy` file holding one f32 vector.
+fn write_npy(path: &Path, v: &[f32]) {
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}",
+        v.len()
+    );
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn cosine(a: &[f32], b: &[f32]) -> f64 {
+    let dot: f64 = a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum();
+    let na: f64 = a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+    let nb: f64 = b.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+    dot / (na * nb).max(1e-30)
+}
+
+#[test]
+fn map_query_eval_profile_on_a_generated_log() {
+    let dir = scratch("workflow");
+    let log = gen_scene(&dir, FRAMES);
+    let run = dir.join("run");
+
+    // map
+    let stdout = ok(latentam()
+        .arg("map")
+        .arg(&log)
+        .arg("--out")
+        .arg(&run)
+        .args(["--set", "replay=2", "--set", "seed=5"])
+        .output()
+        .unwrap());
+    assert!(stdout.contains("8 keyframes"), "{stdout}");
+    let report = json(&run.join("report.json"));
+    assert_eq!(report["ending"], "complete");
+    assert_eq!(report["frames"], FRAMES as u64);
+    assert_eq!(report["keyframes"], (FRAMES / 4) as u64);
+    let gaussians = report["gaussians"].as_u64().unwrap() as usize;
+    assert!(gaussians > 1000, "{gaussians} Gaussians");
+    assert!(report["peak_gpu_bytes"].as_u64().unwrap() > 0);
+    assert_eq!(report["keyframe_reports"].as_array().unwrap().len(), 8);
+    assert!(report["kernels"].as_object().unwrap().len() > 10);
+
+    // config.toml: the effective configuration, overrides included.
+    let cfg = MapperConfig::from_toml(&std::fs::read_to_string(run.join("config.toml")).unwrap())
+        .unwrap();
+    assert_eq!((cfg.replay, cfg.seed), (2, 5));
+
+    // map.ply holds exactly the saved map's Gaussians.
+    let ply = read_ply(&run.join("map.ply")).unwrap();
+    assert_eq!(ply.gaussians.len(), gaussians);
+    let ctx = Context::new(ContextOptions::default()).unwrap();
+    let mapper = Mapper::load(&ctx, &run).unwrap();
+    for ((_, g), p) in mapper.global().iter().zip(&ply.gaussians) {
+        assert_eq!((g.mean, g.log_scale, g.quat), (p.mean, p.log_scale, p.quat));
+        assert_eq!((g.opacity_logit, g.query), (p.opacity_logit, p.query));
+        for c in 0..3 {
+            assert!((g.color[c] - p.color[c]).abs() < 1e-5);
+        }
+    }
+
+    // trajectory.txt: the keyframes' poses (every 4th frame of the log).
+    let trajectory = read_tum(&run.join("trajectory.txt")).unwrap();
+    let frames: Vec<_> = McapFrames::open(&log, AssemblyConfig::default())
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(trajectory.len(), 8);
+    for (k, (stamp, pose)) in trajectory.iter().enumerate() {
+        let f = &frames[4 * k];
+        assert_eq!(*stamp, f.stamp_ns as u64);
+        assert!((pose.translation - f.pose.translation).length() < 1e-6);
+        assert!(pose.rotation.dot(f.pose.rotation).abs() > 1.0 - 1e-9);
+    }
+
+    // trace.json: a Chrome trace of the mapping's kernels.
+    let trace = json(&run.join("trace.json"));
+    let events = trace["traceEvents"].as_array().unwrap();
+    assert!(events.len() > 100);
+    assert!(events
+        .iter()
+        .all(|e| e["ph"] == "X" && e["dur"].as_f64().unwrap() >= 0.0));
+
+    // query --embedding: the heat map's relevance is the cosine of each
+    // Gaussian's decoded latent, decoded on the CPU from decoder.safetensors.
+    let vocab = read_vocabulary(&log, "/vocabulary").unwrap().unwrap();
+    let q = &vocab.vectors[..DIM];
+    let npy = dir.join("q.npy");
+    write_npy(&npy, q);
+    let heat = dir.join("heat.ply");
+    let stdout = ok(latentam()
+        .arg("query")
+        .arg(&run)
+        .arg("--embedding")
+        .arg(&npy)
+        .arg("--out")
+        .arg(&heat)
+        .args(["--top", "3"])
+        .output()
+        .unwrap());
+    assert!(stdout.contains("top 3"), "{stdout}");
+    let heat_map = read_ply(&heat).unwrap();
+    let (name, relevance) = &heat_map.extra[0];
+    assert_eq!(name, "relevance");
+    assert_eq!(relevance.len(), gaussians);
+    let decoder = DecoderFile::read(&run.join("decoder.safetensors")).unwrap();
+    assert_eq!(decoder.dim as usize, DIM);
+    assert_eq!(decoder.model, vocab.model);
+    assert!(decoder.atom_count() > 0);
+    let step = (gaussians / 50).max(1);
+    let sample: Vec<_> = ply
+        .gaussians
+        .iter()
+        .step_by(step)
+        .map(|g| g.query)
+        .collect();
+    let decoded = decoder.decode(&sample);
+    for (i, e) in decoded.chunks_exact(DIM).enumerate() {
+        let expected = cosine(e, q);
+        let got = relevance[i * step] as f64;
+        assert!(
+            (got - expected).abs() < 2e-3,
+            "Gaussian {}: {got} vs {expected}",
+            i * step
+        );
+    }
+
+    // query --name with a relevance image from the first keyframe's pose.
+    let (_, p) = trajectory[0];
+    let pose = format!(
+        "{},{},{},{},{},{},{}",
+        p.translation.x,
+        p.translation.y,
+        p.translation.z,
+        p.rotation.x,
+        p.rotation.y,
+        p.rotation.z,
+        p.rotation.w
+    );
+    let png = dir.join("view.png");
+    ok(latentam()
+        .arg("query")
+        .arg(&run)
+        .args(["--name", &vocab.names[0], "--vocabulary"])
+        .arg(&log)
+        .args(["--view", &pose, "--png"])
+        .arg(&png)
+        .output()
+        .unwrap());
+    let softmax = read_ply(&run.join("heatmap.ply")).unwrap();
+    assert!(softmax.extra[0].1.iter().all(|&r| (0.0..=1.0).contains(&r)));
+    let decoder_png =
+        png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()));
+    let info = decoder_png.read_info().unwrap();
+    assert_eq!((info.info().width, info.info().height), (120, 90));
+
+    // eval on views that were not keyframes.
+    let eval = dir.join("eval.json");
+    ok(latentam()
+        .arg("eval")
+        .arg(&run)
+        .arg(&log)
+        .arg("--json")
+        .arg(&eval)
+        .args(["--every", "4", "--offset", "2"])
+        .output()
+        .unwrap());
+    let e = json(&eval);
+    assert_eq!(e["frames_evaluated"], 8);
+    assert_eq!(e["per_frame"].as_array().unwrap().len(), 8);
+    assert_eq!(e["per_frame"][1]["frame"], 6);
+    let psnr = e["mean"]["psnr"].as_f64().unwrap();
+    assert!(psnr > 12.0, "PSNR {psnr}");
+    let cos = e["mean"]["cosine_loss"].as_f64().unwrap();
+    assert!(cos > 0.0 && cos < 0.8, "cosine loss {cos}");
+    let miou = e["mean"]["miou"].as_f64().unwrap();
+    assert!(miou > 0.0 && miou <= 1.0, "mIoU {miou}");
+    assert_eq!(e["segmentation"], "labels");
+    assert!(e["run_fps"].as_f64().unwrap() > 0.0);
+
+    // profile: the per-kernel table and a trace.
+    let trace = dir.join("profile.json");
+    let stdout = ok(latentam()
+        .arg("profile")
+        .arg(&log)
+        .args(["--frames", "8", "--set", "replay=1", "--trace"])
+        .arg(&trace)
+        .output()
+        .unwrap());
+    assert!(
+        stdout.contains("mean ± std ms") && stdout.contains("share"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("raster_forward"), "{stdout}");
+    assert!(!json(&trace)["traceEvents"].as_array().unwrap().is_empty());
+
+    drop(mapper);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn ctrl_c_writes_the_run_folder_and_resume_continues() {
+    let dir = scratch("interrupt");
+    let frames = 400;
+    let log = gen_scene(&dir, frames);
+    let run = dir.join("run");
+    let mut child = latentam()
+        .env_remove("LATENTAM_VALIDATION")
+        .arg("map")
+        .arg(&log)
+        .arg("--out")
+        .arg(&run)
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    // The first status line comes after the first keyframe.
+    let mut stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    while stderr.read_line(&mut line).unwrap() > 0 && !line.contains("mapping: frame") {
+        line.clear();
+    }
+    assert!(line.contains("mapping: frame"), "no progress line");
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    assert_eq!(status.code(), Some(130), "{rest}");
+    assert!(rest.contains("--resume"), "{rest}");
+    let report = json(&run.join("report.json"));
+    assert_eq!(report["ending"], "interrupted");
+    let mapped = report["frames"].as_u64().unwrap();
+    assert!(mapped >= 1 && mapped < frames as u64, "{mapped} frames");
+    let first = read_ply(&run.join("map.ply")).unwrap().gaussians.len();
+    assert_eq!(first as u64, report["gaussians"].as_u64().unwrap());
+
+    // --resume skips what was mapped and goes on.
+    let more = mapped + 8;
+    ok(latentam()
+        .arg("map")
+        .arg(&log)
+        .arg("--out")
+        .arg(&run)
+        .args(["--resume", "--frames", &more.to_string()])
+        .output()
+        .unwrap());
+    let report = json(&run.join("report.json"));
+    assert_eq!(report["ending"], "frame_limit");
+    assert_eq!(report["frames_skipped_as_already_mapped"], mapped);
+    assert_eq!(report["frames"], 8);
+    let trajectory = read_tum(&run.join("trajectory.txt")).unwrap();
+    assert_eq!(trajectory.len() as u64, mapped.div_ceil(4) + 2);
+    assert!(read_ply(&run.join("map.ply")).unwrap().gaussians.len() >= first);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn configuration_is_documented_and_checked() {
+    let defaults = ok(latentam()
+        .args(["config", "--print-defaults"])
+        .output()
+        .unwrap());
+    let parsed = MapperConfig::from_toml(&defaults).unwrap();
+    assert_eq!(parsed.to_toml(), MapperConfig::default().to_toml());
+    assert!(defaults.lines().filter(|l| l.starts_with('#')).count() > 20);
+    let out = latentam()
+        .args(["config", "--set", "keyframes.no_such_key=1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no_such_key"));
+    let out = latentam()
+        .args(["map", "nowhere.mcap", "--out", "x", "--set", "replay=-1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("replay"));
+}
