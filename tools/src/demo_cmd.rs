@@ -54,6 +54,7 @@ pub fn run(args: Args) -> Result<()> {
     println!("2/4 mapping it (every kernel timed)");
     let mut run = map_log(&RunOptions {
         log: log.clone(),
+        assembly: latentam::io::AssemblyConfig::default(),
         config,
         max_frames: None,
         resume: None,
@@ -77,6 +78,7 @@ pub fn run(args: Args) -> Result<()> {
         every: 8,
         offset: 2,
         frames: None,
+        input: Default::default(),
         quiet: true,
     })?;
 

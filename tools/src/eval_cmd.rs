@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::io::{read_vocabulary, McapFrames};
 use latentam::mapper::eval::{add_iou, mean_iou, Evaluator, ViewMetrics};
 use latentam::mapper::Mapper;
 use serde::Serialize;
@@ -35,6 +35,8 @@ pub struct Args {
     /// Evaluate at most this many frames.
     #[arg(long, value_name = "N")]
     pub frames: Option<usize>,
+    #[command(flatten)]
+    pub input: crate::input_args::InputArgs,
     /// Only the summary, not a line per frame.
     #[arg(skip)]
     pub quiet: bool,
@@ -90,7 +92,7 @@ pub fn run(args: Args) -> Result<()> {
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
-    let assembly = AssemblyConfig::default();
+    let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
     let frames = McapFrames::open(&args.log, assembly)
         .with_context(|| format!("opening {}", args.log.display()))?;

@@ -2,25 +2,14 @@
 
 use std::path::PathBuf;
 
-use latentam::io::{AssemblyConfig, McapFrames, McapLog, PoseSource, Topics};
+use latentam::io::{McapFrames, McapLog};
 
 #[derive(clap::Args)]
 pub struct Args {
     /// An MCAP file or a rosbag2 directory of split files.
     log: PathBuf,
-    /// Pose topic (PoseStamped or Odometry); ignored with --tf-world.
-    #[arg(long, default_value = "/camera/pose")]
-    pose_topic: String,
-    /// Take poses from /tf + /tf_static, chained from this world frame to
-    /// the colour image's frame.
-    #[arg(long)]
-    tf_world: Option<String>,
-    /// Pairing tolerance between colour and depth/embedding stamps, ms.
-    #[arg(long, default_value_t = 20.0)]
-    tolerance_ms: f64,
-    /// Metres per unit of 16-bit depth.
-    #[arg(long, default_value_t = 0.001)]
-    depth_scale: f32,
+    #[command(flatten)]
+    input: crate::input_args::InputArgs,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -45,22 +34,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    let pose = match args.tf_world {
-        Some(world_frame) => PoseSource::Tf {
-            world_frame,
-            camera_frame: None,
-        },
-        None => PoseSource::Topic(args.pose_topic),
-    };
-    let config = AssemblyConfig {
-        topics: Topics {
-            pose,
-            ..Topics::default()
-        },
-        tolerance_ns: (args.tolerance_ms * 1e6).round() as i64,
-        depth_metres_per_unit: args.depth_scale,
-        ..AssemblyConfig::default()
-    };
+    let config = args.input.assembly()?;
     let mut frames = McapFrames::from_log(log, config)?;
     let mut first_error = None;
     let mut sizes = None;

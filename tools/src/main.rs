@@ -14,6 +14,7 @@ mod convert_cmd;
 mod demo_cmd;
 mod eval_cmd;
 mod gen_scene;
+mod input_args;
 mod inspect;
 mod interrupt;
 mod map_cmd;

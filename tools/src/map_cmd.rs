@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 
 use crate::config_cmd::ConfigArgs;
+use crate::input_args::InputArgs;
 use crate::mapping::{map_log, summary, Ending, RunOptions, RUN_FILES};
 
 #[derive(clap::Args)]
@@ -16,6 +17,8 @@ pub struct Args {
     out: PathBuf,
     #[command(flatten)]
     config: ConfigArgs,
+    #[command(flatten)]
+    input: InputArgs,
     /// Map at most this many frames of the log.
     #[arg(long, value_name = "N")]
     frames: Option<usize>,
@@ -45,6 +48,7 @@ pub fn run(args: Args) -> Result<bool> {
     }
     let mut run = map_log(&RunOptions {
         log: args.log.clone(),
+        assembly: args.input.assembly()?,
         config,
         max_frames: args.frames,
         resume: args.resume.then(|| args.out.clone()),

@@ -26,6 +26,8 @@ use crate::interrupt;
 pub struct RunOptions {
     /// The input log.
     pub log: PathBuf,
+    /// How its messages become frames.
+    pub assembly: AssemblyConfig,
     /// The effective configuration (ignored when resuming: the saved
     /// state's shape-defining settings win, see `OnlineMapper::load`).
     pub config: MapperConfig,
@@ -135,7 +137,7 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
     };
     // Profile the mapping, not the warm-up or the load.
     ctx.profiler_reset();
-    let mut frames = McapFrames::open(&opts.log, AssemblyConfig::default())
+    let mut frames = McapFrames::open(&opts.log, opts.assembly.clone())
         .with_context(|| format!("opening {}", opts.log.display()))?;
     let skip = mapper.stats().frames;
     let limit = opts.max_frames.unwrap_or(usize::MAX);

@@ -7,6 +7,7 @@ use anyhow::{bail, Result};
 use latentam_cli::partial::PartialFile;
 
 use crate::config_cmd::ConfigArgs;
+use crate::input_args::InputArgs;
 use crate::mapping::{map_log, Ending, RunOptions};
 
 #[derive(clap::Args)]
@@ -18,6 +19,8 @@ pub struct Args {
     frames: Option<usize>,
     #[command(flatten)]
     config: ConfigArgs,
+    #[command(flatten)]
+    input: InputArgs,
     /// Where to write the trace (open it in https://ui.perfetto.dev or
     /// chrome://tracing).
     #[arg(long, default_value = "trace.json")]
@@ -27,6 +30,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let run = map_log(&RunOptions {
         log: args.log.clone(),
+        assembly: args.input.assembly()?,
         config: args.config.load()?,
         max_frames: args.frames,
         resume: None,

@@ -1,0 +1,107 @@
+//! How a log's messages become frames: the topic and pairing options the
+//! commands that read logs share (`map`, `eval`, `profile`, `inspect`).
+
+use latentam::io::{AssemblyConfig, BadInputPolicy, PoseSource, Topics};
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct InputArgs {
+    /// Colour image topic (sensor_msgs/Image or CompressedImage).
+    #[arg(
+        long,
+        default_value = "/camera/color/image_raw",
+        help_heading = "Input"
+    )]
+    pub color_topic: String,
+    /// Depth image topic, registered to the colour images.
+    #[arg(
+        long,
+        default_value = "/camera/depth/image_raw",
+        help_heading = "Input"
+    )]
+    pub depth_topic: String,
+    /// Camera calibration topic (sensor_msgs/CameraInfo).
+    #[arg(
+        long,
+        default_value = "/camera/color/camera_info",
+        help_heading = "Input"
+    )]
+    pub camera_info_topic: String,
+    /// Pose topic (PoseStamped or Odometry of the camera optical frame in
+    /// the world); ignored with --tf-world.
+    #[arg(long, default_value = "/camera/pose", help_heading = "Input")]
+    pub pose_topic: String,
+    /// Take poses from /tf + /tf_static instead, chained from this world
+    /// frame (e.g. `map`) to the colour image's frame.
+    #[arg(long, value_name = "FRAME", help_heading = "Input")]
+    pub tf_world: Option<String>,
+    /// Region embeddings topic (latentam_msgs MaskFeatures or FeatureGrid).
+    #[arg(long, default_value = "/camera/embeddings", help_heading = "Input")]
+    pub embeddings_topic: String,
+    /// Semantic class-id images (evaluation only).
+    #[arg(long, default_value = "/camera/semantic", help_heading = "Input")]
+    pub semantic_topic: String,
+    /// Query vocabulary (latentam_msgs TextEmbeddings).
+    #[arg(long, default_value = "/vocabulary", help_heading = "Input")]
+    pub vocabulary_topic: String,
+    /// Largest stamp difference between a colour image and the depth or
+    /// embeddings paired with it, milliseconds.
+    #[arg(long, default_value_t = 20.0, help_heading = "Input")]
+    pub tolerance_ms: f64,
+    /// Metres per unit of 16-bit depth.
+    #[arg(long, default_value_t = 0.001, help_heading = "Input")]
+    pub depth_scale: f32,
+    /// Stop at the first malformed or inconsistent frame instead of
+    /// skipping and counting it.
+    #[arg(long, help_heading = "Input")]
+    pub stop_on_bad_input: bool,
+}
+
+impl InputArgs {
+    /// The frame assembly these options describe.
+    pub fn assembly(&self) -> anyhow::Result<AssemblyConfig> {
+        if !(self.tolerance_ms >= 0.0 && self.tolerance_ms.is_finite()) {
+            anyhow::bail!("--tolerance-ms must be a non-negative number of milliseconds");
+        }
+        if !(self.depth_scale > 0.0 && self.depth_scale.is_finite()) {
+            anyhow::bail!("--depth-scale must be a positive number of metres per unit");
+        }
+        let pose = match &self.tf_world {
+            Some(world_frame) => PoseSource::Tf {
+                world_frame: world_frame.clone(),
+                camera_frame: None,
+            },
+            None => PoseSource::Topic(self.pose_topic.clone()),
+        };
+        Ok(AssemblyConfig {
+            topics: Topics {
+                color: self.color_topic.clone(),
+                depth: self.depth_topic.clone(),
+                camera_info: self.camera_info_topic.clone(),
+                pose,
+                embeddings: self.embeddings_topic.clone(),
+                semantic: self.semantic_topic.clone(),
+                vocabulary: self.vocabulary_topic.clone(),
+            },
+            tolerance_ns: (self.tolerance_ms * 1e6).round() as i64,
+            depth_metres_per_unit: self.depth_scale,
+            on_bad_input: if self.stop_on_bad_input {
+                BadInputPolicy::Stop
+            } else {
+                BadInputPolicy::Skip
+            },
+            ..AssemblyConfig::default()
+        })
+    }
+}
+
+impl Default for InputArgs {
+    /// The command-line defaults (one source of truth: clap's).
+    fn default() -> Self {
+        #[derive(clap::Parser)]
+        struct Only {
+            #[command(flatten)]
+            input: InputArgs,
+        }
+        <Only as clap::Parser>::parse_from(["latentam"]).input
+    }
+}
