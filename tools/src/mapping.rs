@@ -13,7 +13,9 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use latentam::gpu::{Context, ContextOptions, KernelStats};
-use latentam::io::{write_ply, write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames};
+use latentam::io::{
+    write_ply, write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog,
+};
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
 use latentam::mapper::{DECODER_FILE, STATE_FILE};
 use serde::Serialize;
@@ -96,13 +98,29 @@ impl MapProgress {
         let elapsed = self.start.elapsed().as_secs_f64().max(1e-9);
         let stats = mapper.stats();
         let of = self.total.map_or(String::new(), |t| format!("/{t}"));
+        // A bar and the time left, when the number of frames is known.
+        let bar = match self.total {
+            Some(t) if t > 0 => {
+                let done = (frames as f64 / t as f64).min(1.0);
+                let filled = (done * 20.0).round() as usize;
+                let left = elapsed * (1.0 - done) / done.max(1e-9);
+                format!(
+                    "[{}{}] {:>3.0}% {} left · ",
+                    "#".repeat(filled),
+                    "-".repeat(20 - filled),
+                    done * 100.0,
+                    duration(left)
+                )
+            }
+            _ => String::new(),
+        };
         let (gaussians, resident, gpu) = match last_report {
             Some(k) => (k.gaussians, k.resident, k.gpu_bytes),
             None => (stats.gaussians, stats.resident, stats.gpu_bytes),
         };
         let line = format!(
-            "mapping: frame {frames}{of} · {} keyframes ({:.2}/s) · Gaussians {resident} on GPU, \
-             {gaussians} in map · GPU {:.1} MB",
+            "mapping: {bar}frame {frames}{of} · {} keyframes ({:.2}/s) · Gaussians {resident} on \
+             GPU, {gaussians} in map · GPU {:.1} MB",
             stats.keyframes,
             stats.keyframes as f64 / elapsed,
             gpu as f64 / 1e6,
@@ -118,6 +136,16 @@ impl MapProgress {
         if self.terminal && self.last.is_some() {
             eprintln!();
         }
+    }
+}
+
+/// `1h02m`, `3m05s`, `42s`.
+fn duration(s: f64) -> String {
+    let s = s.max(0.0).round() as u64;
+    match s {
+        0..=59 => format!("{s}s"),
+        60..=3599 => format!("{}m{:02}s", s / 60, s % 60),
+        _ => format!("{}h{:02}m", s / 3600, s % 3600 / 60),
     }
 }
 
@@ -137,11 +165,21 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
     };
     // Profile the mapping, not the warm-up or the load.
     ctx.profiler_reset();
-    let mut frames = McapFrames::open(&opts.log, opts.assembly.clone())
+    let log =
+        McapLog::open(&opts.log).with_context(|| format!("opening {}", opts.log.display()))?;
+    // Colour images bound the frames; the summary says how many there are.
+    let in_log = log
+        .message_count(&opts.assembly.topics.color)
+        .map(|n| n as usize);
+    let mut frames = McapFrames::from_log(log, opts.assembly.clone())
         .with_context(|| format!("opening {}", opts.log.display()))?;
     let skip = mapper.stats().frames;
     let limit = opts.max_frames.unwrap_or(usize::MAX);
-    let mut progress = MapProgress::new(opts.max_frames);
+    let total = match (in_log, opts.max_frames) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    };
+    let mut progress = MapProgress::new(total);
     let mut keyframes = Vec::new();
     let (mut offered, mut skipped) = (0u64, 0u64);
     let mut ending = Ending::Complete;
