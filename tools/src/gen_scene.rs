@@ -76,6 +76,10 @@ pub struct Args {
     /// Chunk compression.
     #[arg(long, value_enum, default_value_t = CompressionArg::Zstd)]
     compression: CompressionArg,
+    /// Walk the path this many times, alternately forwards and backwards
+    /// (the frames are spread over all laps).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    laps: u64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -88,6 +92,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seed: args.seed,
         fps: args.fps,
         compression: args.compression.into(),
+        laps: args.laps as usize,
         ..SceneConfig::default()
     };
     let mut progress = Progress::new("gen-scene", config.frames);

@@ -9,6 +9,7 @@ use gpu_allocator::vulkan::{AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
 
 use super::context::{Context, Device};
+use super::objects::ObjectKind;
 use super::retire::Retired;
 use crate::error::{Error, Result, VkContext};
 
@@ -121,6 +122,7 @@ impl Buffer {
                 )));
             }
         };
+        dev.objects.created(ObjectKind::Buffer);
         // SAFETY: memory and offset come from an allocation for this buffer.
         if let Err(e) = unsafe {
             dev.raw

@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use ash::vk;
 
 use super::memory::MemoryAccounting;
+use super::objects::ObjectCounts;
 use super::pipeline::PipelineCache;
 use super::profiler::Profiler;
 use super::retire::{RetireQueue, Retired};
@@ -192,6 +193,7 @@ pub(crate) struct Device {
     pub allocator: Mutex<Option<gpu_allocator::vulkan::Allocator>>,
     pub memory: MemoryAccounting,
     pub retired: RetireQueue,
+    pub objects: ObjectCounts,
     pub pipelines: PipelineCache,
     pub profiler: Option<Mutex<Profiler>>,
     /// Query pools can be reset from the host (Vulkan 1.2 `hostQueryReset`).
@@ -258,7 +260,7 @@ impl Device {
     pub fn destroy(&self, objs: Vec<Retired>) {
         let mut alloc = self.allocator.lock().unwrap_or_else(|p| p.into_inner());
         for o in objs {
-            o.destroy(&self.raw, alloc.as_mut(), &self.memory);
+            o.destroy(&self.raw, alloc.as_mut(), &self.memory, &self.objects);
         }
     }
 }
@@ -757,6 +759,7 @@ fn open_device(
         allocator: Mutex::new(Some(allocator)),
         memory: MemoryAccounting::new(options.memory_budget),
         retired: RetireQueue::default(),
+        objects: ObjectCounts::default(),
         pipelines: PipelineCache::default(),
         profiler,
         host_query_reset,

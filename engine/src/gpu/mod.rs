@@ -9,6 +9,7 @@
 mod buffer;
 mod context;
 mod memory;
+mod objects;
 mod pipeline;
 mod profiler;
 mod recorder;
@@ -21,6 +22,7 @@ mod tests;
 pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
 pub use memory::{ByteCount, MemoryReport};
+pub use objects::LiveObjects;
 pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};
 pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
 
@@ -34,6 +36,16 @@ impl Context {
     /// exceed it fail with [`crate::Error::OutOfMemory`].
     pub fn set_memory_budget(&self, bytes: Option<u64>) {
         self.dev.memory.set_budget(bytes)
+    }
+
+    /// Vulkan objects alive now (after destroying those the GPU is done
+    /// with): equal counts before and after a piece of work mean it leaked
+    /// nothing.
+    pub fn live_objects(&self) -> LiveObjects {
+        self.dev.collect();
+        self.dev
+            .objects
+            .snapshot(self.dev.pipelines.len(), self.dev.retired.len())
     }
 
     /// A copy of the profiler's samples (empty unless profiling is on).

@@ -35,6 +35,11 @@ impl PipelineCache {
         Ok(p)
     }
 
+    /// Pipelines created so far.
+    pub fn len(&self) -> usize {
+        self.map.lock().unwrap_or_else(|p| p.into_inner()).len()
+    }
+
     pub fn destroy_all(&self, dev: &ash::Device) {
         let mut map = self.map.lock().unwrap_or_else(|p| p.into_inner());
         for (_, p) in map.drain() {

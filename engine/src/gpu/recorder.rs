@@ -13,6 +13,7 @@ use latentam_shaders::KernelDef;
 
 use super::buffer::{Buffer, BufferKind, Readback};
 use super::context::{Context, Device, Queue};
+use super::objects::ObjectKind;
 use super::retire::Retired;
 use crate::error::{Error, Result, VkContext};
 
@@ -189,6 +190,7 @@ impl<'a> Recorder<'a> {
                 dev.raw.destroy_command_pool(pool, None);
                 return Err(e).vk("vkBeginCommandBuffer");
             }
+            dev.objects.created(ObjectKind::CommandPool);
             Ok(Self {
                 dev,
                 transfer,
@@ -315,6 +317,7 @@ impl<'a> Recorder<'a> {
                         .cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL);
                 }
             }
+            self.dev.objects.created(ObjectKind::QueryPool);
             self.queries.push(QueryBlock { pool, used: 0 });
         }
         let block = self.queries.len() - 1;
@@ -355,6 +358,7 @@ impl<'a> Recorder<'a> {
                 )
             }
             .vk("vkCreateDescriptorPool")?;
+            self.dev.objects.created(ObjectKind::DescriptorPool);
             self.desc_pools.push(pool);
             self.sets_left = SETS_PER_POOL;
         }

@@ -6,6 +6,7 @@ use std::sync::Mutex;
 use ash::vk;
 
 use super::memory::MemoryAccounting;
+use super::objects::{ObjectCounts, ObjectKind};
 
 /// A Vulkan object waiting for the GPU to finish with it.
 pub(crate) enum Retired {
@@ -26,6 +27,7 @@ impl Retired {
         dev: &ash::Device,
         alloc: Option<&mut gpu_allocator::vulkan::Allocator>,
         memory: &MemoryAccounting,
+        objects: &ObjectCounts,
     ) {
         // SAFETY: the retire queue only hands out objects whose last use has
         // completed, and each object is retired exactly once by its owner.
@@ -44,10 +46,20 @@ impl Retired {
                         }
                     }
                     memory.release(&category, bytes);
+                    objects.destroyed(ObjectKind::Buffer);
                 }
-                Retired::CommandPool(p) => dev.destroy_command_pool(p, None),
-                Retired::DescriptorPool(p) => dev.destroy_descriptor_pool(p, None),
-                Retired::QueryPool(p) => dev.destroy_query_pool(p, None),
+                Retired::CommandPool(p) => {
+                    dev.destroy_command_pool(p, None);
+                    objects.destroyed(ObjectKind::CommandPool);
+                }
+                Retired::DescriptorPool(p) => {
+                    dev.destroy_descriptor_pool(p, None);
+                    objects.destroyed(ObjectKind::DescriptorPool);
+                }
+                Retired::QueryPool(p) => {
+                    dev.destroy_query_pool(p, None);
+                    objects.destroyed(ObjectKind::QueryPool);
+                }
             }
         }
     }
@@ -81,6 +93,11 @@ impl RetireQueue {
             }
         }
         ready
+    }
+
+    /// Objects waiting.
+    pub fn len(&self) -> usize {
+        self.items.lock().unwrap_or_else(|p| p.into_inner()).len()
     }
 
     pub fn take_all(&self) -> Vec<Retired> {

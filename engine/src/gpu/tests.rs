@@ -201,3 +201,40 @@ fn buffers_larger_than_a_binding_are_refused() {
         assert!(matches!(err, crate::Error::Unsupported(_)), "{err}");
     });
 }
+
+#[test]
+fn live_objects_return_to_their_count_once_work_is_dropped_and_done() {
+    let opts = ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    };
+    with_options(opts, |ctx| {
+        let data: Vec<u32> = vec![1; 5000];
+        let work = |ctx: &Context| {
+            let buf = ctx.upload_new("objects/data", &data).unwrap();
+            let scan = PrefixScan::new(ctx, 5000).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            scan.record(&mut rec, &buf, 5000).unwrap();
+            let back = rec.download(&buf, 0, 4).unwrap();
+            rec.submit().unwrap().wait().unwrap();
+            back.read::<u32>().unwrap()
+        };
+        // The first run creates the pipelines, which stay.
+        work(ctx);
+        ctx.wait_idle().unwrap();
+        let before = ctx.live_objects();
+        let during = {
+            let _held = ctx.upload_new("objects/held", &data).unwrap();
+            ctx.live_objects()
+        };
+        assert_eq!(during.buffers, before.buffers + 1, "{during:?}");
+        for _ in 0..3 {
+            assert_eq!(work(ctx), vec![0]);
+        }
+        ctx.wait_idle().unwrap();
+        let after = ctx.live_objects();
+        assert_eq!(after, before);
+        assert_eq!(after.awaiting_destruction, 0);
+        assert!(after.pipelines >= 2, "{after:?}");
+    });
+}

@@ -32,7 +32,7 @@ use rand_chacha::ChaCha8Rng;
 
 pub use layout::{Scene, CLASSES};
 pub use render::{intrinsics, render, View};
-pub use trajectory::camera_pose;
+pub use trajectory::{camera_pose, camera_pose_laps};
 
 /// What to generate.
 #[derive(Clone, Debug)]
@@ -59,6 +59,9 @@ pub struct SceneConfig {
     pub view_spread: f32,
     /// Chunk compression.
     pub compression: Compression,
+    /// Traversals of the path, alternately forwards and backwards (long
+    /// runs that keep revisiting the same rooms).
+    pub laps: usize,
 }
 
 impl Default for SceneConfig {
@@ -75,6 +78,7 @@ impl Default for SceneConfig {
             instance_spread: 0.35,
             view_spread: 0.1,
             compression: Compression::Zstd,
+            laps: 1,
         }
     }
 }
@@ -229,7 +233,7 @@ pub fn generate(
         let stamp = START_NS + (i as f64 * 1e9 / config.fps).round() as i64;
         let t = stamp as u64;
         let header = Header::at(stamp, frame_id);
-        let (rotation, position) = camera_pose(i, config.frames);
+        let (rotation, position) = camera_pose_laps(i, config.frames, config.laps);
         let view = render(&scene, rotation, position, w, h);
 
         log.write(

@@ -45,6 +45,24 @@ fn point(s: f32) -> Vec2 {
 /// Camera-to-world rotation (columns: camera x right, y down, z forward;
 /// world z up) and position of frame `i` of `frames`.
 pub fn camera_pose(i: usize, frames: usize) -> (Mat3, Vec3) {
+    camera_pose_laps(i, frames, 1)
+}
+
+/// The pose of frame `i` of `frames` spread over `laps` traversals of the
+/// path, alternately forwards and backwards so the walk is continuous
+/// (long runs revisit the same rooms again and again).
+pub fn camera_pose_laps(i: usize, frames: usize, laps: usize) -> (Mat3, Vec3) {
+    let laps = laps.max(1);
+    let u = laps as f32 * i as f32 / (frames.max(2) - 1) as f32;
+    let lap = (u.floor() as usize).min(laps - 1);
+    let f = u - lap as f32;
+    let backwards = lap % 2 == 1;
+    pose_at(if backwards { 1.0 - f } else { f }, backwards)
+}
+
+/// The pose at fraction `f` of the path's length, looking along the
+/// direction of travel (`backwards`: towards the path's start).
+fn pose_at(f: f32, backwards: bool) -> (Mat3, Vec3) {
     // Sample the spline densely, then walk it at constant speed.
     const STEPS: usize = 4000;
     let seg = (WAYPOINTS.len() - 1) as f32;
@@ -54,11 +72,14 @@ pub fn camera_pose(i: usize, frames: usize) -> (Mat3, Vec3) {
         let b = point(k as f32 / STEPS as f32 * seg);
         lengths[k] = lengths[k - 1] + (b - a).length();
     }
-    let target = lengths[STEPS] * i as f32 / (frames.max(2) - 1) as f32;
+    let target = lengths[STEPS] * f.clamp(0.0, 1.0);
     let k = lengths.partition_point(|&l| l < target).min(STEPS);
     let s = k as f32 / STEPS as f32 * seg;
     let pos = point(s);
-    let ahead = point((s + 0.05).min(seg)) - point((s - 0.05).max(0.0));
+    let mut ahead = point((s + 0.05).min(seg)) - point((s - 0.05).max(0.0));
+    if backwards {
+        ahead = -ahead;
+    }
     let mut yaw = ahead.y.atan2(ahead.x);
     // Look around while walking, less in the corridor.
     let in_corridor = (5.0..9.0).contains(&pos.x);
@@ -107,5 +128,39 @@ mod tests {
             }
         }
         assert_eq!(rooms, ['A', 'c', 'B', 'c', 'A']);
+    }
+
+    #[test]
+    fn laps_walk_the_path_back_and_forth_without_jumps() {
+        let (n, laps) = (1200, 3);
+        let mut prev = camera_pose_laps(0, n, laps).1;
+        let mut turns = 0;
+        let mut last_dx = 0.0f32;
+        for i in 1..n {
+            let (r, p) = camera_pose_laps(i, n, laps);
+            assert!((r.determinant() - 1.0).abs() < 1e-4);
+            assert!((p - prev).length() < 0.2, "frame {i} jumps");
+            // The camera looks roughly where it walks (except where it
+            // turns round, at the ends of the path).
+            let step = (p - prev).truncate();
+            let lap_end = (1..laps).any(|l| (i as i64 - (l * n / laps) as i64).abs() <= 2);
+            if step.length() > 1e-3 && !lap_end {
+                let forward = (r * Vec3::Z).truncate().normalize();
+                assert!(
+                    forward.dot(step.normalize()) > -0.2,
+                    "frame {i} walks backwards"
+                );
+            }
+            let dx = p.x - prev.x;
+            if dx.abs() > 1e-3 && last_dx.abs() > 1e-3 && dx.signum() != last_dx.signum() {
+                turns += 1;
+            }
+            if dx.abs() > 1e-3 {
+                last_dx = dx;
+            }
+            prev = p;
+        }
+        assert!(turns >= 2, "{turns} turns");
+        assert_eq!(camera_pose_laps(0, n, laps).1, camera_pose(0, 400).1);
     }
 }
