@@ -328,20 +328,11 @@ impl Run {
     /// The keyframe trajectory, every keyframe of the map (resumed runs
     /// included), camera-to-world.
     pub fn trajectory(&self) -> Vec<(u64, CameraPose)> {
-        let history = self.mapper.online_ref().history();
-        (0..history.len())
-            .filter_map(|i| history.get(i))
-            .map(|k| {
-                let (_, rotation, translation) =
-                    k.camera.cam_to_world.to_scale_rotation_translation();
-                (
-                    k.stamp_ns.max(0) as u64,
-                    CameraPose {
-                        rotation,
-                        translation,
-                    },
-                )
-            })
+        self.mapper
+            .online_ref()
+            .trajectory()
+            .iter()
+            .map(|&(stamp, pose)| (stamp.max(0) as u64, pose))
             .collect()
     }
 

@@ -96,6 +96,15 @@ static DOCS: &[Doc] = &[
          one. Integer >= 0.",
     ),
     doc(
+        "history_cell",
+        Val,
+        "Keyframes kept for replay are thinned in space: a keyframe taken \
+         within the same cell of this size (metres) and looking the same way \
+         (45-degree bins) as a kept one replaces it, so memory grows with the \
+         space explored rather than with time. 0 keeps every keyframe (the \
+         paper's setting). Must be >= 0.",
+    ),
+    doc(
         "stage_two_iterations",
         Val,
         "Stage II iterations per keyframe (R2). Integer >= 0.",

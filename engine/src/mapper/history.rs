@@ -3,6 +3,8 @@
 //! Alg. 1). Images are kept compact (RGB bytes, millimetre depth) and
 //! expanded when a batch is built.
 
+use std::collections::HashMap;
+
 use crate::io::{EmbeddingLayout, Frame};
 use crate::random::SplitMix;
 use crate::splat::Camera;
@@ -139,18 +141,68 @@ impl KeyframeRecord {
     }
 }
 
-/// Every keyframe so far.
+/// Where a keyframe was taken from: a cell of the camera position and a
+/// bin of its viewing direction (8 azimuths × 3 elevations).
+type ViewBin = (i64, i64, i64, u8);
+
+fn view_bin(camera: &Camera, cell: f64) -> ViewBin {
+    let t = camera.cam_to_world.translation / cell;
+    let forward = camera.cam_to_world.matrix3.z_axis;
+    let azimuth = forward.y.atan2(forward.x);
+    let a = ((azimuth / std::f64::consts::FRAC_PI_4).round() as i64).rem_euclid(8) as u8;
+    let e = if forward.z < -0.5 {
+        0
+    } else if forward.z > 0.5 {
+        2
+    } else {
+        1
+    };
+    (
+        t.x.floor() as i64,
+        t.y.floor() as i64,
+        t.z.floor() as i64,
+        a * 3 + e,
+    )
+}
+
+/// The keyframes kept for replay. With a cell size, a keyframe taken from
+/// the same place (cell) looking the same way (direction bin) as an
+/// earlier one replaces it, so the history grows with the space explored,
+/// not with time: a robot circling a room for hours keeps a bounded set of
+/// views of it. With cell 0 every keyframe is kept (the paper's setting).
 #[derive(Debug, Default)]
 pub struct History {
     records: Vec<KeyframeRecord>,
     bytes: u64,
+    cell: f64,
+    bins: HashMap<ViewBin, usize>,
 }
 
 impl History {
-    /// Appends a keyframe.
-    pub fn push(&mut self, record: KeyframeRecord) {
+    /// A history replacing keyframes per `cell` metres and view direction
+    /// (0: keep every keyframe).
+    pub fn with_cell(cell: f64) -> Self {
+        History {
+            cell,
+            ..Default::default()
+        }
+    }
+
+    /// Adds a keyframe, replacing the one from the same cell and direction
+    /// when there is one; returns its index.
+    pub fn push(&mut self, record: KeyframeRecord) -> usize {
         self.bytes += record.bytes();
+        if self.cell > 0.0 {
+            let bin = view_bin(&record.camera, self.cell);
+            if let Some(&i) = self.bins.get(&bin) {
+                self.bytes -= self.records[i].bytes();
+                self.records[i] = record;
+                return i;
+            }
+            self.bins.insert(bin, self.records.len());
+        }
         self.records.push(record);
+        self.records.len() - 1
     }
 
     /// Number of keyframes.
@@ -214,6 +266,36 @@ fn draw(mut idx: Vec<usize>, b: usize, seed: u64) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn keyframes_from_the_same_place_and_direction_replace_each_other() {
+        let record = |x: f64, yaw: f64| {
+            let mut camera = Camera::at_origin(2, 2);
+            camera.cam_to_world = glam::DAffine3::from_rotation_translation(
+                glam::DQuat::from_rotation_z(yaw) * glam::DQuat::from_rotation_y(1.5),
+                glam::DVec3::new(x, 0.0, 1.4),
+            );
+            KeyframeRecord {
+                stamp_ns: (x * 1000.0) as i64,
+                camera,
+                rgb: vec![0; 12],
+                depth_mm: vec![0; 4],
+                regions: None,
+            }
+        };
+        let mut h = History::with_cell(0.5);
+        assert_eq!(h.push(record(0.1, 0.0)), 0);
+        assert_eq!(h.push(record(0.2, 0.1)), 0, "same cell, same direction");
+        assert_eq!(h.get(0).unwrap().stamp_ns, 200);
+        assert_eq!(h.push(record(0.3, 3.0)), 1, "same cell, other direction");
+        assert_eq!(h.push(record(0.7, 0.0)), 2, "next cell");
+        assert_eq!(h.len(), 3);
+        assert_eq!(h.bytes(), 3 * record(0.0, 0.0).bytes());
+        let mut all = History::with_cell(0.0);
+        for i in 0..5 {
+            assert_eq!(all.push(record(0.1, 0.0)), i);
+        }
+    }
 
     #[test]
     fn near_sampling_draws_only_keyframes_within_the_radius() {

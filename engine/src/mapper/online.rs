@@ -10,7 +10,7 @@ use super::history::{History, KeyframeRecord};
 use super::trainer::{StageOneReport, Trainer, TrainerConfig};
 use crate::error::{Error, Result};
 use crate::gpu::{Context, GpuSpan, Submission};
-use crate::io::Frame;
+use crate::io::{CameraPose, Frame};
 use crate::latent::{LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
 use crate::map::{
@@ -54,6 +54,10 @@ pub struct MapperConfig {
     /// Past keyframes per Stage I batch (B), drawn uniformly among those
     /// whose camera lies within `window_radius` of the current one.
     pub replay: u32,
+    /// Keyframes kept for replay replace one another per cell of this size
+    /// (metres) and view direction, so the history grows with the space
+    /// explored, not with time; 0 keeps every keyframe (the paper).
+    pub history_cell: f64,
     /// Stage II iterations per keyframe (R2).
     pub stage_two_iterations: u32,
     /// Dictionary size (K).
@@ -92,6 +96,7 @@ impl Default for MapperConfig {
             window_radius: 6.0,
             sync_distance: 0.5,
             replay: 5,
+            history_cell: 0.25,
             stage_two_iterations: 5,
             atoms: 2000,
             temperature: 0.05,
@@ -142,6 +147,9 @@ impl MapperConfig {
         }
         if !(self.sync_distance >= 0.0 && self.sync_distance.is_finite()) {
             return bad(&format!("sync_distance {} must be ≥ 0", self.sync_distance));
+        }
+        if !(self.history_cell >= 0.0 && self.history_cell.is_finite()) {
+            return bad(&format!("history_cell {} must be ≥ 0", self.history_cell));
         }
         if self.window_capacity == Some(0) {
             return bad("window_capacity must be at least 1");
@@ -313,6 +321,8 @@ pub struct OnlineMapper {
     pub(super) stats: MapperStats,
     /// The embedding model of the map's region embeddings (first seen).
     pub(super) model: Option<String>,
+    /// Stamp and pose of every keyframe (the history may have let some go).
+    pub(super) trajectory: Vec<(i64, CameraPose)>,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -332,7 +342,8 @@ impl OnlineMapper {
             window: None,
             window_budget: None,
             selector: KeyframeSelector::new(cfg.keyframes),
-            history: History::default(),
+            history: History::with_cell(cfg.history_cell),
+            trajectory: Vec::new(),
             head: None,
             trainer: None,
             last_sync: None,
@@ -382,6 +393,11 @@ impl OnlineMapper {
         &self.history
     }
 
+    /// Stamp and camera-to-world pose of every keyframe mapped, in order.
+    pub fn trajectory(&self) -> &[(i64, CameraPose)] {
+        &self.trajectory
+    }
+
     /// Counts, memory and summed timings.
     pub fn stats(&self) -> MapperStats {
         let mem = self.ctx.memory_report();
@@ -400,6 +416,7 @@ impl OnlineMapper {
     fn cpu_bytes(&self) -> u64 {
         self.global.bytes()
             + self.history.bytes()
+            + (self.trajectory.len() * std::mem::size_of::<(i64, CameraPose)>()) as u64
             + self.window.as_ref().map_or(0, |w| {
                 w.len() as u64 * std::mem::size_of::<VoxelKey>() as u64
             })
@@ -632,6 +649,8 @@ impl OnlineMapper {
         }
         timings.stage_two_ms = ms_since(t);
 
+        let stamp_ns = record.stamp_ns;
+        self.trajectory.push((stamp_ns, frame.pose));
         self.history.push(record);
         self.stats.keyframes += 1;
         let t = Instant::now();
@@ -652,11 +671,10 @@ impl OnlineMapper {
         add_timings(&mut self.stats.timings, &timings);
         let cpu_bytes = self.cpu_bytes();
         self.stats.cpu_peak_bytes = self.stats.cpu_peak_bytes.max(cpu_bytes);
-        let last = self.history.get(self.history.len() - 1).expect("pushed");
         Ok(Integrated::Keyframe(Box::new(KeyframeReport {
             index: keyframe,
             frame: frame_index,
-            stamp_ns: last.stamp_ns,
+            stamp_ns,
             added: new_keys.len(),
             stage_one,
             stage_two,

@@ -169,6 +169,20 @@ impl OnlineMapper {
         w.tensor("history/regions", &[h, 6], &info);
         w.tensor("history/labels", &[labels.len()], &labels);
         w.tensor("history/vectors", &[vectors.len()], &vectors);
+
+        // Every keyframe's pose (the history may have let some go).
+        let n = self.trajectory.len();
+        let stamps: Vec<i64> = self.trajectory.iter().map(|t| t.0).collect();
+        let poses: Vec<f64> = self
+            .trajectory
+            .iter()
+            .flat_map(|(_, p)| {
+                let (q, t) = (p.rotation, p.translation);
+                [q.x, q.y, q.z, q.w, t.x, t.y, t.z]
+            })
+            .collect();
+        w.tensor("trajectory/stamp", &[n], &stamps);
+        w.tensor("trajectory/pose", &[n, 7], &poses);
         w.write(path)
     }
 
@@ -185,6 +199,7 @@ impl OnlineMapper {
         cfg.atoms = saved.atoms;
         cfg.max_regions = saved.max_regions;
         cfg.replay = saved.replay;
+        cfg.history_cell = saved.history_cell;
         cfg.seed = saved.seed;
         let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", path.display()));
         if a.has("window/keys") {
@@ -313,6 +328,35 @@ impl OnlineMapper {
                 depth_mm: depth[depth_r].to_vec(),
                 regions,
             });
+        }
+        if a.has("trajectory/stamp") {
+            let (shape, stamps) = a.tensor::<i64>("trajectory/stamp")?;
+            let n = *shape.first().unwrap_or(&0);
+            let poses = a.rows::<f64>("trajectory/pose", n, 7)?;
+            m.trajectory = stamps
+                .iter()
+                .zip(poses.chunks_exact(7))
+                .map(|(&s, v)| {
+                    let pose = CameraPose {
+                        rotation: DQuat::from_xyzw(v[0], v[1], v[2], v[3]),
+                        translation: DVec3::new(v[4], v[5], v[6]),
+                    };
+                    (s, pose)
+                })
+                .collect();
+        } else {
+            m.trajectory = (0..m.history.len())
+                .filter_map(|i| m.history.get(i))
+                .map(|k| {
+                    let (_, rotation, translation) =
+                        k.camera.cam_to_world.to_scale_rotation_translation();
+                    let pose = CameraPose {
+                        rotation,
+                        translation,
+                    };
+                    (k.stamp_ns, pose)
+                })
+                .collect();
         }
 
         // Window: the same residents in the same rows, with their Adam

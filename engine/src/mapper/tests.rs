@@ -235,6 +235,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
             },
             window_capacity: Some(8192),
             replay: 2,
+            history_cell: 0.0,
             atoms: 16,
             max_regions: 64,
             min_region_pixels: 4,
@@ -261,6 +262,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
             }
         }
         assert_eq!(mapper.history().len(), 8);
+        assert_eq!(mapper.trajectory().len(), 8);
         assert_eq!(mapper.global().len(), added_total);
         assert!(mapper.head().unwrap().atom_count() >= 2);
         // Every Gaussian of the map is in the window (it is large enough),
