@@ -136,6 +136,10 @@ pub enum Which {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Long run on the demo scene walked lap after lap: GPU and CPU bytes,
+    /// Gaussians, kept keyframes and live Vulkan objects per keyframe, and
+    /// per lap.
+    Soak(crate::bench_soak::Args),
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -173,6 +177,7 @@ pub fn run(which: Which) -> Result<()> {
             runs: runs as usize,
             json,
         }),
+        Which::Soak(args) => crate::bench_soak::run_bench(args),
         Which::Map {
             frames,
             width,

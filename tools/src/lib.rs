@@ -6,3 +6,4 @@ pub mod convert;
 pub mod partial;
 pub mod progress;
 pub mod scene;
+pub mod soak;

@@ -9,6 +9,7 @@ mod bench_ingest;
 mod bench_latent;
 mod bench_map;
 mod bench_raster;
+mod bench_soak;
 mod config_cmd;
 mod convert_cmd;
 mod demo_cmd;

@@ -33,6 +33,12 @@ const CELL_VOXELS: i32 = 64;
 /// centimetres apart, so "is this surface mapped" is asked at a few voxels.
 pub const OCCUPANCY_VOXELS: i32 = 4;
 
+/// Cell edges (in voxels) of the occupancy grids: "is there surface within
+/// about d" is asked at the level matching d (see
+/// [`GlobalMap::is_mapped_within`]). Level 1 (`OCCUPANCY_VOXELS`) also
+/// answers [`GlobalMap::is_near_occupied`].
+const OCCUPANCY_LEVELS: [i32; 4] = [2, OCCUPANCY_VOXELS, 8, 16];
+
 /// The global map: at most one Gaussian per voxel of edge `voxel_size`; a
 /// Gaussian keeps the key of the voxel it was inserted in (means move by
 /// far less than a voxel during mapping). Radius queries go through a
@@ -57,8 +63,8 @@ pub struct GlobalMap {
     cells: HashMap<VoxelKey, Vec<u32>>,
     /// Position of each slot in its cell's list, for O(1) removal.
     in_cell: Vec<u32>,
-    /// Gaussians per occupancy cell.
-    occupancy: HashMap<VoxelKey, u32>,
+    /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`.
+    occupancy: [HashMap<VoxelKey, u32>; 4],
 }
 
 impl GlobalMap {
@@ -75,7 +81,7 @@ impl GlobalMap {
             gaussians: Vec::new(),
             cells: HashMap::new(),
             in_cell: Vec::new(),
-            occupancy: HashMap::new(),
+            occupancy: Default::default(),
         }
     }
 
@@ -108,10 +114,28 @@ impl GlobalMap {
     /// [`OCCUPANCY_VOXELS`] voxels) or one of its 26 neighbours: `p` is on
     /// or within about a cell of mapped surface.
     pub fn is_near_occupied(&self, p: DVec3) -> bool {
+        self.occupied_around(p, 1)
+    }
+
+    /// Whether a Gaussian lies within about `distance` of `p` (at least
+    /// `distance`, at most about three times it; distances beyond 16
+    /// voxels are asked at 16): the grid whose cells are just under
+    /// `distance` is asked for `p`'s cell and its 26 neighbours.
+    pub fn is_mapped_within(&self, p: DVec3, distance: f64) -> bool {
+        let voxels = distance / self.voxel_size;
+        match OCCUPANCY_LEVELS.iter().rposition(|&r| r as f64 <= voxels) {
+            Some(level) => self.occupied_around(p, level),
+            None => self
+                .key_of(p)
+                .is_some_and(|k| k.neighbourhood().any(|n| self.slot_of.contains_key(&n))),
+        }
+    }
+
+    fn occupied_around(&self, p: DVec3, level: usize) -> bool {
         self.key_of(p).is_some_and(|k| {
-            k.coarse(OCCUPANCY_VOXELS)
+            k.coarse(OCCUPANCY_LEVELS[level])
                 .neighbourhood()
-                .any(|n| self.occupancy.contains_key(&n))
+                .any(|n| self.occupancy[level].contains_key(&n))
         })
     }
 
@@ -135,10 +159,9 @@ impl GlobalMap {
         let cell = self.cells.entry(key.coarse(CELL_VOXELS)).or_default();
         self.in_cell.push(cell.len() as u32);
         cell.push(slot);
-        *self
-            .occupancy
-            .entry(key.coarse(OCCUPANCY_VOXELS))
-            .or_default() += 1;
+        for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
+            *grid.entry(key.coarse(r)).or_default() += 1;
+        }
         true
     }
 
@@ -162,11 +185,13 @@ impl GlobalMap {
     /// Removes the Gaussian in voxel `key` (pruning).
     pub fn remove(&mut self, key: VoxelKey) -> Option<Gaussian> {
         let slot = self.slot_of.remove(&key)? as usize;
-        let occ = key.coarse(OCCUPANCY_VOXELS);
-        match self.occupancy.get_mut(&occ) {
-            Some(n) if *n > 1 => *n -= 1,
-            _ => {
-                self.occupancy.remove(&occ);
+        for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
+            let occ = key.coarse(r);
+            match grid.get_mut(&occ) {
+                Some(n) if *n > 1 => *n -= 1,
+                _ => {
+                    grid.remove(&occ);
+                }
             }
         }
         // Out of its cell.
@@ -238,7 +263,9 @@ impl GlobalMap {
     /// Approximate heap bytes held (parameters, keys, hash tables).
     pub fn bytes(&self) -> u64 {
         let per = size_of::<Gaussian>() + size_of::<VoxelKey>() * 2 + 4 * 3 + 16;
-        (self.keys.capacity() * per + (self.cells.len() + self.occupancy.len()) * 64) as u64
+        (self.keys.capacity() * per
+            + (self.cells.len() + self.occupancy.iter().map(HashMap::len).sum::<usize>()) * 64)
+            as u64
     }
 }
 
@@ -301,6 +328,31 @@ mod tests {
         for p in &live {
             let k = map.key_of(DVec3::from(p.map(f64::from))).unwrap();
             assert_eq!(map.get(k).unwrap().mean, *p);
+        }
+    }
+
+    #[test]
+    fn mapped_within_a_distance_is_asked_at_the_matching_grid() {
+        let mut map = GlobalMap::new(0.01);
+        let k = map.insert(at([0.0005, 0.0005, 0.0005])).unwrap();
+        for d in [0.005, 0.01, 0.02, 0.04, 0.08, 0.16] {
+            // Always within `d` …
+            assert!(
+                map.is_mapped_within(DVec3::new(d * 0.99, 0.0, 0.0), d),
+                "{d}"
+            );
+            // … never beyond about 3 d (two cells of at most d, plus one).
+            assert!(
+                !map.is_mapped_within(DVec3::new(3.1 * d.max(0.01), 0.0, 0.0), d),
+                "{d}"
+            );
+        }
+        map.remove(k).unwrap();
+        for d in [0.005, 0.02, 0.16] {
+            assert!(
+                !map.is_mapped_within(DVec3::ZERO, d),
+                "removal updates every grid"
+            );
         }
     }
 

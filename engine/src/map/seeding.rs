@@ -30,6 +30,15 @@ pub struct SeedingConfig {
     /// Initial standard deviation as a multiple of the spacing between
     /// seeds (`stride × depth / focal`), at least half a voxel.
     pub scale_factor: f32,
+    /// Where the map already has a Gaussian within the seed spacing
+    /// (`stride × depth / focal`, [`GlobalMap::is_mapped_within`]), a
+    /// pixel is seeded only if the render is nearly empty there (alpha
+    /// below this): holes are refilled and closer views still add finer
+    /// Gaussians, but the partial alpha and depth disagreements at edges
+    /// that every revisit from a new position brings add nothing, so the
+    /// map grows with the space (and detail) explored rather than with
+    /// time. Set it to `alpha_threshold` to seed every unexplained pixel.
+    pub refill_alpha: f32,
 }
 
 impl Default for SeedingConfig {
@@ -41,6 +50,7 @@ impl Default for SeedingConfig {
             depth_error: 0.05,
             opacity: 0.5,
             scale_factor: 0.5,
+            refill_alpha: 0.5,
         }
     }
 }
@@ -59,6 +69,11 @@ pub struct ViewCoverage<'a> {
     /// ([`GlobalMap::is_near_occupied`]), so Gaussians that are paged out
     /// are not seeded again beside themselves.
     pub partial: bool,
+    /// The render holds every Gaussian within this radius (metres) of this
+    /// centre, and possibly not those beyond (the window's extent when
+    /// Gaussians are paged out): pixels whose points lie beyond are
+    /// treated as under `partial`. `None`: no limit.
+    pub complete_within: Option<(DVec3, f64)>,
 }
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
@@ -125,7 +140,20 @@ pub fn seed_from_frame(
             );
             let p = rotation * cam + translation;
             let Some(key) = map.key_of(p) else { continue };
-            if rendered.is_some_and(|r| r.partial) && map.is_near_occupied(p) {
+            let beyond_render = rendered.is_some_and(|r| {
+                r.partial
+                    || r.complete_within
+                        .is_some_and(|(centre, radius)| p.distance(centre) > radius)
+            });
+            if beyond_render && map.is_near_occupied(p) {
+                continue;
+            }
+            // Surface already seeded at this seed spacing (or finer) is not
+            // seeded again unless the render has a hole there; closer views
+            // (finer spacing) still refine coarser surface.
+            let spacing = stride as f64 * z / focal;
+            let filled = rendered.is_some_and(|r| r.alpha[i] >= config.refill_alpha);
+            if filled && map.is_mapped_within(p, spacing) {
                 continue;
             }
             if map.contains(key) || !taken.insert(key) {

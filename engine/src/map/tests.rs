@@ -111,6 +111,7 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         .collect();
     let rendered = ViewCoverage {
         partial: false,
+        complete_within: None,
         alpha: &alpha,
         depth: &depth,
     };
@@ -123,6 +124,7 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
     let near = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 400);
     let dense = SeedingConfig {
         stride: 4,
+        refill_alpha: 1.0,
         ..SeedingConfig::default()
     };
     let mut map = GlobalMap::new(0.01);
@@ -139,6 +141,56 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
             assert_eq!(g.query, n.query);
         }
     }
+}
+
+#[test]
+fn mapped_surface_beyond_the_window_is_not_seeded_again() {
+    // A wall 0.6 m away (seeds 3 cm apart), mapped from one pose; seen
+    // again from 1.5 cm aside (new pixels land in new voxels) with nothing
+    // rendered (alpha 0).
+    let config = SeedingConfig::default();
+    let mut map = GlobalMap::new(0.01);
+    let first = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 600);
+    for g in seed_from_frame(&first, None, &map, &config, 1) {
+        map.insert(g).unwrap();
+    }
+    let again = wall_frame(DVec3::new(0.015, 0.0, 0.0), DQuat::IDENTITY, 600);
+    let n = (W * H) as usize;
+    let (alpha, depth) = (vec![0.0f32; n], vec![0.0f32; n]);
+    let coverage = |complete_within| ViewCoverage {
+        alpha: &alpha,
+        depth: &depth,
+        partial: false,
+        complete_within,
+    };
+    // The render held everything within 5 m: the wall is unexplained there,
+    // so it is seeded (holes in a complete render are real).
+    let inside = Some((DVec3::ZERO, 5.0));
+    let reseeded = seed_from_frame(&again, Some(coverage(inside)), &map, &config, 2).len();
+    assert!(reseeded > 50, "{reseeded}");
+    // Only what is within 0.3 m was resident: the wall's Gaussians may be
+    // paged out, and its surface is mapped, so only the strip the first
+    // view did not see (past its edge) is seeded.
+    let outside = Some((DVec3::ZERO, 0.3));
+    let seeded = seed_from_frame(&again, Some(coverage(outside)), &map, &config, 2);
+    assert!(
+        seeded.len() * 5 < reseeded,
+        "{} of {reseeded}",
+        seeded.len()
+    );
+    let edge = (W as f64 / 2.0) / 40.0 * 0.6;
+    assert!(seeded.iter().all(|g| g.mean[0] as f64 > edge - 0.04));
+    // A render that shows something there (alpha 0.3, depth wrong) is not
+    // a hole: mapped surface is not seeded again, rendered or not.
+    let faint = vec![0.3f32; n];
+    let partly = ViewCoverage {
+        alpha: &faint,
+        depth: &depth,
+        partial: false,
+        complete_within: inside,
+    };
+    let again_seeded = seed_from_frame(&again, Some(partly), &map, &config, 2);
+    assert_eq!(again_seeded.len(), seeded.len());
 }
 
 #[test]

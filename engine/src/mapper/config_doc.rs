@@ -250,6 +250,16 @@ static DOCS: &[Doc] = &[
         "Initial opacity of new Gaussians. Between 0 and 1, exclusive.",
     ),
     doc(
+        "seeding.refill_alpha",
+        Val,
+        "Where the map already has a Gaussian within the seed spacing \
+         (stride x depth / focal), a pixel is seeded only if the rendered \
+         alpha is below this (a hole); partial alpha or depth disagreements \
+         there add nothing, so revisits do not grow the map while closer \
+         views still add detail. Set it to alpha_threshold to seed every \
+         unexplained pixel. Range 0 to 1.",
+    ),
+    doc(
         "seeding.scale_factor",
         Val,
         "Initial standard deviation of new Gaussians as a multiple of the \

@@ -169,6 +169,20 @@ impl MapperConfig {
         if self.seeding.stride == 0 {
             return bad("seeding.stride must be at least 1");
         }
+        let unit = |x: f32| (0.0..=1.0).contains(&x);
+        let sd = &self.seeding;
+        for (name, x) in [
+            ("alpha_threshold", sd.alpha_threshold),
+            ("refill_alpha", sd.refill_alpha),
+            ("opacity", sd.opacity),
+        ] {
+            if !unit(x) {
+                return bad(&format!("seeding.{name} {x} must be within 0..1"));
+            }
+        }
+        if !(sd.depth_error >= 0.0 && sd.max_depth > 0.0 && sd.scale_factor > 0.0) {
+            return bad("seeding.depth_error must be ≥ 0, max_depth and scale_factor > 0");
+        }
         if let crate::map::KeyframePolicy::Interval(0) = self.keyframes.policy {
             return bad("keyframes.policy interval must be at least 1");
         }
@@ -700,12 +714,21 @@ impl OnlineMapper {
             raster.forward(window.params(), window.len() as u64, &[record.camera])?;
             Some(raster.download_alpha_depth(0)?)
         };
+        // Paged-out Gaussians beyond the window's radius do not render: their
+        // surface must not be seeded again.
+        let complete = self.global.len() == window.len();
+        let partial = self.window_partial || (!complete && self.last_sync.is_none());
+        let complete_within = match (complete, self.last_sync) {
+            (false, Some(c)) => Some((c, self.cfg.window_radius)),
+            _ => None,
+        };
         let mut seeds = seed_from_frame(
             frame,
             coverage.as_ref().map(|(alpha, depth)| ViewCoverage {
                 alpha,
                 depth,
-                partial: self.window_partial,
+                partial,
+                complete_within,
             }),
             &self.global,
             &self.cfg.seeding,
