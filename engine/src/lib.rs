@@ -43,6 +43,7 @@
 #![warn(missing_docs)]
 
 mod error;
+mod faults;
 pub mod gpu;
 pub mod io;
 pub mod latent;

@@ -59,6 +59,7 @@ pub fn run(args: Args) -> Result<()> {
         max_frames: None,
         resume: None,
         profile: true,
+        autosave: None,
     })?;
     let report = run.write_folder(&run_dir)?;
     match &run.ending {

@@ -31,6 +31,11 @@ pub struct Args {
     /// report.json, for a little less overhead.
     #[arg(long)]
     no_trace: bool,
+    /// Save the resumable state every N keyframes while mapping (0: only
+    /// at the end), so a crash or a lost device loses at most N
+    /// keyframes: `--resume` continues from the last save.
+    #[arg(long, value_name = "N", default_value_t = 25)]
+    autosave_every: u64,
 }
 
 /// Exit status of a run stopped by Ctrl-C after writing its folder.
@@ -53,9 +58,13 @@ pub fn run(args: Args) -> Result<bool> {
         max_frames: args.frames,
         resume: args.resume.then(|| args.out.clone()),
         profile: !args.no_trace,
+        autosave: (args.autosave_every > 0).then(|| (args.out.clone(), args.autosave_every)),
     })?;
     let report = run.write_folder(&args.out)?;
     print!("{}", summary(&report));
+    for p in &report.problems {
+        eprintln!("error: {p}");
+    }
     println!("run folder {}:", args.out.display());
     for f in RUN_FILES {
         if args.out.join(f).exists() {
@@ -64,7 +73,11 @@ pub fn run(args: Args) -> Result<bool> {
     }
     match run.ending {
         Ending::Failed(e) => bail!(
-            "{e} (what was mapped before is saved in {})",
+            "{e} (what was mapped before is in {}; see report.json)",
+            args.out.display()
+        ),
+        _ if !report.problems.is_empty() => bail!(
+            "the run folder {} is incomplete (see above and report.json)",
             args.out.display()
         ),
         Ending::Interrupted => {

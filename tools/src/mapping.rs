@@ -20,8 +20,6 @@ use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, Mapp
 use latentam::mapper::{DECODER_FILE, STATE_FILE};
 use serde::Serialize;
 
-use latentam_cli::partial::PartialFile;
-
 use crate::interrupt;
 
 /// What to map.
@@ -39,6 +37,9 @@ pub struct RunOptions {
     pub resume: Option<PathBuf>,
     /// Time every kernel (for `trace.json` and the profile table).
     pub profile: bool,
+    /// Save the resumable state into this folder every this many
+    /// keyframes.
+    pub autosave: Option<(PathBuf, u64)>,
 }
 
 /// How a run ended.
@@ -68,6 +69,10 @@ pub struct Run {
     pub wall_s: f64,
     pub ending: Ending,
     pub ingest: IngestReport,
+    /// Keyframe count at the last successful autosave.
+    pub autosaved_at: Option<u64>,
+    /// Autosaves that failed (mapping went on).
+    pub autosave_failures: Vec<String>,
 }
 
 /// Status line of a running map: a line redrawn in place on a terminal,
@@ -183,6 +188,7 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
     let mut keyframes = Vec::new();
     let (mut offered, mut skipped) = (0u64, 0u64);
     let mut ending = Ending::Complete;
+    let (mut autosaved_at, mut autosave_failures) = (None, Vec::new());
     let start = Instant::now();
     interrupt::install();
     loop {
@@ -211,7 +217,21 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
         }
         offered += 1;
         match mapper.integrate(&frame) {
-            Ok(Integrated::Keyframe(k)) => keyframes.push(*k),
+            Ok(Integrated::Keyframe(k)) => {
+                keyframes.push(*k);
+                if let Some((dir, every)) = &opts.autosave {
+                    let n = mapper.stats().keyframes;
+                    if *every > 0 && n % every == 0 {
+                        match mapper.save(dir) {
+                            Ok(_) => autosaved_at = Some(n),
+                            Err(e) => {
+                                eprintln!("warning: autosave at keyframe {n} failed: {e}");
+                                autosave_failures.push(format!("keyframe {n}: {e}"));
+                            }
+                        }
+                    }
+                }
+            }
             Ok(Integrated::Skipped) => {}
             Err(e) => {
                 ending = Ending::Failed(format!("mapping frame at {} ns: {e}", frame.stamp_ns));
@@ -232,6 +252,8 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
         wall_s: start.elapsed().as_secs_f64(),
         ending,
         ingest: frames.report().clone(),
+        autosaved_at,
+        autosave_failures,
     })
 }
 
@@ -261,6 +283,11 @@ pub struct RunReport {
     pub paging_hidden_share: Option<f64>,
     pub dedicated_transfer_queue: bool,
     pub embedding_model: Option<String>,
+    /// Keyframe count of the last autosave, and autosaves that failed.
+    pub autosaved_at: Option<u64>,
+    pub autosave_failures: Vec<String>,
+    /// Outputs that could not be written (see `latentam map`).
+    pub problems: Vec<String>,
     pub ingest: IngestReport,
     /// Per kernel, when profiled.
     pub kernels: BTreeMap<&'static str, KernelStats>,
@@ -320,6 +347,9 @@ impl Run {
                 .embedding_model()
                 .map(str::to_string),
             ingest: self.ingest.clone(),
+            autosaved_at: self.autosaved_at,
+            autosave_failures: self.autosave_failures.clone(),
+            problems: Vec::new(),
             kernels,
             keyframe_reports: self.keyframes.clone(),
         }
@@ -339,48 +369,101 @@ impl Run {
     /// Writes the run folder `dir`: the resumable state, `map.ply`,
     /// `decoder.safetensors` (when the map has embeddings),
     /// `config.toml`, `trajectory.txt`, `trace.json` (when profiled) and,
-    /// last, `report.json`. Every file is replaced whole.
+    /// last, `report.json`. Every file is replaced whole. What cannot be
+    /// written is listed in the report's `problems` (and returned), the
+    /// rest is still written: after a GPU failure the window cannot be
+    /// read back, so the state file keeps its last save and `map.ply`
+    /// holds the map as of the last window sync.
     pub fn write_folder(&mut self, dir: &Path) -> Result<RunReport> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        self.mapper.save(dir)?;
+        let mut problems = Vec::new();
+        let gpu = self.mapper.online().flush();
+        match &gpu {
+            Ok(()) => {
+                if let Err(e) = self.mapper.save(dir) {
+                    problems.push(format!("{STATE_FILE} not updated: {e}"));
+                }
+                let decoder = dir.join(DECODER_FILE);
+                match self.mapper.online().decoder_file() {
+                    Ok(Some(d)) => {
+                        if let Err(e) = d.write(&decoder) {
+                            problems.push(format!("{DECODER_FILE} not written: {e}"));
+                        }
+                    }
+                    // A stale decoder from an earlier run must not pair
+                    // with this map.
+                    Ok(None) => {
+                        let _ = std::fs::remove_file(&decoder);
+                    }
+                    Err(e) => problems.push(format!("{DECODER_FILE} not written: {e}")),
+                }
+            }
+            Err(e) => problems.push(format!(
+                "the GPU state could not be read back ({e}): {STATE_FILE} and {DECODER_FILE} \
+                 keep their last save{}, map.ply holds the map as of the last window sync",
+                self.autosaved_at
+                    .map_or(String::new(), |k| format!(" (autosave at keyframe {k})"))
+            )),
+        }
         let config = format!(
             "# The effective configuration of this run (`latentam map --config` reads it back;\n\
              # `latentam config --print-defaults` documents every key).\n{}",
             self.mapper.online_ref().config().to_toml()
         );
-        write_text(&dir.join("config.toml"), &config)?;
-        let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
-        write_ply(&dir.join("map.ply"), &gaussians, &[])?;
-        let decoder = dir.join(DECODER_FILE);
-        match self.mapper.online().decoder_file()? {
-            Some(d) => d.write(&decoder)?,
-            None => {
-                // A stale decoder from an earlier run must not pair with
-                // this map.
-                let _ = std::fs::remove_file(&decoder);
+        let mut attempt = |what: &str, r: Result<()>| {
+            if let Err(e) = r {
+                problems.push(format!("{what} not written: {}", describe(&e)));
             }
-        }
-        write_tum(&dir.join("trajectory.txt"), &self.trajectory())?;
+        };
+        attempt("config.toml", write_text(&dir.join("config.toml"), &config));
+        let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
+        attempt(
+            "map.ply",
+            write_ply(&dir.join("map.ply"), &gaussians, &[]).map_err(Into::into),
+        );
+        attempt(
+            "trajectory.txt",
+            write_tum(&dir.join("trajectory.txt"), &self.trajectory()).map_err(Into::into),
+        );
         let profile = self.ctx.profiler_snapshot();
         if !profile.samples().is_empty() {
-            let trace = PartialFile::new(&dir.join("trace.json"));
-            profile.write_chrome_trace(trace.path())?;
-            trace.commit()?;
+            attempt(
+                "trace.json",
+                profile
+                    .write_chrome_trace(&dir.join("trace.json"))
+                    .map_err(Into::into),
+            );
         }
-        let report = self.report();
+        let mut report = self.report();
+        report.problems = problems;
         write_text(
             &dir.join("report.json"),
             &serde_json::to_string_pretty(&report)?,
-        )?;
+        )
+        .with_context(|| format!("writing the run report in {}", dir.display()))?;
         Ok(report)
     }
 }
 
 /// Writes `text` to `path` whole or not at all.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    let f = PartialFile::new(path);
-    std::fs::write(f.path(), text).with_context(|| format!("writing {}", f.path().display()))?;
-    f.commit()
+    Ok(latentam::io::write_bytes_atomically(path, text.as_bytes())?)
+}
+
+/// An error and its causes in one line, without repeating a cause that
+/// an outer message already quotes.
+pub fn describe(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let c = cause.to_string();
+        if !out.contains(&c) {
+            if !out.is_empty() {
+                out.push_str(": ");
+            }
+            out.push_str(&c);
+        }
+    }
+    out
 }
 
 /// The files of a run folder, for the summary.

@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
-use latentam_cli::partial::PartialFile;
 
 use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
@@ -35,6 +34,7 @@ pub fn run(args: Args) -> Result<()> {
         max_frames: args.frames,
         resume: None,
         profile: true,
+        autosave: None,
     })?;
     if let Ending::Failed(e) = &run.ending {
         bail!("{e}");
@@ -61,9 +61,7 @@ pub fn run(args: Args) -> Result<()> {
     );
     println!("share = kernel time / wall time of the frames mapped");
     print!("{}", profile.table_with_share_of(wall_ms));
-    let trace = PartialFile::new(&args.trace);
-    profile.write_chrome_trace(trace.path())?;
-    trace.commit()?;
+    profile.write_chrome_trace(&args.trace)?;
     if profile.dropped() > 0 {
         println!(
             "trace: {} (the first {} commands; {} more were timed for the table)",

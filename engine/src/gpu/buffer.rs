@@ -97,7 +97,9 @@ impl Buffer {
             BufferKind::Upload => MemoryLocation::CpuToGpu,
             BufferKind::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = {
+        let allocation = if crate::faults::allocation_fails() {
+            Err(gpu_allocator::AllocationError::OutOfMemory)
+        } else {
             let mut guard = dev.allocator.lock().unwrap_or_else(|p| p.into_inner());
             let alloc = guard
                 .as_mut()

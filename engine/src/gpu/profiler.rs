@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// One timed GPU command.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -235,14 +235,10 @@ impl Profiler {
                 samples_not_traced: self.dropped,
             },
         };
-        let io = |source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut f = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
-        serde_json::to_writer(&mut f, &doc).map_err(|e| io(e.into()))?;
-        f.flush().map_err(io)?;
-        Ok(())
+        crate::io::write_atomically(path, |f| {
+            serde_json::to_writer(&mut *f, &doc)?;
+            f.flush()
+        })
     }
 
     /// Forgets every sample.

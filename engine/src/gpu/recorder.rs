@@ -818,6 +818,12 @@ impl<'a> Recorder<'a> {
                 .command_buffers(&cmds)
                 .signal_semaphores(&signal)
                 .push_next(&mut ti);
+            if crate::faults::device_lost() {
+                return Err(Error::Vulkan {
+                    call: "vkQueueSubmit",
+                    result: vk::Result::ERROR_DEVICE_LOST,
+                });
+            }
             // SAFETY: the command buffer is complete; the queue is externally
             // synchronised by `guard`.
             unsafe { dev.raw.queue_submit(*guard, &[submit], vk::Fence::null()) }

@@ -27,6 +27,7 @@
 //! # Ok::<(), latentam::io::InputError>(())
 //! ```
 
+mod atomic;
 pub mod cdr;
 pub mod codec;
 mod frame;
@@ -43,6 +44,7 @@ mod writer;
 
 use std::path::PathBuf;
 
+pub use atomic::{partial_path, write_atomically, write_bytes_atomically};
 pub use frame::{
     decode_floats, encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype,
     EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,

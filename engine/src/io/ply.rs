@@ -29,11 +29,12 @@
 
 use std::collections::HashSet;
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
-use std::path::{Path, PathBuf};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::Path;
 
 use bytemuck::Zeroable;
 
+use super::atomic::write_atomically;
 use crate::error::{Error, Result};
 use crate::map::Gaussian;
 use crate::splat::QUERY_DIM;
@@ -84,7 +85,7 @@ pub struct PlyMap {
 pub fn write_ply(path: &Path, gaussians: &[Gaussian], extra: &[(&str, &[f32])]) -> Result<()> {
     validate_extra(gaussians.len(), extra)?;
     let header = header_text(gaussians.len(), extra.iter().map(|(name, _)| *name));
-    write_atomic(path, |out| {
+    write_atomically(path, |out| {
         out.write_all(header.as_bytes())?;
         let row_floats = STANDARD_FLOATS + extra.len();
         let mut rows: Vec<f32> = Vec::with_capacity(ROWS_PER_CHUNK * row_floats);
@@ -196,54 +197,6 @@ pub fn read_ply(path: &Path) -> Result<PlyMap> {
         done += rows;
     }
     Ok(PlyMap { gaussians, extra })
-}
-
-/// Writes a file through `<path>.partial`: the body is written and synced
-/// there, then renamed over `path`. The partial file is removed on failure.
-pub(crate) fn write_atomic(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
-) -> Result<()> {
-    let Some(partial) = partial_path(path) else {
-        return Err(Error::InvalidArgument(format!(
-            "{}: not a file path",
-            path.display()
-        )));
-    };
-    let io_err = |path: &Path, source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-
-    let written = (|| {
-        let file = File::create(&partial)?;
-        let mut out = BufWriter::with_capacity(1 << 20, file);
-        body(&mut out)?;
-        let file = out.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()
-    })();
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&partial);
-        return Err(io_err(&partial, e));
-    }
-    if let Err(e) = std::fs::rename(&partial, path) {
-        let _ = std::fs::remove_file(&partial);
-        return Err(io_err(path, e));
-    }
-    // The rename is durable only once the directory entry is; failing to
-    // sync it (some file systems refuse) leaves a complete file anyway.
-    #[cfg(unix)]
-    if let Some(dir) = path.parent() {
-        let dir = if dir.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            dir
-        };
-        if let Ok(d) = File::open(dir) {
-            let _ = d.sync_all();
-        }
-    }
-    Ok(())
 }
 
 fn validate_extra(count: usize, extra: &[(&str, &[f32])]) -> Result<()> {
@@ -625,19 +578,13 @@ impl Layout {
     }
 }
 
-/// The sibling `<path>.partial` that [`write_atomic`] writes through.
-fn partial_path(path: &Path) -> Option<PathBuf> {
-    let mut name = path.file_name()?.to_os_string();
-    name.push(".partial");
-    Some(path.with_file_name(name))
-}
-
 #[cfg(test)]
 mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
+    use crate::io::partial_path;
     use crate::io::tests::TempDir;
 
     fn random_gaussians(n: usize, seed: u64) -> Vec<Gaussian> {

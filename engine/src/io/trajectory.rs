@@ -21,8 +21,8 @@ use std::path::Path;
 
 use glam::{DQuat, DVec3};
 
+use super::atomic::write_atomically;
 use super::frame::CameraPose;
-use super::ply::write_atomic;
 use crate::error::{Error, Result};
 
 /// The header line [`write_tum`] writes.
@@ -59,7 +59,7 @@ pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
             t.x, t.y, t.z, q.x, q.y, q.z, q.w
         );
     }
-    write_atomic(path, |out| out.write_all(text.as_bytes()))
+    write_atomically(path, |out| out.write_all(text.as_bytes()))
 }
 
 /// Reads a TUM RGB-D trajectory: one `(stamp_ns, pose)` per line, in file

@@ -4,7 +4,6 @@
 //! crash leaves either the old file or the new one.
 
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use safetensors::tensor::TensorView;
@@ -94,7 +93,7 @@ impl ArchiveWriter {
             .collect::<Result<Vec<_>>>()?;
         let bytes = safetensors::serialize(views, Some(self.meta))
             .map_err(|e| Error::InvalidArgument(format!("serialising the map: {e}")))?;
-        write_atomically(path, &bytes)
+        crate::io::write_bytes_atomically(path, &bytes)
     }
 }
 
@@ -103,39 +102,6 @@ fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
         path: path.to_path_buf(),
         source: std::io::Error::new(e.kind(), format!("{what}: {e}")),
     }
-}
-
-/// Writes `bytes` to `path` through a temporary sibling, fsynced, renamed
-/// over `path`, with the directory fsynced after the rename.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::InvalidArgument(format!("{} is not a file path", path.display())))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp{}", std::process::id()));
-    let tmp = dir.join(tmp_name);
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp).map_err(|e| io_error(&tmp, "creating", e))?;
-        f.write_all(bytes)
-            .map_err(|e| io_error(&tmp, "writing", e))?;
-        f.sync_all().map_err(|e| io_error(&tmp, "syncing", e))?;
-        drop(f);
-        std::fs::rename(&tmp, path).map_err(|e| io_error(path, "renaming onto", e))?;
-        // The rename is durable once the directory is synced.
-        if let Ok(d) = std::fs::File::open(&dir) {
-            let _ = d.sync_all();
-        }
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 /// A loaded archive.

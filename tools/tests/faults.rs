@@ -1,0 +1,257 @@
+//! What `latentam map` does when things go wrong, with faults injected
+//! through `LATENTAM_FAULTS` (see `engine/src/faults.rs`) or bad input:
+//! a clear error, the exit status says so, and what was mapped is kept.
+//! Killing the process (SIGKILL) during mapping and during saves leaves a
+//! loadable state every time.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::read_ply;
+use latentam::mapper::{Mapper, STATE_FILE};
+
+fn latentam() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_latentam"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn gen_scene(dir: &Path, frames: usize) -> PathBuf {
+    let log = dir.join("scene.mcap");
+    let out = latentam()
+        .args([
+            "gen-scene",
+            "--width",
+            "120",
+            "--height",
+            "90",
+            "--dim",
+            "64",
+        ])
+        .args(["--frames", &frames.to_string(), "-o"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    log
+}
+
+fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {
+    latentam()
+        .env("LATENTAM_FAULTS", faults)
+        .arg("map")
+        .arg(log)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn failed_with(out: &Output, words: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!out.status.success(), "should have failed:\n{stderr}");
+    for w in words {
+        assert!(stderr.contains(w), "no `{w}` in:\n{stderr}");
+    }
+    stderr
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+/// Keyframes of the saved state (it must load).
+fn saved_keyframes(ctx: &Context, dir: &Path) -> u64 {
+    Mapper::load(ctx, dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .stats()
+        .keyframes
+}
+
+#[test]
+fn faults_give_clear_errors_and_keep_what_was_mapped() {
+    let dir = scratch("faults");
+    let log = gen_scene(&dir, 32);
+    let ctx = Context::new(ContextOptions::default()).unwrap();
+
+    // A full disk while saving: the earlier state stays as it was.
+    let run = dir.join("disk");
+    assert!(map(&log, &run, "", &["--frames", "12"]).status.success());
+    let before = std::fs::read(run.join(STATE_FILE)).unwrap();
+    let out = map(
+        &log,
+        &run,
+        "disk_full",
+        &["--resume", "--autosave-every", "1"],
+    );
+    failed_with(&out, &["no space left on device"]);
+    assert_eq!(std::fs::read(run.join(STATE_FILE)).unwrap(), before);
+    assert_eq!(saved_keyframes(&ctx, &run), 3);
+    let leftovers: Vec<_> = std::fs::read_dir(&run)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+
+    // A lost device and a failed allocation part-way (after some keyframes:
+    // the first submission or allocation counts that get that far are
+    // found by trying): the error names it, the folder holds the map as of
+    // the last window sync, the state its last autosave.
+    for (fault, words) in [
+        ("device_lost_after", &["device has been lost"][..]),
+        ("alloc_fail_after", &["GPU memory", "Out of memory"][..]),
+    ] {
+        let run = dir.join(fault);
+        let mut reached = false;
+        for n in [50, 100, 200, 400, 800] {
+            let _ = std::fs::remove_dir_all(&run);
+            let out = map(
+                &log,
+                &run,
+                &format!("{fault}={n}"),
+                &["--autosave-every", "1"],
+            );
+            if out.status.success() {
+                break;
+            }
+            failed_with(&out, words);
+            let r = report(&run);
+            assert!(r["ending"]["failed"].as_str().is_some(), "{r}");
+            let Some(saved) = r["autosaved_at"].as_u64() else {
+                continue;
+            };
+            assert!(saved >= 1);
+            assert_eq!(saved_keyframes(&ctx, &run), saved);
+            let ply = read_ply(&run.join("map.ply")).unwrap();
+            assert_eq!(ply.gaussians.len() as u64, r["gaussians"].as_u64().unwrap());
+            reached = true;
+            break;
+        }
+        assert!(reached, "{fault}: no count failed after a keyframe");
+    }
+
+    // A log cut off part-way: the frames before the damage are mapped.
+    let bytes = std::fs::read(&log).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 6 / 10]).unwrap();
+    let run = dir.join("cut");
+    failed_with(&map(&cut, &run, "", &[]), &["cut.mcap", "truncated"]);
+    let r = report(&run);
+    let frames = r["frames"].as_u64().unwrap();
+    assert!((4..32).contains(&frames), "{frames} frames");
+    assert!(saved_keyframes(&ctx, &run) >= 1);
+    assert!(!read_ply(&run.join("map.ply")).unwrap().gaussians.is_empty());
+
+    // A GPU budget too small for the first keyframe.
+    let run = dir.join("budget");
+    failed_with(
+        &map(&log, &run, "", &["--set", "gpu_budget=30000000"]),
+        &["GPU memory budget of 30000000 bytes"],
+    );
+    drop(ctx);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Waits up to `limit` for `path` to exist.
+fn appears(path: &Path, limit: Duration) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if path.exists() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    false
+}
+
+#[test]
+fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
+    let dir = scratch("sigkill");
+    let frames = 160;
+    let log = gen_scene(&dir, frames);
+    let run = dir.join("run");
+    let state = run.join(STATE_FILE);
+    let partial = run.join(format!("{STATE_FILE}.partial"));
+    let ctx = Context::new(ContextOptions::default()).unwrap();
+    let mut rng_state = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos() as u64
+        | 1;
+    eprintln!("kill delays from seed {rng_state}");
+    let mut next = move || {
+        rng_state ^= rng_state << 13;
+        rng_state ^= rng_state >> 7;
+        rng_state ^= rng_state << 17;
+        rng_state
+    };
+    let (mut saved, mut during_save) = (0u64, 0);
+    for round in 0..6 {
+        let mut cmd = latentam();
+        // Saves linger before their rename, so kills land in them.
+        cmd.env("LATENTAM_FAULTS", "save_delay_ms=150")
+            .arg("map")
+            .arg(&log)
+            .arg("--out")
+            .arg(&run)
+            .args(["--autosave-every", "1", "--no-trace"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        if state.exists() {
+            cmd.arg("--resume");
+        }
+        let mut child = cmd.spawn().unwrap();
+        if round % 2 == 0 {
+            // In the middle of writing a save.
+            let _ = std::fs::remove_file(&partial);
+            if appears(&partial, Duration::from_secs(60)) {
+                during_save += 1;
+            }
+        } else {
+            std::thread::sleep(Duration::from_millis(300 + next() % 2500));
+        }
+        unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+        let status = child.wait().unwrap();
+        assert!(
+            status.code().is_none(),
+            "round {round}: ended before the kill"
+        );
+        if state.exists() {
+            let k = saved_keyframes(&ctx, &run);
+            assert!(
+                k >= saved,
+                "round {round}: the state went back from {saved} to {k}"
+            );
+            saved = k;
+        }
+    }
+    assert!(during_save >= 2, "{during_save} kills during a save");
+    assert!(saved >= 1, "nothing was ever saved");
+    // Resuming from what survived finishes the log.
+    let out = latentam()
+        .arg("map")
+        .arg(&log)
+        .arg("--out")
+        .arg(&run)
+        .args(["--resume", "--no-trace"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(report(&run)["ending"], "complete");
+    assert_eq!(saved_keyframes(&ctx, &run), (frames / 4) as u64);
+    drop(ctx);
+    std::fs::remove_dir_all(&dir).ok();
+}
