@@ -82,6 +82,8 @@ impl InputArgs {
                 semantic: self.semantic_topic.clone(),
                 vocabulary: self.vocabulary_topic.clone(),
             },
+            // Checked finite and ≥ 0 above; `as` saturates a huge value at
+            // i64::MAX, which the assembler's stamp arithmetic allows.
             tolerance_ns: (self.tolerance_ms * 1e6).round() as i64,
             depth_metres_per_unit: self.depth_scale,
             on_bad_input: if self.stop_on_bad_input {

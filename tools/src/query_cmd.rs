@@ -128,19 +128,33 @@ pub fn run(args: Args) -> Result<()> {
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
+    // A head's dim is at least 1 (`LatentHead::new` refuses 0).
     let Some(dim) = mapper.online_ref().head().map(|h| h.config().dim as usize) else {
         bail!(
             "{} was mapped without embeddings: there is nothing to query",
             args.dir.display()
         );
     };
+    if mapper.global().is_empty() {
+        bail!(
+            "the map in {} holds no Gaussians: there is nothing to score",
+            args.dir.display()
+        );
+    }
     let (texts, relevance, what) = match (&args.embedding, &args.name) {
-        (Some(path), _) => (
-            read_vector(path)?,
-            Relevance::Cosine,
-            path.display().to_string(),
-        ),
+        (Some(path), _) => {
+            let v = read_vector(path)?;
+            if v.len() != dim {
+                bail!(
+                    "{}: the query has {} values; the map's embeddings are {dim}-d",
+                    path.display(),
+                    v.len()
+                );
+            }
+            (v, Relevance::Cosine, path.display().to_string())
+        }
         (None, Some(name)) => {
+            // clap: --name requires --vocabulary.
             let log = args.vocabulary.as_ref().expect("clap requires it");
             let vocab = read_vocabulary(log, &args.vocabulary_topic)?.with_context(|| {
                 format!(
@@ -155,6 +169,14 @@ pub fn run(args: Args) -> Result<()> {
                     vocab.names.join(", ")
                 );
             };
+            if vocab.dim as usize != dim {
+                bail!(
+                    "the vocabulary in {} holds {}-d embeddings ({}); the map's are {dim}-d",
+                    log.display(),
+                    vocab.dim,
+                    vocab.model
+                );
+            }
             if !(args.temperature > 0.0 && args.temperature.is_finite()) {
                 bail!("--temperature must be positive");
             }
@@ -164,14 +186,11 @@ pub fn run(args: Args) -> Result<()> {
             };
             (vocab.vectors, relevance, format!("`{name}`"))
         }
+        // clap: --embedding is required unless --name is given.
         (None, None) => unreachable!("clap requires one"),
     };
-    if texts.len() % dim != 0 {
-        bail!(
-            "the query has {} values; the map's embeddings are {dim}-d",
-            texts.len()
-        );
-    }
+    // One text of `dim` values, or the vocabulary's `names × dim` (its size
+    // checked on reading), so `index < count` for the softmax.
     let count = texts.len() / dim;
     let scores = mapper.query_many(&texts)?;
     let rel = relevance.of(&scores, count);
@@ -195,6 +214,8 @@ pub fn run(args: Args) -> Result<()> {
 
     let mut order: Vec<usize> = (0..rel.len()).collect();
     order.sort_by(|&a, &b| rel[b].total_cmp(&rel[a]));
+    // `rel` has one value per Gaussian, and the map has some (checked
+    // above); `p` is in 0..=1, so the index is within `order`.
     let pct = |p: f64| rel[order[((1.0 - p) * (rel.len() - 1) as f64).round() as usize]];
     println!(
         "{} Gaussians scored against {what}: max {:.3}, 90th percentile {:.3}, median {:.3}, min {:.3}",

@@ -404,3 +404,266 @@ fn bad_inputs_are_clear_errors() {
     assert!(!scene.exists() && !out.exists());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Runs each `(args, exit status, words)` case: it must fail with that
+/// status, print the expected words on stderr, and not panic.
+fn fails_clearly(cases: &[(Vec<&std::ffi::OsStr>, i32, &str)]) {
+    for (args, code, want) in cases {
+        let out = latentam().args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(*code), "{args:?}: {err}");
+        assert!(
+            err.contains(want) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+/// A `.npy` file holding one f32 vector.
+fn write_npy(path: &std::path::Path, v: &[f32]) {
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}",
+        v.len()
+    );
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn command_line_misuse_is_a_clear_error() {
+    let dir = std::env::temp_dir().join(format!("latentam-cli-misuse-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = dir.join("run");
+    let log = dir.join("missing.mcap");
+    let q = dir.join("q.npy");
+    write_npy(&q, &[1.0; 4]);
+    let png = dir.join("v.png");
+    let os = |s: &'static str| -> &std::ffi::OsStr { s.as_ref() };
+    let map = |extra: &[&'static str]| {
+        let mut a = vec![os("map"), log.as_os_str(), os("--out"), run.as_os_str()];
+        a.extend(extra.iter().map(|s| os(s)));
+        a
+    };
+    let query_view = |view: &'static str| {
+        vec![
+            os("query"),
+            run.as_os_str(),
+            os("--embedding"),
+            q.as_os_str(),
+            os("--view"),
+            os(view),
+            os("--png"),
+            png.as_os_str(),
+        ]
+    };
+    let exit_error = 1;
+    let usage_error = 2;
+    fails_clearly(&[
+        (map(&["--resume"]), exit_error, "holds no saved map"),
+        (
+            map(&["--tolerance-ms=-1"]),
+            exit_error,
+            "--tolerance-ms must be",
+        ),
+        (
+            map(&["--depth-scale", "0"]),
+            exit_error,
+            "--depth-scale must be",
+        ),
+        (query_view("1,2,3"), exit_error, "expected 7 finite numbers"),
+        (query_view("a,b,c,d,e,f,g"), exit_error, "not numbers"),
+        (query_view("0,0,0,0,0,0,2"), exit_error, "has norm 2.0000"),
+        (query_view("0,0,0,nan,0,0,1"), exit_error, "finite"),
+        (
+            vec![
+                os("query"),
+                run.as_os_str(),
+                os("--view"),
+                os("0,0,0,0,0,0,1"),
+            ],
+            usage_error,
+            "--png",
+        ),
+        (
+            vec![os("query"), run.as_os_str(), os("--name"), os("chair")],
+            usage_error,
+            "--vocabulary",
+        ),
+        (
+            vec![os("query"), run.as_os_str()],
+            usage_error,
+            "--embedding",
+        ),
+        (
+            vec![
+                os("convert"),
+                os("7scenes"),
+                dir.as_os_str(),
+                os("--fps"),
+                os("0"),
+                os("-o"),
+                log.as_os_str(),
+            ],
+            exit_error,
+            "--fps must be positive",
+        ),
+    ]);
+    assert!(!run.exists() && !png.exists() && !log.exists());
+
+    // --config files: unknown key, wrong type, out of range, not TOML,
+    // missing.
+    let mut cases = Vec::new();
+    for (name, text, want) in [
+        ("unknown.toml", "replya = 3\n", "unknown field `replya`"),
+        ("type.toml", "replay = \"x\"\n", "expected u32"),
+        (
+            "range.toml",
+            "voxel_size = 0\n",
+            "voxel_size 0 must be positive",
+        ),
+        ("syntax.toml", "replay = [\n", "TOML parse error"),
+    ] {
+        std::fs::write(dir.join(name), text).unwrap();
+        cases.push((name, want));
+    }
+    cases.push(("missing.toml", "No such file"));
+    let files: Vec<_> = cases.iter().map(|(name, _)| dir.join(name)).collect();
+    fails_clearly(
+        &cases
+            .iter()
+            .zip(&files)
+            .map(|((_, want), file)| {
+                (
+                    vec![os("config"), os("--config"), file.as_os_str()],
+                    exit_error,
+                    *want,
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn query_misuse_is_a_clear_error() {
+    let dir = std::env::temp_dir().join(format!("latentam-cli-query-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let os = |s: &'static str| -> &std::ffi::OsStr { s.as_ref() };
+    // Two small logs whose embeddings differ in dimension (9 classes each:
+    // 9 × 16 values divide into 24-d rows, which used to be taken for 6
+    // texts and crash the softmax).
+    let scene = |dim: &str| {
+        let log = dir.join(format!("s{dim}.mcap"));
+        let mut a = vec![
+            os("gen-scene"),
+            os("--frames"),
+            os("4"),
+            os("--width"),
+            os("48"),
+            os("--height"),
+            os("32"),
+        ];
+        a.extend([os("--dim"), dim.as_ref(), os("-o"), log.as_os_str()]);
+        run_ok(&a);
+        log
+    };
+    let (s24, s16) = (scene("24"), scene("16"));
+    let run = dir.join("run");
+    run_ok(&[os("map"), s24.as_os_str(), os("--out"), run.as_os_str()]);
+    let plain = dir.join("plain");
+    run_ok(&[
+        os("map"),
+        s24.as_os_str(),
+        os("--out"),
+        plain.as_os_str(),
+        os("--embeddings-topic"),
+        os("/none"),
+    ]);
+    let short = dir.join("short.npy");
+    write_npy(&short, &[1.0; 8]);
+    let zeros = dir.join("zeros.npy");
+    write_npy(&zeros, &[0.0; 24]);
+    // `--name NAME --vocabulary LOG`, LOG the 24-d log or the 16-d one.
+    let by_name = |name: &'static str, dim: u32, extra: &[&'static str]| {
+        let vocabulary = if dim == 16 { &s16 } else { &s24 };
+        let mut a = vec![
+            os("query"),
+            run.as_os_str(),
+            os("--name"),
+            os(name),
+            os("--vocabulary"),
+            vocabulary.as_os_str(),
+        ];
+        a.extend(extra.iter().map(|s| os(s)));
+        a
+    };
+    let nowhere = dir.join("nowhere");
+    fails_clearly(&[
+        (
+            vec![
+                os("query"),
+                run.as_os_str(),
+                os("--embedding"),
+                short.as_os_str(),
+            ],
+            1,
+            "the query has 8 values; the map's embeddings are 24-d",
+        ),
+        (
+            vec![
+                os("query"),
+                run.as_os_str(),
+                os("--embedding"),
+                zeros.as_os_str(),
+            ],
+            1,
+            "all zeros",
+        ),
+        (
+            by_name("sofa", 24, &[]),
+            1,
+            "`sofa` is not in the vocabulary",
+        ),
+        (by_name("ball", 16, &[]), 1, "holds 16-d embeddings"),
+        (
+            by_name("ball", 24, &["--vocabulary-topic", "/nope"]),
+            1,
+            "has no vocabulary on /nope",
+        ),
+        (
+            by_name("ball", 24, &["--temperature", "0"]),
+            1,
+            "--temperature must be positive",
+        ),
+        (
+            vec![
+                os("query"),
+                plain.as_os_str(),
+                os("--embedding"),
+                zeros.as_os_str(),
+            ],
+            1,
+            "mapped without embeddings",
+        ),
+        (
+            vec![
+                os("query"),
+                nowhere.as_os_str(),
+                os("--embedding"),
+                short.as_os_str(),
+            ],
+            1,
+            "loading the map",
+        ),
+    ]);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -58,6 +58,8 @@ macro_rules! primitive {
         impl CdrPrimitive for $t {
             #[inline]
             fn from_bytes(bytes: &[u8], endian: Endian) -> Self {
+                // Every caller slices exactly `size_of::<Self>()` bytes
+                // (`CdrReader::take(n)`, `chunks_exact(n)`, `Seq::get`).
                 let raw = bytes.try_into().expect("caller passes exactly size_of bytes");
                 match endian {
                     Endian::Little => <$t>::from_le_bytes(raw),
@@ -119,8 +121,9 @@ impl<'a, T: CdrPrimitive> Seq<'a, T> {
     /// Element `i`, or `None` past the end.
     pub fn get(&self, i: usize) -> Option<T> {
         let n = size_of::<T>();
+        let start = i.checked_mul(n)?;
         self.bytes
-            .get(i * n..i * n + n)
+            .get(start..start.checked_add(n)?)
             .map(|b| T::from_bytes(b, self.endian))
     }
     /// The elements in order.
@@ -232,6 +235,7 @@ impl<'a> CdrReader<'a> {
                 ),
             ));
         }
+        // In range: `n <= remaining()` was checked just above.
         let bytes = &self.msg[self.pos..self.pos + n];
         self.pos += n;
         Ok(bytes)
@@ -311,7 +315,13 @@ impl<'a> CdrReader<'a> {
         if count > 0 {
             self.align(field, size_of::<T>())?;
         }
-        let bytes = self.take(field, count * size_of::<T>())?;
+        let len = count.checked_mul(size_of::<T>()).ok_or_else(|| {
+            self.invalid(
+                field,
+                format!("array of {count} elements cannot fit in a message"),
+            )
+        })?;
+        let bytes = self.take(field, len)?;
         Ok(Seq::new(bytes, self.endian))
     }
 
@@ -379,6 +389,11 @@ impl CdrWriter {
     pub fn bool(&mut self, v: bool) {
         self.put(v as u8);
     }
+
+    // The writers' `expect`s below: a string or sequence of 4 GiB or more
+    // cannot be encoded in CDR at all. Messages over `MAX_RECORD_BYTES`
+    // (1 GiB) could not be read back either, and the converters check
+    // payload sizes against that before writing (`convert::check_payload`).
 
     /// A `string` (length includes the NUL).
     pub fn string(&mut self, s: &str) {
@@ -508,5 +523,20 @@ mod tests {
             let ok = r.string("s").is_ok() && r.seq::<f32>("v").is_ok();
             assert!(!ok, "a {cut}-byte prefix decoded");
         }
+    }
+
+    #[test]
+    fn huge_counts_and_indices_are_errors_not_overflows() {
+        let msg = [0u8, 1, 0, 0, 1, 2, 3, 4];
+        // `count × 8` does not fit in a usize.
+        let e = CdrReader::new(&msg)
+            .unwrap()
+            .array::<f64>("a", usize::MAX / 2)
+            .unwrap_err();
+        assert_eq!(e.field, "a");
+        let s = CdrReader::new(&msg).unwrap().array::<u32>("b", 1).unwrap();
+        assert_eq!(s.get(0), Some(0x0403_0201));
+        assert_eq!(s.get(usize::MAX), None);
+        assert_eq!(s.get(usize::MAX / 4), None);
     }
 }

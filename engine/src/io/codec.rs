@@ -47,8 +47,15 @@ fn packed_rows<T: bytemuck::Pod>(
             ),
         ));
     }
-    let need = step * (rows - 1) + row;
-    if msg.data.len() < need || msg.data.len() > step * rows {
+    // Sizes are bounded by `check_size` (a row is at most 64 KiB) but
+    // `step` is the message's own u32, so the totals are taken in u64.
+    // `rows ≥ 1` by `check_size`.
+    let (need, most) = (
+        step as u64 * (rows as u64 - 1) + row as u64,
+        step as u64 * rows as u64,
+    );
+    let len = msg.data.len() as u64;
+    if len < need || len > most {
         return Err(Rejection::new(
             what,
             format!(
@@ -57,10 +64,12 @@ fn packed_rows<T: bytemuck::Pod>(
                 msg.width,
                 msg.height,
                 msg.encoding,
-                step * rows
+                most
             ),
         ));
     }
+    // From here `step * (rows - 1) + row <= data.len()`, so every slice
+    // below is in range and no product overflows.
     // One copy straight into the typed buffer (message bytes may be
     // unaligned, so they cannot be reinterpreted in place).
     out.clear();
@@ -297,6 +306,7 @@ pub fn depth_from_compressed(
     let (png_bytes, quant) = if msg.data.starts_with(b"\x89PNG") {
         (msg.data, None)
     } else if msg.data.len() > 12 && msg.data[12..].starts_with(b"\x89PNG") {
+        // Slices of exactly 4 bytes, within the `len > 12` checked above.
         let a = f32::from_le_bytes(msg.data[4..8].try_into().expect("4 bytes"));
         let b = f32::from_le_bytes(msg.data[8..12].try_into().expect("4 bytes"));
         (&msg.data[12..], Some((a, b)))
@@ -395,6 +405,9 @@ pub fn compressed_image_size(bytes: &[u8]) -> Result<(u32, u32, &'static str), R
 }
 
 /// Writes `values` (row-major, `width × height`) as a 16-bit grey PNG.
+///
+/// Panics if `values` does not hold `width × height` samples (a caller
+/// bug: the converter passes what [`decode_png_u16`] returned).
 pub fn encode_png_u16(width: u32, height: u32, values: &[u16]) -> Vec<u8> {
     let mut out = Vec::new();
     {

@@ -197,7 +197,9 @@ impl<T> Queue<T> {
         let i = self.items.partition_point(|s| s.stamp <= stamp);
         self.items.insert(i, Stamped { stamp, value });
     }
-    /// Removes and returns the item nearest `t` within `tol`.
+    /// Removes and returns the item nearest `t` within `tol`. (Stamps come
+    /// from `Time::as_nanos`, within ±2.2·10¹⁸ ns, so their differences
+    /// cannot overflow.)
     fn take_nearest(&mut self, t: i64, tol: i64) -> Option<Stamped<T>> {
         let (i, _) = self
             .items
@@ -552,11 +554,13 @@ impl FrameAssembler {
             PoseSource::Topic(_) => past(self.poses.latest(), t),
             PoseSource::Tf { .. } => past(self.tf.latest(), t),
         };
-        past(self.depth.watermark, t + tol)
+        // Saturating: the tolerance is the user's (`--tolerance-ms`).
+        let until = t.saturating_add(tol);
+        past(self.depth.watermark, until)
             && (self.config.intrinsics.is_some() || self.camera_info.is_some())
             && pose_ready
-            && (!self.has_embeddings || past(self.embeddings.watermark, t + tol))
-            && (!self.has_semantic || past(self.semantic.watermark, t + tol))
+            && (!self.has_embeddings || past(self.embeddings.watermark, until))
+            && (!self.has_semantic || past(self.semantic.watermark, until))
     }
 
     fn resolve(&mut self, all: bool) -> Result<(), InputError> {
@@ -566,20 +570,19 @@ impl FrameAssembler {
             if !forced && !self.can_resolve(t) {
                 break;
             }
+            // `front()` was `Some` just above.
             let pending = self.color.items.pop_front().expect("front exists");
             let result = self.assemble(t, pending.value);
-            let tol = self.config.tolerance_ns;
+            // Saturating: tolerance and pose gap are the user's settings.
+            let oldest = t.saturating_sub(self.config.tolerance_ns);
             // Whatever is now too old for any later colour image is unpaired.
             for (kind, n) in [
-                ("depth: unpaired", self.depth.drain_older_than(t - tol)),
+                ("depth: unpaired", self.depth.drain_older_than(oldest)),
                 (
                     "embeddings: unpaired",
-                    self.embeddings.drain_older_than(t - tol),
+                    self.embeddings.drain_older_than(oldest),
                 ),
-                (
-                    "semantic: unpaired",
-                    self.semantic.drain_older_than(t - tol),
-                ),
+                ("semantic: unpaired", self.semantic.drain_older_than(oldest)),
             ] {
                 for _ in 0..n {
                     self.report.count(&Rejection::new(
@@ -588,8 +591,9 @@ impl FrameAssembler {
                     ));
                 }
             }
-            self.poses.forget_before(t - self.config.max_pose_gap_ns);
-            self.tf.forget_before(t - self.config.max_pose_gap_ns);
+            let pose_horizon = t.saturating_sub(self.config.max_pose_gap_ns);
+            self.poses.forget_before(pose_horizon);
+            self.tf.forget_before(pose_horizon);
             match result {
                 Ok(frame) => {
                     self.report.frames += 1;
@@ -761,6 +765,10 @@ fn intrinsics_of(m: &CameraInfo<'_>) -> Result<Intrinsics, Rejection> {
     })
 }
 
+/// The largest embedding dimension accepted (far beyond any model's; the
+/// latent head's buffers are sized by it).
+pub const MAX_EMBEDDING_DIM: u32 = 65536;
+
 fn check_vectors(
     kind: &'static str,
     count: u64,
@@ -776,6 +784,14 @@ fn check_vectors(
     })?;
     if dim == 0 {
         return Err(Rejection::new(kind, "dim is 0"));
+    }
+    if dim > MAX_EMBEDDING_DIM {
+        // With no vectors (count 0) any dim matches the empty data; the
+        // mapper sizes buffers by it, so it is bounded here.
+        return Err(Rejection::new(
+            kind,
+            format!("dim {dim} is beyond the {MAX_EMBEDDING_DIM} supported"),
+        ));
     }
     let need = count
         .saturating_mul(dim as u64)

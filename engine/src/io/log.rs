@@ -209,27 +209,29 @@ impl McapLog {
     }
 
     /// Number of messages on `topic` according to the summaries, `None`
-    /// when a file has no statistics.
+    /// when a file has no statistics (or the counts, being corrupt,
+    /// overflow).
     pub fn message_count(&self, topic: &str) -> Option<u64> {
-        let mut total = 0;
+        let mut total: u64 = 0;
         for f in self.files.iter() {
             let s = f.summary.as_ref()?;
             let stats = s.stats.as_ref()?;
             for (id, c) in &s.channels {
                 if c.topic == topic {
-                    total += stats.channel_message_counts.get(id).copied().unwrap_or(0);
+                    let n = stats.channel_message_counts.get(id).copied().unwrap_or(0);
+                    total = total.checked_add(n)?;
                 }
             }
         }
         Some(total)
     }
 
-    /// Total messages in the log according to the summaries.
+    /// Total messages in the log according to the summaries, `None` when a
+    /// file has no statistics (or the counts, being corrupt, overflow).
     pub fn total_messages(&self) -> Option<u64> {
-        self.files
-            .iter()
-            .map(|f| f.summary.as_ref()?.stats.as_ref().map(|s| s.message_count))
-            .sum()
+        self.files.iter().try_fold(0u64, |total, f| {
+            total.checked_add(f.summary.as_ref()?.stats.as_ref()?.message_count)
+        })
     }
 
     /// The log's metadata records (name → key/value map), e.g. the
@@ -366,6 +368,8 @@ impl MessageReader {
             // out through `out` so the borrow of `reader` ends here.
             let mut out = None;
             match reader.next_with(file, &self.filter, |m| out = Some(f(m))) {
+                // `FileReader::next_with` returns `Some(Ok(()))` only right
+                // after calling the callback, which set `out`.
                 Some(Ok(())) => return Some(Ok(out.expect("callback ran"))),
                 Some(Err(e)) => {
                     // Give up on this file after an error.
@@ -485,6 +489,12 @@ impl FileReader {
                                 header.channel_id
                             ))));
                         };
+                        // The indexed reader reads every topic when none of
+                        // the requested ones is in the file, so the filter
+                        // is applied here too.
+                        if !filter.admits(&channel.topic, header.log_time) {
+                            continue;
+                        }
                         f(RawMessage {
                             channel,
                             log_time: header.log_time,
@@ -505,6 +515,8 @@ impl FileReader {
                         return Some(Err(err));
                     }
                     Ok(LinearReadEvent::ReadRequest(need)) => {
+                        // `pos` never passes the end: it only grows by `n`,
+                        // which is at most what is left.
                         let n = need.min(file.map.len() - *pos);
                         reader.insert(n).copy_from_slice(&file.map[*pos..*pos + n]);
                         reader.notify_read(n);

@@ -43,7 +43,8 @@ pub struct Time {
 }
 
 impl Time {
-    /// Nanoseconds since the epoch.
+    /// Nanoseconds since the epoch: within ±2.2·10¹⁸ (an `i32` of seconds),
+    /// so this and differences of two stamps cannot overflow an `i64`.
     pub fn as_nanos(self) -> i64 {
         self.sec as i64 * 1_000_000_000 + self.nanosec as i64
     }

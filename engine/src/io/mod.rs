@@ -51,7 +51,7 @@ pub use frame::{
 };
 pub use frames::{
     read_vocabulary, AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource,
-    Topics, Vocabulary,
+    Topics, Vocabulary, MAX_EMBEDDING_DIM,
 };
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,

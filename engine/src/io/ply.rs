@@ -459,6 +459,9 @@ impl ScalarType {
 
     /// The little-endian value at the start of `b`, as `f32`.
     fn read(self, b: &[u8]) -> f32 {
+        // `b` starts at the property's offset within a row, and
+        // `Layout::new` makes the row long enough for every property's
+        // size, so the first `N` bytes are there.
         fn arr<const N: usize>(b: &[u8]) -> [u8; N] {
             b[..N].try_into().expect("slice of N bytes")
         }

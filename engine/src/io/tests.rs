@@ -407,6 +407,116 @@ fn bad_messages_are_counted_or_stop_the_run() {
 }
 
 #[test]
+fn an_embedding_dimension_beyond_the_limit_is_rejected() {
+    // With no regions (count 0) the empty data matches any dim; the dim
+    // must still be bounded, since the mapper sizes buffers by it.
+    bad_input("embeddings: size mismatch", 6, &|log, i, t| {
+        if i == 3 {
+            let labels: Vec<u8> = [u16::MAX; (W * H) as usize]
+                .iter()
+                .flat_map(|l| l.to_le_bytes())
+                .collect();
+            let m = MaskFeatures {
+                header: Header::at(t, "cam"),
+                height: H,
+                width: W,
+                labels: cdr::Seq::new(&labels, cdr::Endian::Little),
+                count: 0,
+                dim: u32::MAX,
+                dtype: "f16",
+                data: &[],
+                model: "test-model",
+            };
+            log.write("/camera/embeddings", t as u64, &m).unwrap();
+        }
+    });
+}
+
+#[test]
+fn a_model_change_mid_log_is_counted_or_stops_the_run() {
+    bad_input("embeddings: model changed", 6, &|log, i, t| {
+        if i == 3 {
+            let labels: Vec<u8> = [0u16; (W * H) as usize]
+                .iter()
+                .flat_map(|l| l.to_le_bytes())
+                .collect();
+            let data = encode_floats(&[1.0; 3 * 4], Dtype::F16);
+            let m = MaskFeatures {
+                header: Header::at(t, "cam"),
+                height: H,
+                width: W,
+                labels: cdr::Seq::new(&labels, cdr::Endian::Little),
+                count: 3,
+                dim: 4,
+                dtype: "f16",
+                data: &data,
+                model: "another-model",
+            };
+            log.write("/camera/embeddings", t as u64, &m).unwrap();
+        }
+    });
+}
+
+#[test]
+fn extreme_tolerances_do_not_overflow() {
+    // `--tolerance-ms 1e300` becomes i64::MAX nanoseconds.
+    let dir = TempDir::new("tolerance");
+    let path = dir.path().join("log.mcap");
+    write_log(&path, &Spec::default(), &|_, _, _| {});
+    for (tolerance_ns, max_pose_gap_ns) in [(i64::MAX, i64::MAX), (i64::MAX, 200 * MS)] {
+        let config = AssemblyConfig {
+            tolerance_ns,
+            max_pose_gap_ns,
+            ..AssemblyConfig::default()
+        };
+        let (frames, report) = read_all(&path, config);
+        assert_eq!(frames.len(), 6, "{report}");
+    }
+}
+
+#[test]
+fn corrupt_summary_counts_do_not_overflow() {
+    let dir = TempDir::new("stats");
+    let path = dir.path().join("log.mcap");
+    write_log(&path, &Spec::default(), &|_, _, _| {});
+    let log = McapLog::open(&path).unwrap();
+    let (total, poses) = (log.total_messages().unwrap(), 33u64);
+    assert_eq!(log.message_count("/camera/pose"), Some(poses));
+    let mut bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let pose_channel = summary
+        .channels
+        .iter()
+        .find(|(_, c)| c.topic == "/camera/pose")
+        .map(|(id, _)| *id)
+        .unwrap();
+    // The Statistics record (opcode 0x0b, u64 length) starts with the
+    // message count; its per-channel counts follow as (u16 id, u64 count).
+    let at = (0..bytes.len() - 17)
+        .rev()
+        .find(|&i| bytes[i] == 0x0b && bytes[i + 9..i + 17] == total.to_le_bytes())
+        .expect("a statistics record");
+    let huge = (u64::MAX / 2 + 1).to_le_bytes();
+    bytes[at + 9..at + 17].copy_from_slice(&huge);
+    let mut entry = pose_channel.to_le_bytes().to_vec();
+    entry.extend_from_slice(&poses.to_le_bytes());
+    let e = at + bytes[at..].windows(10).position(|w| w == entry).unwrap();
+    bytes[e + 2..e + 10].copy_from_slice(&huge);
+    // Two such files in one rosbag2 folder: the sums overflow.
+    let bag = dir.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    for name in ["a.mcap", "b.mcap"] {
+        std::fs::write(bag.join(name), &bytes).unwrap();
+    }
+    let log = McapLog::open(&bag).unwrap();
+    assert_eq!(log.total_messages(), None);
+    assert_eq!(log.message_count("/camera/pose"), None);
+    // One file alone still reports its (corrupt) counts.
+    let one = McapLog::open(&bag.join("a.mcap")).unwrap();
+    assert_eq!(one.total_messages(), Some(u64::MAX / 2 + 1));
+}
+
+#[test]
 fn bad_images_are_rejected_with_their_reason() {
     let depth_image = |encoding: &'static str, fill: u8, len: usize| {
         move |log: &mut LogWriter<std::io::BufWriter<std::fs::File>>, i: usize, t: i64| {
@@ -669,6 +779,15 @@ fn reading_by_topic_and_time_range_uses_the_index() {
     assert_eq!(times.len(), 10, "{times:?}");
     assert!(times.windows(2).all(|w| w[0] < w[1]));
     assert_eq!(times[0], t0 + 100 * MS as u64);
+
+    // A topic the log does not have gives nothing (mcap's indexed reader
+    // on its own would give every message), and so no vocabulary.
+    let mut reader = log.reader(ReadFilter {
+        topics: Some(vec!["/nope".into()]),
+        ..Default::default()
+    });
+    assert!(reader.next_with(|m| m.channel.topic.clone()).is_none());
+    assert_eq!(read_vocabulary(&path, "/nope").unwrap(), None);
 }
 
 #[test]

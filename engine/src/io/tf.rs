@@ -92,6 +92,9 @@ impl PoseTrack {
     /// The pose at `stamp`: a sample within `tolerance` ns, else the
     /// interpolation between the samples around it when they are at most
     /// `max_gap` ns apart.
+    ///
+    /// Stamps are message header times (`Time::as_nanos`, within
+    /// ±2.2·10¹⁸ ns), so the differences taken here cannot overflow.
     pub fn at(&self, stamp: i64, tolerance: i64, max_gap: i64) -> Result<Pose, String> {
         let i = self.samples.partition_point(|s| s.0 < stamp);
         let before = i.checked_sub(1).map(|j| self.samples[j]);

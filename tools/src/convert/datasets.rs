@@ -138,6 +138,7 @@ pub fn seven_scenes(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
         [585.0, 585.0, 320.0, 240.0]
     });
     for (i, name) in names.iter().enumerate() {
+        // Every name was kept for ending in `.color.jpg` or `.color.png`.
         let id = &name[..name.find(".color").expect("filtered")];
         let depth = dir.join(format!("{id}.depth.png"));
         let pose_file = dir.join(format!("{id}.pose.txt"));
@@ -216,8 +217,10 @@ pub fn replica(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
             .with_context(|| format!("{name}: no frame number"))?;
         let depth = results.join(format!("depth{digits}.png"));
         let Some(row) = rows.get(index) else {
-            d.skipped
-                .push(format!("{name}: traj.txt has no line {}", index + 1));
+            d.skipped.push(format!(
+                "{name}: traj.txt has no line {}",
+                index.saturating_add(1)
+            ));
             continue;
         };
         if !depth.is_file() {
@@ -251,10 +254,18 @@ fn tum_list(path: &Path) -> anyhow::Result<Vec<(i64, Vec<String>)>> {
             .next()
             .and_then(|s| s.parse().ok())
             .with_context(|| format!("{}:{}: no time stamp", path.display(), n + 1))?;
-        out.push((
-            (t * 1e9).round() as i64,
-            parts.map(str::to_string).collect(),
-        ));
+        // Seconds as i64 nanoseconds: finite and within ±292 years of 1970
+        // (`as` would saturate NaN, ∞ and the rest into stamps that then
+        // overflow).
+        let ns = (t * 1e9).round();
+        if !(ns.is_finite() && ns.abs() < i64::MAX as f64) {
+            bail!(
+                "{}:{}: time stamp {t} s is out of range",
+                path.display(),
+                n + 1
+            );
+        }
+        out.push((ns as i64, parts.map(str::to_string).collect()));
     }
     Ok(out)
 }
@@ -338,5 +349,54 @@ mod tests {
         m[0] = f64::NEG_INFINITY;
         assert!(pose_from_matrix(&m).unwrap_err().contains("non-finite"));
         assert!(pose_from_matrix(&m[..12]).is_err());
+    }
+
+    /// A folder removed on drop.
+    struct Scratch(std::path::PathBuf);
+
+    impl Scratch {
+        fn new(tag: &str) -> Self {
+            let p = std::env::temp_dir()
+                .join(format!("latentam-datasets-{tag}-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&p);
+            std::fs::create_dir_all(&p).unwrap();
+            Scratch(p)
+        }
+    }
+
+    impl Drop for Scratch {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    #[test]
+    fn tum_stamps_out_of_range_are_errors() {
+        let dir = Scratch::new("tum-stamps");
+        for stamp in ["nan", "inf", "-inf", "1e300", "-1e11"] {
+            std::fs::write(dir.0.join("rgb.txt"), format!("{stamp} rgb/a.png\n")).unwrap();
+            std::fs::write(dir.0.join("depth.txt"), "").unwrap();
+            std::fs::write(dir.0.join("groundtruth.txt"), "").unwrap();
+            let err = format!("{:#}", tum(&dir.0).unwrap_err());
+            assert!(
+                err.contains("rgb.txt:1") && err.contains("out of range"),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn replica_frame_numbers_past_usize_are_skipped_not_overflowed() {
+        let dir = Scratch::new("replica-index");
+        std::fs::create_dir_all(dir.0.join("results")).unwrap();
+        let name = format!("frame{}.jpg", usize::MAX);
+        std::fs::write(dir.0.join("results").join(&name), b"").unwrap();
+        std::fs::write(dir.0.join("traj.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n").unwrap();
+        let d = replica(&dir.0, 30.0).unwrap();
+        assert!(d.color.is_empty());
+        assert_eq!(
+            d.skipped,
+            [format!("{name}: traj.txt has no line {}", usize::MAX)]
+        );
     }
 }

@@ -31,7 +31,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use latentam::io::codec;
+use latentam::io::{codec, MAX_EMBEDDING_DIM};
 
 use super::npy::{self, Npy, NpyType};
 
@@ -160,9 +160,24 @@ fn labels(t: &Tensor, what: &str) -> anyhow::Result<Vec<u16>> {
         NpyType::I64 => t
             .data
             .chunks_exact(8)
+            // `chunks_exact(8)` gives 8-byte slices.
             .map(|b| convert(i64::from_le_bytes(b.try_into().expect("8 bytes"))))
             .collect(),
         other => bail!("{what} must be an integer type, not {other:?}"),
+    }
+}
+
+/// `v` as a `u32`, or an error naming what it is: sizes from a file are
+/// written to messages as `u32`s.
+fn size_u32(v: usize, what: &str) -> anyhow::Result<u32> {
+    u32::try_from(v).map_err(|_| anyhow::anyhow!("{what} {v} is too large"))
+}
+
+/// An embedding dimension from a file, checked against what a log may hold.
+fn dim_of(d: usize, origin: &str) -> anyhow::Result<u32> {
+    match u32::try_from(d) {
+        Ok(d) if (1..=MAX_EMBEDDING_DIM).contains(&d) => Ok(d),
+        _ => bail!("{origin}: embedding dimension {d} is out of range (1…{MAX_EMBEDDING_DIM})"),
     }
 }
 
@@ -184,16 +199,19 @@ fn regions(l: Tensor, f: Tensor, origin: &str) -> anyhow::Result<(FrameFeatures,
     {
         bail!("{origin}: label image {w}×{h} or dimension {d} out of range");
     }
+    dim_of(d, origin)?;
+    let count = size_u32(n, &format!("{origin}: feature row count"))?;
     let labels = labels(&l, &format!("{origin}: labels"))?;
     if let Some(bad) = labels.iter().find(|&&x| x != u16::MAX && x as usize >= n) {
         bail!("{origin}: region label {bad} but only {n} feature rows");
     }
     Ok((
+        // `w`, `h` are at most MAX_IMAGE_SIDE (checked above).
         FrameFeatures::Regions {
             width: w as u32,
             height: h as u32,
             labels,
-            count: n as u32,
+            count,
             vectors: floats(&f, &format!("{origin}: features"))?,
         },
         d,
@@ -207,8 +225,16 @@ fn grid(g: Tensor, origin: &str) -> anyhow::Result<(FrameFeatures, usize)> {
     if r == 0 || c == 0 || d == 0 {
         bail!("{origin}: empty grid {:?}", g.shape);
     }
+    dim_of(d, origin)?;
+    // The ingest takes at most u32::MAX cells in all.
+    if r.checked_mul(c)
+        .is_none_or(|cells| cells > u32::MAX as usize)
+    {
+        bail!("{origin}: grid of {r}×{c} cells is too large");
+    }
     Ok((
         FrameFeatures::Grid {
+            // Both fit: their product does.
             rows: r as u32,
             cols: c as u32,
             vectors: floats(&g, &format!("{origin}: grid"))?,
@@ -388,6 +414,14 @@ impl Oracle {
         if c < 2 || d == 0 {
             bail!("{origin}: need at least 2 classes (row 0 is unlabelled) and D > 0");
         }
+        // Class ids are u16 in label images and in the vocabulary.
+        if c > u16::MAX as usize + 1 {
+            bail!(
+                "{origin}: {c} class vectors; at most {} (class ids are 16-bit)",
+                u16::MAX as usize + 1
+            );
+        }
+        dim_of(d, &origin)?;
         let flat = floats(&tensor, &format!("{origin}: vectors"))?;
         let vectors: Vec<Vec<f32>> = flat.chunks(d).map(|r| r.to_vec()).collect();
         let names = names.unwrap_or_else(|| (0..c).map(|i| format!("class_{i}")).collect());
@@ -404,6 +438,7 @@ impl Oracle {
 
     /// Embedding dimension.
     pub fn dim(&self) -> usize {
+        // `new` requires at least 2 classes.
         self.vectors[0].len()
     }
 
@@ -427,6 +462,14 @@ impl Oracle {
                         t.shape
                     );
                 };
+                let side = 1..=codec::MAX_IMAGE_SIDE as usize;
+                if !side.contains(&h) || !side.contains(&w) {
+                    bail!(
+                        "{}: label image {w}×{h} is empty or beyond {} per side",
+                        npy_path.display(),
+                        codec::MAX_IMAGE_SIDE
+                    );
+                }
                 (
                     w as u32,
                     h as u32,
@@ -495,11 +538,16 @@ pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
                     .join(", ")
             ),
         };
+        // `name` is one of `st.names()`, so the tensor exists.
         safetensors_tensor(&st, &name, path)?.expect("listed above")
     } else {
         Tensor::from(npy::parse(&bytes).with_context(|| format!("{origin}: not a .npy array"))?)
     };
-    let len: usize = tensor.shape.iter().product();
+    let len = tensor
+        .shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .with_context(|| format!("{origin}: shape {:?} overflows", tensor.shape))?;
     if tensor.shape.iter().filter(|&&d| d != 1).count() > 1 || len == 0 {
         bail!(
             "{origin}: shape {:?}; one vector ([D] or [1, D]) is expected",
@@ -511,4 +559,49 @@ pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
         bail!("{origin}: the vector is all zeros");
     }
     Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tensor(dtype: NpyType, shape: &[usize]) -> Tensor {
+        let n: usize = shape.iter().product();
+        Tensor {
+            dtype,
+            shape: shape.to_vec(),
+            data: vec![0; n * dtype.size()],
+        }
+    }
+
+    #[test]
+    fn sizes_a_log_cannot_hold_are_errors() {
+        // An embedding dimension past the ingest's limit.
+        let d = MAX_EMBEDDING_DIM as usize + 1;
+        let e = regions(
+            tensor(NpyType::U16, &[1, 1]),
+            tensor(NpyType::F16, &[1, d]),
+            "f",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("dimension"), "{e}");
+        let e = grid(tensor(NpyType::F16, &[1, 1, d]), "g").unwrap_err();
+        assert!(e.to_string().contains("dimension"), "{e}");
+
+        let dir = std::env::temp_dir().join(format!("latentam-oracle-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // More classes than 16-bit class ids can name.
+        let vectors = dir.join("vectors.npy");
+        let c = u16::MAX as usize + 2;
+        std::fs::write(&vectors, npy::write(NpyType::F16, &[c, 1], &vec![0; c * 2])).unwrap();
+        let e = Oracle::new(&dir, &vectors).err().unwrap();
+        assert!(e.to_string().contains("16-bit"), "{e}");
+        // An empty label image.
+        std::fs::write(&vectors, npy::write(NpyType::F16, &[2, 1], &[0; 4])).unwrap();
+        let oracle = Oracle::new(&dir, &vectors).unwrap();
+        std::fs::write(dir.join("f.npy"), npy::write(NpyType::U16, &[0, 3], &[])).unwrap();
+        let e = oracle.load("f").err().unwrap();
+        assert!(e.to_string().contains("empty"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use latentam::io::{
     cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
-    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings,
+    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings, MAX_RECORD_BYTES,
 };
 
 pub use datasets::Dataset;
@@ -124,8 +124,12 @@ pub fn convert(
         if let Some(last) = dataset.color.last().map(|c| c.stamp_ns) {
             // Depth within the pairing tolerance of the last frame, poses
             // within the interpolation gap.
-            dataset.depth.retain(|d| d.stamp_ns <= last + 20_000_000);
-            dataset.poses.retain(|p| p.0 <= last + 200_000_000);
+            dataset
+                .depth
+                .retain(|d| d.stamp_ns <= last.saturating_add(20_000_000));
+            dataset
+                .poses
+                .retain(|p| p.0 <= last.saturating_add(200_000_000));
         }
     }
     if dataset.color.is_empty() {
@@ -141,6 +145,17 @@ pub fn convert(
     events.extend(dataset.depth.iter().map(Event::Depth));
     events.extend(dataset.poses.iter().map(|(t, p)| Event::Pose(*t, p)));
     events.sort_by_key(|e| (e.stamp(), matches!(e, Event::Color(_)) as u8));
+    // The latest stamp must stay an i64 once offset (`offset ≥ 0`, and the
+    // events are sorted), so `stamp + offset` below cannot overflow.
+    if let Some(last) = events.last() {
+        if last.stamp().checked_add(offset).is_none() {
+            bail!(
+                "stamp {} ns is out of range after the synthetic offset of {offset} ns \
+                 given to stamps near 0",
+                last.stamp()
+            );
+        }
+    }
 
     let partial = crate::partial::PartialFile::new(out);
     let mut log = LogWriter::create(partial.path(), options.compression)?;
@@ -150,8 +165,10 @@ pub fn convert(
         ..ConvertSummary::default()
     };
     if let EmbeddingSource::Oracle(o) = &options.embeddings {
+        // `Oracle::new` checks 2 ≤ classes ≤ 65536, so `names[1..]` exists
+        // and every id fits a u16.
         let names: Vec<&str> = o.names[1..].iter().map(String::as_str).collect();
-        let ids: Vec<u16> = (1..o.names.len() as u16).collect();
+        let ids: Vec<u16> = (1..o.names.len()).map(|i| i as u16).collect();
         let ids_bytes = u16_bytes(&ids);
         let data = encode_floats(&o.vectors[1..].concat(), options.dtype);
         let t = dataset.color[0].stamp_ns + offset;
@@ -199,6 +216,8 @@ pub fn convert(
                         *v = (*v as f64 * k).round().min(u16::MAX as f64) as u16;
                     }
                 }
+                // `values` holds the w × h samples `decode_png_u16` returned
+                // (at most 16384² of them), as the encoder requires.
                 let data = codec::encode_compressed_depth_u16(w, h, &values);
                 log.write(
                     "/camera/depth/image_raw",
@@ -214,6 +233,7 @@ pub fn convert(
             Event::Color(s) => {
                 let bytes = std::fs::read(&s.path)
                     .with_context(|| format!("reading {}", s.path.display()))?;
+                check_payload(&s.path.display().to_string(), bytes.len())?;
                 let (w, h, format) = codec::compressed_image_size(&bytes)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
                 log.write(
@@ -323,6 +343,15 @@ fn latentam_cli_epoch() -> i64 {
     1_700_000_000_000_000_000
 }
 
+/// Refuses a payload too large for one message: the reader takes records
+/// of at most [`MAX_RECORD_BYTES`], and CDR cannot encode 4 GiB at all.
+pub fn check_payload(what: &str, len: usize) -> anyhow::Result<()> {
+    if len > MAX_RECORD_BYTES {
+        bail!("{what}: {len} bytes, more than one message may hold ({MAX_RECORD_BYTES} bytes)");
+    }
+    Ok(())
+}
+
 fn write_features<W: std::io::Write + std::io::Seek>(
     log: &mut LogWriter<W>,
     header: Header<'_>,
@@ -340,6 +369,7 @@ fn write_features<W: std::io::Write + std::io::Seek>(
         } => {
             let label_bytes = u16_bytes(labels);
             let data = encode_floats(vectors, dtype);
+            check_payload("region embeddings", data.len())?;
             log.write(
                 "/camera/embeddings",
                 lt,
@@ -362,6 +392,7 @@ fn write_features<W: std::io::Write + std::io::Seek>(
             vectors,
         } => {
             let data = encode_floats(vectors, dtype);
+            check_payload("grid embeddings", data.len())?;
             log.write(
                 "/camera/embeddings",
                 lt,
@@ -378,4 +409,61 @@ fn write_features<W: std::io::Write + std::io::Seek>(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn options(max_frames: Option<usize>) -> ConvertOptions {
+        ConvertOptions {
+            embeddings: EmbeddingSource::None,
+            intrinsics: None,
+            depth_units_per_metre: None,
+            dtype: Dtype::F16,
+            compression: Compression::None,
+            max_frames,
+            kind: "test".into(),
+            source: PathBuf::from("test"),
+        }
+    }
+
+    fn dataset(color: i64, pose: i64) -> Dataset {
+        Dataset {
+            color: vec![datasets::Stamped {
+                stamp_ns: color,
+                path: PathBuf::from("/nonexistent/latentam/colour.png"),
+            }],
+            poses: vec![(pose, latentam::io::Pose::IDENTITY)],
+            intrinsics: Some([500.0, 500.0, 320.0, 240.0]),
+            depth_units_per_metre: 1000.0,
+            ..Dataset::default()
+        }
+    }
+
+    #[test]
+    fn stamps_at_the_ends_of_the_range_are_errors_not_overflows() {
+        let out = std::env::temp_dir().join(format!(
+            "latentam-convert-stamps-{}.mcap",
+            std::process::id()
+        ));
+        // A synthetic offset (colour stamps near 0) past a pose at the end
+        // of the range.
+        let e = convert(dataset(0, i64::MAX), &options(None), &out, |_, _| {}).unwrap_err();
+        assert!(format!("{e:#}").contains("out of range"), "{e:#}");
+        // --max-frames keeps what lies within a margin after the last
+        // colour stamp, which is at the end of the range here: the only
+        // error left is the missing colour file.
+        let last = i64::MAX - 5;
+        let e = convert(dataset(last, last), &options(Some(1)), &out, |_, _| {}).unwrap_err();
+        assert!(format!("{e:#}").contains("colour.png"), "{e:#}");
+        assert!(!out.exists());
+    }
+
+    #[test]
+    fn payloads_larger_than_a_message_are_refused() {
+        assert!(check_payload("x", MAX_RECORD_BYTES).is_ok());
+        let e = check_payload("frame.jpg", MAX_RECORD_BYTES + 1).unwrap_err();
+        assert!(e.to_string().contains("frame.jpg"), "{e}");
+    }
 }
