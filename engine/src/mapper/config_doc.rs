@@ -72,8 +72,8 @@ static DOCS: &[Doc] = &[
     doc(
         "window_capacity",
         Kind::Optional { example: "1000000" },
-        "Number of Gaussians the GPU window holds. Integer >= 1. Unset: as \
-         many as the GPU memory budget allows.",
+        "Number of Gaussians the GPU window holds. Integer from 1 to \
+         2147483648. Unset: as many as the GPU memory budget allows.",
     ),
     doc(
         "window_radius",
@@ -93,7 +93,7 @@ static DOCS: &[Doc] = &[
         Val,
         "Past keyframes replayed in each Stage I batch (B), drawn uniformly \
          among those whose camera lies within window_radius of the current \
-         one. Integer >= 0.",
+         one. Integer from 0 to 65536.",
     ),
     doc(
         "history_cell",
@@ -112,7 +112,8 @@ static DOCS: &[Doc] = &[
     doc(
         "atoms",
         Val,
-        "Dictionary size (K): number of latent atoms. Integer >= 1.",
+        "Dictionary size (K): number of latent atoms. Integer from 1 to \
+         65536.",
     ),
     doc(
         "temperature",
@@ -131,7 +132,7 @@ static DOCS: &[Doc] = &[
         "max_regions",
         Val,
         "Most regions in one training batch, over all its views. \
-         Integer >= 1.",
+         Integer from 1 to 16777216.",
     ),
     doc(
         "min_region_pixels",
@@ -622,6 +623,7 @@ fn set_key(root: &mut Table, key: &str, value: Value) -> Result<()> {
             Ok(())
         }
         (Some(Choice), Value::Table(t)) if t.len() == 1 => {
+            // The guard says the table has exactly one entry.
             let (k, v) = t.into_iter().next().expect("one entry");
             set_key(root, &format!("{key}.{k}"), v)
         }
@@ -684,6 +686,7 @@ fn set_path(root: &mut Table, key: &str, value: Option<Value>) -> Result<()> {
                 .as_table_mut()
                 .ok_or_else(|| invalid(format!("--set {key}: `{path}` is not a table")))?,
             Choice => {
+                // Not the last segment: the last one returned above.
                 let variant = segments[i + 1];
                 let Some(Doc {
                     kind: Kind::Variant { payload },
@@ -1070,5 +1073,26 @@ mod tests {
         assert!(e.contains("gpu_budget"), "{e}");
         let e = error(&["keyframes.policy.interval=0"]);
         assert!(e.contains("interval"), "{e}");
+        // Upper bounds keep the sizes computed from these in range (the
+        // largest values used to overflow when the first keyframe sized
+        // its buffers).
+        for (set, key) in [
+            ("replay=4294967295", "replay"),
+            ("atoms=4294967295", "atoms"),
+            ("max_regions=4294967295", "max_regions"),
+            ("window_capacity=2147483649", "window_capacity"),
+        ] {
+            let e = error(&[set]);
+            assert!(e.contains(key) && e.contains("at most"), "{e}");
+        }
+        // The bounds themselves are accepted.
+        let cfg = apply(&[
+            "replay=65536",
+            "atoms=65536",
+            "max_regions=16777216",
+            "window_capacity=2147483648",
+        ])
+        .unwrap();
+        assert_eq!(cfg.window_capacity, Some(1 << 31));
     }
 }

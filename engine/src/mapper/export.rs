@@ -10,11 +10,12 @@
 //! `eps`. Decoding (SPEC §2.5): `E = qW`, cosine similarity of `E` with
 //! every atom, softmax at temperature `tau`, weighted sum of the atoms.
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use super::archive::{Archive, ArchiveWriter};
 use super::online::OnlineMapper;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::reference::decoder::{forward, DecoderShape};
 use crate::splat::QUERY_DIM;
 
@@ -86,6 +87,11 @@ impl DecoderFile {
 
     /// Writes the decoder to `path` atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
+        crate::io::write_bytes_atomically(path, &self.to_bytes()?)
+    }
+
+    /// The file [`DecoderFile::write`] writes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
         let (d, k) = (self.dim as usize, self.atom_count());
         let mut a = ArchiveWriter::with_format(DECODER_FORMAT, DECODER_VERSION);
         a.meta("model", &self.model);
@@ -98,32 +104,55 @@ impl DecoderFile {
         a.tensor("D0", &[k, d], &self.anchors);
         a.tensor("atom_weights", &[k], &self.atom_weights);
         a.tensor("tau", &[1], &[self.temperature]);
-        a.write(path)
+        a.into_bytes()
     }
 
     /// Reads a decoder written by [`DecoderFile::write`].
     pub fn read(path: &Path) -> Result<Self> {
         let a = Archive::open_as(path, DECODER_FORMAT, DECODER_VERSION, "decoder")?;
+        Self::from_archive(&a)
+    }
+
+    /// Reads a decoder from `bytes`, the contents of `origin` (which only
+    /// names it in errors), like [`DecoderFile::read`]. Any bytes are
+    /// accepted: malformed ones are an error, never a panic.
+    pub fn parse(bytes: &[u8], origin: &Path) -> Result<Self> {
+        let a = Archive::parse_as(
+            Cow::Borrowed(bytes),
+            origin,
+            DECODER_FORMAT,
+            DECODER_VERSION,
+            "decoder",
+        )?;
+        Self::from_archive(&a)
+    }
+
+    fn from_archive(a: &Archive<'_>) -> Result<Self> {
         let dim: u32 = a.meta_parse("dim")?;
         let k: usize = a.meta_parse("atoms")?;
         let query_dim: usize = a.meta_parse("query_dim")?;
         if query_dim != QUERY_DIM || dim == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "{}: a decoder of {query_dim}-d queries to {dim}-d embeddings; this build \
-                 decodes {QUERY_DIM}-d queries",
-                path.display()
+            return Err(a.corrupt(format!(
+                "a decoder of {query_dim}-d queries to {dim}-d embeddings; this build \
+                 decodes {QUERY_DIM}-d queries"
             )));
         }
         let d = dim as usize;
-        let tau = a.rows::<f32>("tau", 1, 1)?[0];
+        let temperature = a.exact::<f32>("tau", &[1])?[0];
+        let eps: f32 = a.meta_parse("eps")?;
+        if !(temperature.is_finite() && temperature > 0.0 && eps.is_finite() && eps >= 0.0) {
+            return Err(a.corrupt(format!(
+                "temperature {temperature} must be positive and eps {eps} not negative"
+            )));
+        }
         Ok(DecoderFile {
             dim,
-            w: a.rows("W", QUERY_DIM, d)?,
-            atoms: a.rows("D", k, d)?,
-            anchors: a.rows("D0", k, d)?,
-            atom_weights: a.rows("atom_weights", k, 1)?,
-            temperature: tau,
-            eps: a.meta_parse("eps")?,
+            w: a.exact("W", &[QUERY_DIM, d])?,
+            atoms: a.exact("D", &[k, d])?,
+            anchors: a.exact("D0", &[k, d])?,
+            atom_weights: a.exact("atom_weights", &[k])?,
+            temperature,
+            eps,
             model: a.meta("model")?.to_string(),
         })
     }

@@ -1,7 +1,7 @@
 //! The online mapper (paper §III, Algorithm 1): the keyframe history
 //! replayed in each Stage I batch, the Stage I / II trainer, the
 //! per-keyframe loop with window paging and a GPU memory budget
-//! ([`OnlineMapper`]), saving and loading its state, the library
+//! ([`OnlineMapper`]), saving and loading its state ([`SavedState`]), the library
 //! façade [`Mapper`], and the configuration written out for users
 //! ([`documented_defaults`], [`apply_overrides`]).
 
@@ -24,7 +24,10 @@ pub use online::{
     Integrated, KeyframeReport, KeyframeTimings, MapperConfig, MapperStats, OnlineMapper,
     PagingReport,
 };
+pub use persist::SavedState;
 pub use trainer::{StageOneReport, Trainer, TrainerConfig};
 
+#[cfg(test)]
+mod persist_tests;
 #[cfg(test)]
 mod tests;

@@ -19,6 +19,13 @@ use crate::map::{
 };
 use crate::optim::GaussianLearningRates;
 
+/// Largest [`MapperConfig::max_regions`].
+const MAX_REGIONS_SETTING: u32 = 1 << 24;
+/// Largest [`MapperConfig::replay`].
+const MAX_REPLAY: u32 = 1 << 16;
+/// Largest [`MapperConfig::window_capacity`] (window rows are `u32`).
+const MAX_WINDOW_CAPACITY: u64 = 1 << 31;
+
 /// Every setting of the mapper; defaults are the paper's values where it
 /// gives them and SPEC §12's otherwise. Reads from and writes to TOML
 /// ([`MapperConfig::from_toml`]); every field may be left out.
@@ -159,6 +166,35 @@ impl MapperConfig {
         }
         if self.atoms == 0 || self.max_regions == 0 {
             return bad("atoms and max_regions must be at least 1");
+        }
+        // Upper limits far beyond any real setting keep the GPU sizes
+        // derived from them within u64.
+        if self.atoms > crate::latent::MAX_KMEANS_ATOMS {
+            return bad(&format!(
+                "atoms {} must be at most {}",
+                self.atoms,
+                crate::latent::MAX_KMEANS_ATOMS
+            ));
+        }
+        if self.max_regions > MAX_REGIONS_SETTING {
+            return bad(&format!(
+                "max_regions {} must be at most {MAX_REGIONS_SETTING}",
+                self.max_regions
+            ));
+        }
+        if self.replay > MAX_REPLAY {
+            return bad(&format!(
+                "replay {} must be at most {MAX_REPLAY}",
+                self.replay
+            ));
+        }
+        if self
+            .window_capacity
+            .is_some_and(|c| c > MAX_WINDOW_CAPACITY)
+        {
+            return bad(&format!(
+                "window_capacity must be at most {MAX_WINDOW_CAPACITY}"
+            ));
         }
         if !(positive(self.temperature as f64)) {
             return bad(&format!(

@@ -3,25 +3,41 @@
 //! with its Adam state, the latent head (W, D, D⁰, their Adam state, the
 //! k-means weights), the keyframe history, the keyframe selector and the
 //! counters. One archive file ([`super::archive`]), written atomically.
+//!
+//! Loading is two steps: [`SavedState::parse`] reads and checks the whole
+//! file on the CPU (any file: it returns an error for anything malformed
+//! and never panics), then [`OnlineMapper::from_saved`] creates the GPU
+//! buffers and uploads.
 
-use std::path::Path;
+use std::borrow::Cow;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
 
 use glam::{DAffine3, DMat3, DQuat, DVec3};
 
-use super::archive::{Archive, ArchiveWriter};
+use super::archive::{Archive, ArchiveWriter, FORMAT, VERSION};
 use super::history::{KeyframeRecord, RegionTargets};
 use super::online::{MapperConfig, OnlineMapper};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::io::CameraPose;
+use crate::latent::NO_REGION_LABEL;
 use crate::map::{Gaussian, VoxelKey};
-use crate::splat::Camera;
+use crate::splat::{Camera, FIELD_WIDTHS, QUERY_DIM};
 
 const GAUSSIAN_FLOATS: usize = std::mem::size_of::<Gaussian>() / 4;
 const CAMERA_FLOATS: usize = 18;
+const POSE_FLOATS: usize = 7;
 
-fn keys_to_i32(keys: &[VoxelKey]) -> Vec<i32> {
-    keys.iter().flat_map(|k| [k.x, k.y, k.z]).collect()
+/// Most rows a saved window may have.
+pub(crate) const MAX_WINDOW_ROWS: u64 = 1 << 31;
+/// Most pixels of a saved view (keyframe image, label image, workspace).
+pub(crate) const MAX_VIEW_PIXELS: u64 = 1 << 31;
+/// Largest embedding dimension of a saved map.
+pub(crate) const MAX_EMBEDDING_DIM: u32 = 1 << 20;
+
+fn keys_to_i32(keys: impl Iterator<Item = VoxelKey>) -> Vec<i32> {
+    keys.flat_map(|k| [k.x, k.y, k.z]).collect()
 }
 
 fn keys_from_i32(v: &[i32]) -> Vec<VoxelKey> {
@@ -44,93 +60,216 @@ fn camera_to_f64(c: &Camera) -> [f64; CAMERA_FLOATS] {
     out
 }
 
-fn camera_from_f64(v: &[f64], width: u32, height: u32) -> Camera {
+fn camera_from_f64(v: &[f64; CAMERA_FLOATS], width: u32, height: u32) -> Camera {
+    let mut m = [0.0; 9];
+    m.copy_from_slice(&v[..9]);
     let mut c = Camera::at_origin(width, height);
     c.cam_to_world = DAffine3 {
-        matrix3: DMat3::from_cols_array(&v[..9].try_into().expect("9 values")),
+        matrix3: DMat3::from_cols_array(&m),
         translation: DVec3::new(v[9], v[10], v[11]),
     };
     (c.fx, c.fy, c.cx, c.cy, c.near, c.far) = (v[12], v[13], v[14], v[15], v[16], v[17]);
     c
 }
 
-/// Reads a whole device buffer as bytes (first `bytes` kept).
-fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
-    let mut v: Vec<u8> = ctx.download(buf)?;
-    v.truncate(bytes as usize);
-    Ok(v)
+fn pose_to_f64(p: &CameraPose) -> [f64; POSE_FLOATS] {
+    let (q, t) = (p.rotation, p.translation);
+    [q.x, q.y, q.z, q.w, t.x, t.y, t.z]
 }
 
-impl OnlineMapper {
-    /// Saves the whole state to `path` (one file, replaced atomically).
-    /// The window is written back to the global map first.
-    pub fn save(&mut self, path: &Path) -> Result<()> {
-        self.flush()?;
-        let ctx = self.ctx.clone();
+/// A pose from 7 values (quaternion x, y, z, w, translation), which must
+/// be finite, with a quaternion that is not zero.
+fn pose_from_f64(v: &[f64]) -> Option<CameraPose> {
+    let [qx, qy, qz, qw, tx, ty, tz] = <[f64; POSE_FLOATS]>::try_from(v).ok()?;
+    let rotation = DQuat::from_xyzw(qx, qy, qz, qw);
+    let translation = DVec3::new(tx, ty, tz);
+    let ok = rotation.is_finite() && translation.is_finite() && rotation.length() > 1e-6;
+    ok.then_some(CameraPose {
+        rotation,
+        translation,
+    })
+}
+
+/// Bytes per row of each `window/state/{i}` tensor, in the order of
+/// `GaussianOptimizer::state`: per field, both Adam
+/// moments then the step count.
+fn window_state_row_bytes() -> Vec<u64> {
+    FIELD_WIDTHS
+        .iter()
+        .flat_map(|&w| [w * 4, w * 4, 4])
+        .collect()
+}
+
+/// Bytes of each `head/adam/{i}` tensor, in the order of
+/// `LatentHead::optimizer_state`: W's moments and step
+/// counts (`QUERY_DIM` rows), then D's (`atoms` rows).
+fn head_state_bytes(dim: u64, atoms: u64) -> Option<[u64; 6]> {
+    let w = (QUERY_DIM as u64).checked_mul(dim)?.checked_mul(4)?;
+    let d = atoms.checked_mul(dim)?.checked_mul(4)?;
+    Some([w, w, QUERY_DIM as u64 * 4, d, d, atoms.checked_mul(4)?])
+}
+
+/// The message of an error, without its kind.
+fn message(e: Error) -> String {
+    match e {
+        Error::InvalidArgument(m) => m,
+        e => e.to_string(),
+    }
+}
+
+/// Running counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct Counters {
+    pub frames: u64,
+    pub keyframes: u64,
+    pub evicted: u64,
+    pub fetched: u64,
+    pub over_capacity: u64,
+}
+
+/// The latent head as saved.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct SavedHead {
+    /// Embedding dimension.
+    pub dim: u32,
+    /// Atoms in use.
+    pub used: u32,
+    /// W, `QUERY_DIM × dim`.
+    pub w: Vec<f32>,
+    /// D, `atoms × dim` (the configuration's dictionary size).
+    pub atoms: Vec<f32>,
+    /// D⁰, like D.
+    pub anchors: Vec<f32>,
+    /// k-means weights of the atoms in use.
+    pub weights: Vec<f32>,
+    /// Adam state buffers ([`head_state_bytes`]).
+    pub adam: Vec<Vec<u8>>,
+}
+
+/// The GPU window as saved.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct SavedWindow {
+    /// Rows.
+    pub capacity: u64,
+    /// Pixels of the largest view the trainer's workspace holds.
+    pub view_pixels: u64,
+    /// Resident keys in row order.
+    pub keys: Vec<VoxelKey>,
+    /// The Gaussian optimiser's per-row state, `keys.len()` rows each
+    /// ([`window_state_row_bytes`]).
+    pub state: Vec<Vec<u8>>,
+}
+
+/// A saved mapper state, read from a file and checked on the CPU: what
+/// [`OnlineMapper::load`] then puts on the GPU. [`SavedState::parse`]
+/// accepts any bytes: whatever is malformed or inconsistent (metadata,
+/// tensor types and shapes, counts, duplicate or unknown voxel keys,
+/// non-finite cameras and poses, sizes too large to allocate) is an
+/// [`Error::InvalidArgument`] naming the file; it never panics, and
+/// allocates only in proportion to the bytes it is given.
+///
+/// ```no_run
+/// use latentam::mapper::SavedState;
+///
+/// let path = std::path::Path::new("out/state.latentam");
+/// let state = SavedState::parse(&std::fs::read(path)?, path)?;
+/// println!("{} Gaussians, {} keyframes", state.gaussians(), state.keyframes());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct SavedState {
+    pub(super) origin: PathBuf,
+    pub(super) config: MapperConfig,
+    pub(super) counters: Counters,
+    pub(super) model: Option<String>,
+    pub(super) selector: (Option<CameraPose>, u32),
+    pub(super) last_sync: Option<DVec3>,
+    pub(super) map: Vec<(VoxelKey, Gaussian)>,
+    pub(super) head: Option<SavedHead>,
+    pub(super) history: Vec<KeyframeRecord>,
+    pub(super) trajectory: Vec<(i64, CameraPose)>,
+    pub(super) window: Option<SavedWindow>,
+}
+
+/// What one archive holds, borrowed: written by both
+/// [`OnlineMapper::save`] and [`SavedState::to_bytes`].
+struct StateRef<'a> {
+    config: &'a MapperConfig,
+    counters: Counters,
+    model: Option<&'a str>,
+    selector: (Option<CameraPose>, u32),
+    last_sync: Option<DVec3>,
+    map: &'a [(VoxelKey, Gaussian)],
+    head: Option<&'a SavedHead>,
+    history: Vec<&'a KeyframeRecord>,
+    trajectory: &'a [(i64, CameraPose)],
+    window: Option<&'a SavedWindow>,
+}
+
+impl StateRef<'_> {
+    fn into_bytes(self) -> Result<Vec<u8>> {
         let mut w = ArchiveWriter::default();
-        w.meta("config", self.cfg.to_toml());
-        w.meta("frames", self.frames);
-        w.meta("keyframes", self.stats.keyframes);
-        w.meta("evicted", self.stats.evicted);
-        w.meta("fetched", self.stats.fetched);
-        w.meta("over_capacity", self.stats.over_capacity);
-        if let Some(model) = &self.model {
+        w.meta("config", self.config.to_toml());
+        let c = self.counters;
+        w.meta("frames", c.frames);
+        w.meta("keyframes", c.keyframes);
+        w.meta("evicted", c.evicted);
+        w.meta("fetched", c.fetched);
+        w.meta("over_capacity", c.over_capacity);
+        if let Some(model) = self.model {
             w.meta("model", model);
         }
-        let (last, since) = self.selector.state();
+        let (last, since) = self.selector;
         w.meta("selector_since", since);
         if let Some(p) = last {
-            let q = p.rotation;
-            let t = p.translation;
-            w.tensor("selector/pose", &[7], &[q.x, q.y, q.z, q.w, t.x, t.y, t.z]);
+            w.tensor("selector/pose", &[POSE_FLOATS], &pose_to_f64(&p));
         }
         if let Some(p) = self.last_sync {
             w.tensor("state/last_sync", &[3], &[p.x, p.y, p.z]);
         }
 
         // Global map, in slot order.
-        let (keys, gaussians): (Vec<VoxelKey>, Vec<Gaussian>) =
-            self.global.iter().map(|(k, g)| (k, *g)).unzip();
-        w.tensor("map/keys", &[keys.len(), 3], &keys_to_i32(&keys));
+        let n = self.map.len();
+        w.tensor(
+            "map/keys",
+            &[n, 3],
+            &keys_to_i32(self.map.iter().map(|(k, _)| *k)),
+        );
+        let gaussians: Vec<Gaussian> = self.map.iter().map(|(_, g)| *g).collect();
         w.tensor(
             "map/gaussians",
-            &[keys.len(), GAUSSIAN_FLOATS],
+            &[n, GAUSSIAN_FLOATS],
             bytemuck::cast_slice::<Gaussian, f32>(&gaussians),
         );
 
         // Window: resident keys in row order and the optimiser's rows.
-        if let (Some(window), Some(trainer), Some(sized)) =
-            (&self.window, &self.trainer, &self.window_budget)
-        {
-            let n = window.len();
-            w.meta("window_capacity", sized.capacity);
-            w.tensor("window/keys", &[n, 3], &keys_to_i32(window.keys()));
-            for (i, (buf, row)) in trainer.optimizer().state().into_iter().enumerate() {
-                let bytes = download_bytes(&ctx, buf, n as u64 * row)?;
-                w.bytes(&format!("window/state/{i}"), n, row as usize, bytes);
+        if let Some(win) = self.window {
+            let n = win.keys.len();
+            w.meta("window_capacity", win.capacity);
+            w.meta("view_pixels", win.view_pixels);
+            w.tensor(
+                "window/keys",
+                &[n, 3],
+                &keys_to_i32(win.keys.iter().copied()),
+            );
+            for (i, bytes) in win.state.iter().enumerate() {
+                let row = bytes.len().checked_div(n).unwrap_or(0);
+                w.bytes(&format!("window/state/{i}"), n, row, bytes.clone());
             }
-            let view = self.history.get(0).map(|k| k.camera.pixels()).unwrap_or(0);
-            w.meta("view_pixels", view);
         }
 
         // Latent head.
-        if let Some(head) = &self.head {
-            let d = head.config().dim as usize;
-            let k = head.config().atoms as usize;
+        if let Some(head) = self.head {
+            let d = head.dim as usize;
             w.meta("head_dim", d);
-            w.meta("head_atoms", head.atom_count());
-            let w_host: Vec<f32> = ctx.download(head.w())?;
-            w.tensor("head/W", &[w_host.len() / d, d], &w_host);
-            let atoms: Vec<f32> = ctx.download(head.atoms())?;
-            w.tensor("head/D", &[k, d], &atoms[..k * d]);
-            let anchor: Vec<f32> = ctx.download(head.anchor())?;
-            w.tensor("head/D0", &[k, d], &anchor[..k * d]);
-            let weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
-            let used = head.atom_count() as usize;
-            w.tensor("head/kmeans_weights", &[used], &weights[..used]);
-            for (i, (buf, _)) in head.optimizer_state().into_iter().enumerate() {
-                let bytes: Vec<u8> = ctx.download(buf)?;
-                w.bytes(&format!("head/adam/{i}"), 1, bytes.len(), bytes);
+            w.meta("head_atoms", head.used);
+            let rows = |v: &[f32]| v.len().checked_div(d).unwrap_or(0);
+            w.tensor("head/W", &[rows(&head.w), d], &head.w);
+            w.tensor("head/D", &[rows(&head.atoms), d], &head.atoms);
+            w.tensor("head/D0", &[rows(&head.anchors), d], &head.anchors);
+            w.tensor("head/kmeans_weights", &[head.weights.len()], &head.weights);
+            for (i, bytes) in head.adam.iter().enumerate() {
+                w.bytes(&format!("head/adam/{i}"), 1, bytes.len(), bytes.clone());
             }
         }
 
@@ -144,8 +283,7 @@ impl OnlineMapper {
         let mut info = Vec::with_capacity(h * 6);
         let mut labels = Vec::new();
         let mut vectors = Vec::new();
-        for i in 0..h {
-            let k = self.history.get(i).expect("in range");
+        for k in &self.history {
             stamps.push(k.stamp_ns);
             cams.extend(camera_to_f64(&k.camera));
             sizes.extend([k.camera.width, k.camera.height]);
@@ -176,177 +314,329 @@ impl OnlineMapper {
         let poses: Vec<f64> = self
             .trajectory
             .iter()
-            .flat_map(|(_, p)| {
-                let (q, t) = (p.rotation, p.translation);
-                [q.x, q.y, q.z, q.w, t.x, t.y, t.z]
-            })
+            .flat_map(|(_, p)| pose_to_f64(p))
             .collect();
         w.tensor("trajectory/stamp", &[n], &stamps);
-        w.tensor("trajectory/pose", &[n, 7], &poses);
-        w.write(path)
+        w.tensor("trajectory/pose", &[n, POSE_FLOATS], &poses);
+        w.into_bytes()
+    }
+}
+
+impl SavedState {
+    /// Reads and checks a state saved by [`OnlineMapper::save`] from
+    /// `bytes`, the contents of `origin` (which only names it in errors).
+    /// Nothing touches the GPU; see the type's documentation for what is
+    /// checked.
+    pub fn parse(bytes: &[u8], origin: &Path) -> Result<Self> {
+        let a = Archive::parse_as(Cow::Borrowed(bytes), origin, FORMAT, VERSION, "map")?;
+        Self::from_archive(&a)
     }
 
-    /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to
-    /// integrate more frames or to be queried. `overrides` replaces the
-    /// saved configuration's run-time settings (budget, learning rates...)
-    /// when given; the settings that shape the saved state (voxel size,
-    /// dictionary size, replay count, window capacity) are kept.
-    pub fn load(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
-        let a = Archive::open(path)?;
-        let saved = MapperConfig::from_toml(a.meta("config")?)?;
-        let mut cfg = overrides.unwrap_or_else(|| saved.clone());
-        cfg.voxel_size = saved.voxel_size;
-        cfg.atoms = saved.atoms;
-        cfg.max_regions = saved.max_regions;
-        cfg.replay = saved.replay;
-        cfg.history_cell = saved.history_cell;
-        cfg.seed = saved.seed;
-        let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", path.display()));
-        if a.has("window/keys") {
-            cfg.window_capacity = Some(a.meta_parse("window_capacity")?);
+    /// Reads and checks the state saved in `path` ([`SavedState::parse`]).
+    pub fn read(path: &Path) -> Result<Self> {
+        Self::from_archive(&Archive::open(path)?)
+    }
+
+    /// The file as [`OnlineMapper::save`] writes it.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        StateRef {
+            config: &self.config,
+            counters: self.counters,
+            model: self.model.as_deref(),
+            selector: self.selector,
+            last_sync: self.last_sync,
+            map: &self.map,
+            head: self.head.as_ref(),
+            history: self.history.iter().collect(),
+            trajectory: &self.trajectory,
+            window: self.window.as_ref(),
         }
-        let mut m = OnlineMapper::new(ctx, cfg)?;
-        m.frames = a.meta_parse("frames")?;
-        m.stats.keyframes = a.meta_parse("keyframes")?;
-        m.stats.evicted = a.meta_parse("evicted")?;
-        m.stats.fetched = a.meta_parse("fetched")?;
-        m.stats.over_capacity = a.meta_parse("over_capacity")?;
-        m.model = a.meta("model").ok().map(str::to_string);
-        let since: u32 = a.meta_parse("selector_since")?;
-        let pose = if a.has("selector/pose") {
-            let v = a.rows::<f64>("selector/pose", 7, 0)?;
-            Some(CameraPose {
-                rotation: DQuat::from_xyzw(v[0], v[1], v[2], v[3]),
-                translation: DVec3::new(v[4], v[5], v[6]),
+        .into_bytes()
+    }
+
+    /// A small, valid state built on the CPU: six Gaussians, four of them
+    /// resident, a 3-d latent head and two keyframes (label regions and a
+    /// feature grid). For tests and fuzzing.
+    #[doc(hidden)]
+    pub fn example() -> Self {
+        let config = MapperConfig {
+            atoms: 4,
+            max_regions: 8,
+            replay: 1,
+            history_cell: 0.0,
+            window_capacity: Some(16),
+            ..MapperConfig::default()
+        };
+        let pose = |x: f64| CameraPose {
+            rotation: DQuat::from_rotation_y(x),
+            translation: DVec3::new(x, 0.5, -x),
+        };
+        let map = (0..6)
+            .map(|i| {
+                let key = VoxelKey {
+                    x: i,
+                    y: -i,
+                    z: 2 * i,
+                };
+                let f = i as f32;
+                let g = Gaussian {
+                    mean: [0.01 * f, -0.01 * f, 0.02 * f],
+                    log_scale: [-4.0; 3],
+                    quat: [1.0, 0.0, 0.0, 0.0],
+                    color: [0.1 * f, 0.5, 0.9],
+                    opacity_logit: f - 2.0,
+                    query: [0.25 * f; QUERY_DIM],
+                };
+                (key, g)
             })
+            .collect::<Vec<_>>();
+        let (dim, k) = (3u32, config.atoms);
+        let floats = |n: usize, scale: f32| (0..n).map(|i| i as f32 * scale).collect::<Vec<_>>();
+        let adam = head_state_bytes(dim as u64, k as u64)
+            .unwrap_or_default()
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| (0..n).map(|j| (i as u64 * 31 + j) as u8).collect())
+            .collect();
+        let head = SavedHead {
+            dim,
+            used: 2,
+            w: floats(QUERY_DIM * dim as usize, 0.01),
+            atoms: floats((k * dim) as usize, 0.1),
+            anchors: floats((k * dim) as usize, 0.2),
+            weights: vec![3.0, 1.0],
+            adam,
+        };
+        let (width, height) = (4u32, 3u32);
+        let px = (width * height) as usize;
+        let record = |i: usize, regions: Option<RegionTargets>| {
+            let mut camera = Camera::at_origin(width, height);
+            camera.cam_to_world = DAffine3::from_rotation_translation(
+                pose(i as f64 * 0.1).rotation,
+                pose(i as f64 * 0.1).translation,
+            );
+            KeyframeRecord {
+                stamp_ns: 1_000 * i as i64,
+                camera,
+                rgb: (0..px * 3).map(|j| (j * 7 + i) as u8).collect(),
+                depth_mm: (0..px).map(|j| 1000 + j as u16).collect(),
+                regions,
+            }
+        };
+        let history = vec![
+            record(
+                0,
+                Some(RegionTargets {
+                    width,
+                    height,
+                    labels: (0..px)
+                        .map(|j| {
+                            if j == 5 {
+                                NO_REGION_LABEL
+                            } else {
+                                (j % 2) as u16
+                            }
+                        })
+                        .collect(),
+                    grid: false,
+                    count: 2,
+                    vectors: vec![1.0, 0.0, 0.0, 0.0, 0.6, 0.8],
+                    dim,
+                }),
+            ),
+            record(
+                2,
+                Some(RegionTargets {
+                    width: 2,
+                    height: 1,
+                    labels: vec![0, 1],
+                    grid: true,
+                    count: 2,
+                    vectors: vec![0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                    dim,
+                }),
+            ),
+        ];
+        let window_keys: Vec<VoxelKey> = [4, 1, 0, 3].iter().map(|&i| map[i].0).collect();
+        let rows = window_keys.len() as u64;
+        let state = window_state_row_bytes()
+            .iter()
+            .enumerate()
+            .map(|(i, &row)| (0..rows * row).map(|j| (j + i as u64) as u8).collect())
+            .collect();
+        SavedState {
+            origin: PathBuf::from("example.latentam"),
+            config,
+            counters: Counters {
+                frames: 12,
+                keyframes: 3,
+                evicted: 2,
+                fetched: 6,
+                over_capacity: 0,
+            },
+            model: Some("example-model".into()),
+            selector: (Some(pose(0.2)), 4),
+            last_sync: Some(DVec3::new(0.1, 0.2, 0.3)),
+            map,
+            head: Some(head),
+            history,
+            trajectory: (0..3).map(|i| (1_000 * i, pose(i as f64 * 0.1))).collect(),
+            window: Some(SavedWindow {
+                capacity: 16,
+                view_pixels: px as u64,
+                keys: window_keys,
+                state,
+            }),
+        }
+    }
+
+    /// The saved configuration.
+    pub fn config(&self) -> &MapperConfig {
+        &self.config
+    }
+
+    /// Gaussians in the global map.
+    pub fn gaussians(&self) -> usize {
+        self.map.len()
+    }
+
+    /// Keyframes mapped.
+    pub fn keyframes(&self) -> u64 {
+        self.counters.keyframes
+    }
+
+    /// Keyframes kept for replay.
+    pub fn history_len(&self) -> usize {
+        self.history.len()
+    }
+
+    /// Gaussians resident in the GPU window (0 before the first keyframe).
+    pub fn resident(&self) -> usize {
+        self.window.as_ref().map_or(0, |w| w.keys.len())
+    }
+
+    /// Embedding dimension of the latent head, when the map has one.
+    pub fn embedding_dim(&self) -> Option<u32> {
+        self.head.as_ref().map(|h| h.dim)
+    }
+
+    fn from_archive(a: &Archive<'_>) -> Result<Self> {
+        let bad = |why: String| a.corrupt(why);
+        let config = MapperConfig::from_toml(a.meta("config")?)
+            .map_err(|e| bad(format!("saved {}", message(e))))?;
+
+        // Sizes that shape GPU allocations, before anything is read.
+        let window_meta = if a.has("window/keys") {
+            let capacity: u64 = a.meta_parse("window_capacity")?;
+            if capacity == 0 || capacity > MAX_WINDOW_ROWS {
+                return Err(bad(format!(
+                    "window capacity {capacity} is outside 1..={MAX_WINDOW_ROWS}"
+                )));
+            }
+            let view_pixels: u64 = a.meta_parse("view_pixels")?;
+            if view_pixels > MAX_VIEW_PIXELS {
+                return Err(bad(format!(
+                    "view of {view_pixels} pixels; at most {MAX_VIEW_PIXELS}"
+                )));
+            }
+            Some((capacity, view_pixels))
         } else {
             None
         };
-        m.selector.restore(pose, since);
-        if a.has("state/last_sync") {
-            let v = a.rows::<f64>("state/last_sync", 3, 0)?;
-            m.last_sync = Some(DVec3::new(v[0], v[1], v[2]));
+
+        let counters = Counters {
+            frames: a.meta_parse("frames")?,
+            keyframes: a.meta_parse("keyframes")?,
+            evicted: a.meta_parse("evicted")?,
+            fetched: a.meta_parse("fetched")?,
+            over_capacity: a.meta_parse("over_capacity")?,
+        };
+        if counters.keyframes > counters.frames {
+            return Err(bad(format!(
+                "{} keyframes among {} frames",
+                counters.keyframes, counters.frames
+            )));
         }
+        let model = a.meta("model").ok().map(str::to_string);
+        let since: u32 = a.meta_parse("selector_since")?;
+        let last = if a.has("selector/pose") {
+            let v = a.exact::<f64>("selector/pose", &[POSE_FLOATS])?;
+            Some(
+                pose_from_f64(&v)
+                    .ok_or_else(|| bad(format!("selector/pose {v:?} is not a pose")))?,
+            )
+        } else {
+            None
+        };
+        let last_sync = if a.has("state/last_sync") {
+            let v = a.exact::<f64>("state/last_sync", &[3])?;
+            let p = DVec3::new(v[0], v[1], v[2]);
+            if !p.is_finite() {
+                return Err(bad(format!("state/last_sync {v:?} is not finite")));
+            }
+            Some(p)
+        } else {
+            None
+        };
 
         // Global map.
-        let (shape, keys) = a.tensor::<i32>("map/keys")?;
-        let n = *shape.first().unwrap_or(&0);
-        let gaussians = a.rows::<f32>("map/gaussians", n, GAUSSIAN_FLOATS)?;
-        if keys.len() != n * 3 {
-            return Err(corrupt(format!("map/keys has shape {shape:?}")));
-        }
-        for (key, g) in keys_from_i32(&keys)
+        let n = match a.shape::<i32>("map/keys")? {
+            &[n, 3] => n,
+            s => return Err(bad(format!("map/keys has shape {s:?}, expected [n, 3]"))),
+        };
+        let gaussians = a.exact::<f32>("map/gaussians", &[n, GAUSSIAN_FLOATS])?;
+        let keys = keys_from_i32(&a.exact::<i32>("map/keys", &[n, 3])?);
+        let mut seen = HashSet::with_capacity(n);
+        let mut map = Vec::with_capacity(n);
+        for (key, g) in keys
             .into_iter()
             .zip(gaussians.chunks_exact(GAUSSIAN_FLOATS))
         {
+            if !seen.insert(key) {
+                return Err(bad(format!("voxel {key:?} appears twice in the map")));
+            }
             let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
-            if !m.global.insert_at(key, g) {
-                return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
-            }
+            map.push((key, g));
         }
 
-        // Latent head.
-        if a.has("head/W") {
-            let d: u32 = a.meta_parse("head_dim")?;
-            let used: u32 = a.meta_parse("head_atoms")?;
-            let head = m.make_head(d)?;
-            let k = head.config().atoms as usize;
-            let w = a.rows::<f32>("head/W", crate::splat::QUERY_DIM, d as usize)?;
-            ctx.upload(head.w(), 0, &w)?;
-            ctx.upload(head.atoms(), 0, &a.rows::<f32>("head/D", k, d as usize)?)?;
-            ctx.upload(head.anchor(), 0, &a.rows::<f32>("head/D0", k, d as usize)?)?;
-            let weights = a.rows::<f32>("head/kmeans_weights", used as usize, 1)?;
-            head.kmeans().restore(ctx, used, &weights)?;
-            for (i, (buf, _)) in head.optimizer_state().into_iter().enumerate() {
-                let bytes = a.rows::<u8>(&format!("head/adam/{i}"), 1, buf.bytes() as usize)?;
-                ctx.upload(buf, 0, &bytes)?;
-            }
-            m.head = Some(head);
+        let head = Self::parse_head(a, &config)?;
+        let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
+        if history.len() as u64 > counters.keyframes {
+            return Err(bad(format!(
+                "{} keyframes in the history of a map of {} keyframes",
+                history.len(),
+                counters.keyframes
+            )));
         }
 
-        // History.
-        let h: usize = a.meta_parse("history")?;
-        let stamps = a.rows::<i64>("history/stamp", h, 1)?;
-        let cams = a.rows::<f64>("history/camera", h, CAMERA_FLOATS)?;
-        let sizes = a.rows::<u32>("history/size", h, 2)?;
-        let info = a.rows::<u32>("history/regions", h, 6)?;
-        let (_, rgb) = a.tensor::<u8>("history/rgb")?;
-        let (_, depth) = a.tensor::<u16>("history/depth_mm")?;
-        let (_, labels) = a.tensor::<u16>("history/labels")?;
-        let (_, vectors) = a.tensor::<f32>("history/vectors")?;
-        let (mut o_rgb, mut o_depth, mut o_labels, mut o_vec) = (0usize, 0usize, 0usize, 0usize);
-        let take =
-            |v: usize, o: &mut usize, len: usize, what: &str| -> Result<std::ops::Range<usize>> {
-                let r = *o..*o + len;
-                if r.end > v {
-                    return Err(corrupt(format!("history/{what} is too short")));
-                }
-                *o = r.end;
-                Ok(r)
+        // Every keyframe's pose; files from before it was saved rebuild it
+        // from the history.
+        let trajectory = if a.has("trajectory/stamp") || a.has("trajectory/pose") {
+            let n = match a.shape::<i64>("trajectory/stamp")? {
+                &[n] => n,
+                s => return Err(bad(format!("trajectory/stamp has shape {s:?}"))),
             };
-        for i in 0..h {
-            let (width, height) = (sizes[2 * i], sizes[2 * i + 1]);
-            let px = width as usize * height as usize;
-            let camera = camera_from_f64(
-                &cams[i * CAMERA_FLOATS..(i + 1) * CAMERA_FLOATS],
-                width,
-                height,
-            );
-            let rgb_r = take(rgb.len(), &mut o_rgb, px * 3, "rgb")?;
-            let depth_r = take(depth.len(), &mut o_depth, px, "depth_mm")?;
-            let r = &info[i * 6..i * 6 + 6];
-            let regions = if r[0] == 1 {
-                let (rw, rh, grid, count, dim) = (r[1], r[2], r[3] == 1, r[4], r[5]);
-                let lab = take(
-                    labels.len(),
-                    &mut o_labels,
-                    rw as usize * rh as usize,
-                    "labels",
-                )?;
-                let vec = take(
-                    vectors.len(),
-                    &mut o_vec,
-                    count as usize * dim as usize,
-                    "vectors",
-                )?;
-                Some(RegionTargets {
-                    width: rw,
-                    height: rh,
-                    labels: labels[lab].to_vec(),
-                    grid,
-                    count,
-                    vectors: vectors[vec].to_vec(),
-                    dim,
+            if n as u64 != counters.keyframes {
+                return Err(bad(format!(
+                    "a trajectory of {n} poses for {} keyframes",
+                    counters.keyframes
+                )));
+            }
+            let poses = a.exact::<f64>("trajectory/pose", &[n, POSE_FLOATS])?;
+            let stamps = a.exact::<i64>("trajectory/stamp", &[n])?;
+            stamps
+                .into_iter()
+                .zip(poses.chunks_exact(POSE_FLOATS))
+                .enumerate()
+                .map(|(i, (s, v))| {
+                    pose_from_f64(v)
+                        .map(|p| (s, p))
+                        .ok_or_else(|| bad(format!("trajectory pose {i} {v:?} is not a pose")))
                 })
-            } else {
-                None
-            };
-            m.history.push(KeyframeRecord {
-                stamp_ns: stamps[i],
-                camera,
-                rgb: rgb[rgb_r].to_vec(),
-                depth_mm: depth[depth_r].to_vec(),
-                regions,
-            });
-        }
-        if a.has("trajectory/stamp") {
-            let (shape, stamps) = a.tensor::<i64>("trajectory/stamp")?;
-            let n = *shape.first().unwrap_or(&0);
-            let poses = a.rows::<f64>("trajectory/pose", n, 7)?;
-            m.trajectory = stamps
-                .iter()
-                .zip(poses.chunks_exact(7))
-                .map(|(&s, v)| {
-                    let pose = CameraPose {
-                        rotation: DQuat::from_xyzw(v[0], v[1], v[2], v[3]),
-                        translation: DVec3::new(v[4], v[5], v[6]),
-                    };
-                    (s, pose)
-                })
-                .collect();
+                .collect::<Result<Vec<_>>>()?
         } else {
-            m.trajectory = (0..m.history.len())
-                .filter_map(|i| m.history.get(i))
+            history
+                .iter()
                 .map(|k| {
                     let (_, rotation, translation) =
                         k.camera.cam_to_world.to_scale_rotation_translation();
@@ -356,26 +646,433 @@ impl OnlineMapper {
                     };
                     (k.stamp_ns, pose)
                 })
-                .collect();
-        }
+                .collect()
+        };
 
         // Window: the same residents in the same rows, with their Adam
         // state.
-        if a.has("window/keys") {
-            let pixels: u64 = a.meta_parse("view_pixels")?;
-            let dim = m.head.as_ref().map_or(1, |h| h.config().dim);
-            m.ensure_workspace(pixels, dim)?;
-            let (shape, wk) = a.tensor::<i32>("window/keys")?;
-            let rows = *shape.first().unwrap_or(&0);
-            let keys = keys_from_i32(&wk);
-            if keys.len() != rows {
-                return Err(corrupt(format!("window/keys has shape {shape:?}")));
+        let window = match window_meta {
+            None => None,
+            Some((capacity, view_pixels)) => {
+                let rows = match a.shape::<i32>("window/keys")? {
+                    &[r, 3] => r,
+                    s => return Err(bad(format!("window/keys has shape {s:?}, expected [n, 3]"))),
+                };
+                if rows as u64 > capacity {
+                    return Err(bad(format!(
+                        "{rows} resident Gaussians in a window of {capacity}"
+                    )));
+                }
+                let keys = keys_from_i32(&a.exact::<i32>("window/keys", &[rows, 3])?);
+                let mut resident = HashSet::with_capacity(rows);
+                for k in &keys {
+                    if !seen.contains(k) {
+                        return Err(bad(format!("window voxel {k:?} is not in the map")));
+                    }
+                    if !resident.insert(*k) {
+                        return Err(bad(format!("voxel {k:?} is resident twice")));
+                    }
+                }
+                let state = window_state_row_bytes()
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, row)| {
+                        a.exact::<u8>(&format!("window/state/{i}"), &[rows, row as usize])
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedWindow {
+                    capacity,
+                    view_pixels,
+                    keys,
+                    state,
+                })
             }
-            m.append(&keys)?;
-            let trainer = m.trainer.as_ref().expect("ensured");
-            for (i, (buf, row)) in trainer.optimizer().state().into_iter().enumerate() {
-                let bytes = a.rows::<u8>(&format!("window/state/{i}"), rows, row as usize)?;
-                ctx.upload(buf, 0, &bytes)?;
+        };
+
+        Ok(SavedState {
+            origin: a.path().to_path_buf(),
+            config,
+            counters,
+            model,
+            selector: (last, since),
+            last_sync,
+            map,
+            head,
+            history,
+            trajectory,
+            window,
+        })
+    }
+
+    fn parse_head(a: &Archive<'_>, config: &MapperConfig) -> Result<Option<SavedHead>> {
+        if !a.has("head/W") {
+            return Ok(None);
+        }
+        let bad = |why: String| a.corrupt(why);
+        let dim: u32 = a.meta_parse("head_dim")?;
+        let used: u32 = a.meta_parse("head_atoms")?;
+        if dim == 0 || dim > MAX_EMBEDDING_DIM {
+            return Err(bad(format!(
+                "embedding dimension {dim} is outside 1..={MAX_EMBEDDING_DIM}"
+            )));
+        }
+        let k = config.atoms;
+        if used > k {
+            return Err(bad(format!("{used} atoms in use of a dictionary of {k}")));
+        }
+        let (d, k) = (dim as usize, k as usize);
+        let w = a.exact::<f32>("head/W", &[QUERY_DIM, d])?;
+        let atoms = a.exact::<f32>("head/D", &[k, d])?;
+        let anchors = a.exact::<f32>("head/D0", &[k, d])?;
+        let weights = a.exact::<f32>("head/kmeans_weights", &[used as usize])?;
+        let sizes = head_state_bytes(dim as u64, k as u64)
+            .ok_or_else(|| bad(format!("a head of {k} atoms of {dim} dimensions")))?;
+        let adam = sizes
+            .iter()
+            .enumerate()
+            .map(|(i, &bytes)| {
+                let bytes = usize::try_from(bytes)
+                    .map_err(|_| bad(format!("head/adam/{i} of {bytes} bytes")))?;
+                a.exact::<u8>(&format!("head/adam/{i}"), &[1, bytes])
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Some(SavedHead {
+            dim,
+            used,
+            w,
+            atoms,
+            anchors,
+            weights,
+            adam,
+        }))
+    }
+
+    fn parse_history(a: &Archive<'_>, head_dim: Option<u32>) -> Result<Vec<KeyframeRecord>> {
+        let bad = |why: String| a.corrupt(why);
+        let h: usize = a.meta_parse("history")?;
+        // Shapes first: `h` is checked against the bytes present before
+        // anything is sized by it.
+        let stamps = a.exact::<i64>("history/stamp", &[h])?;
+        let cams = a.exact::<f64>("history/camera", &[h, CAMERA_FLOATS])?;
+        let sizes = a.exact::<u32>("history/size", &[h, 2])?;
+        let info = a.exact::<u32>("history/regions", &[h, 6])?;
+        let rgb = a.flat::<u8>("history/rgb")?;
+        let depth = a.flat::<u16>("history/depth_mm")?;
+        let labels = a.flat::<u16>("history/labels")?;
+        let vectors = a.flat::<f32>("history/vectors")?;
+        let (mut o_rgb, mut o_depth, mut o_labels, mut o_vec) = (0usize, 0usize, 0usize, 0usize);
+        // The next `len` values of a tensor of `total`.
+        let take =
+            |total: usize, o: &mut usize, len: u64, what: &str| -> Result<std::ops::Range<usize>> {
+                let end = usize::try_from(len)
+                    .ok()
+                    .and_then(|len| o.checked_add(len))
+                    .filter(|&end| end <= total)
+                    .ok_or_else(|| bad(format!("history/{what} is too short")))?;
+                let r = *o..end;
+                *o = end;
+                Ok(r)
+            };
+        let mut records = Vec::with_capacity(h);
+        for i in 0..h {
+            let keyframe = |why: String| bad(format!("history keyframe {i}: {why}"));
+            let (width, height) = (sizes[2 * i], sizes[2 * i + 1]);
+            let px = width as u64 * height as u64;
+            if px == 0 || px > MAX_VIEW_PIXELS {
+                return Err(keyframe(format!("image of {width}x{height}")));
+            }
+            let mut c = [0.0; CAMERA_FLOATS];
+            c.copy_from_slice(&cams[i * CAMERA_FLOATS..(i + 1) * CAMERA_FLOATS]);
+            let (fx, fy, near, far) = (c[12], c[13], c[16], c[17]);
+            let ok =
+                c.iter().all(|x| x.is_finite()) && fx > 0.0 && fy > 0.0 && near > 0.0 && far > near;
+            if !ok {
+                return Err(keyframe(format!("camera {c:?} is malformed")));
+            }
+            let camera = camera_from_f64(&c, width, height);
+            let rgb_r = take(rgb.len(), &mut o_rgb, px * 3, "rgb")?;
+            let depth_r = take(depth.len(), &mut o_depth, px, "depth_mm")?;
+            let r = &info[i * 6..i * 6 + 6];
+            let regions = match r[0] {
+                0 if r[1..].iter().all(|&x| x == 0) => None,
+                1 => {
+                    let (rw, rh, grid, count, dim) = (r[1], r[2], r[3], r[4], r[5]);
+                    let cells = rw as u64 * rh as u64;
+                    if cells == 0 || cells > MAX_VIEW_PIXELS || grid > 1 {
+                        return Err(keyframe(format!("regions of {rw}x{rh} (grid flag {grid})")));
+                    }
+                    if dim == 0 || Some(dim) != head_dim {
+                        return Err(keyframe(match head_dim {
+                            Some(d) => format!("{dim}-d embeddings; the map's are {d}-d"),
+                            None => "region embeddings but the map has no latent head".into(),
+                        }));
+                    }
+                    let grid = grid == 1;
+                    if grid && count as u64 != cells {
+                        return Err(keyframe(format!(
+                            "a {rw}x{rh} feature grid of {count} regions"
+                        )));
+                    }
+                    let lab = take(labels.len(), &mut o_labels, cells, "labels")?;
+                    let vec = take(
+                        vectors.len(),
+                        &mut o_vec,
+                        count as u64 * dim as u64,
+                        "vectors",
+                    )?;
+                    let labels = labels[lab].to_vec();
+                    if let Some(&l) = labels
+                        .iter()
+                        .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
+                    {
+                        return Err(keyframe(format!("region label {l} of {count} regions")));
+                    }
+                    let vectors = vectors[vec].to_vec();
+                    if !vectors.iter().all(|x| x.is_finite()) {
+                        return Err(keyframe("non-finite region embeddings".into()));
+                    }
+                    Some(RegionTargets {
+                        width: rw,
+                        height: rh,
+                        labels,
+                        grid,
+                        count,
+                        vectors,
+                        dim,
+                    })
+                }
+                _ => return Err(keyframe(format!("region record {r:?} is malformed"))),
+            };
+            records.push(KeyframeRecord {
+                stamp_ns: stamps[i],
+                camera,
+                rgb: rgb[rgb_r].to_vec(),
+                depth_mm: depth[depth_r].to_vec(),
+                regions,
+            });
+        }
+        for (what, used, total) in [
+            ("rgb", o_rgb, rgb.len()),
+            ("depth_mm", o_depth, depth.len()),
+            ("labels", o_labels, labels.len()),
+            ("vectors", o_vec, vectors.len()),
+        ] {
+            if used != total {
+                return Err(bad(format!(
+                    "history/{what} holds {total} values; the keyframes use {used}"
+                )));
+            }
+        }
+        Ok(records)
+    }
+}
+
+/// Reads a whole device buffer as bytes (first `bytes` kept).
+fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
+    let mut v: Vec<u8> = ctx.download(buf)?;
+    v.truncate(bytes as usize);
+    Ok(v)
+}
+
+impl OnlineMapper {
+    /// Saves the whole state to `path` (one file, replaced atomically).
+    /// The window is written back to the global map first.
+    pub fn save(&mut self, path: &Path) -> Result<()> {
+        self.flush()?;
+        let ctx = self.ctx.clone();
+        let map: Vec<(VoxelKey, Gaussian)> = self.global.iter().map(|(k, g)| (k, *g)).collect();
+        let window = match (&self.window, &self.trainer, &self.window_budget) {
+            (Some(window), Some(trainer), Some(sized)) => {
+                let n = window.len() as u64;
+                let state = trainer
+                    .optimizer()
+                    .state()
+                    .into_iter()
+                    .map(|(buf, row)| download_bytes(&ctx, buf, n * row))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedWindow {
+                    capacity: sized.capacity,
+                    view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
+                    keys: window.keys().to_vec(),
+                    state,
+                })
+            }
+            _ => None,
+        };
+        let head = match &self.head {
+            Some(head) => {
+                let d = head.config().dim as usize;
+                let k = head.config().atoms as usize;
+                let used = head.atom_count();
+                let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
+                atoms.truncate(k * d);
+                let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
+                anchors.truncate(k * d);
+                let mut weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
+                weights.truncate(used as usize);
+                let adam = head
+                    .optimizer_state()
+                    .into_iter()
+                    .map(|(buf, _)| ctx.download::<u8>(buf))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedHead {
+                    dim: d as u32,
+                    used,
+                    w: ctx.download(head.w())?,
+                    atoms,
+                    anchors,
+                    weights,
+                    adam,
+                })
+            }
+            None => None,
+        };
+        let bytes = StateRef {
+            config: &self.cfg,
+            counters: Counters {
+                frames: self.frames,
+                keyframes: self.stats.keyframes,
+                evicted: self.stats.evicted,
+                fetched: self.stats.fetched,
+                over_capacity: self.stats.over_capacity,
+            },
+            model: self.model.as_deref(),
+            selector: self.selector.state(),
+            last_sync: self.last_sync,
+            map: &map,
+            head: head.as_ref(),
+            history: (0..self.history.len())
+                .filter_map(|i| self.history.get(i))
+                .collect(),
+            trajectory: &self.trajectory,
+            window: window.as_ref(),
+        }
+        .into_bytes()?;
+        drop(map);
+        crate::io::write_bytes_atomically(path, &bytes)
+    }
+
+    /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to
+    /// integrate more frames or to be queried. `overrides` replaces the
+    /// saved configuration's run-time settings (budget, learning rates...)
+    /// when given; the settings that shape the saved state (voxel size,
+    /// dictionary size, replay count, window capacity) are kept.
+    ///
+    /// The file is read and checked on the CPU first
+    /// ([`SavedState::read`]), then put on the GPU
+    /// ([`OnlineMapper::from_saved`]).
+    pub fn load(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
+        let state = SavedState::read(path)?;
+        Self::from_saved(ctx, state, overrides)
+    }
+
+    /// A mapper on `ctx` with the state `saved` (see
+    /// [`OnlineMapper::load`] for `overrides`): creates the GPU buffers and
+    /// uploads the window, the latent head and their optimiser state.
+    pub fn from_saved(
+        ctx: &Context,
+        saved: SavedState,
+        overrides: Option<MapperConfig>,
+    ) -> Result<Self> {
+        let SavedState {
+            origin,
+            config: kept,
+            counters,
+            model,
+            selector,
+            last_sync,
+            map,
+            head,
+            history,
+            trajectory,
+            window,
+        } = saved;
+        let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", origin.display()));
+        let mut cfg = overrides.unwrap_or_else(|| kept.clone());
+        cfg.voxel_size = kept.voxel_size;
+        cfg.atoms = kept.atoms;
+        cfg.max_regions = kept.max_regions;
+        cfg.replay = kept.replay;
+        cfg.history_cell = kept.history_cell;
+        cfg.seed = kept.seed;
+        if let Some(w) = &window {
+            cfg.window_capacity = Some(w.capacity);
+        }
+        let mut m = OnlineMapper::new(ctx, cfg)?;
+        m.frames = counters.frames;
+        m.stats.keyframes = counters.keyframes;
+        m.stats.evicted = counters.evicted;
+        m.stats.fetched = counters.fetched;
+        m.stats.over_capacity = counters.over_capacity;
+        m.model = model;
+        m.selector.restore(selector.0, selector.1);
+        m.last_sync = last_sync;
+        for (key, g) in map {
+            if !m.global.insert_at(key, g) {
+                return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
+            }
+        }
+
+        // Latent head.
+        if let Some(h) = head {
+            let head = m.make_head(h.dim)?;
+            ctx.upload(head.w(), 0, &h.w)?;
+            ctx.upload(head.atoms(), 0, &h.atoms)?;
+            ctx.upload(head.anchor(), 0, &h.anchors)?;
+            head.kmeans().restore(ctx, h.used, &h.weights)?;
+            let buffers = head.optimizer_state();
+            if buffers.len() != h.adam.len() {
+                return Err(corrupt(format!(
+                    "{} latent head optimiser tensors; this build has {}",
+                    h.adam.len(),
+                    buffers.len()
+                )));
+            }
+            for (i, ((buf, _), bytes)) in buffers.into_iter().zip(&h.adam).enumerate() {
+                if buf.bytes() != bytes.len() as u64 {
+                    return Err(corrupt(format!(
+                        "head/adam/{i} holds {} bytes; the head's buffer {}",
+                        bytes.len(),
+                        buf.bytes()
+                    )));
+                }
+                ctx.upload(buf, 0, bytes)?;
+            }
+            m.head = Some(head);
+        }
+
+        for record in history {
+            m.history.push(record);
+        }
+        m.trajectory = trajectory;
+
+        // Window: the same residents in the same rows, with their Adam
+        // state.
+        if let Some(w) = window {
+            let dim = m.head.as_ref().map_or(1, |h| h.config().dim);
+            m.ensure_workspace(w.view_pixels, dim)?;
+            m.append(&w.keys)?;
+            let rows = w.keys.len() as u64;
+            let trainer = m
+                .trainer
+                .as_ref()
+                .ok_or_else(|| corrupt("no trainer for the window".into()))?;
+            let buffers = trainer.optimizer().state();
+            if buffers.len() != w.state.len() {
+                return Err(corrupt(format!(
+                    "{} window optimiser tensors; this build has {}",
+                    w.state.len(),
+                    buffers.len()
+                )));
+            }
+            for (i, ((buf, row), bytes)) in buffers.into_iter().zip(&w.state).enumerate() {
+                if rows * row != bytes.len() as u64 {
+                    return Err(corrupt(format!(
+                        "window/state/{i} holds {} bytes for {rows} rows of {row}",
+                        bytes.len()
+                    )));
+                }
+                ctx.upload(buf, 0, bytes)?;
             }
         }
         Ok(m)

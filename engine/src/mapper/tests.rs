@@ -19,7 +19,7 @@ const DIM: usize = 32;
 
 /// A wall 1.5 m ahead: red left half (region 0), blue right half with a
 /// gradient (region 1), each with its own target embedding.
-fn keyframe(eye: DVec3) -> Frame {
+pub(super) fn keyframe(eye: DVec3) -> Frame {
     let n = (W * H) as usize;
     let mut rgb = Vec::with_capacity(n * 3);
     let mut labels = Vec::with_capacity(n);
