@@ -180,9 +180,11 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
     );
     let edge = (W as f64 / 2.0) / 40.0 * 0.6;
     assert!(seeded.iter().all(|g| g.mean[0] as f64 > edge - 0.04));
-    // A render that shows something there (alpha 0.3, depth wrong) is not
-    // a hole: mapped surface is not seeded again, rendered or not.
-    let faint = vec![0.3f32; n];
+    // A render that covers it but with the wrong depth (alpha 0.6, above
+    // `refill_alpha`) is not a hole: mapped surface is not seeded again,
+    // rendered or not.
+    assert!(config.refill_alpha <= 0.6);
+    let faint = vec![0.6f32; n];
     let partly = ViewCoverage {
         alpha: &faint,
         depth: &depth,
