@@ -64,22 +64,6 @@ struct Report {
     curve: Vec<CurvePoint>,
 }
 
-fn scale(t: &KeyframeTimings, n: f64) -> KeyframeTimings {
-    let s = |x: f64| x / n;
-    KeyframeTimings {
-        kmeans_ms: s(t.kmeans_ms),
-        insertion_ms: s(t.insertion_ms),
-        stage_one_ms: s(t.stage_one_ms),
-        stage_two_ms: s(t.stage_two_ms),
-        stage_two_gpu_ms: t.stage_two_gpu_ms.map(s),
-        paging_cpu_ms: s(t.paging_cpu_ms),
-        paging_gpu_ms: t.paging_gpu_ms.map(s),
-        paging_hidden_ms: t.paging_hidden_ms.map(s),
-        prune_ms: s(t.prune_ms),
-        total_ms: s(t.total_ms),
-    }
-}
-
 pub fn run(b: MapBench) -> Result<()> {
     let mut cfg = match &b.config {
         Some(p) => MapperConfig::from_toml(
@@ -184,7 +168,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         keyframes,
         wall_s: wall,
         keyframes_per_s: keyframes as f64 / wall,
-        ms_per_keyframe: scale(t, keyframes as f64),
+        ms_per_keyframe: crate::mapping::mean_timings(t, keyframes),
         paging_gpu_ms_total: t.paging_gpu_ms,
         paging_hidden_ms_total: t.paging_hidden_ms,
         paging_hidden_share: hidden_share,

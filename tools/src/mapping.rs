@@ -294,7 +294,8 @@ pub struct RunReport {
     pub keyframe_reports: Vec<KeyframeReport>,
 }
 
-fn mean_timings(t: &KeyframeTimings, n: u64) -> KeyframeTimings {
+/// Per-keyframe means of timings summed over `n` keyframes.
+pub fn mean_timings(t: &KeyframeTimings, n: u64) -> KeyframeTimings {
     let n = n.max(1) as f64;
     let s = |x: f64| x / n;
     KeyframeTimings {
