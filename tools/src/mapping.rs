@@ -313,11 +313,10 @@ pub fn mean_timings(t: &KeyframeTimings, n: u64) -> KeyframeTimings {
 }
 
 impl Run {
-    /// The report of this run.
-    pub fn report(&self) -> RunReport {
+    /// The report of this run, with the profiler's per-kernel statistics.
+    fn report_with(&self, kernels: BTreeMap<&'static str, KernelStats>) -> RunReport {
         let stats = self.mapper.stats();
         let t = &stats.timings;
-        let kernels = self.ctx.profiler_snapshot().stats();
         RunReport {
             log: self.log.display().to_string(),
             device: self.ctx.info().name.clone(),
@@ -435,7 +434,7 @@ impl Run {
                     .map_err(Into::into),
             );
         }
-        let mut report = self.report();
+        let mut report = self.report_with(profile.stats());
         report.problems = problems;
         write_text(
             &dir.join("report.json"),

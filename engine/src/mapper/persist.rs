@@ -1020,24 +1020,19 @@ impl OnlineMapper {
             ctx.upload(head.atoms(), 0, &h.atoms)?;
             ctx.upload(head.anchor(), 0, &h.anchors)?;
             head.kmeans().restore(ctx, h.used, &h.weights)?;
-            let buffers = head.optimizer_state();
-            if buffers.len() != h.adam.len() {
-                return Err(corrupt(format!(
-                    "{} latent head optimiser tensors; this build has {}",
-                    h.adam.len(),
-                    buffers.len()
-                )));
-            }
-            for (i, ((buf, _), bytes)) in buffers.into_iter().zip(&h.adam).enumerate() {
-                if buf.bytes() != bytes.len() as u64 {
-                    return Err(corrupt(format!(
-                        "head/adam/{i} holds {} bytes; the head's buffer {}",
-                        bytes.len(),
-                        buf.bytes()
-                    )));
-                }
-                ctx.upload(buf, 0, bytes)?;
-            }
+            let expected: Vec<u64> = head
+                .optimizer_state()
+                .iter()
+                .map(|(b, _)| b.bytes())
+                .collect();
+            upload_state(
+                ctx,
+                head.optimizer_state(),
+                &h.adam,
+                &expected,
+                "head/adam",
+                &corrupt,
+            )?;
             m.head = Some(head);
         }
 
@@ -1058,23 +1053,39 @@ impl OnlineMapper {
                 .as_ref()
                 .ok_or_else(|| corrupt("no trainer for the window".into()))?;
             let buffers = trainer.optimizer().state();
-            if buffers.len() != w.state.len() {
-                return Err(corrupt(format!(
-                    "{} window optimiser tensors; this build has {}",
-                    w.state.len(),
-                    buffers.len()
-                )));
-            }
-            for (i, ((buf, row), bytes)) in buffers.into_iter().zip(&w.state).enumerate() {
-                if rows * row != bytes.len() as u64 {
-                    return Err(corrupt(format!(
-                        "window/state/{i} holds {} bytes for {rows} rows of {row}",
-                        bytes.len()
-                    )));
-                }
-                ctx.upload(buf, 0, bytes)?;
-            }
+            let expected: Vec<u64> = buffers.iter().map(|(_, row)| rows * row).collect();
+            upload_state(ctx, buffers, &w.state, &expected, "window/state", &corrupt)?;
         }
         Ok(m)
     }
+}
+
+/// Uploads saved optimiser tensors into `buffers`, each of exactly
+/// `expected` bytes (`what` names them in errors).
+fn upload_state(
+    ctx: &Context,
+    buffers: Vec<(&Buffer, u64)>,
+    saved: &[Vec<u8>],
+    expected: &[u64],
+    what: &str,
+    corrupt: &dyn Fn(String) -> Error,
+) -> Result<()> {
+    if buffers.len() != saved.len() {
+        return Err(corrupt(format!(
+            "{} {what} tensors; this build has {}",
+            saved.len(),
+            buffers.len()
+        )));
+    }
+    for (i, (((buf, _), bytes), &want)) in buffers.into_iter().zip(saved).zip(expected).enumerate()
+    {
+        if bytes.len() as u64 != want {
+            return Err(corrupt(format!(
+                "{what}/{i} holds {} bytes, {want} expected",
+                bytes.len()
+            )));
+        }
+        ctx.upload(buf, 0, bytes)?;
+    }
+    Ok(())
 }
