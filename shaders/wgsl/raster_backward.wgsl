@@ -16,14 +16,32 @@
 // plus (v_alpha_out - background . v_rgb) * T_final / (1 - alpha_i): the
 // front-to-back form, which replays the forward order exactly.
 //
+// COLUMNS variants give each invocation one 16-pixel tile column instead of
+// one pixel (see glsl/raster_forward.comp for why CPU drivers want that):
+// a Gaussian's data is loaded once per column, its gradients are summed
+// over the column in registers before the subgroup sum and the atomics, and
+// branches become selects, since those drivers run both sides anyway.
+//
 // @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
-// @kernel raster_backward SUBGROUP=1 CAS=0
-// @kernel raster_backward_cas SUBGROUP=1 CAS=1
-// @kernel raster_backward_plain SUBGROUP=0 CAS=0
-// @kernel raster_backward_plain_cas SUBGROUP=0 CAS=1
+// @kernel raster_backward SUBGROUP=1 CAS=0 COLUMNS=0
+// @kernel raster_backward_cas SUBGROUP=1 CAS=1 COLUMNS=0
+// @kernel raster_backward_plain SUBGROUP=0 CAS=0 COLUMNS=0
+// @kernel raster_backward_plain_cas SUBGROUP=0 CAS=1 COLUMNS=0
+// @kernel raster_backward_columns SUBGROUP=1 CAS=0 COLUMNS=1
+// @kernel raster_backward_columns_cas SUBGROUP=1 CAS=1 COLUMNS=1
+// @kernel raster_backward_columns_plain SUBGROUP=0 CAS=0 COLUMNS=1
+// @kernel raster_backward_columns_plain_cas SUBGROUP=0 CAS=1 COLUMNS=1
 
 const TILE_SIZE: u32 = 16u;
 const BATCH: u32 = 256u;
+#if COLUMNS
+// Pixels per invocation, and invocations per workgroup.
+const ROWS: u32 = 16u;
+const INVOCATIONS: u32 = 16u;
+#else
+const ROWS: u32 = 1u;
+const INVOCATIONS: u32 = 256u;
+#endif
 const MAX_ALPHA: f32 = 0.99;
 const MIN_ALPHA: f32 = 1.0 / 255.0;
 
@@ -140,7 +158,11 @@ var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
 var<workgroup> wg_walk_atomic: atomic<u32>;
 var<workgroup> wg_walk: u32;
 
+#if COLUMNS
+@compute @workgroup_size(16)
+#else
 @compute @workgroup_size(256)
+#endif
 fn raster_backward(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
@@ -149,6 +171,176 @@ fn raster_backward(
     @builtin(subgroup_invocation_id) lane: u32,
 #endif
 ) {
+#if COLUMNS
+    let tile = wid.y * nwg.x + wid.x;
+    if (tile >= pc.n_tiles) {
+        return;
+    }
+    var vi = 0u;
+    for (var k = 1u; k < pc.n_views; k++) {
+        if (views[k].offsets.x <= tile) {
+            vi = k;
+        }
+    }
+    let v = views[vi];
+    let local_tile = tile - v.offsets.x;
+    let px = (local_tile % v.size.z) * TILE_SIZE + t;
+    let py0 = (local_tile / v.size.z) * TILE_SIZE;
+    let bg = vec3<f32>(pc.bg_r, pc.bg_g, pc.bg_b);
+    let detach = pc.detach_query != 0u;
+
+    // Each pixel's forward results, upstream gradients and running sums.
+    var walked: array<u32, ROWS>;
+    var t_final: array<f32, ROWS>;
+    var c_final: array<vec4<f32>, ROWS>;
+    var v_rgbd: array<vec4<f32>, ROWS>;
+    var bg_term: array<f32, ROWS>;
+    var trans: array<f32, ROWS>;
+    var c_acc: array<vec4<f32>, ROWS>;
+    var v_q: array<vec4<f32>, 128>;
+    var q_final: array<vec4<f32>, 128>;
+    var q_acc: array<vec4<f32>, 128>;
+    var my_walk = 0u;
+    for (var k = 0u; k < ROWS; k++) {
+        let py = py0 + k;
+        walked[k] = 0u;
+        t_final[k] = 1.0;
+        c_final[k] = vec4<f32>(0.0);
+        v_rgbd[k] = vec4<f32>(0.0);
+        trans[k] = 1.0;
+        c_acc[k] = vec4<f32>(0.0);
+        var v_alpha_out = 0.0;
+        for (var c = 0u; c < 8u; c++) {
+            v_q[8u * k + c] = vec4<f32>(0.0);
+            q_final[8u * k + c] = vec4<f32>(0.0);
+            q_acc[8u * k + c] = vec4<f32>(0.0);
+        }
+        if (px < v.size.x && py < v.size.y) {
+            let p = v.offsets.y + py * v.size.x + px;
+            let st = state[p];
+            walked[k] = st.x;
+            t_final[k] = bitcast<f32>(st.y);
+            let out = rgbd[p];
+            c_final[k] = vec4<f32>(out.xyz - t_final[k] * bg, out.w);
+            v_rgbd[k] = grad_rgbd[p];
+            v_alpha_out = grad_alpha[p];
+            for (var c = 0u; c < 8u; c++) {
+                v_q[8u * k + c] = grad_query[8u * p + c];
+                if (!detach) {
+                    q_final[8u * k + c] = query_image[8u * p + c];
+                }
+            }
+        }
+        bg_term[k] = (v_alpha_out - dot(bg, v_rgbd[k].xyz)) * t_final[k];
+        my_walk = max(my_walk, walked[k]);
+    }
+
+    if (t == 0u) {
+        atomicStore(&wg_walk_atomic, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&wg_walk_atomic, my_walk);
+    workgroupBarrier();
+    if (t == 0u) {
+        wg_walk = atomicLoad(&wg_walk_atomic);
+    }
+    let tile_walk = workgroupUniformLoad(&wg_walk);
+    let start = ranges[tile].x;
+
+    for (var base = 0u; base < tile_walk; base += BATCH) {
+        workgroupBarrier();
+        for (var e = t; e < BATCH; e += INVOCATIONS) {
+            if (base + e < tile_walk) {
+                let pair = pairs[start + base + e];
+                sh_pair[e] = pair;
+                sh_splat[e] = splats[2u * pair];
+                sh_conic[e] = splats[2u * pair + 1u];
+            }
+        }
+        workgroupBarrier();
+        let count = min(BATCH, tile_walk - base);
+        for (var j = 0u; j < count; j++) {
+            let pair = sh_pair[j];
+            let gaussian = pair % pc.n_gaussians;
+            let s = sh_splat[j];
+            let conic = sh_conic[j].xyz;
+            // Loaded once for the column.
+            let f_rgbd = vec4<f32>(
+                colors[3u * gaussian],
+                colors[3u * gaussian + 1u],
+                colors[3u * gaussian + 2u],
+                s.z
+            );
+            var f_q: array<vec4<f32>, 8>;
+            for (var c = 0u; c < 8u; c++) {
+                f_q[c] = vec4<f32>(0.0);
+                if (!detach) {
+                    f_q[c] = queries[8u * gaussian + c];
+                }
+            }
+            var g: Grads;
+            g.rgbd = vec4<f32>(0.0);
+            for (var c = 0u; c < 8u; c++) {
+                g.query[c] = vec4<f32>(0.0);
+            }
+            g.mean_opacity = vec4<f32>(0.0);
+            g.conic = vec4<f32>(0.0);
+            for (var k = 0u; k < ROWS; k++) {
+                let d = s.xy - vec2<f32>(f32(px), f32(py0 + k));
+                let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
+                let vis = exp(-sigma);
+                let alpha = min(MAX_ALPHA, s.w * vis);
+                let hit = base + j < walked[k] && sigma >= 0.0 && alpha >= MIN_ALPHA;
+                let w = alpha * trans[k];
+                let acc = c_acc[k] + w * f_rgbd;
+                let ra = 1.0 / (1.0 - alpha);
+                var v_alpha = bg_term[k] * ra
+                    + dot(v_rgbd[k], f_rgbd * trans[k] - (c_final[k] - acc) * ra);
+                // Selected, not multiplied by a zero weight: a non-finite
+                // value must not reach pixels the Gaussian does not cover.
+                c_acc[k] = select(c_acc[k], acc, hit);
+                g.rgbd = select(g.rgbd, g.rgbd + w * v_rgbd[k], hit);
+                for (var c = 0u; c < 8u; c++) {
+                    g.query[c] = select(g.query[c], g.query[c] + w * v_q[8u * k + c], hit);
+                    if (!detach) {
+                        let qa = q_acc[8u * k + c] + w * f_q[c];
+                        q_acc[8u * k + c] = select(q_acc[8u * k + c], qa, hit);
+                        v_alpha += dot(v_q[8u * k + c], f_q[c] * trans[k] - (q_final[8u * k + c] - qa) * ra);
+                    }
+                }
+                // Clamped alphas do not depend on opacity or shape.
+                let shaped = hit && s.w * vis <= MAX_ALPHA;
+                let v_sigma = -s.w * vis * v_alpha;
+                g.conic = select(g.conic, g.conic + vec4<f32>(
+                    0.5 * v_sigma * d.x * d.x,
+                    v_sigma * d.x * d.y,
+                    0.5 * v_sigma * d.y * d.y,
+                    0.0
+                ), shaped);
+                g.mean_opacity = select(g.mean_opacity, g.mean_opacity + vec4<f32>(
+                    v_sigma * (conic.x * d.x + conic.y * d.y),
+                    v_sigma * (conic.y * d.x + conic.z * d.y),
+                    vis * v_alpha,
+                    0.0
+                ), shaped);
+                trans[k] = select(trans[k], trans[k] * (1.0 - alpha), hit);
+            }
+#if SUBGROUP
+            g.rgbd = subgroupAdd(g.rgbd);
+            for (var c = 0u; c < 8u; c++) {
+                g.query[c] = subgroupAdd(g.query[c]);
+            }
+            g.mean_opacity = subgroupAdd(g.mean_opacity);
+            g.conic = subgroupAdd(g.conic);
+            if (lane == 0u) {
+                flush(g, gaussian, pair);
+            }
+#else
+            flush(g, gaussian, pair);
+#endif
+        }
+    }
+#else
     let tile = wid.y * nwg.x + wid.x;
     if (tile >= pc.n_tiles) {
         return;
@@ -300,4 +492,5 @@ fn raster_backward(
 #endif
         }
     }
+#endif
 }

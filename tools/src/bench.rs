@@ -218,13 +218,13 @@ pub fn run(which: Which) -> Result<()> {
 }
 
 #[derive(Serialize)]
-struct Row {
+pub(crate) struct Row {
     name: String,
     size: String,
     gpu_ms_median: f64,
     gpu_ms_min: f64,
     wall_ms_median: f64,
-    throughput: f64,
+    pub throughput: f64,
     unit: &'static str,
 }
 
@@ -373,6 +373,41 @@ fn row(name: &str, size: String, t: &Timing, work: f64, unit: &'static str) -> R
     }
 }
 
+/// Memory bandwidth: a buffer-to-buffer copy of `bytes` reads and writes
+/// every byte (throughput in GB/s).
+pub(crate) fn measure_bandwidth(ctx: &Context, bytes: u64, runs: usize) -> Result<Row> {
+    let a = Buffer::device(ctx, "bench/copy_src", bytes)?;
+    let b = Buffer::device(ctx, "bench/copy_dst", bytes)?;
+    let t = time(ctx, runs, false, |rec| rec.copy(&a, 0, &b, 0, bytes))?;
+    Ok(row(
+        "copy",
+        format!("{} MiB", bytes >> 20),
+        &t,
+        2.0 * bytes as f64 * 1e-9,
+        "GB/s",
+    ))
+}
+
+/// Attainable arithmetic rate: register-only multiply-adds over `groups`
+/// workgroups of 256 invocations (throughput in GFLOP/s, an FMA counted as
+/// two operations).
+pub(crate) fn measure_fma_peak(ctx: &Context, groups: u32, runs: usize) -> Result<Row> {
+    let iters = 2048u32;
+    let sink = Buffer::device(ctx, "bench/sink", groups as u64 * 256 * 4)?;
+    let p = latentam::kernels::push::FmaPeak { iters, seed: 0.5 };
+    let t = time(ctx, runs, false, |rec| {
+        rec.dispatch_linear(&latentam::kernels::FMA_PEAK, groups, &[&sink], &p)
+    })?;
+    let flops = groups as f64 * 256.0 * iters as f64 * 16.0;
+    Ok(row(
+        "fma_peak",
+        format!("{} threads x {iters}", groups * 256),
+        &t,
+        flops * 1e-9,
+        "GFLOP/s",
+    ))
+}
+
 /// A context with timestamp profiling, or an error on devices without it.
 pub(crate) fn profiling_context() -> Result<Context> {
     let ctx = Context::new(ContextOptions {
@@ -395,42 +430,11 @@ fn primitives(json: Option<PathBuf>, runs: usize, quick: bool) -> Result<()> {
     let mut rows = Vec::new();
     eprintln!("benchmarking on {} ({runs} runs each)...", ctx.info().name);
 
-    // Memory bandwidth: a buffer-to-buffer copy reads and writes every byte.
-    let bytes = (64u64 << 20) / div as u64;
-    {
-        let a = Buffer::device(&ctx, "bench/copy_src", bytes)?;
-        let b = Buffer::device(&ctx, "bench/copy_dst", bytes)?;
-        let t = time(&ctx, runs, false, |rec| rec.copy(&a, 0, &b, 0, bytes))?;
-        rows.push(row(
-            "copy",
-            format!("{} MiB", bytes >> 20),
-            &t,
-            2.0 * bytes as f64 * 1e-9,
-            "GB/s",
-        ));
-    }
-
-    // Attainable arithmetic rate: register-only multiply-adds.
-    let peak_gflops = {
-        let groups = 4096u32 / div;
-        let iters = 2048u32;
-        let sink = Buffer::device(&ctx, "bench/sink", groups as u64 * 256 * 4)?;
-        let p = latentam::kernels::push::FmaPeak { iters, seed: 0.5 };
-        let t = time(&ctx, runs, false, |rec| {
-            rec.dispatch_linear(&latentam::kernels::FMA_PEAK, groups, &[&sink], &p)
-        })?;
-        let flops = groups as f64 * 256.0 * iters as f64 * 16.0;
-        let r = row(
-            "fma_peak",
-            format!("{} threads x {iters}", groups * 256),
-            &t,
-            flops * 1e-9,
-            "GFLOP/s",
-        );
-        let peak = r.throughput;
-        rows.push(r);
-        peak
-    };
+    let copy = measure_bandwidth(&ctx, (64u64 << 20) / div as u64, runs)?;
+    rows.push(copy);
+    let fma = measure_fma_peak(&ctx, 4096 / div, runs)?;
+    let peak_gflops = fma.throughput;
+    rows.push(fma);
 
     let n = 16_777_216u64 / div as u64;
     {

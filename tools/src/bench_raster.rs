@@ -1,18 +1,28 @@
 //! `latentam bench raster`: forward and backward of the rasterizer on a
 //! room-like scene (Gaussians spread over the walls, floor and ceiling of a
 //! box room, cameras inside looking at them, as in a real map).
+//!
+//! Besides the times, it states how far they are from what the machine
+//! could do: the blending work is counted exactly (with the f64 reference's
+//! walk of every pixel, [`reference::raster::blend_work`]), turned into
+//! arithmetic operations and bytes by [`CostModel`], and divided by the
+//! machine's measured FMA rate and copy bandwidth (the probes of `bench
+//! primitives`). The ratio of the measured time to that bound is what the
+//! rasterizer's speed target is stated in.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Result;
 use glam::DVec3;
+use latentam::reference;
 use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::bench::{
-    kernel_rows, median, print_kernel_rows, profiling_context, write_json, KernelRow,
+    kernel_rows, measure_bandwidth, measure_fma_peak, median, print_kernel_rows, profiling_context,
+    write_json, KernelRow,
 };
 
 /// Settings of one raster benchmark.
@@ -42,7 +52,114 @@ struct Report {
     backward_ms_median: f64,
     forward_wall_ms_median: f64,
     backward_wall_ms_median: f64,
+    /// Whether the query channels' gradients stop at the queries (the
+    /// default), which the backward cost depends on.
+    detach_query_gradients: bool,
+    work: Work,
+    roofline: Roofline,
     kernels: Vec<KernelRow>,
+}
+
+/// The blending work of the batch, summed over its views.
+#[derive(Serialize, Default)]
+struct Work {
+    /// (pixel, Gaussian) pairs the forward pass tests.
+    tested_forward: u64,
+    /// Pairs the backward pass tests (up to each pixel's last contributor).
+    tested_backward: u64,
+    /// Pairs blended (and differentiated).
+    contributing: u64,
+    /// Pixels of the batch.
+    pixels: u64,
+}
+
+/// The measured times against the machine's limits.
+#[derive(Serialize)]
+struct Roofline {
+    /// Attainable arithmetic rate (FMA probe), GFLOP/s.
+    machine_gflops: f64,
+    /// Copy bandwidth, GB/s.
+    machine_gbps: f64,
+    forward_gflop: f64,
+    backward_gflop: f64,
+    forward_mb: f64,
+    backward_mb: f64,
+    /// max(operations / rate, bytes / bandwidth) of forward + backward.
+    bound_ms: f64,
+    /// Measured forward + backward GPU time (all kernels), median.
+    measured_ms: f64,
+    /// measured / bound.
+    ratio: f64,
+    /// Measured time per tested pair (forward + backward), ns.
+    ns_per_tested_pair: f64,
+}
+
+/// Operations and bytes the blending passes cannot avoid, per unit of work.
+/// Counted from the reference's math: an add, multiply, compare or min is
+/// one operation, a fused multiply-add two, an exponential ten (range
+/// reduction and a degree-5 polynomial, as vector libraries do it). The
+/// projection, sorting and binning (a few per cent of the time) are left
+/// out, which makes the bound tighter, never looser.
+struct CostModel;
+
+impl CostModel {
+    /// Testing a pair: d = m − p (2), σ (9), e^(−σ) (10), α = min(o·v, 0.99)
+    /// (2), the σ ≥ 0 and α ≥ 1/255 tests (2).
+    const TEST: f64 = 25.0;
+    /// Blending a contributor: T(1 − α) and its test (3), w = αT (1), w·f
+    /// added to RGB, depth and the 32 query channels (36 FMA).
+    const BLEND: f64 = 4.0 + 72.0;
+    /// Differentiating a contributor with the query channels detached: w,
+    /// 1/(1 − α), T update (5); running RGB-depth sum (4 FMA); ∂α from 4
+    /// channels (26); ∂colour, ∂depth, ∂query = w·upstream (36); ∂σ, ∂conic,
+    /// ∂mean, ∂opacity (14); adding the 43 gradients into the Gaussian's
+    /// sums (43).
+    const GRAD_DETACHED: f64 = 5.0 + 8.0 + 26.0 + 36.0 + 14.0 + 43.0;
+    /// The 32 query channels' running sum (32 FMA) and their share of ∂α
+    /// (6 per channel), when the query gradients reach opacity and geometry.
+    const GRAD_QUERY: f64 = 64.0 + 192.0;
+    /// Bytes per tile-list entry and pass: its pair index, projected splat
+    /// (32), colour and query (140).
+    const ENTRY_BYTES: f64 = 4.0 + 32.0 + 140.0;
+    /// Backward, per tile-list entry: read-modify-write of the Gaussian's
+    /// 42 gradient sums (35 per Gaussian, 7 per view and Gaussian).
+    const ENTRY_GRAD_BYTES: f64 = 42.0 * 8.0;
+    /// Forward output per pixel: RGB-depth, alpha, query, backward state.
+    const PIXEL_OUT_BYTES: f64 = 16.0 + 4.0 + 128.0 + 8.0;
+    /// Backward input per pixel: the forward outputs and their gradients.
+    const PIXEL_GRAD_BYTES: f64 = Self::PIXEL_OUT_BYTES + 16.0 + 4.0 + 128.0;
+
+    fn forward_ops(w: &Work) -> f64 {
+        Self::TEST * w.tested_forward as f64 + Self::BLEND * w.contributing as f64
+    }
+
+    fn backward_ops(w: &Work, detach: bool) -> f64 {
+        let per = Self::GRAD_DETACHED + if detach { 0.0 } else { Self::GRAD_QUERY };
+        Self::TEST * w.tested_backward as f64 + per * w.contributing as f64
+    }
+
+    fn forward_bytes(w: &Work, entries: u64) -> f64 {
+        Self::ENTRY_BYTES * entries as f64 + Self::PIXEL_OUT_BYTES * w.pixels as f64
+    }
+
+    fn backward_bytes(w: &Work, entries: u64) -> f64 {
+        (Self::ENTRY_BYTES + Self::ENTRY_GRAD_BYTES) * entries as f64
+            + Self::PIXEL_GRAD_BYTES * w.pixels as f64
+    }
+}
+
+/// Counts the blending work of every view with the f64 reference.
+fn blend_work(host: &HostGaussians, cams: &[Camera]) -> Work {
+    let gs = reference::raster::Gaussian::all(host);
+    let mut w = Work::default();
+    for cam in cams {
+        let v = reference::raster::blend_work(&gs, cam);
+        w.tested_forward += v.tested;
+        w.tested_backward += v.tested_backward;
+        w.contributing += v.contributing;
+        w.pixels += cam.pixels();
+    }
+    w
 }
 
 /// Gaussians on the far wall, floor, ceiling and side walls of a 4 x 2.4 x 4
@@ -196,6 +313,37 @@ pub fn run(b: RasterBench) -> Result<()> {
     // Work bound: every pixel of a tile walks (at most) the tile's list.
     let pairs = pixel_gaussian_pairs(&raster)?;
 
+    eprintln!("counting the blending work and measuring the machine's limits...");
+    let work = blend_work(&host, &cams);
+    let copy = measure_bandwidth(&ctx, 64 << 20, b.runs)?;
+    let fma = measure_fma_peak(&ctx, 4096, b.runs)?;
+    let detach = raster.settings.detach_query_gradients;
+    let (f_ops, b_ops) = (
+        CostModel::forward_ops(&work),
+        CostModel::backward_ops(&work, detach),
+    );
+    let (f_bytes, b_bytes) = (
+        CostModel::forward_bytes(&work, stats.intersections),
+        CostModel::backward_bytes(&work, stats.intersections),
+    );
+    let bound_ms = ((f_ops + b_ops) / (fma.throughput * 1e9))
+        .max((f_bytes + b_bytes) / (copy.throughput * 1e9))
+        * 1e3;
+    let measured_ms = median(&fwd) + median(&bwd);
+    let roofline = Roofline {
+        machine_gflops: fma.throughput,
+        machine_gbps: copy.throughput,
+        forward_gflop: f_ops * 1e-9,
+        backward_gflop: b_ops * 1e-9,
+        forward_mb: f_bytes * 1e-6,
+        backward_mb: b_bytes * 1e-6,
+        bound_ms,
+        measured_ms,
+        ratio: measured_ms / bound_ms,
+        ns_per_tested_pair: measured_ms * 1e6
+            / (work.tested_forward + work.tested_backward).max(1) as f64,
+    };
+
     let kernels = kernel_rows(per_kernel, b.runs);
     let report = Report {
         device: ctx.info().name.clone(),
@@ -211,6 +359,9 @@ pub fn run(b: RasterBench) -> Result<()> {
         backward_ms_median: median(&bwd),
         forward_wall_ms_median: median(&fwd_wall),
         backward_wall_ms_median: median(&bwd_wall),
+        detach_query_gradients: detach,
+        work,
+        roofline,
         kernels,
     };
 
@@ -233,6 +384,29 @@ pub fn run(b: RasterBench) -> Result<()> {
         report.forward_wall_ms_median,
         report.backward_ms_median,
         report.backward_wall_ms_median
+    );
+    let (w, r) = (&report.work, &report.roofline);
+    println!(
+        "blending work: {} pairs tested forward, {} backward, {} contributing ({:.1} per pixel)",
+        w.tested_forward,
+        w.tested_backward,
+        w.contributing,
+        w.contributing as f64 / w.pixels.max(1) as f64
+    );
+    println!(
+        "machine: {:.1} GFLOP/s (FMA probe), {:.1} GB/s (copy); needed: forward {:.3} GFLOP \
+         {:.1} MB, backward {:.3} GFLOP {:.1} MB\nbound {:.2} ms; measured {:.2} ms = {:.1}x the \
+         bound ({:.1} ns per tested pair)",
+        r.machine_gflops,
+        r.machine_gbps,
+        r.forward_gflop,
+        r.forward_mb,
+        r.backward_gflop,
+        r.backward_mb,
+        r.bound_ms,
+        r.measured_ms,
+        r.ratio,
+        r.ns_per_tested_pair
     );
     print_kernel_rows(&report.kernels);
     write_json(b.json.as_deref(), &report)?;

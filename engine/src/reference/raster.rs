@@ -290,16 +290,19 @@ struct Contribution {
     d: [f64; 2],
 }
 
-/// Walks one pixel front to back; returns the contributions and final T.
-fn blend_pixel(vis: &[(usize, Projected)], px: u32, py: u32) -> (Vec<Contribution>, f64) {
+/// Walks one pixel front to back; returns the contributions, the final T
+/// and how many of the Gaussians covering the pixel's tile it tested.
+fn blend_pixel(vis: &[(usize, Projected)], px: u32, py: u32) -> (Vec<Contribution>, f64, usize) {
     let (tile_x, tile_y) = (px / TILE_SIZE, py / TILE_SIZE);
     let mut t = 1.0;
     let mut out = Vec::new();
+    let mut tested = 0;
     for (k, (_, p)) in vis.iter().enumerate() {
         let [x0, y0, x1, y1] = p.tiles;
         if tile_x < x0 || tile_x > x1 || tile_y < y0 || tile_y > y1 {
             continue;
         }
+        tested += 1;
         let d = [p.mean2d[0] - px as f64, p.mean2d[1] - py as f64];
         let [a, b, c] = p.conic;
         let sigma = 0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) + b * d[0] * d[1];
@@ -324,7 +327,50 @@ fn blend_pixel(vis: &[(usize, Projected)], px: u32, py: u32) -> (Vec<Contributio
         });
         t = next;
     }
-    (out, t)
+    (out, t, tested)
+}
+
+/// How much per-pixel blending work one view takes: the counts a cost model
+/// of the blending kernels needs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BlendWork {
+    /// (pixel, Gaussian) pairs the forward pass tests: every entry of the
+    /// pixel's tile list up to the one that saturates it, or all of them.
+    pub tested: u64,
+    /// Pairs the backward pass tests: every entry up to the pixel's last
+    /// contributor.
+    pub tested_backward: u64,
+    /// Pairs that contribute to the pixel (blended in forward, differentiated
+    /// in backward).
+    pub contributing: u64,
+}
+
+/// Counts the blending work of one view (see [`BlendWork`]), walking each
+/// tile's list as the kernels do.
+pub fn blend_work(gs: &[Gaussian], cam: &Camera) -> BlendWork {
+    let vis = sorted_visible(gs, cam);
+    let tiles_x = cam.width.div_ceil(TILE_SIZE);
+    let tiles_y = cam.height.div_ceil(TILE_SIZE);
+    let mut lists: Vec<Vec<(usize, Projected)>> = vec![Vec::new(); (tiles_x * tiles_y) as usize];
+    for &(i, p) in &vis {
+        let [x0, y0, x1, y1] = p.tiles;
+        for ty in y0..=y1 {
+            for tx in x0..=x1 {
+                lists[(ty * tiles_x + tx) as usize].push((i, p));
+            }
+        }
+    }
+    let mut work = BlendWork::default();
+    for py in 0..cam.height {
+        for px in 0..cam.width {
+            let list = &lists[((py / TILE_SIZE) * tiles_x + px / TILE_SIZE) as usize];
+            let (contribs, _, tested) = blend_pixel(list, px, py);
+            work.tested += tested as u64;
+            work.contributing += contribs.len() as u64;
+            work.tested_backward += contribs.last().map_or(0, |c| c.list_index as u64 + 1);
+        }
+    }
+    work
 }
 
 /// Renders one view.
@@ -336,7 +382,7 @@ pub fn render(gs: &[Gaussian], cam: &Camera, background: [f64; 3]) -> Image {
     for py in 0..cam.height {
         for px in 0..cam.width {
             let i = (py * cam.width + px) as usize;
-            let (contribs, t) = blend_pixel(&vis, px, py);
+            let (contribs, t, _) = blend_pixel(&vis, px, py);
             for c in &contribs {
                 let (gi, p) = &vis[c.list_index];
                 let f = features(&gs[*gi], p);
@@ -400,7 +446,7 @@ pub fn backward(
         for py in 0..cam.height {
             for px in 0..cam.width {
                 let i = (py * cam.width + px) as usize;
-                let (contribs, t_final) = blend_pixel(&vis, px, py);
+                let (contribs, t_final, _) = blend_pixel(&vis, px, py);
                 let v_c = &up.channels[i];
                 let v_alpha_out = up.alpha[i];
                 // Colour channels without background; Σ_{j>i} w_j f_j is the

@@ -19,7 +19,9 @@ pub use camera::Camera;
 pub use gaussians::{
     GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS, GAUSSIAN_BYTES, QUERY_DIM,
 };
-pub use rasterizer::{ForwardStats, PixelBuffers, Rasterizer, RenderSettings, RenderedView};
+pub use rasterizer::{
+    BlendLayout, ForwardStats, PixelBuffers, Rasterizer, RenderSettings, RenderedView,
+};
 pub use views::{BatchLayout, ViewSlot};
 
 /// Tiles are `TILE_SIZE` × `TILE_SIZE` pixels.

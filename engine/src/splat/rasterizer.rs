@@ -20,8 +20,9 @@
 
 use latentam_shaders::{
     push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_BACKWARD, PROJECT_FORWARD,
-    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS,
-    RASTER_FORWARD, TILE_RANGES,
+    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS, RASTER_BACKWARD_COLUMNS_CAS,
+    RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS, RASTER_BACKWARD_PLAIN,
+    RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLUMNS, TILE_RANGES,
 };
 
 use super::views::BatchLayout;
@@ -29,6 +30,34 @@ use super::{Camera, GaussianBuffers, QUERY_DIM};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, Recorder};
 use crate::ops::{PrefixScan, RadixSorter};
+
+/// How the blending kernels map a tile's pixels to invocations. Both give
+/// the same images and gradients (up to f32 summation order); they differ in
+/// speed by device.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BlendLayout {
+    /// [`BlendLayout::Columns`] on CPU devices, [`BlendLayout::Pixels`] on
+    /// GPUs.
+    #[default]
+    Auto,
+    /// One pixel per invocation, the usual GPU layout.
+    Pixels,
+    /// One 16-pixel tile column per invocation: a Gaussian's data is loaded
+    /// once for 16 pixels, which pays on CPU drivers (lavapipe), where
+    /// loads are emulated lane by lane and branches do not skip work.
+    Columns,
+}
+
+impl BlendLayout {
+    /// The layout used on a device of type `device_type`.
+    pub fn resolve(self, device_type: ash::vk::PhysicalDeviceType) -> Self {
+        match self {
+            Self::Auto if device_type == ash::vk::PhysicalDeviceType::CPU => Self::Columns,
+            Self::Auto => Self::Pixels,
+            other => other,
+        }
+    }
+}
 
 /// How views are rendered and differentiated.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,6 +68,8 @@ pub struct RenderSettings {
     /// Gaussians' queries, never their opacity or geometry, so the feature
     /// loss cannot reshape the map (the Feature-3DGS choice).
     pub detach_query_gradients: bool,
+    /// Pixel-to-invocation mapping of the blending kernels.
+    pub layout: BlendLayout,
 }
 
 impl Default for RenderSettings {
@@ -46,6 +77,7 @@ impl Default for RenderSettings {
         Self {
             background: [0.0; 3],
             detach_query_gradients: true,
+            layout: BlendLayout::Auto,
         }
     }
 }
@@ -441,30 +473,35 @@ impl Rasterizer {
                 bytemuck::cast_ref(&bins(intersections)),
             )?;
             let bg = self.settings.background;
-            rec.dispatch_linear(
-                &RASTER_FORWARD,
-                layout.tiles,
-                &[
-                    self.views.get(),
-                    &gaussians.colors,
-                    &gaussians.queries,
-                    self.splats.get(),
-                    self.isect_pairs.get(),
-                    self.ranges.get(),
-                    &images.rgbd,
-                    &images.alpha,
-                    &images.query,
-                    self.state.get(),
-                ],
-                &push::RasterForward {
-                    n_gaussians: count as u32,
-                    n_views,
-                    n_tiles: layout.tiles,
-                    bg_r: bg[0],
-                    bg_g: bg[1],
-                    bg_b: bg[2],
-                },
-            )?;
+            let bufs = [
+                self.views.get(),
+                &gaussians.colors,
+                &gaussians.queries,
+                self.splats.get(),
+                self.isect_pairs.get(),
+                self.ranges.get(),
+                &images.rgbd,
+                &images.alpha,
+                &images.query,
+                self.state.get(),
+            ];
+            let p = push::RasterForward {
+                n_gaussians: count as u32,
+                n_views,
+                n_tiles: layout.tiles,
+                bg_r: bg[0],
+                bg_g: bg[1],
+                bg_b: bg[2],
+            };
+            match self.settings.layout.resolve(ctx.info().device_type) {
+                BlendLayout::Columns => rec.dispatch_linear(
+                    &RASTER_FORWARD_COLUMNS,
+                    layout.tiles,
+                    &bufs,
+                    bytemuck::cast_ref(&p),
+                )?,
+                _ => rec.dispatch_linear(&RASTER_FORWARD, layout.tiles, &bufs, &p)?,
+            }
             rec.submit()?.wait()?;
         }
         self.layout = layout;
@@ -528,23 +565,23 @@ impl Rasterizer {
         ];
         let info = rec.info();
         let groups = self.layout.tiles;
-        match (info.subgroup_arithmetic, info.native_float_atomics) {
-            (true, true) => rec.dispatch_linear(&RASTER_BACKWARD, groups, &bufs, &p)?,
-            (true, false) => {
-                rec.dispatch_linear(&RASTER_BACKWARD_CAS, groups, &bufs, bytemuck::cast_ref(&p))?
-            }
-            (false, true) => rec.dispatch_linear(
-                &RASTER_BACKWARD_PLAIN,
-                groups,
-                &bufs,
-                bytemuck::cast_ref(&p),
-            )?,
-            (false, false) => rec.dispatch_linear(
-                &RASTER_BACKWARD_PLAIN_CAS,
-                groups,
-                &bufs,
-                bytemuck::cast_ref(&p),
-            )?,
+        let columns = self.settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+        // The variants share one push-constant layout (one generated type
+        // each).
+        macro_rules! blend_backward {
+            ($kernel:expr) => {
+                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
+            };
+        }
+        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
+            (false, true, true) => blend_backward!(RASTER_BACKWARD),
+            (false, true, false) => blend_backward!(RASTER_BACKWARD_CAS),
+            (false, false, true) => blend_backward!(RASTER_BACKWARD_PLAIN),
+            (false, false, false) => blend_backward!(RASTER_BACKWARD_PLAIN_CAS),
+            (true, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS),
+            (true, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_CAS),
+            (true, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN),
+            (true, false, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
         }
         rec.dispatch_linear(
             &PROJECT_BACKWARD,

@@ -158,24 +158,30 @@ fn check_forward(ctx: &Context, r: &mut impl Rng, sizes: &[(u32, u32)], n: usize
         .collect();
     let host = awkward_scene(r, n, &cams);
     let buf = upload(ctx, &host);
-    let mut raster = Rasterizer::new(ctx);
-    raster.settings.background = bg;
-    let views = gpu_render(ctx, &mut raster, &buf, n as u64, &cams);
     let gs = Gaussian::all(&host);
     let bg64 = bg.map(|v| v as f64);
-    let mut visible = 0;
-    for (v, cam) in cams.iter().enumerate() {
-        visible += gs
-            .iter()
-            .filter(|g| reference::project(g, cam).is_some())
-            .count();
-        let want = reference::render(&gs, cam, bg64);
-        let what = format!("view {v} ({}x{})", cam.width, cam.height);
-        assert_view_matches(&views[v], &want, &what, 0.003);
+    for layout in LAYOUTS {
+        let mut raster = Rasterizer::new(ctx);
+        raster.settings.background = bg;
+        raster.settings.layout = layout;
+        let views = gpu_render(ctx, &mut raster, &buf, n as u64, &cams);
+        let mut visible = 0;
+        for (v, cam) in cams.iter().enumerate() {
+            visible += gs
+                .iter()
+                .filter(|g| reference::project(g, cam).is_some())
+                .count();
+            let want = reference::render(&gs, cam, bg64);
+            let what = format!("{layout:?}: view {v} ({}x{})", cam.width, cam.height);
+            assert_view_matches(&views[v], &want, &what, 0.003);
+        }
+        assert_eq!(raster.stats().visible, visible as u64);
+        assert!(visible > 0, "the scene must be visible");
     }
-    assert_eq!(raster.stats().visible, visible as u64);
-    assert!(visible > 0, "the scene must be visible");
 }
+
+/// Both pixel-to-invocation mappings of the blending kernels.
+const LAYOUTS: [BlendLayout; 2] = [BlendLayout::Pixels, BlendLayout::Columns];
 
 #[test]
 fn forward_matches_reference_on_random_scenes() {
@@ -197,12 +203,15 @@ fn forward_handles_many_tiles_and_batches() {
             m.iter_mut().for_each(|v| *v *= 0.3);
         }
         let buf = upload(ctx, &host);
-        let mut raster = Rasterizer::new(ctx);
-        let views = gpu_render(ctx, &mut raster, &buf, 1500, &cams);
         let want = reference::render(&Gaussian::all(&host), &cams[0], [0.0; 3]);
-        // 1500 Gaussians in a small cube: near-ties in depth are common.
-        assert_view_matches(&views[0], &want, "deep tiles", 0.03);
-        assert!(raster.stats().intersections > 1500);
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            let views = gpu_render(ctx, &mut raster, &buf, 1500, &cams);
+            // 1500 Gaussians in a small cube: near-ties in depth are common.
+            assert_view_matches(&views[0], &want, &format!("{layout:?}: deep tiles"), 0.03);
+            assert!(raster.stats().intersections > 1500);
+        }
     });
 }
 
@@ -276,30 +285,32 @@ fn check_backward_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
     let host = awkward_scene(&mut r, n, &cams);
     let buf = upload(ctx, &host);
     let grads = GaussianBuffers::new(ctx, "test_grads", n as u64).unwrap();
-    let mut raster = Rasterizer::new(ctx);
-    raster.settings.background = [0.3, 0.1, 0.7];
-    raster.settings.detach_query_gradients = detach;
-    raster.forward(&buf, n as u64, &cams).unwrap();
     let up = random_upstream(&mut r, &cams);
-    upload_upstream(ctx, &raster, &up);
-    let mut rec = ctx.recorder().unwrap();
-    grads.record_fill(&mut rec, 0x7fc0_0000);
-    rec.submit().unwrap().wait().unwrap();
-    raster.backward(&buf, &grads).unwrap();
-    let got = Gaussian::all(&grads.download(ctx, n as u64).unwrap());
-
     let gs = Gaussian::all(&host);
     let want = reference::backward(&gs, &cams, [0.3, 0.1, 0.7], &up, detach).grads;
-    for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
-        assert!(
-            a.iter().all(|v| v.is_finite()),
-            "{name}: non-finite gradient"
-        );
-        let e = rel_err(&a, &b);
-        assert!(
-            e < 2e-3,
-            "{name} gradients differ from the reference: relative error {e:e}"
-        );
+    for layout in LAYOUTS {
+        let mut raster = Rasterizer::new(ctx);
+        raster.settings.background = [0.3, 0.1, 0.7];
+        raster.settings.detach_query_gradients = detach;
+        raster.settings.layout = layout;
+        raster.forward(&buf, n as u64, &cams).unwrap();
+        upload_upstream(ctx, &raster, &up);
+        let mut rec = ctx.recorder().unwrap();
+        grads.record_fill(&mut rec, 0x7fc0_0000);
+        rec.submit().unwrap().wait().unwrap();
+        raster.backward(&buf, &grads).unwrap();
+        let got = Gaussian::all(&grads.download(ctx, n as u64).unwrap());
+        for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
+            assert!(
+                a.iter().all(|v| v.is_finite()),
+                "{layout:?}: {name}: non-finite gradient"
+            );
+            let e = rel_err(&a, &b);
+            assert!(
+                e < 2e-3,
+                "{layout:?}: {name} gradients differ from the reference: relative error {e:e}"
+            );
+        }
     }
 }
 
@@ -615,45 +626,49 @@ fn degenerate_gaussians_do_not_poison_others() {
         host.log_scales[19] = [f32::NAN, 0.0, 0.0];
         let buf = upload(ctx, &host);
         let grads = GaussianBuffers::new(ctx, "test_grads", n as u64).unwrap();
-        let mut raster = Rasterizer::new(ctx);
-        raster.forward(&buf, n as u64, &cams).unwrap();
-        let empty = raster.download_view(1).unwrap();
-        assert!(empty.alpha.iter().all(|&a| a == 0.0));
-        assert!(empty.rgbd.iter().all(|c| c == &[0.0; 4]));
         let up = random_upstream(&mut r, &cams);
-        upload_upstream(ctx, &raster, &up);
-        raster.backward(&buf, &grads).unwrap();
-        let got = grads.download(ctx, n as u64).unwrap();
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            raster.forward(&buf, n as u64, &cams).unwrap();
+            let empty = raster.download_view(1).unwrap();
+            assert!(empty.alpha.iter().all(|&a| a == 0.0));
+            assert!(empty.rgbd.iter().all(|c| c == &[0.0; 4]));
+            upload_upstream(ctx, &raster, &up);
+            raster.backward(&buf, &grads).unwrap();
+            let got = grads.download(ctx, n as u64).unwrap();
 
-        // The reference without the broken Gaussians (NaN ones are culled,
-        // so they must not matter); the zero-scale one stays in.
-        let broken = [3usize, 11, 13, 17, 19];
-        let mut gs = Gaussian::all(&host);
-        for b in [3usize, 11, 13, 19] {
-            gs[b].mean = [0.0, 0.0, 1e9]; // far away: never visible
-        }
-        // Gaussian 17 stays visible with an infinite query channel; with the
-        // query gradients detached that reaches nobody else's gradients.
-        gs[17].query = [0.0; QUERY_DIM];
-        let want = reference::backward(&gs, &cams, [0.0; 3], &up, true).grads;
-        let got64 = Gaussian::all(&got);
-        for i in 0..n {
-            if broken.contains(&i) && i != 17 {
-                continue;
+            // The reference without the broken Gaussians (NaN ones are culled,
+            // so they must not matter); the zero-scale one stays in.
+            let broken = [3usize, 11, 13, 17, 19];
+            let mut gs = Gaussian::all(&host);
+            for b in [3usize, 11, 13, 19] {
+                gs[b].mean = [0.0, 0.0, 1e9]; // far away: never visible
             }
-            for ((name, a), (_, b)) in kinds(&got64[i..=i]).into_iter().zip(kinds(&want[i..=i])) {
-                if i == 17 && name == "query" {
+            // Gaussian 17 stays visible with an infinite query channel; with the
+            // query gradients detached that reaches nobody else's gradients.
+            gs[17].query = [0.0; QUERY_DIM];
+            let want = reference::backward(&gs, &cams, [0.0; 3], &up, true).grads;
+            let got64 = Gaussian::all(&got);
+            for i in 0..n {
+                if broken.contains(&i) && i != 17 {
                     continue;
                 }
-                assert!(
-                    a.iter().all(|v| v.is_finite()),
-                    "Gaussian {i} {name}: {a:?}"
-                );
-                let e = rel_err(&a, &b);
-                assert!(
-                    e < 5e-3 || b.iter().all(|v| v.abs() < 1e-6),
-                    "Gaussian {i} {name}: {a:?} vs {b:?}"
-                );
+                for ((name, a), (_, b)) in kinds(&got64[i..=i]).into_iter().zip(kinds(&want[i..=i]))
+                {
+                    if i == 17 && name == "query" {
+                        continue;
+                    }
+                    assert!(
+                        a.iter().all(|v| v.is_finite()),
+                        "{layout:?}: Gaussian {i} {name}: {a:?}"
+                    );
+                    let e = rel_err(&a, &b);
+                    assert!(
+                        e < 5e-3 || b.iter().all(|v| v.abs() < 1e-6),
+                        "{layout:?}: Gaussian {i} {name}: {a:?} vs {b:?}"
+                    );
+                }
             }
         }
     });
