@@ -5,25 +5,28 @@
 // up to its last contributor, and the final transmittance. CPU reference:
 // engine/src/reference/raster.rs (`render`).
 //
-// Each invocation blends ROWS pixels of one tile column (rows y, y + 16/ROWS,
-// ...). ROWS = 1 is the usual one-pixel-per-thread layout for GPUs. CPU
-// drivers run a subgroup as SIMD lanes and emulate every buffer or shared
-// load lane by lane, and they execute both sides of every branch; there a
-// Gaussian's data is better loaded once for a whole column (ROWS = 16),
-// which cuts the loads per tested (pixel, Gaussian) pair sixteenfold.
+// raster_forward gives each invocation one pixel, the usual layout for
+// GPUs. CPU drivers run a subgroup as SIMD lanes, emulate every buffer or
+// shared-memory load lane by lane, and execute both sides of every branch;
+// there (raster_forward_columns) each of 8 invocations blends two 16-pixel
+// columns of the tile (x and x + 8), so a Gaussian's data is loaded once for
+// 32 pixels, and branches become selects.
 //
 // @kernel raster_forward ROWS=1
-// @kernel raster_forward_columns ROWS=16
+// @kernel raster_forward_columns ROWS=32
 #version 450
 #include "common.glsl"
 #include "splat.glsl"
 
 #define BATCH 256u
 #define QUERY_VEC4 8u
-#define STRIDE (16u / ROWS)
 #define INVOCATIONS (256u / ROWS)
 
-layout(local_size_x = 16, local_size_y = STRIDE) in;
+#if ROWS == 1
+layout(local_size_x = 16, local_size_y = 16) in;
+#else
+layout(local_size_x = 8, local_size_y = 1) in;
+#endif
 
 layout(std430, set = 0, binding = 0) readonly buffer Views { View views[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Colors { float colors[]; };
@@ -63,28 +66,44 @@ void main() {
     }
     View v = views[vi];
     uint local_tile = tile - v.offsets.x;
-    uint px = (local_tile % v.size.z) * TILE_SIZE + gl_LocalInvocationID.x;
-    uint py0 = (local_tile / v.size.z) * TILE_SIZE + gl_LocalInvocationID.y;
     uint t = gl_LocalInvocationIndex;
-
     uvec2 range = ranges[tile];
     uint n = range.y - range.x;
+
+#if ROWS == 1
+    uint px = (local_tile % v.size.z) * TILE_SIZE + gl_LocalInvocationID.x;
+    uint py = (local_tile / v.size.z) * TILE_SIZE + gl_LocalInvocationID.y;
+    bool inside = px < v.size.x && py < v.size.y;
+    bool done = !inside;
+    float trans = 1.0;
+    vec4 rgbd = vec4(0.0);
+    vec4 q[QUERY_VEC4];
+    for (uint c = 0u; c < QUERY_VEC4; c++) {
+        q[c] = vec4(0.0);
+    }
+    uint walked = 0u;
+#else
+    uint px0 = (local_tile % v.size.z) * TILE_SIZE + t;
+    uint py0 = (local_tile / v.size.z) * TILE_SIZE;
+    // Per pixel K (column x0 + t + 8 (K / 16), row y0 + K % 16); indexed by
+    // constants only, so they stay in registers.
     float trans[ROWS];
     vec4 rgbd[ROWS];
     vec4 q[ROWS * QUERY_VEC4];
     uint walked[ROWS];
     bool done[ROWS];
     uint active = 0u;
-    for (uint k = 0u; k < ROWS; k++) {
-        trans[k] = 1.0;
-        rgbd[k] = vec4(0.0);
-        for (uint c = 0u; c < QUERY_VEC4; c++) {
-            q[k * QUERY_VEC4 + c] = vec4(0.0);
-        }
-        walked[k] = 0u;
-        done[k] = !(px < v.size.x && py0 + STRIDE * k < v.size.y);
-        active += done[k] ? 0u : 1u;
-    }
+#unroll K 32
+    trans[K] = 1.0;
+    rgbd[K] = vec4(0.0);
+#unroll C 8
+    q[K * QUERY_VEC4 + C] = vec4(0.0);
+#endunroll
+    walked[K] = 0u;
+    done[K] = !(px0 + 8u * (K / 16u) < v.size.x && py0 + K % 16u < v.size.y);
+    active += done[K] ? 0u : 1u;
+#endunroll
+#endif
 
     for (uint base = 0u; base < n; base += BATCH) {
         barrier();
@@ -98,82 +117,95 @@ void main() {
         }
         barrier();
         uint count = min(BATCH, n - base);
+#if ROWS == 1
+        for (uint j = 0u; j < count && !done; j++) {
+            vec4 s = sh_splat[j];
+            vec3 conic = sh_conic[j];
+            vec2 d = s.xy - vec2(float(px), float(py));
+            float sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
+            if (sigma < 0.0) {
+                continue;
+            }
+            float alpha = min(MAX_ALPHA, s.w * exp(-sigma));
+            if (alpha < MIN_ALPHA) {
+                continue;
+            }
+            float next = trans * (1.0 - alpha);
+            if (next < 1e-4) {
+                done = true;
+                break;
+            }
+            float w = alpha * trans;
+            uint g = sh_gaussian[j];
+            rgbd += w * vec4(colors[3u * g], colors[3u * g + 1u], colors[3u * g + 2u], s.z);
+            for (uint c = 0u; c < QUERY_VEC4; c++) {
+                q[c] += w * queries[QUERY_VEC4 * g + c];
+            }
+            trans = next;
+            walked = base + j + 1u;
+        }
+#else
         for (uint j = 0u; j < count && active > 0u; j++) {
             vec4 s = sh_splat[j];
             vec3 conic = sh_conic[j];
             uint g = sh_gaussian[j];
-#if ROWS > 1
-            // Loaded once for the column (see the top comment).
             vec4 f = vec4(colors[3u * g], colors[3u * g + 1u], colors[3u * g + 2u], s.z);
             vec4 fq[QUERY_VEC4];
-            for (uint c = 0u; c < QUERY_VEC4; c++) {
-                fq[c] = queries[QUERY_VEC4 * g + c];
-            }
-#endif
-            for (uint k = 0u; k < ROWS; k++) {
-                vec2 d = s.xy - vec2(float(px), float(py0 + STRIDE * k));
+#unroll C 8
+            fq[C] = queries[QUERY_VEC4 * g + C];
+#endunroll
+#unroll K 32
+            {
+                vec2 d = s.xy - vec2(float(px0 + 8u * (K / 16u)), float(py0 + K % 16u));
                 float sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
                 float alpha = min(MAX_ALPHA, s.w * exp(-sigma));
-                float next = trans[k] * (1.0 - alpha);
-#if ROWS == 1
-                if (done[k] || sigma < 0.0 || alpha < MIN_ALPHA) {
-                    continue;
-                }
-                if (next < 1e-4) {
-                    done[k] = true;
-                    active -= 1u;
-                    continue;
-                }
-                float w = alpha * trans[k];
-                vec4 f = vec4(colors[3u * g], colors[3u * g + 1u], colors[3u * g + 2u], s.z);
-                vec4 fq[QUERY_VEC4];
-                for (uint c = 0u; c < QUERY_VEC4; c++) {
-                    fq[c] = queries[QUERY_VEC4 * g + c];
-                }
-#else
-                // Selects instead of branches: the CPU driver runs both sides.
-                bool hit = !done[k] && sigma >= 0.0 && alpha >= MIN_ALPHA;
+                float next = trans[K] * (1.0 - alpha);
+                bool hit = !done[K] && sigma >= 0.0 && alpha >= MIN_ALPHA;
                 bool stop = hit && next < 1e-4;
-                done[k] = done[k] || stop;
+                done[K] = done[K] || stop;
                 active -= stop ? 1u : 0u;
                 hit = hit && !stop;
-                float w = hit ? alpha * trans[k] : 0.0;
-                next = hit ? next : trans[k];
-#endif
-#if ROWS == 1
-                rgbd[k] += w * f;
-                for (uint c = 0u; c < QUERY_VEC4; c++) {
-                    q[k * QUERY_VEC4 + c] += w * fq[c];
-                }
-#else
-                // Selected, not multiplied by zero: a Gaussian with a NaN
-                // colour must not reach pixels it does not cover.
-                rgbd[k] = hit ? rgbd[k] + w * f : rgbd[k];
-                for (uint c = 0u; c < QUERY_VEC4; c++) {
-                    q[k * QUERY_VEC4 + c] = hit ? q[k * QUERY_VEC4 + c] + w * fq[c] : q[k * QUERY_VEC4 + c];
-                }
-#endif
-#if ROWS > 1
-                walked[k] = hit ? base + j + 1u : walked[k];
-#else
-                walked[k] = base + j + 1u;
-#endif
-                trans[k] = next;
+                float w = alpha * trans[K];
+                // Selected, not multiplied by a zero weight: a Gaussian with
+                // a non-finite colour must not reach pixels it does not cover.
+                rgbd[K] = hit ? rgbd[K] + w * f : rgbd[K];
+#unroll C 8
+                q[K * QUERY_VEC4 + C] = hit ? q[K * QUERY_VEC4 + C] + w * fq[C] : q[K * QUERY_VEC4 + C];
+#endunroll
+                walked[K] = hit ? base + j + 1u : walked[K];
+                trans[K] = hit ? next : trans[K];
             }
+#endunroll
         }
+#endif
     }
 
     vec3 bg = vec3(pc.bg_r, pc.bg_g, pc.bg_b);
-    for (uint k = 0u; k < ROWS; k++) {
-        uint py = py0 + STRIDE * k;
+#if ROWS == 1
+    if (inside) {
+        uint p = v.offsets.y + py * v.size.x + px;
+        out_rgbd[p] = vec4(rgbd.xyz + trans * bg, rgbd.w);
+        out_alpha[p] = 1.0 - trans;
+        for (uint c = 0u; c < QUERY_VEC4; c++) {
+            out_query[QUERY_VEC4 * p + c] = q[c];
+        }
+        out_state[p] = uvec2(walked, floatBitsToUint(trans));
+    }
+#else
+#unroll K 32
+    {
+        uint px = px0 + 8u * (K / 16u);
+        uint py = py0 + K % 16u;
         if (px < v.size.x && py < v.size.y) {
             uint p = v.offsets.y + py * v.size.x + px;
-            out_rgbd[p] = vec4(rgbd[k].xyz + trans[k] * bg, rgbd[k].w);
-            out_alpha[p] = 1.0 - trans[k];
-            for (uint c = 0u; c < QUERY_VEC4; c++) {
-                out_query[QUERY_VEC4 * p + c] = q[k * QUERY_VEC4 + c];
-            }
-            out_state[p] = uvec2(walked[k], floatBitsToUint(trans[k]));
+            out_rgbd[p] = vec4(rgbd[K].xyz + trans[K] * bg, rgbd[K].w);
+            out_alpha[p] = 1.0 - trans[K];
+#unroll C 8
+            out_query[QUERY_VEC4 * p + C] = q[K * QUERY_VEC4 + C];
+#endunroll
+            out_state[p] = uvec2(walked[K], floatBitsToUint(trans[K]));
         }
     }
+#endunroll
+#endif
 }

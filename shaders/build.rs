@@ -16,6 +16,12 @@
 //! * `// @capabilities NAME ...` lists the naga validator capabilities the
 //!   kernel needs beyond push constants (e.g. `SHADER_FLOAT32_ATOMIC`,
 //!   `SUBGROUP`); nothing else is enabled.
+//! * `#unroll NAME COUNT` ... `#endunroll` (GLSL and WGSL, per variant):
+//!   the lines between are written COUNT times (a number or a variant's
+//!   KEY) with every whole-word NAME replaced by `0u`, `1u`, ... Array
+//!   indices then are constants, so per-invocation arrays stay in registers:
+//!   drivers do not unroll large loop bodies themselves, and some (CPU ones)
+//!   turn dynamically indexed local arrays into memory accessed lane by lane.
 //!
 //! IR fix-up: naga 30's GLSL front end lowers `barrier()` to a control barrier
 //! with *every* flag set, and its SPIR-V writer then picks Subgroup execution
@@ -228,6 +234,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
         for (k, v) in &defs {
             options.defines.insert(k.clone(), v.clone());
         }
+        let (expanded, map) = expand_unroll(&expanded, &map, &defs, &file)?;
         let mut frontend = naga::front::glsl::Frontend::default();
         let mut module = frontend.parse(&options, &expanded).map_err(|errs| {
             let mut s = String::new();
@@ -282,6 +289,104 @@ fn variants(raw: &str, file: &str) -> Result<Vec<(String, Defines)>, String> {
     Ok(out)
 }
 
+/// An open `#unroll` block: the name, the count, and the body lines with
+/// the index of the input line each came from.
+type UnrollBlock = (String, u32, Vec<(String, usize)>);
+
+/// Expands `#unroll NAME COUNT` / `#endunroll` blocks (which may nest) of
+/// `text`, whose line `i` comes from `map.lines[i]`; returns the new text
+/// and its line map.
+fn expand_unroll(
+    text: &str,
+    map: &LineMap,
+    defs: &[(String, String)],
+    file: &str,
+) -> Result<(String, LineMap), String> {
+    let mut out = String::with_capacity(text.len());
+    let mut lines = Vec::new();
+    let origin = |i: usize| {
+        map.lines
+            .get(i)
+            .cloned()
+            .unwrap_or((PathBuf::from(file), i as u32 + 1))
+    };
+    // Open blocks, innermost last.
+    let mut blocks: Vec<UnrollBlock> = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if let Some(rest) = t.strip_prefix("#unroll ") {
+            let mut parts = rest.split_whitespace();
+            let (Some(name), Some(count), None) = (parts.next(), parts.next(), parts.next()) else {
+                return Err(format!(
+                    "{}: expected `#unroll NAME COUNT`",
+                    map.describe(i as u32 + 1)
+                ));
+            };
+            let value = defs
+                .iter()
+                .find(|(k, _)| k == count)
+                .map_or(count, |(_, v)| v.as_str());
+            let count: u32 = value.parse().map_err(|_| {
+                format!(
+                    "{}: `#unroll` count `{count}` is neither a number nor a variant key",
+                    map.describe(i as u32 + 1)
+                )
+            })?;
+            blocks.push((name.to_string(), count, Vec::new()));
+        } else if t == "#endunroll" {
+            let (name, count, body) = blocks.pop().ok_or_else(|| {
+                format!(
+                    "{}: `#endunroll` without `#unroll`",
+                    map.describe(i as u32 + 1)
+                )
+            })?;
+            for k in 0..count {
+                for (l, at) in &body {
+                    let l = replace_word(l, &name, &format!("{k}u"));
+                    match blocks.last_mut() {
+                        Some((_, _, outer)) => outer.push((l, *at)),
+                        None => {
+                            out.push_str(&l);
+                            out.push('\n');
+                            lines.push(origin(*at));
+                        }
+                    }
+                }
+            }
+        } else if let Some((_, _, body)) = blocks.last_mut() {
+            body.push((line.to_string(), i));
+        } else {
+            out.push_str(line);
+            out.push('\n');
+            lines.push(origin(i));
+        }
+    }
+    if !blocks.is_empty() {
+        return Err(format!("{file}: `#unroll` without `#endunroll`"));
+    }
+    Ok((out, LineMap { lines }))
+}
+
+/// `line` with every whole-word (identifier) occurrence of `name` replaced.
+fn replace_word(line: &str, name: &str, with: &str) -> String {
+    let is_ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let mut out = String::with_capacity(line.len());
+    let mut rest = line;
+    while let Some(at) = rest.find(name) {
+        let before = rest[..at].chars().next_back();
+        let after = rest[at + name.len()..].chars().next();
+        out.push_str(&rest[..at]);
+        if before.is_some_and(is_ident) || after.is_some_and(is_ident) {
+            out.push_str(name);
+        } else {
+            out.push_str(with);
+        }
+        rest = &rest[at + name.len()..];
+    }
+    out.push_str(rest);
+    out
+}
+
 /// WGSL has no preprocessor; variants select code with whole-line
 /// `#if KEY` / `#else` / `#endif` (KEY is true when defined and not `0`).
 /// Removed lines become empty so error positions stay those of the file.
@@ -305,9 +410,10 @@ fn preprocess_wgsl(text: &str, defs: &[(String, String)], file: &str) -> Result<
             stack
                 .pop()
                 .ok_or_else(|| format!("{file}:{}: `#endif` without `#if`", i + 1))?;
-        } else if t.starts_with('#') {
+        } else if t.starts_with('#') && !t.starts_with("#unroll ") && t != "#endunroll" {
             return Err(format!(
-                "{file}:{}: unknown directive `{t}` (WGSL kernels support #if/#else/#endif)",
+                "{file}:{}: unknown directive `{t}` (WGSL kernels support #if/#else/#endif \
+                 and #unroll/#endunroll)",
                 i + 1
             ));
         } else if outer {
@@ -339,6 +445,7 @@ fn compile_wgsl_file(path: &Path) -> Result<Vec<KernelOut>, String> {
     let mut out = Vec::new();
     for (variant, defs) in runs {
         let text = preprocess_wgsl(&raw, &defs, &file)?;
+        let (text, map) = expand_unroll(&text, &map, &defs, &file)?;
         let mut module = naga::front::wgsl::parse_str(&text).map_err(|e| {
             let at = e
                 .location(&text)

@@ -27,17 +27,26 @@
 // @kernel raster_backward_cas SUBGROUP=1 CAS=1 COLUMNS=0
 // @kernel raster_backward_plain SUBGROUP=0 CAS=0 COLUMNS=0
 // @kernel raster_backward_plain_cas SUBGROUP=0 CAS=1 COLUMNS=0
-// @kernel raster_backward_columns SUBGROUP=1 CAS=0 COLUMNS=1
-// @kernel raster_backward_columns_cas SUBGROUP=1 CAS=1 COLUMNS=1
-// @kernel raster_backward_columns_plain SUBGROUP=0 CAS=0 COLUMNS=1
-// @kernel raster_backward_columns_plain_cas SUBGROUP=0 CAS=1 COLUMNS=1
+// @kernel raster_backward_columns SUBGROUP=1 CAS=0 COLUMNS=1 ATTACHED=0
+// @kernel raster_backward_columns_cas SUBGROUP=1 CAS=1 COLUMNS=1 ATTACHED=0
+// @kernel raster_backward_columns_plain SUBGROUP=0 CAS=0 COLUMNS=1 ATTACHED=0
+// @kernel raster_backward_columns_plain_cas SUBGROUP=0 CAS=1 COLUMNS=1 ATTACHED=0
+// @kernel raster_backward_columns_attached SUBGROUP=1 CAS=0 COLUMNS=1 ATTACHED=1
+// @kernel raster_backward_columns_attached_cas SUBGROUP=1 CAS=1 COLUMNS=1 ATTACHED=1
+// @kernel raster_backward_columns_attached_plain SUBGROUP=0 CAS=0 COLUMNS=1 ATTACHED=1
+// @kernel raster_backward_columns_attached_plain_cas SUBGROUP=0 CAS=1 COLUMNS=1 ATTACHED=1
+//
+// In the COLUMNS variants whether the query gradients reach opacity and
+// geometry is fixed at compile time (ATTACHED), since a run-time branch
+// costs its full work there even when not taken.
 
 const TILE_SIZE: u32 = 16u;
 const BATCH: u32 = 256u;
 #if COLUMNS
-// Pixels per invocation, and invocations per workgroup.
-const ROWS: u32 = 16u;
-const INVOCATIONS: u32 = 16u;
+// Pixels per invocation (two tile columns: t and t + 8), and invocations
+// per workgroup.
+const ROWS: u32 = 32u;
+const INVOCATIONS: u32 = 8u;
 #else
 const ROWS: u32 = 1u;
 const INVOCATIONS: u32 = 256u;
@@ -159,7 +168,7 @@ var<workgroup> wg_walk_atomic: atomic<u32>;
 var<workgroup> wg_walk: u32;
 
 #if COLUMNS
-@compute @workgroup_size(16)
+@compute @workgroup_size(8)
 #else
 @compute @workgroup_size(256)
 #endif
@@ -184,56 +193,70 @@ fn raster_backward(
     }
     let v = views[vi];
     let local_tile = tile - v.offsets.x;
-    let px = (local_tile % v.size.z) * TILE_SIZE + t;
+    let px0 = (local_tile % v.size.z) * TILE_SIZE + t;
     let py0 = (local_tile / v.size.z) * TILE_SIZE;
     let bg = vec3<f32>(pc.bg_r, pc.bg_g, pc.bg_b);
-    let detach = pc.detach_query != 0u;
+#if ATTACHED
+#else
+    // Keeps the query bindings in the interface every variant shares.
+    if (pc.n_tiles == 0xffffffffu) {
+        _ = queries[0];
+        _ = query_image[0];
+    }
+#endif
 
-    // Each pixel's forward results, upstream gradients and running sums.
+    // Each pixel's forward results, upstream gradients and running sums,
+    // indexed by constants only (unrolled below).
     var walked: array<u32, ROWS>;
-    var t_final: array<f32, ROWS>;
     var c_final: array<vec4<f32>, ROWS>;
     var v_rgbd: array<vec4<f32>, ROWS>;
     var bg_term: array<f32, ROWS>;
     var trans: array<f32, ROWS>;
     var c_acc: array<vec4<f32>, ROWS>;
-    var v_q: array<vec4<f32>, 128>;
-    var q_final: array<vec4<f32>, 128>;
-    var q_acc: array<vec4<f32>, 128>;
+    var v_q: array<vec4<f32>, 256>;
+#if ATTACHED
+    var q_final: array<vec4<f32>, 256>;
+    var q_acc: array<vec4<f32>, 256>;
+#endif
     var my_walk = 0u;
-    for (var k = 0u; k < ROWS; k++) {
-        let py = py0 + k;
-        walked[k] = 0u;
-        t_final[k] = 1.0;
-        c_final[k] = vec4<f32>(0.0);
-        v_rgbd[k] = vec4<f32>(0.0);
-        trans[k] = 1.0;
-        c_acc[k] = vec4<f32>(0.0);
+#unroll K 32
+    {
+        let px = px0 + 8u * (K / 16u);
+        let py = py0 + K % 16u;
+        walked[K] = 0u;
+        var t_final = 1.0;
+        c_final[K] = vec4<f32>(0.0);
+        v_rgbd[K] = vec4<f32>(0.0);
+        trans[K] = 1.0;
+        c_acc[K] = vec4<f32>(0.0);
         var v_alpha_out = 0.0;
-        for (var c = 0u; c < 8u; c++) {
-            v_q[8u * k + c] = vec4<f32>(0.0);
-            q_final[8u * k + c] = vec4<f32>(0.0);
-            q_acc[8u * k + c] = vec4<f32>(0.0);
-        }
+#unroll C 8
+        v_q[8u * K + C] = vec4<f32>(0.0);
+#if ATTACHED
+        q_final[8u * K + C] = vec4<f32>(0.0);
+        q_acc[8u * K + C] = vec4<f32>(0.0);
+#endif
+#endunroll
         if (px < v.size.x && py < v.size.y) {
             let p = v.offsets.y + py * v.size.x + px;
             let st = state[p];
-            walked[k] = st.x;
-            t_final[k] = bitcast<f32>(st.y);
+            walked[K] = st.x;
+            t_final = bitcast<f32>(st.y);
             let out = rgbd[p];
-            c_final[k] = vec4<f32>(out.xyz - t_final[k] * bg, out.w);
-            v_rgbd[k] = grad_rgbd[p];
+            c_final[K] = vec4<f32>(out.xyz - t_final * bg, out.w);
+            v_rgbd[K] = grad_rgbd[p];
             v_alpha_out = grad_alpha[p];
-            for (var c = 0u; c < 8u; c++) {
-                v_q[8u * k + c] = grad_query[8u * p + c];
-                if (!detach) {
-                    q_final[8u * k + c] = query_image[8u * p + c];
-                }
-            }
+#unroll C 8
+            v_q[8u * K + C] = grad_query[8u * p + C];
+#if ATTACHED
+            q_final[8u * K + C] = query_image[8u * p + C];
+#endif
+#endunroll
         }
-        bg_term[k] = (v_alpha_out - dot(bg, v_rgbd[k].xyz)) * t_final[k];
-        my_walk = max(my_walk, walked[k]);
+        bg_term[K] = (v_alpha_out - dot(bg, v_rgbd[K].xyz)) * t_final;
+        my_walk = max(my_walk, walked[K]);
     }
+#endunroll
 
     if (t == 0u) {
         atomicStore(&wg_walk_atomic, 0u);
@@ -271,43 +294,47 @@ fn raster_backward(
                 colors[3u * gaussian + 2u],
                 s.z
             );
+#if ATTACHED
             var f_q: array<vec4<f32>, 8>;
-            for (var c = 0u; c < 8u; c++) {
-                f_q[c] = vec4<f32>(0.0);
-                if (!detach) {
-                    f_q[c] = queries[8u * gaussian + c];
-                }
-            }
+#unroll C 8
+            f_q[C] = queries[8u * gaussian + C];
+#endunroll
+#endif
             var g: Grads;
             g.rgbd = vec4<f32>(0.0);
-            for (var c = 0u; c < 8u; c++) {
-                g.query[c] = vec4<f32>(0.0);
-            }
+#unroll C 8
+            g.query[C] = vec4<f32>(0.0);
+#endunroll
             g.mean_opacity = vec4<f32>(0.0);
             g.conic = vec4<f32>(0.0);
-            for (var k = 0u; k < ROWS; k++) {
-                let d = s.xy - vec2<f32>(f32(px), f32(py0 + k));
+#unroll K 32
+            {
+                let d = s.xy - vec2<f32>(f32(px0 + 8u * (K / 16u)), f32(py0 + K % 16u));
                 let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
                 let vis = exp(-sigma);
                 let alpha = min(MAX_ALPHA, s.w * vis);
-                let hit = base + j < walked[k] && sigma >= 0.0 && alpha >= MIN_ALPHA;
-                let w = alpha * trans[k];
-                let acc = c_acc[k] + w * f_rgbd;
+                let hit = base + j < walked[K] && sigma >= 0.0 && alpha >= MIN_ALPHA;
+                let w = alpha * trans[K];
+                let acc = c_acc[K] + w * f_rgbd;
                 let ra = 1.0 / (1.0 - alpha);
-                var v_alpha = bg_term[k] * ra
-                    + dot(v_rgbd[k], f_rgbd * trans[k] - (c_final[k] - acc) * ra);
+                var v_alpha = bg_term[K] * ra
+                    + dot(v_rgbd[K], f_rgbd * trans[K] - (c_final[K] - acc) * ra);
                 // Selected, not multiplied by a zero weight: a non-finite
                 // value must not reach pixels the Gaussian does not cover.
-                c_acc[k] = select(c_acc[k], acc, hit);
-                g.rgbd = select(g.rgbd, g.rgbd + w * v_rgbd[k], hit);
-                for (var c = 0u; c < 8u; c++) {
-                    g.query[c] = select(g.query[c], g.query[c] + w * v_q[8u * k + c], hit);
-                    if (!detach) {
-                        let qa = q_acc[8u * k + c] + w * f_q[c];
-                        q_acc[8u * k + c] = select(q_acc[8u * k + c], qa, hit);
-                        v_alpha += dot(v_q[8u * k + c], f_q[c] * trans[k] - (q_final[8u * k + c] - qa) * ra);
-                    }
+                c_acc[K] = select(c_acc[K], acc, hit);
+                g.rgbd = select(g.rgbd, g.rgbd + w * v_rgbd[K], hit);
+#unroll C 8
+                g.query[C] = select(g.query[C], g.query[C] + w * v_q[8u * K + C], hit);
+#endunroll
+#if ATTACHED
+#unroll C 8
+                {
+                    let qa = q_acc[8u * K + C] + w * f_q[C];
+                    q_acc[8u * K + C] = select(q_acc[8u * K + C], qa, hit);
+                    v_alpha += dot(v_q[8u * K + C], f_q[C] * trans[K] - (q_final[8u * K + C] - qa) * ra);
                 }
+#endunroll
+#endif
                 // Clamped alphas do not depend on opacity or shape.
                 let shaped = hit && s.w * vis <= MAX_ALPHA;
                 let v_sigma = -s.w * vis * v_alpha;
@@ -323,13 +350,14 @@ fn raster_backward(
                     vis * v_alpha,
                     0.0
                 ), shaped);
-                trans[k] = select(trans[k], trans[k] * (1.0 - alpha), hit);
+                trans[K] = select(trans[K], trans[K] * (1.0 - alpha), hit);
             }
+#endunroll
 #if SUBGROUP
             g.rgbd = subgroupAdd(g.rgbd);
-            for (var c = 0u; c < 8u; c++) {
-                g.query[c] = subgroupAdd(g.query[c]);
-            }
+#unroll C 8
+            g.query[C] = subgroupAdd(g.query[C]);
+#endunroll
             g.mean_opacity = subgroupAdd(g.mean_opacity);
             g.conic = subgroupAdd(g.conic);
             if (lane == 0u) {

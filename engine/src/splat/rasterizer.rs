@@ -20,9 +20,12 @@
 
 use latentam_shaders::{
     push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_BACKWARD, PROJECT_FORWARD,
-    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS, RASTER_BACKWARD_COLUMNS_CAS,
-    RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS, RASTER_BACKWARD_PLAIN,
-    RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLUMNS, TILE_RANGES,
+    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS,
+    RASTER_BACKWARD_COLUMNS_ATTACHED, RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
+    RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
+    RASTER_BACKWARD_COLUMNS_CAS, RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
+    RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLUMNS,
+    TILE_RANGES,
 };
 
 use super::views::BatchLayout;
@@ -573,15 +576,23 @@ impl Rasterizer {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
             };
         }
-        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
-            (false, true, true) => blend_backward!(RASTER_BACKWARD),
-            (false, true, false) => blend_backward!(RASTER_BACKWARD_CAS),
-            (false, false, true) => blend_backward!(RASTER_BACKWARD_PLAIN),
-            (false, false, false) => blend_backward!(RASTER_BACKWARD_PLAIN_CAS),
-            (true, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS),
-            (true, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_CAS),
-            (true, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN),
-            (true, false, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
+        let attached = !self.settings.detach_query_gradients;
+        let (sub, native) = (info.subgroup_arithmetic, info.native_float_atomics);
+        match (columns, attached, sub, native) {
+            (false, _, true, true) => blend_backward!(RASTER_BACKWARD),
+            (false, _, true, false) => blend_backward!(RASTER_BACKWARD_CAS),
+            (false, _, false, true) => blend_backward!(RASTER_BACKWARD_PLAIN),
+            (false, _, false, false) => blend_backward!(RASTER_BACKWARD_PLAIN_CAS),
+            (true, false, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS),
+            (true, false, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_CAS),
+            (true, false, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN),
+            (true, false, false, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
+            (true, true, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED),
+            (true, true, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_CAS),
+            (true, true, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN),
+            (true, true, false, false) => {
+                blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS)
+            }
         }
         rec.dispatch_linear(
             &PROJECT_BACKWARD,
