@@ -107,6 +107,25 @@ fn bench_raster_writes_json_with_times_and_kernels() {
     assert!(v["intersections"].as_u64().unwrap() > 0);
     assert!(v["forward_ms_median"].as_f64().unwrap() > 0.0);
     assert!(v["backward_ms_median"].as_f64().unwrap() > 0.0);
+    // The work counts nest: every contributor is tested by both passes, and
+    // backward stops at each pixel's last contributor.
+    let w = &v["work"];
+    let count = |k: &str| w[k].as_u64().unwrap();
+    assert!(count("contributing") > 0, "{w}");
+    assert!(count("contributing") <= count("tested_backward"), "{w}");
+    assert!(count("tested_backward") <= count("tested_forward"), "{w}");
+    assert_eq!(count("pixels"), 2 * 40 * 30);
+    let r = &v["roofline"];
+    let f = |k: &str| r[k].as_f64().unwrap();
+    assert!(f("machine_gflops") > 0.0 && f("machine_gbps") > 0.0, "{r}");
+    assert!(f("bound_ms") > 0.0, "{r}");
+    assert!(
+        (f("ratio") - f("measured_ms") / f("bound_ms")).abs() < 1e-9 * f("ratio"),
+        "{r}"
+    );
+    let measured =
+        v["forward_ms_median"].as_f64().unwrap() + v["backward_ms_median"].as_f64().unwrap();
+    assert!((f("measured_ms") - measured).abs() < 1e-9 * measured, "{r}");
     let names = names(&v["kernels"]);
     for want in [
         "project_forward",
