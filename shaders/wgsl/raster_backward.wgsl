@@ -180,7 +180,6 @@ fn raster_backward(
     @builtin(subgroup_invocation_id) lane: u32,
 #endif
 ) {
-#if COLUMNS
     let tile = wid.y * nwg.x + wid.x;
     if (tile >= pc.n_tiles) {
         return;
@@ -193,6 +192,7 @@ fn raster_backward(
     }
     let v = views[vi];
     let local_tile = tile - v.offsets.x;
+#if COLUMNS
     let px0 = (local_tile % v.size.z) * TILE_SIZE + t;
     let py0 = (local_tile / v.size.z) * TILE_SIZE;
     let bg = vec3<f32>(pc.bg_r, pc.bg_g, pc.bg_b);
@@ -369,18 +369,6 @@ fn raster_backward(
         }
     }
 #else
-    let tile = wid.y * nwg.x + wid.x;
-    if (tile >= pc.n_tiles) {
-        return;
-    }
-    var vi = 0u;
-    for (var k = 1u; k < pc.n_views; k++) {
-        if (views[k].offsets.x <= tile) {
-            vi = k;
-        }
-    }
-    let v = views[vi];
-    let local_tile = tile - v.offsets.x;
     let px = (local_tile % v.size.z) * TILE_SIZE + t % TILE_SIZE;
     let py = (local_tile / v.size.z) * TILE_SIZE + t / TILE_SIZE;
     let inside = px < v.size.x && py < v.size.y;
