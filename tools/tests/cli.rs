@@ -1,12 +1,7 @@
 //! End-to-end tests of the `latentam` binary.
 
-use std::process::Command;
-
-fn latentam() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
-    c.env("LATENTAM_VALIDATION", "1");
-    c
-}
+mod common;
+use common::{latentam, write_npy};
 
 /// Runs `latentam bench <args> --json FILE`, checks it succeeded and
 /// returns the parsed JSON.
@@ -436,23 +431,6 @@ fn fails_clearly(cases: &[(Vec<&std::ffi::OsStr>, i32, &str)]) {
             "{args:?}: {err}"
         );
     }
-}
-
-/// A `.npy` file holding one f32 vector.
-fn write_npy(path: &std::path::Path, v: &[f32]) {
-    let mut header = format!(
-        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}",
-        v.len()
-    );
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
-    std::fs::write(path, bytes).unwrap();
 }
 
 #[test]

@@ -4,43 +4,18 @@
 //! Killing the process (SIGKILL) during mapping and during saves leaves a
 //! loadable state every time.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+mod common;
+use common::{gen_scene, scratch};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::read_ply;
 use latentam::mapper::{Mapper, STATE_FILE};
 
 fn latentam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_latentam"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn gen_scene(dir: &Path, frames: usize) -> PathBuf {
-    let log = dir.join("scene.mcap");
-    let out = latentam()
-        .args([
-            "gen-scene",
-            "--width",
-            "120",
-            "--height",
-            "90",
-            "--dim",
-            "64",
-        ])
-        .args(["--frames", &frames.to_string(), "-o"])
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    log
 }
 
 fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {

@@ -5,21 +5,17 @@
 //! and Ctrl-C during mapping followed by `--resume`.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::path::Path;
+use std::process::{Output, Stdio};
 
+mod common;
+use common::{gen_scene, latentam, scratch, write_npy, SCENE_DIM};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_ply, read_tum, read_vocabulary, AssemblyConfig, McapFrames};
 use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
 
 const FRAMES: usize = 32;
-const DIM: usize = 64;
-
-fn latentam() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
-    c.env("LATENTAM_VALIDATION", "1");
-    c
-}
+const DIM: usize = SCENE_DIM;
 
 fn ok(out: Output) -> String {
     let stdout = String::from_utf8_lossy(&out.stdout).to_string();
@@ -31,44 +27,8 @@ fn ok(out: Output) -> String {
     stdout
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn gen_scene(dir: &Path, frames: usize) -> PathBuf {
-    let log = dir.join("scene.mcap");
-    ok(latentam()
-        .args(["gen-scene", "--width", "120", "--height", "90"])
-        .args(["--frames", &frames.to_string(), "--dim", &DIM.to_string()])
-        .arg("--out")
-        .arg(&log)
-        .output()
-        .unwrap());
-    log
-}
-
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
-/// A `.npy` file holding one f32 vector.
-fn write_npy(path: &Path, v: &[f32]) {
-    let mut header = format!(
-        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}",
-        v.len()
-    );
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
-    std::fs::write(path, bytes).unwrap();
 }
 
 fn cosine(a: &[f32], b: &[f32]) -> f64 {

@@ -1,0 +1,66 @@
+//! Helpers shared by the integration tests of the `latentam` binary.
+
+// Each test file uses a different subset.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Embedding dimension of the logs [`gen_scene`] writes.
+pub const SCENE_DIM: usize = 64;
+
+/// The binary under test, with the Vulkan validation layer required.
+pub fn latentam() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
+    c.env("LATENTAM_VALIDATION", "1");
+    c
+}
+
+/// An empty folder of this test process's own.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A generated log of `frames` frames of 120×90 with [`SCENE_DIM`]-d
+/// embeddings, written to `dir/scene.mcap`.
+pub fn gen_scene(dir: &Path, frames: usize) -> PathBuf {
+    let log = dir.join("scene.mcap");
+    let out = latentam()
+        .args(["gen-scene", "--width", "120", "--height", "90"])
+        .args([
+            "--frames",
+            &frames.to_string(),
+            "--dim",
+            &SCENE_DIM.to_string(),
+        ])
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "gen-scene failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    log
+}
+
+/// A `.npy` file holding one f32 vector.
+pub fn write_npy(path: &Path, v: &[f32]) {
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}",
+        v.len()
+    );
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
+    std::fs::write(path, bytes).unwrap();
+}
