@@ -71,6 +71,13 @@ struct Work {
     contributing: u64,
     /// Pixels of the batch.
     pixels: u64,
+    /// (tile, list entry) pairs walked until every pixel of the tile is
+    /// saturated: what kernels moving a whole tile in step walk.
+    tile_entries_walked: u64,
+    /// (tile, list entry) pairs up to each tile's last contributor.
+    tile_entries_walked_backward: u64,
+    /// (tile, list entry) pairs contributing to at least one pixel.
+    tile_entries_contributing: u64,
 }
 
 /// The measured times against the machine's limits.
@@ -158,6 +165,9 @@ fn blend_work(host: &HostGaussians, cams: &[Camera]) -> Work {
         w.tested_backward += v.tested_backward;
         w.contributing += v.contributing;
         w.pixels += cam.pixels();
+        w.tile_entries_walked += v.tile_entries_walked;
+        w.tile_entries_walked_backward += v.tile_entries_walked_backward;
+        w.tile_entries_contributing += v.tile_entries_contributing;
     }
     w
 }
@@ -392,6 +402,10 @@ pub fn run(b: RasterBench) -> Result<()> {
         w.tested_backward,
         w.contributing,
         w.contributing as f64 / w.pixels.max(1) as f64
+    );
+    println!(
+        "tile-list entries: {} walked forward, {} backward, {} contributing to a pixel",
+        w.tile_entries_walked, w.tile_entries_walked_backward, w.tile_entries_contributing
     );
     println!(
         "machine: {:.1} GFLOP/s (FMA probe), {:.1} GB/s (copy); needed: forward {:.3} GFLOP \

@@ -343,6 +343,15 @@ pub struct BlendWork {
     /// Pairs that contribute to the pixel (blended in forward, differentiated
     /// in backward).
     pub contributing: u64,
+    /// (tile, list entry) pairs walked by a tile until every pixel of it is
+    /// saturated (or its list ends): the work of kernels that move a whole
+    /// tile through its list in step.
+    pub tile_entries_walked: u64,
+    /// (tile, list entry) pairs up to the tile's last contributor.
+    pub tile_entries_walked_backward: u64,
+    /// (tile, list entry) pairs that contribute to at least one pixel of
+    /// the tile.
+    pub tile_entries_contributing: u64,
 }
 
 /// Counts the blending work of one view (see [`BlendWork`]), walking each
@@ -361,15 +370,31 @@ pub fn blend_work(gs: &[Gaussian], cam: &Camera) -> BlendWork {
         }
     }
     let mut work = BlendWork::default();
+    let n_tiles = lists.len();
+    let mut walked = vec![0u64; n_tiles];
+    let mut walked_backward = vec![0u64; n_tiles];
+    let mut contributes: Vec<Vec<bool>> = lists.iter().map(|l| vec![false; l.len()]).collect();
     for py in 0..cam.height {
         for px in 0..cam.width {
-            let list = &lists[((py / TILE_SIZE) * tiles_x + px / TILE_SIZE) as usize];
-            let (contribs, _, tested) = blend_pixel(list, px, py);
+            let tile = ((py / TILE_SIZE) * tiles_x + px / TILE_SIZE) as usize;
+            let (contribs, _, tested) = blend_pixel(&lists[tile], px, py);
+            let last = contribs.last().map_or(0, |c| c.list_index as u64 + 1);
             work.tested += tested as u64;
             work.contributing += contribs.len() as u64;
-            work.tested_backward += contribs.last().map_or(0, |c| c.list_index as u64 + 1);
+            work.tested_backward += last;
+            walked[tile] = walked[tile].max(tested as u64);
+            walked_backward[tile] = walked_backward[tile].max(last);
+            for c in &contribs {
+                contributes[tile][c.list_index] = true;
+            }
         }
     }
+    work.tile_entries_walked = walked.iter().sum();
+    work.tile_entries_walked_backward = walked_backward.iter().sum();
+    work.tile_entries_contributing = contributes
+        .iter()
+        .map(|c| c.iter().filter(|&&b| b).count() as u64)
+        .sum();
     work
 }
 
