@@ -21,6 +21,12 @@
 // a Gaussian's data is loaded once per column, its gradients are summed
 // over the column in registers before the subgroup sum and the atomics, and
 // branches become selects, since those drivers run both sides anyway.
+// There the 8 invocations of a tile are one subgroup (the host picks the
+// SUBGROUP column variants only for subgroups of exactly 8): a shuffle
+// butterfly leaves the tile's sums in every invocation, and each adds a
+// share of them, so every atomic instruction does 8 useful additions. CPU
+// drivers run subgroup reductions and atomics lane by lane, and flushing a
+// Gaussian from one invocation cost as much as blending it.
 //
 // @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
 // @kernel raster_backward SUBGROUP=1 CAS=0 COLUMNS=0
@@ -160,6 +166,15 @@ fn flush(g: Grads, gaussian: u32, pair: u32) {
     add_splat(8u * pair + 5u, g.conic.y);
     add_splat(8u * pair + 6u, g.conic.z);
 }
+
+#if SUBGROUP
+// Sum over the 8 invocations of a column-layout tile, in every invocation.
+fn lane_sum(x: vec4<f32>) -> vec4<f32> {
+    var y = x + subgroupShuffleXor(x, 1u);
+    y += subgroupShuffleXor(y, 2u);
+    return y + subgroupShuffleXor(y, 4u);
+}
+#endif
 
 var<workgroup> sh_pair: array<u32, BATCH>;
 var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
@@ -354,14 +369,33 @@ fn raster_backward(
             }
 #endunroll
 #if SUBGROUP
-            g.rgbd = subgroupAdd(g.rgbd);
+            g.rgbd = lane_sum(g.rgbd);
 #unroll C 8
-            g.query[C] = subgroupAdd(g.query[C]);
+            g.query[C] = lane_sum(g.query[C]);
 #endunroll
-            g.mean_opacity = subgroupAdd(g.mean_opacity);
-            g.conic = subgroupAdd(g.conic);
-            if (lane == 0u) {
-                flush(g, gaussian, pair);
+            g.mean_opacity = lane_sum(g.mean_opacity);
+            g.conic = lane_sum(g.conic);
+            // Every lane holds the sums; lane l adds query channels 4l..4l+3,
+            // colour channel l and splat gradient l.
+            var mine = g.query[0];
+#unroll C 8
+            mine = select(mine, g.query[C], lane == C);
+#endunroll
+            add_query(32u * gaussian + 4u * lane, mine.x);
+            add_query(32u * gaussian + 4u * lane + 1u, mine.y);
+            add_query(32u * gaussian + 4u * lane + 2u, mine.z);
+            add_query(32u * gaussian + 4u * lane + 3u, mine.w);
+            if (lane < 3u) {
+                add_color(3u * gaussian + lane, select(select(g.rgbd.z, g.rgbd.y, lane == 1u), g.rgbd.x, lane == 0u));
+            }
+            if (lane < 7u) {
+                // Splat gradient order: mean x, mean y, depth, opacity, conic a, b, c.
+                let sv = array<f32, 7>(g.mean_opacity.x, g.mean_opacity.y, g.rgbd.w, g.mean_opacity.z, g.conic.x, g.conic.y, g.conic.z);
+                var v = sv[0];
+#unroll C 7
+                v = select(v, sv[C], lane == C);
+#endunroll
+                add_splat(8u * pair + lane, v);
             }
 #else
             flush(g, gaussian, pair);

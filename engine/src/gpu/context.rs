@@ -57,8 +57,9 @@ pub struct ContextOptions {
     pub float_atomics: FloatAtomics,
     /// GPU memory budget in bytes for this context (`None` = device limits).
     pub memory_budget: Option<u64>,
-    /// Use subgroup arithmetic (`subgroupAdd`) where the device supports it
-    /// in compute shaders; `false` selects kernels that do without.
+    /// Use subgroup operations (`subgroupAdd`, shuffles) where the device
+    /// supports them in compute shaders; `false` selects kernels that do
+    /// without.
     pub subgroup_arithmetic: bool,
 }
 
@@ -99,6 +100,9 @@ pub struct DeviceInfo {
     /// Whether kernels use subgroup arithmetic (supported in compute and
     /// allowed by [`ContextOptions::subgroup_arithmetic`]).
     pub subgroup_arithmetic: bool,
+    /// Whether kernels use subgroup shuffles (supported in compute and
+    /// allowed by [`ContextOptions::subgroup_arithmetic`]).
+    pub subgroup_shuffle: bool,
     /// Nanoseconds per timestamp tick; `None` when the compute queue has no
     /// timestamps.
     pub timestamp_period_ns: Option<f64>,
@@ -734,6 +738,13 @@ fn open_device(
                     | vk::SubgroupFeatureFlags::VOTE
                     | vk::SubgroupFeatureFlags::ARITHMETIC,
             ),
+        subgroup_shuffle: options.subgroup_arithmetic
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup
+                .supported_operations
+                .contains(vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE),
         timestamp_period_ns,
         max_storage_buffer_range: limits.max_storage_buffer_range as u64,
         max_workgroup_count: limits.max_compute_work_group_count,

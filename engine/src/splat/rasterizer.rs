@@ -577,7 +577,14 @@ impl Rasterizer {
             };
         }
         let attached = !self.settings.detach_query_gradients;
-        let (sub, native) = (info.subgroup_arithmetic, info.native_float_atomics);
+        // The column kernels sum a tile's 8 invocations with a shuffle
+        // butterfly, which needs them to be exactly one subgroup.
+        let sub = if columns {
+            info.subgroup_shuffle && info.subgroup_size == 8
+        } else {
+            info.subgroup_arithmetic
+        };
+        let native = info.native_float_atomics;
         match (columns, attached, sub, native) {
             (false, _, true, true) => blend_backward!(RASTER_BACKWARD),
             (false, _, true, false) => blend_backward!(RASTER_BACKWARD_CAS),
