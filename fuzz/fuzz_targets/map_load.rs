@@ -245,6 +245,17 @@ fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
     out
 }
 
+/// A tensor's data offsets (start, end) and element width, where its header
+/// states them.
+fn extent(header: &Map<String, Value>, tensor: &str) -> Option<(usize, usize, usize)> {
+    let t = &header[tensor];
+    Some((
+        t["data_offsets"][0].as_u64()? as usize,
+        t["data_offsets"][1].as_u64()? as usize,
+        width(t["dtype"].as_str()?),
+    ))
+}
+
 fn width(dtype: &str) -> usize {
     match dtype {
         "F64" | "I64" => 8,
@@ -381,15 +392,10 @@ fn edit(bytes: &[u8], edits: &[Edit]) -> Vec<u8> {
                 value,
             } => {
                 let Some(t) = pick(*tensor) else { continue };
-                let (Some(s), Some(e), Some(d)) = (
-                    header[&t]["data_offsets"][0].as_u64(),
-                    header[&t]["data_offsets"][1].as_u64(),
-                    header[&t]["dtype"].as_str(),
-                ) else {
+                let Some((s, e, w)) = extent(&header, &t) else {
                     continue;
                 };
-                let w = width(d);
-                let (s, e) = (s as usize, (e as usize).min(data.len()));
+                let e = e.min(data.len());
                 let count = e.saturating_sub(s) / w;
                 if count > 0 {
                     let i = s + (*index as usize % count) * w;
@@ -398,21 +404,16 @@ fn edit(bytes: &[u8], edits: &[Edit]) -> Vec<u8> {
             }
             Edit::Resize { tensor, len, fill } => {
                 let Some(t) = pick(*tensor) else { continue };
-                let (Some(s), Some(e), Some(d)) = (
-                    header[&t]["data_offsets"][0].as_u64(),
-                    header[&t]["data_offsets"][1].as_u64(),
-                    header[&t]["dtype"].as_str(),
-                ) else {
+                let Some((s, e, w)) = extent(&header, &t) else {
                     continue;
                 };
-                let (s, e) = (s as usize, e as usize);
                 if s > e || e > data.len() {
                     continue;
                 }
-                let new = *len as usize % 512 * width(d);
+                let new = *len as usize % 512 * w;
                 let shift = new as i64 - (e - s) as i64;
                 data.splice(s..e, std::iter::repeat_n(*fill, new));
-                header[&t]["shape"] = vec![(new / width(d)) as u64].into();
+                header[&t]["shape"] = vec![(new / w) as u64].into();
                 header[&t]["data_offsets"] = vec![s as u64, (s + new) as u64].into();
                 for (k, v) in header.iter_mut() {
                     if *k == t || k == "__metadata__" {

@@ -182,6 +182,21 @@ var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
 var<workgroup> wg_walk_atomic: atomic<u32>;
 var<workgroup> wg_walk: u32;
 
+// The largest `mine` over the workgroup (invocation `t`), uniform: how far
+// the tile walks its list.
+fn tile_max(t: u32, mine: u32) -> u32 {
+    if (t == 0u) {
+        atomicStore(&wg_walk_atomic, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&wg_walk_atomic, mine);
+    workgroupBarrier();
+    if (t == 0u) {
+        wg_walk = atomicLoad(&wg_walk_atomic);
+    }
+    return workgroupUniformLoad(&wg_walk);
+}
+
 #if COLUMNS
 @compute @workgroup_size(8)
 #else
@@ -273,16 +288,7 @@ fn raster_backward(
     }
 #endunroll
 
-    if (t == 0u) {
-        atomicStore(&wg_walk_atomic, 0u);
-    }
-    workgroupBarrier();
-    atomicMax(&wg_walk_atomic, my_walk);
-    workgroupBarrier();
-    if (t == 0u) {
-        wg_walk = atomicLoad(&wg_walk_atomic);
-    }
-    let tile_walk = workgroupUniformLoad(&wg_walk);
+    let tile_walk = tile_max(t, my_walk);
     let start = ranges[tile].x;
 
     for (var base = 0u; base < tile_walk; base += BATCH) {
@@ -435,16 +441,7 @@ fn raster_backward(
     // The background term of every alpha gradient.
     let bg_term = (v_alpha_out - dot(bg, v_rgbd.xyz)) * t_final;
 
-    if (t == 0u) {
-        atomicStore(&wg_walk_atomic, 0u);
-    }
-    workgroupBarrier();
-    atomicMax(&wg_walk_atomic, walked);
-    workgroupBarrier();
-    if (t == 0u) {
-        wg_walk = atomicLoad(&wg_walk_atomic);
-    }
-    let tile_walk = workgroupUniformLoad(&wg_walk);
+    let tile_walk = tile_max(t, walked);
     let start = ranges[tile].x;
 
     var trans = 1.0;

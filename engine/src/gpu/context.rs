@@ -723,28 +723,28 @@ fn open_device(
         .max()
         .unwrap_or(0);
     let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
+    // Subgroup operations kernels may use: allowed, and supported in compute.
+    let subgroup_ops = |ops: vk::SubgroupFeatureFlags| {
+        options.subgroup_arithmetic
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup.supported_operations.contains(ops)
+    };
     let info = DeviceInfo {
         name: c.name,
         device_type: c.props.device_type,
         api_version: c.props.api_version,
         native_float_atomics,
         subgroup_size: subgroup.subgroup_size,
-        subgroup_arithmetic: options.subgroup_arithmetic
-            && subgroup
-                .supported_stages
-                .contains(vk::ShaderStageFlags::COMPUTE)
-            && subgroup.supported_operations.contains(
-                vk::SubgroupFeatureFlags::BASIC
-                    | vk::SubgroupFeatureFlags::VOTE
-                    | vk::SubgroupFeatureFlags::ARITHMETIC,
-            ),
-        subgroup_shuffle: options.subgroup_arithmetic
-            && subgroup
-                .supported_stages
-                .contains(vk::ShaderStageFlags::COMPUTE)
-            && subgroup
-                .supported_operations
-                .contains(vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE),
+        subgroup_arithmetic: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC
+                | vk::SubgroupFeatureFlags::VOTE
+                | vk::SubgroupFeatureFlags::ARITHMETIC,
+        ),
+        subgroup_shuffle: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE,
+        ),
         timestamp_period_ns,
         max_storage_buffer_range: limits.max_storage_buffer_range as u64,
         max_workgroup_count: limits.max_compute_work_group_count,

@@ -53,6 +53,12 @@ fn split(bytes: &[u8]) -> Option<(Map<String, Value>, Vec<u8>)> {
     ok.then(|| (header, bytes[8 + n..].to_vec()))
 }
 
+/// The name of one of the header's tensors, at random.
+fn random_tensor(header: &Map<String, Value>, rng: &mut impl Rng) -> String {
+    let names: Vec<&String> = header.keys().filter(|k| *k != "__metadata__").collect();
+    names[rng.random_range(0..names.len())].clone()
+}
+
 fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
     let h = serde_json::to_vec(header).unwrap();
     let mut out = (h.len() as u64).to_le_bytes().to_vec();
@@ -174,12 +180,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
         }
         6 | 7 => {
             // A tensor's shape edited (sizes may or may not still agree).
-            let names: Vec<String> = header
-                .keys()
-                .filter(|k| *k != "__metadata__")
-                .cloned()
-                .collect();
-            let name = names[rng.random_range(0..names.len())].clone();
+            let name = random_tensor(&header, rng);
             let t = header[&name].as_object_mut().unwrap();
             let mut shape: Vec<u64> = t["shape"]
                 .as_array()
@@ -213,12 +214,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
         }
         8 => {
             // A tensor's type or offsets edited.
-            let names: Vec<String> = header
-                .keys()
-                .filter(|k| *k != "__metadata__")
-                .cloned()
-                .collect();
-            let name = names[rng.random_range(0..names.len())].clone();
+            let name = random_tensor(&header, rng);
             let t = header[&name].as_object_mut().unwrap();
             let what = if rng.random_bool(0.5) {
                 let d = [
@@ -235,12 +231,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
         }
         9 => {
             // A tensor removed, or renamed.
-            let names: Vec<String> = header
-                .keys()
-                .filter(|k| *k != "__metadata__")
-                .cloned()
-                .collect();
-            let name = names[rng.random_range(0..names.len())].clone();
+            let name = random_tensor(&header, rng);
             let t = header.remove(&name).unwrap();
             if rng.random_bool(0.5) {
                 header.insert(format!("{name}x"), t);
@@ -251,12 +242,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
         }
         _ => {
             // Extreme values written over a tensor's elements.
-            let names: Vec<String> = header
-                .keys()
-                .filter(|k| *k != "__metadata__")
-                .cloned()
-                .collect();
-            let name = names[rng.random_range(0..names.len())].clone();
+            let name = random_tensor(&header, rng);
             let t = &header[&name];
             let (s, e) = (
                 t["data_offsets"][0].as_u64().unwrap() as usize,
