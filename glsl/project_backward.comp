@@ -2,8 +2,9 @@
 // depth and opacity (accumulated by raster_backward) to every Gaussian's
 // mean, log-scale, quaternion (through its normalisation) and opacity logit.
 // One thread per Gaussian, looping over the views, so views combine without
-// atomics. Overwrites those four gradient fields (colour and query gradients
-// come from raster_backward). CPU reference: engine/src/reference/raster.rs
+// atomics. Overwrites those four gradient fields, or adds to them when
+// `accumulate` is set (a batch streamed through the rasterizer one chunk of
+// views at a time; colour and query gradients come from raster_backward). CPU reference: engine/src/reference/raster.rs
 // (`projection_backward`).
 #version 450
 #include "common.glsl"
@@ -26,6 +27,7 @@ layout(std430, set = 0, binding = 10) buffer GradLogits { float grad_opacity_log
 layout(push_constant) uniform Params {
     uint n_gaussians;
     uint n_views;
+    uint accumulate;
 } pc;
 
 // dL/dq for R = quat_to_rotmat(q), q = (w, x, y, z) unit; vr[col][row].
@@ -114,6 +116,13 @@ void main() {
         vec4 q = quat / p.qnorm;
         vec4 v_qhat = quat_to_rotmat_vjp(q, v_rot);
         v_quat += (v_qhat - dot(v_qhat, q) * q) / p.qnorm;
+    }
+    if (pc.accumulate != 0u) {
+        v_mean += vec3(grad_means[3u * g], grad_means[3u * g + 1u], grad_means[3u * g + 2u]);
+        v_log_scale += vec3(grad_log_scales[3u * g], grad_log_scales[3u * g + 1u],
+                            grad_log_scales[3u * g + 2u]);
+        v_quat += grad_quats[g];
+        v_logit += grad_opacity_logits[g];
     }
     grad_means[3u * g] = v_mean.x;
     grad_means[3u * g + 1u] = v_mean.y;

@@ -1,5 +1,6 @@
 // Region pooling: the mean rendered query of each region's pixels,
-//     pooled[r, c] = (1/|r|) sum_{p in r} query[p, c]
+//     pooled[first_row + r, c] = (1/|r|) sum_{p in r} query[p, c]
+// (first_row places a chunk of views' regions among the batch's rows)
 // over a CSR list of pixel indices (built on the CPU, so no atomics). One
 // workgroup per region: 8 pixel lanes x 32 channels, lanes summed in shared
 // memory. Regions are never empty (the builder drops small ones). CPU
@@ -19,6 +20,7 @@ layout(std430, set = 0, binding = 3) buffer Pooled { float pooled[]; };
 
 layout(push_constant) uniform Params {
     uint regions;
+    uint first_row;
 } pc;
 
 shared float partial[LANES * CHANNELS];
@@ -46,6 +48,6 @@ void main() {
         barrier();
     }
     if (lane == 0u) {
-        pooled[r * CHANNELS + c] = partial[c] / float(end - begin);
+        pooled[(pc.first_row + r) * CHANNELS + c] = partial[c] / float(end - begin);
     }
 }

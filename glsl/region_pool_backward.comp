@@ -1,5 +1,5 @@
 // Gradient of region pooling with respect to the rendered query image:
-//     grad_query[p, c] = grad_pooled[r(p), c] / |r(p)|,  0 for pixels in no region
+//     grad_query[p, c] = grad_pooled[first_row + r(p), c] / |r(p)|,  0 for pixels in no region
 // Regions are disjoint (one label per pixel), so each pixel has at most one
 // region and the whole image gradient is overwritten without atomics. One
 // thread per (pixel, channel). CPU reference: engine/src/reference/pooling.rs.
@@ -19,6 +19,7 @@ layout(std430, set = 0, binding = 3) buffer GradQuery { float grad_query[]; };
 
 layout(push_constant) uniform Params {
     uint pixels;
+    uint first_row;
 } pc;
 
 void main() {
@@ -31,7 +32,7 @@ void main() {
     uint r = pixel_region[p];
     float g = 0.0;
     if (r != NO_REGION) {
-        g = grad_pooled[r * CHANNELS + c] / float(offsets[r + 1u] - offsets[r]);
+        g = grad_pooled[(pc.first_row + r) * CHANNELS + c] / float(offsets[r + 1u] - offsets[r]);
     }
     grad_query[i] = g;
 }

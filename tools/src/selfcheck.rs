@@ -28,6 +28,14 @@ pub fn devices() -> Result<()> {
         "  max storage buffer:    {} MiB",
         i.max_storage_buffer_range >> 20
     );
+    println!(
+        "  max allocation:        {} MiB",
+        i.max_memory_allocation_size >> 20
+    );
+    println!(
+        "  device-local memory:   {} MiB",
+        i.device_local_bytes >> 20
+    );
     println!("set LATENTAM_DEVICE=<index or name> to choose another device");
     Ok(())
 }

@@ -53,11 +53,23 @@ fn category(name: &str) -> &str {
 impl Buffer {
     pub(crate) fn new(ctx: &Context, name: &str, bytes: u64, kind: BufferKind) -> Result<Self> {
         let dev = &ctx.dev;
-        if kind == BufferKind::Device && bytes > dev.info.max_storage_buffer_range {
+        if kind == BufferKind::Device && bytes > dev.info.max_buffer_bytes() {
             return Err(Error::Unsupported(format!(
                 "buffer `{name}` needs {bytes} bytes but {} binds at most {} bytes per storage \
-                 buffer",
-                dev.info.name, dev.info.max_storage_buffer_range
+                 buffer and allocates at most {} at once",
+                dev.info.name,
+                dev.info.max_storage_buffer_range,
+                dev.info.max_memory_allocation_size
+            )));
+        }
+        let alloc_limit = match dev.info.max_memory_allocation_size {
+            0 => u64::MAX,
+            n => n,
+        };
+        if kind != BufferKind::Device && bytes > alloc_limit {
+            return Err(Error::Unsupported(format!(
+                "staging buffer `{name}` needs {bytes} bytes but {} allocates at most {} at once",
+                dev.info.name, dev.info.max_memory_allocation_size
             )));
         }
         // Vulkan forbids empty buffers; keep the logical size separately.

@@ -108,6 +108,9 @@ pub struct DeviceInfo {
     pub timestamp_period_ns: Option<f64>,
     /// Largest storage-buffer binding, in bytes.
     pub max_storage_buffer_range: u64,
+    /// Largest single memory allocation, in bytes (Vulkan 1.1
+    /// `maxMemoryAllocationSize`).
+    pub max_memory_allocation_size: u64,
     /// Largest workgroup count per dimension.
     pub max_workgroup_count: [u32; 3],
     /// Shared memory per workgroup, in bytes.
@@ -121,6 +124,21 @@ pub struct DeviceInfo {
     /// Size of the largest device-local memory heap, bytes (system memory
     /// on CPU drivers).
     pub device_local_bytes: u64,
+}
+
+impl DeviceInfo {
+    /// The largest buffer the engine creates for kernels: one binding
+    /// ([`DeviceInfo::max_storage_buffer_range`]) in one allocation
+    /// ([`DeviceInfo::max_memory_allocation_size`]). Arrays that grow with
+    /// the map or the images are sized or chunked against it.
+    pub fn max_buffer_bytes(&self) -> u64 {
+        let alloc = if self.max_memory_allocation_size == 0 {
+            u64::MAX
+        } else {
+            self.max_memory_allocation_size
+        };
+        self.max_storage_buffer_range.min(alloc)
+    }
 }
 
 /// Validation messages collected from the debug messenger. Tests hold a clone
@@ -618,8 +636,11 @@ fn open_device(
         && options.float_atomics == FloatAtomics::Auto;
 
     let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+    let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
     {
-        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup);
+        let mut props2 = vk::PhysicalDeviceProperties2::default()
+            .push_next(&mut subgroup)
+            .push_next(&mut maintenance3);
         // SAFETY: valid chain.
         unsafe { instance.get_physical_device_properties2(p, &mut props2) };
     }
@@ -747,6 +768,7 @@ fn open_device(
         ),
         timestamp_period_ns,
         max_storage_buffer_range: limits.max_storage_buffer_range as u64,
+        max_memory_allocation_size: maintenance3.max_memory_allocation_size,
         max_workgroup_count: limits.max_compute_work_group_count,
         max_shared_memory: limits.max_compute_shared_memory_size,
         dedicated_transfer_queue: transfer.is_some(),

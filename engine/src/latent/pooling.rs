@@ -264,8 +264,10 @@ fn nearest(i: u32, n: u32, m: u32) -> u32 {
 pub struct RegionPooling {
     max_regions: u32,
     max_pixels: u64,
-    /// Regions and pixels of the last recorded upload.
+    /// Regions, their first pooled row and pixels of the last recorded
+    /// upload.
     regions: Cell<u32>,
+    first_row: Cell<u32>,
     pixels: Cell<u64>,
     offsets: Buffer,
     members: Buffer,
@@ -281,6 +283,7 @@ impl RegionPooling {
             max_regions,
             max_pixels,
             regions: Cell::new(0),
+            first_row: Cell::new(0),
             pixels: Cell::new(0),
             offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
             members: Buffer::device(ctx, "pooling/members", p * 4)?,
@@ -306,10 +309,25 @@ impl RegionPooling {
     /// Records the upload of a batch's region lists, to run before the
     /// pooling passes recorded after it (in the same or a later submission).
     pub fn record_upload<'a>(&'a self, rec: &mut Recorder<'a>, regions: &Regions) -> Result<()> {
+        self.record_upload_at(rec, regions, 0)
+    }
+
+    /// [`Self::record_upload`] for one chunk of a batch's views: its regions
+    /// are pooled into (and their gradients read from) rows `first_row..` of
+    /// the batch's pooled rows, so a batch can be rendered a chunk at a
+    /// time into one set of rows.
+    pub fn record_upload_at<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        regions: &Regions,
+        first_row: u32,
+    ) -> Result<()> {
         let pixels = regions.pixel_region.len() as u64;
-        if regions.len() > self.max_regions || pixels > self.max_pixels {
+        let rows = first_row as u64 + regions.len() as u64;
+        if rows > self.max_regions as u64 || pixels > self.max_pixels {
             return Err(Error::InvalidArgument(format!(
-                "{} regions over {pixels} pixels; region pooling was sized for {} over {}",
+                "{} regions from row {first_row} over {pixels} pixels; region pooling was sized \
+                 for {} over {}",
                 regions.len(),
                 self.max_regions,
                 self.max_pixels
@@ -319,6 +337,7 @@ impl RegionPooling {
         rec.upload(&self.members, 0, &regions.pixels)?;
         rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
         self.regions.set(regions.len());
+        self.first_row.set(first_row);
         self.pixels.set(pixels);
         Ok(())
     }
@@ -337,6 +356,7 @@ impl RegionPooling {
             &[query_image, &self.offsets, &self.members, &self.pooled],
             &push::RegionPool {
                 regions: self.regions(),
+                first_row: self.first_row.get(),
             },
         )
     }
@@ -351,7 +371,7 @@ impl RegionPooling {
     ) -> Result<()> {
         self.check_image(grad_query_image)?;
         grad_pooled.ensure_bytes(
-            self.regions() as u64 * QUERY_DIM as u64 * 4,
+            (self.first_row.get() + self.regions()) as u64 * QUERY_DIM as u64 * 4,
             "region pooling backward: pooled gradient",
         )?;
         let elems = self.pixels.get() * QUERY_DIM as u64;
@@ -366,6 +386,7 @@ impl RegionPooling {
             ],
             &push::RegionPoolBackward {
                 pixels: self.pixels.get() as u32,
+                first_row: self.first_row.get(),
             },
         )
     }
@@ -523,44 +544,63 @@ mod tests {
             let c = QUERY_DIM;
             let image: Vec<f32> = (0..pixels * c).map(|_| r.random_range(-1.0..1.0)).collect();
             let n = regions.len() as usize;
-            let grad: Vec<f32> = (0..n * c).map(|_| r.random_range(-1.0..1.0)).collect();
-            let pool = RegionPooling::new(ctx, 64, layout.pixels).unwrap();
-            let ib = ctx.upload_new("test/image", &image).unwrap();
-            let gb = ctx.upload_new("test/grad_pooled", &grad).unwrap();
-            let gi = Buffer::device(ctx, "test/grad_image", (pixels * c * 4) as u64).unwrap();
-            let mut rec = ctx.recorder().unwrap();
-            pool.record_upload(&mut rec, &regions).unwrap();
-            rec.fill_u32(pool.pooled(), 0x7fc0_0000);
-            rec.fill_u32(&gi, 0x7fc0_0000);
-            pool.record_forward(&mut rec, &ib).unwrap();
-            pool.record_backward(&mut rec, &gb, &gi).unwrap();
-            rec.submit().unwrap().wait().unwrap();
-            let pooled = ctx.download::<f32>(pool.pooled()).unwrap();
-            let back = ctx.download::<f32>(&gi).unwrap();
-            let want = reference::pool(&image, c, regions.offsets(), regions.pixels());
-            let want_back =
-                reference::pool_backward(&grad, c, regions.offsets(), regions.pixels(), pixels);
-            for i in 0..n * c {
-                assert!((pooled[i] as f64 - want[i]).abs() < 1e-5, "pooled[{i}]");
+            // Rows 0..first of the pooled rows belong to other chunks of the
+            // batch: they must be neither written nor read.
+            for first in [0usize, 7] {
+                let grad: Vec<f32> = (0..(first + n) * c)
+                    .map(|i| {
+                        if i < first * c {
+                            f32::NAN
+                        } else {
+                            r.random_range(-1.0..1.0)
+                        }
+                    })
+                    .collect();
+                let pool = RegionPooling::new(ctx, 64, layout.pixels).unwrap();
+                let ib = ctx.upload_new("test/image", &image).unwrap();
+                let gb = ctx.upload_new("test/grad_pooled", &grad).unwrap();
+                let gi = Buffer::device(ctx, "test/grad_image", (pixels * c * 4) as u64).unwrap();
+                let mut rec = ctx.recorder().unwrap();
+                pool.record_upload_at(&mut rec, &regions, first as u32)
+                    .unwrap();
+                rec.fill_u32(pool.pooled(), 0x7fc0_0000);
+                rec.fill_u32(&gi, 0x7fc0_0000);
+                pool.record_forward(&mut rec, &ib).unwrap();
+                pool.record_backward(&mut rec, &gb, &gi).unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                let all = ctx.download::<f32>(pool.pooled()).unwrap();
+                assert!(
+                    all[..first * c].iter().all(|v| v.is_nan()),
+                    "rows before {first}"
+                );
+                let pooled = &all[first * c..(first + n) * c];
+                let grad = &grad[first * c..];
+                let back = ctx.download::<f32>(&gi).unwrap();
+                let want = reference::pool(&image, c, regions.offsets(), regions.pixels());
+                let want_back =
+                    reference::pool_backward(grad, c, regions.offsets(), regions.pixels(), pixels);
+                for i in 0..n * c {
+                    assert!((pooled[i] as f64 - want[i]).abs() < 1e-5, "pooled[{i}]");
+                }
+                for i in 0..pixels * c {
+                    assert!((back[i] as f64 - want_back[i]).abs() < 1e-6, "grad[{i}]");
+                }
+                // <pool(x), y> = <x, pool^T(y)>: the backward is the exact adjoint.
+                let lhs: f64 = pooled
+                    .iter()
+                    .zip(grad)
+                    .map(|(&a, &b)| a as f64 * b as f64)
+                    .sum();
+                let rhs: f64 = image
+                    .iter()
+                    .zip(&back)
+                    .map(|(&a, &b)| a as f64 * b as f64)
+                    .sum();
+                assert!(
+                    (lhs - rhs).abs() <= 1e-4 * lhs.abs().max(1.0),
+                    "{lhs} vs {rhs}"
+                );
             }
-            for i in 0..pixels * c {
-                assert!((back[i] as f64 - want_back[i]).abs() < 1e-6, "grad[{i}]");
-            }
-            // <pool(x), y> = <x, pool^T(y)>: the backward is the exact adjoint.
-            let lhs: f64 = pooled
-                .iter()
-                .zip(&grad)
-                .map(|(&a, &b)| a as f64 * b as f64)
-                .sum();
-            let rhs: f64 = image
-                .iter()
-                .zip(&back)
-                .map(|(&a, &b)| a as f64 * b as f64)
-                .sum();
-            assert!(
-                (lhs - rhs).abs() <= 1e-4 * lhs.abs().max(1.0),
-                "{lhs} vs {rhs}"
-            );
         });
     }
 
@@ -571,9 +611,12 @@ mod tests {
             let (layout, regions, _) = random_regions(&mut r);
             let small = RegionPooling::new(ctx, 2, layout.pixels).unwrap();
             let few_pixels = RegionPooling::new(ctx, 64, 100).unwrap();
+            let exact = RegionPooling::new(ctx, regions.len(), layout.pixels).unwrap();
             let mut rec = ctx.recorder().unwrap();
             assert!(small.record_upload(&mut rec, &regions).is_err());
             assert!(few_pixels.record_upload(&mut rec, &regions).is_err());
+            assert!(exact.record_upload(&mut rec, &regions).is_ok());
+            assert!(exact.record_upload_at(&mut rec, &regions, 1).is_err());
         });
     }
 }

@@ -147,6 +147,37 @@ impl ImageLoss {
         grad: &'a Buffer,
     ) -> Result<()> {
         let views = layout.views.len();
+        self.record_part(
+            rec,
+            layout,
+            rendered,
+            target,
+            valid_depth_pixels,
+            grad,
+            views,
+        )
+    }
+
+    /// [`Self::record`] for a part of a batch of `batch_views` views (the
+    /// loss is the mean over all of them): the values and gradients of the
+    /// parts sum to those of the whole batch.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_part<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        layout: &BatchLayout,
+        rendered: &'a Buffer,
+        target: &'a Buffer,
+        valid_depth_pixels: &[u64],
+        grad: &'a Buffer,
+        batch_views: usize,
+    ) -> Result<()> {
+        let views = layout.views.len();
+        if batch_views < views {
+            return Err(Error::InvalidArgument(format!(
+                "a part of {views} views of a batch of {batch_views}"
+            )));
+        }
         if views > self.max_views as usize || valid_depth_pixels.len() != views {
             return Err(Error::InvalidArgument(format!(
                 "image loss of {views} views with {} valid-depth counts; sized for {} views",
@@ -162,7 +193,7 @@ impl ImageLoss {
             rec.fill_u32(b, 0);
         }
         let w = &self.weights;
-        let inv_views = 1.0 / views.max(1) as f64;
+        let inv_views = 1.0 / batch_views.max(1) as f64;
         for (v, slot) in layout.views.iter().enumerate() {
             let pixels = slot.width as u64 * slot.height as u64;
             if pixels > self.max_view_pixels {

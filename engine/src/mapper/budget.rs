@@ -38,6 +38,18 @@ pub fn bytes_per_window_row(views: u64) -> u64 {
     per_gaussian + views * per_pair
 }
 
+/// Bytes per window row of the largest single buffer that grows with the
+/// window, when `views` views are rendered at once: the query field (and
+/// its gradient, moments and paging copies), or the rasterizer's
+/// per-(view, Gaussian) splats and tile intersections with their growth
+/// headroom. A window larger than the device's largest buffer divided by
+/// this could not be bound.
+pub fn largest_row_bytes(views: u64) -> u64 {
+    let field = FIELD_WIDTHS.iter().max().copied().unwrap_or(1) * 4;
+    let per_pair = (32u64).max(INTERSECTIONS_PER_PAIR * 4) * 5 / 4;
+    field.max(views * per_pair)
+}
+
 /// GPU bytes that scale with the pixels of a batch.
 pub fn pixel_bytes(view_pixels: u64, views: u64) -> u64 {
     // per batch pixel: image + image gradient (RGBD, alpha, 32 query
@@ -72,16 +84,27 @@ pub struct WindowBudget {
     pub bytes_per_row: u64,
     /// Window rows that fit.
     pub capacity: u64,
+    /// Rows the device's largest buffer allows (see [`largest_row_bytes`]);
+    /// `capacity` never exceeds it.
+    pub buffer_limit_rows: u64,
 }
 
 /// Sizes the window: `in_use` bytes are already allocated (e.g. the
 /// latent head), `later` bytes will be (pixel buffers, a head not yet
-/// created); 10 % of the rest is kept free for allocator granularity.
-pub fn window_budget(budget: u64, in_use: u64, later: u64, views: u64) -> Result<WindowBudget> {
+/// created); 10 % of the rest is kept free for allocator granularity. The
+/// window also stays within what one buffer of `max_buffer` bytes can hold.
+pub fn window_budget(
+    budget: u64,
+    in_use: u64,
+    later: u64,
+    views: u64,
+    max_buffer: u64,
+) -> Result<WindowBudget> {
     let reserved = in_use + later;
     let bytes_per_row = bytes_per_window_row(views);
     let free = budget.saturating_sub(reserved) / 10 * 9;
-    let capacity = free / bytes_per_row;
+    let buffer_limit_rows = max_buffer / largest_row_bytes(views);
+    let capacity = (free / bytes_per_row).min(buffer_limit_rows);
     if capacity < MIN_WINDOW {
         return Err(Error::OutOfMemory(format!(
             "a GPU budget of {budget} bytes leaves room for {capacity} Gaussians in the window \
@@ -95,6 +118,7 @@ pub fn window_budget(budget: u64, in_use: u64, later: u64, views: u64) -> Result
         reserved,
         bytes_per_row,
         capacity,
+        buffer_limit_rows,
     })
 }
 
@@ -104,12 +128,30 @@ mod tests {
 
     #[test]
     fn capacity_shrinks_with_views_and_reservations() {
-        let a = window_budget(1 << 30, 0, 0, 1).unwrap();
-        let b = window_budget(1 << 30, 0, 0, 6).unwrap();
-        let c = window_budget(1 << 30, 1 << 29, 0, 6).unwrap();
+        let big = u64::MAX;
+        let a = window_budget(1 << 30, 0, 0, 1, big).unwrap();
+        let b = window_budget(1 << 30, 0, 0, 6, big).unwrap();
+        let c = window_budget(1 << 30, 1 << 29, 0, 6, big).unwrap();
         assert!(a.capacity > b.capacity && b.capacity > c.capacity);
         assert!(b.capacity * b.bytes_per_row <= (1 << 30));
-        assert!(window_budget(1 << 20, 0, 0, 6).is_err());
-        assert!(window_budget(1 << 20, 1 << 21, 0, 6).is_err());
+        assert!(window_budget(1 << 20, 0, 0, 6, big).is_err());
+        assert!(window_budget(1 << 20, 1 << 21, 0, 6, big).is_err());
+    }
+
+    #[test]
+    fn capacity_stays_within_the_largest_buffer() {
+        // A large budget on a device binding 128 MiB: the query field
+        // (128 bytes a row) bounds the window with one view at a time, the
+        // per-view splats and intersections with six.
+        let limit = 128 << 20;
+        let one = window_budget(64 << 30, 0, 0, 1, limit).unwrap();
+        assert_eq!(one.capacity, limit / 128);
+        assert_eq!(one.buffer_limit_rows, one.capacity);
+        let six = window_budget(64 << 30, 0, 0, 6, limit).unwrap();
+        assert_eq!(six.capacity, limit / largest_row_bytes(6));
+        assert!(six.capacity * 6 * 40 <= limit);
+        // A small budget is still the tighter bound.
+        let small = window_budget(1 << 28, 0, 0, 1, limit).unwrap();
+        assert!(small.capacity < small.buffer_limit_rows);
     }
 }

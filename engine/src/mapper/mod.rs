@@ -25,7 +25,7 @@ pub use online::{
     PagingReport,
 };
 pub use persist::SavedState;
-pub use trainer::{StageOneReport, Trainer, TrainerConfig};
+pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 
 #[cfg(test)]
 mod persist_tests;

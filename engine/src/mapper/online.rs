@@ -5,9 +5,11 @@ use std::time::Instant;
 
 use glam::DVec3;
 
-use super::budget::{head_bytes, pixel_bytes, window_budget, WindowBudget};
+use super::budget::{head_bytes, largest_row_bytes, pixel_bytes, window_budget, WindowBudget};
 use super::history::{History, KeyframeRecord};
-use super::trainer::{StageOneReport, Trainer, TrainerConfig};
+use super::trainer::{
+    views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS,
+};
 use crate::error::{Error, Result};
 use crate::gpu::{Context, GpuSpan, Submission};
 use crate::io::{CameraPose, Frame};
@@ -552,7 +554,10 @@ impl OnlineMapper {
         if self.trainer.is_some() {
             return Ok(());
         }
-        let views = self.cfg.replay as u64 + 1;
+        // Stage I renders its batch a chunk of views at a time: the pixel
+        // buffers and the rasterizer's per-view buffers are sized for one
+        // chunk, whatever the number of replayed keyframes.
+        let views = views_per_chunk(pixels, self.cfg.replay + 1, DEFAULT_CHUNK_PIXELS) as u64;
         let budget = Self::budget_of(&self.ctx, &self.cfg);
         // A head created later (embeddings arriving after the first
         // keyframes) must still fit: room for a 1024-d one is kept.
@@ -562,14 +567,26 @@ impl OnlineMapper {
         };
         let in_use = self.ctx.memory_report().total.current;
         let later = pixel_bytes(pixels, views) + later_head;
+        let max_buffer = self.ctx.info().max_buffer_bytes();
         let sized = match self.cfg.window_capacity {
-            Some(capacity) => WindowBudget {
-                budget,
-                reserved: in_use + later,
-                bytes_per_row: super::budget::bytes_per_window_row(views),
-                capacity,
-            },
-            None => window_budget(budget, in_use, later, views)?,
+            Some(capacity) => {
+                let buffer_limit_rows = max_buffer / largest_row_bytes(views);
+                if capacity > buffer_limit_rows {
+                    return Err(Error::InvalidArgument(format!(
+                        "window_capacity = {capacity}, but {} can hold at most {buffer_limit_rows} \
+                         Gaussians in one buffer ({max_buffer} bytes); lower window_capacity",
+                        self.ctx.info().name
+                    )));
+                }
+                WindowBudget {
+                    budget,
+                    reserved: in_use + later,
+                    bytes_per_row: super::budget::bytes_per_window_row(views),
+                    capacity,
+                    buffer_limit_rows,
+                }
+            }
+            None => window_budget(budget, in_use, later, views, max_buffer)?,
         };
         log::info!(
             "window: {} Gaussians ({} bytes each) in a GPU budget of {} bytes",
@@ -584,6 +601,7 @@ impl OnlineMapper {
                 capacity: sized.capacity,
                 max_view_pixels: pixels,
                 max_views: self.cfg.replay + 1,
+                chunk_pixels: DEFAULT_CHUNK_PIXELS,
                 max_regions: self.cfg.max_regions,
                 min_region_pixels: self.cfg.min_region_pixels,
                 weights: self.cfg.weights,

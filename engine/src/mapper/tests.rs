@@ -133,6 +133,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
                 capacity: window.capacity(),
                 max_view_pixels: (W * H) as u64,
                 max_views: 2,
+                chunk_pixels: DEFAULT_CHUNK_PIXELS,
                 max_regions: 16,
                 min_region_pixels: 4,
                 weights: LossWeights::default(),
@@ -333,5 +334,160 @@ fn frames_without_embeddings_map_geometry_and_colour_only() {
         }
         assert!(mapper.head().is_none());
         assert!(!mapper.global().is_empty());
+    });
+}
+
+/// A window seeded from `frames[0]` with grey colours, and a head whose
+/// dictionary was initialised from its regions: the same state each call.
+fn training_fixture(ctx: &crate::gpu::Context, frames: &[Frame]) -> (LocalWindow, LatentHead) {
+    let mut global = GlobalMap::new(0.01);
+    let seeding = SeedingConfig {
+        stride: 1,
+        ..SeedingConfig::default()
+    };
+    for mut g in seed_from_frame(&frames[0], None, &global, &seeding, 1) {
+        g.color = [0.5; 3];
+        global.insert(g);
+    }
+    let mut window = LocalWindow::new(ctx, 4096).unwrap();
+    let plan = window.plan(&global, DVec3::ZERO, 5.0);
+    let mut rec = ctx.transfer_recorder().unwrap();
+    let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
+    rec.submit().unwrap().wait().unwrap();
+    pending.apply(&mut global).unwrap();
+    let head = LatentHead::new(
+        ctx,
+        LatentHeadConfig {
+            dim: DIM as u32,
+            atoms: 16,
+            max_regions: 16,
+            seed: 3,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let first = KeyframeRecord::from_frame(&frames[0]);
+    let targets = ctx
+        .upload_new("test/regions", &first.regions.as_ref().unwrap().vectors)
+        .unwrap();
+    let mut rec = ctx.recorder().unwrap();
+    head.record_dictionary_update(&mut rec, &targets, None, 2)
+        .unwrap();
+    rec.submit().unwrap().wait().unwrap();
+    (window, head)
+}
+
+#[test]
+fn streamed_stage_one_equals_the_batched_step() {
+    with_context(|ctx| {
+        let frames = [
+            keyframe(DVec3::ZERO),
+            keyframe(DVec3::new(0.1, 0.0, 0.0)),
+            keyframe(DVec3::new(-0.05, 0.05, 0.1)),
+            keyframe(DVec3::new(0.0, -0.08, -0.05)),
+        ];
+        let mut records: Vec<KeyframeRecord> =
+            frames.iter().map(KeyframeRecord::from_frame).collect();
+        // A view without regions: it takes part in the image losses only.
+        records[1].regions = None;
+        let batch: Vec<&KeyframeRecord> = records.iter().collect();
+        let run = |chunk_pixels: u64| {
+            let (window, head) = training_fixture(ctx, &frames);
+            let mut trainer = Trainer::new(
+                ctx,
+                TrainerConfig {
+                    capacity: window.capacity(),
+                    max_view_pixels: (W * H) as u64,
+                    max_views: 4,
+                    chunk_pixels,
+                    max_regions: 16,
+                    min_region_pixels: 4,
+                    weights: LossWeights::default(),
+                    learning_rates: GaussianLearningRates::default(),
+                },
+                DIM as u32,
+            )
+            .unwrap();
+            let report = trainer
+                .stage_one(ctx, &window, Some(&head), &batch)
+                .unwrap();
+            let n = window.len() as u64;
+            let grads = trainer.gradients().download(ctx, n).unwrap();
+            let w = ctx.download::<f32>(head.w()).unwrap();
+            let d = ctx.download::<f32>(head.atoms()).unwrap();
+            (report, grads, w, d)
+        };
+        let (whole, g_whole, w_whole, d_whole) = run(u64::MAX);
+        let (streamed, g_streamed, w_streamed, d_streamed) = run(1);
+        // Two views a chunk: one chunk with and one without a region-free view.
+        let (pairs, g_pairs, _, _) = run(2 * (W * H) as u64);
+        assert_eq!((whole.chunks, whole.forward_passes), (1, 1));
+        assert_eq!(streamed.chunks, 4);
+        // Three chunks with regions rendered twice except the last pooled;
+        // the region-free chunk once.
+        assert_eq!(streamed.forward_passes, 3 + 2 + 1);
+        assert_eq!((pairs.chunks, pairs.forward_passes), (2, 3));
+        assert_eq!(whole.regions, 6);
+        assert_eq!((streamed.regions, pairs.regions), (6, 6));
+        assert_eq!(whole.raster, streamed.raster);
+        let close = |a: f64, b: f64, what: &str| {
+            assert!(
+                (a - b).abs() <= 1e-5 * a.abs().max(b.abs()) + 1e-9,
+                "{what}: {a} vs {b}"
+            );
+        };
+        for r in [&streamed, &pairs] {
+            close(whole.image.l1, r.image.l1, "L1");
+            close(whole.image.ssim, r.image.ssim, "SSIM");
+            close(whole.image.depth, r.image.depth, "depth");
+            close(whole.feature, r.feature, "feature loss");
+        }
+        assert!(whole.feature > 0.0 && whole.image.total() > 0.0);
+        // The summed gradients agree field by field.
+        let fields = |h: &crate::splat::HostGaussians| -> Vec<(&str, Vec<f32>)> {
+            vec![
+                ("means", h.means.iter().flatten().copied().collect()),
+                (
+                    "log_scales",
+                    h.log_scales.iter().flatten().copied().collect(),
+                ),
+                ("quats", h.quats.iter().flatten().copied().collect()),
+                ("opacity", h.opacity_logits.clone()),
+                ("colors", h.colors.iter().flatten().copied().collect()),
+                ("queries", h.queries.iter().flatten().copied().collect()),
+            ]
+        };
+        let largest = fields(&g_whole)
+            .iter()
+            .flat_map(|(_, v)| v.iter())
+            .fold(0.0f32, |m, x| m.max(x.abs()));
+        for other in [&g_streamed, &g_pairs] {
+            for ((name, a), (_, b)) in fields(&g_whole).into_iter().zip(fields(other)) {
+                // Fields with only rounding noise (the rotations of round
+                // Gaussians) are compared at the scale of the others.
+                let scale = a
+                    .iter()
+                    .fold(0.0f32, |m, x| m.max(x.abs()))
+                    .max(1e-3 * largest);
+                let worst = a
+                    .iter()
+                    .zip(&b)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0f32, f32::max);
+                assert!(
+                    worst <= 2e-4 * scale,
+                    "{name}: differs by {worst} (scale {scale})"
+                );
+            }
+        }
+        // The decoder stepped on the same pooled queries.
+        for (a, b) in [(&w_whole, &w_streamed), (&d_whole, &d_streamed)] {
+            let worst = a
+                .iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(worst <= 1e-5, "W or D differs by {worst}");
+        }
     });
 }

@@ -1,5 +1,6 @@
 //! One keyframe's optimisation (paper Alg. 1, lines 5–6): Stage I renders
-//! a batch of keyframes from the window's Gaussians and takes one joint
+//! a batch of keyframes from the window's Gaussians (streamed in chunks of
+//! views, so image memory is bounded by one chunk) and takes one joint
 //! Adam step on the Gaussians, W and D; Stage II takes further steps on W
 //! and D from the region queries Stage I pooled (the Gaussians are frozen,
 //! so those queries stay valid).
@@ -11,7 +12,13 @@ use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
 use crate::map::LocalWindow;
 use crate::optim::{GaussianLearningRates, GaussianOptimizer};
-use crate::splat::{Camera, ForwardStats, GaussianBuffers, Rasterizer};
+use crate::splat::{BatchLayout, Camera, ForwardStats, GaussianBuffers, Rasterizer};
+
+/// Pixels Stage I renders at once by default: a batch larger than this is
+/// streamed through the rasterizer in chunks of whole views, so the
+/// memory for images does not grow with the replayed views (one 1280×720
+/// view is a chunk of its own; six 320×240 views make one chunk).
+pub const DEFAULT_CHUNK_PIXELS: u64 = 1 << 20;
 
 /// Sizes of the trainer's workspace.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -22,6 +29,9 @@ pub struct TrainerConfig {
     pub max_view_pixels: u64,
     /// Views per batch (the new keyframe + B).
     pub max_views: u32,
+    /// Pixels rendered at once (at least one view is; see
+    /// [`DEFAULT_CHUNK_PIXELS`]).
+    pub chunk_pixels: u64,
     /// Regions per batch.
     pub max_regions: u32,
     /// Regions covering fewer pixels in a view are ignored.
@@ -30,6 +40,21 @@ pub struct TrainerConfig {
     pub weights: LossWeights,
     /// Gaussian learning rates.
     pub learning_rates: GaussianLearningRates,
+}
+
+impl TrainerConfig {
+    /// Views rendered at once: as many of the largest views as fit
+    /// [`TrainerConfig::chunk_pixels`], at least one, at most a batch.
+    pub fn views_per_chunk(&self) -> u32 {
+        views_per_chunk(self.max_view_pixels, self.max_views, self.chunk_pixels)
+    }
+}
+
+/// Views of `view_pixels` pixels rendered at once when batches of
+/// `max_views` views are streamed in chunks of at most `chunk_pixels`.
+pub fn views_per_chunk(view_pixels: u64, max_views: u32, chunk_pixels: u64) -> u32 {
+    let fit = chunk_pixels / view_pixels.max(1);
+    fit.clamp(1, max_views.max(1) as u64) as u32
 }
 
 /// What a Stage I step measured (before its update).
@@ -41,8 +66,24 @@ pub struct StageOneReport {
     pub feature: f64,
     /// Regions in the batch.
     pub regions: u32,
-    /// Rasterizer counts.
+    /// Rasterizer counts (summed over the batch's views).
     pub raster: ForwardStats,
+    /// Chunks of views the batch was rendered in.
+    pub chunks: u32,
+    /// Forward passes rendered (chunks with regions are rendered twice
+    /// when the batch takes more than one chunk: once to pool their
+    /// queries before the decoder's step, once to differentiate them).
+    pub forward_passes: u32,
+}
+
+/// One chunk of a Stage I batch: consecutive views rendered together.
+struct Chunk {
+    views: std::ops::Range<usize>,
+    layout: BatchLayout,
+    /// The chunk's regions, numbered from 0 within the chunk.
+    regions: Option<Regions>,
+    /// Row of the chunk's first region among the batch's pooled rows.
+    first_row: u32,
 }
 
 /// The Stage I / Stage II executor.
@@ -62,7 +103,8 @@ pub struct Trainer {
 impl Trainer {
     /// Workspace for `cfg`; `dim` is the embedding dimension.
     pub fn new(ctx: &Context, cfg: TrainerConfig, dim: u32) -> Result<Self> {
-        let max_pixels = cfg.max_view_pixels * cfg.max_views as u64;
+        let chunk_views = cfg.views_per_chunk();
+        let max_pixels = cfg.max_view_pixels * chunk_views as u64;
         let capacity = u32::try_from(cfg.capacity).map_err(|_| {
             Error::InvalidArgument(format!("window capacity {} too large", cfg.capacity))
         })?;
@@ -73,7 +115,7 @@ impl Trainer {
                 cfg.max_regions.max(1) as u64 * dim.max(1) as u64 * 4,
             )?,
             raster: Rasterizer::new(ctx),
-            image_loss: ImageLoss::new(ctx, cfg.max_view_pixels, cfg.max_views, cfg.weights)?,
+            image_loss: ImageLoss::new(ctx, cfg.max_view_pixels, chunk_views, cfg.weights)?,
             pooling: RegionPooling::new(ctx, cfg.max_regions, max_pixels)?,
             grads: GaussianBuffers::new(ctx, "trainer/grads", cfg.capacity)?,
             optimizer: GaussianOptimizer::new(ctx, capacity, cfg.learning_rates)?,
@@ -88,12 +130,23 @@ impl Trainer {
         })
     }
 
+    /// The workspace's sizes.
+    pub fn config(&self) -> &TrainerConfig {
+        &self.cfg
+    }
+
     /// The Gaussian optimiser (its state moves with the window's rows).
     pub fn optimizer(&self) -> &GaussianOptimizer {
         &self.optimizer
     }
 
-    /// The rasterizer (images of the last batch).
+    /// Gradients of the last Stage I step, summed over its batch.
+    pub fn gradients(&self) -> &GaussianBuffers {
+        &self.grads
+    }
+
+    /// The rasterizer (images of the last chunk rendered; after a Stage I
+    /// step that is the chunk holding the new keyframe, as view 0).
     pub fn rasterizer(&mut self) -> &mut Rasterizer {
         &mut self.raster
     }
@@ -104,6 +157,16 @@ impl Trainer {
     /// Without a head (no embeddings seen yet) only the image losses train
     /// the Gaussians. Requires a non-empty dictionary when any keyframe has
     /// regions.
+    ///
+    /// The batch is rendered in chunks of whole views (see
+    /// [`TrainerConfig::chunk_pixels`]), so its images never need more
+    /// memory than one chunk's. The decoder's step needs every region's
+    /// pooled query first: chunks with regions are rendered and pooled,
+    /// the decoder steps, and then each chunk is differentiated, with its
+    /// gradients added to the batch's. The last chunk pooled is
+    /// differentiated first, while its forward pass is still at hand; the
+    /// others are rendered again. The step equals the one of the whole
+    /// batch rendered at once, up to the order of float sums.
     pub fn stage_one(
         &mut self,
         ctx: &Context,
@@ -119,112 +182,204 @@ impl Trainer {
             )));
         }
         let count = window.len() as u64;
-        let cameras: Vec<Camera> = batch.iter().map(|k| k.camera).collect();
-        let raster_stats = self.raster.forward(window.params(), count, &cameras)?;
-        let layout = self.raster.layout().clone();
-
-        // Targets in batch pixel order.
-        let mut target: Vec<[f32; 4]> = Vec::with_capacity(layout.pixels as usize);
-        let mut valid = Vec::with_capacity(batch.len());
-        for k in batch {
-            target.extend(k.target_rgbd());
-            valid.push(k.valid_depth() as u64);
-        }
-        // Regions and their target rows.
-        let mut regions = Regions::new(&layout, self.cfg.min_region_pixels);
-        let mut rows: Vec<f32> = Vec::new();
         let dim = head.map_or(0, |h| h.config().dim as usize);
-        for (v, k) in batch.iter().enumerate() {
-            let (Some(r), Some(_)) = (&k.regions, head) else {
-                continue;
-            };
-            if r.dim as usize != dim {
-                return Err(Error::InvalidArgument(format!(
-                    "keyframe at {} ns has {}-d embeddings; the head is {dim}-d",
-                    k.stamp_ns, r.dim
-                )));
-            }
-            let view = if r.grid {
-                regions.add_grid(v, r.height, r.width)?
-            } else {
-                regions.add_labels(
-                    v,
-                    LabelImage {
-                        width: r.width,
-                        height: r.height,
-                        labels: &r.labels,
-                    },
-                    r.count,
-                )?
-            };
-            for &s in &view.sources {
-                rows.extend_from_slice(&r.vectors[s as usize * dim..(s as usize + 1) * dim]);
-            }
-        }
-        let n = regions.len();
+        let (chunks, rows, rows_per_view) = self.plan(batch, head.is_some(), dim)?;
+        let n: u32 = rows_per_view.iter().sum();
         if n > self.cfg.max_regions {
             return Err(Error::InvalidArgument(format!(
                 "batch has {n} regions; the trainer holds {}",
                 self.cfg.max_regions
             )));
         }
-        let mut weights = mean_per_view_weights(&regions.rows_per_view());
+        let mut weights = mean_per_view_weights(&rows_per_view);
         for (w, row) in weights.iter_mut().zip(rows.chunks(dim.max(1))) {
             if row.iter().all(|&x| x == 0.0) {
                 *w = 0.0;
             }
         }
         self.regions = n;
+        let mut report = StageOneReport {
+            regions: n,
+            chunks: chunks.len() as u32,
+            ..Default::default()
+        };
+        let cameras = |c: &Chunk| -> Vec<Camera> {
+            batch[c.views.clone()].iter().map(|k| k.camera).collect()
+        };
 
-        let images = self.raster.images()?;
-        let image_grads = self.raster.image_grads()?;
-        let region_targets = &self.region_targets;
-        let mut rec = ctx.recorder()?;
-        rec.upload(&self.target, 0, &target)?;
-        self.image_loss.record(
-            &mut rec,
-            &layout,
-            &images.rgbd,
-            &self.target,
-            &valid,
-            &image_grads.rgbd,
-        )?;
-        rec.fill_u32(&image_grads.alpha, 0);
-        let mut feature_readback = None;
-        if let (true, Some(head)) = (n > 0, head) {
-            rec.upload(region_targets, 0, &rows)?;
+        // Pass 1: pool every chunk's regions, then the decoder's step.
+        let head = head.filter(|_| n > 0);
+        let mut live = None;
+        if let Some(head) = head {
+            for (c, chunk) in chunks.iter().enumerate() {
+                let Some(regions) = &chunk.regions else {
+                    continue;
+                };
+                let stats = self
+                    .raster
+                    .forward(window.params(), count, &cameras(chunk))?;
+                report.raster.visible += stats.visible;
+                report.raster.intersections += stats.intersections;
+                report.forward_passes += 1;
+                let mut rec = ctx.recorder()?;
+                self.pooling
+                    .record_upload_at(&mut rec, regions, chunk.first_row)?;
+                self.pooling
+                    .record_forward(&mut rec, &self.raster.images()?.query)?;
+                rec.submit()?.wait()?;
+                live = Some(c);
+            }
+            let mut rec = ctx.recorder()?;
+            rec.upload(&self.region_targets, 0, &rows)?;
             rec.upload(&self.row_weights, 0, &weights)?;
-            self.pooling.record_upload(&mut rec, &regions)?;
-            self.pooling.record_forward(&mut rec, &images.query)?;
             head.record_step(
                 &mut rec,
                 self.pooling.pooled(),
-                region_targets,
+                &self.region_targets,
                 &self.row_weights,
                 n,
                 true,
             )?;
-            feature_readback = Some(head.record_loss_readback(&mut rec, n)?.0);
-            self.pooling
-                .record_backward(&mut rec, head.grad_queries(), &image_grads.query)?;
-        } else {
-            rec.fill_u32(&image_grads.query, 0);
+            let readback = head.record_loss_readback(&mut rec, n)?.0;
+            rec.submit()?.wait()?;
+            report.feature = FeatureLoss::sum(&readback)?;
         }
-        let image_readback = self.image_loss.record_readback(&mut rec)?;
-        self.raster
-            .record_backward(&mut rec, window.params(), &self.grads)?;
-        self.optimizer
-            .record_step(&mut rec, window.params(), &self.grads, count as u32, None)?;
-        rec.submit()?.wait()?;
-        Ok(StageOneReport {
-            image: image_readback.values()?,
-            feature: match feature_readback {
-                Some(r) => FeatureLoss::sum(&r)?,
-                None => 0.0,
-            },
-            regions: n,
-            raster: raster_stats,
-        })
+
+        // Pass 2: differentiate each chunk (the one still rendered first,
+        // the new keyframe's last, so its images are what stays behind),
+        // then one Adam step on the sum.
+        let mut order: Vec<usize> = live.into_iter().collect();
+        order.extend((0..chunks.len()).rev().filter(|&c| Some(c) != live));
+        for (k, &c) in order.iter().enumerate() {
+            let chunk = &chunks[c];
+            if Some(c) != live || k > 0 {
+                let stats = self
+                    .raster
+                    .forward(window.params(), count, &cameras(chunk))?;
+                report.forward_passes += 1;
+                if chunk.regions.is_none() || head.is_none() {
+                    report.raster.visible += stats.visible;
+                    report.raster.intersections += stats.intersections;
+                }
+            }
+            let mut target = Vec::with_capacity(chunk.layout.pixels as usize);
+            let mut valid = Vec::with_capacity(chunk.views.len());
+            for k in &batch[chunk.views.clone()] {
+                target.extend(k.target_rgbd());
+                valid.push(k.valid_depth() as u64);
+            }
+            let images = self.raster.images()?;
+            let image_grads = self.raster.image_grads()?;
+            let mut rec = ctx.recorder()?;
+            rec.upload(&self.target, 0, &target)?;
+            self.image_loss.record_part(
+                &mut rec,
+                &chunk.layout,
+                &images.rgbd,
+                &self.target,
+                &valid,
+                &image_grads.rgbd,
+                batch.len(),
+            )?;
+            rec.fill_u32(&image_grads.alpha, 0);
+            match (&chunk.regions, head) {
+                (Some(regions), Some(head)) => {
+                    self.pooling
+                        .record_upload_at(&mut rec, regions, chunk.first_row)?;
+                    self.pooling.record_backward(
+                        &mut rec,
+                        head.grad_queries(),
+                        &image_grads.query,
+                    )?;
+                }
+                _ => rec.fill_u32(&image_grads.query, 0),
+            }
+            let image_readback = self.image_loss.record_readback(&mut rec)?;
+            self.raster
+                .record_backward_into(&mut rec, window.params(), &self.grads, k > 0)?;
+            if k + 1 == order.len() {
+                self.optimizer.record_step(
+                    &mut rec,
+                    window.params(),
+                    &self.grads,
+                    count as u32,
+                    None,
+                )?;
+            }
+            rec.submit()?.wait()?;
+            let v = image_readback.values()?;
+            report.image.l1 += v.l1;
+            report.image.ssim += v.ssim;
+            report.image.depth += v.depth;
+        }
+        Ok(report)
+    }
+
+    /// Splits `batch` into chunks of whole views and gathers the regions:
+    /// the chunks, every region's target row (batch order) and the pooled
+    /// rows of each view.
+    fn plan(
+        &self,
+        batch: &[&KeyframeRecord],
+        has_head: bool,
+        dim: usize,
+    ) -> Result<(Vec<Chunk>, Vec<f32>, Vec<u32>)> {
+        let mut chunks = Vec::new();
+        let mut rows: Vec<f32> = Vec::new();
+        let mut rows_per_view = vec![0u32; batch.len()];
+        let mut next_row = 0u32;
+        let mut start = 0;
+        while start < batch.len() {
+            // Whole views while they fit the chunk (at least one).
+            let mut end = start + 1;
+            let mut pixels = batch[start].camera.pixels();
+            while end < batch.len() && pixels + batch[end].camera.pixels() <= self.cfg.chunk_pixels
+            {
+                pixels += batch[end].camera.pixels();
+                end += 1;
+            }
+            let cams: Vec<Camera> = batch[start..end].iter().map(|k| k.camera).collect();
+            let layout = BatchLayout::for_cameras(&cams)?;
+            let mut regions = Regions::new(&layout, self.cfg.min_region_pixels);
+            for (v, k) in batch[start..end].iter().enumerate() {
+                let (Some(r), true) = (&k.regions, has_head) else {
+                    continue;
+                };
+                if r.dim as usize != dim {
+                    return Err(Error::InvalidArgument(format!(
+                        "keyframe at {} ns has {}-d embeddings; the head is {dim}-d",
+                        k.stamp_ns, r.dim
+                    )));
+                }
+                let view = if r.grid {
+                    regions.add_grid(v, r.height, r.width)?
+                } else {
+                    regions.add_labels(
+                        v,
+                        LabelImage {
+                            width: r.width,
+                            height: r.height,
+                            labels: &r.labels,
+                        },
+                        r.count,
+                    )?
+                };
+                rows_per_view[start + v] = view.sources.len() as u32;
+                for &s in &view.sources {
+                    rows.extend_from_slice(&r.vectors[s as usize * dim..(s as usize + 1) * dim]);
+                }
+            }
+            let kept = regions.len();
+            chunks.push(Chunk {
+                views: start..end,
+                layout,
+                regions: (kept > 0).then_some(regions),
+                first_row: next_row,
+            });
+            next_row += kept;
+            start = end;
+        }
+        Ok((chunks, rows, rows_per_view))
     }
 
     /// Stage II: `iterations` steps on W and D from the region queries of

@@ -526,6 +526,20 @@ impl Rasterizer {
         gaussians: &'a GaussianBuffers,
         grads: &'a GaussianBuffers,
     ) -> Result<()> {
+        self.record_backward_into(rec, gaussians, grads, false)
+    }
+
+    /// [`Rasterizer::record_backward`] that adds this batch's gradients to
+    /// those already in `grads` when `accumulate` is set: a large batch
+    /// rendered one chunk of views at a time then sums to the gradient of
+    /// the whole batch, with images for one chunk only.
+    pub fn record_backward_into<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        gaussians: &'a GaussianBuffers,
+        grads: &'a GaussianBuffers,
+        accumulate: bool,
+    ) -> Result<()> {
         let upstream = self.image_grads()?;
         let images = self.images()?;
         let count = self.n_gaussians;
@@ -536,8 +550,10 @@ impl Rasterizer {
             )));
         }
         let n_views = self.layout.views.len() as u32;
-        rec.fill_u32(&grads.colors, 0);
-        rec.fill_u32(&grads.queries, 0);
+        if !accumulate {
+            rec.fill_u32(&grads.colors, 0);
+            rec.fill_u32(&grads.queries, 0);
+        }
         rec.fill_u32(self.grad_splats.get(), 0);
         let bg = self.settings.background;
         let p = push::RasterBackward {
@@ -620,6 +636,7 @@ impl Rasterizer {
             &push::ProjectBackward {
                 n_gaussians: count as u32,
                 n_views,
+                accumulate: accumulate as u32,
             },
         )
     }
