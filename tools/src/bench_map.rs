@@ -10,6 +10,7 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{AssemblyConfig, Frame, McapFrames};
+use latentam::mapper::budget::MemorySplit;
 use latentam::mapper::eval::Evaluator;
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, MapperConfig, OnlineMapper};
 use serde::Serialize;
@@ -55,6 +56,8 @@ struct Report {
     gpu_budget: u64,
     window_capacity: u64,
     peak_gpu_bytes: u64,
+    /// Peak GPU bytes by part (images, latent head, window, staging).
+    peak_gpu_split: MemorySplit,
     peak_cpu_bytes: u64,
     gaussians: usize,
     evicted: u64,
@@ -176,6 +179,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         gpu_budget: stats.window.map_or(0, |w| w.budget),
         window_capacity: stats.window.map_or(0, |w| w.capacity),
         peak_gpu_bytes: stats.gpu_peak_bytes,
+        peak_gpu_split: stats.gpu_peak_split,
         peak_cpu_bytes: stats.cpu_peak_bytes,
         gaussians: stats.gaussians,
         evicted: stats.evicted,
@@ -219,6 +223,14 @@ fn print_report(r: &Report) {
     println!(
         "GPU budget {} B, window {} Gaussians; peak GPU {} B, peak CPU {} B",
         r.gpu_budget, r.window_capacity, r.peak_gpu_bytes, r.peak_cpu_bytes
+    );
+    let sp = &r.peak_gpu_split;
+    println!(
+        "peak GPU by part: images {:.1} MB, latent head {:.1} MB, window {:.1} MB, staging {:.1} MB",
+        sp.images as f64 / 1e6,
+        sp.latent_head as f64 / 1e6,
+        sp.window as f64 / 1e6,
+        sp.staging as f64 / 1e6
     );
     println!(
         "Gaussians {} (evicted {}, fetched {} over the run)",

@@ -16,6 +16,7 @@ use latentam::gpu::{Context, ContextOptions, KernelStats};
 use latentam::io::{
     write_ply, write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog,
 };
+use latentam::mapper::budget::MemorySplit;
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
 use latentam::mapper::{DECODER_FILE, STATE_FILE};
 use serde::Serialize;
@@ -276,6 +277,8 @@ pub struct RunReport {
     pub gpu_budget: u64,
     pub window_capacity: u64,
     pub peak_gpu_bytes: u64,
+    /// Peak GPU bytes by part (images, latent head, window, staging).
+    pub peak_gpu_split: MemorySplit,
     pub peak_cpu_bytes: u64,
     pub evicted: u64,
     pub fetched: u64,
@@ -332,6 +335,7 @@ impl Run {
             gpu_budget: stats.window.map_or(0, |w| w.budget),
             window_capacity: stats.window.map_or(0, |w| w.capacity),
             peak_gpu_bytes: stats.gpu_peak_bytes,
+            peak_gpu_split: stats.gpu_peak_split,
             peak_cpu_bytes: stats.cpu_peak_bytes,
             evicted: stats.evicted,
             fetched: stats.fetched,

@@ -286,8 +286,8 @@ impl RegionPooling {
             first_row: Cell::new(0),
             pixels: Cell::new(0),
             offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
-            members: Buffer::device(ctx, "pooling/members", p * 4)?,
-            pixel_region: Buffer::device(ctx, "pooling/pixel_region", p * 4)?,
+            members: Buffer::device(ctx, "pixels/pooling_members", p * 4)?,
+            pixel_region: Buffer::device(ctx, "pixels/pooling_pixel_region", p * 4)?,
             pooled: Buffer::device(
                 ctx,
                 "pooling/pooled",

@@ -115,8 +115,9 @@ impl ImageLoss {
         let l1_slots = p.div_ceil(THREADS);
         let ssim_slots = (3 * p).div_ceil(THREADS);
         let views = max_views.max(1) as u64;
-        let buf =
-            |name: &str, bytes: u64| Buffer::device(ctx, &format!("image_loss/{name}"), bytes);
+        let buf = |name: &str, bytes: u64| {
+            Buffer::device(ctx, &format!("pixels/image_loss_{name}"), bytes)
+        };
         Ok(Self {
             max_view_pixels,
             max_views,

@@ -106,11 +106,19 @@ pub fn window_budget(
     let buffer_limit_rows = max_buffer / largest_row_bytes(views);
     let capacity = (free / bytes_per_row).min(buffer_limit_rows);
     if capacity < MIN_WINDOW {
+        if buffer_limit_rows < MIN_WINDOW {
+            return Err(Error::Unsupported(format!(
+                "the device's largest buffer ({max_buffer} bytes) holds {buffer_limit_rows} \
+                 Gaussians of the window; at least {MIN_WINDOW} are needed"
+            )));
+        }
+        // The budget that leaves the smallest window, 10 % kept free.
+        let needed = reserved + (MIN_WINDOW * bytes_per_row).div_ceil(9) * 10;
         return Err(Error::OutOfMemory(format!(
             "a GPU budget of {budget} bytes leaves room for {capacity} Gaussians in the window \
              ({reserved} bytes go to images and the latent head, {bytes_per_row} per Gaussian); \
-             at least {MIN_WINDOW} are needed: raise the budget, or lower the image size, \
-             replayed keyframes or dictionary size"
+             at least {MIN_WINDOW} are needed: set gpu_budget to at least {needed} (or lower the \
+             image size or the dictionary size `atoms`)"
         )));
     }
     Ok(WindowBudget {
@@ -120,6 +128,44 @@ pub fn window_budget(
         capacity,
         buffer_limit_rows,
     })
+}
+
+/// Peak GPU bytes by part of the mapper, from the per-category peaks of
+/// the context's accounting (each part's peak; they may have peaked at
+/// different times, so their sum can exceed the overall peak).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MemorySplit {
+    /// Per-pixel buffers of the chunk of views being rendered: images,
+    /// their gradients, blending state, targets, loss and pooling
+    /// workspaces (category `pixels`).
+    pub images: u64,
+    /// The latent head: W, the dictionary, its anchor and Adam state,
+    /// k-means and decoder workspaces.
+    pub latent_head: u64,
+    /// Everything sized by the window: its Gaussians, their gradients and
+    /// Adam moments, the rasterizer's per-(view, Gaussian) buffers, sort
+    /// workspaces and paging scratch.
+    pub window: u64,
+    /// Host-visible staging for uploads and read-backs.
+    pub staging: u64,
+}
+
+impl MemorySplit {
+    /// The split of `report`.
+    pub fn of(report: &crate::gpu::MemoryReport) -> Self {
+        let mut split = Self::default();
+        for (category, bytes) in &report.by_category {
+            let part = match category.as_str() {
+                "pixels" => &mut split.images,
+                "latent" | "decoder" | "kmeans" | "head" | "trust_region" | "feature_loss"
+                | "relevance" => &mut split.latent_head,
+                "staging" => &mut split.staging,
+                _ => &mut split.window,
+            };
+            *part += bytes.peak;
+        }
+        split
+    }
 }
 
 #[cfg(test)]
@@ -134,7 +180,17 @@ mod tests {
         let c = window_budget(1 << 30, 1 << 29, 0, 6, big).unwrap();
         assert!(a.capacity > b.capacity && b.capacity > c.capacity);
         assert!(b.capacity * b.bytes_per_row <= (1 << 30));
-        assert!(window_budget(1 << 20, 0, 0, 6, big).is_err());
+        let err = window_budget(1 << 20, 0, 0, 6, big)
+            .unwrap_err()
+            .to_string();
+        // The budget the error names is enough.
+        let needed: u64 = err
+            .split("set gpu_budget to at least ")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| panic!("{err}"));
+        assert!(window_budget(needed, 0, 0, 6, big).unwrap().capacity >= MIN_WINDOW);
         assert!(window_budget(1 << 20, 1 << 21, 0, 6, big).is_err());
     }
 

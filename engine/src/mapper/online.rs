@@ -5,7 +5,9 @@ use std::time::Instant;
 
 use glam::DVec3;
 
-use super::budget::{head_bytes, largest_row_bytes, pixel_bytes, window_budget, WindowBudget};
+use super::budget::{
+    head_bytes, largest_row_bytes, pixel_bytes, window_budget, MemorySplit, WindowBudget,
+};
 use super::history::{History, KeyframeRecord};
 use super::trainer::{
     views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS,
@@ -331,6 +333,8 @@ pub struct MapperStats {
     pub gpu_bytes: u64,
     /// Highest GPU bytes.
     pub gpu_peak_bytes: u64,
+    /// Peak GPU bytes by part (images, latent head, window, staging).
+    pub gpu_peak_split: MemorySplit,
     /// CPU bytes of the global map and keyframe history.
     pub cpu_bytes: u64,
     /// Highest CPU bytes after a keyframe.
@@ -460,6 +464,7 @@ impl OnlineMapper {
         s.window = self.window_budget;
         s.gpu_bytes = mem.total.current;
         s.gpu_peak_bytes = mem.total.peak;
+        s.gpu_peak_split = MemorySplit::of(&mem);
         s.cpu_bytes = self.cpu_bytes();
         s.cpu_peak_bytes = s.cpu_peak_bytes.max(s.cpu_bytes);
         s

@@ -119,7 +119,7 @@ impl Trainer {
             pooling: RegionPooling::new(ctx, cfg.max_regions, max_pixels)?,
             grads: GaussianBuffers::new(ctx, "trainer/grads", cfg.capacity)?,
             optimizer: GaussianOptimizer::new(ctx, capacity, cfg.learning_rates)?,
-            target: Buffer::device(ctx, "trainer/target_rgbd", max_pixels * 16)?,
+            target: Buffer::device(ctx, "pixels/target_rgbd", max_pixels * 16)?,
             row_weights: Buffer::device(
                 ctx,
                 "trainer/row_weights",

@@ -256,7 +256,7 @@ impl Rasterizer {
             isect_keys: Grow::new("raster/isect_keys"),
             isect_pairs: Grow::new("raster/isect_pairs"),
             ranges: Grow::new("raster/ranges"),
-            state: Grow::new("raster/pixel_state"),
+            state: Grow::new("pixels/blend_state"),
             grad_splats: Grow::new("raster/grad_splats"),
             images: None,
             image_grads: None,
@@ -307,8 +307,8 @@ impl Rasterizer {
         if self.images.as_ref().is_none_or(|b| b.pixels < pixels) {
             self.images = None;
             self.image_grads = None;
-            self.images = Some(PixelBuffers::new(&self.ctx, "raster/images", pixels)?);
-            self.image_grads = Some(PixelBuffers::new(&self.ctx, "raster/image_grads", pixels)?);
+            self.images = Some(PixelBuffers::new(&self.ctx, "pixels/images", pixels)?);
+            self.image_grads = Some(PixelBuffers::new(&self.ctx, "pixels/image_grads", pixels)?);
         }
         Ok(())
     }
