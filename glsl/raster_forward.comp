@@ -12,8 +12,15 @@
 // columns of the tile (x and x + 8), so a Gaussian's data is loaded once for
 // 32 pixels, and branches become selects.
 //
-// @kernel raster_forward ROWS=1
-// @kernel raster_forward_columns ROWS=32
+// The _colour variants (QUERY=0) skip the 32 query channels: for renders
+// whose queries nobody reads (coverage before seeding, logs without
+// embeddings, the second render of a streamed Stage I chunk whose query
+// gradients are detached). Their query image is left as it was.
+//
+// @kernel raster_forward ROWS=1 QUERY=1
+// @kernel raster_forward_columns ROWS=32 QUERY=1
+// @kernel raster_forward_colour ROWS=1 QUERY=0
+// @kernel raster_forward_columns_colour ROWS=32 QUERY=0
 #version 450
 #include "common.glsl"
 #include "splat.glsl"
@@ -65,6 +72,12 @@ void main() {
         }
     }
     View v = views[vi];
+#if QUERY == 0
+    // Keeps the query bindings in the interface every variant shares.
+    if (pc.n_tiles == 0xffffffffu) {
+        out_query[0] = queries[0];
+    }
+#endif
     uint local_tile = tile - v.offsets.x;
     uint t = gl_LocalInvocationIndex;
     uvec2 range = ranges[tile];
@@ -77,10 +90,12 @@ void main() {
     bool done = !inside;
     float trans = 1.0;
     vec4 rgbd = vec4(0.0);
+#if QUERY
     vec4 q[QUERY_VEC4];
     for (uint c = 0u; c < QUERY_VEC4; c++) {
         q[c] = vec4(0.0);
     }
+#endif
     uint walked = 0u;
 #else
     uint px0 = (local_tile % v.size.z) * TILE_SIZE + t;
@@ -89,16 +104,20 @@ void main() {
     // constants only, so they stay in registers.
     float trans[ROWS];
     vec4 rgbd[ROWS];
+#if QUERY
     vec4 q[ROWS * QUERY_VEC4];
+#endif
     uint walked[ROWS];
     bool done[ROWS];
     uint active = 0u;
 #unroll K 32
     trans[K] = 1.0;
     rgbd[K] = vec4(0.0);
+#if QUERY
 #unroll C 8
     q[K * QUERY_VEC4 + C] = vec4(0.0);
 #endunroll
+#endif
     walked[K] = 0u;
     done[K] = !(px0 + 8u * (K / 16u) < v.size.x && py0 + K % 16u < v.size.y);
     active += done[K] ? 0u : 1u;
@@ -138,9 +157,11 @@ void main() {
             float w = alpha * trans;
             uint g = sh_gaussian[j];
             rgbd += w * vec4(colors[3u * g], colors[3u * g + 1u], colors[3u * g + 2u], s.z);
+#if QUERY
             for (uint c = 0u; c < QUERY_VEC4; c++) {
                 q[c] += w * queries[QUERY_VEC4 * g + c];
             }
+#endif
             trans = next;
             walked = base + j + 1u;
         }
@@ -150,10 +171,12 @@ void main() {
             vec3 conic = sh_conic[j];
             uint g = sh_gaussian[j];
             vec4 f = vec4(colors[3u * g], colors[3u * g + 1u], colors[3u * g + 2u], s.z);
+#if QUERY
             vec4 fq[QUERY_VEC4];
 #unroll C 8
             fq[C] = queries[QUERY_VEC4 * g + C];
 #endunroll
+#endif
 #unroll K 32
             {
                 vec2 d = s.xy - vec2(float(px0 + 8u * (K / 16u)), float(py0 + K % 16u));
@@ -169,9 +192,11 @@ void main() {
                 // Selected, not multiplied by a zero weight: a Gaussian with
                 // a non-finite colour must not reach pixels it does not cover.
                 rgbd[K] = hit ? rgbd[K] + w * f : rgbd[K];
+#if QUERY
 #unroll C 8
                 q[K * QUERY_VEC4 + C] = hit ? q[K * QUERY_VEC4 + C] + w * fq[C] : q[K * QUERY_VEC4 + C];
 #endunroll
+#endif
                 walked[K] = hit ? base + j + 1u : walked[K];
                 trans[K] = hit ? next : trans[K];
             }
@@ -186,9 +211,11 @@ void main() {
         uint p = v.offsets.y + py * v.size.x + px;
         out_rgbd[p] = vec4(rgbd.xyz + trans * bg, rgbd.w);
         out_alpha[p] = 1.0 - trans;
+#if QUERY
         for (uint c = 0u; c < QUERY_VEC4; c++) {
             out_query[QUERY_VEC4 * p + c] = q[c];
         }
+#endif
         out_state[p] = uvec2(walked, floatBitsToUint(trans));
     }
 #else
@@ -200,9 +227,11 @@ void main() {
             uint p = v.offsets.y + py * v.size.x + px;
             out_rgbd[p] = vec4(rgbd[K].xyz + trans[K] * bg, rgbd[K].w);
             out_alpha[p] = 1.0 - trans[K];
+#if QUERY
 #unroll C 8
             out_query[QUERY_VEC4 * p + C] = q[K * QUERY_VEC4 + C];
 #endunroll
+#endif
             out_state[p] = uvec2(walked[K], floatBitsToUint(trans[K]));
         }
     }

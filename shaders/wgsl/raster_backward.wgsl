@@ -45,6 +45,12 @@
 // In the COLUMNS variants whether the query gradients reach opacity and
 // geometry is fixed at compile time (ATTACHED), since a run-time branch
 // costs its full work there even when not taken.
+//
+// The upstream gradient of a pixel's query (`query_source`) is read from a
+// per-pixel image (0), from pooled region rows through the pixel's region
+// (1: rows first_row + r, divided by the region's pixel count, the
+// adjoint of region pooling, so training needs no per-pixel query
+// gradient image), or is zero (2: no feature loss).
 
 const TILE_SIZE: u32 = 16u;
 const BATCH: u32 = 256u;
@@ -81,9 +87,15 @@ struct Params {
     bg_r: f32,
     bg_g: f32,
     bg_b: f32,
+    query_source: u32,
+    first_row: u32,
+    // Where the regions' CSR offsets start in pixel_region.
+    offsets_at: u32,
 }
 
 var<immediate> pc: Params;
+
+const NO_REGION: u32 = 0xffffffffu;
 
 @group(0) @binding(0) var<storage, read> views: array<View>;
 @group(0) @binding(1) var<storage, read> colors: array<f32>;
@@ -96,6 +108,7 @@ var<immediate> pc: Params;
 @group(0) @binding(8) var<storage, read> state: array<vec2<u32>>;
 @group(0) @binding(9) var<storage, read> grad_rgbd: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read> grad_alpha: array<f32>;
+// Per pixel (query_source 0) or per pooled region row (1).
 @group(0) @binding(11) var<storage, read> grad_query: array<vec4<f32>>;
 #if CAS
 @group(0) @binding(12) var<storage, read_write> grad_colors: array<atomic<u32>>;
@@ -107,6 +120,40 @@ var<immediate> pc: Params;
 @group(0) @binding(13) var<storage, read_write> grad_queries: array<atomic<f32>>;
 @group(0) @binding(14) var<storage, read_write> grad_splats: array<atomic<f32>>;
 #endif
+// Region of each pixel, numbered within the batch (query_source 1), then
+// from offsets_at the regions' CSR offsets: region r covers
+// pixel_region[offsets_at + r + 1] - pixel_region[offsets_at + r] pixels.
+// One binding for both keeps the kernel within 16 storage buffers.
+@group(0) @binding(15) var<storage, read> pixel_region: array<u32>;
+
+// Where pixel p's upstream query gradient is: grad_query[base + c] * scale
+// for the 8 vec4 c (scale 0: none).
+struct QueryUpstream {
+    base: u32,
+    scale: f32,
+}
+
+fn query_upstream(p: u32) -> QueryUpstream {
+    var u = QueryUpstream(8u * p, 1.0);
+    if (pc.query_source == 1u) {
+        let r = pixel_region[p];
+        if (r == NO_REGION) {
+            u = QueryUpstream(0u, 0.0);
+        } else {
+            let size = pixel_region[pc.offsets_at + r + 1u] - pixel_region[pc.offsets_at + r];
+            u = QueryUpstream(8u * (pc.first_row + r), 1.0 / f32(max(size, 1u)));
+        }
+    } else if (pc.query_source != 0u) {
+        u = QueryUpstream(0u, 0.0);
+    }
+    return u;
+}
+
+// Selected, so a stale or non-finite row never reaches a pixel it does
+// not belong to.
+fn upstream_query(u: QueryUpstream, c: u32) -> vec4<f32> {
+    return select(vec4<f32>(0.0), grad_query[u.base + c] * u.scale, u.scale != 0.0);
+}
 
 #if CAS
 // One CAS loop per buffer: WGSL cannot pass storage pointers to functions.
@@ -276,8 +323,9 @@ fn raster_backward(
             c_final[K] = vec4<f32>(out.xyz - t_final * bg, out.w);
             v_rgbd[K] = grad_rgbd[p];
             v_alpha_out = grad_alpha[p];
+            let up = query_upstream(p);
 #unroll C 8
-            v_q[8u * K + C] = grad_query[8u * p + C];
+            v_q[8u * K + C] = upstream_query(up, C);
 #if ATTACHED
             q_final[8u * K + C] = query_image[8u * p + C];
 #endif
@@ -433,9 +481,17 @@ fn raster_backward(
         c_final = vec4<f32>(out.xyz - t_final * bg, out.w);
         v_rgbd = grad_rgbd[p];
         v_alpha_out = grad_alpha[p];
+        let up = query_upstream(p);
         for (var c = 0u; c < 8u; c++) {
-            q_final[c] = query_image[8u * p + c];
-            v_q[c] = grad_query[8u * p + c];
+            v_q[c] = upstream_query(up, c);
+        }
+        // The rendered query matters only when its gradients reach opacity
+        // and geometry; a render without query channels leaves it stale
+        // (or absent).
+        if (!detach) {
+            for (var c = 0u; c < 8u; c++) {
+                q_final[c] = query_image[8u * p + c];
+            }
         }
     }
     // The background term of every alpha gradient.

@@ -75,12 +75,18 @@ fn a_1280x720_log_maps_with_five_replayed_keyframes_in_one_view_of_image_memory(
     let one_view = pixel_bytes(WIDTH as u64 * HEIGHT as u64, 1);
     let split = stats.gpu_peak_split;
     eprintln!(
-        "peak GPU {} B: images {} B (one view budgeted at {one_view} B), head {} B, window {} B, \
-         staging {} B",
-        stats.gpu_peak_bytes, split.images, split.latent_head, split.window, split.staging
+        "peak GPU {} B: images {} B and features {} B (one view budgeted at {one_view} B), \
+         head {} B, window {} B, staging {} B",
+        stats.gpu_peak_bytes,
+        split.images,
+        split.features,
+        split.latent_head,
+        split.window,
+        split.staging
     );
+    let pixels = split.images + split.features;
     assert!(
-        split.images > 0 && split.images <= one_view + one_view / 100,
+        split.features > 0 && pixels <= one_view + one_view / 100,
         "{split:?}"
     );
     let budget = stats.window.unwrap().budget;

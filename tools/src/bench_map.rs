@@ -226,8 +226,10 @@ fn print_report(r: &Report) {
     );
     let sp = &r.peak_gpu_split;
     println!(
-        "peak GPU by part: images {:.1} MB, latent head {:.1} MB, window {:.1} MB, staging {:.1} MB",
+        "peak GPU by part: images {:.1} MB, features {:.1} MB, latent head {:.1} MB, window {:.1} MB, \
+         staging {:.1} MB",
         sp.images as f64 / 1e6,
+        sp.features as f64 / 1e6,
         sp.latent_head as f64 / 1e6,
         sp.window as f64 / 1e6,
         sp.staging as f64 / 1e6

@@ -297,7 +297,7 @@ pub fn run(b: RasterBench) -> Result<()> {
         let g = raster.image_grads()?;
         ctx.upload(&g.rgbd, 0, &up_rgbd)?;
         ctx.upload(&g.alpha, 0, &up_alpha)?;
-        ctx.upload(&g.query, 0, &up_query)?;
+        ctx.upload(g.query()?, 0, &up_query)?;
         ctx.profiler_reset();
         let t = std::time::Instant::now();
         raster.backward(&params, &grads)?;

@@ -287,7 +287,11 @@ impl RegionPooling {
             pixels: Cell::new(0),
             offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
             members: Buffer::device(ctx, "pixels/pooling_members", p * 4)?,
-            pixel_region: Buffer::device(ctx, "pixels/pooling_pixel_region", p * 4)?,
+            pixel_region: Buffer::device(
+                ctx,
+                "pixels/pooling_pixel_region",
+                (p + max_regions as u64 + 1) * 4,
+            )?,
             pooled: Buffer::device(
                 ctx,
                 "pooling/pooled",
@@ -304,6 +308,25 @@ impl RegionPooling {
     /// Regions of the last recorded upload.
     pub fn regions(&self) -> u32 {
         self.regions.get()
+    }
+
+    /// u32s: the region of every pixel of the last upload ([`NO_REGION`]
+    /// for none; numbered from 0, row [`Self::first_row`] of the pooled
+    /// rows), then from [`Self::labels_offsets_at`] the regions' CSR
+    /// offsets: what the rasterizer's backward reads for
+    /// `QueryGradients::Regions`.
+    pub fn labels(&self) -> &Buffer {
+        &self.pixel_region
+    }
+
+    /// Index of the first CSR offset in [`Self::labels`].
+    pub fn labels_offsets_at(&self) -> u32 {
+        self.max_pixels as u32
+    }
+
+    /// Pooled row of the last upload's region 0.
+    pub fn first_row(&self) -> u32 {
+        self.first_row.get()
     }
 
     /// Records the upload of a batch's region lists, to run before the
@@ -336,6 +359,7 @@ impl RegionPooling {
         rec.upload(&self.offsets, 0, &regions.offsets)?;
         rec.upload(&self.members, 0, &regions.pixels)?;
         rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
+        rec.upload(&self.pixel_region, self.max_pixels * 4, &regions.offsets)?;
         self.regions.set(regions.len());
         self.first_row.set(first_row);
         self.pixels.set(pixels);

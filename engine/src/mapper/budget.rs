@@ -50,14 +50,24 @@ pub fn largest_row_bytes(views: u64) -> u64 {
     field.max(views * per_pair)
 }
 
-/// GPU bytes that scale with the pixels of a batch.
+/// GPU bytes per pixel of a chunk of views: colour + depth and alpha with
+/// their gradients, the rendered query (pooled into regions; its gradient
+/// comes from the region rows, with no per-pixel image), blending state
+/// with growth headroom, target, region lists.
+pub const BYTES_PER_CHUNK_PIXEL: u64 = 2 * (16 + 4) + QUERY_IMAGE_BYTES_PER_PIXEL + 10 + 16 + 8;
+
+/// Of [`BYTES_PER_CHUNK_PIXEL`], the query image's (32 channels), which a
+/// map without embeddings never allocates.
+pub const QUERY_IMAGE_BYTES_PER_PIXEL: u64 = 128;
+
+/// GPU bytes per pixel of a view for the SSIM workspaces (reused by every
+/// view of a chunk).
+pub const SSIM_BYTES_PER_PIXEL: u64 = 132;
+
+/// GPU bytes that scale with the pixels of a batch rendered `views` views
+/// at a time.
 pub fn pixel_bytes(view_pixels: u64, views: u64) -> u64 {
-    // per batch pixel: image + image gradient (RGBD, alpha, 32 query
-    // channels), blending state, target, pooling index; per view pixel: the
-    // SSIM workspaces.
-    let per_batch_pixel = 2 * (16 + 4 + 128) + 10 + 16 + 8;
-    let per_view_pixel = 132;
-    view_pixels * (views * per_batch_pixel + per_view_pixel)
+    view_pixels * (views * BYTES_PER_CHUNK_PIXEL + SSIM_BYTES_PER_PIXEL)
 }
 
 /// GPU bytes of a latent head with `atoms` atoms of `dim` dimensions
@@ -135,10 +145,13 @@ pub fn window_budget(
 /// different times, so their sum can exceed the overall peak).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MemorySplit {
-    /// Per-pixel buffers of the chunk of views being rendered: images,
-    /// their gradients, blending state, targets, loss and pooling
-    /// workspaces (category `pixels`).
+    /// Per-pixel buffers of the chunk of views being rendered: colour,
+    /// depth and alpha images, their gradients, blending state, targets,
+    /// loss and pooling workspaces (category `pixels`).
     pub images: u64,
+    /// Per-pixel feature buffers: rendered query images (category
+    /// `features`); none for a map without embeddings.
+    pub features: u64,
     /// The latent head: W, the dictionary, its anchor and Adam state,
     /// k-means and decoder workspaces.
     pub latent_head: u64,
@@ -157,6 +170,7 @@ impl MemorySplit {
         for (category, bytes) in &report.by_category {
             let part = match category.as_str() {
                 "pixels" => &mut split.images,
+                "features" => &mut split.features,
                 "latent" | "decoder" | "kmeans" | "head" | "trust_region" | "feature_loss"
                 | "relevance" => &mut split.latent_head,
                 "staging" => &mut split.staging,

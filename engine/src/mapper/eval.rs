@@ -84,7 +84,12 @@ impl Evaluator {
     pub fn new(ctx: &Context) -> Self {
         Evaluator {
             ctx: ctx.clone(),
-            raster: Rasterizer::new(ctx),
+            raster: {
+                // Renders only: no gradient images.
+                let mut r = Rasterizer::new(ctx);
+                r.settings.query_gradient_image = false;
+                r
+            },
             gaussians: None,
             scorer: None,
             radius: 8.0,

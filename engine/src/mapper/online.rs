@@ -22,6 +22,7 @@ use crate::map::{
     PendingSync, SeedingConfig, SyncPlan, ViewCoverage, VoxelKey,
 };
 use crate::optim::GaussianLearningRates;
+use crate::splat::Channels;
 
 /// Largest [`MapperConfig::max_regions`].
 const MAX_REGIONS_SETTING: u32 = 1 << 24;
@@ -770,7 +771,13 @@ impl OnlineMapper {
             None
         } else {
             let raster = self.trainer.as_mut().expect("ensured").rasterizer();
-            raster.forward(window.params(), window.len() as u64, &[record.camera])?;
+            // Coverage needs alpha and depth only.
+            raster.forward_channels(
+                window.params(),
+                window.len() as u64,
+                &[record.camera],
+                Channels::Colour,
+            )?;
             Some(raster.download_alpha_depth(0)?)
         };
         // Paged-out Gaussians beyond the window's radius do not render: their

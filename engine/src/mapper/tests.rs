@@ -334,6 +334,17 @@ fn frames_without_embeddings_map_geometry_and_colour_only() {
         }
         assert!(mapper.head().is_none());
         assert!(!mapper.global().is_empty());
+        // No per-pixel feature buffer (query images or their gradients)
+        // was ever allocated, and no latent head.
+        let mem = ctx.memory_report();
+        for part in ["features", "latent", "decoder", "kmeans"] {
+            assert!(
+                !mem.by_category.contains_key(part),
+                "`{part}` buffers allocated: {:?}",
+                mem.by_category.keys().collect::<Vec<_>>()
+            );
+        }
+        assert!(mem.by_category["pixels"].peak > 0);
     });
 }
 

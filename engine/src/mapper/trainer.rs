@@ -12,7 +12,9 @@ use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
 use crate::map::LocalWindow;
 use crate::optim::{GaussianLearningRates, GaussianOptimizer};
-use crate::splat::{BatchLayout, Camera, ForwardStats, GaussianBuffers, Rasterizer};
+use crate::splat::{
+    BatchLayout, Camera, Channels, ForwardStats, GaussianBuffers, QueryGradients, Rasterizer,
+};
 
 /// Pixels Stage I renders at once by default: a batch larger than this is
 /// streamed through the rasterizer in chunks of whole views, so the
@@ -114,7 +116,11 @@ impl Trainer {
                 "trainer/region_targets",
                 cfg.max_regions.max(1) as u64 * dim.max(1) as u64 * 4,
             )?,
-            raster: Rasterizer::new(ctx),
+            raster: {
+                let mut r = Rasterizer::new(ctx);
+                r.settings.query_gradient_image = false;
+                r
+            },
             image_loss: ImageLoss::new(ctx, cfg.max_view_pixels, chunk_views, cfg.weights)?,
             pooling: RegionPooling::new(ctx, cfg.max_regions, max_pixels)?,
             grads: GaussianBuffers::new(ctx, "trainer/grads", cfg.capacity)?,
@@ -146,7 +152,8 @@ impl Trainer {
     }
 
     /// The rasterizer (images of the last chunk rendered; after a Stage I
-    /// step that is the chunk holding the new keyframe, as view 0).
+    /// step that is the chunk holding the new keyframe, as view 0, its query
+    /// channels possibly not rendered: see [`Rasterizer::channels`]).
     pub fn rasterizer(&mut self) -> &mut Rasterizer {
         &mut self.raster
     }
@@ -225,7 +232,7 @@ impl Trainer {
                 self.pooling
                     .record_upload_at(&mut rec, regions, chunk.first_row)?;
                 self.pooling
-                    .record_forward(&mut rec, &self.raster.images()?.query)?;
+                    .record_forward(&mut rec, self.raster.images()?.query()?)?;
                 rec.submit()?.wait()?;
                 live = Some(c);
             }
@@ -250,12 +257,22 @@ impl Trainer {
         // then one Adam step on the sum.
         let mut order: Vec<usize> = live.into_iter().collect();
         order.extend((0..chunks.len()).rev().filter(|&c| Some(c) != live));
+        // Detached query gradients need no rendered query: these renders
+        // skip the query channels.
+        let channels = if self.raster.settings.detach_query_gradients {
+            Channels::Colour
+        } else {
+            Channels::All
+        };
         for (k, &c) in order.iter().enumerate() {
             let chunk = &chunks[c];
             if Some(c) != live || k > 0 {
-                let stats = self
-                    .raster
-                    .forward(window.params(), count, &cameras(chunk))?;
+                let stats = self.raster.forward_channels(
+                    window.params(),
+                    count,
+                    &cameras(chunk),
+                    channels,
+                )?;
                 report.forward_passes += 1;
                 if chunk.regions.is_none() || head.is_none() {
                     report.raster.visible += stats.visible;
@@ -282,21 +299,29 @@ impl Trainer {
                 batch.len(),
             )?;
             rec.fill_u32(&image_grads.alpha, 0);
-            match (&chunk.regions, head) {
+            // The pooled rows' gradients reach each pixel through its
+            // region, with no per-pixel query gradient image.
+            let query = match (&chunk.regions, head) {
                 (Some(regions), Some(head)) => {
                     self.pooling
                         .record_upload_at(&mut rec, regions, chunk.first_row)?;
-                    self.pooling.record_backward(
-                        &mut rec,
-                        head.grad_queries(),
-                        &image_grads.query,
-                    )?;
+                    QueryGradients::Regions {
+                        rows: head.grad_queries(),
+                        first_row: chunk.first_row,
+                        labels: self.pooling.labels(),
+                        offsets_at: self.pooling.labels_offsets_at(),
+                    }
                 }
-                _ => rec.fill_u32(&image_grads.query, 0),
-            }
+                _ => QueryGradients::Zero,
+            };
             let image_readback = self.image_loss.record_readback(&mut rec)?;
-            self.raster
-                .record_backward_into(&mut rec, window.params(), &self.grads, k > 0)?;
+            self.raster.record_backward_into(
+                &mut rec,
+                window.params(),
+                &self.grads,
+                k > 0,
+                query,
+            )?;
             if k + 1 == order.len() {
                 self.optimizer.record_step(
                     &mut rec,

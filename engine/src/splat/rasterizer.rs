@@ -24,8 +24,8 @@ use latentam_shaders::{
     RASTER_BACKWARD_COLUMNS_ATTACHED, RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
     RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
     RASTER_BACKWARD_COLUMNS_CAS, RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
-    RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLUMNS,
-    TILE_RANGES,
+    RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR,
+    RASTER_FORWARD_COLUMNS, RASTER_FORWARD_COLUMNS_COLOUR, TILE_RANGES,
 };
 
 use super::views::BatchLayout;
@@ -73,6 +73,11 @@ pub struct RenderSettings {
     pub detach_query_gradients: bool,
     /// Pixel-to-invocation mapping of the blending kernels.
     pub layout: BlendLayout,
+    /// Whether [`Rasterizer::image_grads`] has a per-pixel query gradient
+    /// image ([`QueryGradients::Image`]); off, the 128 bytes a pixel are
+    /// not allocated and the query gradients come from pooled region rows
+    /// ([`QueryGradients::Regions`]) or are zero.
+    pub query_gradient_image: bool,
 }
 
 impl Default for RenderSettings {
@@ -81,8 +86,51 @@ impl Default for RenderSettings {
             background: [0.0; 3],
             detach_query_gradients: true,
             layout: BlendLayout::Auto,
+            query_gradient_image: true,
         }
     }
+}
+
+/// Where the backward pass takes the upstream gradient of each pixel's
+/// rendered query.
+#[derive(Clone, Copy, Debug)]
+pub enum QueryGradients<'a> {
+    /// The per-pixel image `image_grads()?.query()` (requires
+    /// [`RenderSettings::query_gradient_image`]).
+    Image,
+    /// Region pooling's adjoint, without a per-pixel image: pixel p's
+    /// gradient is `rows[first_row + region(p)] / |region(p)|` (32 floats a
+    /// row), 0 for pixels in no region.
+    Regions {
+        /// ∂L/∂(pooled query), one 32-float row per region.
+        rows: &'a Buffer,
+        /// Row of region 0.
+        first_row: u32,
+        /// u32s: every batch pixel's region (`u32::MAX` for none), then,
+        /// from index `offsets_at`, the regions' CSR offsets (sizes by
+        /// difference), as [`crate::latent::Regions`] builds them.
+        labels: &'a Buffer,
+        /// Index of the first offset in `labels` (at least the batch's
+        /// pixel count).
+        offsets_at: u32,
+    },
+    /// No feature loss: zero.
+    Zero,
+}
+
+/// Which images a forward pass writes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Channels {
+    /// Colour, depth, alpha and the 32 query channels.
+    #[default]
+    All,
+    /// Colour, depth and alpha only: the query image keeps whatever it
+    /// held. Blending skips the query channels (on lavapipe a forward pass
+    /// then takes about 40 % of the time). The backward pass is exact when
+    /// query gradients are detached
+    /// ([`RenderSettings::detach_query_gradients`]), as it then reads no
+    /// rendered query.
+    Colour,
 }
 
 /// Per-pixel buffers of a batch (all views back to back, each row-major; see
@@ -93,20 +141,34 @@ pub struct PixelBuffers {
     pub rgbd: Buffer,
     /// 1 float per pixel: accumulated alpha.
     pub alpha: Buffer,
-    /// [`QUERY_DIM`] floats per pixel: the blended query vector.
-    pub query: Buffer,
+    /// [`QUERY_DIM`] floats per pixel: the blended query vector; allocated
+    /// only where query channels are rendered (or their gradients taken
+    /// per pixel).
+    query: Option<Buffer>,
+    name: &'static str,
     pixels: u64,
 }
 
 impl PixelBuffers {
-    fn new(ctx: &Context, prefix: &str, pixels: u64) -> Result<Self> {
+    fn new(ctx: &Context, name: &'static str, pixels: u64) -> Result<Self> {
         let p = pixels.max(1);
         Ok(Self {
-            rgbd: Buffer::device(ctx, &format!("{prefix}/rgbd"), p * 16)?,
-            alpha: Buffer::device(ctx, &format!("{prefix}/alpha"), p * 4)?,
-            query: Buffer::device(ctx, &format!("{prefix}/query"), p * 4 * QUERY_DIM as u64)?,
+            rgbd: Buffer::device(ctx, &format!("pixels/{name}_rgbd"), p * 16)?,
+            alpha: Buffer::device(ctx, &format!("pixels/{name}_alpha"), p * 4)?,
+            query: None,
+            name,
             pixels,
         })
+    }
+
+    fn ensure_query(&mut self, ctx: &Context) -> Result<()> {
+        if self.query.is_none() {
+            // A category of its own: the per-pixel feature memory.
+            let name = format!("features/{}_query", self.name);
+            let bytes = self.pixels.max(1) * 4 * QUERY_DIM as u64;
+            self.query = Some(Buffer::device(ctx, &name, bytes)?);
+        }
+        Ok(())
     }
 
     /// How many pixels the buffers hold.
@@ -114,11 +176,25 @@ impl PixelBuffers {
         self.pixels
     }
 
-    /// Records a fill of all three buffers with a bit pattern.
+    /// [`QUERY_DIM`] floats per pixel: the blended query vector (or its
+    /// gradient); an error where none is allocated.
+    pub fn query(&self) -> Result<&Buffer> {
+        self.query.as_ref().ok_or_else(|| {
+            Error::InvalidArgument(
+                "no per-pixel query image: render with Channels::All (images) or keep \
+                 RenderSettings::query_gradient_image (gradients)"
+                    .into(),
+            )
+        })
+    }
+
+    /// Records a fill of every allocated buffer with a bit pattern.
     pub fn record_fill<'a>(&'a self, rec: &mut Recorder<'a>, bits: u32) {
         rec.fill_u32(&self.rgbd, bits);
         rec.fill_u32(&self.alpha, bits);
-        rec.fill_u32(&self.query, bits);
+        if let Some(q) = &self.query {
+            rec.fill_u32(q, bits);
+        }
     }
 }
 
@@ -214,6 +290,7 @@ pub struct Rasterizer {
     layout: BatchLayout,
     n_gaussians: u64,
     stats: ForwardStats,
+    channels: Channels,
     views: Grow,
     splats: Grow,
     rects: Grow,
@@ -230,6 +307,9 @@ pub struct Rasterizer {
     grad_splats: Grow,
     images: Option<PixelBuffers>,
     image_grads: Option<PixelBuffers>,
+    /// Bound in place of a buffer a kernel variant declares but the pass
+    /// does not read (allocated by the first forward pass).
+    stub: Option<Buffer>,
     scan: Option<PrefixScan>,
     sorter: Option<RadixSorter>,
 }
@@ -244,6 +324,7 @@ impl Rasterizer {
             layout: BatchLayout::default(),
             n_gaussians: 0,
             stats: ForwardStats::default(),
+            channels: Channels::All,
             views: Grow::new("raster/views"),
             splats: Grow::new("raster/splats"),
             rects: Grow::new("raster/rects"),
@@ -260,6 +341,7 @@ impl Rasterizer {
             grad_splats: Grow::new("raster/grad_splats"),
             images: None,
             image_grads: None,
+            stub: None,
             scan: None,
             sorter: None,
         }
@@ -303,14 +385,31 @@ impl Rasterizer {
         Ok(())
     }
 
-    fn ensure_pixels(&mut self, pixels: u64) -> Result<()> {
+    fn ensure_pixels(&mut self, pixels: u64, channels: Channels) -> Result<()> {
         if self.images.as_ref().is_none_or(|b| b.pixels < pixels) {
             self.images = None;
             self.image_grads = None;
-            self.images = Some(PixelBuffers::new(&self.ctx, "pixels/images", pixels)?);
-            self.image_grads = Some(PixelBuffers::new(&self.ctx, "pixels/image_grads", pixels)?);
+            self.images = Some(PixelBuffers::new(&self.ctx, "images", pixels)?);
+            self.image_grads = Some(PixelBuffers::new(&self.ctx, "image_grads", pixels)?);
+        }
+        let ctx = self.ctx.clone();
+        if channels == Channels::All {
+            self.images.as_mut().expect("sized").ensure_query(&ctx)?;
+        }
+        if self.settings.query_gradient_image {
+            self.image_grads
+                .as_mut()
+                .expect("sized")
+                .ensure_query(&ctx)?;
+        }
+        if self.stub.is_none() {
+            self.stub = Some(Buffer::device(&ctx, "raster/stub", 256)?);
         }
         Ok(())
+    }
+
+    fn stub(&self) -> Result<&Buffer> {
+        self.stub.as_ref().ok_or_else(no_forward)
     }
 
     /// Renders `cameras` from Gaussians `0..count` of `gaussians` and waits
@@ -321,6 +420,17 @@ impl Rasterizer {
         gaussians: &GaussianBuffers,
         count: u64,
         cameras: &[Camera],
+    ) -> Result<ForwardStats> {
+        self.forward_channels(gaussians, count, cameras, Channels::All)
+    }
+
+    /// [`Rasterizer::forward`] writing only the images `channels` names.
+    pub fn forward_channels(
+        &mut self,
+        gaussians: &GaussianBuffers,
+        count: u64,
+        cameras: &[Camera],
+        channels: Channels,
     ) -> Result<ForwardStats> {
         if cameras.is_empty() {
             return Err(Error::InvalidArgument("no views to render".into()));
@@ -405,13 +515,14 @@ impl Rasterizer {
         self.ranges.ensure(&ctx, layout.tiles as u64 * 8)?;
         self.state.ensure(&ctx, layout.pixels * 8)?;
         self.grad_splats.ensure(&ctx, pairs * 32)?;
-        self.ensure_pixels(layout.pixels)?;
+        self.ensure_pixels(layout.pixels, channels)?;
         self.ensure_sorter(visible.max(intersections))?;
         {
             let mut rec = ctx.recorder()?;
             let scan = self.scan.as_ref().expect("scan sized above");
             let sorter = self.sorter.as_ref().expect("sorter sized above");
             let images = self.images.as_ref().expect("images sized above");
+            let stub = self.stub()?;
             let bins = |n: u64| push::CompactVisible {
                 n: n as u32,
                 n_gaussians: count as u32,
@@ -485,7 +596,7 @@ impl Rasterizer {
                 self.ranges.get(),
                 &images.rgbd,
                 &images.alpha,
-                &images.query,
+                images.query.as_ref().unwrap_or(stub),
                 self.state.get(),
             ];
             let p = push::RasterForward {
@@ -496,19 +607,36 @@ impl Rasterizer {
                 bg_g: bg[1],
                 bg_b: bg[2],
             };
-            match self.settings.layout.resolve(ctx.info().device_type) {
-                BlendLayout::Columns => rec.dispatch_linear(
+            let columns =
+                self.settings.layout.resolve(ctx.info().device_type) == BlendLayout::Columns;
+            match (columns, channels) {
+                (true, Channels::All) => rec.dispatch_linear(
                     &RASTER_FORWARD_COLUMNS,
                     layout.tiles,
                     &bufs,
                     bytemuck::cast_ref(&p),
                 )?,
-                _ => rec.dispatch_linear(&RASTER_FORWARD, layout.tiles, &bufs, &p)?,
+                (true, Channels::Colour) => rec.dispatch_linear(
+                    &RASTER_FORWARD_COLUMNS_COLOUR,
+                    layout.tiles,
+                    &bufs,
+                    bytemuck::cast_ref(&p),
+                )?,
+                (false, Channels::All) => {
+                    rec.dispatch_linear(&RASTER_FORWARD, layout.tiles, &bufs, &p)?
+                }
+                (false, Channels::Colour) => rec.dispatch_linear(
+                    &RASTER_FORWARD_COLOUR,
+                    layout.tiles,
+                    &bufs,
+                    bytemuck::cast_ref(&p),
+                )?,
             }
             rec.submit()?.wait()?;
         }
         self.layout = layout;
         self.n_gaussians = count;
+        self.channels = channels;
         self.stats = ForwardStats {
             visible,
             intersections,
@@ -526,22 +654,52 @@ impl Rasterizer {
         gaussians: &'a GaussianBuffers,
         grads: &'a GaussianBuffers,
     ) -> Result<()> {
-        self.record_backward_into(rec, gaussians, grads, false)
+        self.record_backward_into(rec, gaussians, grads, false, QueryGradients::Image)
     }
 
     /// [`Rasterizer::record_backward`] that adds this batch's gradients to
-    /// those already in `grads` when `accumulate` is set: a large batch
+    /// those already in `grads` when `accumulate` is set (a large batch
     /// rendered one chunk of views at a time then sums to the gradient of
-    /// the whole batch, with images for one chunk only.
+    /// the whole batch, with images for one chunk only), and takes the
+    /// upstream query gradients from `query`.
     pub fn record_backward_into<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
         gaussians: &'a GaussianBuffers,
         grads: &'a GaussianBuffers,
         accumulate: bool,
+        query: QueryGradients<'a>,
     ) -> Result<()> {
         let upstream = self.image_grads()?;
         let images = self.images()?;
+        let stub = self.stub()?;
+        let attached = !self.settings.detach_query_gradients;
+        if attached && (self.channels != Channels::All || images.query.is_none()) {
+            return Err(Error::InvalidArgument(
+                "query gradients reaching geometry need the rendered query: render with \
+                 Channels::All"
+                    .into(),
+            ));
+        }
+        let (source, first_row, grad_query, labels, offsets_at) = match query {
+            QueryGradients::Image => (0u32, 0u32, upstream.query()?, stub, 0u32),
+            QueryGradients::Regions {
+                rows,
+                first_row,
+                labels,
+                offsets_at,
+            } => {
+                if (offsets_at as u64) < self.layout.pixels {
+                    return Err(Error::InvalidArgument(format!(
+                        "region offsets at {offsets_at} overlap the labels of {} pixels",
+                        self.layout.pixels
+                    )));
+                }
+                labels.ensure_bytes((offsets_at as u64 + 1) * 4, "backward: pixel regions")?;
+                (1, first_row, rows, labels, offsets_at)
+            }
+            QueryGradients::Zero => (2, 0, stub, stub, 0),
+        };
         let count = self.n_gaussians;
         if grads.capacity() < count || gaussians.capacity() < count {
             return Err(Error::InvalidArgument(format!(
@@ -564,6 +722,9 @@ impl Rasterizer {
             bg_r: bg[0],
             bg_g: bg[1],
             bg_b: bg[2],
+            query_source: source,
+            first_row,
+            offsets_at,
         };
         let bufs = [
             self.views.get(),
@@ -573,14 +734,15 @@ impl Rasterizer {
             self.isect_pairs.get(),
             self.ranges.get(),
             &images.rgbd,
-            &images.query,
+            images.query.as_ref().unwrap_or(stub),
             self.state.get(),
             &upstream.rgbd,
             &upstream.alpha,
-            &upstream.query,
+            grad_query,
             &grads.colors,
             &grads.queries,
             self.grad_splats.get(),
+            labels,
         ];
         let info = rec.info();
         let groups = self.layout.tiles;
@@ -592,7 +754,6 @@ impl Rasterizer {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
             };
         }
-        let attached = !self.settings.detach_query_gradients;
         // The column kernels sum a tile's 8 invocations with a shuffle
         // butterfly, which needs them to be exactly one subgroup.
         let sub = if columns {
@@ -665,8 +826,19 @@ impl Rasterizer {
             .collect())
     }
 
-    /// Downloads view `index` of the last forward batch.
+    /// Which images the last forward pass wrote.
+    pub fn channels(&self) -> Channels {
+        self.channels
+    }
+
+    /// Downloads view `index` of the last forward batch (an error after a
+    /// [`Channels::Colour`] pass, whose query image is stale).
     pub fn download_view(&self, index: usize) -> Result<RenderedView> {
+        if self.channels != Channels::All {
+            return Err(Error::InvalidArgument(
+                "the last forward pass rendered no query channels".into(),
+            ));
+        }
         let slot = self.view_slot(index)?;
         let images = self.images()?;
         let n = slot.width as u64 * slot.height as u64;
@@ -675,7 +847,7 @@ impl Rasterizer {
         let mut rec = self.ctx.recorder()?;
         let rgbd = rec.download(&images.rgbd, first * 16, n * 16)?;
         let alpha = rec.download(&images.alpha, first * 4, n * 4)?;
-        let query = rec.download(&images.query, first * q, n * q)?;
+        let query = rec.download(images.query()?, first * q, n * q)?;
         rec.submit()?.wait()?;
         Ok(RenderedView {
             width: slot.width,

@@ -244,7 +244,7 @@ fn upload_upstream(ctx: &Context, raster: &Rasterizer, up: &[ImageGrads]) {
     let b = raster.image_grads().unwrap();
     ctx.upload(&b.rgbd, 0, &rgbd).unwrap();
     ctx.upload(&b.alpha, 0, &alpha).unwrap();
-    ctx.upload(&b.query, 0, &query).unwrap();
+    ctx.upload(b.query().unwrap(), 0, &query).unwrap();
 }
 
 /// The six parameter kinds of `grads`, flattened.
@@ -312,6 +312,147 @@ fn check_backward_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
             );
         }
     }
+}
+
+/// The backward pass with query gradients taken from pooled region rows
+/// through each pixel's region (no per-pixel query gradient image) against
+/// the f64 reference given the image region pooling's adjoint would write.
+/// Detached, the forward renders no query channels at all.
+fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
+    use crate::latent::{LabelImage, Regions, NO_REGION_LABEL};
+    use crate::reference::pooling::pool_backward;
+    let mut r = rng(seed_name);
+    let cams: Vec<Camera> = [(37, 29), (48, 32)]
+        .iter()
+        .map(|&(w, h)| random_camera(&mut r, w, h, 3.0))
+        .collect();
+    let n = 200;
+    let host = awkward_scene(&mut r, n, &cams);
+    let buf = upload(ctx, &host);
+    let grads = GaussianBuffers::new(ctx, "test_grads", n as u64).unwrap();
+    let batch = BatchLayout::for_cameras(&cams).unwrap();
+    // Coarse random label images: 4x3 blocks of 6 regions, some unlabelled.
+    let mut regions = Regions::new(&batch, 1);
+    for v in 0..cams.len() {
+        let labels: Vec<u16> = (0..12)
+            .map(|_| {
+                if r.random_bool(0.2) {
+                    NO_REGION_LABEL
+                } else {
+                    r.random_range(0..6)
+                }
+            })
+            .collect();
+        let img = LabelImage {
+            width: 4,
+            height: 3,
+            labels: &labels,
+        };
+        regions.add_labels(v, img, 6).unwrap();
+    }
+    let rows = regions.len() as usize;
+    assert!(rows >= 4, "{rows} regions");
+    // Rows before `first_row` belong to other chunks: never read.
+    let first_row = 3usize;
+    let grad_rows: Vec<f32> = (0..(first_row + rows) * QUERY_DIM)
+        .map(|i| {
+            if i < first_row * QUERY_DIM {
+                f32::NAN
+            } else {
+                r.random_range(-1.0..1.0)
+            }
+        })
+        .collect();
+    let per_pixel = pool_backward(
+        &grad_rows[first_row * QUERY_DIM..],
+        QUERY_DIM,
+        regions.offsets(),
+        regions.pixels(),
+        batch.pixels as usize,
+    );
+    let mut up = random_upstream(&mut r, &cams);
+    let mut p = 0;
+    for g in &mut up {
+        for c in &mut g.channels {
+            for k in 0..QUERY_DIM {
+                c[4 + k] = per_pixel[p * QUERY_DIM + k];
+            }
+            p += 1;
+        }
+    }
+    let gs = Gaussian::all(&host);
+    let want = reference::backward(&gs, &cams, [0.3, 0.1, 0.7], &up, detach).grads;
+    let rows_buf = ctx.upload_new("test/grad_rows", &grad_rows).unwrap();
+    // Each pixel's region, then the regions' CSR offsets.
+    let mut label_data = regions.pixel_region().to_vec();
+    label_data.extend_from_slice(regions.offsets());
+    let labels = ctx.upload_new("test/labels", &label_data).unwrap();
+    for layout in LAYOUTS {
+        let mut raster = Rasterizer::new(ctx);
+        raster.settings.background = [0.3, 0.1, 0.7];
+        raster.settings.detach_query_gradients = detach;
+        raster.settings.layout = layout;
+        raster.settings.query_gradient_image = false;
+        let channels = if detach {
+            Channels::Colour
+        } else {
+            Channels::All
+        };
+        raster
+            .forward_channels(&buf, n as u64, &cams, channels)
+            .unwrap();
+        // No per-pixel query gradient image, and detached no query image.
+        assert!(raster.image_grads().unwrap().query().is_err());
+        assert_eq!(raster.images().unwrap().query().is_ok(), !detach);
+        let mut rgbd = Vec::new();
+        let mut alpha = Vec::new();
+        for g in &up {
+            for (c, a) in g.channels.iter().zip(&g.alpha) {
+                rgbd.extend(c[..4].iter().map(|&v| v as f32));
+                alpha.push(*a as f32);
+            }
+        }
+        let b = raster.image_grads().unwrap();
+        ctx.upload(&b.rgbd, 0, &rgbd).unwrap();
+        ctx.upload(&b.alpha, 0, &alpha).unwrap();
+        let mut rec = ctx.recorder().unwrap();
+        grads.record_fill(&mut rec, 0x7fc0_0000);
+        raster
+            .record_backward_into(
+                &mut rec,
+                &buf,
+                &grads,
+                false,
+                QueryGradients::Regions {
+                    rows: &rows_buf,
+                    first_row: first_row as u32,
+                    labels: &labels,
+                    offsets_at: batch.pixels as u32,
+                },
+            )
+            .unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        let got = Gaussian::all(&grads.download(ctx, n as u64).unwrap());
+        for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
+            assert!(
+                a.iter().all(|v| v.is_finite()),
+                "{layout:?}: {name}: non-finite gradient"
+            );
+            let e = rel_err(&a, &b);
+            assert!(
+                e < 2e-3,
+                "{layout:?}: {name} gradients differ from the reference: relative error {e:e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn backward_from_region_rows_matches_reference() {
+    with_context(|ctx| {
+        check_region_gradients_vs_reference(ctx, "backward_from_region_rows_detached", true);
+        check_region_gradients_vs_reference(ctx, "backward_from_region_rows_attached", false);
+    });
 }
 
 #[test]
