@@ -51,13 +51,15 @@ pub fn largest_row_bytes(views: u64) -> u64 {
 }
 
 /// GPU bytes per pixel of a chunk of views: colour + depth and alpha with
-/// their gradients, the rendered query (pooled into regions; its gradient
-/// comes from the region rows, with no per-pixel image), blending state
-/// with growth headroom, target, region lists.
-pub const BYTES_PER_CHUNK_PIXEL: u64 = 2 * (16 + 4) + QUERY_IMAGE_BYTES_PER_PIXEL + 10 + 16 + 8;
+/// their gradients, blending state with growth headroom, target, region
+/// lists. The 32 query channels have no per-pixel buffer in mapping: the
+/// rasterizer pools them into region rows, and their gradients come back
+/// from those rows.
+pub const BYTES_PER_CHUNK_PIXEL: u64 = 2 * (16 + 4) + 10 + 16 + 8;
 
-/// Of [`BYTES_PER_CHUNK_PIXEL`], the query image's (32 channels), which a
-/// map without embeddings never allocates.
+/// A per-pixel query image (32 channels), allocated only by renders that
+/// return per-pixel queries (evaluation, relevance images), one view at a
+/// time.
 pub const QUERY_IMAGE_BYTES_PER_PIXEL: u64 = 128;
 
 /// GPU bytes per pixel of a view for the SSIM workspaces (reused by every

@@ -14,6 +14,7 @@ use crate::map::LocalWindow;
 use crate::optim::{GaussianLearningRates, GaussianOptimizer};
 use crate::splat::{
     BatchLayout, Camera, Channels, ForwardStats, GaussianBuffers, QueryGradients, Rasterizer,
+    QUERY_DIM,
 };
 
 /// Pixels Stage I renders at once by default: a batch larger than this is
@@ -214,6 +215,15 @@ impl Trainer {
             batch[c.views.clone()].iter().map(|k| k.camera).collect()
         };
 
+        // Detached query gradients need no rendered query image: the
+        // rasterizer pools the queries into region rows itself, and the
+        // backward pass reads neither.
+        let channels = if self.raster.settings.detach_query_gradients {
+            Channels::Colour
+        } else {
+            Channels::All
+        };
+
         // Pass 1: pool every chunk's regions, then the decoder's step.
         let head = head.filter(|_| n > 0);
         let mut live = None;
@@ -222,17 +232,33 @@ impl Trainer {
                 let Some(regions) = &chunk.regions else {
                     continue;
                 };
-                let stats = self
-                    .raster
-                    .forward(window.params(), count, &cameras(chunk))?;
+                let stats = self.raster.forward_channels(
+                    window.params(),
+                    count,
+                    &cameras(chunk),
+                    channels,
+                )?;
                 report.raster.visible += stats.visible;
                 report.raster.intersections += stats.intersections;
                 report.forward_passes += 1;
                 let mut rec = ctx.recorder()?;
                 self.pooling
                     .record_upload_at(&mut rec, regions, chunk.first_row)?;
-                self.pooling
-                    .record_forward(&mut rec, self.raster.images()?.query()?)?;
+                let row_bytes = QUERY_DIM as u64 * 4;
+                rec.fill_range_u32(
+                    self.pooling.pooled(),
+                    chunk.first_row as u64 * row_bytes,
+                    regions.len() as u64 * row_bytes,
+                    0,
+                )?;
+                self.raster.record_pool(
+                    &mut rec,
+                    window.params(),
+                    self.pooling.pooled(),
+                    chunk.first_row,
+                    self.pooling.labels(),
+                    self.pooling.labels_offsets_at(),
+                )?;
                 rec.submit()?.wait()?;
                 live = Some(c);
             }
@@ -257,13 +283,6 @@ impl Trainer {
         // then one Adam step on the sum.
         let mut order: Vec<usize> = live.into_iter().collect();
         order.extend((0..chunks.len()).rev().filter(|&c| Some(c) != live));
-        // Detached query gradients need no rendered query: these renders
-        // skip the query channels.
-        let channels = if self.raster.settings.detach_query_gradients {
-            Channels::Colour
-        } else {
-            Channels::All
-        };
         for (k, &c) in order.iter().enumerate() {
             let chunk = &chunks[c];
             if Some(c) != live || k > 0 {

@@ -25,7 +25,9 @@ use latentam_shaders::{
     RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
     RASTER_BACKWARD_COLUMNS_CAS, RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
     RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR,
-    RASTER_FORWARD_COLUMNS, RASTER_FORWARD_COLUMNS_COLOUR, TILE_RANGES,
+    RASTER_FORWARD_COLUMNS, RASTER_FORWARD_COLUMNS_COLOUR, RASTER_POOL, RASTER_POOL_CAS,
+    RASTER_POOL_COLUMNS, RASTER_POOL_COLUMNS_CAS, RASTER_POOL_PLAIN, RASTER_POOL_PLAIN_CAS,
+    TILE_RANGES,
 };
 
 use super::views::BatchLayout;
@@ -800,6 +802,72 @@ impl Rasterizer {
                 accumulate: accumulate as u32,
             },
         )
+    }
+
+    /// Records region pooling of the last forward batch's query channels
+    /// without a per-pixel query image (kernel `shaders/wgsl/raster_pool.wgsl`):
+    /// adds `query[p] / |r|` of every pixel p of region r into 32-float row
+    /// `first_row + r` of `pooled`, so rows zero-filled before hold each
+    /// region's mean rendered query. `labels` holds each batch pixel's
+    /// region (`u32::MAX` for none) and, from index `offsets_at`, the
+    /// regions' CSR offsets, as for [`QueryGradients::Regions`]. Any
+    /// [`Channels`] of forward pass will do: only its blending state is
+    /// read. `gaussians` must be unchanged since the forward pass.
+    pub fn record_pool<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        gaussians: &'a GaussianBuffers,
+        pooled: &'a Buffer,
+        first_row: u32,
+        labels: &'a Buffer,
+        offsets_at: u32,
+    ) -> Result<()> {
+        self.images()?;
+        if (offsets_at as u64) < self.layout.pixels {
+            return Err(Error::InvalidArgument(format!(
+                "region offsets at {offsets_at} overlap the labels of {} pixels",
+                self.layout.pixels
+            )));
+        }
+        labels.ensure_bytes((offsets_at as u64 + 1) * 4, "region pooling: labels")?;
+        pooled.ensure_bytes(
+            (first_row as u64 + 1) * QUERY_DIM as u64 * 4,
+            "region pooling",
+        )?;
+        let p = push::RasterPool {
+            n_gaussians: self.n_gaussians as u32,
+            n_views: self.layout.views.len() as u32,
+            n_tiles: self.layout.tiles,
+            first_row,
+            offsets_at,
+        };
+        let bufs = [
+            self.views.get(),
+            &gaussians.queries,
+            self.splats.get(),
+            self.isect_pairs.get(),
+            self.ranges.get(),
+            self.state.get(),
+            labels,
+            pooled,
+        ];
+        let info = rec.info();
+        let groups = self.layout.tiles;
+        let columns = self.settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+        macro_rules! pool {
+            ($kernel:expr) => {
+                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
+            };
+        }
+        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
+            (true, _, true) => pool!(RASTER_POOL_COLUMNS),
+            (true, _, false) => pool!(RASTER_POOL_COLUMNS_CAS),
+            (false, true, true) => pool!(RASTER_POOL),
+            (false, true, false) => pool!(RASTER_POOL_CAS),
+            (false, false, true) => pool!(RASTER_POOL_PLAIN),
+            (false, false, false) => pool!(RASTER_POOL_PLAIN_CAS),
+        }
+        Ok(())
     }
 
     /// [`Rasterizer::record_backward`], submitted and waited for.

@@ -314,26 +314,12 @@ fn check_backward_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
     }
 }
 
-/// The backward pass with query gradients taken from pooled region rows
-/// through each pixel's region (no per-pixel query gradient image) against
-/// the f64 reference given the image region pooling's adjoint would write.
-/// Detached, the forward renders no query channels at all.
-fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
+/// Coarse random label images over the batch's views: 4×3 blocks of 6
+/// regions, some unlabelled, so regions have ragged borders across tiles.
+fn random_regions(r: &mut impl Rng, batch: &BatchLayout) -> crate::latent::Regions {
     use crate::latent::{LabelImage, Regions, NO_REGION_LABEL};
-    use crate::reference::pooling::pool_backward;
-    let mut r = rng(seed_name);
-    let cams: Vec<Camera> = [(37, 29), (48, 32)]
-        .iter()
-        .map(|&(w, h)| random_camera(&mut r, w, h, 3.0))
-        .collect();
-    let n = 200;
-    let host = awkward_scene(&mut r, n, &cams);
-    let buf = upload(ctx, &host);
-    let grads = GaussianBuffers::new(ctx, "test_grads", n as u64).unwrap();
-    let batch = BatchLayout::for_cameras(&cams).unwrap();
-    // Coarse random label images: 4x3 blocks of 6 regions, some unlabelled.
-    let mut regions = Regions::new(&batch, 1);
-    for v in 0..cams.len() {
+    let mut regions = Regions::new(batch, 1);
+    for v in 0..batch.views.len() {
         let labels: Vec<u16> = (0..12)
             .map(|_| {
                 if r.random_bool(0.2) {
@@ -350,6 +336,126 @@ fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: b
         };
         regions.add_labels(v, img, 6).unwrap();
     }
+    regions
+}
+
+/// Each pixel's region, then the regions' CSR offsets (from index
+/// `batch.pixels`), as the rasterizer's region kernels read them.
+fn region_labels(ctx: &Context, regions: &crate::latent::Regions) -> crate::gpu::Buffer {
+    let mut data = regions.pixel_region().to_vec();
+    data.extend_from_slice(regions.offsets());
+    ctx.upload_new("test/labels", &data).unwrap()
+}
+
+/// Region pooling inside the rasterizer against the f64 reference render
+/// pooled by the reference pooling.
+fn check_pool_vs_reference(ctx: &Context, seed_name: &str) {
+    let mut r = rng(seed_name);
+    let cams: Vec<Camera> = [(37, 29), (48, 32)]
+        .iter()
+        .map(|&(w, h)| random_camera(&mut r, w, h, 3.0))
+        .collect();
+    let n = 200;
+    let host = awkward_scene(&mut r, n, &cams);
+    let buf = upload(ctx, &host);
+    let batch = BatchLayout::for_cameras(&cams).unwrap();
+    let regions = random_regions(&mut r, &batch);
+    let rows = regions.len() as usize;
+    assert!(rows >= 4, "{rows} regions");
+    let gs = Gaussian::all(&host);
+    let mut image = Vec::new();
+    for cam in &cams {
+        for c in reference::render(&gs, cam, [0.0; 3]).channels {
+            image.extend(c[4..].iter().map(|&v| v as f32));
+        }
+    }
+    let want =
+        crate::reference::pooling::pool(&image, QUERY_DIM, regions.offsets(), regions.pixels());
+    let labels = region_labels(ctx, &regions);
+    // Rows before `first_row` belong to other chunks: never written.
+    let first_row = 3usize;
+    let pooled = crate::gpu::Buffer::device(
+        ctx,
+        "test/pooled",
+        ((first_row + rows) * QUERY_DIM * 4) as u64,
+    )
+    .unwrap();
+    for layout in LAYOUTS {
+        for channels in [Channels::Colour, Channels::All] {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            raster.settings.query_gradient_image = false;
+            raster
+                .forward_channels(&buf, n as u64, &cams, channels)
+                .unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            rec.fill_u32(&pooled, 0x7fc0_0000);
+            rec.fill_range_u32(
+                &pooled,
+                (first_row * QUERY_DIM * 4) as u64,
+                (rows * QUERY_DIM * 4) as u64,
+                0,
+            )
+            .unwrap();
+            raster
+                .record_pool(
+                    &mut rec,
+                    &buf,
+                    &pooled,
+                    first_row as u32,
+                    &labels,
+                    batch.pixels as u32,
+                )
+                .unwrap();
+            rec.submit().unwrap().wait().unwrap();
+            let got = ctx.download::<f32>(&pooled).unwrap();
+            assert!(got[..first_row * QUERY_DIM].iter().all(|v| v.is_nan()));
+            let got = &got[first_row * QUERY_DIM..];
+            let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.1, "queries were rendered: {scale}");
+            for (i, (&g, &w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    (g as f64 - w).abs() <= 1e-4 * scale.max(1.0),
+                    "{layout:?} {channels:?}: row {} channel {}: {g} vs {w}",
+                    i / QUERY_DIM,
+                    i % QUERY_DIM
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn pooling_inside_the_rasterizer_matches_reference() {
+    with_context(|ctx| check_pool_vs_reference(ctx, "pooling_inside_the_rasterizer"));
+    with_cas_atomics(|ctx| check_pool_vs_reference(ctx, "pooling_inside_the_rasterizer_cas"));
+    let o = ContextOptions {
+        subgroup_arithmetic: false,
+        ..ContextOptions::default()
+    };
+    with_options(o, |ctx| {
+        assert!(!ctx.info().subgroup_arithmetic);
+        check_pool_vs_reference(ctx, "pooling_inside_the_rasterizer_plain")
+    });
+}
+
+/// The backward pass with query gradients taken from pooled region rows
+/// through each pixel's region (no per-pixel query gradient image) against
+/// the f64 reference given the image region pooling's adjoint would write.
+/// Detached, the forward renders no query channels at all.
+fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
+    use crate::reference::pooling::pool_backward;
+    let mut r = rng(seed_name);
+    let cams: Vec<Camera> = [(37, 29), (48, 32)]
+        .iter()
+        .map(|&(w, h)| random_camera(&mut r, w, h, 3.0))
+        .collect();
+    let n = 200;
+    let host = awkward_scene(&mut r, n, &cams);
+    let buf = upload(ctx, &host);
+    let grads = GaussianBuffers::new(ctx, "test_grads", n as u64).unwrap();
+    let batch = BatchLayout::for_cameras(&cams).unwrap();
+    let regions = random_regions(&mut r, &batch);
     let rows = regions.len() as usize;
     assert!(rows >= 4, "{rows} regions");
     // Rows before `first_row` belong to other chunks: never read.
@@ -383,10 +489,7 @@ fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: b
     let gs = Gaussian::all(&host);
     let want = reference::backward(&gs, &cams, [0.3, 0.1, 0.7], &up, detach).grads;
     let rows_buf = ctx.upload_new("test/grad_rows", &grad_rows).unwrap();
-    // Each pixel's region, then the regions' CSR offsets.
-    let mut label_data = regions.pixel_region().to_vec();
-    label_data.extend_from_slice(regions.offsets());
-    let labels = ctx.upload_new("test/labels", &label_data).unwrap();
+    let labels = region_labels(ctx, &regions);
     for layout in LAYOUTS {
         let mut raster = Rasterizer::new(ctx);
         raster.settings.background = [0.3, 0.1, 0.7];

@@ -1,0 +1,346 @@
+// Region pooling inside the rasterizer: the mean rendered query of every
+// region, without a per-pixel query image,
+//     pooled[first_row + r, c] += sum_{p in r} query[p, c] / |r|
+// (rows zero-filled by the host first). Runs after a forward pass of the
+// same batch (any channels): walks each tile's depth-sorted list as
+// glsl/raster_forward.comp does, up to each pixel's last contributor (its
+// state), blending only the 32 query channels, and adds each pixel's share
+// into its region's row. Pixels in no region are not walked. CPU reference:
+// engine/src/reference/raster.rs (`render`) followed by
+// engine/src/reference/pooling.rs (`pool`).
+//
+// WGSL because the sums need float atomics (or a compare-and-swap loop
+// where the device lacks them), and subgroup operations where available;
+// naga's GLSL front end has neither.
+//
+// One pixel per invocation (GPUs): where a subgroup's pixels all lie in one
+// region (most of an image), they are summed with subgroupAdd and one
+// invocation adds the row; elsewhere each pixel adds its own. COLUMNS
+// variants (CPU drivers, see glsl/raster_forward.comp): each of 8
+// invocations blends two 16-pixel tile columns, and a column whose pixels
+// share a region adds one row for the column.
+//
+// The region of pixel p is labels[p] (0xffffffff: none); from offsets_at,
+// labels holds the regions' CSR offsets, so |r| = labels[offsets_at + r + 1]
+// - labels[offsets_at + r]. The same layout feeds raster_backward.
+//
+// @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
+// @kernel raster_pool SUBGROUP=1 CAS=0 COLUMNS=0
+// @kernel raster_pool_cas SUBGROUP=1 CAS=1 COLUMNS=0
+// @kernel raster_pool_plain SUBGROUP=0 CAS=0 COLUMNS=0
+// @kernel raster_pool_plain_cas SUBGROUP=0 CAS=1 COLUMNS=0
+// @kernel raster_pool_columns SUBGROUP=0 CAS=0 COLUMNS=1
+// @kernel raster_pool_columns_cas SUBGROUP=0 CAS=1 COLUMNS=1
+
+const TILE_SIZE: u32 = 16u;
+const BATCH: u32 = 256u;
+#if COLUMNS
+const ROWS: u32 = 32u;
+const INVOCATIONS: u32 = 8u;
+#else
+const INVOCATIONS: u32 = 256u;
+#endif
+const MAX_ALPHA: f32 = 0.99;
+const MIN_ALPHA: f32 = 1.0 / 255.0;
+const NO_REGION: u32 = 0xffffffffu;
+
+// Mirrors `View` in glsl/splat.glsl.
+struct View {
+    row0: vec4<f32>,
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    intrinsics: vec4<f32>,
+    guard: vec4<f32>,
+    clip: vec4<f32>,
+    size: vec4<u32>,
+    offsets: vec4<u32>,
+}
+
+struct Params {
+    n_gaussians: u32,
+    n_views: u32,
+    n_tiles: u32,
+    first_row: u32,
+    offsets_at: u32,
+}
+
+var<immediate> pc: Params;
+
+@group(0) @binding(0) var<storage, read> views: array<View>;
+@group(0) @binding(1) var<storage, read> queries: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> splats: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> pairs: array<u32>;
+@group(0) @binding(4) var<storage, read> ranges: array<vec2<u32>>;
+// Per pixel: (list entries walked, final transmittance bits).
+@group(0) @binding(5) var<storage, read> state: array<vec2<u32>>;
+@group(0) @binding(6) var<storage, read> labels: array<u32>;
+#if CAS
+@group(0) @binding(7) var<storage, read_write> pooled: array<atomic<u32>>;
+
+fn add_pooled(i: u32, v: f32) {
+    var old = atomicLoad(&pooled[i]);
+    loop {
+        let r = atomicCompareExchangeWeak(&pooled[i], old, bitcast<u32>(bitcast<f32>(old) + v));
+        if (r.exchanged) { break; }
+        old = r.old_value;
+    }
+}
+#else
+@group(0) @binding(7) var<storage, read_write> pooled: array<atomic<f32>>;
+
+fn add_pooled(i: u32, v: f32) { atomicAdd(&pooled[i], v); }
+#endif
+
+// Adds 32 channels to region r's row.
+fn add_row(r: u32, q: array<vec4<f32>, 8>) {
+    let row = 32u * (pc.first_row + r);
+    for (var c = 0u; c < 8u; c++) {
+        add_pooled(row + 4u * c, q[c].x);
+        add_pooled(row + 4u * c + 1u, q[c].y);
+        add_pooled(row + 4u * c + 2u, q[c].z);
+        add_pooled(row + 4u * c + 3u, q[c].w);
+    }
+}
+
+// A pixel's region and its share 1/|r| (0 for none).
+struct Region {
+    index: u32,
+    share: f32,
+}
+
+fn region_of(p: u32) -> Region {
+    let r = labels[p];
+    if (r == NO_REGION) {
+        return Region(NO_REGION, 0.0);
+    }
+    let size = labels[pc.offsets_at + r + 1u] - labels[pc.offsets_at + r];
+    return Region(r, 1.0 / f32(max(size, 1u)));
+}
+
+var<workgroup> sh_gaussian: array<u32, BATCH>;
+var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
+var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
+var<workgroup> wg_walk_atomic: atomic<u32>;
+var<workgroup> wg_walk: u32;
+
+// The largest `mine` over the workgroup (invocation `t`), uniform: how far
+// the tile walks its list.
+fn tile_max(t: u32, mine: u32) -> u32 {
+    if (t == 0u) {
+        atomicStore(&wg_walk_atomic, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&wg_walk_atomic, mine);
+    workgroupBarrier();
+    if (t == 0u) {
+        wg_walk = atomicLoad(&wg_walk_atomic);
+    }
+    return workgroupUniformLoad(&wg_walk);
+}
+
+#if COLUMNS
+@compute @workgroup_size(8)
+#else
+@compute @workgroup_size(256)
+#endif
+fn raster_pool(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) t: u32,
+#if SUBGROUP
+    @builtin(subgroup_invocation_id) lane: u32,
+#endif
+) {
+    let tile = wid.y * nwg.x + wid.x;
+    if (tile >= pc.n_tiles) {
+        return;
+    }
+    var vi = 0u;
+    for (var k = 1u; k < pc.n_views; k++) {
+        if (views[k].offsets.x <= tile) {
+            vi = k;
+        }
+    }
+    let v = views[vi];
+    let local_tile = tile - v.offsets.x;
+    let start = ranges[tile].x;
+#if COLUMNS
+    let px0 = (local_tile % v.size.z) * TILE_SIZE + t;
+    let py0 = (local_tile / v.size.z) * TILE_SIZE;
+    // Per pixel K (column px0 + 8 (K / 16), row py0 + K % 16), indexed by
+    // constants only (unrolled below).
+    var walked: array<u32, ROWS>;
+    var region: array<u32, ROWS>;
+    var share: array<f32, ROWS>;
+    var trans: array<f32, ROWS>;
+    var q: array<vec4<f32>, 256>;
+    var my_walk = 0u;
+#unroll K 32
+    {
+        let px = px0 + 8u * (K / 16u);
+        let py = py0 + K % 16u;
+        walked[K] = 0u;
+        region[K] = NO_REGION;
+        share[K] = 0.0;
+        trans[K] = 1.0;
+#unroll C 8
+        q[8u * K + C] = vec4<f32>(0.0);
+#endunroll
+        if (px < v.size.x && py < v.size.y) {
+            let p = v.offsets.y + py * v.size.x + px;
+            let reg = region_of(p);
+            region[K] = reg.index;
+            share[K] = reg.share;
+            walked[K] = select(0u, state[p].x, reg.index != NO_REGION);
+        }
+        my_walk = max(my_walk, walked[K]);
+    }
+#endunroll
+
+    let tile_walk = tile_max(t, my_walk);
+    for (var base = 0u; base < tile_walk; base += BATCH) {
+        workgroupBarrier();
+        for (var e = t; e < BATCH; e += INVOCATIONS) {
+            if (base + e < tile_walk) {
+                let pair = pairs[start + base + e];
+                sh_gaussian[e] = pair % pc.n_gaussians;
+                sh_splat[e] = splats[2u * pair];
+                sh_conic[e] = splats[2u * pair + 1u];
+            }
+        }
+        workgroupBarrier();
+        let count = min(BATCH, tile_walk - base);
+        for (var j = 0u; j < count; j++) {
+            let s = sh_splat[j];
+            let conic = sh_conic[j].xyz;
+            let g = sh_gaussian[j];
+            // Loaded once for the 32 pixels.
+            var f: array<vec4<f32>, 8>;
+#unroll C 8
+            f[C] = queries[8u * g + C];
+#endunroll
+#unroll K 32
+            {
+                let d = s.xy - vec2<f32>(f32(px0 + 8u * (K / 16u)), f32(py0 + K % 16u));
+                let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
+                let alpha = min(MAX_ALPHA, s.w * exp(-sigma));
+                let hit = base + j < walked[K] && sigma >= 0.0 && alpha >= MIN_ALPHA;
+                let w = alpha * trans[K];
+                // Selected, not multiplied by a zero weight: a non-finite
+                // query must not reach pixels the Gaussian does not cover.
+#unroll C 8
+                q[8u * K + C] = select(q[8u * K + C], q[8u * K + C] + w * f[C], hit);
+#endunroll
+                trans[K] = select(trans[K], trans[K] * (1.0 - alpha), hit);
+            }
+#endunroll
+        }
+    }
+
+    // Column 0 (K 0..15), then column 1 (K 16..31): one row update for a
+    // column in one region, else one per pixel.
+    var same0 = true;
+    var same1 = true;
+    var sum0: array<vec4<f32>, 8>;
+    var sum1: array<vec4<f32>, 8>;
+#unroll K 16
+    {
+        same0 = same0 && region[K] == region[0u];
+        same1 = same1 && region[K + 16u] == region[16u];
+#unroll C 8
+        sum0[C] += q[8u * K + C] * share[K];
+        sum1[C] += q[8u * (K + 16u) + C] * share[K + 16u];
+#endunroll
+    }
+#endunroll
+    if (same0 && region[0u] != NO_REGION) {
+        add_row(region[0u], sum0);
+    }
+    if (same1 && region[16u] != NO_REGION) {
+        add_row(region[16u], sum1);
+    }
+#unroll K 16
+    {
+        if (!same0 && region[K] != NO_REGION) {
+            var mine: array<vec4<f32>, 8>;
+#unroll C 8
+            mine[C] = q[8u * K + C] * share[K];
+#endunroll
+            add_row(region[K], mine);
+        }
+        if (!same1 && region[K + 16u] != NO_REGION) {
+            var mine: array<vec4<f32>, 8>;
+#unroll C 8
+            mine[C] = q[8u * (K + 16u) + C] * share[K + 16u];
+#endunroll
+            add_row(region[K + 16u], mine);
+        }
+    }
+#endunroll
+#else
+    let px = (local_tile % v.size.z) * TILE_SIZE + t % TILE_SIZE;
+    let py = (local_tile / v.size.z) * TILE_SIZE + t / TILE_SIZE;
+    let pix = vec2<f32>(f32(px), f32(py));
+    var walked = 0u;
+    var reg = Region(NO_REGION, 0.0);
+    if (px < v.size.x && py < v.size.y) {
+        let p = v.offsets.y + py * v.size.x + px;
+        reg = region_of(p);
+        walked = select(0u, state[p].x, reg.index != NO_REGION);
+    }
+    let tile_walk = tile_max(t, walked);
+    var trans = 1.0;
+    var q: array<vec4<f32>, 8>;
+    for (var base = 0u; base < tile_walk; base += BATCH) {
+        workgroupBarrier();
+        if (base + t < tile_walk) {
+            let pair = pairs[start + base + t];
+            sh_gaussian[t] = pair % pc.n_gaussians;
+            sh_splat[t] = splats[2u * pair];
+            sh_conic[t] = splats[2u * pair + 1u];
+        }
+        workgroupBarrier();
+        let count = min(BATCH, tile_walk - base);
+        for (var j = 0u; j < count && base + j < walked; j++) {
+            let s = sh_splat[j];
+            let conic = sh_conic[j].xyz;
+            let d = s.xy - pix;
+            let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
+            let alpha = min(MAX_ALPHA, s.w * exp(-sigma));
+            if (sigma >= 0.0 && alpha >= MIN_ALPHA) {
+                let w = alpha * trans;
+                let g = sh_gaussian[j];
+                for (var c = 0u; c < 8u; c++) {
+                    q[c] += w * queries[8u * g + c];
+                }
+                trans *= 1.0 - alpha;
+            }
+        }
+    }
+    for (var c = 0u; c < 8u; c++) {
+        q[c] *= reg.share;
+    }
+#if SUBGROUP
+    // Every invocation reaches this point: subgroup operations are safe.
+    let lo = subgroupMin(reg.index);
+    let hi = subgroupMax(reg.index);
+    if (lo == hi) {
+        if (lo != NO_REGION) {
+            var sum: array<vec4<f32>, 8>;
+            for (var c = 0u; c < 8u; c++) {
+                sum[c] = subgroupAdd(q[c]);
+            }
+            if (lane == 0u) {
+                add_row(lo, sum);
+            }
+        }
+    } else if (reg.index != NO_REGION) {
+        add_row(reg.index, q);
+    }
+#else
+    if (reg.index != NO_REGION) {
+        add_row(reg.index, q);
+    }
+#endif
+#endif
+}
