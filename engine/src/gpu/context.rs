@@ -43,7 +43,8 @@ pub enum FloatAtomics {
 /// `LATENTAM_DEVICE` (index or case-insensitive name substring),
 /// `LATENTAM_VALIDATION=1` (require the validation layer),
 /// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
-/// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic).
+/// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic),
+/// `LATENTAM_MAX_BUFFER_BYTES=N` (cap the largest buffer below the device's).
 #[derive(Clone, Debug)]
 pub struct ContextOptions {
     /// Device to use: an index into the enumeration or a name substring;
@@ -61,6 +62,11 @@ pub struct ContextOptions {
     /// supports them in compute shaders; `false` selects kernels that do
     /// without.
     pub subgroup_arithmetic: bool,
+    /// Caps the largest buffer the engine creates (the storage-buffer
+    /// binding and single-allocation limits of [`DeviceInfo`]) below the
+    /// device's own: to leave headroom, or to rehearse a device with small
+    /// limits (`LATENTAM_MAX_BUFFER_BYTES`). `None`: the device's limits.
+    pub max_buffer_bytes: Option<u64>,
 }
 
 impl Default for ContextOptions {
@@ -80,6 +86,7 @@ impl Default for ContextOptions {
             },
             memory_budget: None,
             subgroup_arithmetic: env("LATENTAM_SUBGROUPS").as_deref() != Some("off"),
+            max_buffer_bytes: env("LATENTAM_MAX_BUFFER_BYTES").and_then(|v| v.parse().ok()),
         }
     }
 }
@@ -767,8 +774,11 @@ fn open_device(
             vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE,
         ),
         timestamp_period_ns,
-        max_storage_buffer_range: limits.max_storage_buffer_range as u64,
-        max_memory_allocation_size: maintenance3.max_memory_allocation_size,
+        max_storage_buffer_range: (limits.max_storage_buffer_range as u64)
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
+        max_memory_allocation_size: maintenance3
+            .max_memory_allocation_size
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
         max_workgroup_count: limits.max_compute_work_group_count,
         max_shared_memory: limits.max_compute_shared_memory_size,
         dedicated_transfer_queue: transfer.is_some(),

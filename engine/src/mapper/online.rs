@@ -556,7 +556,9 @@ impl OnlineMapper {
 
     /// Sizes the window from the budget and creates it and the trainer
     /// (first keyframe only).
-    pub(super) fn ensure_workspace(&mut self, pixels: u64, dim: u32) -> Result<()> {
+    /// `dim` is the embedding dimension the head has or will have (the
+    /// frame's), `None` when no embeddings were seen yet.
+    pub(super) fn ensure_workspace(&mut self, pixels: u64, dim: Option<u32>) -> Result<()> {
         if self.trainer.is_some() {
             return Ok(());
         }
@@ -565,11 +567,16 @@ impl OnlineMapper {
         // chunk, whatever the number of replayed keyframes.
         let views = views_per_chunk(pixels, self.cfg.replay + 1, DEFAULT_CHUNK_PIXELS) as u64;
         let budget = Self::budget_of(&self.ctx, &self.cfg);
-        // A head created later (embeddings arriving after the first
+        // The head is created after the workspace, from this keyframe's
+        // embeddings; one created later (embeddings arriving after the first
         // keyframes) must still fit: room for a 1024-d one is kept.
         let later_head = match &self.head {
             Some(_) => 0,
-            None => head_bytes(self.cfg.atoms as u64, 1024, self.cfg.max_regions as u64),
+            None => head_bytes(
+                self.cfg.atoms as u64,
+                dim.unwrap_or(1024) as u64,
+                self.cfg.max_regions as u64,
+            ),
         };
         let in_use = self.ctx.memory_report().total.current;
         let later = pixel_bytes(pixels, views) + later_head;
@@ -613,7 +620,7 @@ impl OnlineMapper {
                 weights: self.cfg.weights,
                 learning_rates: self.cfg.learning_rates,
             },
-            dim.max(1),
+            dim.unwrap_or(1),
         )?;
         self.window = Some(window);
         self.trainer = Some(trainer);
@@ -642,11 +649,18 @@ impl OnlineMapper {
         if let Some(e) = &frame.embeddings {
             self.check_model(&e.model, frame.stamp_ns)?;
         }
+        // The first keyframe sizes the window against the budget before any
+        // GPU work, so a configuration that cannot map fails here, with the
+        // setting to change.
+        let dim = self
+            .head
+            .as_ref()
+            .map(|h| h.config().dim)
+            .or(frame.embeddings.as_ref().map(|e| e.dim));
+        self.ensure_workspace(frame.color.width as u64 * frame.color.height as u64, dim)?;
         let t = Instant::now();
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);
-        let dim = self.head.as_ref().map_or(1, |h| h.config().dim);
-        self.ensure_workspace(frame.color.width as u64 * frame.color.height as u64, dim)?;
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.

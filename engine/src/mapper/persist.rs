@@ -1044,7 +1044,7 @@ impl OnlineMapper {
         // Window: the same residents in the same rows, with their Adam
         // state.
         if let Some(w) = window {
-            let dim = m.head.as_ref().map_or(1, |h| h.config().dim);
+            let dim = m.head.as_ref().map(|h| h.config().dim);
             m.ensure_workspace(w.view_pixels, dim)?;
             m.append(&w.keys)?;
             let rows = w.keys.len() as u64;

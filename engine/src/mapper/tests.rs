@@ -502,3 +502,84 @@ fn streamed_stage_one_equals_the_batched_step() {
         }
     });
 }
+
+#[test]
+fn the_window_and_batches_stay_within_a_small_binding_limit() {
+    // A device that binds at most 1 MiB per buffer: the window is sized to
+    // the limit (not to the budget), Stage I streams one view at a time,
+    // and mapping proceeds; no buffer exceeds the limit (each is checked
+    // when it is created).
+    let limit = 1 << 20;
+    let o = crate::gpu::ContextOptions {
+        max_buffer_bytes: Some(limit),
+        ..crate::gpu::ContextOptions::default()
+    };
+    crate::gpu::testing::with_options(o, |ctx| {
+        assert_eq!(ctx.info().max_buffer_bytes(), limit);
+        let cfg = MapperConfig {
+            keyframes: crate::map::KeyframeConfig {
+                policy: crate::map::KeyframePolicy::Interval(1),
+                ..crate::map::KeyframeConfig::default()
+            },
+            gpu_budget: Some(1 << 30),
+            replay: 3,
+            // K² similarities must fit a buffer too.
+            atoms: 64,
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        for i in 0..4 {
+            let mut f = keyframe(DVec3::new(0.03 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            let Integrated::Keyframe(k) = mapper.integrate(&f).unwrap() else {
+                panic!("every frame is a keyframe here");
+            };
+            assert!(k.stage_one.image.total().is_finite());
+        }
+        let w = mapper.stats().window.unwrap();
+        assert_eq!(
+            w.buffer_limit_rows,
+            limit / super::budget::largest_row_bytes(4)
+        );
+        assert_eq!(
+            w.capacity, w.buffer_limit_rows,
+            "the limit, not the budget, bounds it"
+        );
+        assert!(mapper.stats().keyframes == 4);
+    });
+}
+
+#[test]
+fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: KeyframeConfig {
+                policy: KeyframePolicy::Interval(1),
+                ..KeyframeConfig::default()
+            },
+            window_capacity: Some(8192),
+            replay: 2,
+            atoms: 16,
+            max_regions: 64,
+            min_region_pixels: 4,
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        for i in 0..4 {
+            let mut f = keyframe(DVec3::new(0.04 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            if i < 2 {
+                f.embeddings = None;
+            }
+            let Integrated::Keyframe(k) = mapper.integrate(&f).unwrap() else {
+                panic!("every frame is a keyframe here");
+            };
+            // The workspace was sized before any embedding: the region
+            // targets still take the later ones.
+            assert_eq!(k.stage_one.regions > 0, i >= 2, "keyframe {i}");
+            assert!(k.stage_one.feature.is_finite());
+        }
+        assert_eq!(mapper.head().unwrap().config().dim, DIM as u32);
+    });
+}

@@ -104,7 +104,8 @@ pub struct Trainer {
 }
 
 impl Trainer {
-    /// Workspace for `cfg`; `dim` is the embedding dimension.
+    /// Workspace for `cfg`; `dim` is the embedding dimension (the region
+    /// targets grow if a batch brings larger ones).
     pub fn new(ctx: &Context, cfg: TrainerConfig, dim: u32) -> Result<Self> {
         let chunk_views = cfg.views_per_chunk();
         let max_pixels = cfg.max_view_pixels * chunk_views as u64;
@@ -223,6 +224,12 @@ impl Trainer {
         } else {
             Channels::All
         };
+
+        // Embeddings may first arrive after the workspace was sized.
+        let target_bytes = (rows.len() * 4) as u64;
+        if target_bytes > self.region_targets.bytes() {
+            self.region_targets = Buffer::device(ctx, "trainer/region_targets", target_bytes)?;
+        }
 
         // Pass 1: pool every chunk's regions, then the decoder's step.
         let head = head.filter(|_| n > 0);
