@@ -14,8 +14,10 @@
 //
 // The _colour variants (QUERY=0) skip the 32 query channels: for renders
 // whose queries nobody reads (coverage before seeding, logs without
-// embeddings, the second render of a streamed Stage I chunk whose query
-// gradients are detached). Their query image is left as it was.
+// embeddings, Stage I with detached query gradients, which pools queries in
+// raster_pool). Their query image is left as it was. A batch whose query
+// image would not fit one buffer is blended once per band of pixels
+// (query_first, query_count), each band written to the start of the image.
 //
 // @kernel raster_forward ROWS=1 QUERY=1
 // @kernel raster_forward_columns ROWS=32 QUERY=1
@@ -54,6 +56,10 @@ layout(push_constant) uniform Params {
     float bg_r;
     float bg_g;
     float bg_b;
+    // The query image holds batch pixels query_first .. query_first +
+    // query_count (a band of a batch too large for one buffer).
+    uint query_first;
+    uint query_count;
 } pc;
 
 shared uint sh_gaussian[BATCH];
@@ -212,8 +218,11 @@ void main() {
         out_rgbd[p] = vec4(rgbd.xyz + trans * bg, rgbd.w);
         out_alpha[p] = 1.0 - trans;
 #if QUERY
-        for (uint c = 0u; c < QUERY_VEC4; c++) {
-            out_query[QUERY_VEC4 * p + c] = q[c];
+        uint band = p - pc.query_first;
+        if (band < pc.query_count) {
+            for (uint c = 0u; c < QUERY_VEC4; c++) {
+                out_query[QUERY_VEC4 * band + c] = q[c];
+            }
         }
 #endif
         out_state[p] = uvec2(walked, floatBitsToUint(trans));
@@ -228,9 +237,12 @@ void main() {
             out_rgbd[p] = vec4(rgbd[K].xyz + trans[K] * bg, rgbd[K].w);
             out_alpha[p] = 1.0 - trans[K];
 #if QUERY
+            uint band = p - pc.query_first;
+            if (band < pc.query_count) {
 #unroll C 8
-            out_query[QUERY_VEC4 * p + C] = q[K * QUERY_VEC4 + C];
+                out_query[QUERY_VEC4 * band + C] = q[K * QUERY_VEC4 + C];
 #endunroll
+            }
 #endif
             out_state[p] = uvec2(walked[K], floatBitsToUint(trans[K]));
         }

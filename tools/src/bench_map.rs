@@ -106,7 +106,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         profiling: true,
         ..ContextOptions::default()
     })?;
-    ctx.warm_up()?;
+    latentam::mapper::warm_up(&ctx)?;
     let mut mapper = OnlineMapper::new(&ctx, cfg)?;
     let frames = McapFrames::open(path, AssemblyConfig::default())
         .with_context(|| format!("opening {}", path.display()))?;

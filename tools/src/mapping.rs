@@ -163,7 +163,7 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
         profiling: opts.profile,
         ..ContextOptions::default()
     })?;
-    ctx.warm_up()?;
+    latentam::mapper::warm_up(&ctx)?;
     let mut mapper = match &opts.resume {
         Some(dir) => Mapper::load(&ctx, dir)
             .with_context(|| format!("loading the saved state in {}", dir.display()))?,

@@ -99,7 +99,7 @@ pub fn run(
     let frames = McapFrames::open(&log, AssemblyConfig::default())
         .with_context(|| format!("opening {}", log.display()))?;
     // Every pipeline up front, so the object counts compare like with like.
-    ctx.warm_up()?;
+    latentam::mapper::warm_up(ctx)?;
     let mut mapper = OnlineMapper::new(ctx, opts.config.clone())?;
     let validation = ctx.validation_log();
     let per_lap = opts.scene.frames as f64 / opts.scene.laps as f64;

@@ -68,10 +68,22 @@ impl Context {
     /// compiles a pipeline on first use; call this before timing anything.
     /// Returns the number of pipelines ready.
     pub fn warm_up(&self) -> crate::Result<usize> {
+        self.warm_up_only(|_| true)
+    }
+
+    /// [`Context::warm_up`] for the kernels `keep` accepts: a client that
+    /// knows which variants it dispatches on this device (see
+    /// [`crate::mapper::warm_up`]) spares the time of the others, which
+    /// every process pays even when the driver caches compiled pipelines.
+    pub fn warm_up_only(
+        &self,
+        keep: impl Fn(&latentam_shaders::Kernel) -> bool,
+    ) -> crate::Result<usize> {
         let mut n = 0;
         for k in latentam_shaders::ALL {
-            if k.name == latentam_shaders::ATOMIC_ADD_F32.kernel.name
-                && !self.info().native_float_atomics
+            if !keep(k)
+                || (k.name == latentam_shaders::ATOMIC_ADD_F32.kernel.name
+                    && !self.info().native_float_atomics)
             {
                 continue;
             }

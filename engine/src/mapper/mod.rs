@@ -31,3 +31,21 @@ pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAU
 mod persist_tests;
 #[cfg(test)]
 mod tests;
+
+/// Creates ahead of time the pipeline of every kernel mapping dispatches on
+/// `ctx`'s device, so that no keyframe pays for compiling one: all kernels
+/// but the rasterizer's blending variants meant for other devices (see
+/// [`crate::splat::Rasterizer::blend_kernel_names`]). Returns the number of
+/// pipelines ready.
+///
+/// ```
+/// let ctx = latentam::gpu::Context::new(Default::default())?;
+/// assert!(latentam::mapper::warm_up(&ctx)? < latentam::kernels::ALL.len());
+/// # Ok::<(), latentam::Error>(())
+/// ```
+pub fn warm_up(ctx: &crate::gpu::Context) -> crate::Result<usize> {
+    use crate::splat::{Rasterizer, RenderSettings};
+    // The trainer's and the evaluator's settings: the defaults.
+    let used = Rasterizer::blend_kernel_names(ctx.info(), &RenderSettings::default());
+    ctx.warm_up_only(|k| !k.name.starts_with("raster_") || used.contains(&k.name))
+}

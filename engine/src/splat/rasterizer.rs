@@ -33,7 +33,7 @@ use latentam_shaders::{
 use super::views::BatchLayout;
 use super::{Camera, GaussianBuffers, QUERY_DIM};
 use crate::error::{Error, Result};
-use crate::gpu::{Buffer, Context, Recorder};
+use crate::gpu::{Buffer, Context, DeviceInfo, Recorder};
 use crate::ops::{PrefixScan, RadixSorter};
 
 /// How the blending kernels map a tile's pixels to invocations. Both give
@@ -120,6 +120,9 @@ pub enum QueryGradients<'a> {
     Zero,
 }
 
+/// Bytes of one pixel's query channels.
+const QUERY_BYTES: u64 = QUERY_DIM as u64 * 4;
+
 /// Which images a forward pass writes.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Channels {
@@ -163,11 +166,13 @@ impl PixelBuffers {
         })
     }
 
-    fn ensure_query(&mut self, ctx: &Context) -> Result<()> {
+    /// Allocates the query image for `pixels` pixels (at most the whole
+    /// batch).
+    fn ensure_query(&mut self, ctx: &Context, pixels: u64) -> Result<()> {
         if self.query.is_none() {
             // A category of its own: the per-pixel feature memory.
             let name = format!("features/{}_query", self.name);
-            let bytes = self.pixels.max(1) * 4 * QUERY_DIM as u64;
+            let bytes = pixels.min(self.pixels).max(1) * QUERY_BYTES;
             self.query = Some(Buffer::device(ctx, &name, bytes)?);
         }
         Ok(())
@@ -179,7 +184,10 @@ impl PixelBuffers {
     }
 
     /// [`QUERY_DIM`] floats per pixel: the blended query vector (or its
-    /// gradient); an error where none is allocated.
+    /// gradient); an error where none is allocated. A batch whose query
+    /// image does not fit one buffer of the device is rendered in bands:
+    /// this buffer then holds only the last band, and
+    /// [`Rasterizer::download_view`] returns the whole view.
     pub fn query(&self) -> Result<&Buffer> {
         self.query.as_ref().ok_or_else(|| {
             Error::InvalidArgument(
@@ -222,6 +230,67 @@ pub struct ForwardStats {
     pub visible: u64,
     /// (tile, Gaussian) intersections blended.
     pub intersections: u64,
+}
+
+// Which variant of each blending kernel a device runs: one table for the
+// dispatches and for `Rasterizer::blend_kernel_names`. Each expands
+// `$then!(KERNEL)` for the chosen kernel (the variants' push constants have
+// one layout, in a generated type each).
+
+macro_rules! select_forward {
+    ($info:expr, $settings:expr, $channels:expr, $then:ident) => {{
+        let columns = $settings.layout.resolve($info.device_type) == BlendLayout::Columns;
+        match (columns, $channels) {
+            (true, Channels::All) => $then!(RASTER_FORWARD_COLUMNS),
+            (true, Channels::Colour) => $then!(RASTER_FORWARD_COLUMNS_COLOUR),
+            (false, Channels::All) => $then!(RASTER_FORWARD),
+            (false, Channels::Colour) => $then!(RASTER_FORWARD_COLOUR),
+        }
+    }};
+}
+
+macro_rules! select_backward {
+    ($info:expr, $settings:expr, $then:ident) => {{
+        let info: &DeviceInfo = $info;
+        let columns = $settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+        let attached = !$settings.detach_query_gradients;
+        // The column kernels sum a tile's 8 invocations with a shuffle
+        // butterfly, which needs them to be exactly one subgroup.
+        let sub = if columns {
+            info.subgroup_shuffle && info.subgroup_size == 8
+        } else {
+            info.subgroup_arithmetic
+        };
+        match (columns, attached, sub, info.native_float_atomics) {
+            (false, _, true, true) => $then!(RASTER_BACKWARD),
+            (false, _, true, false) => $then!(RASTER_BACKWARD_CAS),
+            (false, _, false, true) => $then!(RASTER_BACKWARD_PLAIN),
+            (false, _, false, false) => $then!(RASTER_BACKWARD_PLAIN_CAS),
+            (true, false, true, true) => $then!(RASTER_BACKWARD_COLUMNS),
+            (true, false, true, false) => $then!(RASTER_BACKWARD_COLUMNS_CAS),
+            (true, false, false, true) => $then!(RASTER_BACKWARD_COLUMNS_PLAIN),
+            (true, false, false, false) => $then!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
+            (true, true, true, true) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED),
+            (true, true, true, false) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_CAS),
+            (true, true, false, true) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN),
+            (true, true, false, false) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS),
+        }
+    }};
+}
+
+macro_rules! select_pool {
+    ($info:expr, $settings:expr, $then:ident) => {{
+        let info: &DeviceInfo = $info;
+        let columns = $settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
+            (true, _, true) => $then!(RASTER_POOL_COLUMNS),
+            (true, _, false) => $then!(RASTER_POOL_COLUMNS_CAS),
+            (false, true, true) => $then!(RASTER_POOL),
+            (false, true, false) => $then!(RASTER_POOL_CAS),
+            (false, false, true) => $then!(RASTER_POOL_PLAIN),
+            (false, false, false) => $then!(RASTER_POOL_PLAIN_CAS),
+        }
+    }};
 }
 
 /// A buffer that grows (by 25 % headroom) when a batch needs more.
@@ -309,6 +378,9 @@ pub struct Rasterizer {
     grad_splats: Grow,
     images: Option<PixelBuffers>,
     image_grads: Option<PixelBuffers>,
+    /// The last batch's query image, when it was rendered in bands (too
+    /// large for one buffer).
+    banded_query: Option<Vec<f32>>,
     /// Bound in place of a buffer a kernel variant declares but the pass
     /// does not read (allocated by the first forward pass).
     stub: Option<Buffer>,
@@ -343,6 +415,7 @@ impl Rasterizer {
             grad_splats: Grow::new("raster/grad_splats"),
             images: None,
             image_grads: None,
+            banded_query: None,
             stub: None,
             scan: None,
             sorter: None,
@@ -396,13 +469,19 @@ impl Rasterizer {
         }
         let ctx = self.ctx.clone();
         if channels == Channels::All {
-            self.images.as_mut().expect("sized").ensure_query(&ctx)?;
+            // Banded when the batch's would not fit one buffer.
+            let band = self.query_band_pixels();
+            self.images
+                .as_mut()
+                .expect("sized")
+                .ensure_query(&ctx, band)?;
         }
         if self.settings.query_gradient_image {
+            // Per-pixel gradients are read whole by the backward pass.
             self.image_grads
                 .as_mut()
                 .expect("sized")
-                .ensure_query(&ctx)?;
+                .ensure_query(&ctx, pixels)?;
         }
         if self.stub.is_none() {
             self.stub = Some(Buffer::device(&ctx, "raster/stub", 256)?);
@@ -412,6 +491,76 @@ impl Rasterizer {
 
     fn stub(&self) -> Result<&Buffer> {
         self.stub.as_ref().ok_or_else(no_forward)
+    }
+
+    /// Pixels of query image one buffer holds on this device.
+    fn query_band_pixels(&self) -> u64 {
+        (self.ctx.info().max_buffer_bytes() / QUERY_BYTES).max(1)
+    }
+
+    /// Records the blending kernel of the binned batch `layout`, writing
+    /// the query channels (with [`Channels::All`]) of batch pixels
+    /// `query_first..query_first + query_count` to the query image.
+    #[allow(clippy::too_many_arguments)]
+    fn record_blend<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        gaussians: &'a GaussianBuffers,
+        count: u64,
+        layout: &BatchLayout,
+        channels: Channels,
+        query_first: u64,
+        query_count: u64,
+    ) -> Result<()> {
+        let images = self.images()?;
+        let bg = self.settings.background;
+        let bufs = [
+            self.views.get(),
+            &gaussians.colors,
+            &gaussians.queries,
+            self.splats.get(),
+            self.isect_pairs.get(),
+            self.ranges.get(),
+            &images.rgbd,
+            &images.alpha,
+            images.query.as_ref().unwrap_or(self.stub()?),
+            self.state.get(),
+        ];
+        let p = push::RasterForward {
+            n_gaussians: count as u32,
+            n_views: layout.views.len() as u32,
+            n_tiles: layout.tiles,
+            bg_r: bg[0],
+            bg_g: bg[1],
+            bg_b: bg[2],
+            query_first: query_first as u32,
+            query_count: query_count as u32,
+        };
+        let groups = layout.tiles;
+        macro_rules! blend {
+            ($kernel:expr) => {
+                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))
+            };
+        }
+        select_forward!(rec.info(), &self.settings, channels, blend)
+    }
+
+    /// Names of the blending kernels a rasterizer with `settings` dispatches
+    /// on `info`'s device (forward with and without query channels,
+    /// backward, pooling): the only `raster_*` kernels worth compiling
+    /// ahead of time there (see [`crate::mapper::warm_up`]).
+    pub fn blend_kernel_names(info: &DeviceInfo, settings: &RenderSettings) -> [&'static str; 4] {
+        macro_rules! name {
+            ($kernel:expr) => {
+                $kernel.kernel.name
+            };
+        }
+        [
+            select_forward!(info, settings, Channels::All, name),
+            select_forward!(info, settings, Channels::Colour, name),
+            select_backward!(info, settings, name),
+            select_pool!(info, settings, name),
+        ]
     }
 
     /// Renders `cameras` from Gaussians `0..count` of `gaussians` and waits
@@ -524,7 +673,6 @@ impl Rasterizer {
             let scan = self.scan.as_ref().expect("scan sized above");
             let sorter = self.sorter.as_ref().expect("sorter sized above");
             let images = self.images.as_ref().expect("images sized above");
-            let stub = self.stub()?;
             let bins = |n: u64| push::CompactVisible {
                 n: n as u32,
                 n_gaussians: count as u32,
@@ -588,53 +736,35 @@ impl Rasterizer {
                 &[self.isect_keys.get(), self.ranges.get()],
                 bytemuck::cast_ref(&bins(intersections)),
             )?;
-            let bg = self.settings.background;
-            let bufs = [
-                self.views.get(),
-                &gaussians.colors,
-                &gaussians.queries,
-                self.splats.get(),
-                self.isect_pairs.get(),
-                self.ranges.get(),
-                &images.rgbd,
-                &images.alpha,
-                images.query.as_ref().unwrap_or(stub),
-                self.state.get(),
-            ];
-            let p = push::RasterForward {
-                n_gaussians: count as u32,
-                n_views,
-                n_tiles: layout.tiles,
-                bg_r: bg[0],
-                bg_g: bg[1],
-                bg_b: bg[2],
+            // A query image too large for one buffer is rendered in bands:
+            // the blend runs once per band, and the bands are kept on the
+            // host for `download_view`.
+            let band = self.query_band_pixels();
+            let banded = channels == Channels::All && layout.pixels > band;
+            self.record_blend(&mut rec, gaussians, count, &layout, channels, 0, band)?;
+            let first_band = if banded {
+                Some(rec.download(images.query()?, 0, band * QUERY_BYTES)?)
+            } else {
+                None
             };
-            let columns =
-                self.settings.layout.resolve(ctx.info().device_type) == BlendLayout::Columns;
-            match (columns, channels) {
-                (true, Channels::All) => rec.dispatch_linear(
-                    &RASTER_FORWARD_COLUMNS,
-                    layout.tiles,
-                    &bufs,
-                    bytemuck::cast_ref(&p),
-                )?,
-                (true, Channels::Colour) => rec.dispatch_linear(
-                    &RASTER_FORWARD_COLUMNS_COLOUR,
-                    layout.tiles,
-                    &bufs,
-                    bytemuck::cast_ref(&p),
-                )?,
-                (false, Channels::All) => {
-                    rec.dispatch_linear(&RASTER_FORWARD, layout.tiles, &bufs, &p)?
-                }
-                (false, Channels::Colour) => rec.dispatch_linear(
-                    &RASTER_FORWARD_COLOUR,
-                    layout.tiles,
-                    &bufs,
-                    bytemuck::cast_ref(&p),
-                )?,
-            }
             rec.submit()?.wait()?;
+            self.banded_query = None;
+            if let Some(first_band) = first_band {
+                let mut host = Vec::with_capacity((layout.pixels * QUERY_DIM as u64) as usize);
+                host.extend(first_band.read::<f32>()?);
+                let mut start = band;
+                while start < layout.pixels {
+                    let len = band.min(layout.pixels - start);
+                    let mut rec = ctx.recorder()?;
+                    self.record_blend(&mut rec, gaussians, count, &layout, channels, start, len)?;
+                    let images = self.images.as_ref().expect("images sized above");
+                    let rb = rec.download(images.query()?, 0, len * QUERY_BYTES)?;
+                    rec.submit()?.wait()?;
+                    host.extend(rb.read::<f32>()?);
+                    start += len;
+                }
+                self.banded_query = Some(host);
+            }
         }
         self.layout = layout;
         self.n_gaussians = count;
@@ -746,9 +876,7 @@ impl Rasterizer {
             self.grad_splats.get(),
             labels,
         ];
-        let info = rec.info();
         let groups = self.layout.tiles;
-        let columns = self.settings.layout.resolve(info.device_type) == BlendLayout::Columns;
         // The variants share one push-constant layout (one generated type
         // each).
         macro_rules! blend_backward {
@@ -756,30 +884,7 @@ impl Rasterizer {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
             };
         }
-        // The column kernels sum a tile's 8 invocations with a shuffle
-        // butterfly, which needs them to be exactly one subgroup.
-        let sub = if columns {
-            info.subgroup_shuffle && info.subgroup_size == 8
-        } else {
-            info.subgroup_arithmetic
-        };
-        let native = info.native_float_atomics;
-        match (columns, attached, sub, native) {
-            (false, _, true, true) => blend_backward!(RASTER_BACKWARD),
-            (false, _, true, false) => blend_backward!(RASTER_BACKWARD_CAS),
-            (false, _, false, true) => blend_backward!(RASTER_BACKWARD_PLAIN),
-            (false, _, false, false) => blend_backward!(RASTER_BACKWARD_PLAIN_CAS),
-            (true, false, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS),
-            (true, false, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_CAS),
-            (true, false, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN),
-            (true, false, false, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
-            (true, true, true, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED),
-            (true, true, true, false) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_CAS),
-            (true, true, false, true) => blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN),
-            (true, true, false, false) => {
-                blend_backward!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS)
-            }
-        }
+        select_backward!(rec.info(), &self.settings, blend_backward);
         rec.dispatch_linear(
             &PROJECT_BACKWARD,
             count.div_ceil(256) as u32,
@@ -851,22 +956,13 @@ impl Rasterizer {
             labels,
             pooled,
         ];
-        let info = rec.info();
         let groups = self.layout.tiles;
-        let columns = self.settings.layout.resolve(info.device_type) == BlendLayout::Columns;
         macro_rules! pool {
             ($kernel:expr) => {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
             };
         }
-        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
-            (true, _, true) => pool!(RASTER_POOL_COLUMNS),
-            (true, _, false) => pool!(RASTER_POOL_COLUMNS_CAS),
-            (false, true, true) => pool!(RASTER_POOL),
-            (false, true, false) => pool!(RASTER_POOL_CAS),
-            (false, false, true) => pool!(RASTER_POOL_PLAIN),
-            (false, false, false) => pool!(RASTER_POOL_PLAIN_CAS),
-        }
+        select_pool!(rec.info(), &self.settings, pool);
         Ok(())
     }
 
@@ -911,18 +1007,28 @@ impl Rasterizer {
         let images = self.images()?;
         let n = slot.width as u64 * slot.height as u64;
         let first = slot.first_pixel;
-        let q = QUERY_DIM as u64 * 4;
         let mut rec = self.ctx.recorder()?;
         let rgbd = rec.download(&images.rgbd, first * 16, n * 16)?;
         let alpha = rec.download(&images.alpha, first * 4, n * 4)?;
-        let query = rec.download(images.query()?, first * q, n * q)?;
+        let query = match &self.banded_query {
+            None => Some(rec.download(images.query()?, first * QUERY_BYTES, n * QUERY_BYTES)?),
+            Some(_) => None,
+        };
         rec.submit()?.wait()?;
+        let query = match query {
+            Some(rb) => rb.read::<f32>()?,
+            None => {
+                let host = self.banded_query.as_ref().ok_or_else(no_forward)?;
+                let q = QUERY_DIM;
+                host[first as usize * q..(first + n) as usize * q].to_vec()
+            }
+        };
         Ok(RenderedView {
             width: slot.width,
             height: slot.height,
             rgbd: bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
             alpha: alpha.read::<f32>()?,
-            query: bytemuck::cast_slice(&query.read::<f32>()?).to_vec(),
+            query: bytemuck::cast_slice(&query).to_vec(),
         })
     }
 }

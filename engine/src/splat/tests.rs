@@ -193,6 +193,42 @@ fn forward_matches_reference_on_random_scenes() {
 }
 
 #[test]
+fn query_images_larger_than_a_buffer_are_rendered_in_bands() {
+    // A device binding 64 KiB: 512 pixels of query image a buffer, so two
+    // views of 2 123 pixels render their queries in 5 bands.
+    let o = ContextOptions {
+        max_buffer_bytes: Some(64 << 10),
+        ..ContextOptions::default()
+    };
+    with_options(o, |ctx| {
+        let mut r = rng("query_images_larger_than_a_buffer_are_rendered_in_bands");
+        let cams = [
+            random_camera(&mut r, 37, 29, 2.8),
+            random_camera(&mut r, 50, 21, 3.1),
+        ];
+        let host = awkward_scene(&mut r, 300, &cams);
+        let buf = upload(ctx, &host);
+        let gs = Gaussian::all(&host);
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            raster.settings.query_gradient_image = false;
+            let views = gpu_render(ctx, &mut raster, &buf, 300, &cams);
+            assert_eq!(
+                raster.images().unwrap().query().unwrap().bytes(),
+                512 * QUERY_DIM as u64 * 4,
+                "one band allocated"
+            );
+            for (v, cam) in cams.iter().enumerate() {
+                let want = reference::render(&gs, cam, [0.0; 3]);
+                let what = format!("{layout:?}: banded view {v}");
+                assert_view_matches(&views[v], &want, &what, 0.003);
+            }
+        }
+    });
+}
+
+#[test]
 fn forward_handles_many_tiles_and_batches() {
     // Deep tiles: more Gaussians per tile than one shared-memory batch.
     with_context(|ctx| {
@@ -942,4 +978,70 @@ fn bad_batches_are_rejected() {
         let v = raster.download_view(0).unwrap();
         assert!(v.rgbd.iter().all(|c| c == &[0.25, 0.5, 1.0, 0.0]));
     });
+}
+
+/// The blending kernels a device runs are the ones `blend_kernel_names`
+/// names (what mapping compiles ahead of time), for every device kind
+/// lavapipe can play and both layouts.
+#[test]
+fn dispatched_blend_kernels_are_the_ones_named_for_the_device() {
+    let modes = [
+        (crate::gpu::FloatAtomics::Auto, true),
+        (crate::gpu::FloatAtomics::CompareAndSwap, true),
+        (crate::gpu::FloatAtomics::Auto, false),
+    ];
+    for (float_atomics, subgroups) in modes {
+        let o = ContextOptions {
+            profiling: true,
+            float_atomics,
+            subgroup_arithmetic: subgroups,
+            ..ContextOptions::default()
+        };
+        with_options(o, |ctx| {
+            let mut r = rng("dispatched_blend_kernels");
+            let cams = [random_camera(&mut r, 40, 30, 3.0)];
+            let host = awkward_scene(&mut r, 100, &cams);
+            let buf = upload(ctx, &host);
+            let grads = GaussianBuffers::new(ctx, "test_grads", 100).unwrap();
+            let batch = BatchLayout::for_cameras(&cams).unwrap();
+            let regions = random_regions(&mut r, &batch);
+            let labels = region_labels(ctx, &regions);
+            let rows = crate::gpu::Buffer::device(
+                ctx,
+                "test/rows",
+                (regions.len() as u64).max(1) * QUERY_DIM as u64 * 4,
+            )
+            .unwrap();
+            for layout in LAYOUTS {
+                let mut raster = Rasterizer::new(ctx);
+                raster.settings.layout = layout;
+                ctx.profiler_reset();
+                raster.forward(&buf, 100, &cams).unwrap();
+                raster
+                    .forward_channels(&buf, 100, &cams, Channels::Colour)
+                    .unwrap();
+                let mut rec = ctx.recorder().unwrap();
+                rec.fill_u32(&rows, 0);
+                raster
+                    .record_pool(&mut rec, &buf, &rows, 0, &labels, batch.pixels as u32)
+                    .unwrap();
+                raster
+                    .record_backward_into(&mut rec, &buf, &grads, false, QueryGradients::Zero)
+                    .unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                let named = Rasterizer::blend_kernel_names(ctx.info(), &raster.settings);
+                let ran: Vec<&str> = ctx
+                    .profiler_snapshot()
+                    .stats()
+                    .keys()
+                    .copied()
+                    .filter(|k| k.starts_with("raster_"))
+                    .collect();
+                assert_eq!(ran.len(), 4, "{ran:?}");
+                for k in &ran {
+                    assert!(named.contains(k), "{layout:?}: {k} ran, named {named:?}");
+                }
+            }
+        });
+    }
 }
