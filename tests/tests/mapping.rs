@@ -104,6 +104,33 @@ fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
     }
 }
 
+/// mIoU counts only pixels whose true class a query word names: with one
+/// class left out of the vocabulary, its pixels drop out and nothing else
+/// changes for the others' ground truth.
+fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
+    let s = scene();
+    let frame = &s.frames[held_out()[1]];
+    let mut ev = Evaluator::new(ctx);
+    let full = ev.evaluate(mapper, frame, Some(&s.vocabulary)).unwrap();
+    let mut fewer = s.vocabulary.clone();
+    let dim = fewer.dim as usize;
+    // Leave out the class with the most pixels in this view.
+    let (&gone, gone_counts) = full.class_iou.iter().max_by_key(|(_, c)| c.truth).unwrap();
+    let at = fewer.ids.iter().position(|&id| id == gone).unwrap();
+    fewer.ids.remove(at);
+    fewer.names.remove(at);
+    fewer.vectors.drain(at * dim..(at + 1) * dim);
+    let part = ev.evaluate(mapper, frame, Some(&fewer)).unwrap();
+    assert!(!part.class_iou.contains_key(&gone));
+    let truth = |m: &latentam::mapper::eval::ViewMetrics| -> u64 {
+        m.class_iou.values().map(|c| c.truth).sum()
+    };
+    assert_eq!(truth(&part), truth(&full) - gone_counts.truth);
+    for (id, c) in &part.class_iou {
+        assert_eq!(c.truth, full.class_iou[id].truth, "class {id}");
+    }
+}
+
 fn map_frames(mapper: &mut OnlineMapper, range: std::ops::Range<usize>) -> usize {
     let mut keyframes = 0;
     for f in &scene().frames[range] {
@@ -123,6 +150,7 @@ fn reference() -> &'static Quality {
         let keyframes = map_frames(&mut mapper, 0..FRAMES);
         assert_eq!(keyframes, FRAMES / 4);
         let q = quality(&ctx, &mut mapper);
+        vocabulary_classes_only(&ctx, &mut mapper);
         let stats = mapper.stats();
         eprintln!(
             "reference: {q:?}\n{}",

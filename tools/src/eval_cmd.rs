@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_vocabulary, McapFrames};
+use latentam::io::{read_class_names, read_vocabulary, McapFrames};
 use latentam::mapper::eval::{add_iou, mean_iou, Evaluator, ViewMetrics};
 use latentam::mapper::Mapper;
 use serde::Serialize;
@@ -53,8 +53,11 @@ struct FrameRow {
 #[derive(Serialize)]
 struct ClassRow {
     id: u16,
+    /// From the vocabulary, else the log's class table, else `class N`.
     name: String,
     iou: f64,
+    /// Evaluated pixels of the class (ground truth).
+    pixels: u64,
 }
 
 #[derive(Serialize, Default)]
@@ -94,6 +97,7 @@ pub fn run(args: Args) -> Result<()> {
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
+    let class_table = read_class_names(&args.log)?;
     let frames = McapFrames::open(&args.log, assembly)
         .with_context(|| format!("opening {}", args.log.display()))?;
     let mut ev = Evaluator::new(&ctx);
@@ -166,15 +170,17 @@ pub fn run(args: Args) -> Result<()> {
                     .position(|&x| x == id)
                     .map(|i| v.names[i].clone())
             })
+            .or_else(|| class_table.get(&id).cloned())
             .unwrap_or_else(|| format!("class {id}"))
     };
     let classes: Vec<ClassRow> = counts
         .iter()
-        .filter(|(_, &(_, u))| u > 0)
-        .map(|(&id, &(i, u))| ClassRow {
+        .filter(|(_, c)| c.truth > 0)
+        .map(|(&id, c)| ClassRow {
             id,
             name: name_of(id),
-            iou: i as f64 / u as f64,
+            iou: c.iou(),
+            pixels: c.truth,
         })
         .collect();
     let run_report: Option<serde_json::Value> =
@@ -215,7 +221,7 @@ fn print_summary(r: &EvalReport) {
         None => println!("  mIoU          n/a (no vocabulary in the log)"),
     }
     for c in &r.classes {
-        println!("    {:<16} {:.3}", c.name, c.iou);
+        println!("    {:<16} {:.3}  ({} pixels)", c.name, c.iou, c.pixels);
     }
     if let (Some(fps), Some(gpu)) = (r.run_fps, r.run_peak_gpu_bytes) {
         println!(

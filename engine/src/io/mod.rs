@@ -29,6 +29,7 @@
 
 mod atomic;
 pub mod cdr;
+mod class_names;
 pub mod codec;
 mod frame;
 mod frames;
@@ -45,6 +46,7 @@ mod writer;
 use std::path::PathBuf;
 
 pub use atomic::{partial_path, write_atomically, write_bytes_atomically};
+pub use class_names::{parse_class_names, read_class_names, CLASS_NAMES_METADATA};
 pub use frame::{
     decode_floats, encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype,
     EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,

@@ -168,7 +168,13 @@ fn write_log(path: &Path, spec: &Spec, tweak: Tweak<'_>) {
     }
     log.metadata(
         "latentam",
-        BTreeMap::from([("source".to_string(), "test".to_string())]),
+        BTreeMap::from([
+            ("source".to_string(), "test".to_string()),
+            (
+                "semantic_classes".to_string(),
+                r#"{"0": "undefined", "10": "wall", "93": "door"}"#.to_string(),
+            ),
+        ]),
     )
     .unwrap();
     log.finish().unwrap();
@@ -219,6 +225,8 @@ fn frames_are_paired_by_stamp_with_interpolated_poses() {
         let log = McapLog::open(&path).unwrap();
         assert_eq!(log.message_count("/camera/pose"), Some(33));
         assert_eq!(log.metadata().unwrap()[0].1["source"], "test");
+        let names = super::read_class_names(&path).unwrap();
+        assert_eq!((names[&10].as_str(), names[&93].as_str()), ("wall", "door"));
     }
 }
 

@@ -42,29 +42,67 @@ pub struct ViewMetrics {
     pub segmentation: Option<&'static str>,
     /// Regions compared.
     pub regions: usize,
-    /// Per class id: (intersection, union) pixel counts of the predicted
-    /// and true class masks.
-    pub class_iou: BTreeMap<u16, (u64, u64)>,
+    /// Per vocabulary class id: pixel counts of the predicted and true
+    /// class masks. Only pixels whose true class is in the vocabulary
+    /// count: no query word can predict the others.
+    pub class_iou: BTreeMap<u16, ClassCounts>,
     /// Gaussians rendered.
     pub gaussians: usize,
 }
 
-/// mIoU over the classes present (union > 0) in summed counts.
-pub fn mean_iou(counts: &BTreeMap<u16, (u64, u64)>) -> Option<f64> {
+/// Pixel counts of one class's masks over the evaluated pixels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ClassCounts {
+    /// Pixels both true and predicted for the class.
+    pub intersection: u64,
+    /// Pixels true or predicted for the class.
+    pub union: u64,
+    /// Pixels whose true class it is.
+    pub truth: u64,
+}
+
+impl ClassCounts {
+    /// Intersection over union (0 when the union is empty).
+    pub fn iou(&self) -> f64 {
+        if self.union == 0 {
+            0.0
+        } else {
+            self.intersection as f64 / self.union as f64
+        }
+    }
+}
+
+/// mIoU over the classes that occur in the ground truth, from counts
+/// summed over all evaluated views.
+pub fn mean_iou(counts: &BTreeMap<u16, ClassCounts>) -> Option<f64> {
     let ious: Vec<f64> = counts
         .values()
-        .filter(|(_, u)| *u > 0)
-        .map(|&(i, u)| i as f64 / u as f64)
+        .filter(|c| c.truth > 0)
+        .map(ClassCounts::iou)
         .collect();
     (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
 }
 
 /// Adds `b`'s counts into `a`.
-pub fn add_iou(a: &mut BTreeMap<u16, (u64, u64)>, b: &BTreeMap<u16, (u64, u64)>) {
-    for (&c, &(i, u)) in b {
+pub fn add_iou(a: &mut BTreeMap<u16, ClassCounts>, b: &BTreeMap<u16, ClassCounts>) {
+    for (&c, n) in b {
         let e = a.entry(c).or_default();
-        e.0 += i;
-        e.1 += u;
+        e.intersection += n.intersection;
+        e.union += n.union;
+        e.truth += n.truth;
+    }
+}
+
+/// Adds one pixel to per-class counts: its true class and the predicted
+/// one (`None`: nothing predicted there).
+pub fn count_pixel(counts: &mut BTreeMap<u16, ClassCounts>, truth: u16, predicted: Option<u16>) {
+    let t = counts.entry(truth).or_default();
+    t.truth += 1;
+    t.union += 1;
+    match predicted {
+        Some(p) if p == truth => t.intersection += 1,
+        Some(p) => counts.entry(p).or_default().union += 1,
+        None => {}
     }
 }
 
@@ -307,18 +345,50 @@ impl Evaluator {
                     (None, Some(t)) => t.get(region).copied().flatten().unwrap_or(0),
                     (None, None) => 0,
                 };
-                if truth == 0 {
+                // Unlabelled pixels, and classes no query word names, are
+                // not evaluated.
+                if truth == 0 || !vocab.ids.contains(&truth) {
                     continue;
                 }
                 let pred = predicted.get(region).copied().flatten();
-                m.class_iou.entry(truth).or_default().1 += 1;
-                match pred {
-                    Some(p) if p == truth => m.class_iou.entry(truth).or_default().0 += 1,
-                    Some(p) => m.class_iou.entry(p).or_default().1 += 1,
-                    None => {}
-                }
+                count_pixel(&mut m.class_iou, truth, pred);
             }
         }
         Ok(m)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn miou_averages_the_classes_of_the_ground_truth() {
+        let mut c = BTreeMap::new();
+        // Class 1: 3 true pixels, 2 found; one pixel of class 2 taken for 1.
+        count_pixel(&mut c, 1, Some(1));
+        count_pixel(&mut c, 1, Some(1));
+        count_pixel(&mut c, 1, None);
+        count_pixel(&mut c, 2, Some(1));
+        // Class 3 is only ever predicted (never true): not averaged.
+        count_pixel(&mut c, 2, Some(3));
+        assert_eq!(
+            c[&1],
+            ClassCounts {
+                intersection: 2,
+                union: 4,
+                truth: 3
+            }
+        );
+        assert_eq!(c[&2].iou(), 0.0);
+        assert_eq!(c[&3].truth, 0);
+        let m = mean_iou(&c).unwrap();
+        assert!((m - (0.5 + 0.0) / 2.0).abs() < 1e-12, "{m}");
+        let mut sum = BTreeMap::new();
+        add_iou(&mut sum, &c);
+        add_iou(&mut sum, &c);
+        assert_eq!(sum[&1].union, 8);
+        assert_eq!(mean_iou(&sum), Some(m));
+        assert_eq!(mean_iou(&BTreeMap::new()), None);
     }
 }
