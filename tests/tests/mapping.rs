@@ -71,16 +71,22 @@ fn held_out() -> Vec<usize> {
 struct Quality {
     psnr: f64,
     depth_l1: f64,
+    /// Per pixel (the paper's protocol).
     cosine_loss: f64,
     miou: f64,
+    /// Region-pooled.
+    pooled_cosine_loss: f64,
+    pooled_miou: f64,
     gaussians: usize,
 }
 
 fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
     let s = scene();
     let mut ev = Evaluator::new(ctx);
-    let (mut psnr, mut depth, mut cos, mut cos_n) = (0.0, 0.0, 0.0, 0);
+    let (mut psnr, mut depth, mut cos, mut cos_n) = (0.0, 0.0, 0.0, 0u64);
+    let (mut pooled_cos, mut pooled_n) = (0.0, 0);
     let mut iou = BTreeMap::new();
+    let mut pooled_iou = BTreeMap::new();
     let views = held_out();
     for &i in &views {
         let m = ev
@@ -89,10 +95,16 @@ fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
         psnr += m.psnr;
         depth += m.depth_l1;
         if let Some(c) = m.cosine_loss {
-            cos += c;
-            cos_n += 1;
+            cos += c * m.cosine_pixels as f64;
+            cos_n += m.cosine_pixels;
         }
         add_iou(&mut iou, &m.class_iou);
+        let pooled = m.region_pooled.as_ref().unwrap();
+        if let Some(c) = pooled.cosine_loss {
+            pooled_cos += c;
+            pooled_n += 1;
+        }
+        add_iou(&mut pooled_iou, &pooled.class_iou);
     }
     let n = views.len() as f64;
     Quality {
@@ -100,6 +112,8 @@ fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
         depth_l1: depth / n,
         cosine_loss: cos / cos_n.max(1) as f64,
         miou: mean_iou(&iou).unwrap_or(0.0),
+        pooled_cosine_loss: pooled_cos / pooled_n.max(1) as f64,
+        pooled_miou: mean_iou(&pooled_iou).unwrap_or(0.0),
         gaussians: mapper.global().len(),
     }
 }
@@ -131,6 +145,49 @@ fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
     }
 }
 
+/// On a real map, the per-pixel evaluation's factorised decoding gives the
+/// cosines the GPU decoder gives for the same rendered pixels.
+fn factorised_decoding_matches_the_gpu_decoder(ctx: &Context, mapper: &mut OnlineMapper) {
+    use latentam::latent::{FactorisedDecoder, RelevanceScorer};
+    let s = scene();
+    let frame = &s.frames[held_out()[0]];
+    let mut ev = Evaluator::new(ctx);
+    let camera = latentam::mapper::camera_of(frame);
+    let (view, _) = ev.render(mapper, &camera).unwrap();
+    let head = mapper.head().unwrap();
+    let dec = FactorisedDecoder::from_head(ctx, head).unwrap();
+    let texts = &s.vocabulary.vectors;
+    let c = s.vocabulary.names.len();
+    let scorer = RelevanceScorer::new(ctx, head, c as u32).unwrap();
+    let pixels: Vec<usize> = (0..view.query.len()).step_by(97).collect();
+    let queries: Vec<_> = pixels.iter().map(|&p| view.query[p]).collect();
+    let gpu = scorer.score(ctx, head, &queries, texts).unwrap();
+    let dim = dec.dim();
+    let unit: Vec<f32> = texts
+        .chunks_exact(dim)
+        .flat_map(|t| {
+            let n = t.iter().map(|x| x * x).sum::<f32>().sqrt();
+            t.iter().map(move |x| x / n).collect::<Vec<_>>()
+        })
+        .collect();
+    let proj = dec.project(&unit);
+    let (mut a, mut used) = (vec![0.0; dec.atoms()], Vec::new());
+    for (i, q) in queries.iter().enumerate() {
+        dec.attention(q, &mut a);
+        let norm = dec.norm(&a, &mut used);
+        for t in 0..c {
+            let k = dec.atoms();
+            let cos = FactorisedDecoder::dot(&a, &proj[t * k..(t + 1) * k]) / norm;
+            let want = gpu[i * c + t];
+            assert!(
+                (cos - want).abs() < 2e-3,
+                "pixel {}: class {t}: {cos} vs {want}",
+                pixels[i]
+            );
+        }
+    }
+}
+
 fn map_frames(mapper: &mut OnlineMapper, range: std::ops::Range<usize>) -> usize {
     let mut keyframes = 0;
     for f in &scene().frames[range] {
@@ -151,6 +208,7 @@ fn reference() -> &'static Quality {
         assert_eq!(keyframes, FRAMES / 4);
         let q = quality(&ctx, &mut mapper);
         vocabulary_classes_only(&ctx, &mut mapper);
+        factorised_decoding_matches_the_gpu_decoder(&ctx, &mut mapper);
         let stats = mapper.stats();
         eprintln!(
             "reference: {q:?}\n{}",
@@ -176,12 +234,20 @@ fn assert_no_validation_errors(ctx: Context) {
 #[test]
 fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views() {
     let q = reference();
-    // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.12 m, cosine loss
-    // 0.25, mIoU 0.67 (chance is about 0.1 over the 9 classes).
+    // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.12 m; per pixel
+    // cosine loss 0.59 and mIoU 0.075; region-pooled cosine loss 0.25 and
+    // mIoU 0.67 (chance is about 0.1 over the 9 classes). Per pixel, the
+    // rendered queries are still too noisy to classify (the map-fidelity
+    // work raises these); pooled over a region the noise averages out.
     assert!(q.psnr > 16.5, "PSNR {q:?}");
     assert!(q.depth_l1 < 0.2, "depth L1 {q:?}");
-    assert!(q.cosine_loss < 0.35, "cosine loss {q:?}");
-    assert!(q.miou > 0.45, "mIoU {q:?}");
+    assert!(q.cosine_loss < 0.65, "cosine loss {q:?}");
+    assert!(q.miou > 0.05, "mIoU {q:?}");
+    assert!(
+        q.pooled_cosine_loss < 0.35,
+        "region-pooled cosine loss {q:?}"
+    );
+    assert!(q.pooled_miou > 0.45, "region-pooled mIoU {q:?}");
 }
 
 /// Every Gaussian once in the global map, every resident row equal to its

@@ -79,6 +79,7 @@ pub fn run(args: Args) -> Result<()> {
         every: 8,
         offset: 2,
         frames: None,
+        pixel_stride: 1,
         input: Default::default(),
         quiet: true,
     })?;

@@ -7,11 +7,13 @@
 mod decoder;
 mod head;
 mod kmeans;
+mod pixel_decoder;
 mod pooling;
 mod relevance;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
 pub use head::{LatentHead, LatentHeadConfig};
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
+pub use pixel_decoder::{FactorisedDecoder, NORM_CUTOFF};
 pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};
 pub use relevance::RelevanceScorer;

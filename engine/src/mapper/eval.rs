@@ -1,22 +1,27 @@
-//! Quality of a map on a view (SPEC §10): the view is rendered from the
-//! global map's Gaussians near the camera and compared with the frame's
-//! colour (PSNR), depth (L1 over valid pixels), region embeddings (cosine
-//! loss of the decoded pooled queries) and, with a vocabulary and
-//! semantic labels, per-class intersections and unions for mIoU: each of
-//! the frame's regions is classified from its pooled rendered query (the
-//! mask pooling training supervises), and its pixels take that class;
-//! labelled pixels outside every region count as misses. Without semantic
-//! labels the true class of a region is the one its target embedding is
-//! closest to (the teacher/student variant).
+//! Quality of a map on a view (SPEC §10, paper §V): the view is rendered
+//! from the global map's Gaussians near the camera and compared with the
+//! frame's colour (PSNR over all pixels), depth (L1 over valid pixels) and,
+//! per pixel (the paper's protocol, [`super::pixel_metrics`]), with the
+//! region embeddings (cosine loss of each pixel's decoded query against its
+//! region's target) and, with a vocabulary, the true classes (each pixel
+//! classified among the vocabulary; mIoU over its classes). Without
+//! semantic labels the true class of a region is the one its target
+//! embedding is closest to (the teacher/student variant).
+//!
+//! The region-pooled figures of the same view, each region's mean rendered
+//! query decoded once and given to all its pixels (what training
+//! supervises), are kept as a second, more lenient set
+//! ([`ViewMetrics::region_pooled`]) for debugging.
 
 use std::collections::BTreeMap;
 
 use super::history::{camera_of, KeyframeRecord};
 use super::online::OnlineMapper;
+use super::pixel_metrics::{pixel_metrics, PixelInputs};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::io::{Frame, Vocabulary};
-use crate::latent::RelevanceScorer;
+use crate::latent::{FactorisedDecoder, RelevanceScorer, NO_REGION};
 use crate::map::push_gaussian;
 use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
 
@@ -30,22 +35,28 @@ pub struct ViewMetrics {
     pub depth_l1: f64,
     /// Share of pixels with α > 0.5.
     pub coverage: f64,
-    /// Mean over regions of 1 − cos(decoded pooled query, target).
+    /// Mean over pixels with a region target of 1 − cos(decoded query at
+    /// the pixel, target).
     pub cosine_loss: Option<f64>,
-    /// Mean over regions of the L2 distance between the unit-normalised
-    /// decoded pooled query and the (unit) target, √(2 − 2 cos).
+    /// Mean over the same pixels of the L2 distance between the
+    /// unit-normalised decoded query and the (unit) target, √(2 − 2 cos).
     pub l2: Option<f64>,
+    /// Pixels in `cosine_loss` (to weigh views by).
+    pub cosine_pixels: u64,
     /// Where the true classes of `class_iou` come from: `"labels"` (the
     /// frame's semantic image) or `"teacher"` (no labels: each region's
     /// class is the vocabulary entry closest to its target embedding,
     /// the Feature-3DGS teacher/student variant of SPEC §10).
     pub segmentation: Option<&'static str>,
-    /// Regions compared.
-    pub regions: usize,
     /// Per vocabulary class id: pixel counts of the predicted and true
-    /// class masks. Only pixels whose true class is in the vocabulary
-    /// count: no query word can predict the others.
+    /// class masks, each pixel classified on its own. Only pixels whose
+    /// true class is in the vocabulary count: no query word can predict
+    /// the others.
     pub class_iou: BTreeMap<u16, ClassCounts>,
+    /// Every `pixel_stride`-th pixel and row were evaluated.
+    pub pixel_stride: usize,
+    /// The region-pooled figures (debugging).
+    pub region_pooled: Option<RegionPooled>,
     /// Gaussians rendered.
     pub gaussians: usize,
 }
@@ -70,6 +81,22 @@ impl ClassCounts {
             self.intersection as f64 / self.union as f64
         }
     }
+}
+
+/// A view's figures with each region's mean rendered query decoded once
+/// and given to all its pixels: more lenient than the per-pixel protocol
+/// (it hides boundary errors inside the ground-truth masks).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RegionPooled {
+    /// Mean over regions of 1 − cos(decoded pooled query, target).
+    pub cosine_loss: Option<f64>,
+    /// Mean over regions of √(2 − 2 cos).
+    pub l2: Option<f64>,
+    /// Regions compared.
+    pub regions: usize,
+    /// Per vocabulary class: pixel counts with each region's pixels given
+    /// its pooled class.
+    pub class_iou: BTreeMap<u16, ClassCounts>,
 }
 
 /// mIoU over the classes that occur in the ground truth, from counts
@@ -113,8 +140,14 @@ pub struct Evaluator {
     /// The rendered Gaussians (grown as views need).
     gaussians: Option<GaussianBuffers>,
     scorer: Option<RelevanceScorer>,
+    /// The factorised decoder of the head last seen, with the W and atoms
+    /// it was built from.
+    decoder: Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
     /// Gaussians within this distance of the camera are rendered (metres).
     pub radius: f64,
+    /// Every `pixel_stride`-th pixel of every `pixel_stride`-th row is
+    /// evaluated per pixel (1, the default: all). PSNR and depth use all.
+    pub pixel_stride: usize,
 }
 
 impl Evaluator {
@@ -130,7 +163,9 @@ impl Evaluator {
             },
             gaussians: None,
             scorer: None,
+            decoder: None,
             radius: 8.0,
+            pixel_stride: 1,
         }
     }
 
@@ -202,6 +237,7 @@ impl Evaluator {
             psnr: -10.0 * mse.max(1e-12).log10(),
             depth_l1: if valid > 0 { l1 / valid as f64 } else { 0.0 },
             gaussians: n,
+            pixel_stride: self.pixel_stride.max(1),
             ..ViewMetrics::default()
         };
 
@@ -250,6 +286,38 @@ impl Evaluator {
         if used.is_empty() {
             return Ok(m);
         }
+        // Per pixel, the paper's protocol; pooled below.
+        let stride = self.pixel_stride;
+        let decoder = decoder_for(&self.ctx, &mut self.decoder, head)?;
+        let targets_of_pixels: Vec<u32> = (0..w * h)
+            .map(|p| {
+                let l = region_of(p % w, p / w);
+                if l < sums.len() {
+                    l as u32
+                } else {
+                    NO_REGION
+                }
+            })
+            .collect();
+        let vocab = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty());
+        let no_truth = vec![0u16; w * h];
+        let pixels = pixel_metrics(
+            decoder,
+            &PixelInputs {
+                width: w,
+                height: h,
+                queries: &view.query,
+                region: &targets_of_pixels,
+                targets: &r.vectors,
+                truth: &no_truth,
+                vocabulary: None,
+                stride,
+            },
+        )?;
+        m.cosine_loss = pixels.cosine_loss();
+        m.l2 = pixels.l2();
+        m.cosine_pixels = pixels.cosine_pixels;
+        let mut pooled_m = RegionPooled::default();
         let pooled: Vec<[f32; QUERY_DIM]> = used
             .iter()
             .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
@@ -273,17 +341,18 @@ impl Evaluator {
             let q: Vec<[f32; QUERY_DIM]> = with_target.iter().map(|&j| pooled[j]).collect();
             let s = scorer.score(&self.ctx, head, &q, &targets)?;
             let k = q.len();
-            m.cosine_loss = Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
-            m.l2 = Some(
+            pooled_m.cosine_loss =
+                Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
+            pooled_m.l2 = Some(
                 (0..k)
                     .map(|i| (2.0 - 2.0 * s[i * k + i] as f64).max(0.0).sqrt())
                     .sum::<f64>()
                     / k as f64,
             );
-            m.regions = k;
+            pooled_m.regions = k;
         }
-        let Some(vocab) = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty())
-        else {
+        let Some(vocab) = vocab else {
+            m.region_pooled = Some(pooled_m);
             return Ok(m);
         };
         let c = vocab.names.len();
@@ -333,6 +402,7 @@ impl Evaluator {
         } else {
             "labels"
         });
+        let mut truth_of_pixels = vec![0u16; w * h];
         for y in 0..h {
             for x in 0..w {
                 let region = region_of(x, y);
@@ -350,11 +420,52 @@ impl Evaluator {
                 if truth == 0 || !vocab.ids.contains(&truth) {
                     continue;
                 }
+                truth_of_pixels[y * w + x] = truth;
                 let pred = predicted.get(region).copied().flatten();
-                count_pixel(&mut m.class_iou, truth, pred);
+                count_pixel(&mut pooled_m.class_iou, truth, pred);
             }
         }
+        m.region_pooled = Some(pooled_m);
+        let classes = pixel_metrics(
+            decoder,
+            &PixelInputs {
+                width: w,
+                height: h,
+                queries: &view.query,
+                region: &vec![NO_REGION; w * h],
+                targets: &[],
+                truth: &truth_of_pixels,
+                vocabulary: Some((&vocab.ids, &vocab.vectors)),
+                stride,
+            },
+        )?;
+        m.class_iou = classes.class_iou;
         Ok(m)
+    }
+}
+
+/// The factorised decoder of `head`'s current parameters, kept in `cache`
+/// and rebuilt only when they changed since the last view.
+fn decoder_for<'c>(
+    ctx: &Context,
+    cache: &'c mut Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
+    head: &crate::latent::LatentHead,
+) -> Result<&'c FactorisedDecoder> {
+    let k = head.atom_count() as usize;
+    let dim = head.config().dim as usize;
+    let w = ctx.download::<f32>(head.w())?;
+    let mut atoms = ctx.download::<f32>(head.atoms())?;
+    atoms.truncate(k * dim);
+    let stale = cache
+        .as_ref()
+        .is_none_or(|(w0, d0, _)| *w0 != w || *d0 != atoms);
+    if stale {
+        let dec = FactorisedDecoder::from_head(ctx, head)?;
+        *cache = Some((w, atoms, dec));
+    }
+    match cache {
+        Some((_, _, dec)) => Ok(dec),
+        None => Err(Error::InvalidArgument("no decoder".into())),
     }
 }
 

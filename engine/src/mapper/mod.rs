@@ -14,6 +14,7 @@ mod facade;
 mod history;
 mod online;
 mod persist;
+pub mod pixel_metrics;
 mod trainer;
 
 pub use config_doc::{apply_overrides, documented_defaults};

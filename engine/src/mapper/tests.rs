@@ -85,47 +85,10 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
     with_context(|ctx| {
         let frames = [keyframe(DVec3::ZERO), keyframe(DVec3::new(0.1, 0.0, 0.0))];
         let records: Vec<KeyframeRecord> = frames.iter().map(KeyframeRecord::from_frame).collect();
-        // Seed the map from the first keyframe, then grey out every colour so
-        // there is something to learn.
-        let mut global = GlobalMap::new(0.01);
-        let seeding = SeedingConfig {
-            stride: 1,
-            ..SeedingConfig::default()
-        };
-        for mut g in seed_from_frame(&frames[0], None, &global, &seeding, 1) {
-            g.color = [0.5; 3];
-            global.insert(g);
-        }
-        assert!(global.len() > 1000);
-        let mut window = LocalWindow::new(ctx, 4096).unwrap();
-        let plan = window.plan(&global, DVec3::ZERO, 5.0);
-        let mut rec = ctx.transfer_recorder().unwrap();
-        let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
-        rec.submit().unwrap().wait().unwrap();
-        pending.apply(&mut global).unwrap();
-        assert_eq!(window.len(), global.len());
-
-        let head = LatentHead::new(
-            ctx,
-            LatentHeadConfig {
-                dim: DIM as u32,
-                atoms: 16,
-                max_regions: 16,
-                seed: 3,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let targets = ctx
-            .upload_new(
-                "test/regions",
-                &records[0].regions.as_ref().unwrap().vectors,
-            )
-            .unwrap();
-        let mut rec = ctx.recorder().unwrap();
-        head.record_dictionary_update(&mut rec, &targets, None, 2)
-            .unwrap();
-        rec.submit().unwrap().wait().unwrap();
+        // The map seeded from the first keyframe with every colour greyed
+        // out, so there is something to learn.
+        let (window, head) = training_fixture(ctx, &frames);
+        assert!(window.len() > 1000);
 
         let mut trainer = Trainer::new(
             ctx,
@@ -348,8 +311,9 @@ fn frames_without_embeddings_map_geometry_and_colour_only() {
     });
 }
 
-/// A window seeded from `frames[0]` with grey colours, and a head whose
-/// dictionary was initialised from its regions: the same state each call.
+/// A window seeded from `frames[0]` with grey colours (all of the map), and
+/// a head whose dictionary was initialised from its regions: the same
+/// state each call.
 fn training_fixture(ctx: &crate::gpu::Context, frames: &[Frame]) -> (LocalWindow, LatentHead) {
     let mut global = GlobalMap::new(0.01);
     let seeding = SeedingConfig {
@@ -366,6 +330,7 @@ fn training_fixture(ctx: &crate::gpu::Context, frames: &[Frame]) -> (LocalWindow
     let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
     rec.submit().unwrap().wait().unwrap();
     pending.apply(&mut global).unwrap();
+    assert_eq!(window.len(), global.len());
     let head = LatentHead::new(
         ctx,
         LatentHeadConfig {

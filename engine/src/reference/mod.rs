@@ -8,6 +8,7 @@ pub mod decoder;
 pub mod gemm;
 pub mod kmeans;
 pub mod loss;
+pub mod metrics;
 pub mod normalize;
 pub mod pooling;
 pub mod raster;

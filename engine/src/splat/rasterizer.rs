@@ -493,6 +493,18 @@ impl Rasterizer {
         self.stub.as_ref().ok_or_else(no_forward)
     }
 
+    /// Checks a labels buffer (each batch pixel's region, then from
+    /// `offsets_at` the regions' CSR offsets) against the last batch.
+    fn check_region_labels(&self, labels: &Buffer, offsets_at: u32) -> Result<()> {
+        if (offsets_at as u64) < self.layout.pixels {
+            return Err(Error::InvalidArgument(format!(
+                "region offsets at {offsets_at} overlap the labels of {} pixels",
+                self.layout.pixels
+            )));
+        }
+        labels.ensure_bytes((offsets_at as u64 + 1) * 4, "region labels and offsets")
+    }
+
     /// Pixels of query image one buffer holds on this device.
     fn query_band_pixels(&self) -> u64 {
         (self.ctx.info().max_buffer_bytes() / QUERY_BYTES).max(1)
@@ -821,13 +833,7 @@ impl Rasterizer {
                 labels,
                 offsets_at,
             } => {
-                if (offsets_at as u64) < self.layout.pixels {
-                    return Err(Error::InvalidArgument(format!(
-                        "region offsets at {offsets_at} overlap the labels of {} pixels",
-                        self.layout.pixels
-                    )));
-                }
-                labels.ensure_bytes((offsets_at as u64 + 1) * 4, "backward: pixel regions")?;
+                self.check_region_labels(labels, offsets_at)?;
                 (1, first_row, rows, labels, offsets_at)
             }
             QueryGradients::Zero => (2, 0, stub, stub, 0),
@@ -928,13 +934,7 @@ impl Rasterizer {
         offsets_at: u32,
     ) -> Result<()> {
         self.images()?;
-        if (offsets_at as u64) < self.layout.pixels {
-            return Err(Error::InvalidArgument(format!(
-                "region offsets at {offsets_at} overlap the labels of {} pixels",
-                self.layout.pixels
-            )));
-        }
-        labels.ensure_bytes((offsets_at as u64 + 1) * 4, "region pooling: labels")?;
+        self.check_region_labels(labels, offsets_at)?;
         pooled.ensure_bytes(
             (first_row as u64 + 1) * QUERY_DIM as u64 * 4,
             "region pooling",
