@@ -9,9 +9,9 @@ use std::time::Instant;
 
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{AssemblyConfig, Frame, McapFrames};
+use latentam::io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
 use latentam::mapper::budget::MemorySplit;
-use latentam::mapper::eval::Evaluator;
+use latentam::mapper::eval::{add_iou, mean_iou, Evaluator};
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, MapperConfig, OnlineMapper};
 use serde::Serialize;
 
@@ -63,6 +63,10 @@ struct Report {
     evicted: u64,
     fetched: u64,
     psnr_keyframes: Option<f64>,
+    /// Per pixel (the paper's protocol) over the same keyframes, when the
+    /// log has embeddings and a vocabulary: cosine loss and mIoU.
+    cosine_loss_keyframes: Option<f64>,
+    miou_keyframes: Option<f64>,
     keyframes_evaluated: usize,
     curve: Vec<CurvePoint>,
 }
@@ -151,10 +155,19 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
     let every = (kept.len() / b.eval_keyframes.max(1)).max(1);
     let mut ev = Evaluator::new(&ctx);
     let mut psnr = Vec::new();
+    let vocabulary = read_vocabulary(path, &AssemblyConfig::default().topics.vocabulary)?;
+    let (mut cos, mut cos_pixels) = (0.0, 0u64);
+    let mut classes = std::collections::BTreeMap::new();
     if b.eval_keyframes > 0 {
         ctx.set_memory_budget(None);
         for f in kept.iter().step_by(every).take(b.eval_keyframes) {
-            psnr.push(ev.evaluate(&mut mapper, f, None)?.psnr);
+            let m = ev.evaluate(&mut mapper, f, vocabulary.as_ref())?;
+            psnr.push(m.psnr);
+            if let Some(c) = m.cosine_loss {
+                cos += c * m.cosine_pixels as f64;
+                cos_pixels += m.cosine_pixels;
+            }
+            add_iou(&mut classes, &m.class_iou);
         }
     }
     let t = &stats.timings;
@@ -185,6 +198,8 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         evicted: stats.evicted,
         fetched: stats.fetched,
         psnr_keyframes: (!psnr.is_empty()).then(|| psnr.iter().sum::<f64>() / psnr.len() as f64),
+        cosine_loss_keyframes: (cos_pixels > 0).then(|| cos / cos_pixels as f64),
+        miou_keyframes: mean_iou(&classes),
         keyframes_evaluated: psnr.len(),
         curve,
     };
@@ -243,5 +258,8 @@ fn print_report(r: &Report) {
             "PSNR of {} re-rendered keyframes: {p:.2} dB",
             r.keyframes_evaluated
         );
+    }
+    if let (Some(c), Some(m)) = (r.cosine_loss_keyframes, r.miou_keyframes) {
+        println!("per pixel on the same keyframes: cosine loss {c:.4}, mIoU {m:.4}");
     }
 }

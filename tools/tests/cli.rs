@@ -181,6 +181,14 @@ fn bench_map_writes_json_with_stages_memory_and_curves() {
     let psnr = v["psnr_keyframes"].as_f64().unwrap();
     assert!(psnr > 10.0 && psnr < 60.0, "{psnr}");
     assert_eq!(v["keyframes_evaluated"], 2);
+    // The paper's per-pixel protocol on the same keyframes.
+    let cos = v["cosine_loss_keyframes"].as_f64().unwrap();
+    assert!((0.0..=2.0).contains(&cos), "{cos}");
+    let miou = v["miou_keyframes"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&miou), "{miou}");
+    // The memory split names its parts; mapping allocates no feature image.
+    assert_eq!(v["peak_gpu_split"]["features"], 0);
+    assert!(v["peak_gpu_split"]["images"].as_u64().unwrap() > 0);
 }
 
 #[test]
