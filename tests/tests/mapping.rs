@@ -234,13 +234,14 @@ fn assert_no_validation_errors(ctx: Context) {
 #[test]
 fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views() {
     let q = reference();
-    // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.12 m; per pixel
+    // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.245 m (pixels the map
+    // leaves empty count with their whole depth; 0.12 m over covered ones); per pixel
     // cosine loss 0.59 and mIoU 0.075; region-pooled cosine loss 0.25 and
     // mIoU 0.67 (chance is about 0.1 over the 9 classes). Per pixel, the
     // rendered queries are still too noisy to classify (the map-fidelity
     // work raises these); pooled over a region the noise averages out.
     assert!(q.psnr > 16.5, "PSNR {q:?}");
-    assert!(q.depth_l1 < 0.2, "depth L1 {q:?}");
+    assert!(q.depth_l1 < 0.3, "depth L1 {q:?}");
     assert!(q.cosine_loss < 0.65, "cosine loss {q:?}");
     assert!(q.miou > 0.05, "mIoU {q:?}");
     assert!(

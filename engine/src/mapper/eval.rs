@@ -30,8 +30,8 @@ use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedV
 pub struct ViewMetrics {
     /// Colour PSNR (dB), colours clamped to 0..1.
     pub psnr: f64,
-    /// Mean absolute error (metres) of the rendered depth (Σ w·z / α)
-    /// over pixels with valid measured depth and α > 0.5.
+    /// Mean absolute error (metres) of the rendered depth (Σ w·z / α, 0
+    /// where nothing renders) over every pixel with a valid measured depth.
     pub depth_l1: f64,
     /// Share of pixels with α > 0.5.
     pub coverage: f64,
@@ -225,8 +225,15 @@ impl Evaluator {
             for c in 0..3 {
                 se += (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2);
             }
-            if t[3] > 0.0 && a > 0.5 {
-                l1 += (p[3] as f64 / a as f64 - t[3] as f64).abs();
+            // Every pixel with a measured depth counts: where the map
+            // renders nothing the error is the whole depth.
+            if t[3] > 0.0 && t[3].is_finite() {
+                let rendered = if a > 1e-6 {
+                    p[3] as f64 / a as f64
+                } else {
+                    0.0
+                };
+                l1 += (rendered - t[3] as f64).abs();
                 valid += 1;
             }
         }
