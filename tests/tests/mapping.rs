@@ -235,20 +235,20 @@ fn assert_no_validation_errors(ctx: Context) {
 fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views() {
     let q = reference();
     // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.245 m (pixels the map
-    // leaves empty count with their whole depth; 0.12 m over covered ones); per pixel
-    // cosine loss 0.59 and mIoU 0.075; region-pooled cosine loss 0.25 and
-    // mIoU 0.67 (chance is about 0.1 over the 9 classes). Per pixel, the
-    // rendered queries are still too noisy to classify (the map-fidelity
-    // work raises these); pooled over a region the noise averages out.
+    // leaves empty count with their whole depth); per pixel cosine loss
+    // 0.28 and mIoU 0.25, region-pooled 0.11 and 0.87 (chance is about 0.1
+    // over the 9 classes). With the offline methods' query learning rate
+    // (2.5e-3) they were 0.59 and 0.075, pooled 0.25 and 0.67; under a tiny
+    // GPU budget (below) 0.32 and 0.19, pooled 0.17 and 0.74.
     assert!(q.psnr > 16.5, "PSNR {q:?}");
     assert!(q.depth_l1 < 0.3, "depth L1 {q:?}");
-    assert!(q.cosine_loss < 0.65, "cosine loss {q:?}");
-    assert!(q.miou > 0.05, "mIoU {q:?}");
+    assert!(q.cosine_loss < 0.4, "cosine loss {q:?}");
+    assert!(q.miou > 0.15, "mIoU {q:?}");
     assert!(
-        q.pooled_cosine_loss < 0.35,
+        q.pooled_cosine_loss < 0.2,
         "region-pooled cosine loss {q:?}"
     );
-    assert!(q.pooled_miou > 0.45, "region-pooled mIoU {q:?}");
+    assert!(q.pooled_miou > 0.7, "region-pooled mIoU {q:?}");
 }
 
 /// Every Gaussian once in the global map, every resident row equal to its
