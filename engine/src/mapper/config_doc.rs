@@ -105,6 +105,14 @@ static DOCS: &[Doc] = &[
          paper's setting). Must be >= 0.",
     ),
     doc(
+        "stage_one_iterations",
+        Val,
+        "Stage I iterations per keyframe (R1): joint steps on the Gaussians, \
+         W and D over the keyframe and its replayed ones; the paper uses 1. \
+         Each costs one Stage I (render, backward, Adam step), so more suit \
+         offline mapping. Integer from 1 to 1000.",
+    ),
+    doc(
         "stage_two_iterations",
         Val,
         "Stage II iterations per keyframe (R2). Integer >= 0.",
@@ -1073,6 +1081,19 @@ mod tests {
         assert!(e.contains("gpu_budget"), "{e}");
         let e = error(&["keyframes.policy.interval=0"]);
         assert!(e.contains("interval"), "{e}");
+        for set in ["stage_one_iterations=0", "stage_one_iterations=1001"] {
+            let e = error(&[set]);
+            assert!(
+                e.contains("stage_one_iterations") && e.contains("from 1 to 1000"),
+                "{e}"
+            );
+        }
+        assert_eq!(
+            apply(&["stage_one_iterations=1000"])
+                .unwrap()
+                .stage_one_iterations,
+            1000
+        );
         // Upper bounds keep the sizes computed from these in range (the
         // largest values used to overflow when the first keyframe sized
         // its buffers).

@@ -28,6 +28,8 @@ use crate::splat::Channels;
 const MAX_REGIONS_SETTING: u32 = 1 << 24;
 /// Largest [`MapperConfig::replay`].
 const MAX_REPLAY: u32 = 1 << 16;
+/// Largest [`MapperConfig::stage_one_iterations`].
+pub const MAX_STAGE_ONE_ITERATIONS: u32 = 1000;
 /// Largest [`MapperConfig::window_capacity`] (window rows are `u32`).
 const MAX_WINDOW_CAPACITY: u64 = 1 << 31;
 
@@ -70,6 +72,10 @@ pub struct MapperConfig {
     /// (metres) and view direction, so the history grows with the space
     /// explored, not with time; 0 keeps every keyframe (the paper).
     pub history_cell: f64,
+    /// Stage I iterations per keyframe (R1): joint steps on the Gaussians,
+    /// W and D over the same batch, each a render, a backward pass and an
+    /// Adam step, so Stage I's time grows in proportion.
+    pub stage_one_iterations: u32,
     /// Stage II iterations per keyframe (R2).
     pub stage_two_iterations: u32,
     /// Dictionary size (K).
@@ -109,6 +115,7 @@ impl Default for MapperConfig {
             sync_distance: 0.5,
             replay: 5,
             history_cell: 0.25,
+            stage_one_iterations: 1,
             stage_two_iterations: 5,
             atoms: 2000,
             temperature: 0.05,
@@ -185,6 +192,12 @@ impl MapperConfig {
             return bad(&format!(
                 "max_regions {} must be at most {MAX_REGIONS_SETTING}",
                 self.max_regions
+            ));
+        }
+        if !(1..=MAX_STAGE_ONE_ITERATIONS).contains(&self.stage_one_iterations) {
+            return bad(&format!(
+                "stage_one_iterations {} must be from 1 to {MAX_STAGE_ONE_ITERATIONS}",
+                self.stage_one_iterations
             ));
         }
         if self.replay > MAX_REPLAY {
@@ -695,7 +708,12 @@ impl OnlineMapper {
         batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.window.as_ref().expect("ensured");
+        // R1 steps on the batch; the report is the first's (the losses
+        // before this keyframe trained anything).
         let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
+        for _ in 1..self.cfg.stage_one_iterations {
+            trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
+        }
         self.window_dirty = true;
         timings.stage_one_ms = ms_since(t);
 
