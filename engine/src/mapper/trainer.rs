@@ -329,8 +329,11 @@ impl Trainer {
             // region, with no per-pixel query gradient image.
             let query = match (&chunk.regions, head) {
                 (Some(regions), Some(head)) => {
-                    self.pooling
-                        .record_upload_at(&mut rec, regions, chunk.first_row)?;
+                    // The last chunk pooled still has its labels uploaded.
+                    if Some(c) != live {
+                        self.pooling
+                            .record_upload_at(&mut rec, regions, chunk.first_row)?;
+                    }
                     QueryGradients::Regions {
                         rows: head.grad_queries(),
                         first_row: chunk.first_row,
