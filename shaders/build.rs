@@ -5,7 +5,9 @@
 //!   Text before that is expanded here: `#include "x.glsl"` (relative to
 //!   `glsl/`) and per-variant `#define`s.
 //! * `shaders/wgsl/*.wgsl` go through the WGSL front end; every compute entry
-//!   point becomes one kernel, named after the entry point.
+//!   point becomes one kernel, named after the entry point. They may
+//!   `#include "x.wgsl"` from `shaders/wgsl/include/` (code shared by
+//!   kernels, compiled only where included).
 //!
 //! Directives, written as comments anywhere in a kernel file:
 //! * `// @kernel NAME KEY=VALUE ...` declares one variant of a file: GLSL
@@ -86,9 +88,13 @@ fn main() {
     for path in sorted_files(&glsl_dir, "glsl") {
         println!("cargo:rerun-if-changed={}", path.display());
     }
+    println!(
+        "cargo:rerun-if-changed={}",
+        wgsl_dir.join("include").display()
+    );
     for path in sorted_files(&wgsl_dir, "wgsl") {
         println!("cargo:rerun-if-changed={}", path.display());
-        match compile_wgsl_file(&path) {
+        match compile_wgsl_file(&path, &wgsl_dir.join("include")) {
             Ok(mut ks) => kernels.append(&mut ks),
             Err(e) => errors.push(e),
         }
@@ -194,9 +200,10 @@ fn expand_includes(
             println!("cargo:rerun-if-changed={}", inc.display());
             if !inc.is_file() {
                 return Err(format!(
-                    "{}:{}: cannot find include file `{name}` in glsl/",
+                    "{}:{}: cannot find include file `{name}` in {}/",
                     rel(path),
-                    i + 1
+                    i + 1,
+                    rel(include_dir)
                 ));
             }
             expand_includes(&inc, include_dir, out, map, depth + 1)?;
@@ -427,15 +434,15 @@ fn preprocess_wgsl(text: &str, defs: &[(String, String)], file: &str) -> Result<
     Ok(out)
 }
 
-fn compile_wgsl_file(path: &Path) -> Result<Vec<KernelOut>, String> {
+fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, String> {
     let file = rel(path);
     let raw = std::fs::read_to_string(path).map_err(|e| format!("{file}: {e}"))?;
     let caps = capabilities(&raw, &file)?;
-    let map = LineMap {
-        lines: (1..=raw.lines().count() as u32)
-            .map(|l| (PathBuf::from(&file), l))
-            .collect(),
-    };
+    // `#include "x.wgsl"` pulls in shaders/wgsl/include/x.wgsl, as GLSL
+    // includes do from glsl/; errors point at the file and line written.
+    let mut expanded = String::new();
+    let mut map = LineMap { lines: Vec::new() };
+    expand_includes(path, include_dir, &mut expanded, &mut map, 0)?;
     let declared = variants(&raw, &file)?;
     let runs: Vec<(Option<String>, Defines)> = if declared.is_empty() {
         vec![(None, Vec::new())]
@@ -444,7 +451,7 @@ fn compile_wgsl_file(path: &Path) -> Result<Vec<KernelOut>, String> {
     };
     let mut out = Vec::new();
     for (variant, defs) in runs {
-        let text = preprocess_wgsl(&raw, &defs, &file)?;
+        let text = preprocess_wgsl(&expanded, &defs, &file)?;
         let (text, map) = expand_unroll(&text, &map, &defs, &file)?;
         let mut module = naga::front::wgsl::parse_str(&text).map_err(|e| {
             let at = e

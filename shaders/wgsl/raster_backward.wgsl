@@ -52,8 +52,8 @@
 // adjoint of region pooling, so training needs no per-pixel query
 // gradient image), or is zero (2: no feature loss).
 
-const TILE_SIZE: u32 = 16u;
-const BATCH: u32 = 256u;
+#include "raster.wgsl"
+
 #if COLUMNS
 // Pixels per invocation (two tile columns: t and t + 8), and invocations
 // per workgroup.
@@ -63,20 +63,6 @@ const INVOCATIONS: u32 = 8u;
 const ROWS: u32 = 1u;
 const INVOCATIONS: u32 = 256u;
 #endif
-const MAX_ALPHA: f32 = 0.99;
-const MIN_ALPHA: f32 = 1.0 / 255.0;
-
-// Mirrors `View` in glsl/splat.glsl.
-struct View {
-    row0: vec4<f32>,
-    row1: vec4<f32>,
-    row2: vec4<f32>,
-    intrinsics: vec4<f32>,
-    guard: vec4<f32>,
-    clip: vec4<f32>,
-    size: vec4<u32>,
-    offsets: vec4<u32>,
-}
 
 struct Params {
     n_gaussians: u32,
@@ -94,8 +80,6 @@ struct Params {
 }
 
 var<immediate> pc: Params;
-
-const NO_REGION: u32 = 0xffffffffu;
 
 @group(0) @binding(0) var<storage, read> views: array<View>;
 @group(0) @binding(1) var<storage, read> colors: array<f32>;
@@ -226,23 +210,6 @@ fn lane_sum(x: vec4<f32>) -> vec4<f32> {
 var<workgroup> sh_pair: array<u32, BATCH>;
 var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
 var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
-var<workgroup> wg_walk_atomic: atomic<u32>;
-var<workgroup> wg_walk: u32;
-
-// The largest `mine` over the workgroup (invocation `t`), uniform: how far
-// the tile walks its list.
-fn tile_max(t: u32, mine: u32) -> u32 {
-    if (t == 0u) {
-        atomicStore(&wg_walk_atomic, 0u);
-    }
-    workgroupBarrier();
-    atomicMax(&wg_walk_atomic, mine);
-    workgroupBarrier();
-    if (t == 0u) {
-        wg_walk = atomicLoad(&wg_walk_atomic);
-    }
-    return workgroupUniformLoad(&wg_walk);
-}
 
 #if COLUMNS
 @compute @workgroup_size(8)

@@ -32,29 +32,14 @@
 // @kernel raster_pool_columns SUBGROUP=0 CAS=0 COLUMNS=1
 // @kernel raster_pool_columns_cas SUBGROUP=0 CAS=1 COLUMNS=1
 
-const TILE_SIZE: u32 = 16u;
-const BATCH: u32 = 256u;
+#include "raster.wgsl"
+
 #if COLUMNS
 const ROWS: u32 = 32u;
 const INVOCATIONS: u32 = 8u;
 #else
 const INVOCATIONS: u32 = 256u;
 #endif
-const MAX_ALPHA: f32 = 0.99;
-const MIN_ALPHA: f32 = 1.0 / 255.0;
-const NO_REGION: u32 = 0xffffffffu;
-
-// Mirrors `View` in glsl/splat.glsl.
-struct View {
-    row0: vec4<f32>,
-    row1: vec4<f32>,
-    row2: vec4<f32>,
-    intrinsics: vec4<f32>,
-    guard: vec4<f32>,
-    clip: vec4<f32>,
-    size: vec4<u32>,
-    offsets: vec4<u32>,
-}
 
 struct Params {
     n_gaussians: u32,
@@ -120,23 +105,6 @@ fn region_of(p: u32) -> Region {
 var<workgroup> sh_gaussian: array<u32, BATCH>;
 var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
 var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
-var<workgroup> wg_walk_atomic: atomic<u32>;
-var<workgroup> wg_walk: u32;
-
-// The largest `mine` over the workgroup (invocation `t`), uniform: how far
-// the tile walks its list.
-fn tile_max(t: u32, mine: u32) -> u32 {
-    if (t == 0u) {
-        atomicStore(&wg_walk_atomic, 0u);
-    }
-    workgroupBarrier();
-    atomicMax(&wg_walk_atomic, mine);
-    workgroupBarrier();
-    if (t == 0u) {
-        wg_walk = atomicLoad(&wg_walk_atomic);
-    }
-    return workgroupUniformLoad(&wg_walk);
-}
 
 #if COLUMNS
 @compute @workgroup_size(8)
