@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::ValueEnum;
 use latentam::io::{Compression, Dtype};
 use latentam_cli::progress::Progress;
-use latentam_cli::scene::{generate, SceneConfig};
+use latentam_cli::scene::{generate, spread_for_cosine, SceneConfig};
 
 /// Chunk compression of written logs.
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -80,6 +80,32 @@ pub struct Args {
     /// (the frames are spread over all laps).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     laps: u64,
+    /// Cosine between a region's embedding in one view and its object's
+    /// (fresh noise per view, as a vision-language model's embeddings of
+    /// one thing vary across views); 1 gives every view the same vector.
+    #[arg(long, default_value_t = 0.85, value_parser = unit_interval)]
+    view_cosine: f32,
+    /// Probability that a pixel on a mask's boundary is mislabelled (left
+    /// out of its mask or given to the neighbouring mask, half each), as
+    /// a segmenter's masks miss and spill; 0 gives exact masks.
+    #[arg(long, default_value_t = 0.5, value_parser = probability)]
+    mask_noise: f32,
+}
+
+fn unit_interval(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v > 0.0 && v <= 1.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is outside (0, 1]")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+fn probability(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} is outside [0, 1]")),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -93,6 +119,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fps: args.fps,
         compression: args.compression.into(),
         laps: args.laps as usize,
+        view_spread: spread_for_cosine(args.view_cosine),
+        mask_noise: args.mask_noise,
         ..SceneConfig::default()
     };
     let mut progress = Progress::new("gen-scene", config.frames);

@@ -563,8 +563,8 @@ fn query_misuse_is_a_clear_error() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let os = |s: &'static str| -> &std::ffi::OsStr { s.as_ref() };
-    // Two small logs whose embeddings differ in dimension (9 classes each:
-    // 9 × 16 values divide into 24-d rows, which used to be taken for 6
+    // Two small logs whose embeddings differ in dimension (11 classes each:
+    // 11 × 16 values divide into 22-d rows, which used to be taken for 8
     // texts and crash the softmax).
     let scene = |dim: &str| {
         let log = dir.join(format!("s{dim}.mcap"));
@@ -581,13 +581,13 @@ fn query_misuse_is_a_clear_error() {
         run_ok(&a);
         log
     };
-    let (s24, s16) = (scene("24"), scene("16"));
+    let (s22, s16) = (scene("22"), scene("16"));
     let run = dir.join("run");
-    run_ok(&[os("map"), s24.as_os_str(), os("--out"), run.as_os_str()]);
+    run_ok(&[os("map"), s22.as_os_str(), os("--out"), run.as_os_str()]);
     let plain = dir.join("plain");
     run_ok(&[
         os("map"),
-        s24.as_os_str(),
+        s22.as_os_str(),
         os("--out"),
         plain.as_os_str(),
         os("--embeddings-topic"),
@@ -596,10 +596,10 @@ fn query_misuse_is_a_clear_error() {
     let short = dir.join("short.npy");
     write_npy(&short, &[1.0; 8]);
     let zeros = dir.join("zeros.npy");
-    write_npy(&zeros, &[0.0; 24]);
-    // `--name NAME --vocabulary LOG`, LOG the 24-d log or the 16-d one.
+    write_npy(&zeros, &[0.0; 22]);
+    // `--name NAME --vocabulary LOG`, LOG the 22-d log or the 16-d one.
     let by_name = |name: &'static str, dim: u32, extra: &[&'static str]| {
-        let vocabulary = if dim == 16 { &s16 } else { &s24 };
+        let vocabulary = if dim == 16 { &s16 } else { &s22 };
         let mut a = vec![
             os("query"),
             run.as_os_str(),
@@ -621,7 +621,7 @@ fn query_misuse_is_a_clear_error() {
                 short.as_os_str(),
             ],
             1,
-            "the query has 8 values; the map's embeddings are 24-d",
+            "the query has 8 values; the map's embeddings are 22-d",
         ),
         (
             vec![
@@ -634,18 +634,18 @@ fn query_misuse_is_a_clear_error() {
             "all zeros",
         ),
         (
-            by_name("sofa", 24, &[]),
+            by_name("sofa", 22, &[]),
             1,
             "`sofa` is not in the vocabulary",
         ),
         (by_name("ball", 16, &[]), 1, "holds 16-d embeddings"),
         (
-            by_name("ball", 24, &["--vocabulary-topic", "/nope"]),
+            by_name("ball", 22, &["--vocabulary-topic", "/nope"]),
             1,
             "has no vocabulary on /nope",
         ),
         (
-            by_name("ball", 24, &["--temperature", "0"]),
+            by_name("ball", 22, &["--temperature", "0"]),
             1,
             "--temperature must be positive",
         ),

@@ -1,5 +1,5 @@
-//! The demo world: two rooms joined by a corridor (z up, metres), a dozen
-//! labelled objects, and their textures.
+//! The demo world: two rooms joined by a corridor (z up, metres), fourteen
+//! labelled objects (two of them thin, against a wall), and their textures.
 //!
 //! Room A spans x ∈ [0, 5], the corridor x ∈ [5, 9] (y ∈ [1.5, 2.5]), room
 //! B x ∈ [9, 14]; rooms are 4 m deep (y ∈ [0, 4]) and 2.5 m high.
@@ -9,7 +9,7 @@ use glam::{Vec2, Vec3};
 use super::geometry::Shape;
 
 /// Class names by id (0 = unlabelled), as written to the vocabulary.
-pub const CLASSES: [&str; 10] = [
+pub const CLASSES: [&str; 12] = [
     "unlabelled",
     "wall",
     "floor",
@@ -20,6 +20,8 @@ pub const CLASSES: [&str; 10] = [
     "lamp",
     "plant pot",
     "ball",
+    "door",
+    "picture frame",
 ];
 
 /// How a surface is coloured.
@@ -355,6 +357,16 @@ impl Scene {
             rgb(40, 100, 45),
             Pattern::Noise(0.1),
         );
+        // A thin object on a wall: 2.5 cm proud, so depth barely tells it
+        // from the wall and only colour and embeddings separate them.
+        s.object(
+            11,
+            "picture frame A",
+            cuboid([3.3, 3.975, 1.2], [4.2, 4.0, 1.8]),
+            rgb(60, 90, 170),
+            rgb(230, 200, 80),
+            Pattern::Noise(0.08),
+        );
         s.object(
             9,
             "ball A",
@@ -414,6 +426,15 @@ impl Scene {
             rgb(40, 130, 90),
             rgb(25, 90, 60),
             Pattern::Noise(0.1),
+        );
+        // A closed door, 4 cm proud of the wall.
+        s.object(
+            10,
+            "door B",
+            cuboid([12.1, 3.96, 0.0], [13.0, 4.0, 2.05]),
+            rgb(120, 80, 60),
+            rgb(95, 60, 45),
+            Pattern::Stripes(0.3),
         );
         s.object(
             9,

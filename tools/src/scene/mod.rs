@@ -1,17 +1,21 @@
 //! The built-in demo scene (`latentam gen-scene`, and the input of
-//! `latentam demo`): two textured rooms joined by a corridor with a dozen
+//! `latentam demo`): two textured rooms joined by a corridor with fourteen
 //! labelled objects, ray cast on the CPU along a path that leaves and
 //! re-enters the rooms, written as a ROS 2 MCAP log in the layout the
 //! engine reads.
 //!
 //! The region embeddings are **synthetic**: each class gets a seeded random
 //! unit vector, each instance a perturbed copy of its class vector, and
-//! each view a further perturbation of the instance vector; every visible
-//! instance is one region. They exercise the mapper the way real
-//! vision-language embeddings would (a shared space, classes far apart,
-//! views of one thing close together) without a model. The log's metadata
-//! says so, and the vocabulary message carries the class vectors so that
-//! open-vocabulary queries and mIoU can be evaluated.
+//! each view a fresh perturbation of the instance vector (cosine ≈ 0.85 to
+//! it by default, about what a vision-language model gives one object
+//! across views); every visible instance is one region, and its mask, as a
+//! segmenter's would, misses or spills over some pixels along its
+//! boundary. They exercise the mapper the way real vision-language
+//! embeddings would (a shared space, classes far apart, views of one thing
+//! close but never equal) without a model. The log's metadata says so, and
+//! the vocabulary message carries the class vectors so that
+//! open-vocabulary queries and mIoU can be evaluated; the semantic images
+//! stay exact.
 
 mod geometry;
 mod layout;
@@ -55,8 +59,12 @@ pub struct SceneConfig {
     pub min_region_pixels: usize,
     /// Size of the per-instance perturbation relative to the class vector.
     pub instance_spread: f32,
-    /// Size of the per-view perturbation relative to the instance vector.
+    /// Size of the per-view perturbation relative to the instance vector
+    /// ([`spread_for_cosine`]).
     pub view_spread: f32,
+    /// Probability that a pixel on a mask's boundary is mislabelled: left
+    /// out of its mask or given to the neighbouring one (half each).
+    pub mask_noise: f32,
     /// Chunk compression.
     pub compression: Compression,
     /// Traversals of the path, alternately forwards and backwards (long
@@ -76,7 +84,8 @@ impl Default for SceneConfig {
             fps: 10.0,
             min_region_pixels: 16,
             instance_spread: 0.35,
-            view_spread: 0.1,
+            view_spread: spread_for_cosine(0.85),
+            mask_noise: 0.5,
             compression: Compression::Zstd,
             laps: 1,
         }
@@ -119,6 +128,14 @@ fn normalized(mut v: Vec<f32>) -> Vec<f32> {
     let n = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
     v.iter_mut().for_each(|x| *x /= n);
     v
+}
+
+/// The perturbation size that leaves a unit vector at cosine `c` to its
+/// perturbed copy (in high dimensions, where the noise is nearly
+/// orthogonal to it): `1 / √(1 + s²) = c`.
+pub fn spread_for_cosine(c: f32) -> f32 {
+    let c = c.clamp(1e-3, 1.0);
+    (1.0 / (c * c) - 1.0).max(0.0).sqrt()
 }
 
 fn perturbed(base: &[f32], spread: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
@@ -168,6 +185,48 @@ pub fn regions(instance: &[u16], min_pixels: usize) -> (Vec<u16>, Vec<u16>) {
     (labels, order)
 }
 
+/// Instance masks as a segmenter would give them: each pixel on a boundary
+/// between two instances (a 4-neighbour belongs to the other) is, with
+/// probability `rate`, left out of every mask (0) or given to that
+/// neighbour (a spill), half each. Decided from the exact masks, so the
+/// noise is at most one pixel deep.
+pub fn imperfect_masks(
+    instance: &[u16],
+    width: u32,
+    height: u32,
+    rate: f32,
+    rng: &mut ChaCha8Rng,
+) -> Vec<u16> {
+    let (w, h) = (width as usize, height as usize);
+    let mut out = instance.to_vec();
+    if rate <= 0.0 {
+        return out;
+    }
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let own = instance[i];
+            let mut other = None;
+            if x > 0 && instance[i - 1] != own {
+                other = Some(instance[i - 1]);
+            } else if x + 1 < w && instance[i + 1] != own {
+                other = Some(instance[i + 1]);
+            } else if y > 0 && instance[i - w] != own {
+                other = Some(instance[i - w]);
+            } else if y + 1 < h && instance[i + w] != own {
+                other = Some(instance[i + w]);
+            }
+            let Some(other) = other else {
+                continue;
+            };
+            if rng.random::<f32>() < rate {
+                out[i] = if rng.random::<bool>() { 0 } else { other };
+            }
+        }
+    }
+    out
+}
+
 fn check(config: &SceneConfig) -> anyhow::Result<()> {
     if config.frames == 0 {
         bail!("--frames must be at least 1");
@@ -184,6 +243,12 @@ fn check(config: &SceneConfig) -> anyhow::Result<()> {
     }
     if !(config.fps > 0.0 && config.fps.is_finite()) {
         bail!("frame rate must be positive");
+    }
+    if !(0.0..=1.0).contains(&config.mask_noise) {
+        bail!("mask noise {} outside 0…1", config.mask_noise);
+    }
+    if !(config.view_spread >= 0.0 && config.view_spread.is_finite()) {
+        bail!("view spread {} must be finite and ≥ 0", config.view_spread);
     }
     Ok(())
 }
@@ -261,10 +326,11 @@ pub fn generate(
         let instance = bytes_u16(&view.instance);
         log.write("/camera/instances", t, &image("16UC1", &instance))?;
 
-        let (labels, order) = regions(&view.instance, config.min_region_pixels);
         let mut rng = ChaCha8Rng::seed_from_u64(
             config.seed ^ (0x5851_f42d_4c95_7f2d_u64.wrapping_mul(i as u64 + 1)),
         );
+        let masks = imperfect_masks(&view.instance, w, h, config.mask_noise, &mut rng);
+        let (labels, order) = regions(&masks, config.min_region_pixels);
         let vectors: Vec<f32> = order
             .iter()
             .flat_map(|&inst| {
@@ -298,7 +364,11 @@ pub fn generate(
         ),
         (
             "embeddings".to_string(),
-            "synthetic: seeded class vectors, perturbed per instance and per view".to_string(),
+            format!(
+                "synthetic: seeded class vectors, perturbed per instance and per view \
+                 (spread {:.3}); boundary mask noise {:.2}",
+                config.view_spread, config.mask_noise
+            ),
         ),
         ("seed".to_string(), config.seed.to_string()),
         ("frames".to_string(), config.frames.to_string()),
@@ -329,9 +399,53 @@ mod tests {
     }
 
     #[test]
+    fn imperfect_masks_change_only_boundary_pixels_and_both_ways() {
+        // Two instances split down the middle of a 20×10 image.
+        let (w, h) = (20u32, 10u32);
+        let exact: Vec<u16> = (0..w * h).map(|i| if i % w < 10 { 1 } else { 2 }).collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let (mut missed, mut spilled) = (0, 0);
+        for _ in 0..50 {
+            let noisy = imperfect_masks(&exact, w, h, 0.5, &mut rng);
+            for (i, (&a, &b)) in exact.iter().zip(&noisy).enumerate() {
+                let x = i as u32 % w;
+                if a == b {
+                    continue;
+                }
+                assert!(x == 9 || x == 10, "pixel {i} is not on the boundary");
+                if b == 0 {
+                    missed += 1;
+                } else {
+                    assert_eq!(b, 3 - a, "spills take the neighbour's label");
+                    spilled += 1;
+                }
+            }
+        }
+        // 50 × 20 boundary pixels at rate 0.5, half each way: 250 ± 3σ.
+        for n in [missed, spilled] {
+            assert!(
+                (200..=300).contains(&n),
+                "missed {missed}, spilled {spilled}"
+            );
+        }
+        assert_eq!(imperfect_masks(&exact, w, h, 0.0, &mut rng), exact);
+    }
+
+    #[test]
+    fn per_view_embeddings_sit_at_the_asked_cosine() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let base = unit_gaussian(&mut rng, 768);
+        for c in [0.85f32, 0.95] {
+            let v = perturbed(&base, spread_for_cosine(c), &mut rng);
+            let got: f32 = v.iter().zip(&base).map(|(a, b)| a * b).sum();
+            assert!((got - c).abs() < 0.03, "asked {c}, got {got}");
+        }
+    }
+
+    #[test]
     fn views_see_the_rooms_with_valid_depth_and_labels() {
         let scene = Scene::two_rooms();
-        assert_eq!(scene.object_count(), 12);
+        assert_eq!(scene.object_count(), 14);
         let frames = 60;
         let mut seen = std::collections::BTreeSet::new();
         for i in (0..frames).step_by(6) {
