@@ -72,7 +72,7 @@ fn a_1280x720_log_maps_with_five_replayed_keyframes_in_one_view_of_image_memory(
         (3..=4).contains(&widest_batch),
         "widest batch {widest_batch} views"
     );
-    let one_view = pixel_bytes(WIDTH as u64 * HEIGHT as u64, 1);
+    let one_view = pixel_bytes(WIDTH as u64 * HEIGHT as u64, 1, false);
     let split = stats.gpu_peak_split;
     eprintln!(
         "peak GPU {} B: images {} B and features {} B (one view budgeted at {one_view} B), \

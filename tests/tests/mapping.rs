@@ -140,8 +140,11 @@ fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
         m.class_iou.values().map(|c| c.truth).sum()
     };
     assert_eq!(truth(&part), truth(&full) - gone_counts.truth);
+    // A class absent from the view may now be predicted where the left-out
+    // one was: it shows up with no true pixels.
     for (id, c) in &part.class_iou {
-        assert_eq!(c.truth, full.class_iou[id].truth, "class {id}");
+        let before = full.class_iou.get(id).map_or(0, |c| c.truth);
+        assert_eq!(c.truth, before, "class {id}");
     }
 }
 
@@ -234,21 +237,26 @@ fn assert_no_validation_errors(ctx: Context) {
 #[test]
 fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views() {
     let q = reference();
-    // Measured on lavapipe: PSNR 16.8 dB, depth L1 0.245 m (pixels the map
-    // leaves empty count with their whole depth); per pixel cosine loss
-    // 0.28 and mIoU 0.25, region-pooled 0.11 and 0.87 (chance is about 0.1
-    // over the 9 classes). With the offline methods' query learning rate
-    // (2.5e-3) they were 0.59 and 0.075, pooled 0.25 and 0.67; under a tiny
-    // GPU budget (below) 0.32 and 0.19, pooled 0.17 and 0.74.
-    assert!(q.psnr > 16.5, "PSNR {q:?}");
-    assert!(q.depth_l1 < 0.3, "depth L1 {q:?}");
-    assert!(q.cosine_loss < 0.4, "cosine loss {q:?}");
-    assert!(q.miou > 0.15, "mIoU {q:?}");
+    // The demo scene with per-view embedding noise (cosine 0.85 to the
+    // instance's vector, so a perfect map scores a cosine loss of about
+    // 0.15) and imperfect masks. Measured on lavapipe over five embedding
+    // seeds (7, 1-4) and three more mapper seeds (1, 2, 5): PSNR
+    // 21.75-21.77 dB, depth L1 0.196-0.198 m; per pixel cosine loss
+    // 0.248-0.273 and mIoU 0.507-0.553 (chance is about 0.09 over the 11
+    // classes), region-pooled 0.259-0.288 and 0.617-0.786. Before the
+    // queries started from their region's embedding and seeding and the
+    // Gaussian learning rates were tuned (README, "Map fidelity"): PSNR
+    // 16.8 dB and per-pixel mIoU 0.25 on the easier scene of then. The
+    // margins below are about three times the spread beyond the worst seed.
+    assert!(q.psnr > 21.0, "PSNR {q:?}");
+    assert!(q.depth_l1 < 0.22, "depth L1 {q:?}");
+    assert!(q.cosine_loss < 0.31, "cosine loss {q:?}");
+    assert!(q.miou > 0.45, "mIoU {q:?}");
     assert!(
-        q.pooled_cosine_loss < 0.2,
+        q.pooled_cosine_loss < 0.32,
         "region-pooled cosine loss {q:?}"
     );
-    assert!(q.pooled_miou > 0.7, "region-pooled mIoU {q:?}");
+    assert!(q.pooled_miou > 0.55, "region-pooled mIoU {q:?}");
 }
 
 /// Every Gaussian once in the global map, every resident row equal to its

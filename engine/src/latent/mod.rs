@@ -9,6 +9,7 @@ mod head;
 mod kmeans;
 mod pixel_decoder;
 mod pooling;
+mod query_init;
 mod relevance;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
@@ -16,4 +17,5 @@ pub use head::{LatentHead, LatentHeadConfig};
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
 pub use pixel_decoder::{FactorisedDecoder, NORM_CUTOFF};
 pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};
+pub use query_init::projected_queries;
 pub use relevance::RelevanceScorer;

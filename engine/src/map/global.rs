@@ -236,16 +236,34 @@ impl GlobalMap {
         }
         let r2 = radius * radius;
         let mut out = Vec::new();
-        for x in lo.x as i32..=hi.x as i32 {
-            for y in lo.y as i32..=hi.y as i32 {
-                for z in lo.z as i32..=hi.z as i32 {
-                    let Some(cell) = self.cells.get(&VoxelKey { x, y, z }) else {
-                        continue;
-                    };
-                    for &s in cell {
-                        let m = DVec3::from(self.gaussians[s as usize].mean.map(f64::from));
-                        if (m - centre).length_squared() <= r2 {
-                            out.push(self.keys[s as usize]);
+        let mut take = |cell: &Vec<u32>| {
+            for &s in cell {
+                let m = DVec3::from(self.gaussians[s as usize].mean.map(f64::from));
+                if (m - centre).length_squared() <= r2 {
+                    out.push(self.keys[s as usize]);
+                }
+            }
+        };
+        // Walk the box's cells or the occupied ones, whichever are fewer:
+        // the time is bounded by the map, not by radius ÷ cell size.
+        let span = hi - lo + 1.0;
+        let box_cells = span.x * span.y * span.z;
+        if box_cells > self.cells.len() as f64 {
+            let (lo, hi) = (lo.as_ivec3(), hi.as_ivec3());
+            for (k, cell) in &self.cells {
+                if (lo.x..=hi.x).contains(&k.x)
+                    && (lo.y..=hi.y).contains(&k.y)
+                    && (lo.z..=hi.z).contains(&k.z)
+                {
+                    take(cell);
+                }
+            }
+        } else {
+            for x in lo.x as i32..=hi.x as i32 {
+                for y in lo.y as i32..=hi.y as i32 {
+                    for z in lo.z as i32..=hi.z as i32 {
+                        if let Some(cell) = self.cells.get(&VoxelKey { x, y, z }) {
+                            take(cell);
                         }
                     }
                 }
@@ -311,7 +329,8 @@ mod tests {
                 rng.random_range(-2.0..2.0),
                 0.0,
             );
-            let r = rng.random_range(0.05..1.5);
+            // Small radii walk the box's cells, large ones the occupied.
+            let r = rng.random_range(0.05..6.0);
             let mut want: Vec<VoxelKey> = live
                 .iter()
                 .filter(|p| (DVec3::from(p.map(f64::from)) - c).length() <= r)
@@ -320,6 +339,12 @@ mod tests {
             want.sort_unstable();
             assert_eq!(map.within(c, r), want);
         }
+        // A radius of any size costs a pass over the occupied cells.
+        assert_eq!(map.within(DVec3::ZERO, 1e300).len(), live.len());
+        assert_eq!(
+            map.within(DVec3::new(1e30, 0.0, 0.0), 2e30).len(),
+            live.len()
+        );
         // Every live Gaussian is found by its key, exactly once.
         let mut keys: Vec<VoxelKey> = map.iter().map(|(k, _)| k).collect();
         keys.sort_unstable();

@@ -9,7 +9,7 @@ mod window;
 
 pub use global::{Gaussian, GlobalMap, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
-pub use seeding::{seed_from_frame, SeedingConfig, ViewCoverage};
+pub use seeding::{seed_from_frame, QueryInit, RegionQueries, SeedingConfig, ViewCoverage};
 pub use voxel::VoxelKey;
 pub use window::{gaussian_at, push_gaussian, Companion, LocalWindow, PendingSync, SyncPlan};
 

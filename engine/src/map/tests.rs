@@ -59,8 +59,13 @@ fn wall_frame(eye: DVec3, rotation: DQuat, z_mm: u16) -> Frame {
 fn seeds_lie_on_the_measured_surface_once_per_voxel() {
     let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
     let mut map = GlobalMap::new(0.01);
-    let config = SeedingConfig::default();
-    let seeds = seed_from_frame(&frame, None, &map, &config, 1);
+    let config = SeedingConfig {
+        opacity: 0.5,
+        scale_factor: 0.5,
+        hole_fill_radius: 0,
+        ..SeedingConfig::default()
+    };
+    let seeds = seed_from_frame(&frame, None, &map, &config, 1, None);
     // Stride 2 from pixel 1: 16 × 12 candidates, minus the 2 × 2 without depth;
     // at 2 m a 2-pixel step is 10 cm, so every candidate has its own voxel.
     assert_eq!(seeds.len(), 16 * 12 - 4);
@@ -79,7 +84,7 @@ fn seeds_lie_on_the_measured_surface_once_per_voxel() {
         );
     }
     assert_eq!(
-        seed_from_frame(&frame, None, &map, &config, 1),
+        seed_from_frame(&frame, None, &map, &config, 1, None),
         seeds,
         "deterministic"
     );
@@ -87,7 +92,7 @@ fn seeds_lie_on_the_measured_surface_once_per_voxel() {
         map.insert(*g).unwrap();
     }
     // Everything is now occupied: the same view adds nothing.
-    assert!(seed_from_frame(&frame, None, &map, &config, 1).is_empty());
+    assert!(seed_from_frame(&frame, None, &map, &config, 1, None).is_empty());
 }
 
 #[test]
@@ -115,7 +120,14 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         alpha: &alpha,
         depth: &depth,
     };
-    let seeds = seed_from_frame(&frame, Some(rendered), &map, &SeedingConfig::default(), 1);
+    let seeds = seed_from_frame(
+        &frame,
+        Some(rendered),
+        &map,
+        &SeedingConfig::default(),
+        1,
+        None,
+    );
     // Right half: 8 × 12 candidates; left half bottom 4 rows: 8 × 2.
     assert_eq!(seeds.len(), 8 * 12 + 8 * 2);
 
@@ -128,12 +140,12 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         ..SeedingConfig::default()
     };
     let mut map = GlobalMap::new(0.01);
-    let first = seed_from_frame(&near, None, &map, &dense, 1);
+    let first = seed_from_frame(&near, None, &map, &dense, 1, None);
     for g in &first {
         map.insert(*g).unwrap();
     }
     let moved = wall_frame(DVec3::new(0.011, 0.0, 0.0), DQuat::IDENTITY, 400);
-    let second = seed_from_frame(&moved, None, &map, &dense, 2);
+    let second = seed_from_frame(&moved, None, &map, &dense, 2, None);
     assert!(!second.is_empty());
     for g in &second {
         let key = map.key_of(DVec3::from(g.mean.map(f64::from))).unwrap();
@@ -151,7 +163,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
     let config = SeedingConfig::default();
     let mut map = GlobalMap::new(0.01);
     let first = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 600);
-    for g in seed_from_frame(&first, None, &map, &config, 1) {
+    for g in seed_from_frame(&first, None, &map, &config, 1, None) {
         map.insert(g).unwrap();
     }
     let again = wall_frame(DVec3::new(0.015, 0.0, 0.0), DQuat::IDENTITY, 600);
@@ -166,13 +178,13 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
     // The render held everything within 5 m: the wall is unexplained there,
     // so it is seeded (holes in a complete render are real).
     let inside = Some((DVec3::ZERO, 5.0));
-    let reseeded = seed_from_frame(&again, Some(coverage(inside)), &map, &config, 2).len();
+    let reseeded = seed_from_frame(&again, Some(coverage(inside)), &map, &config, 2, None).len();
     assert!(reseeded > 50, "{reseeded}");
     // Only what is within 0.3 m was resident: the wall's Gaussians may be
     // paged out, and its surface is mapped, so only the strip the first
     // view did not see (past its edge) is seeded.
     let outside = Some((DVec3::ZERO, 0.3));
-    let seeded = seed_from_frame(&again, Some(coverage(outside)), &map, &config, 2);
+    let seeded = seed_from_frame(&again, Some(coverage(outside)), &map, &config, 2, None);
     assert!(
         seeded.len() * 5 < reseeded,
         "{} of {reseeded}",
@@ -191,7 +203,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
         partial: false,
         complete_within: inside,
     };
-    let again_seeded = seed_from_frame(&again, Some(partly), &map, &config, 2);
+    let again_seeded = seed_from_frame(&again, Some(partly), &map, &config, 2, None);
     assert_eq!(again_seeded.len(), seeded.len());
 }
 
@@ -226,7 +238,7 @@ fn keyframes_by_interval_by_overlap_and_only_after_motion() {
     // between them.)
     let f = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 500);
     let mut map = GlobalMap::new(0.01);
-    for g in seed_from_frame(&f, None, &map, &SeedingConfig::default(), 1) {
+    for g in seed_from_frame(&f, None, &map, &SeedingConfig::default(), 1, None) {
         map.insert(g);
     }
     let mut sel = KeyframeSelector::new(KeyframeConfig {
@@ -425,4 +437,87 @@ mod window {
             assert!(LocalWindow::new(ctx, 0).is_err());
         });
     }
+}
+
+#[test]
+fn seeds_in_a_region_start_from_its_query_and_others_as_before() {
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    let config = SeedingConfig::default();
+    // A 4 × 3 label image over the 32 × 24 view: region 0 is the left
+    // half, region 1 (no query: e.g. a zero embedding) the top right
+    // quarter, the rest no region.
+    let labels = [0, 0, 1, 1, 0, 0, 9, 9, 0, 0, 9, 9];
+    let q0 = [0.5f32; crate::splat::QUERY_DIM];
+    let queries = [Some(q0), None];
+    let regions = RegionQueries {
+        width: 4,
+        height: 3,
+        labels: &labels,
+        queries: &queries,
+    };
+    let plain = seed_from_frame(&frame, None, &map, &config, 1, None);
+    let seeded = seed_from_frame(&frame, None, &map, &config, 1, Some(&regions));
+    assert_eq!(plain.len(), seeded.len());
+    let mut from_region = 0;
+    for (a, b) in plain.iter().zip(&seeded) {
+        assert_eq!(a.mean, b.mean);
+        let u = (b.mean[0] as f64 / 2.0 * 40.0 + 15.5).round();
+        if u < 16.0 {
+            assert_eq!(b.query, q0, "left half: region 0's query");
+            from_region += 1;
+        } else {
+            assert_eq!(a.query, b.query, "no query for this pixel: as before");
+        }
+    }
+    assert_eq!(from_region, 8 * 12, "with the borrowed-depth pixels");
+}
+
+#[test]
+fn pixels_without_depth_borrow_it_from_the_nearest_ring_within_the_radius() {
+    // The top-left 4 × 4 block has no depth. Its candidates (stride 2 from
+    // pixel 1) are (1, 1), (3, 1), (1, 3) and (3, 3): the last three have
+    // valid depth one pixel away, (1, 1) only three pixels away.
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    let with = |radius| SeedingConfig {
+        hole_fill_radius: radius,
+        ..SeedingConfig::default()
+    };
+    let count = |radius| seed_from_frame(&frame, None, &map, &with(radius), 1, None).len();
+    assert_eq!(count(0), 16 * 12 - 4);
+    assert_eq!(count(1), 16 * 12 - 1);
+    assert_eq!(count(2), 16 * 12 - 1);
+    assert_eq!(count(3), 16 * 12);
+    for g in seed_from_frame(&frame, None, &map, &with(3), 1, None) {
+        assert!((g.mean[2] - 2.0).abs() < 1e-5, "on the wall: {:?}", g.mean);
+    }
+    // The median of the ring: a hole ringed by three pixels at 1 m and
+    // five at 3 m takes 3 m.
+    let mut frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 3000);
+    if let crate::io::DepthData::Units { values, .. } = &mut frame.depth.data {
+        for y in 0..H {
+            for x in 0..W {
+                let i = (y * W + x) as usize;
+                if (10..=12).contains(&x) && (10..=12).contains(&y) {
+                    values[i] = if (x, y) == (11, 11) {
+                        0
+                    } else if y == 10 {
+                        1000
+                    } else {
+                        3000
+                    };
+                }
+            }
+        }
+    }
+    let at_hole = seed_from_frame(&frame, None, &map, &with(1), 1, None)
+        .into_iter()
+        .find(|g| {
+            let u = g.mean[0] as f64 / g.mean[2] as f64 * 40.0 + 15.5;
+            let v = g.mean[1] as f64 / g.mean[2] as f64 * 40.0 + 11.5;
+            (u - 11.0).abs() < 1e-3 && (v - 11.0).abs() < 1e-3
+        })
+        .expect("the hole pixel is seeded");
+    assert!((at_hole.mean[2] - 3.0).abs() < 1e-5, "{:?}", at_hole.mean);
 }

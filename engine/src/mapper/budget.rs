@@ -67,9 +67,15 @@ pub const QUERY_IMAGE_BYTES_PER_PIXEL: u64 = 128;
 pub const SSIM_BYTES_PER_PIXEL: u64 = 132;
 
 /// GPU bytes that scale with the pixels of a batch rendered `views` views
-/// at a time.
-pub fn pixel_bytes(view_pixels: u64, views: u64) -> u64 {
-    view_pixels * (views * BYTES_PER_CHUNK_PIXEL + SSIM_BYTES_PER_PIXEL)
+/// at a time; `query_images`: Stage I renders each view's query image
+/// (feature gradients attached to the geometry).
+pub fn pixel_bytes(view_pixels: u64, views: u64, query_images: bool) -> u64 {
+    let query = if query_images {
+        QUERY_IMAGE_BYTES_PER_PIXEL
+    } else {
+        0
+    };
+    view_pixels * (views * (BYTES_PER_CHUNK_PIXEL + query) + SSIM_BYTES_PER_PIXEL)
 }
 
 /// GPU bytes of a latent head with `atoms` atoms of `dim` dimensions

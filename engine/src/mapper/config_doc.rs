@@ -118,6 +118,14 @@ static DOCS: &[Doc] = &[
         "Stage II iterations per keyframe (R2). Integer >= 0.",
     ),
     doc(
+        "attach_feature_gradients",
+        Val,
+        "Let the feature loss move the Gaussians' opacity, position and \
+         shape too, not only their queries (true/false). Stage I then \
+         renders a 32-channel query image per view: 128 more bytes of GPU \
+         memory per pixel of a chunk, and slower backward passes.",
+    ),
+    doc(
         "atoms",
         Val,
         "Dictionary size (K): number of latent atoms. Integer from 1 to \
@@ -267,6 +275,25 @@ static DOCS: &[Doc] = &[
          there add nothing, so revisits do not grow the map while closer \
          views still add detail. Set it to alpha_threshold to seed every \
          unexplained pixel. Range 0 to 1.",
+    ),
+    doc(
+        "seeding.hole_fill_radius",
+        Val,
+        "A pixel without a valid depth (RGB-D sensors leave 5-15 % of \
+         pixels empty: shadows beside edges, dark, shiny or distant \
+         surfaces) is seeded at the median depth of the nearest ring of \
+         pixels around it that has valid ones, up to this many pixels \
+         away. 0 seeds measured depth only, and empty pixels stay holes \
+         in the map. At most 64.",
+    ),
+    doc(
+        "seeding.query_init",
+        Val,
+        "Where a new Gaussian's query starts: \"embedding\" (its pixel's \
+         region embedding projected through the decoder's W, so it decodes \
+         to about that embedding before any step; pixels without one copy \
+         a neighbour's query or start at random) or \"random\" (a \
+         neighbouring Gaussian's query, else N(0, 1)).",
     ),
     doc(
         "seeding.scale_factor",

@@ -143,7 +143,9 @@ pub struct Evaluator {
     /// The factorised decoder of the head last seen, with the W and atoms
     /// it was built from.
     decoder: Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
-    /// Gaussians within this distance of the camera are rendered (metres).
+    /// Gaussians within this distance of the camera are rendered (metres);
+    /// [`Evaluator::evaluate`] reaches further when the frame measures
+    /// depth further away, so that every surface in view is rendered.
     pub radius: f64,
     /// Every `pixel_stride`-th pixel of every `pixel_stride`-th row is
     /// evaluated per pixel (1, the default: all). PSNR and depth use all.
@@ -177,10 +179,19 @@ impl Evaluator {
         mapper: &mut OnlineMapper,
         camera: &Camera,
     ) -> Result<(RenderedView, usize)> {
+        self.render_within(mapper, camera, self.radius)
+    }
+
+    fn render_within(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        camera: &Camera,
+        radius: f64,
+    ) -> Result<(RenderedView, usize)> {
         mapper.flush()?;
         let global = mapper.global();
         let mut host = HostGaussians::default();
-        for key in global.within(camera.cam_to_world.translation, self.radius) {
+        for key in global.within(camera.cam_to_world.translation, radius) {
             let g = global.get(key).expect("within() returns present keys");
             push_gaussian(&mut host, g);
         }
@@ -216,7 +227,20 @@ impl Evaluator {
     ) -> Result<ViewMetrics> {
         let record = KeyframeRecord::from_frame(frame);
         let camera = camera_of(frame);
-        let (view, n) = self.render(mapper, &camera)?;
+        // The farthest measured surface (a corner of the view lies further
+        // than the depth along the axis), so nothing in view is left out.
+        let k = frame.intrinsics;
+        let corner = ((k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2))
+            .sqrt()
+            .max(0.0);
+        let farthest = record.depth_mm.iter().copied().max().unwrap_or(0) as f64 * 1e-3;
+        let reach = farthest * (1.0 + corner * corner).sqrt() + 0.5;
+        let radius = if reach.is_finite() {
+            self.radius.max(reach)
+        } else {
+            self.radius
+        };
+        let (view, n) = self.render_within(mapper, &camera, radius)?;
         let target = record.target_rgbd();
 
         let mut se = 0.0f64;

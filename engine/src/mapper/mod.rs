@@ -15,6 +15,7 @@ mod history;
 mod online;
 mod persist;
 pub mod pixel_metrics;
+mod preset;
 mod trainer;
 
 pub use config_doc::{apply_overrides, documented_defaults};
@@ -26,6 +27,7 @@ pub use online::{
     PagingReport,
 };
 pub use persist::SavedState;
+pub use preset::Preset;
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 
 #[cfg(test)]

@@ -15,14 +15,14 @@ use super::trainer::{
 use crate::error::{Error, Result};
 use crate::gpu::{Context, GpuSpan, Submission};
 use crate::io::{CameraPose, Frame};
-use crate::latent::{LatentHead, LatentHeadConfig};
+use crate::latent::{projected_queries, LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
 use crate::map::{
     seed_from_frame, Companion, GlobalMap, KeyframeConfig, KeyframeSelector, LocalWindow,
-    PendingSync, SeedingConfig, SyncPlan, ViewCoverage, VoxelKey,
+    PendingSync, QueryInit, RegionQueries, SeedingConfig, SyncPlan, ViewCoverage, VoxelKey,
 };
 use crate::optim::GaussianLearningRates;
-use crate::splat::Channels;
+use crate::splat::{Channels, QUERY_DIM};
 
 /// Largest [`MapperConfig::max_regions`].
 const MAX_REGIONS_SETTING: u32 = 1 << 24;
@@ -78,6 +78,10 @@ pub struct MapperConfig {
     pub stage_one_iterations: u32,
     /// Stage II iterations per keyframe (R2).
     pub stage_two_iterations: u32,
+    /// Let the feature loss move the Gaussians' opacity and geometry too,
+    /// not only their queries. Stage I then renders a 32-channel query
+    /// image per view (128 bytes per pixel more, counted in the budget).
+    pub attach_feature_gradients: bool,
     /// Dictionary size (K).
     pub atoms: u32,
     /// Softmax temperature.
@@ -117,6 +121,7 @@ impl Default for MapperConfig {
             history_cell: 0.25,
             stage_one_iterations: 1,
             stage_two_iterations: 5,
+            attach_feature_gradients: false,
             atoms: 2000,
             temperature: 0.05,
             weights: LossWeights::default(),
@@ -223,6 +228,12 @@ impl MapperConfig {
         if self.seeding.stride == 0 {
             return bad("seeding.stride must be at least 1");
         }
+        if self.seeding.hole_fill_radius > MAX_HOLE_FILL_RADIUS {
+            return bad(&format!(
+                "seeding.hole_fill_radius {} must be at most {MAX_HOLE_FILL_RADIUS}",
+                self.seeding.hole_fill_radius
+            ));
+        }
         let unit = |x: f32| (0.0..=1.0).contains(&x);
         let sd = &self.seeding;
         for (name, x) in [
@@ -243,6 +254,9 @@ impl MapperConfig {
         Ok(())
     }
 }
+
+/// Largest `seeding.hole_fill_radius`: wider holes are not one surface.
+pub const MAX_HOLE_FILL_RADIUS: u32 = 64;
 
 /// What [`OnlineMapper::integrate`] did with a frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -592,7 +606,7 @@ impl OnlineMapper {
             ),
         };
         let in_use = self.ctx.memory_report().total.current;
-        let later = pixel_bytes(pixels, views) + later_head;
+        let later = pixel_bytes(pixels, views, self.cfg.attach_feature_gradients) + later_head;
         let max_buffer = self.ctx.info().max_buffer_bytes();
         let sized = match self.cfg.window_capacity {
             Some(capacity) => {
@@ -632,6 +646,7 @@ impl OnlineMapper {
                 min_region_pixels: self.cfg.min_region_pixels,
                 weights: self.cfg.weights,
                 learning_rates: self.cfg.learning_rates,
+                attach_feature_gradients: self.cfg.attach_feature_gradients,
             },
             dim.unwrap_or(1),
         )?;
@@ -820,6 +835,25 @@ impl OnlineMapper {
             (false, Some(c)) => Some((c, self.cfg.window_radius)),
             _ => None,
         };
+        // New Gaussians in a region start from its embedding projected
+        // through the decoder's W (read back once per keyframe, 32 × d_f).
+        let projected = match (&record.regions, self.head.as_ref()) {
+            (Some(r), Some(head)) if self.cfg.seeding.query_init == QueryInit::Embedding => {
+                let w: Vec<f32> = self.ctx.download(head.w())?;
+                let dim = r.dim as usize;
+                Some((
+                    r,
+                    projected_queries(w.get(..QUERY_DIM * dim).unwrap_or(&[]), dim, &r.vectors),
+                ))
+            }
+            _ => None,
+        };
+        let queries = projected.as_ref().map(|(r, queries)| RegionQueries {
+            width: r.width,
+            height: r.height,
+            labels: &r.labels,
+            queries,
+        });
         let mut seeds = seed_from_frame(
             frame,
             coverage.as_ref().map(|(alpha, depth)| ViewCoverage {
@@ -831,6 +865,7 @@ impl OnlineMapper {
             &self.global,
             &self.cfg.seeding,
             seed,
+            queries.as_ref(),
         );
         let centre = frame.pose.translation;
         let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);

@@ -104,6 +104,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
                     colors: 0.02,
                     ..GaussianLearningRates::default()
                 },
+                attach_feature_gradients: false,
             },
             DIM as u32,
         )
@@ -320,7 +321,7 @@ fn training_fixture(ctx: &crate::gpu::Context, frames: &[Frame]) -> (LocalWindow
         stride: 1,
         ..SeedingConfig::default()
     };
-    for mut g in seed_from_frame(&frames[0], None, &global, &seeding, 1) {
+    for mut g in seed_from_frame(&frames[0], None, &global, &seeding, 1, None) {
         g.color = [0.5; 3];
         global.insert(g);
     }
@@ -367,7 +368,7 @@ fn streamed_stage_one_equals_the_batched_step() {
         // A view without regions: it takes part in the image losses only.
         records[1].regions = None;
         let batch: Vec<&KeyframeRecord> = records.iter().collect();
-        let run = |chunk_pixels: u64| {
+        let run = |chunk_pixels: u64, attach: bool| {
             let (window, head) = training_fixture(ctx, &frames);
             let mut trainer = Trainer::new(
                 ctx,
@@ -380,6 +381,7 @@ fn streamed_stage_one_equals_the_batched_step() {
                     min_region_pixels: 4,
                     weights: LossWeights::default(),
                     learning_rates: GaussianLearningRates::default(),
+                    attach_feature_gradients: attach,
                 },
                 DIM as u32,
             )
@@ -393,77 +395,92 @@ fn streamed_stage_one_equals_the_batched_step() {
             let d = ctx.download::<f32>(head.atoms()).unwrap();
             (report, grads, w, d)
         };
-        let (whole, g_whole, w_whole, d_whole) = run(u64::MAX);
-        let (streamed, g_streamed, w_streamed, d_streamed) = run(1);
-        // Two views a chunk: one chunk with and one without a region-free view.
-        let (pairs, g_pairs, _, _) = run(2 * (W * H) as u64);
-        assert_eq!((whole.chunks, whole.forward_passes), (1, 1));
-        assert_eq!(streamed.chunks, 4);
-        // Three chunks with regions rendered twice except the last pooled;
-        // the region-free chunk once.
-        assert_eq!(streamed.forward_passes, 3 + 2 + 1);
-        assert_eq!((pairs.chunks, pairs.forward_passes), (2, 3));
-        assert_eq!(whole.regions, 6);
-        assert_eq!((streamed.regions, pairs.regions), (6, 6));
-        assert_eq!(whole.raster, streamed.raster);
-        let close = |a: f64, b: f64, what: &str| {
-            assert!(
-                (a - b).abs() <= 1e-5 * a.abs().max(b.abs()) + 1e-9,
-                "{what}: {a} vs {b}"
-            );
-        };
-        for r in [&streamed, &pairs] {
-            close(whole.image.l1, r.image.l1, "L1");
-            close(whole.image.ssim, r.image.ssim, "SSIM");
-            close(whole.image.depth, r.image.depth, "depth");
-            close(whole.feature, r.feature, "feature loss");
-        }
-        assert!(whole.feature > 0.0 && whole.image.total() > 0.0);
-        // The summed gradients agree field by field.
-        let fields = |h: &crate::splat::HostGaussians| -> Vec<(&str, Vec<f32>)> {
-            vec![
-                ("means", h.means.iter().flatten().copied().collect()),
-                (
-                    "log_scales",
-                    h.log_scales.iter().flatten().copied().collect(),
-                ),
-                ("quats", h.quats.iter().flatten().copied().collect()),
-                ("opacity", h.opacity_logits.clone()),
-                ("colors", h.colors.iter().flatten().copied().collect()),
-                ("queries", h.queries.iter().flatten().copied().collect()),
-            ]
-        };
-        let largest = fields(&g_whole)
+        // Attached, the feature loss also reaches opacity and geometry.
+        let detached_opacity = run(u64::MAX, false).1.opacity_logits;
+        let attached_opacity = run(u64::MAX, true).1.opacity_logits;
+        let moved = detached_opacity
             .iter()
-            .flat_map(|(_, v)| v.iter())
-            .fold(0.0f32, |m, x| m.max(x.abs()));
-        for other in [&g_streamed, &g_pairs] {
-            for ((name, a), (_, b)) in fields(&g_whole).into_iter().zip(fields(other)) {
-                // Fields with only rounding noise (the rotations of round
-                // Gaussians) are compared at the scale of the others.
-                let scale = a
-                    .iter()
-                    .fold(0.0f32, |m, x| m.max(x.abs()))
-                    .max(1e-3 * largest);
+            .zip(&attached_opacity)
+            .filter(|(a, b)| (*a - *b).abs() > 1e-3 * a.abs().max(1e-6))
+            .count();
+        assert!(
+            moved > detached_opacity.len() / 10,
+            "attaching changed {moved} of {} opacity gradients",
+            detached_opacity.len()
+        );
+        for attach in [false, true] {
+            let (whole, g_whole, w_whole, d_whole) = run(u64::MAX, attach);
+            let (streamed, g_streamed, w_streamed, d_streamed) = run(1, attach);
+            // Two views a chunk: one chunk with and one without a region-free view.
+            let (pairs, g_pairs, _, _) = run(2 * (W * H) as u64, attach);
+            assert_eq!((whole.chunks, whole.forward_passes), (1, 1));
+            assert_eq!(streamed.chunks, 4);
+            // Three chunks with regions rendered twice except the last pooled;
+            // the region-free chunk once.
+            assert_eq!(streamed.forward_passes, 3 + 2 + 1);
+            assert_eq!((pairs.chunks, pairs.forward_passes), (2, 3));
+            assert_eq!(whole.regions, 6);
+            assert_eq!((streamed.regions, pairs.regions), (6, 6));
+            assert_eq!(whole.raster, streamed.raster);
+            let close = |a: f64, b: f64, what: &str| {
+                assert!(
+                    (a - b).abs() <= 1e-5 * a.abs().max(b.abs()) + 1e-9,
+                    "{what}: {a} vs {b}"
+                );
+            };
+            for r in [&streamed, &pairs] {
+                close(whole.image.l1, r.image.l1, "L1");
+                close(whole.image.ssim, r.image.ssim, "SSIM");
+                close(whole.image.depth, r.image.depth, "depth");
+                close(whole.feature, r.feature, "feature loss");
+            }
+            assert!(whole.feature > 0.0 && whole.image.total() > 0.0);
+            // The summed gradients agree field by field.
+            let fields = |h: &crate::splat::HostGaussians| -> Vec<(&str, Vec<f32>)> {
+                vec![
+                    ("means", h.means.iter().flatten().copied().collect()),
+                    (
+                        "log_scales",
+                        h.log_scales.iter().flatten().copied().collect(),
+                    ),
+                    ("quats", h.quats.iter().flatten().copied().collect()),
+                    ("opacity", h.opacity_logits.clone()),
+                    ("colors", h.colors.iter().flatten().copied().collect()),
+                    ("queries", h.queries.iter().flatten().copied().collect()),
+                ]
+            };
+            let largest = fields(&g_whole)
+                .iter()
+                .flat_map(|(_, v)| v.iter())
+                .fold(0.0f32, |m, x| m.max(x.abs()));
+            for other in [&g_streamed, &g_pairs] {
+                for ((name, a), (_, b)) in fields(&g_whole).into_iter().zip(fields(other)) {
+                    // Fields with only rounding noise (the rotations of round
+                    // Gaussians) are compared at the scale of the others.
+                    let scale = a
+                        .iter()
+                        .fold(0.0f32, |m, x| m.max(x.abs()))
+                        .max(1e-3 * largest);
+                    let worst = a
+                        .iter()
+                        .zip(&b)
+                        .map(|(x, y)| (x - y).abs())
+                        .fold(0.0f32, f32::max);
+                    assert!(
+                        worst <= 2e-4 * scale,
+                        "{name}: differs by {worst} (scale {scale})"
+                    );
+                }
+            }
+            // The decoder stepped on the same pooled queries.
+            for (a, b) in [(&w_whole, &w_streamed), (&d_whole, &d_streamed)] {
                 let worst = a
                     .iter()
-                    .zip(&b)
+                    .zip(b)
                     .map(|(x, y)| (x - y).abs())
-                    .fold(0.0f32, f32::max);
-                assert!(
-                    worst <= 2e-4 * scale,
-                    "{name}: differs by {worst} (scale {scale})"
-                );
+                    .fold(0.0, f32::max);
+                assert!(worst <= 1e-5, "W or D differs by {worst}");
             }
-        }
-        // The decoder stepped on the same pooled queries.
-        for (a, b) in [(&w_whole, &w_streamed), (&d_whole, &d_streamed)] {
-            let worst = a
-                .iter()
-                .zip(b)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f32::max);
-            assert!(worst <= 1e-5, "W or D differs by {worst}");
         }
     });
 }

@@ -43,6 +43,9 @@ pub struct TrainerConfig {
     pub weights: LossWeights,
     /// Gaussian learning rates.
     pub learning_rates: GaussianLearningRates,
+    /// The feature loss reaches opacity and geometry, not only the
+    /// queries (Stage I renders query images).
+    pub attach_feature_gradients: bool,
 }
 
 impl TrainerConfig {
@@ -121,6 +124,7 @@ impl Trainer {
             raster: {
                 let mut r = Rasterizer::new(ctx);
                 r.settings.query_gradient_image = false;
+                r.settings.detach_query_gradients = !cfg.attach_feature_gradients;
                 r
             },
             image_loss: ImageLoss::new(ctx, cfg.max_view_pixels, chunk_views, cfg.weights)?,
