@@ -532,7 +532,7 @@ fn command_line_misuse_is_a_clear_error() {
         (
             "range.toml",
             "voxel_size = 0\n",
-            "voxel_size 0 must be positive",
+            "voxel_size 0 must be from 0.0001 to 1 metres",
         ),
         ("syntax.toml", "replay = [\n", "TOML parse error"),
     ] {

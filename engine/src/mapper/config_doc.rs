@@ -58,7 +58,7 @@ static DOCS: &[Doc] = &[
         "voxel_size",
         Val,
         "Edge length of the global map's voxels, in metres (s_v); the map \
-         keeps at most one Gaussian per voxel. Must be > 0.",
+         keeps at most one Gaussian per voxel. From 0.0001 to 1.",
     ),
     doc(
         "gpu_budget",
@@ -79,14 +79,15 @@ static DOCS: &[Doc] = &[
         "window_radius",
         Val,
         "Radius of the local window around the camera, in metres: the \
-         Gaussians within it are kept on the GPU and trained. Must be > 0.",
+         Gaussians within it are kept on the GPU and trained. From \
+         voxel_size to 5000.",
     ),
     doc(
         "sync_distance",
         Val,
         "The window is re-synchronised with the global map once the camera \
          has moved this far (metres) since the last synchronisation; new \
-         Gaussians are always brought in. Must be >= 0.",
+         Gaussians are always brought in. From 0 to window_radius.",
     ),
     doc(
         "replay",
@@ -102,7 +103,7 @@ static DOCS: &[Doc] = &[
          within the same cell of this size (metres) and looking the same way \
          (45-degree bins) as a kept one replaces it, so memory grows with the \
          space explored rather than with time. 0 keeps every keyframe (the \
-         paper's setting). Must be >= 0.",
+         paper's setting). From 0 to 5000.",
     ),
     doc(
         "stage_one_iterations",
@@ -115,7 +116,7 @@ static DOCS: &[Doc] = &[
     doc(
         "stage_two_iterations",
         Val,
-        "Stage II iterations per keyframe (R2). Integer >= 0.",
+        "Stage II iterations per keyframe (R2). From 0 to 1000.",
     ),
     doc(
         "attach_feature_gradients",
@@ -1114,6 +1115,27 @@ mod tests {
                 e.contains("stage_one_iterations") && e.contains("from 1 to 1000"),
                 "{e}"
             );
+        }
+        // Settings that used to pass and then hang or run without end.
+        for (set, want) in [
+            ("voxel_size=1e-30", "voxel_size"),
+            ("voxel_size=2", "voxel_size"),
+            ("window_radius=1e308", "window_radius"),
+            ("window_radius=0.001", "window_radius"),
+            ("sync_distance=100", "sync_distance"),
+            ("history_cell=1e9", "history_cell"),
+            ("stage_two_iterations=4294967295", "stage_two_iterations"),
+            ("stage_two_iterations=1001", "stage_two_iterations"),
+        ] {
+            let e = error(&[set]);
+            assert!(e.contains(want), "{set}: {e}");
+        }
+        for ok in [
+            "stage_two_iterations=0",
+            "stage_two_iterations=1000",
+            "sync_distance=6",
+        ] {
+            assert!(apply(&[ok]).is_ok(), "{ok}");
         }
         assert_eq!(
             apply(&["stage_one_iterations=1000"])

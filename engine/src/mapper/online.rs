@@ -160,20 +160,40 @@ impl MapperConfig {
             )))
         };
         let positive = |x: f64| x > 0.0 && x.is_finite();
-        if !positive(self.voxel_size) {
-            return bad(&format!("voxel_size {} must be positive", self.voxel_size));
-        }
-        if !positive(self.window_radius) {
+        // Physical bounds: a voxel between 0.1 mm and 1 m, distances within
+        // a few kilometres and no shorter than a voxel, so that no loop over
+        // space runs for ever and no count derived from these overflows.
+        if !(MIN_VOXEL_SIZE..=MAX_VOXEL_SIZE).contains(&self.voxel_size) {
             return bad(&format!(
-                "window_radius {} must be positive",
-                self.window_radius
+                "voxel_size {} must be from {MIN_VOXEL_SIZE} to {MAX_VOXEL_SIZE} metres",
+                self.voxel_size
             ));
         }
-        if !(self.sync_distance >= 0.0 && self.sync_distance.is_finite()) {
-            return bad(&format!("sync_distance {} must be ≥ 0", self.sync_distance));
+        if !(self.voxel_size..=MAX_DISTANCE).contains(&self.window_radius) {
+            return bad(&format!(
+                "window_radius {} must be from voxel_size ({}) to {MAX_DISTANCE} metres",
+                self.window_radius, self.voxel_size
+            ));
         }
-        if !(self.history_cell >= 0.0 && self.history_cell.is_finite()) {
-            return bad(&format!("history_cell {} must be ≥ 0", self.history_cell));
+        if !(0.0..=self.window_radius).contains(&self.sync_distance) {
+            return bad(&format!(
+                "sync_distance {} must be from 0 to window_radius ({})",
+                self.sync_distance, self.window_radius
+            ));
+        }
+        if !(0.0..=MAX_DISTANCE).contains(&self.history_cell) {
+            return bad(&format!(
+                "history_cell {} must be from 0 to {MAX_DISTANCE} metres",
+                self.history_cell
+            ));
+        }
+        if !(1..=MAX_STAGE_ONE_ITERATIONS).contains(&self.stage_two_iterations)
+            && self.stage_two_iterations != 0
+        {
+            return bad(&format!(
+                "stage_two_iterations {} must be from 0 to {MAX_STAGE_ONE_ITERATIONS}",
+                self.stage_two_iterations
+            ));
         }
         if self.window_capacity == Some(0) {
             return bad("window_capacity must be at least 1");
@@ -254,6 +274,13 @@ impl MapperConfig {
         Ok(())
     }
 }
+
+/// Smallest `voxel_size`, metres.
+pub const MIN_VOXEL_SIZE: f64 = 1e-4;
+/// Largest `voxel_size`, metres.
+pub const MAX_VOXEL_SIZE: f64 = 1.0;
+/// Largest `window_radius` and `history_cell`, metres.
+pub const MAX_DISTANCE: f64 = 5000.0;
 
 /// Largest `seeding.hole_fill_radius`: wider holes are not one surface.
 pub const MAX_HOLE_FILL_RADIUS: u32 = 64;

@@ -930,11 +930,22 @@ fn degenerate_gaussians_do_not_poison_others() {
             gs[17].query = [0.0; QUERY_DIM];
             let want = reference::backward(&gs, &cams, [0.0; 3], &up, true).grads;
             let got64 = Gaussian::all(&got);
+            // A Gaussian's gradient is compared on its own, but against
+            // float rounding at the scale of its field over all Gaussians:
+            // a tiny sum of large terms differs by a few per cent with the
+            // order the atomics happen to add in.
+            let field_scale: Vec<f64> = kinds(&want)
+                .iter()
+                .map(|(_, v)| v.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+                .collect();
             for i in 0..n {
                 if broken.contains(&i) && i != 17 {
                     continue;
                 }
-                for ((name, a), (_, b)) in kinds(&got64[i..=i]).into_iter().zip(kinds(&want[i..=i]))
+                for (k, ((name, a), (_, b))) in kinds(&got64[i..=i])
+                    .into_iter()
+                    .zip(kinds(&want[i..=i]))
+                    .enumerate()
                 {
                     if i == 17 && name == "query" {
                         continue;
@@ -944,8 +955,12 @@ fn degenerate_gaussians_do_not_poison_others() {
                         "{layout:?}: Gaussian {i} {name}: {a:?}"
                     );
                     let e = rel_err(&a, &b);
+                    let close = a
+                        .iter()
+                        .zip(&b)
+                        .all(|(x, y)| (x - y).abs() < 1e-4 * field_scale[k]);
                     assert!(
-                        e < 5e-3 || b.iter().all(|v| v.abs() < 1e-6),
+                        e < 5e-3 || close || b.iter().all(|v| v.abs() < 1e-6),
                         "{layout:?}: Gaussian {i} {name}: {a:?} vs {b:?}"
                     );
                 }
