@@ -149,10 +149,16 @@ fn initial_query(key: VoxelKey, map: &GlobalMap, seed: u64) -> [f32; QUERY_DIM] 
 
 /// The median of the valid depths on the nearest square ring around pixel
 /// `(u, v)` (Chebyshev distance 1 to `radius`) that has any.
-fn borrowed_depth(depth: &DepthImage, u: u32, v: u32, radius: u32) -> Option<f32> {
+/// `ring` is scratch space, reused across calls.
+fn borrowed_depth(
+    depth: &DepthImage,
+    u: u32,
+    v: u32,
+    radius: u32,
+    ring: &mut Vec<f32>,
+) -> Option<f32> {
     let (w, h) = (depth.width as i64, depth.height as i64);
     let (u, v) = (u as i64, v as i64);
-    let mut ring = Vec::new();
     for r in 1..=radius as i64 {
         ring.clear();
         let mut take = |x: i64, y: i64| {
@@ -199,6 +205,7 @@ pub fn seed_from_frame(
     let opacity_logit = (opacity / (1.0 - opacity)).ln();
     let stride = config.stride.max(1);
     let mut taken: HashSet<VoxelKey> = HashSet::new();
+    let mut ring = Vec::new();
     let mut out = Vec::new();
     let start = stride / 2;
     for v in (start..h).step_by(stride as usize) {
@@ -207,7 +214,7 @@ pub fn seed_from_frame(
             let Some(z) = frame
                 .depth
                 .metres(i)
-                .or_else(|| borrowed_depth(&frame.depth, u, v, config.hole_fill_radius))
+                .or_else(|| borrowed_depth(&frame.depth, u, v, config.hole_fill_radius, &mut ring))
             else {
                 continue;
             };

@@ -230,11 +230,9 @@ impl Evaluator {
         // The farthest measured surface (a corner of the view lies further
         // than the depth along the axis), so nothing in view is left out.
         let k = frame.intrinsics;
-        let corner = ((k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2))
-            .sqrt()
-            .max(0.0);
+        let corner2 = (k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2);
         let farthest = record.depth_mm.iter().copied().max().unwrap_or(0) as f64 * 1e-3;
-        let reach = farthest * (1.0 + corner * corner).sqrt() + 0.5;
+        let reach = farthest * (1.0 + corner2).sqrt() + 0.5;
         let radius = if reach.is_finite() {
             self.radius.max(reach)
         } else {

@@ -29,7 +29,7 @@ const MAX_REGIONS_SETTING: u32 = 1 << 24;
 /// Largest [`MapperConfig::replay`].
 const MAX_REPLAY: u32 = 1 << 16;
 /// Largest [`MapperConfig::stage_one_iterations`].
-pub const MAX_STAGE_ONE_ITERATIONS: u32 = 1000;
+pub const MAX_ITERATIONS: u32 = 1000;
 /// Largest [`MapperConfig::window_capacity`] (window rows are `u32`).
 const MAX_WINDOW_CAPACITY: u64 = 1 << 31;
 
@@ -187,11 +187,9 @@ impl MapperConfig {
                 self.history_cell
             ));
         }
-        if !(1..=MAX_STAGE_ONE_ITERATIONS).contains(&self.stage_two_iterations)
-            && self.stage_two_iterations != 0
-        {
+        if self.stage_two_iterations > MAX_ITERATIONS {
             return bad(&format!(
-                "stage_two_iterations {} must be from 0 to {MAX_STAGE_ONE_ITERATIONS}",
+                "stage_two_iterations {} must be from 0 to {MAX_ITERATIONS}",
                 self.stage_two_iterations
             ));
         }
@@ -219,9 +217,9 @@ impl MapperConfig {
                 self.max_regions
             ));
         }
-        if !(1..=MAX_STAGE_ONE_ITERATIONS).contains(&self.stage_one_iterations) {
+        if !(1..=MAX_ITERATIONS).contains(&self.stage_one_iterations) {
             return bad(&format!(
-                "stage_one_iterations {} must be from 1 to {MAX_STAGE_ONE_ITERATIONS}",
+                "stage_one_iterations {} must be from 1 to {MAX_ITERATIONS}",
                 self.stage_one_iterations
             ));
         }

@@ -223,20 +223,17 @@ mod tests {
             .map(|_| r.random_range(-1.0..1.0))
             .collect();
         let dec = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
-        let got = pixel_metrics(
-            &dec,
-            &PixelInputs {
-                width: w_px,
-                height: h_px,
-                queries: &queries,
-                region: &region,
-                targets: &targets,
-                truth: &truth,
-                vocabulary: Some((&ids, &texts)),
-                stride: 1,
-            },
-        )
-        .unwrap();
+        let inputs = PixelInputs {
+            width: w_px,
+            height: h_px,
+            queries: &queries,
+            region: &region,
+            targets: &targets,
+            truth: &truth,
+            vocabulary: Some((&ids, &texts)),
+            stride: 1,
+        };
+        let got = pixel_metrics(&dec, &inputs).unwrap();
         let shape = DecoderShape {
             n,
             query_dim: QUERY_DIM,
@@ -279,14 +276,8 @@ mod tests {
         let half = pixel_metrics(
             &dec,
             &PixelInputs {
-                width: w_px,
-                height: h_px,
-                queries: &queries,
-                region: &region,
-                targets: &targets,
-                truth: &truth,
-                vocabulary: Some((&ids, &texts)),
                 stride: 2,
+                ..inputs
             },
         )
         .unwrap();
