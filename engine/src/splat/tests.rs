@@ -849,9 +849,15 @@ fn backward_matches_finite_differences_of_the_gpu_forward() {
             // Entries far off are jumps (or a broken term, if many); on the
             // rest, the least-squares slope of analytic against finite
             // differences must be 1, which averages the f32 noise out and
-            // catches a gradient that is off by 5 % or more.
+            // catches a gradient that is off by 5 % or more. Agreeing entries
+            // are within ~3 % plus f32 noise of ~1 % of the RMS; a jump that
+            // stayed below the cut would dominate the slope (a Gaussian whose
+            // footprint crosses the alpha cut-off is 30-60 % off), so the cut
+            // sits well under that.
             let far: Vec<usize> = (0..an.len())
-                .filter(|&i| (an[i] - fd[i]).abs() > 0.25 * (an[i].abs().max(fd[i].abs()) + rms))
+                .filter(|&i| {
+                    (an[i] - fd[i]).abs() > 0.1 * an[i].abs().max(fd[i].abs()) + 0.05 * rms
+                })
                 .collect();
             let allowed = if geometry { an.len() / 5 } else { 0 };
             assert!(
