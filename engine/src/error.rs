@@ -30,6 +30,18 @@ pub enum Error {
     /// An input log or one of its messages is unusable.
     #[error(transparent)]
     Input(#[from] crate::io::InputError),
+    /// Another process is writing the run folder.
+    #[error(
+        "{} is being written by another latentam process{}; wait for it to end or choose another folder",
+        path.display(),
+        pid.map_or(String::new(), |p| format!(" (pid {p})"))
+    )]
+    Locked {
+        /// The run folder.
+        path: std::path::PathBuf,
+        /// The writer's process id, when its lock file says.
+        pid: Option<u32>,
+    },
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

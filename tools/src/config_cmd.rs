@@ -29,13 +29,20 @@ pub struct ConfigArgs {
 impl ConfigArgs {
     /// The effective configuration.
     pub fn load(&self) -> Result<MapperConfig> {
+        self.load_over(MapperConfig::default())
+    }
+
+    /// The effective configuration starting from `base` (a resumed run's
+    /// settings) instead of the defaults: --config replaces it, then the
+    /// preset and --set apply.
+    pub fn load_over(&self, base: MapperConfig) -> Result<MapperConfig> {
         let base = match &self.config {
             Some(p) => {
                 let text = std::fs::read_to_string(p)
                     .with_context(|| format!("reading {}", p.display()))?;
                 MapperConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
             }
-            None => MapperConfig::default(),
+            None => base,
         };
         let base = match &self.preset {
             Some(name) => name.parse::<Preset>()?.apply(&base)?,

@@ -10,7 +10,9 @@ use latentam_cli::progress::Progress;
 use latentam_cli::scene::{generate, SceneConfig};
 
 use crate::config_cmd::ConfigArgs;
-use crate::mapping::{map_log, summary, Ending, RunOptions, RUN_FILES};
+use latentam::mapper::RunFolder;
+
+use crate::mapping::{map_log, summary, Ending, RunOptions, Written, RUN_FILES};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -52,16 +54,24 @@ pub fn run(args: Args) -> Result<()> {
     generate(&scene, &log, |d| progress.set(d))?;
 
     println!("2/4 mapping it (every kernel timed)");
-    let mut run = map_log(&RunOptions {
-        log: log.clone(),
-        assembly: latentam::io::AssemblyConfig::default(),
-        config,
-        max_frames: None,
-        resume: None,
-        profile: true,
-        autosave: None,
-    })?;
-    let report = run.write_folder(&run_dir)?;
+    let folder = RunFolder::lock(&run_dir)?;
+    let mut run = map_log(
+        &RunOptions {
+            log: log.clone(),
+            assembly: latentam::io::AssemblyConfig::default(),
+            config,
+            max_frames: None,
+            resume: None,
+            profile: true,
+            autosave_every: 0,
+        },
+        Some(&folder),
+    )?;
+    let report = match run.write_folder(&folder)? {
+        Written::Saved(report) => report,
+        Written::Kept(why) => bail!("{}: {why}", run_dir.display()),
+    };
+    drop(folder);
     match &run.ending {
         Ending::Failed(e) => bail!("{e}"),
         Ending::Interrupted => bail!("interrupted; what was mapped is in {}", run_dir.display()),

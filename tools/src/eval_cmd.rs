@@ -7,7 +7,7 @@
 //! follow on a line of their own.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
@@ -108,6 +108,27 @@ struct EvalReport {
     per_frame: Vec<FrameRow>,
 }
 
+/// The run folder's `report.json`, when it has one; one written by another
+/// run than the state's is refused.
+fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_json::Value>> {
+    let path = dir.join("report.json");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(None);
+    };
+    let report: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
+    if let (Some(ours), Some(theirs)) = (state_run_id, report["run_id"].as_str()) {
+        if ours != theirs {
+            bail!(
+                "{}: report.json was written by another run ({theirs}) than the state ({ours}); \
+                 the folder mixes two runs",
+                dir.display()
+            );
+        }
+    }
+    Ok(Some(report))
+}
+
 fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
     let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
     (n > 0).then(|| s / n as f64)
@@ -117,6 +138,7 @@ pub fn run(args: Args) -> Result<()> {
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
+    let run_report = run_report_of(&args.dir, mapper.online_ref().run_id())?;
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
     let class_table = read_class_names(&args.log)?;
@@ -234,10 +256,6 @@ pub fn run(args: Args) -> Result<()> {
             pixels: c.truth,
         })
         .collect();
-    let run_report: Option<serde_json::Value> =
-        std::fs::read_to_string(args.dir.join("report.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok());
     let report = EvalReport {
         run: args.dir.display().to_string(),
         log: args.log.display().to_string(),

@@ -1,16 +1,23 @@
 //! Ctrl-C during mapping: the first SIGINT (or SIGTERM) asks the run to
 //! stop after the frame in progress, so the run folder is still written
-//! with everything mapped so far; a second one exits at once.
+//! with everything mapped so far; a second one exits at once, leaving the
+//! run folder as its last save (it is only ever replaced whole).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
 static REQUESTED: AtomicBool = AtomicBool::new(false);
 
 extern "C" fn on_signal(_: libc::c_int) {
-    // Only async-signal-safe calls here: an atomic swap and _exit.
+    // Only async-signal-safe calls here: an atomic swap, write and _exit.
     if REQUESTED.swap(true, Ordering::SeqCst) {
         unsafe { libc::_exit(130) };
     }
+    // Said at once: the frame in progress may take a while on a slow
+    // device.
+    const SAY: &[u8] =
+        b"\nstopping after the frame in progress, then saving (press Ctrl-C again to \
+quit at once; the run folder then keeps its last save)\n";
+    unsafe { libc::write(2, SAY.as_ptr().cast(), SAY.len()) };
 }
 
 /// Installs the handler for SIGINT and SIGTERM.

@@ -6,13 +6,17 @@ use anyhow::{bail, Result};
 
 use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
-use crate::mapping::{map_log, summary, Ending, RunOptions, RUN_FILES};
+use latentam::mapper::{RunFolder, STATE_FILE};
+
+use crate::mapping::{map_log, summary, Ending, RunOptions, Written, RUN_FILES};
 
 #[derive(clap::Args)]
 pub struct Args {
     /// Input MCAP log (a file, or a rosbag2 folder of them).
     log: PathBuf,
-    /// Run folder to write (created if missing; its files are replaced).
+    /// Run folder to write (created if missing). It is replaced whole, and
+    /// only once something was mapped: a failed run leaves it as it was.
+    /// One process at a time may write it.
     #[arg(short, long)]
     out: PathBuf,
     #[command(flatten)]
@@ -31,9 +35,9 @@ pub struct Args {
     /// report.json, for a little less overhead.
     #[arg(long)]
     no_trace: bool,
-    /// Save the resumable state every N keyframes while mapping (0: only
-    /// at the end), so a crash or a lost device loses at most N
-    /// keyframes: `--resume` continues from the last save.
+    /// Write the run folder every N keyframes while mapping (0: only at
+    /// the end), so a crash or a lost device loses at most N keyframes:
+    /// `--resume` continues from the last save.
     #[arg(long, value_name = "N", default_value_t = 25)]
     autosave_every: u64,
 }
@@ -44,43 +48,63 @@ pub const INTERRUPTED: u8 = 130;
 /// Runs the command; `Ok(true)` when it was interrupted.
 pub fn run(args: Args) -> Result<bool> {
     let config = args.config.load()?;
-    if args.resume && !args.out.join(latentam::mapper::STATE_FILE).exists() {
+    let assembly = args.input.assembly()?;
+    // Taken before anything is read: no other process writes the folder
+    // while this run reads its state or replaces it.
+    let folder = RunFolder::lock(&args.out)?;
+    if args.resume && !folder.dir().join(STATE_FILE).exists() {
         bail!(
-            "--resume: {} holds no saved map ({} missing)",
-            args.out.display(),
-            latentam::mapper::STATE_FILE
+            "--resume: {} holds no saved map ({STATE_FILE} missing)",
+            args.out.display()
         );
     }
-    let mut run = map_log(&RunOptions {
-        log: args.log.clone(),
-        assembly: args.input.assembly()?,
-        config,
-        max_frames: args.frames,
-        resume: args.resume.then(|| args.out.clone()),
-        profile: !args.no_trace,
-        autosave: (args.autosave_every > 0).then(|| (args.out.clone(), args.autosave_every)),
-    })?;
-    let report = run.write_folder(&args.out)?;
-    print!("{}", summary(&report));
-    for p in &report.problems {
-        eprintln!("error: {p}");
-    }
-    println!("run folder {}:", args.out.display());
-    for f in RUN_FILES {
-        if args.out.join(f).exists() {
-            println!("  {}", args.out.join(f).display());
+    let mut run = map_log(
+        &RunOptions {
+            log: args.log.clone(),
+            assembly,
+            config,
+            max_frames: args.frames,
+            resume: args.resume.then(|| args.config.clone()),
+            profile: !args.no_trace,
+            autosave_every: args.autosave_every,
+        },
+        Some(&folder),
+    )?;
+    let written = run.write_folder(&folder);
+    let report = match written {
+        Ok(Written::Saved(report)) => {
+            print!("{}", summary(&report));
+            println!("run folder {}:", args.out.display());
+            for f in RUN_FILES {
+                if args.out.join(f).exists() {
+                    println!("  {}", args.out.join(f).display());
+                }
+            }
+            Some(report)
         }
-    }
-    match run.ending {
-        Ending::Failed(e) => bail!(
+        Ok(Written::Kept(why)) => {
+            eprintln!("{}: not replaced: {why}", args.out.display());
+            None
+        }
+        Err(e) => {
+            return Err(e.context(format!(
+                "{} not replaced; it keeps {}",
+                args.out.display(),
+                run.autosaved_at
+                    .map_or("the run it held before, if any".into(), |k| format!(
+                        "its autosave at keyframe {k}"
+                    ))
+            )))
+        }
+    };
+    match (&run.ending, report) {
+        (Ending::Failed(e), Some(_)) => bail!(
             "{e} (what was mapped before is in {}; see report.json)",
             args.out.display()
         ),
-        _ if !report.problems.is_empty() => bail!(
-            "the run folder {} is incomplete (see above and report.json)",
-            args.out.display()
-        ),
-        Ending::Interrupted => {
+        (Ending::Failed(e), None) => bail!("{e}"),
+        (_, None) => bail!("no map was written: {}", run.why_nothing()),
+        (Ending::Interrupted, Some(report)) => {
             eprintln!(
                 "interrupted: the run folder holds the {} frames mapped; `latentam map {} --out {} \
                  --resume` continues",

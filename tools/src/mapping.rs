@@ -1,10 +1,13 @@
 //! Mapping a log, and the run folder it leaves: the loop shared by
 //! `latentam map`, `profile` and `demo`.
 //!
-//! A run that stops early (Ctrl-C, a frame limit, an unreadable frame or a
-//! mapping error part-way) still writes a complete, valid run folder of
-//! what was mapped; the failure is recorded in `report.json` and returned
-//! afterwards.
+//! The run folder is replaced whole (see [`RunFolder`]): every autosave and
+//! the final write put a complete, consistent version in place, or leave
+//! the previous one. A run that stops early (Ctrl-C, a frame limit, an
+//! unreadable frame, a frame refused for its content) still writes what
+//! was mapped, with the failure in `report.json`; a failure in the middle
+//! of a keyframe, or a run that mapped nothing, leaves the folder as it
+//! was.
 
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
@@ -18,7 +21,7 @@ use latentam::io::{
 };
 use latentam::mapper::budget::MemorySplit;
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
-use latentam::mapper::{DECODER_FILE, STATE_FILE};
+use latentam::mapper::{RunFolder, DECODER_FILE, STATE_FILE};
 use serde::Serialize;
 
 use crate::interrupt;
@@ -34,13 +37,14 @@ pub struct RunOptions {
     pub config: MapperConfig,
     /// Stop after this many frames of the log.
     pub max_frames: Option<usize>,
-    /// Continue the state saved in this run folder.
-    pub resume: Option<PathBuf>,
+    /// Continue the state saved in the run folder, with these settings
+    /// applied over its own.
+    pub resume: Option<crate::config_cmd::ConfigArgs>,
     /// Time every kernel (for `trace.json` and the profile table).
     pub profile: bool,
-    /// Save the resumable state into this folder every this many
-    /// keyframes.
-    pub autosave: Option<(PathBuf, u64)>,
+    /// Write the run folder every this many keyframes while mapping (0:
+    /// only at the end).
+    pub autosave_every: u64,
 }
 
 /// How a run ended.
@@ -53,6 +57,9 @@ pub enum Ending {
     FrameLimit,
     /// Ctrl-C / SIGTERM.
     Interrupted,
+    /// The run was still going when this folder was written (an
+    /// autosave); a later write replaces it.
+    Running,
     /// An error stopped it; what was mapped before is kept.
     Failed(String),
 }
@@ -74,6 +81,16 @@ pub struct Run {
     pub autosaved_at: Option<u64>,
     /// Autosaves that failed (mapping went on).
     pub autosave_failures: Vec<String>,
+    /// Frames that reached the mapper and were not keyframes.
+    pub not_keyframes: u64,
+}
+
+/// What [`Run::write_folder`] did.
+pub enum Written {
+    /// The folder now holds this run, described by the report.
+    Saved(Box<RunReport>),
+    /// The folder was left as it was, for this reason.
+    Kept(String),
 }
 
 /// Status line of a running map: a line redrawn in place on a terminal,
@@ -155,19 +172,28 @@ fn duration(s: f64) -> String {
     }
 }
 
-/// Maps `opts.log`; errors only when nothing could start (no device, an
+/// Maps `opts.log`, writing the run folder `folder` at every autosave
+/// (when given); errors only when nothing could start (no device, an
 /// unreadable log or state). Failures part-way end the run with
-/// [`Ending::Failed`].
-pub fn map_log(opts: &RunOptions) -> Result<Run> {
+/// [`Ending::Failed`]. The final write is the caller's
+/// ([`Run::write_folder`]).
+pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     let ctx = Context::new(ContextOptions {
         profiling: opts.profile,
         ..ContextOptions::default()
     })?;
     latentam::mapper::warm_up(&ctx)?;
-    let mut mapper = match &opts.resume {
-        Some(dir) => Mapper::load(&ctx, dir)
-            .with_context(|| format!("loading the saved state in {}", dir.display()))?,
-        None => Mapper::with_context(&ctx, opts.config.clone())?,
+    let mapper = match (folder, &opts.resume) {
+        (Some(folder), Some(settings)) => {
+            let settings = |saved: &MapperConfig| {
+                settings
+                    .load_over(saved.clone())
+                    .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))
+            };
+            Mapper::load_with(&ctx, folder.dir(), &settings)
+                .with_context(|| format!("loading the saved state in {}", folder.dir().display()))?
+        }
+        _ => Mapper::with_context(&ctx, opts.config.clone())?,
     };
     // Profile the mapping, not the warm-up or the load.
     ctx.profiler_reset();
@@ -186,81 +212,85 @@ pub fn map_log(opts: &RunOptions) -> Result<Run> {
         (a, b) => a.or(b),
     };
     let mut progress = MapProgress::new(total);
-    let mut keyframes = Vec::new();
-    let (mut offered, mut skipped) = (0u64, 0u64);
-    let mut ending = Ending::Complete;
-    let (mut autosaved_at, mut autosave_failures) = (None, Vec::new());
+    let mut run = Run {
+        ctx,
+        mapper,
+        log: opts.log.clone(),
+        frames: 0,
+        skipped: 0,
+        keyframes: Vec::new(),
+        wall_s: 0.0,
+        ending: Ending::Running,
+        ingest: IngestReport::default(),
+        autosaved_at: None,
+        autosave_failures: Vec::new(),
+        not_keyframes: 0,
+    };
     let start = Instant::now();
     interrupt::install();
-    loop {
+    let ending = loop {
         if interrupt::requested() {
-            ending = Ending::Interrupted;
-            break;
+            break Ending::Interrupted;
         }
-        if (skipped + offered) as usize >= limit {
-            ending = Ending::FrameLimit;
-            break;
+        if (run.skipped + run.frames) as usize >= limit {
+            break Ending::FrameLimit;
         }
         let Some(frame) = frames.next() else {
-            break;
+            break Ending::Complete;
         };
         let frame = match frame {
             Ok(f) => f,
-            Err(e) => {
-                ending = Ending::Failed(format!("reading {}: {e}", opts.log.display()));
-                break;
-            }
+            Err(e) => break Ending::Failed(format!("reading {}: {e}", opts.log.display())),
         };
-        if skipped < skip {
-            skipped += 1;
+        if run.skipped < skip {
+            run.skipped += 1;
             frames.recycle(frame);
             continue;
         }
-        offered += 1;
-        match mapper.integrate(&frame) {
+        match run.mapper.integrate(&frame) {
             Ok(Integrated::Keyframe(k)) => {
-                keyframes.push(*k);
-                if let Some((dir, every)) = &opts.autosave {
-                    let n = mapper.stats().keyframes;
-                    if *every > 0 && n % every == 0 {
-                        match mapper.save(dir) {
-                            Ok(_) => autosaved_at = Some(n),
+                run.frames += 1;
+                run.keyframes.push(*k);
+                let n = run.mapper.stats().keyframes;
+                if let Some(folder) = folder.filter(|_| opts.autosave_every > 0) {
+                    if n % opts.autosave_every == 0 {
+                        run.wall_s = start.elapsed().as_secs_f64();
+                        run.ingest = frames.report().clone();
+                        match run.write_folder(folder) {
+                            Ok(Written::Saved(_)) => run.autosaved_at = Some(n),
+                            Ok(Written::Kept(_)) => {}
                             Err(e) => {
+                                let e = describe(&e);
                                 eprintln!("warning: autosave at keyframe {n} failed: {e}");
-                                autosave_failures.push(format!("keyframe {n}: {e}"));
+                                run.autosave_failures.push(format!("keyframe {n}: {e}"));
                             }
                         }
                     }
                 }
             }
-            Ok(Integrated::Skipped) => {}
+            Ok(Integrated::Skipped) => {
+                run.frames += 1;
+                run.not_keyframes += 1;
+            }
             Err(e) => {
-                ending = Ending::Failed(format!("mapping frame at {} ns: {e}", frame.stamp_ns));
-                break;
+                break Ending::Failed(format!("mapping frame at {} ns: {e}", frame.stamp_ns));
             }
         }
         frames.recycle(frame);
-        progress.update(skipped + offered, &mapper, keyframes.last());
-    }
+        progress.update(run.skipped + run.frames, &run.mapper, run.keyframes.last());
+    };
     progress.finish();
-    Ok(Run {
-        ctx,
-        mapper,
-        log: opts.log.clone(),
-        frames: offered,
-        skipped,
-        keyframes,
-        wall_s: start.elapsed().as_secs_f64(),
-        ending,
-        ingest: frames.report().clone(),
-        autosaved_at,
-        autosave_failures,
-    })
+    run.ending = ending;
+    run.wall_s = start.elapsed().as_secs_f64();
+    run.ingest = frames.report().clone();
+    Ok(run)
 }
 
 /// `report.json`.
 #[derive(Serialize)]
 pub struct RunReport {
+    /// Shared by every file of this version of the run folder.
+    pub run_id: String,
     pub log: String,
     pub device: String,
     pub ending: Ending,
@@ -289,8 +319,6 @@ pub struct RunReport {
     /// Keyframe count of the last autosave, and autosaves that failed.
     pub autosaved_at: Option<u64>,
     pub autosave_failures: Vec<String>,
-    /// Outputs that could not be written (see `latentam map`).
-    pub problems: Vec<String>,
     pub ingest: IngestReport,
     /// Per kernel, when profiled.
     pub kernels: BTreeMap<&'static str, KernelStats>,
@@ -317,10 +345,11 @@ pub fn mean_timings(t: &KeyframeTimings, n: u64) -> KeyframeTimings {
 
 impl Run {
     /// The report of this run, with the profiler's per-kernel statistics.
-    fn report_with(&self, kernels: BTreeMap<&'static str, KernelStats>) -> RunReport {
+    fn report_with(&self, run_id: &str, kernels: BTreeMap<&'static str, KernelStats>) -> RunReport {
         let stats = self.mapper.stats();
         let t = &stats.timings;
         RunReport {
+            run_id: run_id.to_string(),
             log: self.log.display().to_string(),
             device: self.ctx.info().name.clone(),
             ending: self.ending.clone(),
@@ -353,7 +382,6 @@ impl Run {
             ingest: self.ingest.clone(),
             autosaved_at: self.autosaved_at,
             autosave_failures: self.autosave_failures.clone(),
-            problems: Vec::new(),
             kernels,
             keyframe_reports: self.keyframes.clone(),
         }
@@ -370,82 +398,94 @@ impl Run {
             .collect()
     }
 
-    /// Writes the run folder `dir`: the resumable state, `map.ply`,
-    /// `decoder.safetensors` (when the map has embeddings),
-    /// `config.toml`, `trajectory.txt`, `trace.json` (when profiled) and,
-    /// last, `report.json`. Every file is replaced whole. What cannot be
-    /// written is listed in the report's `problems` (and returned), the
-    /// rest is still written: after a GPU failure the window cannot be
-    /// read back, so the state file keeps its last save and `map.ply`
-    /// holds the map as of the last window sync.
-    pub fn write_folder(&mut self, dir: &Path) -> Result<RunReport> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let mut problems = Vec::new();
-        let gpu = self.mapper.online().flush();
-        match &gpu {
-            Ok(()) => {
-                if let Err(e) = self.mapper.save(dir) {
-                    problems.push(format!("{STATE_FILE} not updated: {e}"));
-                }
-                let decoder = dir.join(DECODER_FILE);
-                match self.mapper.online().decoder_file() {
-                    Ok(Some(d)) => {
-                        if let Err(e) = d.write(&decoder) {
-                            problems.push(format!("{DECODER_FILE} not written: {e}"));
-                        }
-                    }
-                    // A stale decoder from an earlier run must not pair
-                    // with this map.
-                    Ok(None) => {
-                        let _ = std::fs::remove_file(&decoder);
-                    }
-                    Err(e) => problems.push(format!("{DECODER_FILE} not written: {e}")),
-                }
-            }
-            Err(e) => problems.push(format!(
-                "the GPU state could not be read back ({e}): {STATE_FILE} and {DECODER_FILE} \
-                 keep their last save{}, map.ply holds the map as of the last window sync",
-                self.autosaved_at
-                    .map_or(String::new(), |k| format!(" (autosave at keyframe {k})"))
-            )),
+    /// Why the run folder must not be replaced by this run, if so: a
+    /// keyframe failed part-way (the map is neither before nor after it),
+    /// or nothing is mapped.
+    pub fn not_to_save(&self) -> Option<String> {
+        let kept = match self.autosaved_at {
+            Some(k) => format!("its autosave at keyframe {k}"),
+            None => "the run it held before, if any".into(),
+        };
+        if self.mapper.online_ref().is_broken() {
+            return Some(format!(
+                "a keyframe failed part-way, so the map cannot be saved; the folder keeps {kept}"
+            ));
         }
+        let stats = self.mapper.stats();
+        if stats.keyframes == 0 || stats.gaussians == 0 {
+            return Some(format!(
+                "nothing was mapped ({}); the folder keeps {kept}",
+                self.why_nothing()
+            ));
+        }
+        None
+    }
+
+    /// Why no keyframe (or no Gaussian) came of the log, with counts.
+    pub fn why_nothing(&self) -> String {
+        let mut parts = Vec::new();
+        let stats = self.mapper.stats();
+        if stats.keyframes > 0 {
+            parts.push(format!(
+                "{} keyframes seeded no Gaussian: their depth gave no point within range",
+                stats.keyframes
+            ));
+        }
+        parts.push(format!(
+            "{} frames assembled from {} messages",
+            self.ingest.frames, self.ingest.messages
+        ));
+        if self.not_keyframes > 0 {
+            parts.push(format!("{} frames were not keyframes", self.not_keyframes));
+        }
+        for (reason, c) in &self.ingest.skipped {
+            parts.push(format!("{} × {reason} (first: {})", c.count, c.first));
+        }
+        if let Ending::Failed(e) = &self.ending {
+            parts.push(format!("stopped by: {e}"));
+        }
+        parts.join("; ")
+    }
+
+    /// Replaces the run folder with this run: the resumable state,
+    /// `decoder.safetensors` (when the map has embeddings), `map.ply`,
+    /// `config.toml`, `trajectory.txt`, `trace.json` (when profiled) and
+    /// `report.json`, all with one run id. Either every file is written
+    /// and the folder swapped in whole, or it is left as it was: kept for
+    /// [`Run::not_to_save`]'s reasons, an error for a file that could not
+    /// be written.
+    pub fn write_folder(&mut self, folder: &RunFolder) -> Result<Written> {
+        if let Some(why) = self.not_to_save() {
+            return Ok(Written::Kept(why));
+        }
+        let staging = folder.stage()?;
+        let dir = staging.path().to_path_buf();
+        self.mapper
+            .save_into(&staging)
+            .context("saving the map (the folder keeps its last save)")?;
         let config = format!(
             "# The effective configuration of this run (`latentam map --config` reads it back;\n\
              # `latentam config --print-defaults` documents every key).\n{}",
             self.mapper.online_ref().config().to_toml()
         );
-        let mut attempt = |what: &str, r: Result<()>| {
-            if let Err(e) = r {
-                problems.push(format!("{what} not written: {}", describe(&e)));
-            }
-        };
-        attempt("config.toml", write_text(&dir.join("config.toml"), &config));
+        write_text(&dir.join("config.toml"), &config)?;
         let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
-        attempt(
-            "map.ply",
-            write_ply(&dir.join("map.ply"), &gaussians, &[]).map_err(Into::into),
-        );
-        attempt(
-            "trajectory.txt",
-            write_tum(&dir.join("trajectory.txt"), &self.trajectory()).map_err(Into::into),
-        );
+        write_ply(&dir.join("map.ply"), &gaussians, &[])?;
+        drop(gaussians);
+        write_tum(&dir.join("trajectory.txt"), &self.trajectory())?;
         let profile = self.ctx.profiler_snapshot();
         if !profile.samples().is_empty() {
-            attempt(
-                "trace.json",
-                profile
-                    .write_chrome_trace(&dir.join("trace.json"))
-                    .map_err(Into::into),
-            );
+            profile.write_chrome_trace(&dir.join("trace.json"))?;
         }
-        let mut report = self.report_with(profile.stats());
-        report.problems = problems;
+        let report = self.report_with(staging.run_id(), profile.stats());
         write_text(
             &dir.join("report.json"),
             &serde_json::to_string_pretty(&report)?,
-        )
-        .with_context(|| format!("writing the run report in {}", dir.display()))?;
-        Ok(report)
+        )?;
+        staging
+            .commit()
+            .with_context(|| format!("replacing {}", folder.dir().display()))?;
+        Ok(Written::Saved(Box::new(report)))
     }
 }
 

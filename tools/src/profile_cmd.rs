@@ -27,15 +27,18 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let run = map_log(&RunOptions {
-        log: args.log.clone(),
-        assembly: args.input.assembly()?,
-        config: args.config.load()?,
-        max_frames: args.frames,
-        resume: None,
-        profile: true,
-        autosave: None,
-    })?;
+    let run = map_log(
+        &RunOptions {
+            log: args.log.clone(),
+            assembly: args.input.assembly()?,
+            config: args.config.load()?,
+            max_frames: args.frames,
+            resume: None,
+            profile: true,
+            autosave_every: 0,
+        },
+        None,
+    )?;
     if let Ending::Failed(e) = &run.ending {
         bail!("{e}");
     }

@@ -1,8 +1,8 @@
 //! What `latentam map` does when things go wrong, with faults injected
 //! through `LATENTAM_FAULTS` (see `engine/src/faults.rs`) or bad input:
 //! a clear error, the exit status says so, and what was mapped is kept.
-//! Killing the process (SIGKILL) during mapping and during saves leaves a
-//! loadable state every time.
+//! Killing the process (SIGKILL) during mapping and during saves leaves
+//! one consistent run in the folder every time.
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
@@ -43,12 +43,41 @@ fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
 
-/// Keyframes of the saved state (it must load).
-fn saved_keyframes(ctx: &Context, dir: &Path) -> u64 {
-    Mapper::load(ctx, dir)
-        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
-        .stats()
-        .keyframes
+/// Checks that `dir` holds one run: the state loads (with its decoder,
+/// checked by `Mapper::load`), and the report and the PLY map describe
+/// that state. Returns its keyframes.
+fn consistent_run(ctx: &Context, dir: &Path) -> u64 {
+    let mapper = Mapper::load(ctx, dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    let stats = mapper.stats();
+    let r = report(dir);
+    assert_eq!(
+        r["run_id"].as_str(),
+        mapper.online_ref().run_id(),
+        "report and state of different runs"
+    );
+    assert_eq!(r["keyframes"].as_u64(), Some(stats.keyframes));
+    assert_eq!(r["gaussians"].as_u64(), Some(stats.gaussians as u64));
+    let ply = read_ply(&dir.join("map.ply")).unwrap();
+    assert_eq!(ply.gaussians.len(), stats.gaussians);
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    stats.keyframes
+}
+
+/// Staging folders and moved-aside runs beside `dir`.
+fn beside(dir: &Path) -> Vec<String> {
+    let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+    std::fs::read_dir(dir.parent().unwrap())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(&format!(".{name}.")))
+        .collect()
 }
 
 #[test]
@@ -67,20 +96,15 @@ fn faults_give_clear_errors_and_keep_what_was_mapped() {
         "disk_full",
         &["--resume", "--autosave-every", "1"],
     );
-    failed_with(&out, &["no space left on device"]);
+    failed_with(&out, &["no space left on device", "not replaced"]);
     assert_eq!(std::fs::read(run.join(STATE_FILE)).unwrap(), before);
-    assert_eq!(saved_keyframes(&ctx, &run), 3);
-    let leftovers: Vec<_> = std::fs::read_dir(&run)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
-        .collect();
-    assert!(leftovers.is_empty(), "{leftovers:?}");
+    assert_eq!(consistent_run(&ctx, &run), 3);
+    assert!(beside(&run).is_empty(), "{:?}", beside(&run));
 
     // A lost device and a failed allocation part-way (after some keyframes:
     // the first submission or allocation counts that get that far are
-    // found by trying): the error names it, the folder holds the map as of
-    // the last window sync, the state its last autosave.
+    // found by trying): the error names it and the folder holds the last
+    // autosave, whole.
     for (fault, words) in [
         ("device_lost_after", &["device has been lost"][..]),
         ("alloc_fail_after", &["GPU memory", "Out of memory"][..]),
@@ -98,16 +122,14 @@ fn faults_give_clear_errors_and_keep_what_was_mapped() {
             if out.status.success() {
                 break;
             }
-            failed_with(&out, words);
-            let r = report(&run);
-            assert!(r["ending"]["failed"].as_str().is_some(), "{r}");
-            let Some(saved) = r["autosaved_at"].as_u64() else {
+            let stderr = failed_with(&out, words);
+            if !run.exists() {
                 continue;
-            };
-            assert!(saved >= 1);
-            assert_eq!(saved_keyframes(&ctx, &run), saved);
-            let ply = read_ply(&run.join("map.ply")).unwrap();
-            assert_eq!(ply.gaussians.len() as u64, r["gaussians"].as_u64().unwrap());
+            }
+            assert!(stderr.contains("its autosave at keyframe"), "{stderr}");
+            let r = report(&run);
+            assert_eq!(r["ending"], "running", "{r}");
+            assert!(consistent_run(&ctx, &run) >= 1);
             reached = true;
             break;
         }
@@ -123,15 +145,20 @@ fn faults_give_clear_errors_and_keep_what_was_mapped() {
     let r = report(&run);
     let frames = r["frames"].as_u64().unwrap();
     assert!((4..32).contains(&frames), "{frames} frames");
-    assert!(saved_keyframes(&ctx, &run) >= 1);
+    assert!(r["ending"]["failed"].as_str().is_some(), "{r}");
+    assert!(consistent_run(&ctx, &run) >= 1);
     assert!(!read_ply(&run.join("map.ply")).unwrap().gaussians.is_empty());
 
-    // A GPU budget too small for the first keyframe.
-    let run = dir.join("budget");
+    // A GPU budget too small for the first keyframe: nothing is mapped, so
+    // an earlier run in the folder stays as it was.
+    let run = dir.join("disk");
+    let before = std::fs::read(run.join(STATE_FILE)).unwrap();
     failed_with(
         &map(&log, &run, "", &["--set", "gpu_budget=30000000"]),
         &["GPU budget of 30000000 bytes", "set gpu_budget to at least"],
     );
+    assert_eq!(std::fs::read(run.join(STATE_FILE)).unwrap(), before);
+    assert_eq!(consistent_run(&ctx, &run), 3);
     drop(ctx);
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -149,13 +176,12 @@ fn appears(path: &Path, limit: Duration) -> bool {
 }
 
 #[test]
-fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
+fn sigkill_at_random_points_always_leaves_one_consistent_run() {
     let dir = scratch("sigkill");
     let frames = 160;
     let log = gen_scene(&dir, frames);
     let run = dir.join("run");
     let state = run.join(STATE_FILE);
-    let partial = run.join(format!("{STATE_FILE}.partial"));
     let ctx = Context::new(ContextOptions::default()).unwrap();
     let mut rng_state = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -191,13 +217,14 @@ fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
     let mut rounds = Vec::new();
     for round in 0..6 {
         let mut cmd = latentam();
-        // Saves linger before their rename, so kills land in them.
+        // Each file of a save lingers before its rename, so kills land in
+        // the middle of writing a version.
         cmd.env("LATENTAM_FAULTS", "save_delay_ms=150")
             .arg("map")
             .arg(&log)
             .arg("--out")
             .arg(&run)
-            .args(["--autosave-every", "1", "--no-trace"])
+            .args(["--autosave-every", "1"])
             .stdout(Stdio::null())
             .stderr(Stdio::null());
         if state.exists() {
@@ -206,9 +233,15 @@ fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
         let mut child = cmd.spawn().unwrap();
         let spawned = Instant::now();
         if round % 2 == 0 {
-            // In the middle of writing a save.
-            let _ = std::fs::remove_file(&partial);
-            let hit = appears(&partial, Duration::from_secs(120));
+            // In the middle of writing a version of the folder.
+            let start = Instant::now();
+            let mut hit = false;
+            while start.elapsed() < Duration::from_secs(120) && !hit {
+                hit = beside(&run).iter().any(|n| n.contains(".staging-"));
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            // Somewhere within its files.
+            std::thread::sleep(Duration::from_millis(next() % 600));
             during_save += hit as u32;
             rounds.push(format!(
                 "round {round}: from {saved} keyframes, {} after {:.1} s",
@@ -232,11 +265,11 @@ fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
             status.code().is_none(),
             "round {round}: ended before the kill"
         );
-        if state.exists() {
-            let k = saved_keyframes(&ctx, &run);
+        if run.exists() {
+            let k = consistent_run(&ctx, &run);
             assert!(
                 k >= saved,
-                "round {round}: the state went back from {saved} to {k}"
+                "round {round}: the run went back from {saved} to {k}"
             );
             saved = k;
         }
@@ -247,7 +280,8 @@ fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
         rounds.join("\n")
     );
     assert!(saved >= 1, "nothing was ever saved");
-    // Resuming from what survived finishes the log.
+    // Resuming from what survived finishes the log, and clears what the
+    // kills left beside the folder.
     let out = latentam()
         .arg("map")
         .arg(&log)
@@ -262,7 +296,8 @@ fn sigkill_during_mapping_and_saving_leaves_a_loadable_state() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert_eq!(report(&run)["ending"], "complete");
-    assert_eq!(saved_keyframes(&ctx, &run), (frames / 4) as u64);
+    assert_eq!(consistent_run(&ctx, &run), (frames / 4) as u64);
+    assert!(beside(&run).is_empty(), "{:?}", beside(&run));
     drop(ctx);
     std::fs::remove_dir_all(&dir).ok();
 }

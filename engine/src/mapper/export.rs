@@ -55,6 +55,9 @@ pub struct DecoderFile {
     pub eps: f32,
     /// Embedding model id of the map's region embeddings.
     pub model: String,
+    /// The id of the run folder version it was written with, shared with
+    /// the state beside it (see [`super::RunFolder`]).
+    pub run_id: Option<String>,
 }
 
 impl DecoderFile {
@@ -99,6 +102,9 @@ impl DecoderFile {
         a.meta("query_dim", QUERY_DIM);
         a.meta("atoms", k);
         a.meta("eps", self.eps);
+        if let Some(id) = &self.run_id {
+            a.meta("run_id", id);
+        }
         a.tensor("W", &[QUERY_DIM, d], &self.w);
         a.tensor("D", &[k, d], &self.atoms);
         a.tensor("D0", &[k, d], &self.anchors);
@@ -145,7 +151,7 @@ impl DecoderFile {
                 "temperature {temperature} must be positive and eps {eps} not negative"
             )));
         }
-        Ok(DecoderFile {
+        let file = DecoderFile {
             dim,
             w: a.exact("W", &[QUERY_DIM, d])?,
             atoms: a.exact("D", &[k, d])?,
@@ -154,7 +160,19 @@ impl DecoderFile {
             temperature,
             eps,
             model: a.meta("model")?.to_string(),
-        })
+            run_id: a.meta("run_id").ok().map(str::to_string),
+        };
+        for (name, values) in [
+            ("W", &file.w),
+            ("D", &file.atoms),
+            ("D0", &file.anchors),
+            ("atom_weights", &file.atom_weights),
+        ] {
+            if values.iter().any(|x| !x.is_finite()) {
+                return Err(a.corrupt(format!("tensor `{name}` holds non-finite values")));
+            }
+        }
+        Ok(file)
     }
 }
 
@@ -184,6 +202,7 @@ impl OnlineMapper {
             temperature: head.decoder().config().temperature,
             eps: head.decoder().config().eps,
             model: self.model.clone().unwrap_or_default(),
+            run_id: None,
         }))
     }
 }

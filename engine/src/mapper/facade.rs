@@ -4,7 +4,10 @@
 use std::borrow::Borrow;
 use std::path::{Path, PathBuf};
 
+use super::export::{DecoderFile, DECODER_FILE};
 use super::online::{Integrated, MapperConfig, MapperStats, OnlineMapper};
+use super::persist::SavedState;
+use super::run_folder::{RunFolder, RunStaging};
 use crate::error::{Error, Result};
 use crate::gpu::{Context, ContextOptions};
 use crate::io::Frame;
@@ -85,25 +88,67 @@ impl Mapper {
         scorer.score(&ctx, head, &queries, embeddings)
     }
 
-    /// Saves the whole state into directory `dir` (created if missing) as
-    /// [`STATE_FILE`]; returns the file's path.
+    /// Saves the whole state into the run folder `dir` (created if
+    /// missing): [`STATE_FILE`] and, once the map has embeddings,
+    /// [`DECODER_FILE`]. The folder is replaced whole and atomically (see
+    /// [`RunFolder`]): it must hold nothing but a run's files, and no other
+    /// process may be writing it. Returns the state file's path.
     pub fn save(&mut self, dir: impl AsRef<Path>) -> Result<PathBuf> {
-        let dir = dir.as_ref();
-        std::fs::create_dir_all(dir).map_err(|e| Error::Io {
-            path: dir.to_path_buf(),
-            source: e,
-        })?;
-        let path = dir.join(STATE_FILE);
-        self.inner.save(&path)?;
-        Ok(path)
+        let folder = RunFolder::lock(dir)?;
+        let staging = folder.stage()?;
+        self.save_into(&staging)?;
+        staging.commit()?;
+        Ok(folder.dir().join(STATE_FILE))
+    }
+
+    /// Writes [`STATE_FILE`] and [`DECODER_FILE`] (when the map has
+    /// embeddings) into a staged run folder, tagged with its run id, for
+    /// callers that add files of their own before committing it.
+    pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
+        let id = staging.run_id();
+        self.inner
+            .save_as(&staging.path().join(STATE_FILE), Some(id))?;
+        if let Some(mut decoder) = self.inner.decoder_file()? {
+            decoder.run_id = Some(id.to_string());
+            decoder.write(&staging.path().join(DECODER_FILE))?;
+        }
+        Ok(())
     }
 
     /// Loads a state saved by [`Mapper::save`] from directory `dir` onto
-    /// `ctx`, to continue mapping or to query.
+    /// `ctx`, to continue mapping or to query. A decoder beside it must
+    /// come from the same save.
     pub fn load(ctx: &Context, dir: impl AsRef<Path>) -> Result<Self> {
-        let path = dir.as_ref().join(STATE_FILE);
+        Self::load_with(ctx, dir, &|saved| Ok(saved.clone()))
+    }
+
+    /// [`Mapper::load`], with the run-time settings (budget, learning
+    /// rates, iterations...) that `settings` makes of the saved ones; the
+    /// settings that shape the saved state (voxel size, dictionary size,
+    /// replay count, window capacity) stay as saved.
+    pub fn load_with(
+        ctx: &Context,
+        dir: impl AsRef<Path>,
+        settings: &dyn Fn(&MapperConfig) -> Result<MapperConfig>,
+    ) -> Result<Self> {
+        let dir = dir.as_ref();
+        let path = dir.join(STATE_FILE);
+        let state = SavedState::read(&path)?;
+        let decoder = dir.join(DECODER_FILE);
+        if let (Some(id), true) = (state.run_id(), decoder.exists()) {
+            let theirs = DecoderFile::read(&decoder)?.run_id;
+            if theirs.as_deref() != Some(id) {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: {DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
+                     ({id}); the folder mixes two runs",
+                    dir.display(),
+                    theirs.as_deref().unwrap_or("no run id")
+                )));
+            }
+        }
+        let overrides = settings(state.config())?;
         Ok(Mapper {
-            inner: OnlineMapper::load(ctx, &path, None)?,
+            inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
             scorer: None,
         })
     }

@@ -16,6 +16,7 @@ mod online;
 mod persist;
 pub mod pixel_metrics;
 mod preset;
+mod run_folder;
 mod trainer;
 
 pub use config_doc::{apply_overrides, documented_defaults};
@@ -28,6 +29,7 @@ pub use online::{
 };
 pub use persist::SavedState;
 pub use preset::Preset;
+pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 
 #[cfg(test)]

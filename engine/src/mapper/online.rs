@@ -432,6 +432,12 @@ pub struct OnlineMapper {
     pub(super) model: Option<String>,
     /// Stamp and pose of every keyframe (the history may have let some go).
     pub(super) trajectory: Vec<(i64, CameraPose)>,
+    /// The run folder version the state was loaded from.
+    pub(super) run_id: Option<String>,
+    /// A keyframe step failed after it had changed the map: the state is
+    /// neither the one before that frame nor the one after it, so it is
+    /// neither saved nor mapped further.
+    pub(super) broken: Option<String>,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -461,8 +467,74 @@ impl OnlineMapper {
             frames: 0,
             stats: MapperStats::default(),
             model: None,
+            run_id: None,
+            broken: None,
             cfg,
         })
+    }
+
+    /// The id of the run folder version this state was loaded from (see
+    /// [`super::RunFolder`]), when it was.
+    pub fn run_id(&self) -> Option<&str> {
+        self.run_id.as_deref()
+    }
+
+    /// Whether a keyframe step failed part-way (after changing the map):
+    /// such a state cannot be saved or mapped further; the last save is
+    /// the consistent state to go on from.
+    pub fn is_broken(&self) -> bool {
+        self.broken.is_some()
+    }
+
+    pub(super) fn check_consistent(&self) -> Result<()> {
+        match &self.broken {
+            None => Ok(()),
+            Some(why) => Err(Error::InvalidArgument(format!(
+                "the map is in the middle of a keyframe that failed ({why}); it cannot be saved \
+                 or mapped further: load the last save instead"
+            ))),
+        }
+    }
+
+    /// Refuses a frame the map cannot take, before anything changes:
+    /// non-finite pose or intrinsics, embeddings of another model or
+    /// dimension than the map's.
+    fn check_frame(&self, frame: &Frame) -> Result<()> {
+        let bad = |why: String| {
+            Err(Error::InvalidArgument(format!(
+                "frame at {} ns: {why}",
+                frame.stamp_ns
+            )))
+        };
+        let p = &frame.pose;
+        if !(p.translation.is_finite() && p.rotation.is_finite() && p.rotation.length() > 1e-6) {
+            return bad(format!("pose {p:?} is not a rigid transform"));
+        }
+        let k = &frame.intrinsics;
+        if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
+            return bad(format!("intrinsics {k:?} are not a pinhole camera"));
+        }
+        if let Some(e) = &frame.embeddings {
+            let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
+            if let Some(m) = &self.model {
+                if bare(m) != bare(&e.model) {
+                    return bad(format!(
+                        "embeddings of model `{}`, the map's are of `{m}`",
+                        e.model
+                    ));
+                }
+            }
+            if let Some(head) = &self.head {
+                if head.config().dim != e.dim {
+                    return bad(format!(
+                        "{}-d embeddings, the map's are {}-d",
+                        e.dim,
+                        head.config().dim
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 
     fn budget_of(ctx: &Context, cfg: &MapperConfig) -> u64 {
@@ -686,12 +758,41 @@ impl OnlineMapper {
     /// the window), Stage I over the keyframe and B past ones, Stage II
     /// with the window's re-synchronisation running beside it on the
     /// transfer queue, the history append and, at its interval, pruning.
+    ///
+    /// A frame is counted once its step has completed. A frame refused
+    /// for its content (see the errors) leaves the map exactly as it was;
+    /// a failure part-way through a keyframe (a lost device, GPU memory)
+    /// leaves it unusable ([`OnlineMapper::is_broken`]).
     pub fn integrate(&mut self, frame: &Frame) -> Result<Integrated> {
-        let frame_index = self.frames;
-        self.frames += 1;
+        self.check_consistent()?;
+        self.check_frame(frame)?;
+        let selector = self.selector.state();
         if !self.selector.decide(frame, &self.global).keyframe {
+            self.frames += 1;
             return Ok(Integrated::Skipped);
         }
+        // The first keyframe sizes the window against the budget before any
+        // GPU work, so a configuration that cannot map fails here, with the
+        // setting to change, and with the map as it was.
+        let dim = self
+            .head
+            .as_ref()
+            .map(|h| h.config().dim)
+            .or(frame.embeddings.as_ref().map(|e| e.dim));
+        let pixels = frame.color.width as u64 * frame.color.height as u64;
+        if let Err(e) = self.ensure_workspace(pixels, dim) {
+            self.selector.restore(selector.0, selector.1);
+            return Err(e);
+        }
+        self.broken = Some(format!("keyframe at {} ns", frame.stamp_ns));
+        let report = self.integrate_keyframe(frame)?;
+        self.broken = None;
+        self.frames += 1;
+        Ok(Integrated::Keyframe(report))
+    }
+
+    fn integrate_keyframe(&mut self, frame: &Frame) -> Result<Box<KeyframeReport>> {
+        let frame_index = self.frames;
         let t_start = Instant::now();
         let mut timings = KeyframeTimings::default();
         let mut paging = Vec::new();
@@ -702,15 +803,6 @@ impl OnlineMapper {
         if let Some(e) = &frame.embeddings {
             self.check_model(&e.model, frame.stamp_ns)?;
         }
-        // The first keyframe sizes the window against the budget before any
-        // GPU work, so a configuration that cannot map fails here, with the
-        // setting to change.
-        let dim = self
-            .head
-            .as_ref()
-            .map(|h| h.config().dim)
-            .or(frame.embeddings.as_ref().map(|e| e.dim));
-        self.ensure_workspace(frame.color.width as u64 * frame.color.height as u64, dim)?;
         let t = Instant::now();
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);
@@ -817,7 +909,7 @@ impl OnlineMapper {
         add_timings(&mut self.stats.timings, &timings);
         let cpu_bytes = self.cpu_bytes();
         self.stats.cpu_peak_bytes = self.stats.cpu_peak_bytes.max(cpu_bytes);
-        Ok(Integrated::Keyframe(Box::new(KeyframeReport {
+        Ok(Box::new(KeyframeReport {
             index: keyframe,
             frame: frame_index,
             stamp_ns,
@@ -831,7 +923,7 @@ impl OnlineMapper {
             resident: self.window.as_ref().map_or(0, |w| w.len()),
             gpu_bytes: self.ctx.memory_report().total.current,
             cpu_bytes,
-        })))
+        }))
     }
 
     /// Renders the window at the keyframe's pose, seeds Gaussians where

@@ -90,6 +90,24 @@ fn pose_from_f64(v: &[f64]) -> Option<CameraPose> {
     })
 }
 
+/// Refuses a tensor holding NaN or an infinity: loaded, it would turn
+/// every render and score it touches into NaN.
+fn finite(values: &[f32], name: &str) -> std::result::Result<(), String> {
+    match values.iter().position(|x| !x.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(format!(
+            "{name} holds a non-finite value ({} at {i})",
+            values[i]
+        )),
+    }
+}
+
+/// [`finite`] for f32 values stored as bytes.
+fn finite_bytes(bytes: &[u8], name: &str) -> std::result::Result<(), String> {
+    let values: Vec<f32> = bytemuck::allocation::pod_collect_to_vec(bytes);
+    finite(&values, name)
+}
+
 /// Bytes per row of each `window/state/{i}` tensor, in the order of
 /// `GaussianOptimizer::state`: per field, both Adam
 /// moments then the step count.
@@ -179,6 +197,9 @@ pub(super) struct SavedWindow {
 #[derive(Clone, Debug, PartialEq)]
 pub struct SavedState {
     pub(super) origin: PathBuf,
+    /// The id of the run folder version the state was saved in (see
+    /// [`super::RunFolder`]); `None` for a state saved on its own.
+    pub(super) run_id: Option<String>,
     pub(super) config: MapperConfig,
     pub(super) counters: Counters,
     pub(super) model: Option<String>,
@@ -194,6 +215,7 @@ pub struct SavedState {
 /// What one archive holds, borrowed: written by both
 /// [`OnlineMapper::save`] and [`SavedState::to_bytes`].
 struct StateRef<'a> {
+    run_id: Option<&'a str>,
     config: &'a MapperConfig,
     counters: Counters,
     model: Option<&'a str>,
@@ -209,6 +231,9 @@ struct StateRef<'a> {
 impl StateRef<'_> {
     fn into_bytes(self) -> Result<Vec<u8>> {
         let mut w = ArchiveWriter::default();
+        if let Some(id) = self.run_id {
+            w.meta("run_id", id);
+        }
         w.meta("config", self.config.to_toml());
         let c = self.counters;
         w.meta("frames", c.frames);
@@ -252,8 +277,13 @@ impl StateRef<'_> {
                 &[n, 3],
                 &keys_to_i32(win.keys.iter().copied()),
             );
+            let rows = window_state_row_bytes();
             for (i, bytes) in win.state.iter().enumerate() {
-                let row = bytes.len().checked_div(n).unwrap_or(0);
+                // The row size comes from the layout, not the bytes: an
+                // empty window still records it (and loading checks it).
+                let row = rows
+                    .get(i)
+                    .map_or_else(|| bytes.len().checked_div(n).unwrap_or(0), |&r| r as usize);
                 w.bytes(&format!("window/state/{i}"), n, row, bytes.clone());
             }
         }
@@ -340,6 +370,7 @@ impl SavedState {
     /// The file as [`OnlineMapper::save`] writes it.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         StateRef {
+            run_id: self.run_id.as_deref(),
             config: &self.config,
             counters: self.counters,
             model: self.model.as_deref(),
@@ -396,7 +427,9 @@ impl SavedState {
             .unwrap_or_default()
             .iter()
             .enumerate()
-            .map(|(i, &n)| (0..n).map(|j| (i as u64 * 31 + j) as u8).collect())
+            .map(|(i, &n)| {
+                bytemuck::cast_slice(&floats(n as usize / 4, 0.01 * (i + 1) as f32)).to_vec()
+            })
             .collect();
         let head = SavedHead {
             dim,
@@ -462,10 +495,16 @@ impl SavedState {
         let state = window_state_row_bytes()
             .iter()
             .enumerate()
-            .map(|(i, &row)| (0..rows * row).map(|j| (j + i as u64) as u8).collect())
+            .map(|(i, &row)| {
+                let values: Vec<f32> = (0..rows * row / 4)
+                    .map(|j| (j + i as u64) as f32 * 0.01)
+                    .collect();
+                bytemuck::cast_slice(&values).to_vec()
+            })
             .collect();
         SavedState {
             origin: PathBuf::from("example.latentam"),
+            run_id: None,
             config,
             counters: Counters {
                 frames: 12,
@@ -513,6 +552,12 @@ impl SavedState {
     /// Gaussians resident in the GPU window (0 before the first keyframe).
     pub fn resident(&self) -> usize {
         self.window.as_ref().map_or(0, |w| w.keys.len())
+    }
+
+    /// The id of the run folder version the state was saved in (see
+    /// [`super::RunFolder`]), when it was saved in one.
+    pub fn run_id(&self) -> Option<&str> {
+        self.run_id.as_deref()
     }
 
     /// Embedding dimension of the latent head, when the map has one.
@@ -594,6 +639,11 @@ impl SavedState {
         {
             if !seen.insert(key) {
                 return Err(bad(format!("voxel {key:?} appears twice in the map")));
+            }
+            if !g.iter().all(|x| x.is_finite()) {
+                return Err(bad(format!(
+                    "the Gaussian of voxel {key:?} holds non-finite values"
+                )));
             }
             let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
             map.push((key, g));
@@ -677,7 +727,12 @@ impl SavedState {
                     .into_iter()
                     .enumerate()
                     .map(|(i, row)| {
-                        a.exact::<u8>(&format!("window/state/{i}"), &[rows, row as usize])
+                        let name = format!("window/state/{i}");
+                        let t = a.exact::<u8>(&name, &[rows, row as usize])?;
+                        if i % 3 != 2 {
+                            finite_bytes(&t, &name).map_err(bad)?;
+                        }
+                        Ok(t)
                     })
                     .collect::<Result<Vec<_>>>()?;
                 Some(SavedWindow {
@@ -691,6 +746,7 @@ impl SavedState {
 
         Ok(SavedState {
             origin: a.path().to_path_buf(),
+            run_id: a.meta("run_id").ok().map(str::to_string),
             config,
             counters,
             model,
@@ -725,6 +781,14 @@ impl SavedState {
         let atoms = a.exact::<f32>("head/D", &[k, d])?;
         let anchors = a.exact::<f32>("head/D0", &[k, d])?;
         let weights = a.exact::<f32>("head/kmeans_weights", &[used as usize])?;
+        for (name, values) in [
+            ("head/W", &w),
+            ("head/D", &atoms),
+            ("head/D0", &anchors),
+            ("head/kmeans_weights", &weights),
+        ] {
+            finite(values, name).map_err(bad)?;
+        }
         let sizes = head_state_bytes(dim as u64, k as u64)
             .ok_or_else(|| bad(format!("a head of {k} atoms of {dim} dimensions")))?;
         let adam = sizes
@@ -733,7 +797,12 @@ impl SavedState {
             .map(|(i, &bytes)| {
                 let bytes = usize::try_from(bytes)
                     .map_err(|_| bad(format!("head/adam/{i} of {bytes} bytes")))?;
-                a.exact::<u8>(&format!("head/adam/{i}"), &[1, bytes])
+                let t = a.exact::<u8>(&format!("head/adam/{i}"), &[1, bytes])?;
+                // Moments; every third tensor counts steps.
+                if i % 3 != 2 {
+                    finite_bytes(&t, &format!("head/adam/{i}")).map_err(bad)?;
+                }
+                Ok(t)
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Some(SavedHead {
@@ -878,6 +947,13 @@ impl OnlineMapper {
     /// Saves the whole state to `path` (one file, replaced atomically).
     /// The window is written back to the global map first.
     pub fn save(&mut self, path: &Path) -> Result<()> {
+        self.save_as(path, None)
+    }
+
+    /// [`OnlineMapper::save`], recording `run_id`: the id of the run folder
+    /// version the file belongs to (see [`super::RunStaging::run_id`]).
+    pub fn save_as(&mut self, path: &Path, run_id: Option<&str>) -> Result<()> {
+        self.check_consistent()?;
         self.flush()?;
         let ctx = self.ctx.clone();
         let map: Vec<(VoxelKey, Gaussian)> = self.global.iter().map(|(k, g)| (k, *g)).collect();
@@ -928,6 +1004,7 @@ impl OnlineMapper {
             None => None,
         };
         let bytes = StateRef {
+            run_id,
             config: &self.cfg,
             counters: Counters {
                 frames: self.frames,
@@ -976,6 +1053,7 @@ impl OnlineMapper {
     ) -> Result<Self> {
         let SavedState {
             origin,
+            run_id,
             config: kept,
             counters,
             model,
@@ -1005,6 +1083,7 @@ impl OnlineMapper {
         m.stats.fetched = counters.fetched;
         m.stats.over_capacity = counters.over_capacity;
         m.model = model;
+        m.run_id = run_id;
         m.selector.restore(selector.0, selector.1);
         m.last_sync = last_sync;
         for (key, g) in map {

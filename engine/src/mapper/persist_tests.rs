@@ -338,6 +338,13 @@ fn the_example_state_round_trips() {
     assert_eq!(back.embedding_dim(), Some(3));
     let again = SavedState::parse(&back.to_bytes().unwrap(), Path::new("example.latentam"));
     assert_eq!(again.unwrap(), example);
+    // An empty window (a map whose keyframes seeded nothing) round-trips.
+    let mut empty = example.clone();
+    let w = empty.window.as_mut().unwrap();
+    w.keys.clear();
+    w.state.iter_mut().for_each(Vec::clear);
+    let back = SavedState::parse(&empty.to_bytes().unwrap(), Path::new("example.latentam"));
+    assert_eq!(back.unwrap(), empty);
 }
 
 #[test]
@@ -356,6 +363,31 @@ fn inconsistent_states_are_refused_with_the_reason() {
         );
     };
     refused(&|s| s.map[1].0 = s.map[0].0, "appears twice in the map");
+    // Non-finite values would make every render and score NaN.
+    refused(
+        &|s| s.map[2].1.query[5] = f32::NAN,
+        "holds non-finite values",
+    );
+    refused(
+        &|s| s.map[0].1.mean[1] = f32::INFINITY,
+        "holds non-finite values",
+    );
+    refused(
+        &|s| s.head.as_mut().unwrap().w[7] = f32::NAN,
+        "head/W holds a non-finite value",
+    );
+    refused(
+        &|s| s.head.as_mut().unwrap().anchors[0] = f32::NEG_INFINITY,
+        "head/D0 holds a non-finite value",
+    );
+    refused(
+        &|s| s.head.as_mut().unwrap().adam[3][4..8].copy_from_slice(&f32::NAN.to_le_bytes()),
+        "head/adam/3 holds a non-finite value",
+    );
+    refused(
+        &|s| s.window.as_mut().unwrap().state[1][..4].copy_from_slice(&f32::NAN.to_le_bytes()),
+        "window/state/1 holds a non-finite value",
+    );
     refused(
         &|s| s.window.as_mut().unwrap().keys[0].x = 99,
         "is not in the map",
