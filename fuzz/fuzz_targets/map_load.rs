@@ -190,6 +190,7 @@ fn example_decoder() -> &'static [u8] {
             temperature: 0.05,
             eps: 1e-6,
             model: "example".into(),
+            run_id: Some("0123456789abcdef".into()),
         }
         .to_bytes()
         .expect("the example writes")

@@ -141,6 +141,17 @@ pub fn run(args: Args) -> Result<()> {
     let run_report = run_report_of(&args.dir, mapper.online_ref().run_id())?;
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
+    if let Some(v) = &vocabulary {
+        if mapper.online_ref().head().is_some() {
+            mapper.online_ref().check_vocabulary(v).with_context(|| {
+                format!(
+                    "the vocabulary on {} in {}",
+                    assembly.topics.vocabulary,
+                    args.log.display()
+                )
+            })?;
+        }
+    }
     let class_table = read_class_names(&args.log)?;
     let frames = McapFrames::open(&args.log, assembly)
         .with_context(|| format!("opening {}", args.log.display()))?;

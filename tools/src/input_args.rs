@@ -50,6 +50,25 @@ pub struct InputArgs {
     /// Metres per unit of 16-bit depth.
     #[arg(long, default_value_t = 0.001, help_heading = "Input")]
     pub depth_scale: f32,
+    /// Depth beyond this many metres is invalid; a frame with no valid
+    /// depth is skipped (and counted).
+    #[arg(
+        long,
+        default_value_t = 1000.0,
+        value_name = "METRES",
+        help_heading = "Input"
+    )]
+    pub max_depth: f32,
+    /// Frames whose camera is farther than this from the world origin
+    /// along any axis are skipped (and counted): beyond about 10 km, map
+    /// coordinates lose centimetre precision, so re-centre such logs.
+    #[arg(
+        long,
+        default_value_t = 10000.0,
+        value_name = "METRES",
+        help_heading = "Input"
+    )]
+    pub max_extent: f64,
     /// Stop at the first malformed or inconsistent frame instead of
     /// skipping and counting it.
     #[arg(long, help_heading = "Input")]
@@ -64,6 +83,12 @@ impl InputArgs {
         }
         if !(self.depth_scale > 0.0 && self.depth_scale.is_finite()) {
             anyhow::bail!("--depth-scale must be a positive number of metres per unit");
+        }
+        if !(self.max_depth > 0.0 && self.max_depth.is_finite()) {
+            anyhow::bail!("--max-depth must be a positive number of metres");
+        }
+        if !(self.max_extent > 0.0 && self.max_extent.is_finite()) {
+            anyhow::bail!("--max-extent must be a positive number of metres");
         }
         let pose = match &self.tf_world {
             Some(world_frame) => PoseSource::Tf {
@@ -86,6 +111,8 @@ impl InputArgs {
             // i64::MAX, which the assembler's stamp arithmetic allows.
             tolerance_ns: (self.tolerance_ms * 1e6).round() as i64,
             depth_metres_per_unit: self.depth_scale,
+            max_depth_m: self.max_depth,
+            max_extent_m: self.max_extent,
             on_bad_input: if self.stop_on_bad_input {
                 BadInputPolicy::Stop
             } else {

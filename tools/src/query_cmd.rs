@@ -130,6 +130,12 @@ pub fn run(args: Args) -> Result<()> {
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
     // A head's dim is at least 1 (`LatentHead::new` refuses 0).
     let Some(dim) = mapper.online_ref().head().map(|h| h.config().dim as usize) else {
+        if mapper.stats().keyframes == 0 {
+            bail!(
+                "{} holds no keyframe: there is nothing to query",
+                args.dir.display()
+            );
+        }
         bail!(
             "{} was mapped without embeddings: there is nothing to query",
             args.dir.display()
@@ -169,14 +175,10 @@ pub fn run(args: Args) -> Result<()> {
                     vocab.names.join(", ")
                 );
             };
-            if vocab.dim as usize != dim {
-                bail!(
-                    "the vocabulary in {} holds {}-d embeddings ({}); the map's are {dim}-d",
-                    log.display(),
-                    vocab.dim,
-                    vocab.model
-                );
-            }
+            mapper
+                .online_ref()
+                .check_vocabulary(&vocab)
+                .with_context(|| format!("the vocabulary in {}", log.display()))?;
             if !(args.temperature > 0.0 && args.temperature.is_finite()) {
                 bail!("--temperature must be positive");
             }

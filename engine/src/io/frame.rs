@@ -152,6 +152,28 @@ impl DepthImage {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// Marks samples beyond `max_metres` invalid (0).
+    pub fn invalidate_beyond(&mut self, max_metres: f32) {
+        match &mut self.data {
+            DepthData::Units {
+                values,
+                metres_per_unit,
+            } => {
+                // Most sensors' whole 16-bit range is within the limit.
+                if u16::MAX as f32 * *metres_per_unit > max_metres {
+                    let mpu = *metres_per_unit;
+                    values
+                        .iter_mut()
+                        .filter(|v| **v as f32 * mpu > max_metres)
+                        .for_each(|v| *v = 0);
+                }
+            }
+            DepthData::Metres(values) => values
+                .iter_mut()
+                .filter(|z| **z > max_metres)
+                .for_each(|z| *z = 0.0),
+        }
+    }
     /// Whether at least one sample is valid (stops at the first).
     pub fn has_valid_sample(&self) -> bool {
         match &self.data {

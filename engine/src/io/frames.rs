@@ -109,6 +109,14 @@ pub struct AssemblyConfig {
     /// oldest is resolved as if its partners had ended (bounds memory when
     /// a stream stalls).
     pub max_pending: usize,
+    /// Depth samples beyond this many metres are invalid (default 1000: no
+    /// RGB-D sensor measures that far, so such values are corrupt or
+    /// mis-scaled); a frame with no valid sample is refused.
+    pub max_depth_m: f32,
+    /// Camera positions farther than this from the world origin along any
+    /// axis refuse their frame (default 10 km: beyond it, f32 map
+    /// coordinates lose centimetre precision).
+    pub max_extent_m: f64,
 }
 
 impl Default for AssemblyConfig {
@@ -121,6 +129,8 @@ impl Default for AssemblyConfig {
             intrinsics: None,
             on_bad_input: BadInputPolicy::Skip,
             max_pending: 64,
+            max_depth_m: 1000.0,
+            max_extent_m: 10_000.0,
         }
     }
 }
@@ -171,6 +181,31 @@ enum PendingColor {
     Compressed { format: String, data: Vec<u8> },
 }
 
+/// A colour image waiting for its partners, with the latest stamp each
+/// partner stream has shown since it arrived: a stream whose stamps went
+/// back in time can still deliver a partner after its watermark passed, so
+/// only stamps seen after the colour image prove its partner is not coming.
+struct PendingFrame {
+    color: PendingColor,
+    seen: SeenSince,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct SeenSince {
+    depth: Option<i64>,
+    embeddings: Option<i64>,
+    semantic: Option<i64>,
+    pose: Option<i64>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Partner {
+    Depth,
+    Embeddings,
+    Semantic,
+    Pose,
+}
+
 struct Stamped<T> {
     stamp: i64,
     value: T,
@@ -180,6 +215,8 @@ struct Stamped<T> {
 struct Queue<T> {
     items: VecDeque<Stamped<T>>,
     watermark: Option<i64>,
+    /// A message came with a stamp before the watermark.
+    went_back: bool,
 }
 
 impl<T> Default for Queue<T> {
@@ -187,15 +224,22 @@ impl<T> Default for Queue<T> {
         Queue {
             items: VecDeque::new(),
             watermark: None,
+            went_back: false,
         }
     }
 }
 
 impl<T> Queue<T> {
     fn push(&mut self, stamp: i64, value: T) {
+        self.went_back |= self.watermark.is_some_and(|w| stamp < w);
         self.watermark = Some(self.watermark.map_or(stamp, |w| w.max(stamp)));
         let i = self.items.partition_point(|s| s.stamp <= stamp);
         self.items.insert(i, Stamped { stamp, value });
+    }
+    /// Notes a message that was refused: the stream has moved on.
+    fn note(&mut self, stamp: i64) {
+        self.went_back |= self.watermark.is_some_and(|w| stamp < w);
+        self.watermark = Some(self.watermark.map_or(stamp, |w| w.max(stamp)));
     }
     /// Removes and returns the item nearest `t` within `tol`. (Stamps come
     /// from `Time::as_nanos`, within ±2.2·10¹⁸ ns, so their differences
@@ -235,7 +279,7 @@ pub struct Vocabulary {
 /// Turns a stream of log messages into [`Frame`]s.
 pub struct FrameAssembler {
     config: AssemblyConfig,
-    color: Queue<PendingColor>,
+    color: Queue<PendingFrame>,
     depth: Queue<Result<DepthImage, Rejection>>,
     embeddings: Queue<Embeddings>,
     semantic: Queue<LabelImage>,
@@ -244,6 +288,10 @@ pub struct FrameAssembler {
     camera_info: Option<Result<Intrinsics, Rejection>>,
     poses: PoseTrack,
     tf: TfBuffer,
+    /// A pose (or dynamic transform) came with a stamp before the latest.
+    poses_went_back: bool,
+    /// Stamp of the last colour image resolved.
+    last_resolved: Option<i64>,
     color_frame_id: Option<String>,
     has_embeddings: bool,
     has_semantic: bool,
@@ -269,6 +317,8 @@ impl FrameAssembler {
             camera_info: None,
             poses: PoseTrack::default(),
             tf: TfBuffer::default(),
+            poses_went_back: false,
+            last_resolved: None,
             color_frame_id: None,
             has_embeddings,
             has_semantic,
@@ -402,21 +452,28 @@ impl FrameAssembler {
                 self.note_color_frame(m.header.frame_id);
                 self.color.push(
                     m.header.stamp.as_nanos(),
-                    PendingColor::Compressed {
-                        format: m.format.to_string(),
-                        data: m.data.to_vec(),
+                    PendingFrame {
+                        color: PendingColor::Compressed {
+                            format: m.format.to_string(),
+                            data: m.data.to_vec(),
+                        },
+                        seen: SeenSince::default(),
                     },
                 );
             }
             Role::Color => {
                 let m = Image::decode(data).map_err(undecodable)?;
                 self.note_color_frame(m.header.frame_id);
+                let color = PendingColor::Raw(codec::color_from_image_into(
+                    &m,
+                    self.pool.bytes(m.data.len()),
+                ));
                 self.color.push(
                     m.header.stamp.as_nanos(),
-                    PendingColor::Raw(codec::color_from_image_into(
-                        &m,
-                        self.pool.bytes(m.data.len()),
-                    )),
+                    PendingFrame {
+                        color,
+                        seen: SeenSince::default(),
+                    },
                 );
             }
             Role::Depth => {
@@ -437,6 +494,7 @@ impl FrameAssembler {
                 // A bad depth image is kept as such so the colour image it
                 // belongs to is rejected for the right reason.
                 self.depth.push(stamp, depth);
+                self.saw(Partner::Depth, stamp);
             }
             Role::CameraInfo => {
                 let m = CameraInfo::decode(data).map_err(undecodable)?;
@@ -450,12 +508,19 @@ impl FrameAssembler {
                     let m = PoseStamped::decode(data).map_err(undecodable)?;
                     (m.header.stamp.as_nanos(), m.pose)
                 };
-                self.poses.insert(stamp, pose.checked()?);
+                let pose = pose.checked()?;
+                self.poses_went_back |= self.poses.latest().is_some_and(|l| stamp < l);
+                self.poses.insert(stamp, pose);
+                self.saw(Partner::Pose, stamp);
             }
             Role::Tf | Role::TfStatic => {
                 let m = TfMessage::decode(data).map_err(undecodable)?;
                 for t in &m.transforms {
                     self.tf.insert(t, role == Role::TfStatic)?;
+                    if role == Role::Tf {
+                        let stamp = t.header.stamp.as_nanos();
+                        self.saw(Partner::Pose, stamp);
+                    }
                 }
             }
             Role::Embeddings => {
@@ -473,12 +538,32 @@ impl FrameAssembler {
                     )
                 };
                 self.check_signature(&e)?;
-                self.embeddings.push(stamp, e);
+                let mut e = e;
+                let refused = drop_bad_regions(&mut e, stamp);
+                if let (Some(first), BadInputPolicy::Stop) =
+                    (refused.first(), self.config.on_bad_input)
+                {
+                    return Err(first.clone());
+                }
+                for r in &refused {
+                    self.report.count(r);
+                }
+                if refused.len() < e.count as usize {
+                    self.embeddings.push(stamp, e);
+                } else {
+                    // Nothing left to learn from: the frame maps geometry
+                    // only, as if it had no embeddings.
+                    self.embeddings.note(stamp);
+                    self.pool.recycle_embeddings(e);
+                }
+                self.saw(Partner::Embeddings, stamp);
             }
             Role::Semantic => {
                 let m = Image::decode(data).map_err(undecodable)?;
                 let labels = codec::labels_from_image(&m)?;
-                self.semantic.push(m.header.stamp.as_nanos(), labels);
+                let stamp = m.header.stamp.as_nanos();
+                self.semantic.push(stamp, labels);
+                self.saw(Partner::Semantic, stamp);
             }
             Role::Vocabulary => {
                 let m = TextEmbeddings::decode(data).map_err(undecodable)?;
@@ -486,6 +571,20 @@ impl FrameAssembler {
             }
         }
         Ok(())
+    }
+
+    /// Notes a partner message's stamp for every colour image waiting.
+    fn saw(&mut self, partner: Partner, stamp: i64) {
+        for pending in &mut self.color.items {
+            let s = &mut pending.value.seen;
+            let mark = match partner {
+                Partner::Depth => &mut s.depth,
+                Partner::Embeddings => &mut s.embeddings,
+                Partner::Semantic => &mut s.semantic,
+                Partner::Pose => &mut s.pose,
+            };
+            *mark = Some(mark.map_or(stamp, |m| m.max(stamp)));
+        }
     }
 
     fn note_color_frame(&mut self, frame_id: &str) {
@@ -543,36 +642,70 @@ impl FrameAssembler {
         Ok(())
     }
 
-    /// Whether everything a colour image at `t` waits for has arrived.
-    fn can_resolve(&self, t: i64) -> bool {
+    /// Whether everything a colour image at `t` waits for has arrived: each
+    /// partner stream has moved past `t` plus the tolerance since the image
+    /// arrived or, while its stamps have only gone forward, at all.
+    fn can_resolve(&self, t: i64, seen: &SeenSince) -> bool {
         if self.ended {
             return true;
         }
         let tol = self.config.tolerance_ns;
         let past = |w: Option<i64>, until: i64| w.is_some_and(|w| w >= until);
-        let pose_ready = match &self.config.topics.pose {
-            PoseSource::Topic(_) => past(self.poses.latest(), t),
-            PoseSource::Tf { .. } => past(self.tf.latest(), t),
+        let ready = |since: Option<i64>, watermark: Option<i64>, went_back: bool, until: i64| {
+            past(since, until) || (!went_back && past(watermark, until))
         };
+        let latest_pose = match &self.config.topics.pose {
+            PoseSource::Topic(_) => self.poses.latest(),
+            PoseSource::Tf { .. } => self.tf.latest(),
+        };
+        let pose_ready = ready(seen.pose, latest_pose, self.poses_went_back, t);
         // Saturating: the tolerance is the user's (`--tolerance-ms`).
         let until = t.saturating_add(tol);
-        past(self.depth.watermark, until)
+        let partner = |q_watermark: Option<i64>, went_back: bool, since: Option<i64>| {
+            ready(since, q_watermark, went_back, until)
+        };
+        partner(self.depth.watermark, self.depth.went_back, seen.depth)
             && (self.config.intrinsics.is_some() || self.camera_info.is_some())
             && pose_ready
-            && (!self.has_embeddings || past(self.embeddings.watermark, until))
-            && (!self.has_semantic || past(self.semantic.watermark, until))
+            && (!self.has_embeddings
+                || partner(
+                    self.embeddings.watermark,
+                    self.embeddings.went_back,
+                    seen.embeddings,
+                ))
+            && (!self.has_semantic
+                || partner(
+                    self.semantic.watermark,
+                    self.semantic.went_back,
+                    seen.semantic,
+                ))
     }
 
     fn resolve(&mut self, all: bool) -> Result<(), InputError> {
         while let Some(front) = self.color.items.front() {
             let t = front.stamp;
             let forced = all || self.color.items.len() > self.config.max_pending;
-            if !forced && !self.can_resolve(t) {
+            if !forced && !self.can_resolve(t, &front.value.seen) {
                 break;
             }
             // `front()` was `Some` just above.
             let pending = self.color.items.pop_front().expect("front exists");
-            let result = self.assemble(t, pending.value);
+            let late = self
+                .last_resolved
+                .filter(|&last| t < last.saturating_sub(self.config.tolerance_ns));
+            let result = match (self.assemble(t, pending.value.color), late) {
+                // Its partners went with the frames resolved before it.
+                (Err(r), Some(last)) if r.kind.starts_with("frame: no ") => Err(Rejection::new(
+                    "frame: out of order",
+                    format!(
+                        "colour image at {t} ns arrived after the frame at {last} ns was \
+                         assembled ({})",
+                        r.kind
+                    ),
+                )),
+                (result, _) => result,
+            };
+            self.last_resolved = Some(self.last_resolved.map_or(t, |l| l.max(t)));
             // Saturating: tolerance and pose gap are the user's settings.
             let oldest = t.saturating_sub(self.config.tolerance_ns);
             // Whatever is now too old for any later colour image is unpaired.
@@ -687,10 +820,27 @@ impl FrameAssembler {
                 }
             }
         };
+        check_intrinsics(&intrinsics)?;
+        let extent = self.config.max_extent_m;
+        if pose.translation.abs().max_element() > extent {
+            return Err(Rejection::new(
+                "frame: position beyond the world extent",
+                format!(
+                    "camera at {:?} m, beyond ±{extent} m (--max-extent)",
+                    pose.translation.to_array()
+                ),
+            ));
+        }
+        let mut depth = depth;
+        depth.invalidate_beyond(self.config.max_depth_m);
         if !depth.has_valid_sample() {
             return Err(Rejection::new(
                 "frame: no valid depth",
-                format!("every depth sample of the image at {t} ns is invalid"),
+                format!(
+                    "every depth sample of the image at {t} ns is 0, invalid or beyond {} m \
+                     (--max-depth)",
+                    self.config.max_depth_m
+                ),
             ));
         }
         Ok(Frame {
@@ -729,6 +879,34 @@ impl FrameAssembler {
             translation: pose.translation,
         })
     }
+}
+
+/// Refuses intrinsics no real camera has: the principal point outside the
+/// image, or a focal length outside 0.05 to 50 image widths (a field of
+/// view from about 1° to 170°), the signs of mis-scaled or garbage
+/// calibration.
+pub(crate) fn check_intrinsics(k: &Intrinsics) -> Result<(), Rejection> {
+    let (w, h) = (k.width as f64, k.height as f64);
+    let focal = 0.05 * w..=50.0 * w;
+    if !(0.0..=w).contains(&k.cx) || !(0.0..=h).contains(&k.cy) {
+        return Err(Rejection::new(
+            "frame: implausible intrinsics",
+            format!(
+                "principal point ({}, {}) outside the {}×{} image",
+                k.cx, k.cy, k.width, k.height
+            ),
+        ));
+    }
+    if !focal.contains(&k.fx) || !focal.contains(&k.fy) {
+        return Err(Rejection::new(
+            "frame: implausible intrinsics",
+            format!(
+                "focal length ({}, {}) px outside 0.05 to 50 times the width of {} px",
+                k.fx, k.fy, k.width
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn intrinsics_of(m: &CameraInfo<'_>) -> Result<Intrinsics, Rejection> {
@@ -851,6 +1029,43 @@ fn mask_embeddings(m: &MaskFeatures<'_>, pool: &mut BufferPool) -> Result<Embedd
     })
 }
 
+/// Refuses, one by one, region embeddings that hold a NaN or an infinity
+/// or are all zero (no direction to learn): their vectors are zeroed, which
+/// gives them no weight, and their pixels unlabelled. Returns one
+/// rejection per region refused.
+fn drop_bad_regions(e: &mut Embeddings, stamp: i64) -> Vec<Rejection> {
+    let row_bytes = e.dim as usize * e.dtype.size();
+    let mut refused = Vec::new();
+    let mut bad_ids = Vec::new();
+    for (i, row) in e.data.chunks_exact_mut(row_bytes.max(1)).enumerate() {
+        let v = super::frame::decode_floats(row, e.dtype);
+        let (kind, what) = if v.iter().any(|x| !x.is_finite()) {
+            (
+                "embeddings: region with non-finite values",
+                "NaN or infinite values",
+            )
+        } else if v.iter().all(|&x| x == 0.0) {
+            ("embeddings: region with zero norm", "all zeros")
+        } else {
+            continue;
+        };
+        row.fill(0);
+        bad_ids.push(i as u16);
+        refused.push(Rejection::new(
+            kind,
+            format!("region {i} of {} at {stamp} ns holds {what}", e.count),
+        ));
+    }
+    if let (EmbeddingLayout::Regions(labels), false) = (&mut e.layout, bad_ids.is_empty()) {
+        for l in labels.labels.iter_mut() {
+            if bad_ids.binary_search(l).is_ok() {
+                *l = u16::MAX;
+            }
+        }
+    }
+    refused
+}
+
 fn grid_embeddings(m: &FeatureGrid<'_>, pool: &mut BufferPool) -> Result<Embeddings, Rejection> {
     let cells = m.rows as u64 * m.cols as u64;
     if cells == 0 || cells > u32::MAX as u64 {
@@ -930,11 +1145,28 @@ fn vocabulary_of(m: &TextEmbeddings<'_>) -> Result<Vocabulary, Rejection> {
         m.dtype,
         m.data.len(),
     )?;
+    let names: Vec<String> = m.names.iter().map(|s| s.to_string()).collect();
+    let mut seen = std::collections::HashSet::new();
+    if let Some(twice) = names.iter().find(|n| !seen.insert(n.as_str())) {
+        return Err(Rejection::new(
+            "vocabulary: duplicate name",
+            format!("`{twice}` appears more than once"),
+        ));
+    }
+    let vectors = super::frame::decode_floats(m.data, dtype);
+    for (name, v) in names.iter().zip(vectors.chunks_exact(m.dim as usize)) {
+        if v.iter().any(|x| !x.is_finite()) || v.iter().all(|&x| x == 0.0) {
+            return Err(Rejection::new(
+                "vocabulary: unusable vector",
+                format!("the embedding of `{name}` is zero or holds NaN or infinite values"),
+            ));
+        }
+    }
     Ok(Vocabulary {
-        names: m.names.iter().map(|s| s.to_string()).collect(),
+        names,
         ids: m.ids.to_vec(),
         dim: m.dim,
-        vectors: super::frame::decode_floats(m.data, dtype),
+        vectors,
         model: m.model.to_string(),
     })
 }

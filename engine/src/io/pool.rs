@@ -7,7 +7,7 @@
 //! their buffers to the next frames instead.
 
 use super::cdr::Seq;
-use super::frame::{DepthData, EmbeddingLayout, Frame};
+use super::frame::{DepthData, EmbeddingLayout, Embeddings, Frame};
 
 /// Buffers of recycled frames.
 #[derive(Default)]
@@ -66,6 +66,13 @@ impl BufferPool {
     pub(crate) fn recycle_words(&mut self, buf: Vec<u16>) {
         put(&mut self.words, buf);
     }
+    /// Takes back the buffers of embeddings not used.
+    pub(crate) fn recycle_embeddings(&mut self, e: Embeddings) {
+        put(&mut self.bytes, e.data);
+        if let EmbeddingLayout::Regions(l) = e.layout {
+            put(&mut self.words, l.labels);
+        }
+    }
     /// Takes back a frame's buffers.
     pub(crate) fn recycle(&mut self, frame: Frame) {
         put(&mut self.bytes, frame.color.data);
@@ -73,10 +80,7 @@ impl BufferPool {
             put(&mut self.words, values);
         }
         if let Some(e) = frame.embeddings {
-            put(&mut self.bytes, e.data);
-            if let EmbeddingLayout::Regions(l) = e.layout {
-                put(&mut self.words, l.labels);
-            }
+            self.recycle_embeddings(e);
         }
         if let Some(s) = frame.semantic {
             put(&mut self.words, s.labels);

@@ -7,6 +7,9 @@ use glam::{DQuat, DVec3};
 
 use super::*;
 
+#[path = "input_check_tests.rs"]
+mod input_checks;
+
 /// A directory removed on drop.
 pub(crate) struct TempDir(PathBuf);
 

@@ -1126,6 +1126,13 @@ mod tests {
             ("history_cell=1e9", "history_cell"),
             ("stage_two_iterations=4294967295", "stage_two_iterations"),
             ("stage_two_iterations=1001", "stage_two_iterations"),
+            // NaN weights and rates turn the map into NaN.
+            ("weights.feature=nan", "weights.feature"),
+            ("learning_rates.means=-1", "learning_rates.means"),
+            ("latent_lr=inf", "latent_lr"),
+            ("seeding.max_depth=inf", "seeding.max_depth"),
+            ("prune_min_opacity=2", "prune_min_opacity"),
+            ("keyframes.min_rotation_deg=nan", "min_rotation_deg"),
         ] {
             let e = error(&[set]);
             assert!(e.contains(want), "{set}: {e}");
@@ -1164,5 +1171,101 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(cfg.window_capacity, Some(1 << 31));
+    }
+
+    /// Every leaf key of the defaults, dotted.
+    fn leaf_keys(table: &Table, prefix: &str, out: &mut Vec<String>) {
+        for (k, v) in table {
+            let key = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            match v {
+                Value::Table(t) => leaf_keys(t, &key, out),
+                _ => out.push(key),
+            }
+        }
+    }
+
+    /// Random `--set` lists over every key, with hostile values: never a
+    /// panic, and what is accepted is within range (validates again) and
+    /// reads back the same from its TOML.
+    #[test]
+    fn random_settings_are_refused_or_valid_never_a_panic() {
+        use rand::Rng;
+        let mut keys = Vec::new();
+        leaf_keys(&to_table(&MapperConfig::default()).unwrap(), "", &mut keys);
+        keys.extend(["keyframes.policy", "seeding", "nope", "", "a.b.c.d"].map(String::from));
+        let values = [
+            "0",
+            "-0",
+            "1",
+            "-1",
+            "2",
+            "0.5",
+            "1e-30",
+            "1e30",
+            "1e308",
+            "-1e308",
+            "nan",
+            "inf",
+            "-inf",
+            "4294967295",
+            "4294967296",
+            "18446744073709551615",
+            "9223372036854775808",
+            "true",
+            "\"\"",
+            "\"x\"",
+            "[]",
+            "[1, 2]",
+            "{}",
+            "{ interval = 3 }",
+            "interval",
+            "overlap",
+            "embedding",
+            "zeros",
+            "=",
+            "0x10",
+            "1_000",
+            "",
+        ];
+        let mut rng = crate::gpu::testing::rng("random_settings");
+        let (mut accepted, mut refused) = (0, 0);
+        for _ in 0..4000 {
+            let sets: Vec<String> = (0..rng.random_range(1..4))
+                .map(|_| {
+                    let key = &keys[rng.random_range(0..keys.len())];
+                    let value = match rng.random_range(0..3) {
+                        0 => values[rng.random_range(0..values.len())].to_string(),
+                        1 => rng.random_range(-1e6f64..1e6).to_string(),
+                        _ => (rng.random::<f64>() * 10f64.powi(rng.random_range(-40..40)))
+                            .to_string(),
+                    };
+                    format!("{key}={value}")
+                })
+                .collect();
+            match apply_overrides(&MapperConfig::default(), &sets) {
+                Ok(cfg) => {
+                    accepted += 1;
+                    cfg.validate().unwrap_or_else(|e| panic!("{sets:?}: {e}"));
+                    let back = MapperConfig::from_toml(&cfg.to_toml())
+                        .unwrap_or_else(|e| panic!("{sets:?}: {e}"));
+                    assert_eq!(back, cfg, "{sets:?}");
+                    assert!(cfg.stage_one_iterations <= 1000 && cfg.stage_two_iterations <= 1000);
+                    assert!(cfg.window_radius / cfg.voxel_size <= 5e7, "{sets:?}");
+                }
+                Err(e) => {
+                    refused += 1;
+                    assert!(!e.to_string().is_empty());
+                }
+            }
+        }
+        // Both outcomes are exercised.
+        assert!(
+            accepted > 100 && refused > 100,
+            "{accepted} accepted, {refused} refused"
+        );
     }
 }

@@ -80,7 +80,14 @@ impl KeyframeRecord {
                 })
             })
             .collect();
-        let regions = frame.embeddings.as_ref().map(|e| {
+        // Embeddings with no usable vector (all zero or non-finite) teach
+        // nothing; the keyframe maps geometry only.
+        let usable = |e: &&crate::io::Embeddings| {
+            e.to_f32()
+                .chunks(e.dim.max(1) as usize)
+                .any(|r| r.iter().all(|x| x.is_finite()) && r.iter().any(|&x| x != 0.0))
+        };
+        let regions = frame.embeddings.as_ref().filter(usable).map(|e| {
             let (width, height, labels, grid) = match &e.layout {
                 EmbeddingLayout::Regions(l) => (l.width, l.height, l.labels.clone(), false),
                 EmbeddingLayout::Grid { rows, cols } => (

@@ -269,6 +269,67 @@ impl MapperConfig {
         if let crate::map::KeyframePolicy::Interval(0) = self.keyframes.policy {
             return bad("keyframes.policy interval must be at least 1");
         }
+        // Every weight, rate and threshold is a finite, non-negative number:
+        // one NaN would turn the whole map into NaN at the first step.
+        let w = &self.weights;
+        let lr = &self.learning_rates;
+        let k = &self.keyframes;
+        for (name, x) in [
+            ("weights.rgb", w.rgb as f64),
+            ("weights.rgb_l1", w.rgb_l1 as f64),
+            ("weights.ssim", w.ssim as f64),
+            ("weights.depth", w.depth as f64),
+            ("weights.feature", w.feature as f64),
+            ("weights.cosine", w.cosine as f64),
+            ("weights.l2", w.l2 as f64),
+            ("weights.trust_region", w.trust_region as f64),
+            ("weights.trust_radius", w.trust_radius as f64),
+            ("learning_rates.means", lr.means as f64),
+            ("learning_rates.log_scales", lr.log_scales as f64),
+            ("learning_rates.quats", lr.quats as f64),
+            ("learning_rates.colors", lr.colors as f64),
+            ("learning_rates.opacity", lr.opacity as f64),
+            ("learning_rates.queries", lr.queries as f64),
+            ("latent_lr", self.latent_lr as f64),
+            ("prune_max_scale", self.prune_max_scale as f64),
+            ("keyframes.min_translation", k.min_translation),
+            ("seeding.depth_error", sd.depth_error as f64),
+            ("seeding.scale_factor", sd.scale_factor as f64),
+        ] {
+            if !(x >= 0.0 && x.is_finite()) {
+                return bad(&format!("{name} {x} must be a finite number ≥ 0"));
+            }
+        }
+        if !(sd.max_depth > 0.0 && sd.max_depth as f64 <= MAX_DISTANCE) {
+            return bad(&format!(
+                "seeding.max_depth {} must be above 0 and at most {MAX_DISTANCE} metres",
+                sd.max_depth
+            ));
+        }
+        if !unit(self.prune_min_opacity) {
+            return bad(&format!(
+                "prune_min_opacity {} must be within 0..1",
+                self.prune_min_opacity
+            ));
+        }
+        if !(0.0..=360.0).contains(&k.min_rotation_deg) {
+            return bad(&format!(
+                "keyframes.min_rotation_deg {} must be within 0..360",
+                k.min_rotation_deg
+            ));
+        }
+        if let crate::map::KeyframePolicy::Overlap {
+            min_overlap,
+            stride,
+        } = k.policy
+        {
+            if !unit(min_overlap) || stride == 0 {
+                return bad(&format!(
+                    "keyframes.policy overlap: min_overlap {min_overlap} must be within 0..1 \
+                     and stride {stride} at least 1"
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -494,6 +555,35 @@ impl OnlineMapper {
                  or mapped further: load the last save instead"
             ))),
         }
+    }
+
+    /// Refuses a query vocabulary the map cannot score: one of another
+    /// embedding dimension or from another model than the map's region
+    /// embeddings (their spaces differ, so scores would mean nothing).
+    /// An `oracle:` prefix on either side does not count as a difference.
+    pub fn check_vocabulary(&self, v: &crate::io::Vocabulary) -> Result<()> {
+        let Some(head) = &self.head else {
+            return Err(Error::InvalidArgument(
+                "the map has no embeddings: there is nothing to score a vocabulary against".into(),
+            ));
+        };
+        let dim = head.config().dim;
+        if v.dim != dim {
+            return Err(Error::InvalidArgument(format!(
+                "the vocabulary holds {}-d embeddings of `{}`; the map's are {dim}-d",
+                v.dim, v.model
+            )));
+        }
+        let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
+        if let Some(m) = &self.model {
+            if bare(m) != bare(&v.model) {
+                return Err(Error::InvalidArgument(format!(
+                    "the vocabulary's embeddings are of model `{}`, the map's of `{m}`",
+                    v.model
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Refuses a frame the map cannot take, before anything changes:

@@ -565,3 +565,64 @@ fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
         assert_eq!(mapper.head().unwrap().config().dim, DIM as u32);
     });
 }
+
+#[test]
+fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: KeyframeConfig {
+                policy: KeyframePolicy::Interval(1),
+                ..KeyframeConfig::default()
+            },
+            window_capacity: Some(8192),
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let at = |i: u32| {
+            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            f
+        };
+        mapper.integrate(&at(0)).unwrap();
+        let before = (mapper.stats().frames, mapper.global().len());
+        let selector = mapper.selector.state();
+        // Another dimension, another model, a NaN pose, garbage
+        // intrinsics: refused before anything changes.
+        let mut other_dim = at(1);
+        let e = other_dim.embeddings.as_mut().unwrap();
+        e.dim = 16;
+        e.count = 4;
+        let mut other_model = at(1);
+        other_model.embeddings.as_mut().unwrap().model = "another".into();
+        let mut nan_pose = at(1);
+        nan_pose.pose.translation.x = f64::NAN;
+        let mut bad_k = at(1);
+        bad_k.intrinsics.fx = -1.0;
+        for (frame, why) in [
+            (other_dim, "16-d embeddings, the map's are 32-d"),
+            (other_model, "model `another`"),
+            (nan_pose, "not a rigid transform"),
+            (bad_k, "not a pinhole camera"),
+        ] {
+            let e = mapper.integrate(&frame).unwrap_err().to_string();
+            assert!(e.contains(why), "{e}");
+            assert_eq!((mapper.stats().frames, mapper.global().len()), before);
+            assert_eq!(mapper.selector.state(), selector);
+            assert!(!mapper.is_broken());
+        }
+        // Mapping goes on as if they had never come.
+        assert!(matches!(
+            mapper.integrate(&at(1)).unwrap(),
+            Integrated::Keyframe(_)
+        ));
+        assert_eq!(mapper.stats().keyframes, 2);
+        // A keyframe that failed part-way: neither saved nor mapped on.
+        mapper.broken = Some("keyframe at 2 ns".into());
+        let path = std::env::temp_dir().join(format!("latentam-broken-{}", std::process::id()));
+        let e = mapper.save(&path).unwrap_err().to_string();
+        assert!(e.contains("failed") && e.contains("last save"), "{e}");
+        assert!(!path.exists());
+        assert!(mapper.integrate(&at(2)).is_err());
+    });
+}
