@@ -103,6 +103,14 @@ pub fn run(args: Args) -> Result<bool> {
             args.out.display()
         ),
         (Ending::Failed(e), None) => bail!("{e}"),
+        (Ending::Interrupted, None) => {
+            eprintln!("interrupted before a new frame was mapped");
+            Ok(true)
+        }
+        // Resumed with nothing left to map.
+        (_, None) if run.mapper.stats().keyframes > 0 && !run.mapper.online_ref().is_broken() => {
+            Ok(false)
+        }
         (_, None) => bail!("no map was written: {}", run.why_nothing()),
         (Ending::Interrupted, Some(report)) => {
             eprintln!(

@@ -412,6 +412,11 @@ impl Run {
             ));
         }
         let stats = self.mapper.stats();
+        if self.frames == 0 && stats.keyframes > 0 {
+            // A resumed run that took no frame: the folder already holds
+            // this map.
+            return Some("no new frame was mapped; the folder keeps the map it holds".into());
+        }
         if stats.keyframes == 0 || stats.gaussians == 0 {
             return Some(format!(
                 "nothing was mapped ({}); the folder keeps {kept}",

@@ -1,0 +1,298 @@
+//! A run folder only ever holds one consistent run: runs that map nothing
+//! or fail leave it as it was, a second writer is refused, files mixed
+//! from two runs are refused when loaded, and a failed frame is not
+//! counted as mapped.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+mod common;
+use common::{gen_scene, scratch, SCENE_DIM};
+use latentam::mapper::{MapperConfig, STATE_FILE};
+
+/// The binary, without the validation layer (these runs check files, not
+/// API use, and map a lot).
+fn latentam() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_latentam"))
+}
+
+fn map(log: &Path, out: &Path, extra: &[&str]) -> Output {
+    latentam()
+        .arg("map")
+        .arg(log)
+        .arg("--out")
+        .arg(out)
+        .args(["--no-trace"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn failed_with(out: &Output, words: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!out.status.success(), "should have failed:\n{stderr}");
+    for w in words {
+        assert!(stderr.contains(w), "no `{w}` in:\n{stderr}");
+    }
+    stderr
+}
+
+/// Every file of a folder, by name.
+fn contents(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// Asserts that `dir` holds exactly `before` (naming what differs).
+fn unchanged(dir: &Path, before: &BTreeMap<String, Vec<u8>>) {
+    let now = contents(dir);
+    let differ: Vec<_> = now
+        .keys()
+        .chain(before.keys())
+        .filter(|k| now.get(*k) != before.get(*k))
+        .collect();
+    assert!(differ.is_empty(), "{} changed: {differ:?}", dir.display());
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+/// A 12-frame log of `dim`-d embeddings in `dir`.
+fn scene_of_dim(dir: &Path, dim: usize) -> PathBuf {
+    let log = dir.join(format!("scene-{dim}.mcap"));
+    ok(&latentam()
+        .args(["gen-scene", "--width", "120", "--height", "90"])
+        .args(["--frames", "12", "--dim", &dim.to_string()])
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap());
+    log
+}
+
+#[test]
+fn runs_that_map_nothing_or_fail_leave_the_folder_as_it_was() {
+    let dir = scratch("runs-nothing");
+    let log = gen_scene(&dir, 12);
+    let run = dir.join("run");
+    ok(&map(&log, &run, &[]));
+    let before = contents(&run);
+    assert!(before.contains_key("decoder.safetensors"));
+
+    // Every frame refused (no depth within 1 mm): nothing mapped, exit 1
+    // with the counts by reason, and the folder untouched.
+    let e = failed_with(
+        &map(&log, &run, &["--max-depth", "0.001"]),
+        &["no map was written", "frame: no valid depth", "12 ×"],
+    );
+    assert!(e.contains("not replaced"), "{e}");
+    unchanged(&run, &before);
+    // Positions beyond the world extent, the same.
+    failed_with(
+        &map(&log, &run, &["--max-extent", "0.001"]),
+        &["frame: position beyond the world extent"],
+    );
+    unchanged(&run, &before);
+    // A budget too small for the first keyframe.
+    failed_with(
+        &map(&log, &run, &["--set", "gpu_budget=1"]),
+        &["GPU budget of 1 bytes"],
+    );
+    unchanged(&run, &before);
+    // No frame at all.
+    failed_with(
+        &map(&log, &run, &["--frames", "0"]),
+        &["no map was written"],
+    );
+    unchanged(&run, &before);
+    // Nothing is left beside the folder either, but its lock is released.
+    let beside: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".run"))
+        .collect();
+    assert!(beside.is_empty(), "{beside:?}");
+
+    // A folder holding anything but a run is never replaced.
+    let notes = dir.join("notes");
+    std::fs::create_dir_all(&notes).unwrap();
+    std::fs::write(notes.join("thesis.tex"), "precious").unwrap();
+    failed_with(
+        &map(&log, &notes, &[]),
+        &["thesis.tex", "not part of a latentam run"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(notes.join("thesis.tex")).unwrap(),
+        "precious"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_failed_frame_is_not_counted_and_resuming_with_settings_applies_them() {
+    let dir = scratch("runs-resume");
+    let log = gen_scene(&dir, 12);
+    let other = scene_of_dim(&dir, 32);
+    let run = dir.join("run");
+    ok(&map(&log, &run, &["--frames", "6"]));
+    let before = contents(&run);
+    assert_eq!(report(&run)["keyframes"], 2);
+
+    // A log of another embedding dimension: its first frame is refused
+    // before it changes anything, so nothing is written.
+    failed_with(
+        &map(&other, &run, &["--resume"]),
+        &[&format!("32-d embeddings, the map's are {SCENE_DIM}-d")],
+    );
+    unchanged(&run, &before);
+
+    // Resuming with the right log maps every remaining keyframe, with the
+    // run-time settings given now.
+    ok(&map(
+        &log,
+        &run,
+        &["--resume", "--set", "stage_two_iterations=7"],
+    ));
+    let r = report(&run);
+    assert_eq!(r["frames_skipped_as_already_mapped"], 6);
+    assert_eq!(r["keyframes"], 3);
+    let cfg = MapperConfig::from_toml(&std::fs::read_to_string(run.join("config.toml")).unwrap())
+        .unwrap();
+    assert_eq!(cfg.stage_two_iterations, 7);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_second_writer_is_refused_and_mixed_folders_do_not_load() {
+    let dir = scratch("runs-mixed");
+    let log = gen_scene(&dir, 16);
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    ok(&map(&log, &a, &["--frames", "8"]));
+    ok(&map(&log, &b, &[]));
+
+    // While one process maps into `a`, another is refused, naming it.
+    let mut first = latentam()
+        .arg("map")
+        .arg(&log)
+        .arg("--out")
+        .arg(&a)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let lock = dir.join(".a.lock");
+    let start = Instant::now();
+    while std::fs::read_to_string(&lock).unwrap_or_default() != first.id().to_string() {
+        assert!(start.elapsed() < Duration::from_secs(60), "no lock taken");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let e = failed_with(
+        &map(&log, &a, &[]),
+        &["another latentam process", &format!("pid {}", first.id())],
+    );
+    assert!(!e.contains("panicked"), "{e}");
+    first.kill().unwrap();
+    first.wait().unwrap();
+
+    // A decoder copied from another run: the state refuses it.
+    let mixed = dir.join("mixed");
+    std::fs::create_dir_all(&mixed).unwrap();
+    for f in [STATE_FILE, "report.json", "map.ply", "config.toml"] {
+        std::fs::copy(a.join(f), mixed.join(f)).unwrap();
+    }
+    std::fs::copy(
+        b.join("decoder.safetensors"),
+        mixed.join("decoder.safetensors"),
+    )
+    .unwrap();
+    let query = |dir: &Path| {
+        latentam()
+            .arg("query")
+            .arg(dir)
+            .args(["--name", "wall", "--vocabulary"])
+            .arg(&log)
+            .output()
+            .unwrap()
+    };
+    failed_with(&query(&mixed), &["mixes two runs", "decoder.safetensors"]);
+    // A report from another run: eval refuses it.
+    std::fs::copy(
+        a.join("decoder.safetensors"),
+        mixed.join("decoder.safetensors"),
+    )
+    .unwrap();
+    ok(&query(&mixed));
+    std::fs::copy(b.join("report.json"), mixed.join("report.json")).unwrap();
+    let eval = latentam()
+        .arg("eval")
+        .arg(&mixed)
+        .arg(&log)
+        .args(["--frames", "2"])
+        .output()
+        .unwrap();
+    failed_with(&eval, &["mixes two runs", "report.json"]);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn states_with_nan_and_vocabularies_of_another_space_are_refused() {
+    let dir = scratch("runs-nan");
+    let log = gen_scene(&dir, 8);
+    let other = scene_of_dim(&dir, 32);
+    let run = dir.join("run");
+    ok(&map(&log, &run, &[]));
+
+    // Evaluating against a vocabulary of another dimension is an error,
+    // not "no vocabulary".
+    let eval = |log: &Path| {
+        latentam()
+            .arg("eval")
+            .arg(&run)
+            .arg(log)
+            .args(["--frames", "2"])
+            .output()
+            .unwrap()
+    };
+    failed_with(
+        &eval(&other),
+        &["32-d", &format!("the map's are {SCENE_DIM}-d")],
+    );
+    ok(&eval(&log));
+
+    // One NaN in the saved Gaussians: refused at load.
+    let path = run.join(STATE_FILE);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let at = 8 + n + header["map/gaussians"]["data_offsets"][0].as_u64().unwrap() as usize;
+    bytes[at + 4..at + 8].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let query = latentam()
+        .arg("query")
+        .arg(&run)
+        .args(["--name", "wall", "--vocabulary"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    failed_with(&query, &["non-finite"]);
+    std::fs::remove_dir_all(&dir).ok();
+}
