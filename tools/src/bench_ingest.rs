@@ -115,7 +115,12 @@ fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
         (
             2,
             t,
-            CameraInfo::pinhole(header, w, h, [525.0, 525.0, 319.5, 239.5]).encode(),
+            // A Kinect-like camera (525 px at 640 wide), scaled to the size.
+            {
+                let f = 525.0 * w as f64 / 640.0;
+                let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+                CameraInfo::pinhole(header, w, h, [f, f, cx, cy]).encode()
+            },
         ),
         (
             3,
