@@ -409,7 +409,8 @@ fn tum_streams_are_paired_by_stamp_and_poses_interpolated() {
     let root = dir.join("rgbd_dataset_freiburg3_synthetic");
     std::fs::create_dir_all(root.join("rgb")).unwrap();
     std::fs::create_dir_all(root.join("depth")).unwrap();
-    let (w, h) = (32u32, 24u32);
+    // The size of the TUM cameras the converter's intrinsics are for.
+    let (w, h) = (640u32, 480u32);
     let mut rgb_txt = String::from("# color images\n");
     let mut depth_txt = String::from("# depth maps\n");
     let mut gt = String::from("# timestamp tx ty tz qx qy qz qw\n");
