@@ -3,6 +3,10 @@
 //! (or scanned linearly when a file has no summary, e.g. a recording that
 //! was cut off). Only the chunks being read are decompressed, so a log far
 //! larger than RAM streams.
+//!
+//! Every chunk that carries a CRC is checked against it, on both paths,
+//! before any of its messages is handed out: a flipped bit in an image
+//! would otherwise be mapped as if it were what the camera saw.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -10,6 +14,7 @@ use std::sync::Arc;
 
 use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use mcap::McapError;
 
 use super::InputError;
 
@@ -81,6 +86,9 @@ struct LogFile {
     path: PathBuf,
     map: memmap2::Mmap,
     summary: Option<mcap::Summary>,
+    /// What the indexed reader is given instead of `summary`, present with
+    /// it: see [`PlainChunks`].
+    plain: Option<PlainChunks>,
     /// Why the summary could not be used, when it could not.
     summary_problem: Option<String>,
     /// Channels found by scanning a file without a summary (scanned once).
@@ -308,10 +316,12 @@ impl LogFile {
         if let Some(p) = &summary_problem {
             log::warn!("{}: {p}; reading it linearly", path.display());
         }
+        let plain = summary.as_ref().map(PlainChunks::new);
         Ok(LogFile {
             path,
             map,
             summary,
+            plain,
             summary_problem,
             scanned: std::sync::OnceLock::new(),
         })
@@ -340,6 +350,194 @@ impl LogFile {
             reason: e.to_string(),
         }
     }
+}
+
+/// The summary as the indexed reader is given it, with every chunk
+/// described as uncompressed.
+///
+/// `IndexedReader` decompresses what it is handed but never checks a
+/// chunk's CRC (the CRC is in the chunk record's header, which it does not
+/// read). So each chunk is decompressed and checked here first (see
+/// [`unpack_chunk`]), and the reader is handed the plain records;
+/// describing them as uncompressed keeps it from decompressing a second
+/// time.
+struct PlainChunks {
+    summary: mcap::Summary,
+    /// The file's own chunk index of each chunk, by the data offset the
+    /// reader asks for.
+    original: HashMap<u64, mcap::records::ChunkIndex>,
+}
+
+impl PlainChunks {
+    fn new(summary: &mcap::Summary) -> Self {
+        let mut plain = summary.clone();
+        let mut original = HashMap::new();
+        for index in &mut plain.chunk_indexes {
+            let file_index = index.clone();
+            index.compression.clear();
+            index.compressed_size = index.uncompressed_size;
+            // An offset that overflows is refused by the reader itself.
+            if let Ok(offset) = index.compressed_data_offset() {
+                original.insert(offset, file_index);
+            }
+        }
+        PlainChunks {
+            summary: plain,
+            original,
+        }
+    }
+}
+
+/// Why a chunk could not be unpacked.
+enum ChunkProblem {
+    /// The index points past the end of the file.
+    Truncated,
+    /// The index points at something other than a chunk record.
+    NotAChunk,
+    /// The chunk's records do not match its CRC.
+    Crc { saved: u32, calculated: u32 },
+    /// Anything else the chunk record gets wrong.
+    Corrupt(String),
+}
+
+impl From<McapError> for ChunkProblem {
+    fn from(e: McapError) -> Self {
+        match e {
+            McapError::BadChunkCrc { saved, calculated } => ChunkProblem::Crc { saved, calculated },
+            e => ChunkProblem::Corrupt(e.to_string()),
+        }
+    }
+}
+
+/// The records of the chunk `index` describes, checked against the
+/// chunk's CRC (when it has one) before anything reads them: for an
+/// uncompressed chunk, the file's own bytes; for a compressed one,
+/// decompressed into `scratch`.
+fn unpack_chunk<'a>(
+    map: &'a [u8],
+    index: &mcap::records::ChunkIndex,
+    scratch: &'a mut Vec<u8>,
+) -> Result<&'a [u8], ChunkProblem> {
+    let record = usize::try_from(index.chunk_start_offset)
+        .ok()
+        .zip(usize::try_from(index.chunk_length).ok())
+        .and_then(|(start, len)| map.get(start..start.checked_add(len)?))
+        .ok_or(ChunkProblem::Truncated)?;
+    if record.first() != Some(&mcap::records::op::CHUNK) {
+        return Err(ChunkProblem::NotAChunk);
+    }
+    // The chunk header after the opcode and record length: start and end
+    // times, uncompressed size, CRC, compression (a length-prefixed
+    // string), compressed size, then the data.
+    let field = |at: usize, n: usize| record.get(9 + at..9 + at + n);
+    let le_u64 = |b: &[u8]| u64::from_le_bytes(b.try_into().expect("8 bytes"));
+    let le_u32 = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+    let header = field(16, 24).ok_or(ChunkProblem::Truncated)?;
+    let (uncompressed, saved, compression_len) = (
+        le_u64(&header[..8]),
+        le_u32(&header[8..12]),
+        le_u32(&header[12..16]),
+    );
+    if compression_len == 0 {
+        // Uncompressed: the data is the records, hashed where it lies.
+        let size = le_u64(&header[16..24]);
+        let data = usize::try_from(size)
+            .ok()
+            .and_then(|n| field(40, n))
+            .ok_or_else(|| {
+                ChunkProblem::Corrupt(format!("its {size} bytes of data overrun the record"))
+            })?;
+        if size != uncompressed {
+            return Err(ChunkProblem::Corrupt(format!(
+                "uncompressed, yet {size} bytes of data for {uncompressed} bytes of records"
+            )));
+        }
+        if saved != 0 {
+            let calculated = crc32fast::hash(data);
+            if calculated != saved {
+                return Err(ChunkProblem::Crc { saved, calculated });
+            }
+        }
+        return Ok(data);
+    }
+    // Compressed: a linear reader over just this record decompresses it,
+    // checks the CRC before yielding the first record (and refuses sizes
+    // beyond the limit before allocating), then yields the records, which
+    // are framed again here as they were before compression.
+    let options = LinearReaderOptions::default()
+        .with_skip_start_magic(true)
+        .with_skip_end_magic(true)
+        .with_prevalidate_chunk_crcs(true)
+        .with_record_length_limit(MAX_RECORD_BYTES);
+    let mut reader = LinearReader::new_with_options(options);
+    let mut rest = record;
+    scratch.clear();
+    while let Some(event) = reader.next_event() {
+        match event? {
+            LinearReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                scratch.push(opcode);
+                scratch.extend_from_slice(&(data.len() as u64).to_le_bytes());
+                scratch.extend_from_slice(data);
+            }
+        }
+    }
+    Ok(scratch)
+}
+
+fn crc_mismatch(at: u64, saved: u32, calculated: u32) -> String {
+    format!(
+        "chunk at byte {at} is corrupt: CRC mismatch (the chunk says {saved:08x}, \
+         its records hash to {calculated:08x})"
+    )
+}
+
+/// The message for a chunk at byte `at` that [`unpack_chunk`] refused.
+fn chunk_problem(at: u64, map: &[u8], problem: ChunkProblem) -> String {
+    match problem {
+        ChunkProblem::Truncated => format!(
+            "chunk at byte {at} runs past the end of the file ({} bytes); \
+             the file is truncated",
+            map.len()
+        ),
+        ChunkProblem::NotAChunk => {
+            format!("the index points at byte {at}, which is not a chunk record")
+        }
+        ChunkProblem::Crc { saved, calculated } => crc_mismatch(at, saved, calculated),
+        ChunkProblem::Corrupt(why) => format!("chunk at byte {at} is corrupt: {why}"),
+    }
+}
+
+/// The start of the last chunk record that begins before byte `pos`,
+/// stepping over the top-level records from the start of the file (only
+/// done to name the chunk in an error: the linear reader does not say
+/// where the records it reports on began).
+fn chunk_before(map: &[u8], pos: usize) -> Option<usize> {
+    let mut at = mcap::MAGIC.len();
+    let mut found = None;
+    while at < pos {
+        let (Some(&opcode), Some(len)) = (map.get(at), map.get(at + 1..at + 9)) else {
+            break;
+        };
+        if opcode == mcap::records::op::CHUNK {
+            found = Some(at);
+        }
+        // Slices of 8 bytes by the range above.
+        let len = u64::from_le_bytes(len.try_into().expect("8 bytes"));
+        match usize::try_from(len)
+            .ok()
+            .and_then(|n| (at + 9).checked_add(n))
+        {
+            Some(next) => at = next,
+            None => break,
+        }
+    }
+    found
 }
 
 /// Reads messages one at a time; see [`McapLog::reader`].
@@ -387,7 +585,12 @@ impl MessageReader {
 }
 
 enum Source {
-    Indexed(Box<IndexedReader>),
+    Indexed {
+        reader: Box<IndexedReader>,
+        /// Where compressed chunks are decompressed to be checked (kept
+        /// to reuse its allocation).
+        records: Vec<u8>,
+    },
     Linear {
         reader: Box<LinearReader>,
         pos: usize,
@@ -403,8 +606,8 @@ struct FileReader {
 
 impl FileReader {
     fn new(file: &LogFile, filter: &ReadFilter) -> Self {
-        match &file.summary {
-            Some(summary) => {
+        match (&file.summary, &file.plain) {
+            (Some(summary), Some(plain)) => {
                 let mut options =
                     IndexedReaderOptions::new().with_record_length_limit(MAX_RECORD_BYTES);
                 if let Some(topics) = &filter.topics {
@@ -421,8 +624,11 @@ impl FileReader {
                     .iter()
                     .map(|(id, c)| (*id, Arc::new(channel_of(c))))
                     .collect();
-                let source = match IndexedReader::new_with_options(summary, options) {
-                    Ok(r) => Source::Indexed(Box::new(r)),
+                let source = match IndexedReader::new_with_options(&plain.summary, options) {
+                    Ok(r) => Source::Indexed {
+                        reader: Box::new(r),
+                        records: Vec::new(),
+                    },
                     Err(e) => Source::Failed(Some(file.error(e))),
                 };
                 FileReader {
@@ -431,13 +637,15 @@ impl FileReader {
                     schemas: HashMap::new(),
                 }
             }
-            None => Self::linear(file, filter),
+            _ => Self::linear(file, filter),
         }
     }
 
     fn linear(_file: &LogFile, _filter: &ReadFilter) -> Self {
+        // Checking a chunk's CRC only after its last record (the reader's
+        // `validate_chunk_crcs`) would hand out the records before it.
         let options = LinearReaderOptions::default()
-            .with_validate_chunk_crcs(true)
+            .with_prevalidate_chunk_crcs(true)
             .with_record_length_limit(MAX_RECORD_BYTES);
         FileReader {
             source: Source::Linear {
@@ -464,21 +672,27 @@ impl FileReader {
         } = self;
         match source {
             Source::Failed(e) => e.take().map(Err),
-            Source::Indexed(reader) => loop {
+            Source::Indexed { reader, records } => loop {
                 match reader.next_event()? {
                     Err(e) => return Some(Err(file.error(e))),
-                    Ok(IndexedReadEvent::ReadChunkRequest { offset, length }) => {
-                        let start = offset as usize;
-                        let Some(bytes) = file.map.get(start..start.saturating_add(length)) else {
+                    Ok(IndexedReadEvent::ReadChunkRequest { offset, .. }) => {
+                        // `plain` exists whenever the reader is indexed.
+                        let Some(index) = file.plain.as_ref().and_then(|p| p.original.get(&offset))
+                        else {
                             return Some(Err(file.error(format!(
-                                "chunk at byte {offset} runs past the end of the file \
-                                 ({} bytes); the file is truncated",
-                                file.map.len()
+                                "the index asked for an unknown chunk (data at byte {offset})"
                             ))));
                         };
-                        if let Err(e) = reader.insert_chunk_record_data(offset, bytes) {
+                        let at = index.chunk_start_offset;
+                        let plain = match unpack_chunk(&file.map, index, records) {
+                            Ok(plain) => plain,
+                            Err(e) => {
+                                return Some(Err(file.error(chunk_problem(at, &file.map, e))))
+                            }
+                        };
+                        if let Err(e) = reader.insert_chunk_record_data(offset, plain) {
                             return Some(Err(
-                                file.error(format!("chunk at byte {offset} is corrupt: {e}"))
+                                file.error(format!("chunk at byte {at} is corrupt: {e}"))
                             ));
                         }
                     }
@@ -506,6 +720,17 @@ impl FileReader {
             },
             Source::Linear { reader, pos } => loop {
                 match reader.next_event()? {
+                    Err(McapError::BadChunkCrc { saved, calculated }) => {
+                        let reason = match chunk_before(&file.map, *pos) {
+                            Some(at) => crc_mismatch(at as u64, saved, calculated),
+                            None => format!(
+                                "a chunk before byte {pos} is corrupt: {}",
+                                McapError::BadChunkCrc { saved, calculated }
+                            ),
+                        };
+                        *source = Source::Failed(None);
+                        return Some(Err(file.error(reason)));
+                    }
                     Err(e) => {
                         let err = file.error(format!(
                             "unreadable near byte {pos} of {}: {e} (truncated or corrupt file)",
