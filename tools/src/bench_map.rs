@@ -74,7 +74,8 @@ struct Report {
 pub fn run(b: MapBench) -> Result<()> {
     let mut cfg = match &b.config {
         Some(p) => MapperConfig::from_toml(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+            &latentam::io::read_input_to_string(p)
+                .with_context(|| format!("reading {}", p.display()))?,
         )?,
         None => MapperConfig::default(),
     };

@@ -38,7 +38,7 @@ impl ConfigArgs {
     pub fn load_over(&self, base: MapperConfig) -> Result<MapperConfig> {
         let base = match &self.config {
             Some(p) => {
-                let text = std::fs::read_to_string(p)
+                let text = latentam::io::read_input_to_string(p)
                     .with_context(|| format!("reading {}", p.display()))?;
                 MapperConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
             }

@@ -112,7 +112,7 @@ struct EvalReport {
 /// run than the state's is refused.
 fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_json::Value>> {
     let path = dir.join("report.json");
-    let Ok(text) = std::fs::read_to_string(&path) else {
+    let Ok(text) = latentam::io::read_input_to_string(&path) else {
         return Ok(None);
     };
     let report: serde_json::Value =

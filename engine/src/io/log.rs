@@ -284,7 +284,7 @@ fn channel_of(c: &mcap::Channel<'_>) -> Channel {
 
 impl LogFile {
     fn open(path: PathBuf) -> Result<Self, InputError> {
-        let file = std::fs::File::open(&path).map_err(|source| InputError::Io {
+        let file = super::open_input(&path).map_err(|source| InputError::Io {
             path: path.clone(),
             source,
         })?;

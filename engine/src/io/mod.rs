@@ -7,6 +7,8 @@
 //!   files live in `engine/msg/`);
 //! * [`McapLog`]: memory-mapped, indexed reading of a file or a rosbag2
 //!   directory;
+//! * [`open_input`] and friends: opening what a user names as an input
+//!   only when it is a regular file (a FIFO would block forever);
 //! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
@@ -33,6 +35,7 @@ mod class_names;
 pub mod codec;
 mod frame;
 mod frames;
+mod input;
 mod log;
 pub mod messages;
 pub mod ply;
@@ -55,6 +58,7 @@ pub use frames::{
     read_vocabulary, AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource,
     Topics, Vocabulary, MAX_EMBEDDING_DIM,
 };
+pub use input::{check_input_file, open_input, read_input, read_input_to_string};
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,
 };

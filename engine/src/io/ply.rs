@@ -28,7 +28,6 @@
 //! damaged files are errors, never panics or huge allocations.
 
 use std::collections::HashSet;
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 
@@ -127,7 +126,7 @@ pub fn read_ply(path: &Path) -> Result<PlyMap> {
     };
     let bad = |message: String| Error::InvalidArgument(format!("{}: {message}", path.display()));
 
-    let file = File::open(path).map_err(io_err)?;
+    let file = super::open_input(path).map_err(io_err)?;
     let file_len = file.metadata().map_err(io_err)?.len();
     let mut reader = BufReader::with_capacity(1 << 20, file);
     let (header, header_len) = read_header(&mut reader).map_err(|e| match e {

@@ -71,7 +71,7 @@ pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
 /// eight numbers, a negative timestamp, a non-finite value or a zero
 /// quaternion is [`Error::InvalidArgument`] naming the file and line.
 pub fn read_tum(path: &Path) -> Result<Vec<(u64, CameraPose)>> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+    let text = super::read_input_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
         source,
     })?;

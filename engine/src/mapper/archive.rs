@@ -224,7 +224,7 @@ impl Archive<'static> {
     /// Reads and checks `path` as an archive of format `format`, version
     /// `version`; `what` names it in errors.
     pub fn open_as(path: &Path, format: &str, version: u32, what: &str) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| io_error(path, "reading", e))?;
+        let bytes = crate::io::read_input(path).map_err(|e| io_error(path, "reading", e))?;
         Archive::parse_as(Cow::Owned(bytes), path, format, version, what)
     }
 }

@@ -51,7 +51,7 @@ impl Dataset {
 }
 
 fn read_text(path: &Path) -> anyhow::Result<String> {
-    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+    latentam::io::read_input_to_string(path).with_context(|| format!("reading {}", path.display()))
 }
 
 /// A camera-to-world pose from a row-major 4×4 matrix, checked to be rigid.

@@ -86,7 +86,7 @@ impl From<Npy> for Tensor {
 }
 
 fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("reading {}", path.display()))
+    latentam::io::read_input(path).with_context(|| format!("reading {}", path.display()))
 }
 
 fn safetensors_tensor(
@@ -267,7 +267,7 @@ impl FeatureDir {
         }
         let model = match model {
             Some(m) => Some(m),
-            None => std::fs::read_to_string(dir.join("model.txt"))
+            None => latentam::io::read_input_to_string(&dir.join("model.txt"))
                 .ok()
                 .map(|s| s.trim().to_string()),
         };

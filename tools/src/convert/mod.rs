@@ -206,7 +206,7 @@ pub fn convert(
                 summary.poses += 1;
             }
             Event::Depth(s) => {
-                let bytes = std::fs::read(&s.path)
+                let bytes = latentam::io::read_input(&s.path)
                     .with_context(|| format!("reading {}", s.path.display()))?;
                 let (w, h, mut values) = codec::decode_png_u16(&bytes)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
@@ -231,7 +231,7 @@ pub fn convert(
                 summary.depth += 1;
             }
             Event::Color(s) => {
-                let bytes = std::fs::read(&s.path)
+                let bytes = latentam::io::read_input(&s.path)
                     .with_context(|| format!("reading {}", s.path.display()))?;
                 check_payload(&s.path.display().to_string(), bytes.len())?;
                 let (w, h, format) = codec::compressed_image_size(&bytes)
