@@ -8,16 +8,80 @@ use super::frame::{ColorImage, DepthData, DepthImage, LabelImage, PixelFormat};
 use super::messages::{CompressedImage, Image};
 use super::report::Rejection;
 
-/// Rejects images larger than this many pixels per side: no camera makes
-/// them, and a corrupt size field must not make the engine allocate
-/// gigabytes.
-pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Rejects images larger than this many pixels per side. RGB-D cameras
+/// give 640×480 to 1280×720 (a few reach 4K); a corrupt or hostile size
+/// field must not make the engine allocate gigabytes.
+pub const MAX_IMAGE_SIDE: u32 = 8192;
+
+/// Rejects images of more pixels than this (32 Mi, 8192×4096: 8K UHD's
+/// 7680×4320 fits). Decoded, that is at most 128 MiB of RGBA colour or
+/// 64 MiB of 16-bit depth, which bounds what one compressed image can make
+/// the engine allocate however small the file.
+pub const MAX_IMAGE_PIXELS: u64 = 8192 * 4096;
+
+fn within_limits(width: u32, height: u32) -> bool {
+    width > 0
+        && height > 0
+        && width <= MAX_IMAGE_SIDE
+        && height <= MAX_IMAGE_SIDE
+        && width as u64 * height as u64 <= MAX_IMAGE_PIXELS
+}
 
 fn check_size(what: &'static str, width: u32, height: u32) -> Result<(), Rejection> {
-    if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+    if !within_limits(width, height) {
         return Err(Rejection::new(
             what,
-            format!("image size {width}×{height} is empty or beyond {MAX_IMAGE_SIDE} per side"),
+            format!(
+                "image size {width}×{height} is empty or beyond the limit of {MAX_IMAGE_SIDE} \
+                 per side and {MAX_IMAGE_PIXELS} pixels"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The size a compressed image must have, when the frame it belongs to
+/// already says (its camera info, or the other image of the pair).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ExpectedSize {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// The rejection kind when the image declares another size.
+    pub kind: &'static str,
+    /// Where the size comes from, for the message, e.g. "the depth image".
+    pub from: &'static str,
+}
+
+/// Checks the size a compressed image's header declares, before a byte of
+/// it is decoded: a few kilobytes of PNG can declare gigabytes of pixels,
+/// which would otherwise be allocated (and decoded) before being refused.
+fn check_declared(
+    what: &'static str,
+    format: &str,
+    (width, height): (u32, u32),
+    expected: Option<ExpectedSize>,
+) -> Result<(), Rejection> {
+    if let Some(e) = expected {
+        if (width, height) != (e.width, e.height) {
+            return Err(Rejection::new(
+                e.kind,
+                format!(
+                    "the {format} declares {width}×{height} pixels but {} is {}×{}; \
+                     refused before decoding",
+                    e.from, e.width, e.height
+                ),
+            ));
+        }
+    }
+    if !within_limits(width, height) {
+        return Err(Rejection::new(
+            what,
+            format!(
+                "the {format} declares {width}×{height} pixels, empty or beyond the limit of \
+                 {MAX_IMAGE_SIDE} per side and {MAX_IMAGE_PIXELS} pixels; refused before decoding"
+            ),
         ));
     }
     Ok(())
@@ -129,17 +193,22 @@ pub(crate) fn color_from_image_into(
     })
 }
 
-/// A colour image from a JPEG or PNG `CompressedImage`.
-pub fn color_from_compressed(msg: &CompressedImage<'_>) -> Result<ColorImage, Rejection> {
+/// A colour image from a JPEG or PNG `CompressedImage`, refused before
+/// decoding when its header declares a size other than `expected`'s or
+/// beyond [`MAX_IMAGE_SIDE`] / [`MAX_IMAGE_PIXELS`].
+pub fn color_from_compressed(
+    msg: &CompressedImage<'_>,
+    expected: Option<ExpectedSize>,
+) -> Result<ColorImage, Rejection> {
     let format = msg.format.to_ascii_lowercase();
     let is_png = msg.data.starts_with(b"\x89PNG");
     if format.contains("png") || (is_png && !format.contains("jp")) {
-        decode_png_color(msg.data)
+        decode_png_color(msg.data, expected)
     } else if format.contains("jpeg")
         || format.contains("jpg")
         || msg.data.starts_with(&[0xff, 0xd8])
     {
-        decode_jpeg(msg.data)
+        jpeg(msg.data, expected)
     } else {
         Err(Rejection::new(
             "colour: unsupported encoding",
@@ -150,16 +219,21 @@ pub fn color_from_compressed(msg: &CompressedImage<'_>) -> Result<ColorImage, Re
 
 /// Decodes a JPEG file to RGB (grey JPEGs to mono).
 pub fn decode_jpeg(bytes: &[u8]) -> Result<ColorImage, Rejection> {
+    jpeg(bytes, None)
+}
+
+fn jpeg(bytes: &[u8], expected: Option<ExpectedSize>) -> Result<ColorImage, Rejection> {
     let bad = |e: String| Rejection::new("colour: corrupt compressed image", format!("JPEG: {e}"));
     let mut decoder = zune_jpeg::JpegDecoder::new(Cursor::new(bytes));
     decoder.decode_headers().map_err(|e| bad(e.to_string()))?;
     let info = decoder
         .info()
         .ok_or_else(|| bad("no image header".into()))?;
-    check_size(
+    check_declared(
         "colour: size mismatch",
-        info.width as u32,
-        info.height as u32,
+        "JPEG",
+        (info.width as u32, info.height as u32),
+        expected,
     )?;
     let pixels = decoder.decode().map_err(|e| bad(e.to_string()))?;
     let (width, height) = (info.width as u32, info.height as u32);
@@ -182,11 +256,14 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<ColorImage, Rejection> {
 }
 
 /// Decodes a PNG to packed samples: (width, height, colour type, bit depth,
-/// bytes).
+/// bytes). `accept` sees the decoded colour type and bit depth (from the
+/// header) before anything is decoded.
 fn decode_png(
     bytes: &[u8],
     what: &'static str,
     strip_16: bool,
+    expected: Option<ExpectedSize>,
+    accept: impl FnOnce(png::ColorType, png::BitDepth) -> Result<(), Rejection>,
 ) -> Result<(u32, u32, png::ColorType, png::BitDepth, Vec<u8>), Rejection> {
     let bad = |e: String| Rejection::new(what, format!("PNG: {e}"));
     let mut decoder = png::Decoder::new(Cursor::new(bytes));
@@ -197,7 +274,10 @@ fn decode_png(
     decoder.set_transformations(t);
     let mut reader = decoder.read_info().map_err(|e| bad(e.to_string()))?;
     let (w, h) = (reader.info().width, reader.info().height);
-    check_size(what, w, h)?;
+    check_declared(what, "PNG", (w, h), expected)?;
+    // The type after the transformations, which is what is decoded.
+    let (color, depth) = reader.output_color_type();
+    accept(color, depth)?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| bad("image too large".into()))?;
@@ -215,9 +295,10 @@ fn decode_png(
     ))
 }
 
-fn decode_png_color(bytes: &[u8]) -> Result<ColorImage, Rejection> {
+fn decode_png_color(bytes: &[u8], expected: Option<ExpectedSize>) -> Result<ColorImage, Rejection> {
     let what = "colour: corrupt compressed image";
-    let (width, height, color, _, mut data) = decode_png(bytes, what, true)?;
+    let (width, height, color, _, mut data) =
+        decode_png(bytes, what, true, expected, |_, _| Ok(()))?;
     let format = match color {
         png::ColorType::Rgb => PixelFormat::Rgb8,
         png::ColorType::Rgba => PixelFormat::Rgba8,
@@ -287,9 +368,12 @@ pub(crate) fn depth_from_image_into(
 /// A depth image from a `compressedDepth` message (`16UC1; compressedDepth
 /// png`, or `32FC1; compressedDepth png` with inverse-depth quantisation):
 /// a 12-byte configuration header (format, quantisation A and B) then a PNG.
+/// Refused before decoding when the PNG declares a size other than
+/// `expected`'s or beyond the limits.
 pub fn depth_from_compressed(
     msg: &CompressedImage<'_>,
     metres_per_unit: f32,
+    expected: Option<ExpectedSize>,
 ) -> Result<DepthImage, Rejection> {
     let what = "depth: corrupt compressed image";
     let original = msg.format.split(';').next().unwrap_or("").trim();
@@ -316,8 +400,14 @@ pub fn depth_from_compressed(
             "no PNG after the compressedDepth header",
         ));
     };
-    let (width, height, values) =
-        decode_png_u16(png_bytes).map_err(|e| Rejection::new(what, e.detail))?;
+    let (width, height, values) = png_u16(png_bytes, expected).map_err(|e| {
+        // A size the frame rules out keeps its own kind.
+        if expected.is_some_and(|x| x.kind == e.kind) {
+            e
+        } else {
+            Rejection::new(what, e.detail)
+        }
+    })?;
     let data = match original {
         "32FC1" => {
             let (a, b) = quant.ok_or_else(|| {
@@ -347,14 +437,23 @@ pub fn depth_from_compressed(
 
 /// Decodes a 16-bit grey PNG (depth or label images) to row-major samples.
 pub fn decode_png_u16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), Rejection> {
+    png_u16(bytes, None)
+}
+
+fn png_u16(
+    bytes: &[u8],
+    expected: Option<ExpectedSize>,
+) -> Result<(u32, u32, Vec<u16>), Rejection> {
     let what = "depth: corrupt compressed image";
-    let (width, height, color, depth, bytes) = decode_png(bytes, what, false)?;
-    if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
-        return Err(Rejection::new(
-            what,
-            format!("PNG is {color:?} {depth:?}, expected 16-bit grey"),
-        ));
-    }
+    let (width, height, _, _, bytes) = decode_png(bytes, what, false, expected, |color, depth| {
+        if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
+            return Err(Rejection::new(
+                what,
+                format!("PNG is {color:?} {depth:?}, expected 16-bit grey"),
+            ));
+        }
+        Ok(())
+    })?;
     // PNG stores 16-bit samples big-endian.
     Ok((width, height, u16_samples(&bytes, true)))
 }
@@ -363,7 +462,7 @@ pub fn decode_png_u16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), Rejection> {
 /// written either way).
 pub fn decode_png_labels(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), Rejection> {
     let what = "labels: corrupt image";
-    let (width, height, color, depth, bytes) = decode_png(bytes, what, false)?;
+    let (width, height, color, depth, bytes) = decode_png(bytes, what, false, None, |_, _| Ok(()))?;
     match (color, depth) {
         (png::ColorType::Grayscale, png::BitDepth::Sixteen) => {
             Ok((width, height, u16_samples(&bytes, true)))
@@ -526,7 +625,7 @@ mod tests {
             format: "16UC1; compressedDepth png",
             data: &payload,
         };
-        let d = depth_from_compressed(&msg, 0.001).unwrap();
+        let d = depth_from_compressed(&msg, 0.001, None).unwrap();
         assert_eq!((d.width, d.height), (4, 3));
         assert_eq!(
             d.data,
@@ -540,14 +639,17 @@ mod tests {
                 data: &payload[..cut],
                 ..msg
             };
-            assert!(depth_from_compressed(&bad, 0.001).is_err(), "cut {cut}");
+            assert!(
+                depth_from_compressed(&bad, 0.001, None).is_err(),
+                "cut {cut}"
+            );
         }
         let jpeg = CompressedImage {
             format: "jpeg",
             ..msg
         };
         assert_eq!(
-            depth_from_compressed(&jpeg, 0.001).unwrap_err().kind,
+            depth_from_compressed(&jpeg, 0.001, None).unwrap_err().kind,
             "depth: unsupported encoding"
         );
         // A colour PNG is not depth.
@@ -556,7 +658,111 @@ mod tests {
             data: &payload[12..],
             ..msg
         };
-        let c = color_from_compressed(&grey8).unwrap();
+        let c = color_from_compressed(&grey8, None).unwrap();
         assert_eq!((c.width, c.height, c.format), (4, 3, PixelFormat::Mono8));
+    }
+
+    /// A valid all-zero PNG of `side × side` pixels (8-bit grey, or 16-bit
+    /// when `wide`), written row by row so that building it allocates one
+    /// row, not the image: a few hundred kilobytes for 16384².
+    fn zero_png(side: u32, wide: bool) -> Vec<u8> {
+        use std::io::Write;
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, side, side);
+        enc.set_color(png::ColorType::Grayscale);
+        let bytes_per_pixel = if wide {
+            enc.set_depth(png::BitDepth::Sixteen);
+            2
+        } else {
+            enc.set_depth(png::BitDepth::Eight);
+            1
+        };
+        enc.set_compression(png::Compression::Fast);
+        let mut header = enc.write_header().unwrap();
+        let mut w = header.stream_writer().unwrap();
+        let row = vec![0u8; side as usize * bytes_per_pixel];
+        for _ in 0..side {
+            w.write_all(&row).unwrap();
+        }
+        w.finish().unwrap();
+        header.finish().unwrap();
+        out
+    }
+
+    #[test]
+    fn huge_declared_sizes_are_refused_before_decoding() {
+        let huge = zero_png(16384, false);
+        assert!(huge.len() < 4 << 20, "{} bytes", huge.len());
+        let msg = CompressedImage {
+            header: Header::default(),
+            format: "png",
+            data: &huge,
+        };
+        // Decoding 256 MiB of pixels takes seconds; the header alone, none.
+        let started = std::time::Instant::now();
+        let e = color_from_compressed(&msg, None).unwrap_err();
+        assert_eq!(e.kind, "colour: corrupt compressed image", "{e}");
+        assert!(
+            e.detail.contains("declares 16384×16384 pixels")
+                && e.detail.contains("refused before decoding"),
+            "{e}"
+        );
+        assert!(decode_png_labels(&huge).is_err());
+        assert!(started.elapsed() < std::time::Duration::from_millis(500));
+
+        // Within 8192 per side but over the pixel limit; and depth.
+        let wide = zero_png(8192, true);
+        let mut payload = vec![0u8; 12];
+        payload.extend_from_slice(&wide);
+        let depth = CompressedImage {
+            format: "16UC1; compressedDepth png",
+            data: &payload,
+            ..msg
+        };
+        let e = depth_from_compressed(&depth, 0.001, None).unwrap_err();
+        assert_eq!(e.kind, "depth: corrupt compressed image", "{e}");
+        assert!(e.detail.contains("declares 8192×8192 pixels"), "{e}");
+        assert!(decode_png_u16(&wide).is_err());
+    }
+
+    #[test]
+    fn a_size_the_frame_rules_out_is_refused_before_decoding() {
+        let values: Vec<u16> = (0..12).collect();
+        let payload = encode_compressed_depth_u16(4, 3, &values);
+        let depth = CompressedImage {
+            header: Header::default(),
+            format: "16UC1; compressedDepth png",
+            data: &payload,
+        };
+        let expect = |width, height, kind| ExpectedSize {
+            width,
+            height,
+            kind,
+            from: "the camera info",
+        };
+        let e = depth_from_compressed(
+            &depth,
+            0.001,
+            Some(expect(640, 480, "depth: size mismatch")),
+        )
+        .unwrap_err();
+        assert_eq!(e.kind, "depth: size mismatch");
+        assert_eq!(
+            e.detail,
+            "the PNG declares 4×3 pixels but the camera info is 640×480; refused before decoding"
+        );
+        let d = depth_from_compressed(&depth, 0.001, Some(expect(4, 3, "depth: size mismatch")));
+        let d = d.unwrap();
+        assert_eq!((d.width, d.height), (4, 3));
+
+        let colour = CompressedImage {
+            format: "png",
+            data: &payload[12..],
+            ..depth
+        };
+        let e = color_from_compressed(&colour, Some(expect(4, 4, "frame: depth size differs")))
+            .unwrap_err();
+        assert_eq!(e.kind, "frame: depth size differs");
+        assert!(color_from_compressed(&colour, Some(expect(4, 3, "x"))).is_ok());
     }
 }

@@ -480,9 +480,17 @@ impl FrameAssembler {
                 let scale = self.config.depth_metres_per_unit;
                 let (stamp, depth) = if ty == CompressedImage::TYPE_NAME {
                     let m = CompressedImage::decode(data).map_err(undecodable)?;
+                    let expected = self
+                        .camera_size()
+                        .map(|(width, height)| codec::ExpectedSize {
+                            width,
+                            height,
+                            kind: "depth: size mismatch",
+                            from: "the camera info",
+                        });
                     (
                         m.header.stamp.as_nanos(),
-                        codec::depth_from_compressed(&m, scale),
+                        codec::depth_from_compressed(&m, scale, expected),
                     )
                 } else {
                     let m = Image::decode(data).map_err(undecodable)?;
@@ -585,6 +593,15 @@ impl FrameAssembler {
             };
             *mark = Some(mark.map_or(stamp, |m| m.max(stamp)));
         }
+    }
+
+    /// The image size the intrinsics state, when they state one.
+    fn camera_size(&self) -> Option<(u32, u32)> {
+        let k = match (&self.config.intrinsics, &self.camera_info) {
+            (Some(k), _) | (None, Some(Ok(k))) => k,
+            _ => return None,
+        };
+        (k.width > 0 && k.height > 0).then_some((k.width, k.height))
     }
 
     fn note_color_frame(&mut self, frame_id: &str) {
@@ -786,13 +803,19 @@ impl FrameAssembler {
         let pose = self.pose_at(t)?;
         let color = match pending {
             PendingColor::Raw(c) => c?,
-            PendingColor::Compressed { format, data } => {
-                codec::color_from_compressed(&CompressedImage {
+            PendingColor::Compressed { format, data } => codec::color_from_compressed(
+                &CompressedImage {
                     header: Default::default(),
                     format: &format,
                     data: &data,
-                })?
-            }
+                },
+                Some(codec::ExpectedSize {
+                    width: depth.width,
+                    height: depth.height,
+                    kind: "frame: depth size differs from colour",
+                    from: "the depth image",
+                }),
+            )?,
         };
         if (depth.width, depth.height) != (color.width, color.height) {
             return Err(Rejection::new(
@@ -987,7 +1010,11 @@ fn mask_embeddings(m: &MaskFeatures<'_>, pool: &mut BufferPool) -> Result<Embedd
     let kind = "embeddings: size mismatch";
     let dtype = check_vectors(kind, m.count as u64, m.dim, m.dtype, m.data.len())?;
     let pixels = m.width as u64 * m.height as u64;
-    if pixels == 0 || m.width > codec::MAX_IMAGE_SIDE || m.height > codec::MAX_IMAGE_SIDE {
+    if pixels == 0
+        || pixels > codec::MAX_IMAGE_PIXELS
+        || m.width > codec::MAX_IMAGE_SIDE
+        || m.height > codec::MAX_IMAGE_SIDE
+    {
         return Err(Rejection::new(
             kind,
             format!("label image {}×{}", m.width, m.height),

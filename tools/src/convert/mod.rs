@@ -217,7 +217,7 @@ pub fn convert(
                     }
                 }
                 // `values` holds the w × h samples `decode_png_u16` returned
-                // (at most 16384² of them), as the encoder requires.
+                // (at most codec::MAX_IMAGE_PIXELS of them), as the encoder requires.
                 let data = codec::encode_compressed_depth_u16(w, h, &values);
                 log.write(
                     "/camera/depth/image_raw",
