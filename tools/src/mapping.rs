@@ -17,7 +17,8 @@ use std::time::Instant;
 use anyhow::{Context as _, Result};
 use latentam::gpu::{Context, ContextOptions, KernelStats};
 use latentam::io::{
-    write_ply, write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog,
+    write_ply, write_ply_without_latents, write_tum, AssemblyConfig, CameraPose, IngestReport,
+    McapFrames, McapLog,
 };
 use latentam::mapper::budget::MemorySplit;
 use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
@@ -475,7 +476,12 @@ impl Run {
         );
         write_text(&dir.join("config.toml"), &config)?;
         let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
-        write_ply(&dir.join("map.ply"), &gaussians, &[])?;
+        // A map without embeddings has no meaningful queries to write.
+        if self.mapper.online_ref().head().is_some() {
+            write_ply(&dir.join("map.ply"), &gaussians, &[])?;
+        } else {
+            write_ply_without_latents(&dir.join("map.ply"), &gaussians, &[])?;
+        }
         drop(gaussians);
         write_tum(&dir.join("trajectory.txt"), &self.trajectory())?;
         let profile = self.ctx.profiler_snapshot();

@@ -593,6 +593,12 @@ fn query_misuse_is_a_clear_error() {
         os("--embeddings-topic"),
         os("/none"),
     ]);
+    // Mapped without embeddings: no latent properties, no decoder.
+    let ply = std::fs::read(plain.join("map.ply")).unwrap();
+    let end = ply.windows(10).position(|w| w == b"end_header").unwrap();
+    assert!(!String::from_utf8_lossy(&ply[..end]).contains("latent_"));
+    assert!(!plain.join("decoder.safetensors").exists());
+    assert!(latentam::io::read_ply(&plain.join("map.ply")).is_ok());
     let short = dir.join("short.npy");
     write_npy(&short, &[1.0; 8]);
     let zeros = dir.join("zeros.npy");

@@ -190,51 +190,43 @@ impl Profiler {
     /// Perfetto): one complete event per command, one track per queue,
     /// times relative to the first sample.
     pub fn write_chrome_trace(&self, path: &Path) -> Result<()> {
-        #[derive(serde::Serialize)]
-        struct Event {
-            name: &'static str,
-            cat: &'static str,
-            ph: &'static str,
-            ts: f64,
-            dur: f64,
-            pid: u32,
-            tid: &'static str,
-        }
-        #[derive(serde::Serialize)]
-        struct Other {
-            samples_not_traced: u64,
-        }
-        #[derive(serde::Serialize)]
-        #[serde(rename_all = "camelCase")]
-        struct Trace {
-            trace_events: Vec<Event>,
-            display_time_unit: &'static str,
-            other_data: Other,
-        }
+        // Queues become numbered threads of one process, named by metadata
+        // events, which is what trace viewers key their tracks on.
+        let mut queues: Vec<&'static str> = self.samples.iter().map(|s| s.queue).collect();
+        queues.sort_unstable();
+        queues.dedup();
+        let tid = |q: &str| queues.iter().position(|&n| n == q).map_or(0, |i| i + 1);
         let t0 = self
             .samples
             .iter()
             .map(|s| s.start_ns)
             .fold(f64::INFINITY, f64::min);
-        let doc = Trace {
-            trace_events: self
-                .samples
-                .iter()
-                .map(|s| Event {
-                    name: s.name,
-                    cat: "gpu",
-                    ph: "X",
-                    ts: (s.start_ns - t0) * 1e-3,
-                    dur: s.duration_ns * 1e-3,
-                    pid: 1,
-                    tid: s.queue,
-                })
-                .collect(),
-            display_time_unit: "ms",
-            other_data: Other {
-                samples_not_traced: self.dropped,
-            },
-        };
+        let mut events = vec![serde_json::json!({
+            "name": "process_name", "ph": "M", "pid": 1, "tid": 0,
+            "args": { "name": "latentam GPU" },
+        })];
+        for q in &queues {
+            events.push(serde_json::json!({
+                "name": "thread_name", "ph": "M", "pid": 1, "tid": tid(q),
+                "args": { "name": format!("{q} queue") },
+            }));
+        }
+        events.extend(self.samples.iter().map(|s| {
+            serde_json::json!({
+                "name": s.name,
+                "cat": "gpu",
+                "ph": "X",
+                "ts": (s.start_ns - t0) * 1e-3,
+                "dur": s.duration_ns * 1e-3,
+                "pid": 1,
+                "tid": tid(s.queue),
+            })
+        }));
+        let doc = serde_json::json!({
+            "traceEvents": events,
+            "displayTimeUnit": "ms",
+            "otherData": { "samples_not_traced": self.dropped },
+        });
         crate::io::write_atomically(path, |f| {
             serde_json::to_writer(&mut *f, &doc)?;
             f.flush()

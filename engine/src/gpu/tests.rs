@@ -110,10 +110,18 @@ fn profiler_times_every_dispatch_and_writes_a_chrome_trace() {
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         let events = v["traceEvents"].as_array().unwrap();
-        assert_eq!(events.len(), 3);
-        assert!(events
+        let (meta, spans): (Vec<_>, Vec<_>) = events.iter().partition(|e| e["ph"] == "M");
+        assert_eq!(spans.len(), 3);
+        assert!(spans
             .iter()
-            .all(|e| e["ph"] == "X" && e["dur"].as_f64().unwrap() >= 0.0));
+            .all(|e| e["ph"] == "X" && e["dur"].as_f64().unwrap() >= 0.0 && e["tid"].is_u64()));
+        // The process and every thread the spans use are named.
+        assert!(meta.iter().any(|e| e["name"] == "process_name"));
+        for s in &spans {
+            assert!(meta
+                .iter()
+                .any(|m| m["name"] == "thread_name" && m["tid"] == s["tid"]));
+        }
         std::fs::remove_file(&path).ok();
     });
 }

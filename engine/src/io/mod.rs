@@ -66,7 +66,7 @@ pub use messages::{
     CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
-pub use ply::{read_ply, write_ply, PlyMap};
+pub use ply::{read_ply, unit_quat, write_ply, write_ply_without_latents, PlyMap};
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
 pub use trajectory::{read_tum, write_tum};

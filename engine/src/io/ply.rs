@@ -12,13 +12,13 @@
 //! | `f_dc_0..2` | `(color − 0.5) / C0` | degree-0 spherical harmonics, which viewers turn back into `0.5 + C0 · f_dc`, so they show the engine's view-independent colour; `C0 = 1 / (2√π)` |
 //! | `opacity` | [`Gaussian::opacity_logit`] | viewers apply the sigmoid |
 //! | `scale_0..2` | [`Gaussian::log_scale`] | viewers apply `exp` |
-//! | `rot_0..3` | [`Gaussian::quat`] as `w, x, y, z` | the Inria order; viewers normalise |
-//! | `latent_0..31` | [`Gaussian::query`] | the engine's own; viewers ignore unknown properties |
+//! | `rot_0..3` | [`Gaussian::quat`] normalised ([`unit_quat`]), as `w, x, y, z` | the Inria order; the engine keeps its quaternions unnormalised (it normalises when rendering), tools expect unit ones |
+//! | `latent_0..31` | [`Gaussian::query`] | the engine's own; viewers ignore unknown properties; left out by [`write_ply_without_latents`] for maps without embeddings |
 //!
 //! followed by any extra per-Gaussian properties the caller names (a
-//! relevance score, say), also `float`. Every value except the colour is
-//! stored bit for bit, so a map written and read back optimises and decodes
-//! exactly as before.
+//! relevance score, say), also `float`. Every value except the colour and
+//! the rotation's length is stored bit for bit, so a map written and read
+//! back renders and decodes exactly as before.
 //!
 //! The reader goes by property name, so it also takes files from other
 //! tools: any property order, any numeric property type, unknown properties
@@ -47,7 +47,8 @@ const BASE_PROPERTIES: [&str; 17] = [
     "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
 ];
 
-/// Floats per Gaussian before any extra property.
+/// Floats per Gaussian before any extra property (latents written).
+#[cfg(test)]
 const STANDARD_FLOATS: usize = BASE_PROPERTIES.len() + QUERY_DIM;
 
 /// The longest header the reader accepts: far more than any real property
@@ -82,17 +83,51 @@ pub struct PlyMap {
 /// is flushed and synced, and is then renamed over `path`, so a reader
 /// never sees half a map, and a crash leaves any previous file intact.
 pub fn write_ply(path: &Path, gaussians: &[Gaussian], extra: &[(&str, &[f32])]) -> Result<()> {
+    write_ply_as(path, gaussians, extra, true)
+}
+
+/// [`write_ply`] without the `latent_*` properties: for a map built
+/// without embeddings, whose queries mean nothing.
+pub fn write_ply_without_latents(
+    path: &Path,
+    gaussians: &[Gaussian],
+    extra: &[(&str, &[f32])],
+) -> Result<()> {
+    write_ply_as(path, gaussians, extra, false)
+}
+
+/// A quaternion scaled to unit length (computed in f64); the identity for
+/// one of zero or non-finite length.
+pub fn unit_quat(q: [f32; 4]) -> [f32; 4] {
+    let n = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
+    if n > 0.0 && n.is_finite() {
+        q.map(|v| (f64::from(v) / n) as f32)
+    } else {
+        [1.0, 0.0, 0.0, 0.0]
+    }
+}
+
+fn write_ply_as(
+    path: &Path,
+    gaussians: &[Gaussian],
+    extra: &[(&str, &[f32])],
+    latents: bool,
+) -> Result<()> {
     validate_extra(gaussians.len(), extra)?;
-    let header = header_text(gaussians.len(), extra.iter().map(|(name, _)| *name));
+    let header = header_text(
+        gaussians.len(),
+        latents,
+        extra.iter().map(|(name, _)| *name),
+    );
     write_atomically(path, |out| {
         out.write_all(header.as_bytes())?;
-        let row_floats = STANDARD_FLOATS + extra.len();
+        let row_floats = BASE_PROPERTIES.len() + if latents { QUERY_DIM } else { 0 } + extra.len();
         let mut rows: Vec<f32> = Vec::with_capacity(ROWS_PER_CHUNK * row_floats);
         for (chunk_index, chunk) in gaussians.chunks(ROWS_PER_CHUNK).enumerate() {
             rows.clear();
             let first = chunk_index * ROWS_PER_CHUNK;
             for (i, g) in chunk.iter().enumerate() {
-                push_row(&mut rows, g);
+                push_row(&mut rows, g, latents);
                 rows.extend(extra.iter().map(|(_, values)| values[first + i]));
             }
             if cfg!(target_endian = "big") {
@@ -245,14 +280,17 @@ fn latent_index(name: &str) -> Option<usize> {
     digits.parse().ok()
 }
 
-fn header_text<'a>(count: usize, extra: impl Iterator<Item = &'a str>) -> String {
+fn header_text<'a>(count: usize, latents: bool, extra: impl Iterator<Item = &'a str>) -> String {
     let mut h = String::from("ply\nformat binary_little_endian 1.0\n");
     h += &format!(
-        "comment written by latentam {}\ncomment latent_dim {QUERY_DIM}\n",
+        "comment written by latentam {}\n",
         env!("CARGO_PKG_VERSION")
     );
+    if latents {
+        h += &format!("comment latent_dim {QUERY_DIM}\n");
+    }
     h += &format!("element vertex {count}\n");
-    let latents = (0..QUERY_DIM).map(|i| format!("latent_{i}"));
+    let latents = (0..if latents { QUERY_DIM } else { 0 }).map(|i| format!("latent_{i}"));
     let names = BASE_PROPERTIES
         .iter()
         .map(|s| s.to_string())
@@ -265,15 +303,17 @@ fn header_text<'a>(count: usize, extra: impl Iterator<Item = &'a str>) -> String
     h
 }
 
-fn push_row(rows: &mut Vec<f32>, g: &Gaussian) {
+fn push_row(rows: &mut Vec<f32>, g: &Gaussian, latents: bool) {
     let dc = g.color.map(|c| ((f64::from(c) - 0.5) / SH_C0) as f32);
     rows.extend_from_slice(&g.mean);
     rows.extend_from_slice(&[0.0; 3]);
     rows.extend_from_slice(&dc);
     rows.push(g.opacity_logit);
     rows.extend_from_slice(&g.log_scale);
-    rows.extend_from_slice(&g.quat);
-    rows.extend_from_slice(&g.query);
+    rows.extend_from_slice(&unit_quat(g.quat));
+    if latents {
+        rows.extend_from_slice(&g.query);
+    }
 }
 
 /// The parts of a header the reader uses.
@@ -609,7 +649,7 @@ mod tests {
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&a.mean), bits(&b.mean));
         assert_eq!(bits(&a.log_scale), bits(&b.log_scale));
-        assert_eq!(bits(&a.quat), bits(&b.quat));
+        assert_eq!(bits(&unit_quat(a.quat)), bits(&b.quat));
         assert_eq!(a.opacity_logit.to_bits(), b.opacity_logit.to_bits());
         assert_eq!(bits(&a.query), bits(&b.query));
         for (x, y) in a.color.iter().zip(&b.color) {
@@ -708,6 +748,50 @@ mod tests {
         assert!((floats[7] - 1.0).abs() < 1e-6, "0.5 + C0 is f_dc 1");
         assert_eq!(floats[13..17], [1.0, 0.0, 0.0, 0.0], "rot is w x y z");
         assert_eq!(floats[STANDARD_FLOATS], 0.75);
+    }
+
+    #[test]
+    fn rotations_are_written_unit_length_and_latents_only_when_asked() {
+        let dir = TempDir::new("ply");
+        let mut gs = random_gaussians(300, 9);
+        gs[0].quat = [0.0; 4];
+        gs[1].quat = [f32::NAN, 0.0, 0.0, 1.0];
+        gs[2].quat = [3.0, 0.0, 4.0, 0.0];
+        let path = dir.path().join("map.ply");
+        write_ply(&path, &gs, &[]).unwrap();
+        let back = read_ply(&path).unwrap().gaussians;
+        for (g, b) in gs.iter().zip(&back) {
+            let n: f64 = b
+                .quat
+                .iter()
+                .map(|&v| f64::from(v).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!((n - 1.0).abs() < 1e-6, "{:?} -> {:?}", g.quat, b.quat);
+        }
+        assert_eq!(back[0].quat, [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(back[1].quat, [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(back[2].quat, [0.6, 0.0, 0.8, 0.0]);
+        // The same rotation: a direction rotated by either agrees.
+        let rot =
+            |q: [f32; 4]| glam::Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize() * glam::Vec3::X;
+        for (g, b) in gs.iter().zip(&back).skip(3) {
+            assert!((rot(g.quat) - rot(b.quat)).length() < 1e-5);
+        }
+
+        // Without latents: no latent_* property, queries read back as 0,
+        // everything else as before.
+        let path = dir.path().join("geometry.ply");
+        write_ply_without_latents(&path, &gs, &[("score", &vec![0.5; 300])]).unwrap();
+        let text = std::fs::read(&path).unwrap();
+        let header = String::from_utf8_lossy(&text[..2048]);
+        assert!(!header.contains("latent_"), "{header}");
+        let map = read_ply(&path).unwrap();
+        assert_eq!(map.extra[0].1, vec![0.5; 300]);
+        for (g, b) in gs.iter().zip(&map.gaussians).skip(3) {
+            assert_eq!(b.query, [0.0; QUERY_DIM]);
+            assert_eq!((g.mean, g.log_scale), (b.mean, b.log_scale));
+        }
     }
 
     #[test]
