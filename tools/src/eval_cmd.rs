@@ -14,6 +14,7 @@ use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_class_names, read_vocabulary, McapFrames};
 use latentam::mapper::eval::{add_iou, mean_iou, Evaluator, ViewMetrics};
 use latentam::mapper::Mapper;
+use latentam_cli::progress::Stages;
 use serde::Serialize;
 
 #[derive(clap::Args)]
@@ -135,6 +136,9 @@ fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    if !args.quiet {
+        Stages::new("eval").start(format_args!("loading the map in {}", args.dir.display()));
+    }
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;

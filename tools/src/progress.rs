@@ -50,3 +50,31 @@ impl Progress {
         }
     }
 }
+
+/// Stages of a command whose work has no count to show (loading a map,
+/// scoring it), announced on stderr as they start, with the time since
+/// the command began: long silences on slow devices get an explanation.
+pub struct Stages {
+    label: &'static str,
+    start: Instant,
+}
+
+impl Stages {
+    /// Starts the clock for command `label`.
+    pub fn new(label: &'static str) -> Self {
+        Stages {
+            label,
+            start: Instant::now(),
+        }
+    }
+
+    /// Announces the next stage.
+    pub fn start(&self, what: impl std::fmt::Display) {
+        let _ = writeln!(
+            std::io::stderr().lock(),
+            "{} [{:>6.1} s] {what}",
+            self.label,
+            self.start.elapsed().as_secs_f64()
+        );
+    }
+}

@@ -13,6 +13,7 @@ use latentam::mapper::eval::Evaluator;
 use latentam::mapper::Mapper;
 use latentam::splat::QUERY_DIM;
 use latentam_cli::convert::features::read_vector;
+use latentam_cli::progress::Stages;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -125,6 +126,8 @@ fn parse_pose(s: &str) -> Result<DAffine3> {
 
 pub fn run(args: Args) -> Result<()> {
     let pose = args.view.as_deref().map(parse_pose).transpose()?;
+    let stages = Stages::new("query");
+    stages.start(format_args!("loading the map in {}", args.dir.display()));
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
@@ -194,6 +197,10 @@ pub fn run(args: Args) -> Result<()> {
     // One text of `dim` values, or the vocabulary's `names × dim` (its size
     // checked on reading), so `index < count` for the softmax.
     let count = texts.len() / dim;
+    stages.start(format_args!(
+        "scoring {} Gaussians against {what}",
+        mapper.global().len()
+    ));
     let scores = mapper.query_many(&texts)?;
     let rel = relevance.of(&scores, count);
     let mut gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
@@ -247,6 +254,7 @@ pub fn run(args: Args) -> Result<()> {
     println!("heat map: {}", out.display());
 
     if let (Some(pose), Some(png)) = (pose, &args.png) {
+        stages.start("rendering the relevance image");
         render_relevance(&ctx, &mut mapper, pose, &texts, count, &relevance, png)?;
         println!("relevance image: {}", png.display());
     }

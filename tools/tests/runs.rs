@@ -240,7 +240,14 @@ fn a_second_writer_is_refused_and_mixed_folders_do_not_load() {
         mixed.join("decoder.safetensors"),
     )
     .unwrap();
-    ok(&query(&mixed));
+    let out = query(&mixed);
+    ok(&out);
+    // Its stages are announced, so a slow device is not silent.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("loading the map") && stderr.contains("scoring"),
+        "{stderr}"
+    );
     std::fs::copy(b.join("report.json"), mixed.join("report.json")).unwrap();
     let eval = latentam()
         .arg("eval")
