@@ -1,6 +1,7 @@
 //! Ctrl-C during mapping: the first SIGINT (or SIGTERM) asks the run to
-//! stop after the frame in progress, so the run folder is still written
-//! with everything mapped so far; a second one exits at once, leaving the
+//! stop after the frame in progress (which skips its remaining
+//! optimisation steps), so the run folder is still written with
+//! everything mapped so far; a second one exits at once, leaving the
 //! run folder as its last save (it is only ever replaced whole).
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -15,8 +16,8 @@ extern "C" fn on_signal(_: libc::c_int) {
     // Said at once: the frame in progress may take a while on a slow
     // device.
     const SAY: &[u8] =
-        b"\nstopping after the frame in progress, then saving (press Ctrl-C again to \
-quit at once; the run folder then keeps its last save)\n";
+        b"\nstopping after the frame in progress (its remaining optimisation steps are \
+skipped), then saving; press Ctrl-C again to quit at once (the run folder then keeps its last save)\n";
     unsafe { libc::write(2, SAY.as_ptr().cast(), SAY.len()) };
 }
 
@@ -32,6 +33,12 @@ pub fn install() {
         libc::sigaction(libc::SIGINT, &action, std::ptr::null_mut());
         libc::sigaction(libc::SIGTERM, &action, std::ptr::null_mut());
     }
+}
+
+/// The flag a stop request sets, for the mapper to cut the keyframe in
+/// progress short ([`latentam::mapper::OnlineMapper::set_hurry_flag`]).
+pub fn flag() -> &'static AtomicBool {
+    &REQUESTED
 }
 
 /// Whether a stop was asked for.

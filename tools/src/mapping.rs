@@ -229,6 +229,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     };
     let start = Instant::now();
     interrupt::install();
+    run.mapper.online().set_hurry_flag(interrupt::flag());
     let ending = loop {
         if interrupt::requested() {
             break Ending::Interrupted;

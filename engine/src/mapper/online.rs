@@ -1,6 +1,7 @@
 //! The per-keyframe loop (paper Alg. 1) over the pieces in `map`,
 //! `latent` and the [`Trainer`].
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
@@ -499,6 +500,9 @@ pub struct OnlineMapper {
     /// neither the one before that frame nor the one after it, so it is
     /// neither saved nor mapped further.
     pub(super) broken: Option<String>,
+    /// Set by the caller to have the keyframe in progress skip its
+    /// remaining optimisation steps (see [`OnlineMapper::set_hurry_flag`]).
+    pub(super) hurry: Option<&'static AtomicBool>,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -530,8 +534,31 @@ impl OnlineMapper {
             model: None,
             run_id: None,
             broken: None,
+            hurry: None,
             cfg,
         })
+    }
+
+    /// Makes a stop request prompt: once `flag` is set (from a signal
+    /// handler, say: an atomic store is all it takes), the keyframe in
+    /// progress skips its remaining Stage I iterations and its Stage II
+    /// and completes as soon as it can, leaving a consistent map with that
+    /// keyframe less trained. The flag is only read.
+    ///
+    /// ```no_run
+    /// use std::sync::atomic::{AtomicBool, Ordering};
+    /// static STOP: AtomicBool = AtomicBool::new(false);
+    /// let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
+    /// mapper.online().set_hurry_flag(&STOP);
+    /// // elsewhere: STOP.store(true, Ordering::SeqCst);
+    /// # Ok::<(), latentam::Error>(())
+    /// ```
+    pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
+        self.hurry = Some(flag);
+    }
+
+    fn hurried(&self) -> bool {
+        self.hurry.is_some_and(|f| f.load(Ordering::SeqCst))
     }
 
     /// The id of the run folder version this state was loaded from (see
@@ -934,6 +961,9 @@ impl OnlineMapper {
         // before this keyframe trained anything).
         let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
         for _ in 1..self.cfg.stage_one_iterations {
+            if self.hurry.is_some_and(|f| f.load(Ordering::SeqCst)) {
+                break;
+            }
             trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
         }
         self.window_dirty = true;
@@ -960,10 +990,15 @@ impl OnlineMapper {
         } else {
             None
         };
+        let stage_two_iterations = if self.hurried() {
+            0
+        } else {
+            self.cfg.stage_two_iterations
+        };
         let stage_two_run = self.trainer.as_ref().expect("ensured").submit_stage_two(
             &self.ctx,
             self.head.as_ref(),
-            self.cfg.stage_two_iterations,
+            stage_two_iterations,
         )?;
         let (stage_two, stage_two_span) = stage_two_run.finish()?;
         timings.stage_two_gpu_ms = stage_two_span.map(|s| s.ms());

@@ -626,3 +626,40 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
         assert!(mapper.integrate(&at(2)).is_err());
     });
 }
+
+#[test]
+fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    static STOP: AtomicBool = AtomicBool::new(false);
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: KeyframeConfig {
+                policy: KeyframePolicy::Interval(1),
+                ..KeyframeConfig::default()
+            },
+            window_capacity: Some(8192),
+            stage_two_iterations: 20,
+            ..MapperConfig::default()
+        };
+        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        mapper.set_hurry_flag(&STOP);
+        let at = |i: u32| {
+            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i as i64;
+            f
+        };
+        let stage_two = |k: Integrated| match k {
+            Integrated::Keyframe(k) => k.stage_two,
+            Integrated::Skipped => panic!("every frame is a keyframe here"),
+        };
+        assert!(stage_two(mapper.integrate(&at(0)).unwrap()) > 0.0);
+        STOP.store(true, Ordering::SeqCst);
+        // Stage II skipped (no feature loss measured), the keyframe counted.
+        assert_eq!(stage_two(mapper.integrate(&at(1)).unwrap()), 0.0);
+        STOP.store(false, Ordering::SeqCst);
+        assert_eq!(mapper.stats().keyframes, 2);
+        assert!(!mapper.is_broken());
+        assert!(stage_two(mapper.integrate(&at(2)).unwrap()) > 0.0);
+    });
+}
