@@ -107,8 +107,13 @@ pub fn run(args: Args) -> Result<bool> {
             eprintln!("interrupted before a new frame was mapped");
             Ok(true)
         }
-        // Resumed with nothing left to map.
-        (_, None) if run.mapper.stats().keyframes > 0 && !run.mapper.online_ref().is_broken() => {
+        // Resumed on a log whose frames were all mapped already.
+        (_, None)
+            if run.frames == 0
+                && run.skipped > 0
+                && run.mapper.stats().gaussians > 0
+                && !run.mapper.online_ref().is_broken() =>
+        {
             Ok(false)
         }
         (_, None) => bail!("no map was written: {}", run.why_nothing()),

@@ -414,7 +414,7 @@ impl Run {
             ));
         }
         let stats = self.mapper.stats();
-        if self.frames == 0 && stats.keyframes > 0 {
+        if self.frames == 0 && self.skipped > 0 && stats.gaussians > 0 {
             // A resumed run that took no frame: the folder already holds
             // this map.
             return Some("no new frame was mapped; the folder keeps the map it holds".into());

@@ -118,6 +118,13 @@ fn runs_that_map_nothing_or_fail_leave_the_folder_as_it_was() {
         &["GPU budget of 1 bytes"],
     );
     unchanged(&run, &before);
+    // Keyframes whose depth is all beyond the seeding range: keyframes
+    // but no Gaussian is nothing mapped too.
+    failed_with(
+        &map(&log, &run, &["--set", "seeding.max_depth=0.01"]),
+        &["no map was written", "seeded no Gaussian"],
+    );
+    unchanged(&run, &before);
     // No frame at all.
     failed_with(
         &map(&log, &run, &["--frames", "0"]),

@@ -1133,6 +1133,9 @@ mod tests {
             ("seeding.max_depth=inf", "seeding.max_depth"),
             ("prune_min_opacity=2", "prune_min_opacity"),
             ("keyframes.min_rotation_deg=nan", "min_rotation_deg"),
+            // Finite but overflowing f32 in the first step.
+            ("weights.rgb=1e30", "weights"),
+            ("learning_rates.means=1e30", "learning_rates"),
         ] {
             let e = error(&[set]);
             assert!(e.contains(want), "{set}: {e}");

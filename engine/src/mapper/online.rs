@@ -301,6 +301,34 @@ impl MapperConfig {
                 return bad(&format!("{name} {x} must be a finite number ≥ 0"));
             }
         }
+        // Weights and rates far beyond any useful value overflow f32 in the
+        // first step (weights.rgb=1e30 made the state infinite).
+        for (name, x, max) in [
+            ("weights", w.rgb.max(w.rgb_l1).max(w.ssim).max(w.depth), 1e4),
+            (
+                "weights",
+                w.feature.max(w.cosine).max(w.l2).max(w.trust_region),
+                1e4,
+            ),
+            ("weights.trust_radius", w.trust_radius, 1e4),
+            (
+                "learning_rates",
+                lr.means.max(lr.log_scales).max(lr.quats),
+                10.0,
+            ),
+            (
+                "learning_rates",
+                lr.colors.max(lr.opacity).max(lr.queries),
+                10.0,
+            ),
+            ("latent_lr", self.latent_lr, 10.0),
+        ] {
+            if x > max {
+                return bad(&format!(
+                    "{name}: {x} is beyond the largest useful value, {max}"
+                ));
+            }
+        }
         if !(sd.max_depth > 0.0 && sd.max_depth as f64 <= MAX_DISTANCE) {
             return bad(&format!(
                 "seeding.max_depth {} must be above 0 and at most {MAX_DISTANCE} metres",

@@ -1003,6 +1003,40 @@ impl OnlineMapper {
             }
             None => None,
         };
+        // Loading refuses non-finite values; refusing them here too keeps a
+        // diverged map from replacing a good save.
+        let diverged = |why: String| {
+            Error::InvalidArgument(format!(
+                "the map has diverged and is not saved (it would not load): {why}"
+            ))
+        };
+        for (key, g) in &map {
+            if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
+                .iter()
+                .all(|x| x.is_finite())
+            {
+                return Err(diverged(format!(
+                    "the Gaussian of voxel {key:?} is not finite"
+                )));
+            }
+        }
+        if let Some(h) = &head {
+            for (name, v) in [
+                ("head/W", &h.w),
+                ("head/D", &h.atoms),
+                ("head/D0", &h.anchors),
+            ] {
+                finite(v, name).map_err(diverged)?;
+            }
+            for (i, t) in h.adam.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+                finite_bytes(t, &format!("head/adam/{i}")).map_err(diverged)?;
+            }
+        }
+        if let Some(w) = &window {
+            for (i, t) in w.state.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+                finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
+            }
+        }
         let bytes = StateRef {
             run_id,
             config: &self.cfg,

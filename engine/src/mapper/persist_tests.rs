@@ -552,3 +552,34 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
         std::fs::remove_dir_all(&dir).unwrap();
     });
 }
+
+#[test]
+fn a_diverged_map_is_not_saved() {
+    with_context(|ctx| {
+        let dir = std::env::temp_dir().join(format!("latentam-diverged-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.latentam");
+        let mut m = OnlineMapper::new(
+            ctx,
+            MapperConfig {
+                window_capacity: Some(8192),
+                ..MapperConfig::default()
+            },
+        )
+        .unwrap();
+        m.integrate(&super::tests::keyframe(glam::DVec3::ZERO))
+            .unwrap();
+        m.save(&path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        // The projection gone infinite, as a learning rate far too large
+        // makes it: refused, and the last save stays.
+        let head = m.head().unwrap();
+        let mut w: Vec<f32> = ctx.download(head.w()).unwrap();
+        w[5] = f32::INFINITY;
+        ctx.upload(head.w(), 0, &w).unwrap();
+        let e = m.save(&path).unwrap_err().to_string();
+        assert!(e.contains("diverged") && e.contains("head/W"), "{e}");
+        assert_eq!(std::fs::read(&path).unwrap(), good);
+        std::fs::remove_dir_all(&dir).ok();
+    });
+}
