@@ -172,6 +172,12 @@ fn a_failed_frame_is_not_counted_and_resuming_with_settings_applies_them() {
     );
     unchanged(&run, &before);
 
+    // A setting that shapes the saved map cannot change on resume.
+    failed_with(
+        &map(&log, &run, &["--resume", "--set", "voxel_size=0.05"]),
+        &["voxel_size = 0.05 asked for", "voxel_size = 0.01"],
+    );
+    unchanged(&run, &before);
     // Resuming with the right log maps every remaining keyframe, with the
     // run-time settings given now.
     ok(&map(

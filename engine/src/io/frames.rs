@@ -292,6 +292,10 @@ pub struct FrameAssembler {
     poses_went_back: bool,
     /// Stamp of the last colour image resolved.
     last_resolved: Option<i64>,
+    /// Stamps of every colour image resolved (8 bytes a frame): a second
+    /// image at a stamp already seen is a duplicate (overlapping bag files,
+    /// a log recorded twice), not a new view.
+    resolved_stamps: std::collections::HashSet<i64>,
     color_frame_id: Option<String>,
     has_embeddings: bool,
     has_semantic: bool,
@@ -319,6 +323,7 @@ impl FrameAssembler {
             tf: TfBuffer::default(),
             poses_went_back: false,
             last_resolved: None,
+            resolved_stamps: std::collections::HashSet::new(),
             color_frame_id: None,
             has_embeddings,
             has_semantic,
@@ -710,7 +715,19 @@ impl FrameAssembler {
             let late = self
                 .last_resolved
                 .filter(|&last| t < last.saturating_sub(self.config.tolerance_ns));
-            let result = match (self.assemble(t, pending.value.color), late) {
+            // A duplicate takes no partners: they belong to the first.
+            let assembled = if self.resolved_stamps.insert(t) {
+                self.assemble(t, pending.value.color)
+            } else {
+                Err(Rejection::new(
+                    "frame: duplicate stamp",
+                    format!(
+                        "a second colour image at {t} ns (overlapping bag files, or a log \
+                         recorded twice?)"
+                    ),
+                ))
+            };
+            let result = match (assembled, late) {
                 // Its partners went with the frames resolved before it.
                 (Err(r), Some(last)) if r.kind.starts_with("frame: no ") => Err(Rejection::new(
                     "frame: out of order",
@@ -1247,6 +1264,13 @@ impl McapFrames {
             .filter(|t| find(t).is_none())
             .collect();
         if !missing.is_empty() {
+            // Damage read before the topic's first message is the cause.
+            if let Some(e) = log.scan_problem() {
+                return Err(InputError::Topic {
+                    topic: missing.join(", "),
+                    reason: format!("not found before the log became unreadable: {e}"),
+                });
+            }
             return Err(InputError::Topic {
                 topic: missing.join(", "),
                 reason: format!(

@@ -313,3 +313,17 @@ fn vocabularies_with_duplicates_or_unusable_vectors_are_refused() {
         assert!(e.contains(why), "{e}");
     }
 }
+
+#[test]
+fn a_frame_seen_twice_is_counted_as_a_duplicate_not_mapped_twice() {
+    let dir = TempDir::new("dup");
+    let bag = dir.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    // The same recording twice in one bag folder.
+    write_restamped(&bag.join("bag_0.mcap"), &[0, 100, 200, 300]);
+    std::fs::copy(bag.join("bag_0.mcap"), bag.join("bag_1.mcap")).unwrap();
+    let (frames, report) = read_all(&bag, AssemblyConfig::default());
+    assert_eq!(frames.len(), 4, "{report}");
+    assert_eq!(report.skipped_for("frame: duplicate stamp"), 4, "{report}");
+    own_depth(&frames);
+}

@@ -91,8 +91,9 @@ struct LogFile {
     plain: Option<PlainChunks>,
     /// Why the summary could not be used, when it could not.
     summary_problem: Option<String>,
-    /// Channels found by scanning a file without a summary (scanned once).
-    scanned: std::sync::OnceLock<Vec<Channel>>,
+    /// Channels found by scanning a file without a summary (scanned once),
+    /// and the error that stopped the scan, if one did.
+    scanned: std::sync::OnceLock<(Vec<Channel>, Option<InputError>)>,
 }
 
 /// An opened MCAP log.
@@ -195,6 +196,16 @@ impl McapLog {
             .collect()
     }
 
+    /// The first error that stopped the scan of a file without a summary
+    /// (run by [`McapLog::channels`]): damage before a topic's first
+    /// message hides that topic, and this says why.
+    pub fn scan_problem(&self) -> Option<&InputError> {
+        self.files
+            .iter()
+            .filter(|f| f.summary.is_none())
+            .find_map(|f| f.scanned_channels().1.as_ref())
+    }
+
     /// Every channel named in the summaries (or, for files without one,
     /// found by scanning), one entry per topic.
     pub fn channels(&self) -> Vec<Channel> {
@@ -207,7 +218,7 @@ impl McapLog {
                     }
                 }
                 None => {
-                    for c in f.scanned_channels() {
+                    for c in &f.scanned_channels().0 {
                         out.entry(c.topic.clone()).or_insert_with(|| c.clone());
                     }
                 }
@@ -329,18 +340,24 @@ impl LogFile {
 
     /// The channels of a file without a summary, found by reading it once
     /// (a damaged file still lists those before the damage).
-    fn scanned_channels(&self) -> &[Channel] {
+    fn scanned_channels(&self) -> &(Vec<Channel>, Option<InputError>) {
         self.scanned.get_or_init(|| {
             let filter = ReadFilter::default();
             let mut reader = FileReader::linear(self, &filter);
-            while let Some(Ok(())) = reader.next_with(self, &filter, |_| ()) {}
+            let mut problem = None;
+            while let Some(r) = reader.next_with(self, &filter, |_| ()) {
+                if let Err(e) = r {
+                    problem = Some(e);
+                    break;
+                }
+            }
             let mut v: Vec<Channel> = reader
                 .channels
                 .into_values()
                 .map(|c| (*c).clone())
                 .collect();
             v.sort_by(|a, b| a.topic.cmp(&b.topic));
-            v
+            (v, problem)
         })
     }
 

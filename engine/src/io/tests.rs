@@ -959,4 +959,17 @@ fn a_flipped_pixel_in_an_uncompressed_log_stops_the_frames() {
     assert!(err.to_string().contains("CRC mismatch"), "{err}");
     // The log is one chunk, so nothing of it became a frame.
     assert_eq!(frames.report().frames, 0);
+    // Without its summary, the damaged chunk hides every topic: the error
+    // says why rather than only that they are missing.
+    let footer = mcap::read::footer(&bytes).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..footer.summary_start as usize]).unwrap();
+    let err = McapFrames::open(&cut, AssemblyConfig::default())
+        .err()
+        .expect("no topic can be found")
+        .to_string();
+    assert!(
+        err.contains("became unreadable") && err.contains("CRC mismatch"),
+        "{err}"
+    );
 }

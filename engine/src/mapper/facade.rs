@@ -123,9 +123,10 @@ impl Mapper {
     }
 
     /// [`Mapper::load`], with the run-time settings (budget, learning
-    /// rates, iterations...) that `settings` makes of the saved ones; the
+    /// rates, iterations...) that `settings` makes of the saved ones. The
     /// settings that shape the saved state (voxel size, dictionary size,
-    /// replay count, window capacity) stay as saved.
+    /// region count, replay count, history cell, seed, window capacity)
+    /// must come back unchanged: a change is refused.
     pub fn load_with(
         ctx: &Context,
         dir: impl AsRef<Path>,
@@ -147,6 +148,41 @@ impl Mapper {
             }
         }
         let overrides = settings(state.config())?;
+        // The settings that shape the saved state stay as saved: a change
+        // asked for would be silently ignored, so it is refused.
+        let (k, o) = (state.config(), &overrides);
+        for (name, saved, asked) in [
+            (
+                "voxel_size",
+                format!("{}", k.voxel_size),
+                format!("{}", o.voxel_size),
+            ),
+            ("atoms", k.atoms.to_string(), o.atoms.to_string()),
+            (
+                "max_regions",
+                k.max_regions.to_string(),
+                o.max_regions.to_string(),
+            ),
+            ("replay", k.replay.to_string(), o.replay.to_string()),
+            (
+                "history_cell",
+                format!("{}", k.history_cell),
+                format!("{}", o.history_cell),
+            ),
+            ("seed", k.seed.to_string(), o.seed.to_string()),
+            (
+                "window_capacity",
+                format!("{:?}", k.window_capacity),
+                format!("{:?}", o.window_capacity),
+            ),
+        ] {
+            if saved != asked {
+                return Err(Error::InvalidArgument(format!(
+                    "{name} = {asked} asked for, but the saved map was built with {name} = \
+                     {saved}, which a resumed map keeps; map from scratch to change it"
+                )));
+            }
+        }
         Ok(Mapper {
             inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
             scorer: None,
