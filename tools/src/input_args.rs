@@ -87,8 +87,10 @@ impl InputArgs {
         if !(self.max_depth > 0.0 && self.max_depth.is_finite()) {
             anyhow::bail!("--max-depth must be a positive number of metres");
         }
-        if !(self.max_extent > 0.0 && self.max_extent.is_finite()) {
-            anyhow::bail!("--max-extent must be a positive number of metres");
+        // Beyond 1000 km, f32 map coordinates are metres apart and voxel
+        // keys overflow.
+        if !(self.max_extent > 0.0 && self.max_extent <= 1e6) {
+            anyhow::bail!("--max-extent must be a positive number of metres, at most 1000000");
         }
         let pose = match &self.tf_world {
             Some(world_frame) => PoseSource::Tf {

@@ -483,6 +483,16 @@ fn command_line_misuse_is_a_clear_error() {
             exit_error,
             "--depth-scale must be",
         ),
+        (
+            map(&["--max-extent", "1e300"]),
+            exit_error,
+            "--max-extent must be",
+        ),
+        (
+            map(&["--max-depth", "NaN"]),
+            exit_error,
+            "--max-depth must be",
+        ),
         (query_view("1,2,3"), exit_error, "expected 7 finite numbers"),
         (query_view("a,b,c,d,e,f,g"), exit_error, "not numbers"),
         (query_view("0,0,0,0,0,0,2"), exit_error, "has norm 2.0000"),
