@@ -1,48 +1,48 @@
 //! How a log's messages become frames: the topic and pairing options the
 //! commands that read logs share (`map`, `eval`, `profile`, `inspect`).
 
-use latentam::io::{AssemblyConfig, BadInputPolicy, PoseSource, Topics};
+use latentam::io::{AssemblyConfig, BadInputPolicy, PoseSource, TopicChoice, Topics};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct InputArgs {
-    /// Colour image topic (sensor_msgs/Image or CompressedImage).
-    #[arg(
-        long,
-        default_value = "/camera/color/image_raw",
-        help_heading = "Input"
-    )]
-    pub color_topic: String,
-    /// Depth image topic, registered to the colour images.
-    #[arg(
-        long,
-        default_value = "/camera/depth/image_raw",
-        help_heading = "Input"
-    )]
-    pub depth_topic: String,
-    /// Camera calibration topic (sensor_msgs/CameraInfo).
-    #[arg(
-        long,
-        default_value = "/camera/color/camera_info",
-        help_heading = "Input"
-    )]
-    pub camera_info_topic: String,
+    /// Colour image topic (sensor_msgs/Image or CompressedImage). Default
+    /// /camera/color/image_raw; when the log does not have it, the one
+    /// image topic that is not depth, infrared or labels (preferring
+    /// `color`/`rgb` names and raw over /compressed).
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub color_topic: Option<String>,
+    /// Depth image topic, registered to the colour images. Default
+    /// /camera/depth/image_raw; when absent, the one image topic named
+    /// `depth` (preferring `aligned_depth_to_color`).
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub depth_topic: Option<String>,
+    /// Camera calibration topic (sensor_msgs/CameraInfo). Default
+    /// /camera/color/camera_info; when absent, the one beside the colour
+    /// images.
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub camera_info_topic: Option<String>,
     /// Pose topic (PoseStamped or Odometry of the camera optical frame in
-    /// the world); ignored with --tf-world.
-    #[arg(long, default_value = "/camera/pose", help_heading = "Input")]
-    pub pose_topic: String,
+    /// the world); ignored with --tf-world. Default /camera/pose; when
+    /// absent, the one pose or odometry topic, else /tf + /tf_static from
+    /// the root of the tree.
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub pose_topic: Option<String>,
     /// Take poses from /tf + /tf_static instead, chained from this world
     /// frame (e.g. `map`) to the colour image's frame.
     #[arg(long, value_name = "FRAME", help_heading = "Input")]
     pub tf_world: Option<String>,
     /// Region embeddings topic (latentam_msgs MaskFeatures or FeatureGrid).
-    #[arg(long, default_value = "/camera/embeddings", help_heading = "Input")]
-    pub embeddings_topic: String,
+    /// Default /camera/embeddings; when absent, the one topic of those
+    /// types.
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub embeddings_topic: Option<String>,
     /// Semantic class-id images (evaluation only).
     #[arg(long, default_value = "/camera/semantic", help_heading = "Input")]
     pub semantic_topic: String,
-    /// Query vocabulary (latentam_msgs TextEmbeddings).
-    #[arg(long, default_value = "/vocabulary", help_heading = "Input")]
-    pub vocabulary_topic: String,
+    /// Query vocabulary (latentam_msgs TextEmbeddings). Default
+    /// /vocabulary; when absent, the one topic of that type.
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub vocabulary_topic: Option<String>,
     /// Largest stamp difference between a colour image and the depth or
     /// embeddings paired with it, milliseconds.
     #[arg(long, default_value_t = 20.0, help_heading = "Input")]
@@ -92,22 +92,37 @@ impl InputArgs {
         if !(self.max_extent > 0.0 && self.max_extent <= 1e6) {
             anyhow::bail!("--max-extent must be a positive number of metres, at most 1000000");
         }
+        let d = Topics::default();
+        let or = |given: &Option<String>, default: String| given.clone().unwrap_or(default);
+        let default_pose = match d.pose {
+            PoseSource::Topic(t) => t,
+            PoseSource::Tf { .. } => unreachable!("the default poses come from a topic"),
+        };
         let pose = match &self.tf_world {
             Some(world_frame) => PoseSource::Tf {
                 world_frame: world_frame.clone(),
                 camera_frame: None,
             },
-            None => PoseSource::Topic(self.pose_topic.clone()),
+            None => PoseSource::Topic(or(&self.pose_topic, default_pose)),
         };
         Ok(AssemblyConfig {
             topics: Topics {
-                color: self.color_topic.clone(),
-                depth: self.depth_topic.clone(),
-                camera_info: self.camera_info_topic.clone(),
+                color: or(&self.color_topic, d.color),
+                depth: or(&self.depth_topic, d.depth),
+                camera_info: or(&self.camera_info_topic, d.camera_info),
                 pose,
-                embeddings: self.embeddings_topic.clone(),
+                embeddings: or(&self.embeddings_topic, d.embeddings),
                 semantic: self.semantic_topic.clone(),
-                vocabulary: self.vocabulary_topic.clone(),
+                vocabulary: or(&self.vocabulary_topic, d.vocabulary),
+            },
+            // Topics not named may be chosen from the log.
+            choose: TopicChoice {
+                color: self.color_topic.is_none(),
+                depth: self.depth_topic.is_none(),
+                camera_info: self.camera_info_topic.is_none(),
+                pose: self.pose_topic.is_none() && self.tf_world.is_none(),
+                embeddings: self.embeddings_topic.is_none(),
+                vocabulary: self.vocabulary_topic.is_none(),
             },
             // Checked finite and ≥ 0 above; `as` saturates a huge value at
             // i64::MAX, which the assembler's stamp arithmetic allows.

@@ -36,6 +36,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let config = args.input.assembly()?;
     let mut frames = McapFrames::from_log(log, config)?;
+    if !args.json {
+        for line in frames.topic_plan() {
+            println!("  chosen by type: {line}");
+        }
+    }
     let mut first_error = None;
     let mut sizes = None;
     for f in &mut frames {

@@ -200,12 +200,16 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     ctx.profiler_reset();
     let log =
         McapLog::open(&opts.log).with_context(|| format!("opening {}", opts.log.display()))?;
-    // Colour images bound the frames; the summary says how many there are.
-    let in_log = log
-        .message_count(&opts.assembly.topics.color)
-        .map(|n| n as usize);
+    // Colour images bound the frames; the summary says how many there are
+    // (on the colour topic the frames will be read from).
+    let color = latentam::io::plan_topics(&log.channels(), &opts.assembly)
+        .map_or_else(|_| opts.assembly.topics.color.clone(), |(t, _)| t.color);
+    let in_log = log.message_count(&color).map(|n| n as usize);
     let mut frames = McapFrames::from_log(log, opts.assembly.clone())
         .with_context(|| format!("opening {}", opts.log.display()))?;
+    for line in frames.topic_plan() {
+        eprintln!("input: {line}");
+    }
     let skip = mapper.stats().frames;
     let limit = opts.max_frames.unwrap_or(usize::MAX);
     let total = match (in_log, opts.max_frames) {

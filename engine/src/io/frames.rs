@@ -117,6 +117,10 @@ pub struct AssemblyConfig {
     /// axis refuse their frame (default 10 km: beyond it, f32 map
     /// coordinates lose centimetre precision).
     pub max_extent_m: f64,
+    /// Streams whose topic may be chosen from the log by message type when
+    /// the configured one is absent (none by default; see
+    /// [`super::plan_topics`]).
+    pub choose: super::TopicChoice,
 }
 
 impl Default for AssemblyConfig {
@@ -131,6 +135,7 @@ impl Default for AssemblyConfig {
             max_pending: 64,
             max_depth_m: 1000.0,
             max_extent_m: 10_000.0,
+            choose: super::TopicChoice::default(),
         }
     }
 }
@@ -1232,6 +1237,7 @@ pub struct McapFrames {
     reader: MessageReader,
     assembler: FrameAssembler,
     done: bool,
+    plan: Vec<String>,
 }
 
 impl McapFrames {
@@ -1242,8 +1248,10 @@ impl McapFrames {
     }
 
     /// Frames from an already opened log.
-    pub fn from_log(log: McapLog, config: AssemblyConfig) -> Result<Self, InputError> {
+    pub fn from_log(log: McapLog, mut config: AssemblyConfig) -> Result<Self, InputError> {
         let channels = log.channels();
+        let (topics, plan) = super::plan_topics(&channels, &config)?;
+        config.topics = topics;
         let probe = FrameAssembler::new(config.clone(), false, false);
         let find = |topic: &str| channels.iter().find(|c| c.topic == topic);
         let mut required = vec![config.topics.color.as_str(), config.topics.depth.as_str()];
@@ -1301,7 +1309,19 @@ impl McapFrames {
             }),
             assembler,
             done: false,
+            plan,
         })
+    }
+
+    /// The streams whose topic was chosen from the log, one line each
+    /// (empty when every topic was as configured).
+    pub fn topic_plan(&self) -> &[String] {
+        &self.plan
+    }
+
+    /// The topics being read.
+    pub fn topics(&self) -> &Topics {
+        &self.assembler.config.topics
     }
 
     /// Counts so far (complete once the iterator has ended).

@@ -43,6 +43,7 @@ mod pool;
 mod report;
 pub mod schema;
 mod tf;
+mod topic_plan;
 pub mod trajectory;
 mod writer;
 
@@ -69,6 +70,7 @@ pub use messages::{
 pub use ply::{read_ply, unit_quat, write_ply, write_ply_without_latents, PlyMap};
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
+pub use topic_plan::{plan_topics, TopicChoice};
 pub use trajectory::{read_tum, write_tum};
 pub use writer::{Compression, LogWriter};
 

@@ -9,6 +9,8 @@ use super::*;
 
 #[path = "input_check_tests.rs"]
 mod input_checks;
+#[path = "topic_plan_tests.rs"]
+mod topic_plans;
 
 /// A directory removed on drop.
 pub(crate) struct TempDir(PathBuf);

@@ -217,7 +217,8 @@ impl TfBuffer {
     }
 
     /// Pose of `frame` in `target` at `stamp` (dynamic edges interpolated
-    /// between samples at most `max_gap` ns apart).
+    /// between samples at most `max_gap` ns apart); an empty `target` is
+    /// the root of the tree `frame` belongs to.
     pub fn lookup(
         &self,
         target: &str,
@@ -225,8 +226,14 @@ impl TfBuffer {
         stamp: i64,
         max_gap: i64,
     ) -> Result<Pose, String> {
-        let (root_a, target_in_root) = self.to_root(target, stamp, max_gap)?;
         let (root_b, frame_in_root) = self.to_root(frame, stamp, max_gap)?;
+        if target.is_empty() {
+            if root_b == strip(frame) {
+                return Err(format!("`{frame}` has no parent in the TF tree"));
+            }
+            return Ok(frame_in_root);
+        }
+        let (root_a, target_in_root) = self.to_root(target, stamp, max_gap)?;
         if root_a != root_b {
             return Err(format!(
                 "`{frame}` and `{target}` are not connected in the TF tree (roots `{root_b}` and `{root_a}`)"
