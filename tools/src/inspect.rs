@@ -15,27 +15,49 @@ pub struct Args {
     json: bool,
 }
 
+/// Metadata values longer than this (rosbag2's `serialized_metadata`, a
+/// whole YAML document) are summarised, not printed.
+const SHORT: usize = 160;
+
+fn shown(v: &str) -> String {
+    if v.len() <= SHORT && !v.contains('\n') {
+        v.to_string()
+    } else {
+        format!(
+            "({} bytes, {} lines; not shown)",
+            v.len(),
+            v.lines().count()
+        )
+    }
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let log = McapLog::open(&args.log)?;
+    let metadata = log.metadata()?;
+    let channels = log.channels();
+    let range = log.time_range();
     if !args.json {
         println!("{}:", args.log.display());
         for (file, why) in log.unindexed_files() {
             println!("  warning: {}: {why}", file.display());
         }
-        for c in log.channels() {
+        if let Some((a, b)) = range {
+            println!("  {:.1} s of messages", (b.saturating_sub(a)) as f64 * 1e-9);
+        }
+        for c in &channels {
             let n = log
                 .message_count(&c.topic)
                 .map_or("?".into(), |n| n.to_string());
             println!("  {:<32} {:>7} × {}", c.topic, n, c.schema_name);
         }
-        for (name, values) in log.metadata()? {
+        for (name, values) in &metadata {
             for (k, v) in values {
-                println!("  metadata {name}.{k}: {v}");
+                println!("  metadata {name}.{k}: {}", shown(v));
             }
         }
     }
     let config = args.input.assembly()?;
-    let mut frames = McapFrames::from_log(log, config)?;
+    let mut frames = McapFrames::from_log(log.clone(), config)?;
     if !args.json {
         for line in frames.topic_plan() {
             println!("  chosen by type: {line}");
@@ -52,7 +74,52 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(frames.report())?);
+        let topics: Vec<_> = channels
+            .iter()
+            .map(|c| {
+                serde_json::json!({
+                    "topic": c.topic,
+                    "type": c.schema_name,
+                    "count": log.message_count(&c.topic),
+                })
+            })
+            .collect();
+        let meta: serde_json::Map<String, serde_json::Value> = metadata
+            .iter()
+            .flat_map(|(name, values)| {
+                values
+                    .iter()
+                    .map(move |(k, v)| (format!("{name}.{k}"), shown(v).into()))
+            })
+            .collect();
+        let t = frames.topics();
+        let pose = match &t.pose {
+            latentam::io::PoseSource::Topic(p) => p.clone(),
+            latentam::io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
+                "/tf (from the root of the tree)".into()
+            }
+            latentam::io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
+        };
+        let doc = serde_json::json!({
+            "log": args.log.display().to_string(),
+            "files_without_summary": log.unindexed_files().len(),
+            "duration_s": range.map(|(a, b)| b.saturating_sub(a) as f64 * 1e-9),
+            "topics": topics,
+            "metadata": meta,
+            "streams": {
+                "color": t.color,
+                "depth": t.depth,
+                "camera_info": t.camera_info,
+                "pose": pose,
+                "embeddings": t.embeddings,
+                "semantic": t.semantic,
+                "vocabulary": t.vocabulary,
+            },
+            "chosen_by_type": frames.topic_plan(),
+            "frame_size": sizes.map(|(w, h)| [w, h]),
+            "ingest": frames.report(),
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
         print!("{}", frames.report());
         if let Some((w, h)) = sizes {
@@ -70,5 +137,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match first_error {
         Some(e) => anyhow::bail!("the log is damaged: {e}"),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn long_metadata_is_summarised() {
+        assert_eq!(super::shown("jazzy"), "jazzy");
+        let yaml = "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n";
+        assert_eq!(
+            super::shown(yaml),
+            format!("({} bytes, 3 lines; not shown)", yaml.len())
+        );
+        assert!(super::shown(&"x".repeat(500)).starts_with("(500 bytes"));
     }
 }

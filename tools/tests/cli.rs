@@ -341,14 +341,25 @@ fn gen_scene_and_convert_write_logs_that_inspect_reads() {
         "--json".as_ref(),
     ]))
     .unwrap();
+    let ingest = &report["ingest"];
     assert_eq!(
         (
-            report["frames"].as_u64(),
-            report["frames_with_embeddings"].as_u64()
+            ingest["frames"].as_u64(),
+            ingest["frames_with_embeddings"].as_u64()
         ),
         (Some(5), Some(5))
     );
-    assert_eq!(report["skipped"], serde_json::json!({}));
+    assert_eq!(ingest["skipped"], serde_json::json!({}));
+    // Topics with their types and counts, the streams read, the duration.
+    let topics = report["topics"].as_array().unwrap();
+    assert!(topics
+        .iter()
+        .any(|t| t["topic"] == "/camera/color/image_raw"
+            && t["type"] == "sensor_msgs/msg/Image"
+            && t["count"] == 5));
+    assert_eq!(report["streams"]["pose"], "/camera/pose");
+    assert_eq!(report["frame_size"], serde_json::json!([48, 32]));
+    assert!(report["duration_s"].as_f64().unwrap() > 0.0);
 
     let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/data/7scenes-redkitchen");

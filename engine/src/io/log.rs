@@ -227,6 +227,21 @@ impl McapLog {
         out.into_values().collect()
     }
 
+    /// First and last message log times (nanoseconds) according to the
+    /// summaries, `None` when a file has no statistics.
+    pub fn time_range(&self) -> Option<(u64, u64)> {
+        let mut range: Option<(u64, u64)> = None;
+        for f in self.files.iter() {
+            let st = f.summary.as_ref()?.stats.as_ref()?;
+            if st.message_count == 0 {
+                continue;
+            }
+            let (a, b) = (st.message_start_time, st.message_end_time);
+            range = Some(range.map_or((a, b), |(x, y)| (x.min(a), y.max(b))));
+        }
+        range
+    }
+
     /// Number of messages on `topic` according to the summaries, `None`
     /// when a file has no statistics (or the counts, being corrupt,
     /// overflow).
