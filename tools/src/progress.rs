@@ -1,8 +1,12 @@
 //! Progress of long commands on stderr: a line redrawn in place on a
-//! terminal, a plain line every tenth of the work otherwise (logs, CI).
+//! terminal, a plain line every ten seconds otherwise (logs, CI), and one
+//! at the end.
 
 use std::io::{IsTerminal, Write};
 use std::time::Instant;
+
+/// Seconds between plain progress lines when stderr is not a terminal.
+const PLAIN_EVERY_S: f64 = 10.0;
 
 /// Reports `done / total` for one task.
 pub struct Progress {
@@ -10,7 +14,8 @@ pub struct Progress {
     total: usize,
     start: Instant,
     terminal: bool,
-    last_tenth: usize,
+    /// When the last plain line was written.
+    last_line: Option<Instant>,
 }
 
 impl Progress {
@@ -21,7 +26,7 @@ impl Progress {
             total: total.max(1),
             start: Instant::now(),
             terminal: std::io::stderr().is_terminal(),
-            last_tenth: 0,
+            last_line: None,
         }
     }
 
@@ -42,9 +47,11 @@ impl Progress {
                 let _ = writeln!(err);
             }
         } else {
-            let tenth = done * 10 / self.total;
-            if tenth > self.last_tenth || done == self.total {
-                self.last_tenth = tenth;
+            let due = self
+                .last_line
+                .is_none_or(|t| t.elapsed().as_secs_f64() >= PLAIN_EVERY_S);
+            if due || done >= self.total {
+                self.last_line = Some(Instant::now());
                 let _ = writeln!(err, "{line}");
             }
         }
