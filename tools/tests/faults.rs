@@ -5,18 +5,14 @@
 //! one consistent run in the folder every time.
 
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{gen_scene, scratch};
+use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::read_ply;
 use latentam::mapper::{Mapper, STATE_FILE};
-
-fn latentam() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_latentam"))
-}
 
 fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {
     latentam()
@@ -28,19 +24,6 @@ fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {
         .args(extra)
         .output()
         .unwrap()
-}
-
-fn failed_with(out: &Output, words: &[&str]) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(!out.status.success(), "should have failed:\n{stderr}");
-    for w in words {
-        assert!(stderr.contains(w), "no `{w}` in:\n{stderr}");
-    }
-    stderr
-}
-
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
 
 /// Checks that `dir` holds one run: the state loads (with its decoder,

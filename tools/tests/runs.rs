@@ -5,18 +5,12 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{gen_scene, scratch, SCENE_DIM};
+use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch, SCENE_DIM};
 use latentam::mapper::{MapperConfig, STATE_FILE};
-
-/// The binary, without the validation layer (these runs check files, not
-/// API use, and map a lot).
-fn latentam() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_latentam"))
-}
 
 fn map(log: &Path, out: &Path, extra: &[&str]) -> Output {
     latentam()
@@ -36,15 +30,6 @@ fn ok(out: &Output) {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-}
-
-fn failed_with(out: &Output, words: &[&str]) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(!out.status.success(), "should have failed:\n{stderr}");
-    for w in words {
-        assert!(stderr.contains(w), "no `{w}` in:\n{stderr}");
-    }
-    stderr
 }
 
 /// Every file of a folder, by name.
@@ -70,10 +55,6 @@ fn unchanged(dir: &Path, before: &BTreeMap<String, Vec<u8>>) {
         .filter(|k| now.get(*k) != before.get(*k))
         .collect();
     assert!(differ.is_empty(), "{} changed: {differ:?}", dir.display());
-}
-
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
 
 /// A 12-frame log of `dim`-d embeddings in `dir`.

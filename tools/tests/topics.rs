@@ -3,18 +3,14 @@
 //! choice names the candidates and the flag.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 mod common;
-use common::{gen_scene, scratch};
+use common::{gen_scene, latentam_fast as latentam, scratch};
 use latentam::io::{
     CameraInfo, Compression, Image, LogWriter, MaskFeatures, McapLog, PoseStamped, ReadFilter,
     TextEmbeddings,
 };
-
-fn latentam() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_latentam"))
-}
 
 /// `src` rewritten with each topic renamed by `rename` (`None` drops it)
 /// and, when `extra` is given, the depth images written a second time on

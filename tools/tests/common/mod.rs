@@ -4,7 +4,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 /// Embedding dimension of the logs [`gen_scene`] writes.
 pub const SCENE_DIM: usize = 64;
@@ -14,6 +14,28 @@ pub fn latentam() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_latentam"));
     c.env("LATENTAM_VALIDATION", "1");
     c
+}
+
+/// The binary without the validation layer, for tests that map a lot and
+/// check files rather than API use.
+pub fn latentam_fast() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_latentam"))
+}
+
+/// Asserts that a command failed and its stderr holds every one of
+/// `words`; returns the stderr.
+pub fn failed_with(out: &Output, words: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!out.status.success(), "should have failed:\n{stderr}");
+    for w in words {
+        assert!(stderr.contains(w), "no `{w}` in:\n{stderr}");
+    }
+    stderr
+}
+
+/// A run folder's `report.json`.
+pub fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
 
 /// An empty folder of this test process's own.
