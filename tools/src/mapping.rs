@@ -319,6 +319,9 @@ pub struct RunReport {
     pub evicted: u64,
     pub fetched: u64,
     pub ms_per_keyframe: KeyframeTimings,
+    /// Times the host blocked on the GPU per keyframe of this run (each a
+    /// CPU–GPU round trip): mean and most.
+    pub host_waits_per_keyframe: HostWaits,
     pub paging_hidden_share: Option<f64>,
     pub dedicated_transfer_queue: bool,
     pub embedding_model: Option<String>,
@@ -329,6 +332,23 @@ pub struct RunReport {
     /// Per kernel, when profiled.
     pub kernels: BTreeMap<&'static str, KernelStats>,
     pub keyframe_reports: Vec<KeyframeReport>,
+}
+
+/// Host waits per keyframe.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct HostWaits {
+    pub mean: f64,
+    pub max: u64,
+}
+
+impl HostWaits {
+    fn of(keyframes: &[KeyframeReport]) -> Self {
+        let n = keyframes.len().max(1) as f64;
+        HostWaits {
+            mean: keyframes.iter().map(|k| k.host_waits as f64).sum::<f64>() / n,
+            max: keyframes.iter().map(|k| k.host_waits).max().unwrap_or(0),
+        }
+    }
 }
 
 /// Per-keyframe means of timings summed over `n` keyframes.
@@ -375,6 +395,7 @@ impl Run {
             evicted: stats.evicted,
             fetched: stats.fetched,
             ms_per_keyframe: mean_timings(t, stats.keyframes),
+            host_waits_per_keyframe: HostWaits::of(&self.keyframes),
             paging_hidden_share: match (t.paging_gpu_ms, t.paging_hidden_ms) {
                 (Some(g), Some(h)) if g > 0.0 => Some(h / g),
                 _ => None,
@@ -558,6 +579,10 @@ pub fn summary(r: &RunReport) -> String {
         "per keyframe: {:.0} ms (k-means {:.0}, insertion {:.0}, Stage I {:.0}, Stage II + paging \
          {:.0}, pruning {:.0})\n",
         m.total_ms, m.kmeans_ms, m.insertion_ms, m.stage_one_ms, m.stage_two_ms, m.prune_ms
+    );
+    s += &format!(
+        "host waits on the GPU per keyframe: {:.1} on average, {} at most\n",
+        r.host_waits_per_keyframe.mean, r.host_waits_per_keyframe.max
     );
     let skipped = r.ingest.total_skipped();
     if skipped > 0 {

@@ -61,6 +61,13 @@ fn map_query_eval_profile_on_a_generated_log() {
     let gaussians = report["gaussians"].as_u64().unwrap() as usize;
     assert!(gaussians > 1000, "{gaussians} Gaussians");
     assert!(report["peak_gpu_bytes"].as_u64().unwrap() > 0);
+    // Host waits are counted per keyframe.
+    let waits = &report["host_waits_per_keyframe"];
+    let (mean, max) = (
+        waits["mean"].as_f64().unwrap(),
+        waits["max"].as_u64().unwrap(),
+    );
+    assert!(mean >= 1.0 && max as f64 >= mean, "{waits}");
     assert_eq!(report["keyframe_reports"].as_array().unwrap().len(), 8);
     assert!(report["kernels"].as_object().unwrap().len() > 10);
 

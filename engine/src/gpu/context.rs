@@ -227,6 +227,8 @@ pub(crate) struct Device {
     pub profiler: Option<Mutex<Profiler>>,
     /// Query pools can be reset from the host (Vulkan 1.2 `hostQueryReset`).
     pub host_query_reset: bool,
+    /// Times the host blocked on the GPU (submission waits, idle waits).
+    pub host_waits: AtomicU64,
 }
 
 impl Device {
@@ -485,8 +487,20 @@ impl Context {
         self.dev.collect();
     }
 
+    /// How many times the host has blocked on the GPU so far (every
+    /// [`crate::gpu::Submission::wait`], every wait for idle): each one is
+    /// a CPU–GPU round trip a latency-critical caller pays for.
+    pub fn host_waits(&self) -> u64 {
+        self.dev
+            .host_waits
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// Blocks until the GPU has finished all submitted work.
     pub fn wait_idle(&self) -> Result<()> {
+        self.dev
+            .host_waits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         // SAFETY: valid device.
         unsafe { self.dev.raw.device_wait_idle() }.vk("vkDeviceWaitIdle")?;
         self.dev.collect();
@@ -806,5 +820,6 @@ fn open_device(
         pipelines: PipelineCache::default(),
         profiler,
         host_query_reset,
+        host_waits: AtomicU64::new(0),
     })
 }

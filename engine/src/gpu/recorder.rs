@@ -888,6 +888,9 @@ impl Submission {
     /// [`Submission::wait`], returning when the batch ran if it was timed
     /// ([`Recorder::start_span`]) and the queue has timestamps.
     pub fn wait_span(mut self) -> Result<Option<GpuSpan>> {
+        self.dev
+            .host_waits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
         // SAFETY: waiting on our own timeline semaphore.

@@ -246,3 +246,24 @@ fn live_objects_return_to_their_count_once_work_is_dropped_and_done() {
         assert!(after.pipelines >= 2, "{after:?}");
     });
 }
+
+#[test]
+fn every_host_wait_is_counted() {
+    with_context(|ctx| {
+        let buf = ctx.upload_new("waits/data", &[1u32; 64]).unwrap();
+        let before = ctx.host_waits();
+        // An upload and a download each submit and wait once.
+        ctx.upload(&buf, 0, &[2u32; 64]).unwrap();
+        let back: Vec<u32> = ctx.download(&buf).unwrap();
+        assert_eq!(back[0], 2);
+        assert_eq!(ctx.host_waits() - before, 2);
+        // A submission not waited on is not a wait.
+        let mut rec = ctx.recorder().unwrap();
+        rec.upload(&buf, 0, &[3u32; 64]).unwrap();
+        let s = rec.submit().unwrap();
+        assert_eq!(ctx.host_waits() - before, 2);
+        s.wait().unwrap();
+        ctx.wait_idle().unwrap();
+        assert_eq!(ctx.host_waits() - before, 4);
+    });
+}

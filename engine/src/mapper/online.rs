@@ -456,6 +456,9 @@ pub struct KeyframeReport {
     pub gpu_bytes: u64,
     /// CPU bytes of the global map and the keyframe history afterwards.
     pub cpu_bytes: u64,
+    /// Times the host blocked on the GPU during this keyframe
+    /// ([`crate::gpu::Context::host_waits`]).
+    pub host_waits: u64,
 }
 
 /// Running totals ([`OnlineMapper::stats`]).
@@ -939,6 +942,7 @@ impl OnlineMapper {
     fn integrate_keyframe(&mut self, frame: &Frame) -> Result<Box<KeyframeReport>> {
         let frame_index = self.frames;
         let t_start = Instant::now();
+        let waits_before = self.ctx.host_waits();
         let mut timings = KeyframeTimings::default();
         let mut paging = Vec::new();
         let record = KeyframeRecord::from_frame(frame);
@@ -1076,6 +1080,7 @@ impl OnlineMapper {
             resident: self.window.as_ref().map_or(0, |w| w.len()),
             gpu_bytes: self.ctx.memory_report().total.current,
             cpu_bytes,
+            host_waits: self.ctx.host_waits() - waits_before,
         }))
     }
 
