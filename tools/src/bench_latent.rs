@@ -89,7 +89,9 @@ fn time(
     mut op: impl FnMut() -> latentam::Result<()>,
 ) -> Result<f64> {
     let mut times = Vec::new();
+    let mut progress = latentam_cli::progress::Progress::new("bench latent", runs + 1);
     for run in 0..=runs {
+        progress.set(run);
         ctx.profiler_reset();
         op()?;
         let samples: Vec<Sample> = ctx.profiler_snapshot().samples().to_vec();
@@ -103,6 +105,7 @@ fn time(
             }
         }
     }
+    progress.set(runs + 1);
     Ok(median(&times))
 }
 

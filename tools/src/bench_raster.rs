@@ -285,7 +285,9 @@ pub fn run(b: RasterBench) -> Result<()> {
     let gpu_ms = |samples: &[latentam::gpu::Sample]| -> f64 {
         samples.iter().map(|s| s.duration_ns * 1e-6).sum()
     };
+    let mut progress = latentam_cli::progress::Progress::new("bench raster", b.runs + 1);
     for run in 0..=b.runs {
+        progress.set(run);
         // Forward (its view upload included: it is part of every render).
         ctx.profiler_reset();
         let t = std::time::Instant::now();
@@ -318,6 +320,7 @@ pub fn run(b: RasterBench) -> Result<()> {
             }
         }
     }
+    progress.set(b.runs + 1);
 
     let stats = raster.stats();
     // Work bound: every pixel of a tile walks (at most) the tile's list.
