@@ -8,7 +8,7 @@ use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
 use latentam::mapper::{RunFolder, STATE_FILE};
 
-use crate::mapping::{map_log, summary, Ending, RunOptions, Written, RUN_FILES};
+use crate::mapping::{map_log, summary, Ending, Kept, RunOptions, Written, RUN_FILES};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -70,8 +70,7 @@ pub fn run(args: Args) -> Result<bool> {
         },
         Some(&folder),
     )?;
-    let written = run.write_folder(&folder);
-    let report = match written {
+    let report = match run.write_folder(&folder) {
         Ok(Written::Saved(report)) => {
             print!("{}", summary(&report));
             println!("run folder {}:", args.out.display());
@@ -80,44 +79,39 @@ pub fn run(args: Args) -> Result<bool> {
                     println!("  {}", args.out.join(f).display());
                 }
             }
-            Some(report)
+            Ok(report)
         }
         Ok(Written::Kept(why)) => {
-            eprintln!("{}: not replaced: {why}", args.out.display());
-            None
+            eprintln!(
+                "{}: not replaced: {why}; the folder keeps {}",
+                args.out.display(),
+                run.kept_description()
+            );
+            Err(why)
         }
         Err(e) => {
             return Err(e.context(format!(
                 "{} not replaced; it keeps {}",
                 args.out.display(),
-                run.autosaved_at
-                    .map_or("the run it held before, if any".into(), |k| format!(
-                        "its autosave at keyframe {k}"
-                    ))
+                run.kept_description()
             )))
         }
     };
     match (&run.ending, report) {
-        (Ending::Failed(e), Some(_)) => bail!(
+        (Ending::Failed(e), Ok(_)) => bail!(
             "{e} (what was mapped before is in {}; see report.json)",
             args.out.display()
         ),
-        (Ending::Failed(e), None) => bail!("{e}"),
-        (Ending::Interrupted, None) => {
+        (Ending::Failed(e), Err(_)) => bail!("{e}"),
+        (Ending::Interrupted, Err(_)) => {
             eprintln!("interrupted before a new frame was mapped");
             Ok(true)
         }
         // Resumed on a log whose frames were all mapped already.
-        (_, None)
-            if run.frames == 0
-                && run.skipped > 0
-                && run.mapper.stats().gaussians > 0
-                && !run.mapper.online_ref().is_broken() =>
-        {
-            Ok(false)
-        }
-        (_, None) => bail!("no map was written: {}", run.why_nothing()),
-        (Ending::Interrupted, Some(report)) => {
+        (_, Err(Kept::NothingNew)) => Ok(false),
+        (_, Err(Kept::NothingMapped(why))) => bail!("no map was written: {why}"),
+        (_, Err(Kept::Broken)) => bail!("no map was written: a keyframe failed part-way"),
+        (Ending::Interrupted, Ok(report)) => {
             eprintln!(
                 "interrupted: the run folder holds the {} frames mapped; `latentam map {} --out {} \
                  --resume` continues",

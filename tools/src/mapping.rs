@@ -91,7 +91,32 @@ pub enum Written {
     /// The folder now holds this run, described by the report.
     Saved(Box<RunReport>),
     /// The folder was left as it was, for this reason.
-    Kept(String),
+    Kept(Kept),
+}
+
+/// Why [`Run::write_folder`] left the folder as it was.
+#[derive(Debug)]
+pub enum Kept {
+    /// A resumed run whose log frames were all mapped already: the folder
+    /// holds this map.
+    NothingNew,
+    /// No keyframe, or no Gaussian, came of the log (the reasons, counted).
+    NothingMapped(String),
+    /// A keyframe failed part-way: the map is neither before nor after it.
+    Broken,
+}
+
+impl std::fmt::Display for Kept {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Kept::NothingNew => write!(
+                f,
+                "no new frame was mapped; the folder keeps the map it holds"
+            ),
+            Kept::NothingMapped(why) => write!(f, "nothing was mapped ({why})"),
+            Kept::Broken => write!(f, "a keyframe failed part-way, so the map cannot be saved"),
+        }
+    }
 }
 
 /// Status line of a running map: a line redrawn in place on a terminal,
@@ -200,13 +225,12 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     ctx.profiler_reset();
     let log =
         McapLog::open(&opts.log).with_context(|| format!("opening {}", opts.log.display()))?;
-    // Colour images bound the frames; the summary says how many there are
-    // (on the colour topic the frames will be read from).
-    let color = latentam::io::plan_topics(&log.channels(), &opts.assembly)
-        .map_or_else(|_| opts.assembly.topics.color.clone(), |(t, _)| t.color);
-    let in_log = log.message_count(&color).map(|n| n as usize);
-    let mut frames = McapFrames::from_log(log, opts.assembly.clone())
+    let mut frames = McapFrames::from_log(log.clone(), opts.assembly.clone())
         .with_context(|| format!("opening {}", opts.log.display()))?;
+    // Colour images bound the frames; the summary says how many there are.
+    let in_log = log
+        .message_count(&frames.topics().color)
+        .map(|n| n as usize);
     for line in frames.topic_plan() {
         eprintln!("input: {line}");
     }
@@ -425,32 +449,26 @@ impl Run {
             .collect()
     }
 
-    /// Why the run folder must not be replaced by this run, if so: a
-    /// keyframe failed part-way (the map is neither before nor after it),
-    /// or nothing is mapped.
-    pub fn not_to_save(&self) -> Option<String> {
-        let kept = match self.autosaved_at {
+    /// Why the run folder must not be replaced by this run, if so.
+    pub fn not_to_save(&self) -> Option<Kept> {
+        let stats = self.mapper.stats();
+        if self.mapper.online_ref().is_broken() {
+            Some(Kept::Broken)
+        } else if self.frames == 0 && self.skipped > 0 && stats.gaussians > 0 {
+            Some(Kept::NothingNew)
+        } else if stats.keyframes == 0 || stats.gaussians == 0 {
+            Some(Kept::NothingMapped(self.why_nothing()))
+        } else {
+            None
+        }
+    }
+
+    /// What the folder holds when this run did not replace it.
+    pub fn kept_description(&self) -> String {
+        match self.autosaved_at {
             Some(k) => format!("its autosave at keyframe {k}"),
             None => "the run it held before, if any".into(),
-        };
-        if self.mapper.online_ref().is_broken() {
-            return Some(format!(
-                "a keyframe failed part-way, so the map cannot be saved; the folder keeps {kept}"
-            ));
         }
-        let stats = self.mapper.stats();
-        if self.frames == 0 && self.skipped > 0 && stats.gaussians > 0 {
-            // A resumed run that took no frame: the folder already holds
-            // this map.
-            return Some("no new frame was mapped; the folder keeps the map it holds".into());
-        }
-        if stats.keyframes == 0 || stats.gaussians == 0 {
-            return Some(format!(
-                "nothing was mapped ({}); the folder keeps {kept}",
-                self.why_nothing()
-            ));
-        }
-        None
     }
 
     /// Why no keyframe (or no Gaussian) came of the log, with counts.

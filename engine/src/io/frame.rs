@@ -284,6 +284,12 @@ impl Embeddings {
     }
 }
 
+/// The embedding model a model id names: an `oracle:` prefix (embeddings
+/// built from labels for that model's space) is the same space.
+pub fn embedding_space(model: &str) -> &str {
+    model.strip_prefix("oracle:").unwrap_or(model)
+}
+
 /// Little-endian f16/f32 bytes to floats.
 pub fn decode_floats(data: &[u8], dtype: Dtype) -> Vec<f32> {
     match dtype {

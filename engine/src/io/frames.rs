@@ -236,8 +236,7 @@ impl<T> Default for Queue<T> {
 
 impl<T> Queue<T> {
     fn push(&mut self, stamp: i64, value: T) {
-        self.went_back |= self.watermark.is_some_and(|w| stamp < w);
-        self.watermark = Some(self.watermark.map_or(stamp, |w| w.max(stamp)));
+        self.note(stamp);
         let i = self.items.partition_point(|s| s.stamp <= stamp);
         self.items.insert(i, Stamped { stamp, value });
     }
@@ -621,11 +620,7 @@ impl FrameAssembler {
     }
 
     fn check_signature(&mut self, e: &Embeddings) -> Result<(), Rejection> {
-        let model = e
-            .model
-            .strip_prefix("oracle:")
-            .unwrap_or(&e.model)
-            .to_string();
+        let model = super::embedding_space(&e.model).to_string();
         match &self.embedding_signature {
             None => {
                 self.embedding_signature = Some((e.dim, model));
@@ -1083,11 +1078,17 @@ fn mask_embeddings(m: &MaskFeatures<'_>, pool: &mut BufferPool) -> Result<Embedd
 /// gives them no weight, and their pixels unlabelled. Returns one
 /// rejection per region refused.
 fn drop_bad_regions(e: &mut Embeddings, stamp: i64) -> Vec<Rejection> {
-    let row_bytes = e.dim as usize * e.dtype.size();
+    let dim = e.dim as usize;
+    let row_bytes = dim * e.dtype.size();
+    let values = e.to_f32();
     let mut refused = Vec::new();
     let mut bad_ids = Vec::new();
-    for (i, row) in e.data.chunks_exact_mut(row_bytes.max(1)).enumerate() {
-        let v = super::frame::decode_floats(row, e.dtype);
+    for (i, (row, v)) in e
+        .data
+        .chunks_exact_mut(row_bytes.max(1))
+        .zip(values.chunks_exact(dim.max(1)))
+        .enumerate()
+    {
         let (kind, what) = if v.iter().any(|x| !x.is_finite()) {
             (
                 "embeddings: region with non-finite values",

@@ -52,8 +52,8 @@ use std::path::PathBuf;
 pub use atomic::{partial_path, write_atomically, write_bytes_atomically};
 pub use class_names::{parse_class_names, read_class_names, CLASS_NAMES_METADATA};
 pub use frame::{
-    decode_floats, encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype,
-    EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
+    decode_floats, embedding_space, encode_floats, CameraPose, ColorImage, DepthData, DepthImage,
+    Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
 };
 pub use frames::{
     read_vocabulary, AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource,

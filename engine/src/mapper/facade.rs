@@ -150,32 +150,8 @@ impl Mapper {
         let overrides = settings(state.config())?;
         // The settings that shape the saved state stay as saved: a change
         // asked for would be silently ignored, so it is refused.
-        let (k, o) = (state.config(), &overrides);
-        for (name, saved, asked) in [
-            (
-                "voxel_size",
-                format!("{}", k.voxel_size),
-                format!("{}", o.voxel_size),
-            ),
-            ("atoms", k.atoms.to_string(), o.atoms.to_string()),
-            (
-                "max_regions",
-                k.max_regions.to_string(),
-                o.max_regions.to_string(),
-            ),
-            ("replay", k.replay.to_string(), o.replay.to_string()),
-            (
-                "history_cell",
-                format!("{}", k.history_cell),
-                format!("{}", o.history_cell),
-            ),
-            ("seed", k.seed.to_string(), o.seed.to_string()),
-            (
-                "window_capacity",
-                format!("{:?}", k.window_capacity),
-                format!("{:?}", o.window_capacity),
-            ),
-        ] {
+        let asked = overrides.shape_settings();
+        for ((name, saved), (_, asked)) in state.config().shape_settings().into_iter().zip(asked) {
             if saved != asked {
                 return Err(Error::InvalidArgument(format!(
                     "{name} = {asked} asked for, but the saved map was built with {name} = \

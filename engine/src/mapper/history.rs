@@ -80,14 +80,13 @@ impl KeyframeRecord {
                 })
             })
             .collect();
-        // Embeddings with no usable vector (all zero or non-finite) teach
-        // nothing; the keyframe maps geometry only.
-        let usable = |e: &&crate::io::Embeddings| {
-            e.to_f32()
-                .chunks(e.dim.max(1) as usize)
-                .any(|r| r.iter().all(|x| x.is_finite()) && r.iter().any(|&x| x != 0.0))
-        };
-        let regions = frame.embeddings.as_ref().filter(usable).map(|e| {
+        // Embeddings with no usable vector (all zero or non-finite: zero
+        // once made unit) teach nothing; the keyframe maps geometry only.
+        let regions = frame.embeddings.as_ref().and_then(|e| {
+            let vectors = unit_rows(e.to_f32(), e.dim as usize);
+            if vectors.iter().all(|&x| x == 0.0) {
+                return None;
+            }
             let (width, height, labels, grid) = match &e.layout {
                 EmbeddingLayout::Regions(l) => (l.width, l.height, l.labels.clone(), false),
                 EmbeddingLayout::Grid { rows, cols } => (
@@ -97,15 +96,15 @@ impl KeyframeRecord {
                     true,
                 ),
             };
-            RegionTargets {
+            Some(RegionTargets {
                 width,
                 height,
                 labels,
                 grid,
                 count: e.count,
-                vectors: unit_rows(e.to_f32(), e.dim as usize),
+                vectors,
                 dim: e.dim,
-            }
+            })
         });
         KeyframeRecord {
             stamp_ns: frame.stamp_ns,

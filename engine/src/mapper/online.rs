@@ -15,7 +15,7 @@ use super::trainer::{
 };
 use crate::error::{Error, Result};
 use crate::gpu::{Context, GpuSpan, Submission};
-use crate::io::{CameraPose, Frame};
+use crate::io::{embedding_space, CameraPose, Frame};
 use crate::latent::{projected_queries, LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
 use crate::map::{
@@ -151,6 +151,31 @@ impl MapperConfig {
     /// The configuration as TOML (every field).
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("the configuration is plain data")
+    }
+
+    /// The settings that shape a saved state (buffer sizes, the voxel grid,
+    /// the random stream), by name, as text: a loaded map keeps them.
+    pub(super) fn shape_settings(&self) -> [(&'static str, String); 7] {
+        [
+            ("voxel_size", self.voxel_size.to_string()),
+            ("atoms", self.atoms.to_string()),
+            ("max_regions", self.max_regions.to_string()),
+            ("replay", self.replay.to_string()),
+            ("history_cell", self.history_cell.to_string()),
+            ("seed", self.seed.to_string()),
+            ("window_capacity", format!("{:?}", self.window_capacity)),
+        ]
+    }
+
+    /// Takes `kept`'s [`MapperConfig::shape_settings`].
+    pub(super) fn keep_shape_of(&mut self, kept: &MapperConfig) {
+        self.voxel_size = kept.voxel_size;
+        self.atoms = kept.atoms;
+        self.max_regions = kept.max_regions;
+        self.replay = kept.replay;
+        self.history_cell = kept.history_cell;
+        self.seed = kept.seed;
+        self.window_capacity = kept.window_capacity;
     }
 
     /// Checks ranges; names the first offending field.
@@ -536,6 +561,11 @@ pub struct OnlineMapper {
     pub(super) hurry: Option<&'static AtomicBool>,
 }
 
+/// Whether a caller's flag ([`OnlineMapper::set_hurry_flag`]) is set.
+fn is_set(flag: Option<&AtomicBool>) -> bool {
+    flag.is_some_and(|f| f.load(Ordering::SeqCst))
+}
+
 fn ms_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
@@ -588,10 +618,6 @@ impl OnlineMapper {
         self.hurry = Some(flag);
     }
 
-    fn hurried(&self) -> bool {
-        self.hurry.is_some_and(|f| f.load(Ordering::SeqCst))
-    }
-
     /// The id of the run folder version this state was loaded from (see
     /// [`super::RunFolder`]), when it was.
     pub fn run_id(&self) -> Option<&str> {
@@ -632,9 +658,8 @@ impl OnlineMapper {
                 v.dim, v.model
             )));
         }
-        let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
         if let Some(m) = &self.model {
-            if bare(m) != bare(&v.model) {
+            if embedding_space(m) != embedding_space(&v.model) {
                 return Err(Error::InvalidArgument(format!(
                     "the vocabulary's embeddings are of model `{}`, the map's of `{m}`",
                     v.model
@@ -663,9 +688,8 @@ impl OnlineMapper {
             return bad(format!("intrinsics {k:?} are not a pinhole camera"));
         }
         if let Some(e) = &frame.embeddings {
-            let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
             if let Some(m) = &self.model {
-                if bare(m) != bare(&e.model) {
+                if embedding_space(m) != embedding_space(&e.model) {
                     return bad(format!(
                         "embeddings of model `{}`, the map's are of `{m}`",
                         e.model
@@ -758,24 +782,6 @@ impl OnlineMapper {
         self.model.as_deref()
     }
 
-    /// Refuses embeddings from a second model: their spaces differ, so one
-    /// dictionary cannot serve both. An `oracle:` prefix (embeddings built
-    /// from labels for a model's space) does not count as a difference.
-    fn check_model(&mut self, model: &str, stamp_ns: i64) -> Result<()> {
-        let bare = |m: &str| m.strip_prefix("oracle:").unwrap_or(m).to_string();
-        match &self.model {
-            None => self.model = Some(model.to_string()),
-            Some(m) if bare(m) == bare(model) => {}
-            Some(m) => {
-                return Err(Error::InvalidArgument(format!(
-                    "keyframe at {stamp_ns} ns has embeddings of model `{model}`, the map's are \
-                     of `{m}`"
-                )))
-            }
-        }
-        Ok(())
-    }
-
     pub(super) fn make_head(&self, dim: u32) -> Result<LatentHead> {
         LatentHead::new(
             &self.ctx,
@@ -802,15 +808,8 @@ impl OnlineMapper {
         if self.head.is_none() {
             self.head = Some(self.make_head(r.dim)?);
         }
+        // `check_frame` refused another dimension before anything changed.
         let head = self.head.as_ref().expect("created above");
-        if head.config().dim != r.dim {
-            return Err(Error::InvalidArgument(format!(
-                "keyframe at {} ns has {}-d embeddings, the map's are {}-d",
-                record.stamp_ns,
-                r.dim,
-                head.config().dim
-            )));
-        }
         let rows: Vec<f32> = r
             .vectors
             .chunks(r.dim as usize)
@@ -950,7 +949,9 @@ impl OnlineMapper {
         let seed = self.cfg.seed ^ keyframe.wrapping_mul(0x9e37_79b9);
 
         if let Some(e) = &frame.embeddings {
-            self.check_model(&e.model, frame.stamp_ns)?;
+            // The first model seen is the map's (`check_frame` refused any
+            // other before anything changed).
+            self.model.get_or_insert_with(|| e.model.clone());
         }
         let t = Instant::now();
         self.update_dictionary(&record)?;
@@ -993,7 +994,7 @@ impl OnlineMapper {
         // before this keyframe trained anything).
         let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
         for _ in 1..self.cfg.stage_one_iterations {
-            if self.hurry.is_some_and(|f| f.load(Ordering::SeqCst)) {
+            if is_set(self.hurry) {
                 break;
             }
             trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
@@ -1022,7 +1023,7 @@ impl OnlineMapper {
         } else {
             None
         };
-        let stage_two_iterations = if self.hurried() {
+        let stage_two_iterations = if is_set(self.hurry) {
             0
         } else {
             self.cfg.stage_two_iterations

@@ -1101,12 +1101,7 @@ impl OnlineMapper {
         } = saved;
         let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", origin.display()));
         let mut cfg = overrides.unwrap_or_else(|| kept.clone());
-        cfg.voxel_size = kept.voxel_size;
-        cfg.atoms = kept.atoms;
-        cfg.max_regions = kept.max_regions;
-        cfg.replay = kept.replay;
-        cfg.history_cell = kept.history_cell;
-        cfg.seed = kept.seed;
+        cfg.keep_shape_of(&kept);
         if let Some(w) = &window {
             cfg.window_capacity = Some(w.capacity);
         }
