@@ -2,14 +2,19 @@
 //! evaluate on views that were not keyframes, query one class, and print
 //! a summary with where everything went.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
-use latentam::io::read_vocabulary;
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::mapper::Mapper;
 use latentam_cli::progress::Progress;
 use latentam_cli::scene::{generate, SceneConfig};
 
 use crate::config_cmd::ConfigArgs;
+use crate::pictures::Picture;
+use crate::query_args::{queryable_dim, QueryArgs};
+use crate::render_cmd::{nth_frame, render_pictures, ViewSource};
 use latentam::mapper::RunFolder;
 
 use crate::mapping::{map_log, summary, Ending, RunOptions, Written, RUN_FILES};
@@ -58,7 +63,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut run = map_log(
         &RunOptions {
             log: log.clone(),
-            assembly: latentam::io::AssemblyConfig::default(),
+            assembly: AssemblyConfig::default(),
             config,
             max_frames: None,
             resume: None,
@@ -97,20 +102,26 @@ pub fn run(args: Args) -> Result<()> {
     let vocab = read_vocabulary(&log, "/vocabulary")?;
     let class = vocab.as_ref().and_then(|v| v.names.first().cloned());
     if let Some(name) = &class {
-        println!("4/4 querying the map for `{name}`");
+        println!("4/4 querying the map for `{name}` and drawing a held-out view");
         crate::query_cmd::run(crate::query_cmd::Args {
             dir: run_dir.clone(),
-            embedding: None,
-            name: Some(name.clone()),
-            vocabulary: Some(log.clone()),
+            query: crate::query_args::QueryArgs {
+                embedding: None,
+                name: Some(name.clone()),
+                vocabulary: Some(log.clone()),
+                temperature: 0.1,
+            },
             vocabulary_topic: "/vocabulary".into(),
-            temperature: 0.1,
             out: None,
             top: 5,
             view: None,
             png: None,
         })?;
     }
+
+    // One held-out view (frame 2 was not a keyframe) as pictures.
+    let preview = args.out.join("preview.png");
+    write_preview(&run_dir, &log, class.as_deref(), &preview)?;
 
     println!();
     println!("mapping:");
@@ -131,6 +142,14 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     println!("  {}  (evaluation)", eval_json.display());
+    println!(
+        "  {}  (held-out frame {PREVIEW_FRAME}: input, rendered map, {})",
+        preview.display(),
+        class.as_ref().map_or_else(
+            || "rendered depth".to_string(),
+            |c| format!("relevance of `{c}`")
+        )
+    );
     println!("next:");
     if let Some(name) = &class {
         println!(
@@ -144,10 +163,45 @@ pub fn run(args: Args) -> Result<()> {
         run_dir.display(),
         log.display()
     );
+    println!(
+        "  latentam render {} {} --frame 10 --out views/f10",
+        run_dir.display(),
+        log.display()
+    );
     println!("  latentam profile {} --frames 40", log.display());
     println!(
         "  open {} in a 3DGS viewer (e.g. SuperSplat)",
         run_dir.join("map.ply").display()
     );
     Ok(())
+}
+
+/// The frame the preview shows: not a keyframe (every 4th frame is).
+const PREVIEW_FRAME: u64 = 2;
+
+/// `preview.png`: frame [`PREVIEW_FRAME`] of `log` as input, as rendered
+/// from the map in `run_dir`, and as the relevance of `class` (else the
+/// rendered depth), side by side.
+fn write_preview(run_dir: &Path, log: &Path, class: Option<&str>, out: &Path) -> Result<()> {
+    let ctx = Context::new(ContextOptions::default())?;
+    let mut mapper = Mapper::load(&ctx, run_dir)?;
+    ctx.set_memory_budget(None);
+    let query = match class {
+        Some(name) => {
+            let dim = queryable_dim(&mapper, run_dir)?;
+            let args = QueryArgs {
+                name: Some(name.to_string()),
+                temperature: 0.1,
+                ..QueryArgs::default()
+            };
+            args.resolve(&mapper, dim, Some(log), "/vocabulary")?
+        }
+        None => None,
+    };
+    let frames = McapFrames::open(log, AssemblyConfig::default())?;
+    let frame = nth_frame(frames, PREVIEW_FRAME, log)?;
+    let p = render_pictures(&ctx, &mut mapper, ViewSource::Frame(&frame), query.as_ref())?;
+    let (input, _) = p.input.as_ref().expect("rendered from a frame");
+    let third = p.relevance.as_ref().map_or(&p.depth, |(r, _)| r);
+    Picture::side_by_side(&[input, &p.colour, third], 4).write_png(out)
 }

@@ -14,15 +14,20 @@ mod config_cmd;
 mod convert_cmd;
 mod demo_cmd;
 mod eval_cmd;
+mod export_cmd;
 mod gen_scene;
 mod input_args;
 mod inspect;
 mod interrupt;
 mod map_cmd;
 mod mapping;
+mod pictures;
 mod png_out;
 mod profile_cmd;
+mod query_args;
 mod query_cmd;
+mod render_cmd;
+mod report_html;
 mod selfcheck;
 
 #[derive(Parser)]
@@ -56,6 +61,13 @@ enum Command {
     /// Relevance of every Gaussian of a mapped run to a text embedding or
     /// a vocabulary entry: heat-map PLY, top-k summary, relevance image.
     Query(query_cmd::Args),
+    /// Pictures of a mapped run from one camera (a pose, or a frame of a
+    /// log): rendered colour, depth and, for a query, relevance as PNGs.
+    Render(render_cmd::Args),
+    /// A mapped run for other tools: `--foxglove OUT.mcap` writes the map,
+    /// one relevance cloud per vocabulary word and the trajectory for
+    /// Foxglove.
+    Export(export_cmd::Args),
     /// Re-render a log's frames from a mapped run and report PSNR, depth
     /// L1, embedding cosine loss and L2, and mIoU.
     Eval(eval_cmd::Args),
@@ -92,6 +104,8 @@ fn main() -> ExitCode {
             Err(e) => Err(e),
         },
         Command::Query(args) => query_cmd::run(args),
+        Command::Render(args) => render_cmd::run(args),
+        Command::Export(args) => export_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
         Command::Profile(args) => profile_cmd::run(args),
         Command::Config(args) => config_cmd::run(args),

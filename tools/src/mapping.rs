@@ -537,6 +537,10 @@ impl Run {
             &dir.join("report.json"),
             &serde_json::to_string_pretty(&report)?,
         )?;
+        write_text(
+            &dir.join("report.html"),
+            &crate::report_html::report_html(&report)?,
+        )?;
         staging
             .commit()
             .with_context(|| format!("replacing {}", folder.dir().display()))?;
@@ -571,6 +575,7 @@ pub const RUN_FILES: &[&str] = &[
     DECODER_FILE,
     "config.toml",
     "report.json",
+    "report.html",
     "trace.json",
     "trajectory.txt",
     STATE_FILE,

@@ -579,7 +579,7 @@ fn command_line_misuse_is_a_clear_error() {
 }
 
 #[test]
-fn query_misuse_is_a_clear_error() {
+fn query_render_and_export_misuse_are_clear_errors() {
     let dir = std::env::temp_dir().join(format!("latentam-cli-query-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -697,6 +697,94 @@ fn query_misuse_is_a_clear_error() {
             "loading the map",
         ),
     ]);
+    let out = dir.join("views").join("v");
+    let render = |extra: &[&'static str]| {
+        let mut a = vec![os("render"), run.as_os_str(), os("--out"), out.as_os_str()];
+        a.extend(extra.iter().map(|s| os(s)));
+        a
+    };
+    let render_frame = |run: &std::path::Path, n: &'static str, extra: &[&'static str]| {
+        let mut a = vec![
+            os("render").to_owned(),
+            run.as_os_str().to_owned(),
+            s22.as_os_str().to_owned(),
+            os("--frame").to_owned(),
+            os(n).to_owned(),
+            os("--out").to_owned(),
+            out.as_os_str().to_owned(),
+        ];
+        a.extend(extra.iter().map(|s| os(s).to_owned()));
+        a
+    };
+    let (f99, plain_named, sofa) = (
+        render_frame(&run, "99", &[]),
+        render_frame(&plain, "0", &["--name", "ball"]),
+        render_frame(&run, "0", &["--name", "sofa"]),
+    );
+    let mut both = render_frame(&run, "0", &["--view"]);
+    both.push("0,0,0,0,0,0,1".into());
+    fn refs(v: &[std::ffi::OsString]) -> Vec<&std::ffi::OsStr> {
+        v.iter().map(|s| s.as_os_str()).collect()
+    }
+    fails_clearly(&[
+        (render(&[]), 2, "--frame"),
+        (render(&["--frame", "3"]), 2, "<LOG>"),
+        (
+            render(&["--view", "0,0,0,0,0,0,1", "--name", "ball"]),
+            1,
+            "--name needs --vocabulary LOG",
+        ),
+        (refs(&f99), 1, "has 4 frames: there is no frame 99"),
+        (refs(&plain_named), 1, "mapped without embeddings"),
+        (refs(&sofa), 1, "`sofa` is not in the vocabulary"),
+        (refs(&both), 2, "cannot be used with"),
+    ]);
+    assert!(
+        !dir.join("views").exists(),
+        "a failed render wrote pictures"
+    );
+    let fox = dir.join("fox.mcap");
+    let export = |run: &std::path::Path, extra: &[&'static str]| {
+        let mut a = vec![
+            os("export").to_owned(),
+            run.as_os_str().to_owned(),
+            os("--foxglove").to_owned(),
+            fox.as_os_str().to_owned(),
+        ];
+        a.extend(extra.iter().map(|s| os(s).to_owned()));
+        a
+    };
+    let mut other_vocabulary = export(&run, &["--vocabulary"]);
+    other_vocabulary.push(s16.clone().into());
+    let mut unknown_word = export(&run, &["--words", "sofa", "--vocabulary"]);
+    unknown_word.push(s22.clone().into());
+    fails_clearly(&[
+        (
+            refs(&export(&plain, &["--words", "ball"])),
+            1,
+            "--words needs a vocabulary: the map was mapped without embeddings",
+        ),
+        (refs(&unknown_word), 1, "`sofa` is not in the vocabulary"),
+        (refs(&other_vocabulary), 1, "holds 16-d embeddings"),
+        (
+            refs(&export(&run, &["--temperature", "0"])),
+            1,
+            "--temperature must be positive",
+        ),
+        (
+            refs(&export(&run, &["--frame-id", " "])),
+            1,
+            "--frame-id must name a frame",
+        ),
+    ]);
+    assert!(!fox.exists(), "a failed export wrote a file");
+    // A map without embeddings exports its cloud and trajectory only.
+    let stdout = run_ok(&refs(&export(&plain, &[])));
+    assert!(
+        stdout.contains("/latentam/map") && !stdout.contains("/latentam/relevance"),
+        "{stdout}"
+    );
+    assert!(fox.exists());
     std::fs::remove_dir_all(&dir).ok();
 }
 

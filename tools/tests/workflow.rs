@@ -9,9 +9,10 @@ use std::path::Path;
 use std::process::{Output, Stdio};
 
 mod common;
-use common::{gen_scene, latentam, scratch, write_npy, SCENE_DIM};
+use common::{gen_scene, latentam, run_python, scratch, write_npy, SCENE_DIM};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_ply, read_tum, read_vocabulary, unit_quat, AssemblyConfig, McapFrames};
+use latentam::mapper::eval::Evaluator;
 use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
 
 const FRAMES: usize = 32;
@@ -70,6 +71,16 @@ fn map_query_eval_profile_on_a_generated_log() {
     assert!(mean >= 1.0 && max as f64 >= mean, "{waits}");
     assert_eq!(report["keyframe_reports"].as_array().unwrap().len(), 8);
     assert!(report["kernels"].as_object().unwrap().len() > 10);
+
+    // report.html: three plots over the keyframes and the kernel table,
+    // with nothing fetched from elsewhere.
+    let html = std::fs::read_to_string(run.join("report.html")).unwrap();
+    assert_eq!(html.matches("<svg").count(), 3, "{html}");
+    assert!(html.contains("Time per keyframe, by stage") && html.contains("Slowest kernels"));
+    assert!(html.contains("raster_forward"));
+    for fetch in ["src=", "href=", "@import", "url("] {
+        assert!(!html.contains(fetch), "report.html fetches: {fetch}");
+    }
 
     // config.toml: the effective configuration, overrides included.
     let cfg = MapperConfig::from_toml(&std::fs::read_to_string(run.join("config.toml")).unwrap())
@@ -185,6 +196,114 @@ fn map_query_eval_profile_on_a_generated_log() {
         png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()));
     let info = decoder_png.read_info().unwrap();
     assert_eq!((info.info().width, info.info().height), (120, 90));
+
+    // export --foxglove: read back by the `mcap` package and checked
+    // against Foxglove's published message types; the clouds are the map's
+    // Gaussians and the relevance is what `query --name` gave.
+    let fox = dir.join("fox.mcap");
+    ok(latentam()
+        .arg("export")
+        .arg(&run)
+        .arg("--foxglove")
+        .arg(&fox)
+        .arg("--vocabulary")
+        .arg(&log)
+        .output()
+        .unwrap());
+    let summary: serde_json::Value =
+        serde_json::from_str(&run_python("foxglove_check.py", &[fox.as_os_str()])).unwrap();
+    let topics = summary.as_object().unwrap();
+    assert_eq!(topics.len(), 2 + vocab.names.len(), "{:?}", topics.keys());
+    let points = |topic: &str| summary[topic]["points"].as_array().unwrap().clone();
+    let map_points = points("/latentam/map");
+    assert_eq!(map_points.len(), gaussians);
+    for ((_, g), p) in mapper.global().iter().zip(&map_points).step_by(97) {
+        for (a, axis) in ["x", "y", "z"].iter().enumerate() {
+            assert_eq!(p[axis].as_f64().unwrap() as f32, g.mean[a]);
+        }
+        let opacity = 1.0 / (1.0 + (-g.opacity_logit as f64).exp());
+        assert!((p["opacity"].as_f64().unwrap() - opacity).abs() < 1e-6);
+    }
+    let word0 = vocab.names[0]
+        .to_lowercase()
+        .replace(|c: char| !c.is_ascii_alphanumeric(), "_");
+    let cloud = points(&format!("/latentam/relevance/{word0}"));
+    assert_eq!(
+        summary[format!("/latentam/relevance/{word0}")]["frame_id"],
+        "map"
+    );
+    for (p, r) in cloud.iter().zip(&softmax.extra[0].1) {
+        assert!((p["relevance"].as_f64().unwrap() - *r as f64).abs() < 1e-4);
+    }
+    let poses = summary["/latentam/trajectory"]["poses"].as_array().unwrap();
+    assert_eq!(poses.len(), trajectory.len());
+    for (p, (_, t)) in poses.iter().zip(&trajectory) {
+        assert!((p[0].as_f64().unwrap() - t.translation.x).abs() < 1e-6);
+        assert!((p[6].as_f64().unwrap() - t.rotation.w).abs() < 1e-6);
+    }
+
+    // render --frame: the pictures are the engine's render of that frame's
+    // camera, the frame's own image, and a relevance that is black where
+    // the map covers too little.
+    let prefix = dir.join("views").join("f6");
+    let stdout = ok(latentam()
+        .arg("render")
+        .arg(&run)
+        .arg(&log)
+        .args(["--frame", "6", "--name", &vocab.names[0], "--out"])
+        .arg(&prefix)
+        .output()
+        .unwrap());
+    assert!(stdout.contains("f6-relevance.png"), "{stdout}");
+    let picture = |suffix: &str| {
+        let path = dir.join("views").join(format!("f6-{suffix}.png"));
+        let mut d = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; d.output_buffer_size().unwrap()];
+        let info = d.next_frame(&mut buf).unwrap();
+        assert_eq!(info.color_type, png::ColorType::Rgb, "{suffix}");
+        assert_eq!((info.width, info.height), (120, 90), "{suffix}");
+        buf
+    };
+    let mut again = Mapper::load(&ctx, &run).unwrap();
+    let (view, _) = Evaluator::new(&ctx)
+        .render_frame(again.online(), &frames[6])
+        .unwrap();
+    let expected: Vec<u8> = view
+        .rgbd
+        .iter()
+        .flat_map(|p| (0..3).map(move |c| (p[c].clamp(0.0, 1.0) * 255.0).round() as u8))
+        .collect();
+    let colour = picture("color");
+    let off = colour
+        .iter()
+        .zip(&expected)
+        .filter(|(a, b)| a.abs_diff(**b) > 1)
+        .count();
+    assert!(
+        off * 1000 < colour.len(),
+        "{off} colour values differ from the engine's render"
+    );
+    assert_eq!(picture("input"), frames[6].color.to_rgb8());
+    let relevance = picture("relevance");
+    for (i, &a) in view.alpha.iter().enumerate() {
+        if a < 0.4 {
+            assert_eq!(
+                relevance[3 * i..3 * i + 3],
+                [0, 0, 0],
+                "pixel {i}, alpha {a}"
+            );
+        }
+    }
+    assert!(
+        relevance.iter().any(|&v| v > 0),
+        "the relevance picture is black"
+    );
+    for suffix in ["depth", "input-depth"] {
+        assert!(picture(suffix).iter().any(|&v| v > 0), "{suffix} is black");
+    }
+    drop(again);
 
     // eval on views that were not keyframes.
     let eval = dir.join("eval.json");

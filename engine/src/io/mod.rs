@@ -15,6 +15,8 @@
 //! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
 //! * [`ply`]: Gaussian maps as PLY in the Inria 3DGS layout, for splat
 //!   viewers ([`write_ply`] / [`read_ply`]);
+//! * [`foxglove`]: maps and trajectories as Foxglove point clouds and
+//!   poses (JSON messages in MCAP);
 //! * [`trajectory`]: camera trajectories in the TUM RGB-D format
 //!   ([`write_tum`] / [`read_tum`]).
 //!
@@ -33,6 +35,7 @@ mod atomic;
 pub mod cdr;
 mod class_names;
 pub mod codec;
+pub mod foxglove;
 mod frame;
 mod frames;
 mod input;

@@ -182,6 +182,38 @@ impl Evaluator {
         self.render_within(mapper, camera, self.radius)
     }
 
+    /// Renders the view of `frame`'s camera, reaching at least as far as
+    /// the frame measured depth (so every surface it saw is rendered);
+    /// returns the view and the number of Gaussians rendered.
+    pub fn render_frame(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+    ) -> Result<(RenderedView, usize)> {
+        self.render_record(mapper, frame, &KeyframeRecord::from_frame(frame))
+    }
+
+    fn render_record(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+        record: &KeyframeRecord,
+    ) -> Result<(RenderedView, usize)> {
+        let camera = camera_of(frame);
+        // The farthest measured surface (a corner of the view lies further
+        // than the depth along the axis), so nothing in view is left out.
+        let k = frame.intrinsics;
+        let corner2 = (k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2);
+        let farthest = record.depth_mm.iter().copied().max().unwrap_or(0) as f64 * 1e-3;
+        let reach = farthest * (1.0 + corner2).sqrt() + 0.5;
+        let radius = if reach.is_finite() {
+            self.radius.max(reach)
+        } else {
+            self.radius
+        };
+        self.render_within(mapper, &camera, radius)
+    }
+
     fn render_within(
         &mut self,
         mapper: &mut OnlineMapper,
@@ -226,19 +258,7 @@ impl Evaluator {
         vocabulary: Option<&Vocabulary>,
     ) -> Result<ViewMetrics> {
         let record = KeyframeRecord::from_frame(frame);
-        let camera = camera_of(frame);
-        // The farthest measured surface (a corner of the view lies further
-        // than the depth along the axis), so nothing in view is left out.
-        let k = frame.intrinsics;
-        let corner2 = (k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2);
-        let farthest = record.depth_mm.iter().copied().max().unwrap_or(0) as f64 * 1e-3;
-        let reach = farthest * (1.0 + corner2).sqrt() + 0.5;
-        let radius = if reach.is_finite() {
-            self.radius.max(reach)
-        } else {
-            self.radius
-        };
-        let (view, n) = self.render_within(mapper, &camera, radius)?;
+        let (view, n) = self.render_record(mapper, frame, &record)?;
         let target = record.target_rgbd();
 
         let mut se = 0.0f64;

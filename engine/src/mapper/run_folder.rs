@@ -35,6 +35,7 @@ pub const RUN_FOLDER_FILES: &[&str] = &[
     "map.ply",
     "config.toml",
     "report.json",
+    "report.html",
     "trace.json",
     "trajectory.txt",
     // Written into the folder by `latentam query` by default.

@@ -86,3 +86,26 @@ pub fn write_npy(path: &Path, v: &[f32]) {
     bytes.extend(v.iter().flat_map(|x| x.to_le_bytes()));
     std::fs::write(path, bytes).unwrap();
 }
+
+/// Runs `tests/python/SCRIPT` with `args` under `$LATENTAM_PYTHON` (else
+/// `python3`) and returns its stdout; `tools/run test` sets up the
+/// packages the scripts need.
+pub fn run_python(script: &str, args: &[&std::ffi::OsStr]) -> String {
+    let python = std::env::var("LATENTAM_PYTHON").unwrap_or_else(|_| "python3".into());
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/python")
+        .join(script);
+    let out = Command::new(&python)
+        .arg(&path)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
+    assert!(
+        out.status.success(),
+        "{} failed ({}): {}\n(tools/run test installs the Python packages it needs)",
+        path.display(),
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}

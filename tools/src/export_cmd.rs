@@ -1,0 +1,279 @@
+//! `latentam export`: a mapped run for other tools. `--foxglove` writes
+//! the map as a Foxglove point cloud, one relevance cloud per vocabulary
+//! word and the keyframe trajectory, to open beside the bag it came from.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _, Result};
+use latentam::gpu::{Context, ContextOptions};
+use latentam::io::foxglove::{write_foxglove_file, Cloud};
+use latentam::io::{read_vocabulary, CameraPose, Vocabulary};
+use latentam::mapper::Mapper;
+use latentam_cli::progress::Stages;
+
+use crate::pictures::heat;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run folder written by `latentam map`.
+    pub dir: PathBuf,
+    /// Write a Foxglove file (MCAP, JSON messages with JSON Schema):
+    /// `/latentam/map` (foxglove.PointCloud: position, colour, alpha =
+    /// opacity, and an `opacity` field), `/latentam/relevance/WORD` per
+    /// vocabulary word (a `relevance` field: the softmax over the
+    /// vocabulary, coloured blue to red) and `/latentam/trajectory`
+    /// (foxglove.PosesInFrame, the keyframe poses).
+    #[arg(long, value_name = "OUT.mcap")]
+    pub foxglove: PathBuf,
+    /// Log holding the vocabulary for the relevance clouds; default: the
+    /// mapped log named in the run's report.json, when it has one.
+    #[arg(long, value_name = "LOG")]
+    pub vocabulary: Option<PathBuf>,
+    /// Topic of the vocabulary in that log.
+    #[arg(long, default_value = "/vocabulary")]
+    pub vocabulary_topic: String,
+    /// Only these vocabulary words (comma-separated); default: every word.
+    #[arg(long, value_delimiter = ',', value_name = "WORD,...")]
+    pub words: Vec<String>,
+    /// Softmax temperature over the vocabulary.
+    #[arg(long, default_value_t = 0.1)]
+    pub temperature: f32,
+    /// Frame id of every message: the world frame of the mapped poses
+    /// (e.g. the `--tf-world` frame of the bag).
+    #[arg(long, default_value = "map")]
+    pub frame_id: String,
+}
+
+/// The vocabulary to score against, and the log it came from; `None` when
+/// none was given and the mapped log has none (or is gone).
+fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
+    if let Some(log) = &args.vocabulary {
+        let v = read_vocabulary(log, &args.vocabulary_topic)?.with_context(|| {
+            format!(
+                "{} has no vocabulary on {}",
+                log.display(),
+                args.vocabulary_topic
+            )
+        })?;
+        return Ok(Some((v, log.clone())));
+    }
+    let Ok(text) = latentam::io::read_input_to_string(&args.dir.join("report.json")) else {
+        return Ok(None);
+    };
+    let report: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("reading {}", args.dir.join("report.json").display()))?;
+    let Some(log) = report["log"]
+        .as_str()
+        .map(PathBuf::from)
+        .filter(|p| p.is_file())
+    else {
+        return Ok(None);
+    };
+    // The mapped log is a convenience: one without a vocabulary (or no
+    // longer readable) only means no relevance clouds.
+    Ok(read_vocabulary(&log, &args.vocabulary_topic)
+        .ok()
+        .flatten()
+        .map(|v| (v, log)))
+}
+
+/// A topic-safe form of a vocabulary word: lowercase letters, digits and
+/// `_`, unique among `taken`.
+fn topic_word(word: &str, taken: &mut Vec<String>) -> String {
+    let mut w: String = word
+        .trim()
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if w.is_empty() {
+        w.push_str("word");
+    }
+    let mut unique = w.clone();
+    let mut n = 2;
+    while taken.contains(&unique) {
+        unique = format!("{w}_{n}");
+        n += 1;
+    }
+    taken.push(unique.clone());
+    unique
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if !(args.temperature > 0.0 && args.temperature.is_finite()) {
+        bail!("--temperature must be positive");
+    }
+    if args.frame_id.trim().is_empty() {
+        bail!("--frame-id must name a frame");
+    }
+    let stages = Stages::new("export");
+    stages.start(format_args!("loading the map in {}", args.dir.display()));
+    let ctx = Context::new(ContextOptions::default())?;
+    let mut mapper = Mapper::load(&ctx, &args.dir)
+        .with_context(|| format!("loading the map in {}", args.dir.display()))?;
+    if mapper.global().is_empty() {
+        bail!(
+            "the map in {} holds no Gaussians: there is nothing to export",
+            args.dir.display()
+        );
+    }
+    let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
+    let positions: Vec<[f32; 3]> = gaussians.iter().map(|g| g.mean).collect();
+    let opacity: Vec<f32> = gaussians
+        .iter()
+        .map(|g| 1.0 / (1.0 + (-g.opacity_logit).exp()))
+        .collect();
+    let colours: Vec<[u8; 4]> = gaussians
+        .iter()
+        .zip(&opacity)
+        .map(|(g, &a)| {
+            let c = g.color.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8);
+            [c[0], c[1], c[2], (a * 255.0).round() as u8]
+        })
+        .collect();
+    let trajectory: Vec<(i64, CameraPose)> = mapper.online_ref().trajectory().to_vec();
+    let stamp = trajectory.last().map_or(0, |&(s, _)| s.max(0) as u64);
+
+    // Relevance per word: a softmax over the whole vocabulary, as
+    // `query --name` gives it.
+    let mut relevance: Vec<(String, String, Vec<f32>)> = Vec::new();
+    let has_head = mapper.online_ref().head().is_some();
+    let vocabulary = if has_head {
+        vocabulary_of(&args)?
+    } else {
+        None
+    };
+    if !args.words.is_empty() && vocabulary.is_none() {
+        bail!(
+            "--words needs a vocabulary: {}",
+            if has_head {
+                "give --vocabulary LOG"
+            } else {
+                "the map was mapped without embeddings"
+            }
+        );
+    }
+    if let Some((vocab, log)) = &vocabulary {
+        mapper
+            .online_ref()
+            .check_vocabulary(vocab)
+            .with_context(|| format!("the vocabulary in {}", log.display()))?;
+        for w in &args.words {
+            if !vocab.names.contains(w) {
+                bail!(
+                    "`{w}` is not in the vocabulary; it has: {}",
+                    vocab.names.join(", ")
+                );
+            }
+        }
+        let count = vocab.names.len();
+        stages.start(format_args!(
+            "scoring {} Gaussians against {count} words of {}",
+            gaussians.len(),
+            log.display()
+        ));
+        let scores = mapper.query_many(&vocab.vectors)?;
+        let mut taken = Vec::new();
+        for (index, name) in vocab.names.iter().enumerate() {
+            if !args.words.is_empty() && !args.words.contains(name) {
+                continue;
+            }
+            let rel: Vec<f32> = scores
+                .chunks_exact(count)
+                .map(|row| {
+                    let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+                    let sum: f32 = row
+                        .iter()
+                        .map(|s| ((s - max) / args.temperature).exp())
+                        .sum();
+                    ((row[index] - max) / args.temperature).exp() / sum
+                })
+                .collect();
+            relevance.push((name.clone(), topic_word(name, &mut taken), rel));
+        }
+    }
+
+    stages.start(format_args!("writing {}", args.foxglove.display()));
+    write_foxglove_file(&args.foxglove, &args.frame_id, |out| {
+        out.cloud(
+            "/latentam/map",
+            stamp,
+            &Cloud {
+                positions: &positions,
+                colours: &colours,
+                value: ("opacity", &opacity),
+            },
+        )?;
+        for (_, word, rel) in &relevance {
+            let heat_colours: Vec<[u8; 4]> = rel
+                .iter()
+                .map(|&r| {
+                    let c = heat(r).map(|x| (x * 255.0).round() as u8);
+                    [c[0], c[1], c[2], 255]
+                })
+                .collect();
+            out.cloud(
+                &format!("/latentam/relevance/{word}"),
+                stamp,
+                &Cloud {
+                    positions: &positions,
+                    colours: &heat_colours,
+                    value: ("relevance", rel),
+                },
+            )?;
+        }
+        let poses: Vec<CameraPose> = trajectory.iter().map(|&(_, p)| p).collect();
+        out.poses("/latentam/trajectory", stamp, &poses)
+    })?;
+    print_summary(
+        &args.foxglove,
+        gaussians.len(),
+        &relevance,
+        trajectory.len(),
+        &args.frame_id,
+        has_head,
+        vocabulary.is_some(),
+    );
+    Ok(())
+}
+
+fn print_summary(
+    path: &Path,
+    gaussians: usize,
+    relevance: &[(String, String, Vec<f32>)],
+    poses: usize,
+    frame_id: &str,
+    has_head: bool,
+    has_vocabulary: bool,
+) {
+    println!("{} (frame `{frame_id}`):", path.display());
+    println!("  /latentam/map  {gaussians} points");
+    for (name, word, _) in relevance {
+        println!("  /latentam/relevance/{word}  relevance of `{name}`");
+    }
+    println!("  /latentam/trajectory  {poses} keyframe poses");
+    if !has_head {
+        println!("  (mapped without embeddings: no relevance clouds)");
+    } else if !has_vocabulary {
+        println!("  (no vocabulary: give --vocabulary LOG for relevance clouds)");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn topic_words_are_safe_and_unique() {
+        let mut taken = Vec::new();
+        assert_eq!(topic_word("Coffee table", &mut taken), "coffee_table");
+        assert_eq!(topic_word("coffee-table", &mut taken), "coffee_table_2");
+        assert_eq!(topic_word("  ", &mut taken), "word");
+        assert_eq!(topic_word("é/x", &mut taken), "__x");
+    }
+}
