@@ -1,7 +1,21 @@
-//! Single-precision matrix products (kernels `gemm_nn`, `gemm_tn`, `gemm_nt`
-//! in `glsl/gemm.comp`; CPU reference [`crate::reference::gemm`]).
+//! Single-precision matrix products, in two kernels with one contract
+//! (CPU reference [`crate::reference::gemm`]):
+//!
+//! * [`GemmKernel::Tiled`] (`gemm_nn`, `gemm_tn`, `gemm_nt` in
+//!   `glsl/gemm.comp`): shared-memory tiles, for GPUs;
+//! * [`GemmKernel::Blocked`] (`gemm_blocked_*` in `glsl/gemm_blocked.comp`):
+//!   8×8 register blocks and no barriers, for CPU drivers, where shared
+//!   memory and barriers cost more than they save; from 16-byte loads when
+//!   the shape allows ([`Gemm::vector_loads_fit`]), else the `_scalar`
+//!   variants.
+//!
+//! [`Gemm::record`] picks by the device's type and the product's shape.
 
-use latentam_shaders::{push, GEMM_NN, GEMM_NT, GEMM_TN};
+use ash::vk::PhysicalDeviceType;
+use latentam_shaders::{
+    push, GEMM_BLOCKED_NN, GEMM_BLOCKED_NN_SCALAR, GEMM_BLOCKED_NT, GEMM_BLOCKED_NT_SCALAR,
+    GEMM_BLOCKED_TN, GEMM_BLOCKED_TN_SCALAR, GEMM_NN, GEMM_NT, GEMM_TN,
+};
 
 use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
@@ -9,6 +23,26 @@ pub use crate::reference::gemm::Transpose;
 
 /// Rows and columns of C computed per workgroup.
 pub const GEMM_TILE: u32 = 64;
+
+/// Which kernel computes a product.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GemmKernel {
+    /// Shared-memory tiles: any shape; the choice on GPUs.
+    Tiled,
+    /// Register blocks: any shape; the choice on CPU drivers.
+    Blocked,
+}
+
+impl GemmKernel {
+    /// The kernel suited to a device of type `device_type`.
+    pub fn for_device(device_type: PhysicalDeviceType) -> Self {
+        if device_type == PhysicalDeviceType::CPU {
+            GemmKernel::Blocked
+        } else {
+            GemmKernel::Tiled
+        }
+    }
+}
 
 /// Shape and scaling of one product `C = alpha·op(A)·op(B) + beta·C`
 /// (row-major, contiguous; op(A) is m×k, op(B) is k×n).
@@ -34,10 +68,41 @@ impl Gemm {
         2.0 * self.m as f64 * self.n as f64 * self.k as f64
     }
 
-    /// Records the product.
+    /// Whether [`GemmKernel::Blocked`] can read this product's operands 16
+    /// bytes at a time: its loads run along K for A (transposed: along M)
+    /// and along N for B (transposed: along K), which must be multiples of
+    /// 4.
+    pub fn vector_loads_fit(&self) -> bool {
+        let four = |x: u32| x % 4 == 0;
+        match self.transpose {
+            Transpose::None => four(self.k) && four(self.n),
+            Transpose::A => four(self.m) && four(self.n),
+            Transpose::B => four(self.k),
+        }
+    }
+
+    /// The kernel [`Gemm::record`] uses on a device of type `device_type`.
+    pub fn kernel_on(&self, device_type: PhysicalDeviceType) -> GemmKernel {
+        GemmKernel::for_device(device_type)
+    }
+
+    /// Records the product with the kernel suited to the device and shape.
     pub fn record<'a>(
         &self,
         rec: &mut Recorder<'a>,
+        a: &'a Buffer,
+        b: &'a Buffer,
+        c: &'a Buffer,
+    ) -> Result<()> {
+        let kernel = self.kernel_on(rec.info().device_type);
+        self.record_with(rec, kernel, a, b, c)
+    }
+
+    /// Records the product with `kernel`.
+    pub fn record_with<'a>(
+        &self,
+        rec: &mut Recorder<'a>,
+        kernel: GemmKernel,
         a: &'a Buffer,
         b: &'a Buffer,
         c: &'a Buffer,
@@ -61,11 +126,47 @@ impl Gemm {
             alpha: self.alpha,
             beta: self.beta,
         };
+        // Both kernels cover a GEMM_TILE × GEMM_TILE tile per workgroup.
         let groups = [self.n.div_ceil(GEMM_TILE), self.m.div_ceil(GEMM_TILE), 1];
-        match self.transpose {
-            Transpose::None => rec.dispatch(&GEMM_NN, groups, &[a, b, c], &p),
-            Transpose::A => rec.dispatch(&GEMM_TN, groups, &[a, b, c], bytemuck::cast_ref(&p)),
-            Transpose::B => rec.dispatch(&GEMM_NT, groups, &[a, b, c], bytemuck::cast_ref(&p)),
+        let abc = [a, b, c];
+        // One push-constant layout for all six kernels, a type for each.
+        match (kernel, self.transpose) {
+            (GemmKernel::Tiled, Transpose::None) => rec.dispatch(&GEMM_NN, groups, &abc, &p),
+            (GemmKernel::Tiled, Transpose::A) => {
+                rec.dispatch(&GEMM_TN, groups, &abc, bytemuck::cast_ref(&p))
+            }
+            (GemmKernel::Tiled, Transpose::B) => {
+                rec.dispatch(&GEMM_NT, groups, &abc, bytemuck::cast_ref(&p))
+            }
+            (GemmKernel::Blocked, t) => match (t, self.vector_loads_fit()) {
+                (Transpose::None, true) => {
+                    rec.dispatch(&GEMM_BLOCKED_NN, groups, &abc, bytemuck::cast_ref(&p))
+                }
+                (Transpose::A, true) => {
+                    rec.dispatch(&GEMM_BLOCKED_TN, groups, &abc, bytemuck::cast_ref(&p))
+                }
+                (Transpose::B, true) => {
+                    rec.dispatch(&GEMM_BLOCKED_NT, groups, &abc, bytemuck::cast_ref(&p))
+                }
+                (Transpose::None, false) => rec.dispatch(
+                    &GEMM_BLOCKED_NN_SCALAR,
+                    groups,
+                    &abc,
+                    bytemuck::cast_ref(&p),
+                ),
+                (Transpose::A, false) => rec.dispatch(
+                    &GEMM_BLOCKED_TN_SCALAR,
+                    groups,
+                    &abc,
+                    bytemuck::cast_ref(&p),
+                ),
+                (Transpose::B, false) => rec.dispatch(
+                    &GEMM_BLOCKED_NT_SCALAR,
+                    groups,
+                    &abc,
+                    bytemuck::cast_ref(&p),
+                ),
+            },
         }
     }
 }
@@ -82,11 +183,18 @@ mod tests {
     fn gemm_variants_match_reference_on_random_shapes() {
         let mut r = rng("gemm_variants_match_reference_on_random_shapes");
         with_context(|ctx| {
+            // Odd shapes (the blocked kernel's scalar loads, K tails) and
+            // multiples of 4 (its 16-byte loads) with edges inside a block
+            // (4, 12, 68) and inside a tile (132).
             let mut shapes = vec![
                 (1u32, 1u32, 1u32),
                 (64, 64, 16),
                 (65, 63, 17),
                 (3, 130, 200),
+                (4, 4, 4),
+                (12, 68, 8),
+                (132, 20, 36),
+                (37, 132, 100),
             ];
             for _ in 0..3 {
                 shapes.push((
@@ -94,9 +202,14 @@ mod tests {
                     r.random_range(1..150),
                     r.random_range(1..300),
                 ));
+                let four = |r: &mut rand_chacha::ChaCha8Rng, hi: u32| 4 * r.random_range(1..hi);
+                shapes.push((four(&mut r, 40), four(&mut r, 40), four(&mut r, 80)));
             }
             for (m, n, k) in shapes {
-                for t in [Transpose::None, Transpose::A, Transpose::B] {
+                for (t, kernel) in [Transpose::None, Transpose::A, Transpose::B]
+                    .into_iter()
+                    .flat_map(|t| [(t, GemmKernel::Tiled), (t, GemmKernel::Blocked)])
+                {
                     for (alpha, beta) in [(1.0f32, 0.0f32), (0.5, -2.0)] {
                         let a: Vec<f32> = (0..m * k).map(|_| r.random_range(-1.0..1.0)).collect();
                         let b: Vec<f32> = (0..k * n).map(|_| r.random_range(-1.0..1.0)).collect();
@@ -119,7 +232,7 @@ mod tests {
                         } else {
                             rec.upload(&cb, 0, &c).unwrap();
                         }
-                        g.record(&mut rec, &ab, &bb, &cb).unwrap();
+                        g.record_with(&mut rec, kernel, &ab, &bb, &cb).unwrap();
                         rec.submit().unwrap().wait().unwrap();
                         let got = ctx.download::<f32>(&cb).unwrap();
                         gemm(
@@ -138,7 +251,7 @@ mod tests {
                         for i in 0..(m * n) as usize {
                             assert!(
                                 (got[i] - c[i]).abs() <= tol,
-                                "{t:?} {m}x{n}x{k} alpha={alpha} beta={beta}: C[{i}] = {} want {}",
+                                "{kernel:?} {t:?} {m}x{n}x{k} alpha={alpha} beta={beta}: C[{i}] = {} want {}",
                                 got[i],
                                 c[i]
                             );

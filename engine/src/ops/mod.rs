@@ -10,7 +10,7 @@ mod softmax;
 mod sort;
 
 pub use atomic::{scatter_add_f32, SCATTER_THREADS};
-pub use gemm::{Gemm, Transpose, GEMM_TILE};
+pub use gemm::{Gemm, GemmKernel, Transpose, GEMM_TILE};
 pub use normalize::{normalize_rows, normalize_rows_backward};
 pub use reduce::{ReduceOp, Reducer, REDUCE_BLOCK};
 pub use scan::{PrefixScan, SCAN_BLOCK};
