@@ -5,10 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
 use latentam::io::foxglove::{write_foxglove_file, Cloud};
 use latentam::io::{read_vocabulary, CameraPose, Vocabulary};
-use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
 
 use crate::pictures::heat;
@@ -112,16 +110,7 @@ pub fn run(args: Args) -> Result<()> {
         bail!("--frame-id must name a frame");
     }
     let stages = Stages::new("export");
-    stages.start(format_args!("loading the map in {}", args.dir.display()));
-    let ctx = Context::new(ContextOptions::default())?;
-    let mut mapper = Mapper::load(&ctx, &args.dir)
-        .with_context(|| format!("loading the map in {}", args.dir.display()))?;
-    if mapper.global().is_empty() {
-        bail!(
-            "the map in {} holds no Gaussians: there is nothing to export",
-            args.dir.display()
-        );
-    }
+    let (_ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "export")?;
     let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
     let positions: Vec<[f32; 3]> = gaussians.iter().map(|g| g.mean).collect();
     let opacity: Vec<f32> = gaussians

@@ -19,6 +19,7 @@ mod gen_scene;
 mod input_args;
 mod inspect;
 mod interrupt;
+mod loaded_map;
 mod map_cmd;
 mod mapping;
 mod pictures;

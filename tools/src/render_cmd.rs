@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
-use latentam::gpu::{Context, ContextOptions};
+use latentam::gpu::Context;
 use latentam::io::{Frame, McapFrames};
 use latentam::mapper::eval::Evaluator;
 use latentam::mapper::Mapper;
@@ -203,16 +203,7 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     let stages = Stages::new("render");
-    stages.start(format_args!("loading the map in {}", args.dir.display()));
-    let ctx = Context::new(ContextOptions::default())?;
-    let mut mapper = Mapper::load(&ctx, &args.dir)
-        .with_context(|| format!("loading the map in {}", args.dir.display()))?;
-    if mapper.global().is_empty() {
-        bail!(
-            "the map in {} holds no Gaussians: there is nothing to render",
-            args.dir.display()
-        );
-    }
+    let (ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "render")?;
     // Rendered views of any size; the mapping budget is not meant for it.
     ctx.set_memory_budget(None);
     let query = if args.query.given() {
