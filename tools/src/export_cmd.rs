@@ -9,7 +9,8 @@ use latentam::io::foxglove::{write_foxglove_file, Cloud};
 use latentam::io::{read_vocabulary, CameraPose, Vocabulary};
 use latentam_cli::progress::Stages;
 
-use crate::pictures::heat;
+use crate::pictures::{heat, to_bytes};
+use crate::query_args::softmax_rows;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -121,8 +122,8 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .zip(&opacity)
         .map(|(g, &a)| {
-            let c = g.color.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8);
-            [c[0], c[1], c[2], (a * 255.0).round() as u8]
+            let [r, gr, b] = to_bytes(g.color);
+            [r, gr, b, to_bytes([a; 3])[0]]
         })
         .collect();
     let trajectory: Vec<(i64, CameraPose)> = mapper.online_ref().trajectory().to_vec();
@@ -166,22 +167,16 @@ pub fn run(args: Args) -> Result<()> {
             gaussians.len(),
             log.display()
         ));
-        let scores = mapper.query_many(&vocab.vectors)?;
+        let probabilities =
+            softmax_rows(&mapper.query_many(&vocab.vectors)?, count, args.temperature);
         let mut taken = Vec::new();
         for (index, name) in vocab.names.iter().enumerate() {
             if !args.words.is_empty() && !args.words.contains(name) {
                 continue;
             }
-            let rel: Vec<f32> = scores
+            let rel: Vec<f32> = probabilities
                 .chunks_exact(count)
-                .map(|row| {
-                    let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-                    let sum: f32 = row
-                        .iter()
-                        .map(|s| ((s - max) / args.temperature).exp())
-                        .sum();
-                    ((row[index] - max) / args.temperature).exp() / sum
-                })
+                .map(|row| row[index])
                 .collect();
             relevance.push((name.clone(), topic_word(name, &mut taken), rel));
         }
@@ -202,8 +197,8 @@ pub fn run(args: Args) -> Result<()> {
             let heat_colours: Vec<[u8; 4]> = rel
                 .iter()
                 .map(|&r| {
-                    let c = heat(r).map(|x| (x * 255.0).round() as u8);
-                    [c[0], c[1], c[2], 255]
+                    let [red, g, b] = to_bytes(heat(r));
+                    [red, g, b, 255]
                 })
                 .collect();
             out.cloud(

@@ -19,11 +19,14 @@ pub struct Picture {
     pub rgb: Vec<u8>,
 }
 
+/// A colour in 0..1 (clamped) as 8-bit values.
+pub fn to_bytes(c: [f32; 3]) -> [u8; 3] {
+    c.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8)
+}
+
 impl Picture {
     fn from_pixels(width: u32, height: u32, pixels: impl Iterator<Item = [f32; 3]>) -> Self {
-        let rgb = pixels
-            .flat_map(|c| c.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8))
-            .collect();
+        let rgb = pixels.flat_map(to_bytes).collect();
         Picture { width, height, rgb }
     }
 

@@ -43,6 +43,19 @@ pub enum Relevance {
     Softmax { index: usize, temperature: f32 },
 }
 
+/// Each `count`-wide row of `scores` through a softmax at `temperature`.
+pub fn softmax_rows(scores: &[f32], count: usize, temperature: f32) -> Vec<f32> {
+    let mut out = Vec::with_capacity(scores.len());
+    for row in scores.chunks_exact(count) {
+        let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+        let start = out.len();
+        out.extend(row.iter().map(|s| ((s - max) / temperature).exp()));
+        let sum: f32 = out[start..].iter().sum();
+        out[start..].iter_mut().for_each(|e| *e /= sum);
+    }
+    out
+}
+
 /// A resolved query: the texts to score against and how.
 pub struct Query {
     /// `count × dim` text embeddings.
@@ -146,17 +159,12 @@ impl Query {
     pub fn relevance_of(&self, scores: &[f32]) -> Vec<f32> {
         match self.relevance {
             Relevance::Cosine => scores.to_vec(),
-            Relevance::Softmax { index, temperature } => scores
-                .chunks_exact(self.count)
-                .map(|row| {
-                    let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-                    let e: Vec<f32> = row
-                        .iter()
-                        .map(|s| ((s - max) / temperature).exp())
-                        .collect();
-                    e[index] / e.iter().sum::<f32>()
-                })
-                .collect(),
+            Relevance::Softmax { index, temperature } => {
+                softmax_rows(scores, self.count, temperature)
+                    .chunks_exact(self.count)
+                    .map(|row| row[index])
+                    .collect()
+            }
         }
     }
 

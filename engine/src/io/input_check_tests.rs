@@ -38,15 +38,7 @@ fn write_entries(path: &Path, entries: &[Entry]) {
         let info = CameraInfo::pinhole(Header::at(t, "cam"), W, H, [5.0, 5.0, 3.5, 2.5]);
         log.write("/camera/color/camera_info", lt, &info).unwrap();
         let data = color_bytes(e.id);
-        let img = Image {
-            header: Header::at(t, "cam"),
-            height: H,
-            width: W,
-            encoding: "rgb8",
-            is_bigendian: false,
-            step: W * 3,
-            data: &data,
-        };
+        let img = Image::packed(Header::at(t, "cam"), W, H, "rgb8", &data);
         if e.color {
             log.write("/camera/color/image_raw", lt, &img).unwrap();
         }

@@ -116,15 +116,7 @@ fn write_log(path: &Path, spec: &Spec, tweak: Tweak<'_>) {
                 let info = CameraInfo::pinhole(Header::at(t, "cam"), W, H, [5.0, 5.0, 3.5, 2.5]);
                 log.write("/camera/color/camera_info", lt, &info).unwrap();
                 let data = color_bytes(frame as u8);
-                let img = Image {
-                    header: Header::at(t, "cam"),
-                    height: H,
-                    width: W,
-                    encoding: "rgb8",
-                    is_bigendian: false,
-                    step: W * 3,
-                    data: &data,
-                };
+                let img = Image::packed(Header::at(t, "cam"), W, H, "rgb8", &data);
                 log.write("/camera/color/image_raw", lt, &img).unwrap();
                 if spec.embeddings {
                     let labels: Vec<u16> = (0..W * H)

@@ -50,15 +50,13 @@ fn write_realsense_bag(path: &Path, extra_depth: bool) {
             log.write(info, lt, &k).unwrap();
         }
         let data = color_bytes(i as u8);
-        let img = Image {
-            header: Header::at(t, "camera_color_optical_frame"),
-            height: H,
-            width: W,
-            encoding: "rgb8",
-            is_bigendian: false,
-            step: W * 3,
-            data: &data,
-        };
+        let img = Image::packed(
+            Header::at(t, "camera_color_optical_frame"),
+            W,
+            H,
+            "rgb8",
+            &data,
+        );
         log.write(COLOR, lt, &img).unwrap();
         // The driver's compressed twin and an infrared stream: not colour.
         let twin = CompressedImage {
