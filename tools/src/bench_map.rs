@@ -36,6 +36,46 @@ struct CurvePoint {
     gpu_bytes: u64,
     cpu_bytes: u64,
     total_ms: f64,
+    kmeans_ms: f64,
+    stage_one_ms: f64,
+    stage_two_ms: f64,
+    /// Dictionary atoms after the keyframe.
+    atoms: u32,
+    /// Host waits in Stage I and Stage II.
+    stage_one_and_two_waits: u64,
+}
+
+/// Mean milliseconds per keyframe of one phase of the run: while the
+/// dictionary fills, or once it holds every atom it may.
+#[derive(Serialize)]
+struct Phase {
+    keyframes: usize,
+    total_ms: f64,
+    kmeans_ms: f64,
+    stage_one_ms: f64,
+    stage_two_ms: f64,
+    /// Gaussians on the GPU after the keyframe: Stage I grows with them.
+    resident: f64,
+}
+
+impl Phase {
+    /// The stages whose work grows with the dictionary.
+    fn dictionary_ms(&self) -> f64 {
+        self.kmeans_ms + self.stage_two_ms
+    }
+
+    fn of(points: &[&CurvePoint]) -> Option<Phase> {
+        let n = points.len();
+        let mean = |f: fn(&CurvePoint) -> f64| points.iter().map(|p| f(p)).sum::<f64>() / n as f64;
+        (n > 0).then(|| Phase {
+            keyframes: n,
+            total_ms: mean(|p| p.total_ms),
+            kmeans_ms: mean(|p| p.kmeans_ms),
+            stage_one_ms: mean(|p| p.stage_one_ms),
+            stage_two_ms: mean(|p| p.stage_two_ms),
+            resident: mean(|p| p.resident as f64),
+        })
+    }
 }
 
 #[derive(Serialize)]
@@ -49,6 +89,14 @@ struct Report {
     wall_s: f64,
     keyframes_per_s: f64,
     ms_per_keyframe: KeyframeTimings,
+    /// Host waits, submissions and dispatches per keyframe.
+    gpu_calls_per_keyframe: crate::mapping::HostWaits,
+    /// The dictionary's capacity, and the time per keyframe while it
+    /// filled and once it was full (the first keyframe, which creates
+    /// every workspace, is left out of both).
+    atoms: u32,
+    while_filling: Option<Phase>,
+    once_full: Option<Phase>,
     paging_gpu_ms_total: Option<f64>,
     paging_hidden_ms_total: Option<f64>,
     paging_hidden_share: Option<f64>,
@@ -112,7 +160,9 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         ..ContextOptions::default()
     })?;
     latentam::mapper::warm_up(&ctx)?;
+    let atoms = cfg.atoms;
     let mut mapper = OnlineMapper::new(&ctx, cfg)?;
+    let mut keyframes_seen = Vec::new();
     let frames = McapFrames::open(path, AssemblyConfig::default())
         .with_context(|| format!("opening {}", path.display()))?;
     let limit = if b.log.is_some() {
@@ -139,7 +189,13 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
                 gpu_bytes: k.gpu_bytes,
                 cpu_bytes: k.cpu_bytes,
                 total_ms: k.timings.total_ms,
+                kmeans_ms: k.timings.kmeans_ms,
+                stage_one_ms: k.timings.stage_one_ms,
+                stage_two_ms: k.timings.stage_two_ms,
+                atoms: k.atoms,
+                stage_one_and_two_waits: k.gpu_calls.training().host_waits,
             });
+            keyframes_seen.push(k.clone());
             kept.push(frame);
         }
         progress.set(i + 1);
@@ -176,6 +232,19 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         (Some(g), Some(h)) if g > 0.0 => Some(h / g),
         _ => None,
     };
+    // Without embeddings there is no dictionary to fill.
+    let has_dictionary = curve.iter().any(|p| p.atoms > 0);
+    let phase = |full: bool| {
+        if !has_dictionary {
+            return None;
+        }
+        let points: Vec<&CurvePoint> = curve
+            .iter()
+            .skip(1)
+            .filter(|p| (p.atoms >= atoms) == full)
+            .collect();
+        Phase::of(&points)
+    };
     let report = Report {
         device: ctx.info().name.clone(),
         source,
@@ -186,6 +255,10 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         wall_s: wall,
         keyframes_per_s: keyframes as f64 / wall,
         ms_per_keyframe: crate::mapping::mean_timings(t, keyframes),
+        gpu_calls_per_keyframe: crate::mapping::HostWaits::of(&keyframes_seen),
+        atoms,
+        while_filling: phase(false),
+        once_full: phase(true),
         paging_gpu_ms_total: t.paging_gpu_ms,
         paging_hidden_ms_total: t.paging_hidden_ms,
         paging_hidden_share: hidden_share,
@@ -230,6 +303,31 @@ fn print_report(r: &Report) {
     println!("  paging hidden     {:>10}", opt(m.paging_hidden_ms));
     println!("  pruning           {:>10.1}", m.prune_ms);
     println!("  total             {:>10.1}", m.total_ms);
+    println!("{}", r.gpu_calls_per_keyframe.summary());
+    let last_atoms = r.curve.last().map_or(0, |p| p.atoms);
+    if last_atoms > 0 {
+        println!("dictionary: {last_atoms} of {} atoms at the end", r.atoms);
+    }
+    for (name, phase) in [
+        ("while filling", &r.while_filling),
+        ("once full", &r.once_full),
+    ] {
+        if let Some(p) = phase {
+            println!(
+                "  {name:<14} {:>4} keyframes: {:.1} ms per keyframe (k-means {:.1}, Stage I {:.1}, \
+                 Stage II {:.1}), {:.0} Gaussians resident",
+                p.keyframes, p.total_ms, p.kmeans_ms, p.stage_one_ms, p.stage_two_ms, p.resident
+            );
+        }
+    }
+    if let (Some(a), Some(b)) = (&r.while_filling, &r.once_full) {
+        println!(
+            "  once full / while filling: {:.2}x in all, {:.2}x in k-means + Stage II (Stage I \
+             grows with the Gaussians resident, not the dictionary)",
+            b.total_ms / a.total_ms,
+            b.dictionary_ms() / a.dictionary_ms()
+        );
+    }
     println!(
         "paging hidden behind Stage II: {} (dedicated transfer queue: {})",
         r.paging_hidden_share

@@ -343,8 +343,8 @@ pub struct RunReport {
     pub evicted: u64,
     pub fetched: u64,
     pub ms_per_keyframe: KeyframeTimings,
-    /// Times the host blocked on the GPU per keyframe of this run (each a
-    /// CPU–GPU round trip): mean and most.
+    /// What each keyframe asked of the GPU: host waits (each a CPU–GPU
+    /// round trip; in all and in Stage I + II), submissions, dispatches.
     pub host_waits_per_keyframe: HostWaits,
     pub paging_hidden_share: Option<f64>,
     pub dedicated_transfer_queue: bool,
@@ -358,20 +358,49 @@ pub struct RunReport {
     pub keyframe_reports: Vec<KeyframeReport>,
 }
 
-/// Host waits per keyframe.
+/// Host waits per keyframe (mean and most), in all and in Stage I and
+/// Stage II together, with the mean submissions and dispatches.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct HostWaits {
     pub mean: f64,
     pub max: u64,
+    pub stage_one_and_two_mean: f64,
+    pub stage_one_and_two_max: u64,
+    pub submissions_mean: f64,
+    pub dispatches_mean: f64,
 }
 
 impl HostWaits {
-    fn of(keyframes: &[KeyframeReport]) -> Self {
+    pub fn of(keyframes: &[KeyframeReport]) -> Self {
         let n = keyframes.len().max(1) as f64;
+        let mean = |f: &dyn Fn(&KeyframeReport) -> u64| {
+            keyframes.iter().map(|k| f(k) as f64).sum::<f64>() / n
+        };
+        let max = |f: &dyn Fn(&KeyframeReport) -> u64| keyframes.iter().map(f).max().unwrap_or(0);
+        let all = |k: &KeyframeReport| k.gpu_calls.total().host_waits;
+        let training = |k: &KeyframeReport| k.gpu_calls.training().host_waits;
         HostWaits {
-            mean: keyframes.iter().map(|k| k.host_waits as f64).sum::<f64>() / n,
-            max: keyframes.iter().map(|k| k.host_waits).max().unwrap_or(0),
+            mean: mean(&all),
+            max: max(&all),
+            stage_one_and_two_mean: mean(&training),
+            stage_one_and_two_max: max(&training),
+            submissions_mean: mean(&|k| k.gpu_calls.total().submissions),
+            dispatches_mean: mean(&|k| k.gpu_calls.total().dispatches),
         }
+    }
+
+    /// One line for a summary.
+    pub fn summary(&self) -> String {
+        format!(
+            "host waits on the GPU per keyframe: {:.1} on average, {} at most ({:.1} and {} in \
+             Stage I + II); {:.1} submissions and {:.0} dispatches on average",
+            self.mean,
+            self.max,
+            self.stage_one_and_two_mean,
+            self.stage_one_and_two_max,
+            self.submissions_mean,
+            self.dispatches_mean
+        )
     }
 }
 
@@ -603,10 +632,8 @@ pub fn summary(r: &RunReport) -> String {
          {:.0}, pruning {:.0})\n",
         m.total_ms, m.kmeans_ms, m.insertion_ms, m.stage_one_ms, m.stage_two_ms, m.prune_ms
     );
-    s += &format!(
-        "host waits on the GPU per keyframe: {:.1} on average, {} at most\n",
-        r.host_waits_per_keyframe.mean, r.host_waits_per_keyframe.max
-    );
+    s += &r.host_waits_per_keyframe.summary();
+    s.push('\n');
     let skipped = r.ingest.total_skipped();
     if skipped > 0 {
         s += &format!("input: {skipped} messages or frames skipped (see report.json `ingest`)\n");

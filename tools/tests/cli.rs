@@ -189,6 +189,20 @@ fn bench_map_writes_json_with_stages_memory_and_curves() {
     // The memory split names its parts; mapping allocates no feature image.
     assert_eq!(v["peak_gpu_split"]["features"], 0);
     assert!(v["peak_gpu_split"]["images"].as_u64().unwrap() > 0);
+    // Round trips per keyframe, and the dictionary filling (the first
+    // keyframe is in neither phase).
+    let calls = &v["gpu_calls_per_keyframe"];
+    assert_eq!(calls["stage_one_and_two_max"], 3, "{calls}");
+    assert!(calls["dispatches_mean"].as_f64().unwrap() > 50.0, "{calls}");
+    let atoms: Vec<u64> = curve.iter().map(|p| p["atoms"].as_u64().unwrap()).collect();
+    assert!(
+        atoms[0] > 0 && atoms.windows(2).all(|w| w[1] >= w[0]),
+        "{atoms:?}"
+    );
+    assert!(curve.iter().all(|p| p["stage_one_and_two_waits"] == 3));
+    assert_eq!(v["atoms"], 2000);
+    assert_eq!(v["while_filling"]["keyframes"], 2);
+    assert!(v["once_full"].is_null());
 }
 
 #[test]

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex};
 
 use ash::vk;
 
+use super::counters::{CallCounters, GpuCalls};
 use super::memory::MemoryAccounting;
 use super::objects::ObjectCounts;
 use super::pipeline::PipelineCache;
@@ -227,8 +228,8 @@ pub(crate) struct Device {
     pub profiler: Option<Mutex<Profiler>>,
     /// Query pools can be reset from the host (Vulkan 1.2 `hostQueryReset`).
     pub host_query_reset: bool,
-    /// Times the host blocked on the GPU (submission waits, idle waits).
-    pub host_waits: AtomicU64,
+    /// Submissions, host waits and dispatches so far.
+    pub(crate) calls: CallCounters,
 }
 
 impl Device {
@@ -491,16 +492,17 @@ impl Context {
     /// [`crate::gpu::Submission::wait`], every wait for idle): each one is
     /// a CPU–GPU round trip a latency-critical caller pays for.
     pub fn host_waits(&self) -> u64 {
-        self.dev
-            .host_waits
-            .load(std::sync::atomic::Ordering::Relaxed)
+        self.dev.calls.snapshot().host_waits
+    }
+
+    /// Submissions, host waits and dispatches so far (see [`GpuCalls`]).
+    pub fn gpu_calls(&self) -> GpuCalls {
+        self.dev.calls.snapshot()
     }
 
     /// Blocks until the GPU has finished all submitted work.
     pub fn wait_idle(&self) -> Result<()> {
-        self.dev
-            .host_waits
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.dev.calls.waited();
         // SAFETY: valid device.
         unsafe { self.dev.raw.device_wait_idle() }.vk("vkDeviceWaitIdle")?;
         self.dev.collect();
@@ -820,6 +822,6 @@ fn open_device(
         pipelines: PipelineCache::default(),
         profiler,
         host_query_reset,
-        host_waits: AtomicU64::new(0),
+        calls: CallCounters::default(),
     })
 }

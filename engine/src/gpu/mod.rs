@@ -8,6 +8,7 @@
 
 mod buffer;
 mod context;
+mod counters;
 mod memory;
 mod objects;
 mod pipeline;
@@ -21,6 +22,7 @@ mod tests;
 
 pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
+pub use counters::GpuCalls;
 pub use memory::{ByteCount, MemoryReport};
 pub use objects::LiveObjects;
 pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};

@@ -500,6 +500,7 @@ impl<'a> Recorder<'a> {
             }
             d.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
         }
+        self.dev.calls.dispatched();
         let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
         if let (Some(s), Some(e)) = (start, end) {
             self.labels.push((k.name, s, e));
@@ -779,6 +780,7 @@ impl<'a> Recorder<'a> {
         }
         // SAFETY: ending our own command buffer.
         unsafe { self.dev.raw.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
+        self.dev.calls.submitted();
 
         let dev = self.dev.clone();
         let transfer = self.transfer;
@@ -888,9 +890,7 @@ impl Submission {
     /// [`Submission::wait`], returning when the batch ran if it was timed
     /// ([`Recorder::start_span`]) and the queue has timestamps.
     pub fn wait_span(mut self) -> Result<Option<GpuSpan>> {
-        self.dev
-            .host_waits
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.dev.calls.waited();
         let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
         // SAFETY: waiting on our own timeline semaphore.

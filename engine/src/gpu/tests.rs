@@ -252,6 +252,7 @@ fn every_host_wait_is_counted() {
     with_context(|ctx| {
         let buf = ctx.upload_new("waits/data", &[1u32; 64]).unwrap();
         let before = ctx.host_waits();
+        let calls = ctx.gpu_calls();
         // An upload and a download each submit and wait once.
         ctx.upload(&buf, 0, &[2u32; 64]).unwrap();
         let back: Vec<u32> = ctx.download(&buf).unwrap();
@@ -265,5 +266,10 @@ fn every_host_wait_is_counted() {
         s.wait().unwrap();
         ctx.wait_idle().unwrap();
         assert_eq!(ctx.host_waits() - before, 4);
+        let calls = ctx.gpu_calls() - calls;
+        assert_eq!(
+            (calls.submissions, calls.host_waits, calls.dispatches),
+            (3, 4, 0)
+        );
     });
 }

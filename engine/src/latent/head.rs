@@ -389,7 +389,10 @@ mod tests {
                 total
             };
             let first = loss_after(1);
-            let later = loss_after(60);
+            // Some draws settle with two classes sharing an atom (about a
+            // third, at a quarter of the first loss): 200 steps leave even
+            // those well under half, where 60 did not always.
+            let later = loss_after(200);
             assert!(later < 0.5 * first, "feature loss {first} → {later}");
             // D stays within roughly δ of D⁰ per atom.
             let atoms = ctx.download::<f32>(head.atoms()).unwrap();

@@ -24,8 +24,8 @@ pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 pub use facade::{Mapper, STATE_FILE};
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use online::{
-    Integrated, KeyframeReport, KeyframeTimings, MapperConfig, MapperStats, OnlineMapper,
-    PagingReport,
+    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperConfig, MapperStats,
+    OnlineMapper, PagingReport,
 };
 pub use persist::SavedState;
 pub use preset::Preset;

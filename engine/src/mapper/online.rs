@@ -14,7 +14,7 @@ use super::trainer::{
     views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS,
 };
 use crate::error::{Error, Result};
-use crate::gpu::{Context, GpuSpan, Submission};
+use crate::gpu::{Context, GpuCalls, GpuSpan, Submission};
 use crate::io::{embedding_space, CameraPose, Frame};
 use crate::latent::{projected_queries, LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
@@ -424,6 +424,42 @@ pub struct PagingReport {
     pub blocking: bool,
 }
 
+/// What a keyframe asked of the GPU, by stage: submissions, host waits
+/// (each a CPU–GPU round trip) and dispatches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct KeyframeGpuCalls {
+    /// The dictionary's streaming k-means update.
+    pub dictionary: GpuCalls,
+    /// Rendering what the map explains, seeding, and paging when new
+    /// Gaussians do not fit the window.
+    pub insertion: GpuCalls,
+    /// Stage I: one measuring wait and one for the step, per iteration.
+    pub stage_one: GpuCalls,
+    /// Stage II: one wait for all its iterations.
+    pub stage_two: GpuCalls,
+    /// Re-synchronising the window beside Stage II.
+    pub paging: GpuCalls,
+    /// Pruning, on the keyframes that prune.
+    pub prune: GpuCalls,
+}
+
+impl KeyframeGpuCalls {
+    /// Every stage together.
+    pub fn total(&self) -> GpuCalls {
+        self.dictionary
+            + self.insertion
+            + self.stage_one
+            + self.stage_two
+            + self.paging
+            + self.prune
+    }
+
+    /// Stage I and Stage II together: the optimisation.
+    pub fn training(&self) -> GpuCalls {
+        self.stage_one + self.stage_two
+    }
+}
+
 /// Where a keyframe's time went (milliseconds of wall time unless named
 /// GPU).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -481,9 +517,10 @@ pub struct KeyframeReport {
     pub gpu_bytes: u64,
     /// CPU bytes of the global map and the keyframe history afterwards.
     pub cpu_bytes: u64,
-    /// Times the host blocked on the GPU during this keyframe
-    /// ([`crate::gpu::Context::host_waits`]).
-    pub host_waits: u64,
+    /// Dictionary atoms after this keyframe's update.
+    pub atoms: u32,
+    /// What this keyframe asked of the GPU, by stage.
+    pub gpu_calls: KeyframeGpuCalls,
 }
 
 /// Running totals ([`OnlineMapper::stats`]).
@@ -941,7 +978,13 @@ impl OnlineMapper {
     fn integrate_keyframe(&mut self, frame: &Frame) -> Result<Box<KeyframeReport>> {
         let frame_index = self.frames;
         let t_start = Instant::now();
-        let waits_before = self.ctx.host_waits();
+        let mut calls = KeyframeGpuCalls::default();
+        let mut since = self.ctx.gpu_calls();
+        let mut lap = |ctx: &Context, stage: &mut GpuCalls| {
+            let now = ctx.gpu_calls();
+            *stage = *stage + (now - since);
+            since = now;
+        };
         let mut timings = KeyframeTimings::default();
         let mut paging = Vec::new();
         let record = KeyframeRecord::from_frame(frame);
@@ -956,6 +999,7 @@ impl OnlineMapper {
         let t = Instant::now();
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);
+        lap(&self.ctx, &mut calls.dictionary);
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
@@ -976,6 +1020,7 @@ impl OnlineMapper {
             self.last_sync = Some(centre);
         }
         timings.insertion_ms = ms_since(t);
+        lap(&self.ctx, &mut calls.insertion);
 
         // Stage I on the keyframe and B past ones.
         let t = Instant::now();
@@ -1001,6 +1046,7 @@ impl OnlineMapper {
         }
         self.window_dirty = true;
         timings.stage_one_ms = ms_since(t);
+        lap(&self.ctx, &mut calls.stage_one);
 
         // Stage II reads no Gaussian: the window pages beside it. The
         // paging batch is submitted first so that it waits for Stage I
@@ -1019,6 +1065,7 @@ impl OnlineMapper {
             let run = self.submit_sync(&plan, false)?;
             timings.paging_cpu_ms += ms_since(t_page);
             self.last_sync = Some(centre);
+            lap(&self.ctx, &mut calls.paging);
             Some(run)
         } else {
             None
@@ -1035,6 +1082,7 @@ impl OnlineMapper {
         )?;
         let (stage_two, stage_two_span) = stage_two_run.finish()?;
         timings.stage_two_gpu_ms = stage_two_span.map(|s| s.ms());
+        lap(&self.ctx, &mut calls.stage_two);
         if let Some(run) = run {
             let t_page = Instant::now();
             let (report, span) = self.finish_sync(run, stage_two_span.as_ref())?;
@@ -1042,6 +1090,7 @@ impl OnlineMapper {
             timings.paging_gpu_ms = span.map(|s| s.0);
             timings.paging_hidden_ms = span.and_then(|s| s.1);
             paging.push(report);
+            lap(&self.ctx, &mut calls.paging);
         }
         timings.stage_two_ms = ms_since(t);
 
@@ -1058,6 +1107,7 @@ impl OnlineMapper {
         };
         timings.prune_ms = ms_since(t);
         timings.total_ms = ms_since(t_start);
+        lap(&self.ctx, &mut calls.prune);
 
         for p in &paging {
             self.stats.evicted += p.evicted as u64;
@@ -1081,7 +1131,8 @@ impl OnlineMapper {
             resident: self.window.as_ref().map_or(0, |w| w.len()),
             gpu_bytes: self.ctx.memory_report().total.current,
             cpu_bytes,
-            host_waits: self.ctx.host_waits() - waits_before,
+            atoms: self.head.as_ref().map_or(0, |h| h.atom_count()),
+            gpu_calls: calls,
         }))
     }
 

@@ -180,6 +180,10 @@ impl Trainer {
     /// differentiated first, while its forward pass is still at hand; the
     /// others are rendered again. The step equals the one of the whole
     /// batch rendered at once, up to the order of float sums.
+    ///
+    /// Two host waits: one measures the batch (how many splats and tile
+    /// intersections each chunk's rendering needs), one ends the step;
+    /// everything between is one submission.
     pub fn stage_one(
         &mut self,
         ctx: &Context,
@@ -235,24 +239,32 @@ impl Trainer {
             self.region_targets = Buffer::device(ctx, "trainer/region_targets", target_bytes)?;
         }
 
+        // Every chunk is measured at once (the only host wait before the
+        // end): the Gaussians do not change until the Adam step that ends
+        // the recording, so the counts stay valid for both passes.
+        let chunk_cameras: Vec<Vec<Camera>> = chunks.iter().map(cameras).collect();
+        let camera_lists: Vec<&[Camera]> = chunk_cameras.iter().map(Vec::as_slice).collect();
+        let sized = self
+            .raster
+            .measure(window.params(), count, &camera_lists, channels)?;
+        for s in &sized {
+            report.raster.visible += s.stats().visible;
+            report.raster.intersections += s.stats().intersections;
+        }
+        let mut rec = ctx.recorder()?;
+
         // Pass 1: pool every chunk's regions, then the decoder's step.
         let head = head.filter(|_| n > 0);
         let mut live = None;
+        let mut feature_readback = None;
         if let Some(head) = head {
             for (c, chunk) in chunks.iter().enumerate() {
                 let Some(regions) = &chunk.regions else {
                     continue;
                 };
-                let stats = self.raster.forward_channels(
-                    window.params(),
-                    count,
-                    &cameras(chunk),
-                    channels,
-                )?;
-                report.raster.visible += stats.visible;
-                report.raster.intersections += stats.intersections;
+                self.raster
+                    .record_forward(&mut rec, window.params(), &sized[c])?;
                 report.forward_passes += 1;
-                let mut rec = ctx.recorder()?;
                 self.pooling
                     .record_upload_at(&mut rec, regions, chunk.first_row)?;
                 let row_bytes = QUERY_DIM as u64 * 4;
@@ -264,16 +276,15 @@ impl Trainer {
                 )?;
                 self.raster.record_pool(
                     &mut rec,
+                    &sized[c],
                     window.params(),
                     self.pooling.pooled(),
                     chunk.first_row,
                     self.pooling.labels(),
                     self.pooling.labels_offsets_at(),
                 )?;
-                rec.submit()?.wait()?;
                 live = Some(c);
             }
-            let mut rec = ctx.recorder()?;
             rec.upload(&self.region_targets, 0, &rows)?;
             rec.upload(&self.row_weights, 0, &weights)?;
             head.record_step(
@@ -284,9 +295,7 @@ impl Trainer {
                 n,
                 true,
             )?;
-            let readback = head.record_loss_readback(&mut rec, n)?.0;
-            rec.submit()?.wait()?;
-            report.feature = FeatureLoss::sum(&readback)?;
+            feature_readback = Some(head.record_loss_readback(&mut rec, n)?.0);
         }
 
         // Pass 2: differentiate each chunk (the one still rendered first,
@@ -294,20 +303,13 @@ impl Trainer {
         // then one Adam step on the sum.
         let mut order: Vec<usize> = live.into_iter().collect();
         order.extend((0..chunks.len()).rev().filter(|&c| Some(c) != live));
+        let mut image_readbacks = Vec::with_capacity(order.len());
         for (k, &c) in order.iter().enumerate() {
             let chunk = &chunks[c];
             if Some(c) != live || k > 0 {
-                let stats = self.raster.forward_channels(
-                    window.params(),
-                    count,
-                    &cameras(chunk),
-                    channels,
-                )?;
+                self.raster
+                    .record_forward(&mut rec, window.params(), &sized[c])?;
                 report.forward_passes += 1;
-                if chunk.regions.is_none() || head.is_none() {
-                    report.raster.visible += stats.visible;
-                    report.raster.intersections += stats.intersections;
-                }
             }
             let mut target = Vec::with_capacity(chunk.layout.pixels as usize);
             let mut valid = Vec::with_capacity(chunk.views.len());
@@ -317,7 +319,6 @@ impl Trainer {
             }
             let images = self.raster.images()?;
             let image_grads = self.raster.image_grads()?;
-            let mut rec = ctx.recorder()?;
             rec.upload(&self.target, 0, &target)?;
             self.image_loss.record_part(
                 &mut rec,
@@ -347,9 +348,10 @@ impl Trainer {
                 }
                 _ => QueryGradients::Zero,
             };
-            let image_readback = self.image_loss.record_readback(&mut rec)?;
+            image_readbacks.push(self.image_loss.record_readback(&mut rec)?);
             self.raster.record_backward_into(
                 &mut rec,
+                &sized[c],
                 window.params(),
                 &self.grads,
                 k > 0,
@@ -364,8 +366,13 @@ impl Trainer {
                     None,
                 )?;
             }
-            rec.submit()?.wait()?;
-            let v = image_readback.values()?;
+        }
+        rec.submit()?.wait()?;
+        if let Some(readback) = feature_readback {
+            report.feature = FeatureLoss::sum(&readback)?;
+        }
+        for readback in image_readbacks {
+            let v = readback.values()?;
             report.image.l1 += v.l1;
             report.image.ssim += v.ssim;
             report.image.depth += v.depth;

@@ -20,8 +20,8 @@ pub use gaussians::{
     GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS, GAUSSIAN_BYTES, QUERY_DIM,
 };
 pub use rasterizer::{
-    BlendLayout, Channels, ForwardStats, PixelBuffers, QueryGradients, Rasterizer, RenderSettings,
-    RenderedView,
+    BlendLayout, Channels, ForwardStats, PixelBuffers, QueryGradients, Rasterizer, RenderBatch,
+    RenderSettings, RenderedView,
 };
 pub use views::{BatchLayout, ViewSlot};
 

@@ -19,19 +19,21 @@
 //! against.
 
 use latentam_shaders::{
-    push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_BACKWARD, PROJECT_FORWARD,
-    RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS,
+    push, PROJECT_BACKWARD, RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS,
     RASTER_BACKWARD_COLUMNS_ATTACHED, RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
     RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
     RASTER_BACKWARD_COLUMNS_CAS, RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
     RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR,
     RASTER_FORWARD_COLUMNS, RASTER_FORWARD_COLUMNS_COLOUR, RASTER_POOL, RASTER_POOL_CAS,
     RASTER_POOL_COLUMNS, RASTER_POOL_COLUMNS_CAS, RASTER_POOL_PLAIN, RASTER_POOL_PLAIN_CAS,
-    TILE_RANGES,
 };
 
+mod forward;
+
+pub use forward::RenderBatch;
+
 use super::views::BatchLayout;
-use super::{Camera, GaussianBuffers, QUERY_DIM};
+use super::{GaussianBuffers, QUERY_DIM};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, DeviceInfo, Recorder};
 use crate::ops::{PrefixScan, RadixSorter};
@@ -358,10 +360,8 @@ pub struct Rasterizer {
     ctx: Context,
     /// Background and gradient routing; read by every forward/backward.
     pub settings: RenderSettings,
-    layout: BatchLayout,
-    n_gaussians: u64,
-    stats: ForwardStats,
-    channels: Channels,
+    /// The last batch [`Rasterizer::forward_channels`] rendered.
+    last: RenderBatch,
     views: Grow,
     splats: Grow,
     rects: Grow,
@@ -395,10 +395,7 @@ impl Rasterizer {
         Self {
             ctx: ctx.clone(),
             settings: RenderSettings::default(),
-            layout: BatchLayout::default(),
-            n_gaussians: 0,
-            stats: ForwardStats::default(),
-            channels: Channels::All,
+            last: RenderBatch::default(),
             views: Grow::new("raster/views"),
             splats: Grow::new("raster/splats"),
             rects: Grow::new("raster/rects"),
@@ -424,12 +421,18 @@ impl Rasterizer {
 
     /// Layout of the last forward batch.
     pub fn layout(&self) -> &BatchLayout {
-        &self.layout
+        &self.last.layout
     }
 
     /// Counts of the last forward batch.
     pub fn stats(&self) -> ForwardStats {
-        self.stats
+        self.last.stats
+    }
+
+    /// The last batch [`Rasterizer::forward_channels`] rendered, for the
+    /// `record_*` calls that take one.
+    pub fn last_batch(&self) -> &RenderBatch {
+        &self.last
     }
 
     /// The last forward pass's images.
@@ -494,12 +497,12 @@ impl Rasterizer {
     }
 
     /// Checks a labels buffer (each batch pixel's region, then from
-    /// `offsets_at` the regions' CSR offsets) against the last batch.
-    fn check_region_labels(&self, labels: &Buffer, offsets_at: u32) -> Result<()> {
-        if (offsets_at as u64) < self.layout.pixels {
+    /// `offsets_at` the regions' CSR offsets) against `batch`.
+    fn check_region_labels(batch: &RenderBatch, labels: &Buffer, offsets_at: u32) -> Result<()> {
+        if (offsets_at as u64) < batch.layout.pixels {
             return Err(Error::InvalidArgument(format!(
                 "region offsets at {offsets_at} overlap the labels of {} pixels",
-                self.layout.pixels
+                batch.layout.pixels
             )));
         }
         labels.ensure_bytes((offsets_at as u64 + 1) * 4, "region labels and offsets")
@@ -575,219 +578,6 @@ impl Rasterizer {
         ]
     }
 
-    /// Renders `cameras` from Gaussians `0..count` of `gaussians` and waits
-    /// for the result (read it with [`Rasterizer::images`] or
-    /// [`Rasterizer::download_view`]).
-    pub fn forward(
-        &mut self,
-        gaussians: &GaussianBuffers,
-        count: u64,
-        cameras: &[Camera],
-    ) -> Result<ForwardStats> {
-        self.forward_channels(gaussians, count, cameras, Channels::All)
-    }
-
-    /// [`Rasterizer::forward`] writing only the images `channels` names.
-    pub fn forward_channels(
-        &mut self,
-        gaussians: &GaussianBuffers,
-        count: u64,
-        cameras: &[Camera],
-        channels: Channels,
-    ) -> Result<ForwardStats> {
-        if cameras.is_empty() {
-            return Err(Error::InvalidArgument("no views to render".into()));
-        }
-        if count > gaussians.capacity() {
-            return Err(Error::InvalidArgument(format!(
-                "rendering {count} Gaussians from buffers of capacity {}",
-                gaussians.capacity()
-            )));
-        }
-        let (layout, gpu_views) = BatchLayout::new(cameras)?;
-        let pairs = count * cameras.len() as u64;
-        let max_view_tiles = layout
-            .views
-            .iter()
-            .map(|v| (v.tiles_x * v.tiles_y) as u64)
-            .max()
-            .unwrap_or(0);
-        // Every count below is a u32 on the GPU, intersections included.
-        if pairs.saturating_mul(max_view_tiles) >= u32::MAX as u64 {
-            return Err(Error::InvalidArgument(format!(
-                "a batch of {} views x {count} Gaussians could exceed 2^32 tile intersections; \
-                 render fewer views per batch",
-                cameras.len()
-            )));
-        }
-        let ctx = self.ctx.clone();
-        self.views.ensure(&ctx, gpu_views.len() as u64 * 128)?;
-        self.splats.ensure(&ctx, pairs * 32)?;
-        self.rects.ensure(&ctx, pairs * 8)?;
-        self.tile_counts.ensure(&ctx, pairs * 4)?;
-        self.positions.ensure(&ctx, (pairs + 1) * 4)?;
-        self.pair_offsets.ensure(&ctx, (pairs + 1) * 4)?;
-        self.depth_keys.ensure(&ctx, pairs * 4)?;
-        self.depth_order.ensure(&ctx, pairs * 4)?;
-        self.sorted_offsets.ensure(&ctx, (pairs + 1) * 4)?;
-        self.ensure_scan(pairs + 1)?;
-
-        // Phase 1: project, then count visible pairs and intersections. The
-        // total is taken from a scan of the counts in pair order (an extra
-        // scan) so that one read-back sizes everything that follows.
-        let n_views = cameras.len() as u32;
-        let (visible, intersections) = {
-            let mut rec = ctx.recorder()?;
-            rec.upload(self.views.get(), 0, &gpu_views)?;
-            let positions = self.positions.get();
-            let pair_offsets = self.pair_offsets.get();
-            rec.fill_u32(positions, 0);
-            rec.fill_u32(pair_offsets, 0);
-            rec.dispatch_linear(
-                &PROJECT_FORWARD,
-                pairs.div_ceil(256) as u32,
-                &[
-                    self.views.get(),
-                    &gaussians.means,
-                    &gaussians.log_scales,
-                    &gaussians.quats,
-                    &gaussians.opacity_logits,
-                    self.splats.get(),
-                    self.rects.get(),
-                    self.tile_counts.get(),
-                    positions,
-                ],
-                &push::ProjectForward {
-                    n_gaussians: count as u32,
-                    n_views,
-                },
-            )?;
-            rec.copy(self.tile_counts.get(), 0, pair_offsets, 0, pairs * 4)?;
-            let scan = self.scan.as_ref().expect("scan sized above");
-            scan.record(&mut rec, positions, pairs + 1)?;
-            scan.record(&mut rec, pair_offsets, pairs + 1)?;
-            let vis = rec.download(positions, pairs * 4, 4)?;
-            let isect = rec.download(pair_offsets, pairs * 4, 4)?;
-            rec.submit()?.wait()?;
-            (vis.read::<u32>()?[0] as u64, isect.read::<u32>()?[0] as u64)
-        };
-
-        // Phase 2: sort, bin and blend.
-        self.isect_keys.ensure(&ctx, intersections * 4)?;
-        self.isect_pairs.ensure(&ctx, intersections * 4)?;
-        self.ranges.ensure(&ctx, layout.tiles as u64 * 8)?;
-        self.state.ensure(&ctx, layout.pixels * 8)?;
-        self.grad_splats.ensure(&ctx, pairs * 32)?;
-        self.ensure_pixels(layout.pixels, channels)?;
-        self.ensure_sorter(visible.max(intersections))?;
-        {
-            let mut rec = ctx.recorder()?;
-            let scan = self.scan.as_ref().expect("scan sized above");
-            let sorter = self.sorter.as_ref().expect("sorter sized above");
-            let images = self.images.as_ref().expect("images sized above");
-            let bins = |n: u64| push::CompactVisible {
-                n: n as u32,
-                n_gaussians: count as u32,
-                n_views,
-            };
-            rec.dispatch_linear(
-                &COMPACT_VISIBLE,
-                pairs.div_ceil(256) as u32,
-                &[
-                    self.splats.get(),
-                    self.tile_counts.get(),
-                    self.positions.get(),
-                    self.depth_keys.get(),
-                    self.depth_order.get(),
-                ],
-                &bins(pairs),
-            )?;
-            sorter.record(
-                &mut rec,
-                self.depth_keys.get(),
-                self.depth_order.get(),
-                visible,
-                32,
-            )?;
-            rec.dispatch_linear(
-                &GATHER_COUNTS,
-                visible.div_ceil(256) as u32,
-                &[
-                    self.tile_counts.get(),
-                    self.depth_order.get(),
-                    self.sorted_offsets.get(),
-                ],
-                bytemuck::cast_ref(&bins(visible)),
-            )?;
-            scan.record(&mut rec, self.sorted_offsets.get(), visible)?;
-            rec.dispatch_linear(
-                &EMIT_TILES,
-                visible.div_ceil(256) as u32,
-                &[
-                    self.views.get(),
-                    self.rects.get(),
-                    self.depth_order.get(),
-                    self.sorted_offsets.get(),
-                    self.isect_keys.get(),
-                    self.isect_pairs.get(),
-                ],
-                bytemuck::cast_ref(&bins(visible)),
-            )?;
-            let tile_bits = (32 - layout.tiles.saturating_sub(1).leading_zeros()).max(1);
-            sorter.record(
-                &mut rec,
-                self.isect_keys.get(),
-                self.isect_pairs.get(),
-                intersections,
-                tile_bits,
-            )?;
-            rec.fill_u32(self.ranges.get(), 0);
-            rec.dispatch_linear(
-                &TILE_RANGES,
-                intersections.div_ceil(256) as u32,
-                &[self.isect_keys.get(), self.ranges.get()],
-                bytemuck::cast_ref(&bins(intersections)),
-            )?;
-            // A query image too large for one buffer is rendered in bands:
-            // the blend runs once per band, and the bands are kept on the
-            // host for `download_view`.
-            let band = self.query_band_pixels();
-            let banded = channels == Channels::All && layout.pixels > band;
-            self.record_blend(&mut rec, gaussians, count, &layout, channels, 0, band)?;
-            let first_band = if banded {
-                Some(rec.download(images.query()?, 0, band * QUERY_BYTES)?)
-            } else {
-                None
-            };
-            rec.submit()?.wait()?;
-            self.banded_query = None;
-            if let Some(first_band) = first_band {
-                let mut host = Vec::with_capacity((layout.pixels * QUERY_DIM as u64) as usize);
-                host.extend(first_band.read::<f32>()?);
-                let mut start = band;
-                while start < layout.pixels {
-                    let len = band.min(layout.pixels - start);
-                    let mut rec = ctx.recorder()?;
-                    self.record_blend(&mut rec, gaussians, count, &layout, channels, start, len)?;
-                    let images = self.images.as_ref().expect("images sized above");
-                    let rb = rec.download(images.query()?, 0, len * QUERY_BYTES)?;
-                    rec.submit()?.wait()?;
-                    host.extend(rb.read::<f32>()?);
-                    start += len;
-                }
-                self.banded_query = Some(host);
-            }
-        }
-        self.layout = layout;
-        self.n_gaussians = count;
-        self.channels = channels;
-        self.stats = ForwardStats {
-            visible,
-            intersections,
-        };
-        Ok(self.stats)
-    }
-
     /// Records the backward pass of the last forward batch: from the upstream
     /// gradients in [`Rasterizer::image_grads`] to `grads` (same layout as
     /// the parameters; Gaussians `0..count` of the forward pass are
@@ -798,17 +588,21 @@ impl Rasterizer {
         gaussians: &'a GaussianBuffers,
         grads: &'a GaussianBuffers,
     ) -> Result<()> {
-        self.record_backward_into(rec, gaussians, grads, false, QueryGradients::Image)
+        let last = &self.last;
+        self.record_backward_into(rec, last, gaussians, grads, false, QueryGradients::Image)
     }
 
     /// [`Rasterizer::record_backward`] that adds this batch's gradients to
     /// those already in `grads` when `accumulate` is set (a large batch
     /// rendered one chunk of views at a time then sums to the gradient of
     /// the whole batch, with images for one chunk only), and takes the
-    /// upstream query gradients from `query`.
+    /// upstream query gradients from `query`. `batch` is the batch whose
+    /// forward pass was recorded last ([`Rasterizer::last_batch`] after
+    /// [`Rasterizer::forward_channels`]).
     pub fn record_backward_into<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
+        batch: &RenderBatch,
         gaussians: &'a GaussianBuffers,
         grads: &'a GaussianBuffers,
         accumulate: bool,
@@ -818,7 +612,7 @@ impl Rasterizer {
         let images = self.images()?;
         let stub = self.stub()?;
         let attached = !self.settings.detach_query_gradients;
-        if attached && (self.channels != Channels::All || images.query.is_none()) {
+        if attached && (batch.channels != Channels::All || images.query.is_none()) {
             return Err(Error::InvalidArgument(
                 "query gradients reaching geometry need the rendered query: render with \
                  Channels::All"
@@ -833,19 +627,19 @@ impl Rasterizer {
                 labels,
                 offsets_at,
             } => {
-                self.check_region_labels(labels, offsets_at)?;
+                Self::check_region_labels(batch, labels, offsets_at)?;
                 (1, first_row, rows, labels, offsets_at)
             }
             QueryGradients::Zero => (2, 0, stub, stub, 0),
         };
-        let count = self.n_gaussians;
+        let count = batch.count;
         if grads.capacity() < count || gaussians.capacity() < count {
             return Err(Error::InvalidArgument(format!(
                 "backward over {count} Gaussians into buffers of capacity {}",
                 grads.capacity().min(gaussians.capacity())
             )));
         }
-        let n_views = self.layout.views.len() as u32;
+        let n_views = batch.layout.views.len() as u32;
         if !accumulate {
             rec.fill_u32(&grads.colors, 0);
             rec.fill_u32(&grads.queries, 0);
@@ -855,7 +649,7 @@ impl Rasterizer {
         let p = push::RasterBackward {
             n_gaussians: count as u32,
             n_views,
-            n_tiles: self.layout.tiles,
+            n_tiles: batch.layout.tiles,
             detach_query: self.settings.detach_query_gradients as u32,
             bg_r: bg[0],
             bg_g: bg[1],
@@ -882,7 +676,7 @@ impl Rasterizer {
             self.grad_splats.get(),
             labels,
         ];
-        let groups = self.layout.tiles;
+        let groups = batch.layout.tiles;
         // The variants share one push-constant layout (one generated type
         // each).
         macro_rules! blend_backward {
@@ -923,10 +717,14 @@ impl Rasterizer {
     /// region (`u32::MAX` for none) and, from index `offsets_at`, the
     /// regions' CSR offsets, as for [`QueryGradients::Regions`]. Any
     /// [`Channels`] of forward pass will do: only its blending state is
-    /// read. `gaussians` must be unchanged since the forward pass.
+    /// read. `gaussians` must be unchanged since the forward pass, and
+    /// `batch` is the batch rendered last (as for
+    /// [`Rasterizer::record_backward_into`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn record_pool<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
+        batch: &RenderBatch,
         gaussians: &'a GaussianBuffers,
         pooled: &'a Buffer,
         first_row: u32,
@@ -934,15 +732,15 @@ impl Rasterizer {
         offsets_at: u32,
     ) -> Result<()> {
         self.images()?;
-        self.check_region_labels(labels, offsets_at)?;
+        Self::check_region_labels(batch, labels, offsets_at)?;
         pooled.ensure_bytes(
             (first_row as u64 + 1) * QUERY_DIM as u64 * 4,
             "region pooling",
         )?;
         let p = push::RasterPool {
-            n_gaussians: self.n_gaussians as u32,
-            n_views: self.layout.views.len() as u32,
-            n_tiles: self.layout.tiles,
+            n_gaussians: batch.count as u32,
+            n_views: batch.layout.views.len() as u32,
+            n_tiles: batch.layout.tiles,
             first_row,
             offsets_at,
         };
@@ -956,7 +754,7 @@ impl Rasterizer {
             labels,
             pooled,
         ];
-        let groups = self.layout.tiles;
+        let groups = batch.layout.tiles;
         macro_rules! pool {
             ($kernel:expr) => {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
@@ -976,7 +774,7 @@ impl Rasterizer {
     /// Length of every tile's Gaussian list in the last forward batch, in
     /// batch tile order (see [`BatchLayout`]); a diagnostic of the load.
     pub fn tile_list_lengths(&self) -> Result<Vec<u32>> {
-        let tiles = self.layout.tiles as u64;
+        let tiles = self.last.layout.tiles as u64;
         if tiles == 0 {
             return Err(no_forward());
         }
@@ -992,13 +790,13 @@ impl Rasterizer {
 
     /// Which images the last forward pass wrote.
     pub fn channels(&self) -> Channels {
-        self.channels
+        self.last.channels
     }
 
     /// Downloads view `index` of the last forward batch (an error after a
     /// [`Channels::Colour`] pass, whose query image is stale).
     pub fn download_view(&self, index: usize) -> Result<RenderedView> {
-        if self.channels != Channels::All {
+        if self.last.channels != Channels::All {
             return Err(Error::InvalidArgument(
                 "the last forward pass rendered no query channels".into(),
             ));
@@ -1035,10 +833,10 @@ impl Rasterizer {
 
 impl Rasterizer {
     fn view_slot(&self, index: usize) -> Result<super::ViewSlot> {
-        self.layout.views.get(index).copied().ok_or_else(|| {
+        self.last.layout.views.get(index).copied().ok_or_else(|| {
             Error::InvalidArgument(format!(
                 "view {index} of a batch of {}",
-                self.layout.views.len()
+                self.last.layout.views.len()
             ))
         })
     }

@@ -180,6 +180,92 @@ fn check_forward(ctx: &Context, r: &mut impl Rng, sizes: &[(u32, u32)], n: usize
     }
 }
 
+#[test]
+fn measured_batches_render_in_one_submission() {
+    // Two batches of different shapes measured together, then both
+    // rendered and read back in one recording: two host waits in all, and
+    // every view as the reference renders it.
+    with_context(|ctx| {
+        let mut r = rng("measured_batches_render_in_one_submission");
+        let first = [
+            random_camera(&mut r, 48, 40, 2.8),
+            random_camera(&mut r, 33, 20, 3.0),
+        ];
+        let second = [random_camera(&mut r, 64, 50, 2.5)];
+        let every: Vec<Camera> = first.iter().chain(&second).copied().collect();
+        let n = 300;
+        let host = awkward_scene(&mut r, n, &every);
+        let buf = upload(ctx, &host);
+        let gs = Gaussian::all(&host);
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            let waits = ctx.host_waits();
+            let batches = raster
+                .measure(&buf, n as u64, &[&first, &second], Channels::All)
+                .unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let mut readbacks = Vec::new();
+            for batch in &batches {
+                raster.record_forward(&mut rec, &buf, batch).unwrap();
+                let images = raster.images().unwrap();
+                for slot in &batch.layout().views {
+                    let (first_pixel, pixels) =
+                        (slot.first_pixel, slot.width as u64 * slot.height as u64);
+                    readbacks.push((
+                        *slot,
+                        rec.download(&images.rgbd, first_pixel * 16, pixels * 16)
+                            .unwrap(),
+                        rec.download(&images.alpha, first_pixel * 4, pixels * 4)
+                            .unwrap(),
+                        rec.download(images.query().unwrap(), first_pixel * 128, pixels * 128)
+                            .unwrap(),
+                    ));
+                }
+            }
+            rec.submit().unwrap().wait().unwrap();
+            assert_eq!(
+                ctx.host_waits() - waits,
+                2,
+                "one wait to measure, one to render"
+            );
+            for (v, (cam, (slot, rgbd, alpha, query))) in every.iter().zip(readbacks).enumerate() {
+                let got = RenderedView {
+                    width: slot.width,
+                    height: slot.height,
+                    rgbd: bytemuck::cast_slice(&rgbd.read::<f32>().unwrap()).to_vec(),
+                    alpha: alpha.read::<f32>().unwrap(),
+                    query: bytemuck::cast_slice(&query.read::<f32>().unwrap()).to_vec(),
+                };
+                let want = reference::render(&gs, cam, [0.0; 3]);
+                assert_view_matches(&got, &want, &format!("{layout:?}: view {v}"), 0.003);
+            }
+            for (batch, cams) in batches.iter().zip([&first[..], &second[..]]) {
+                let visible: usize = cams
+                    .iter()
+                    .map(|c| {
+                        gs.iter()
+                            .filter(|g| reference::project(g, c).is_some())
+                            .count()
+                    })
+                    .sum();
+                assert_eq!(batch.stats().visible, visible as u64);
+                assert!(visible > 0, "the scene must be visible");
+            }
+            // A batch larger than anything measured is refused, not recorded
+            // into buffers too small for it.
+            let wide = Rasterizer::new(ctx)
+                .measure(&buf, n as u64, &[&every], Channels::All)
+                .unwrap()
+                .pop()
+                .unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let err = raster.record_forward(&mut rec, &buf, &wide).unwrap_err();
+            assert!(err.to_string().contains("measure"), "{err}");
+        }
+    });
+}
+
 /// Both pixel-to-invocation mappings of the blending kernels.
 const LAYOUTS: [BlendLayout; 2] = [BlendLayout::Pixels, BlendLayout::Columns];
 
@@ -436,6 +522,7 @@ fn check_pool_vs_reference(ctx: &Context, seed_name: &str) {
             raster
                 .record_pool(
                     &mut rec,
+                    raster.last_batch(),
                     &buf,
                     &pooled,
                     first_row as u32,
@@ -559,6 +646,7 @@ fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: b
         raster
             .record_backward_into(
                 &mut rec,
+                raster.last_batch(),
                 &buf,
                 &grads,
                 false,
@@ -1056,10 +1144,25 @@ fn dispatched_blend_kernels_are_the_ones_named_for_the_device() {
                 let mut rec = ctx.recorder().unwrap();
                 rec.fill_u32(&rows, 0);
                 raster
-                    .record_pool(&mut rec, &buf, &rows, 0, &labels, batch.pixels as u32)
+                    .record_pool(
+                        &mut rec,
+                        raster.last_batch(),
+                        &buf,
+                        &rows,
+                        0,
+                        &labels,
+                        batch.pixels as u32,
+                    )
                     .unwrap();
                 raster
-                    .record_backward_into(&mut rec, &buf, &grads, false, QueryGradients::Zero)
+                    .record_backward_into(
+                        &mut rec,
+                        raster.last_batch(),
+                        &buf,
+                        &grads,
+                        false,
+                        QueryGradients::Zero,
+                    )
                     .unwrap();
                 rec.submit().unwrap().wait().unwrap();
                 let named = Rasterizer::blend_kernel_names(ctx.info(), &raster.settings);
