@@ -162,7 +162,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
     latentam::mapper::warm_up(&ctx)?;
     let atoms = cfg.atoms;
     let mut mapper = OnlineMapper::new(&ctx, cfg)?;
-    let mut keyframes_seen = Vec::new();
+    let mut gpu_calls = Vec::new();
     let frames = McapFrames::open(path, AssemblyConfig::default())
         .with_context(|| format!("opening {}", path.display()))?;
     let limit = if b.log.is_some() {
@@ -195,7 +195,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
                 atoms: k.atoms,
                 stage_one_and_two_waits: k.gpu_calls.training().host_waits,
             });
-            keyframes_seen.push(k.clone());
+            gpu_calls.push(k.gpu_calls);
             kept.push(frame);
         }
         progress.set(i + 1);
@@ -255,7 +255,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         wall_s: wall,
         keyframes_per_s: keyframes as f64 / wall,
         ms_per_keyframe: crate::mapping::mean_timings(t, keyframes),
-        gpu_calls_per_keyframe: crate::mapping::HostWaits::of(&keyframes_seen),
+        gpu_calls_per_keyframe: crate::mapping::HostWaits::of(&gpu_calls),
         atoms,
         while_filling: phase(false),
         once_full: phase(true),

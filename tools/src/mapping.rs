@@ -21,7 +21,9 @@ use latentam::io::{
     McapFrames, McapLog,
 };
 use latentam::mapper::budget::MemorySplit;
-use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
+use latentam::mapper::{
+    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, Mapper, MapperConfig,
+};
 use latentam::mapper::{RunFolder, DECODER_FILE, STATE_FILE};
 use serde::Serialize;
 
@@ -371,21 +373,22 @@ pub struct HostWaits {
 }
 
 impl HostWaits {
-    pub fn of(keyframes: &[KeyframeReport]) -> Self {
+    /// Over the keyframes' [`KeyframeReport::gpu_calls`].
+    pub fn of(keyframes: &[KeyframeGpuCalls]) -> Self {
         let n = keyframes.len().max(1) as f64;
-        let mean = |f: &dyn Fn(&KeyframeReport) -> u64| {
+        let mean = |f: &dyn Fn(&KeyframeGpuCalls) -> u64| {
             keyframes.iter().map(|k| f(k) as f64).sum::<f64>() / n
         };
-        let max = |f: &dyn Fn(&KeyframeReport) -> u64| keyframes.iter().map(f).max().unwrap_or(0);
-        let all = |k: &KeyframeReport| k.gpu_calls.total().host_waits;
-        let training = |k: &KeyframeReport| k.gpu_calls.training().host_waits;
+        let max = |f: &dyn Fn(&KeyframeGpuCalls) -> u64| keyframes.iter().map(f).max().unwrap_or(0);
+        let all = |k: &KeyframeGpuCalls| k.total().host_waits;
+        let training = |k: &KeyframeGpuCalls| k.training().host_waits;
         HostWaits {
             mean: mean(&all),
             max: max(&all),
             stage_one_and_two_mean: mean(&training),
             stage_one_and_two_max: max(&training),
-            submissions_mean: mean(&|k| k.gpu_calls.total().submissions),
-            dispatches_mean: mean(&|k| k.gpu_calls.total().dispatches),
+            submissions_mean: mean(&|k| k.total().submissions),
+            dispatches_mean: mean(&|k| k.total().dispatches),
         }
     }
 
@@ -448,7 +451,13 @@ impl Run {
             evicted: stats.evicted,
             fetched: stats.fetched,
             ms_per_keyframe: mean_timings(t, stats.keyframes),
-            host_waits_per_keyframe: HostWaits::of(&self.keyframes),
+            host_waits_per_keyframe: HostWaits::of(
+                &self
+                    .keyframes
+                    .iter()
+                    .map(|k| k.gpu_calls)
+                    .collect::<Vec<_>>(),
+            ),
             paging_hidden_share: match (t.paging_gpu_ms, t.paging_hidden_ms) {
                 (Some(g), Some(h)) if g > 0.0 => Some(h / g),
                 _ => None,

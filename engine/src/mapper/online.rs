@@ -979,8 +979,9 @@ impl OnlineMapper {
         let frame_index = self.frames;
         let t_start = Instant::now();
         let mut calls = KeyframeGpuCalls::default();
-        let mut since = self.ctx.gpu_calls();
-        let mut lap = |ctx: &Context, stage: &mut GpuCalls| {
+        let ctx = self.ctx.clone();
+        let mut since = ctx.gpu_calls();
+        let mut lap = |stage: &mut GpuCalls| {
             let now = ctx.gpu_calls();
             *stage = *stage + (now - since);
             since = now;
@@ -999,7 +1000,7 @@ impl OnlineMapper {
         let t = Instant::now();
         self.update_dictionary(&record)?;
         timings.kmeans_ms = ms_since(t);
-        lap(&self.ctx, &mut calls.dictionary);
+        lap(&mut calls.dictionary);
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
@@ -1020,7 +1021,7 @@ impl OnlineMapper {
             self.last_sync = Some(centre);
         }
         timings.insertion_ms = ms_since(t);
-        lap(&self.ctx, &mut calls.insertion);
+        lap(&mut calls.insertion);
 
         // Stage I on the keyframe and B past ones.
         let t = Instant::now();
@@ -1046,7 +1047,7 @@ impl OnlineMapper {
         }
         self.window_dirty = true;
         timings.stage_one_ms = ms_since(t);
-        lap(&self.ctx, &mut calls.stage_one);
+        lap(&mut calls.stage_one);
 
         // Stage II reads no Gaussian: the window pages beside it. The
         // paging batch is submitted first so that it waits for Stage I
@@ -1065,7 +1066,7 @@ impl OnlineMapper {
             let run = self.submit_sync(&plan, false)?;
             timings.paging_cpu_ms += ms_since(t_page);
             self.last_sync = Some(centre);
-            lap(&self.ctx, &mut calls.paging);
+            lap(&mut calls.paging);
             Some(run)
         } else {
             None
@@ -1082,7 +1083,7 @@ impl OnlineMapper {
         )?;
         let (stage_two, stage_two_span) = stage_two_run.finish()?;
         timings.stage_two_gpu_ms = stage_two_span.map(|s| s.ms());
-        lap(&self.ctx, &mut calls.stage_two);
+        lap(&mut calls.stage_two);
         if let Some(run) = run {
             let t_page = Instant::now();
             let (report, span) = self.finish_sync(run, stage_two_span.as_ref())?;
@@ -1090,7 +1091,7 @@ impl OnlineMapper {
             timings.paging_gpu_ms = span.map(|s| s.0);
             timings.paging_hidden_ms = span.and_then(|s| s.1);
             paging.push(report);
-            lap(&self.ctx, &mut calls.paging);
+            lap(&mut calls.paging);
         }
         timings.stage_two_ms = ms_since(t);
 
@@ -1107,7 +1108,7 @@ impl OnlineMapper {
         };
         timings.prune_ms = ms_since(t);
         timings.total_ms = ms_since(t_start);
-        lap(&self.ctx, &mut calls.prune);
+        lap(&mut calls.prune);
 
         for p in &paging {
             self.stats.evicted += p.evicted as u64;

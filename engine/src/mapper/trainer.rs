@@ -220,9 +220,6 @@ impl Trainer {
             chunks: chunks.len() as u32,
             ..Default::default()
         };
-        let cameras = |c: &Chunk| -> Vec<Camera> {
-            batch[c.views.clone()].iter().map(|k| k.camera).collect()
-        };
 
         // Detached query gradients need no rendered query image: the
         // rasterizer pools the queries into region rows itself, and the
@@ -242,7 +239,10 @@ impl Trainer {
         // Every chunk is measured at once (the only host wait before the
         // end): the Gaussians do not change until the Adam step that ends
         // the recording, so the counts stay valid for both passes.
-        let chunk_cameras: Vec<Vec<Camera>> = chunks.iter().map(cameras).collect();
+        let chunk_cameras: Vec<Vec<Camera>> = chunks
+            .iter()
+            .map(|c| batch[c.views.clone()].iter().map(|k| k.camera).collect())
+            .collect();
         let camera_lists: Vec<&[Camera]> = chunk_cameras.iter().map(Vec::as_slice).collect();
         let sized = self
             .raster

@@ -513,17 +513,14 @@ impl Rasterizer {
         (self.ctx.info().max_buffer_bytes() / QUERY_BYTES).max(1)
     }
 
-    /// Records the blending kernel of the binned batch `layout`, writing
-    /// the query channels (with [`Channels::All`]) of batch pixels
+    /// Records the blending kernel of the binned `batch`, writing the
+    /// query channels (with [`Channels::All`]) of batch pixels
     /// `query_first..query_first + query_count` to the query image.
-    #[allow(clippy::too_many_arguments)]
     fn record_blend<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
         gaussians: &'a GaussianBuffers,
-        count: u64,
-        layout: &BatchLayout,
-        channels: Channels,
+        batch: &RenderBatch,
         query_first: u64,
         query_count: u64,
     ) -> Result<()> {
@@ -541,8 +538,9 @@ impl Rasterizer {
             images.query.as_ref().unwrap_or(self.stub()?),
             self.state.get(),
         ];
+        let layout = &batch.layout;
         let p = push::RasterForward {
-            n_gaussians: count as u32,
+            n_gaussians: batch.count as u32,
             n_views: layout.views.len() as u32,
             n_tiles: layout.tiles,
             bg_r: bg[0],
@@ -557,7 +555,7 @@ impl Rasterizer {
                 rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))
             };
         }
-        select_forward!(rec.info(), &self.settings, channels, blend)
+        select_forward!(rec.info(), &self.settings, batch.channels, blend)
     }
 
     /// Names of the blending kernels a rasterizer with `settings` dispatches

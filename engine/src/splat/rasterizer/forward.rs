@@ -92,7 +92,7 @@ impl Rasterizer {
         let first_band = {
             let mut rec = ctx.recorder()?;
             self.record_binning(&mut rec, gaussians, &batch)?;
-            self.record_blend(&mut rec, gaussians, count, &batch.layout, channels, 0, band)?;
+            self.record_blend(&mut rec, gaussians, &batch, 0, band)?;
             let images = self.images()?;
             let first_band = if banded {
                 Some(rec.download(images.query()?, 0, band * QUERY_BYTES)?)
@@ -110,15 +110,7 @@ impl Rasterizer {
             while start < pixels {
                 let len = band.min(pixels - start);
                 let mut rec = ctx.recorder()?;
-                self.record_blend(
-                    &mut rec,
-                    gaussians,
-                    count,
-                    &batch.layout,
-                    channels,
-                    start,
-                    len,
-                )?;
+                self.record_blend(&mut rec, gaussians, &batch, start, len)?;
                 let rb = rec.download(self.images()?.query()?, 0, len * QUERY_BYTES)?;
                 rec.submit()?.wait()?;
                 host.extend(rb.read::<f32>()?);
@@ -204,7 +196,7 @@ impl Rasterizer {
                 intersections: intersections.read::<u32>()?[0] as u64,
             };
         }
-        self.reserve(&measured)?;
+        self.reserve_rendering(&measured)?;
         Ok(measured)
     }
 
@@ -227,8 +219,7 @@ impl Rasterizer {
             )));
         }
         self.record_binning(rec, gaussians, batch)?;
-        let (count, channels) = (batch.count, batch.channels);
-        self.record_blend(rec, gaussians, count, &batch.layout, channels, 0, pixels)
+        self.record_blend(rec, gaussians, batch, 0, pixels)
     }
 
     /// Grows what projecting `batches` needs.
@@ -245,10 +236,9 @@ impl Rasterizer {
         self.ensure_scan(pairs + 1)
     }
 
-    /// Grows every buffer rendering and differentiating measured `batches`
-    /// needs.
-    fn reserve(&mut self, batches: &[RenderBatch]) -> Result<()> {
-        self.reserve_projection(batches)?;
+    /// Grows the rest of what rendering and differentiating measured
+    /// `batches` needs (their projection's buffers are grown already).
+    fn reserve_rendering(&mut self, batches: &[RenderBatch]) -> Result<()> {
         let ctx = self.ctx.clone();
         let max = |f: &dyn Fn(&RenderBatch) -> u64| batches.iter().map(f).max().unwrap_or(0);
         let pairs = max(&|b| b.pairs());
