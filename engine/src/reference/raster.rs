@@ -36,6 +36,9 @@ use glam::{DMat3, DVec3};
 
 use crate::splat::{Camera, HostGaussians, QUERY_DIM, TILE_SIZE};
 
+mod cutoffs;
+pub use cutoffs::{near_cutoffs, NearCutoffs};
+
 /// Largest alpha a single Gaussian may contribute.
 pub const MAX_ALPHA: f64 = 0.99;
 /// Contributions with smaller alpha are skipped.

@@ -113,14 +113,26 @@ fn gpu_render(
         .collect()
 }
 
-/// Checks one rendered view against the reference: every channel within
-/// 2e-4 of the pixel's scale (its largest |value|, at least 1), except that
-/// a share `loose_share` of pixels may differ by up to 1e-2: where one
-/// Gaussian's alpha sits within f32 rounding of the 1/255 cut-off, or two
-/// overlapping Gaussians are at depths equal within f32 rounding, f32 and f64
-/// decide differently, which moves those pixels by a few thousandths.
-fn assert_view_matches(gpu: &RenderedView, want: &reference::Image, what: &str, loose_share: f64) {
-    let mut loose = Vec::new();
+/// Checks one rendered view against the f64 reference: every channel
+/// within 2e-4 of the pixel's scale (its largest |value|, at least 1), plus,
+/// where a blending decision sits within f32 rounding of its threshold,
+/// the contribution that decision can move (see [`reference::near_cutoffs`]):
+/// there f32 and f64 may both be right and still differ.
+fn assert_view_matches(
+    gpu: &RenderedView,
+    gs: &[Gaussian],
+    cam: &Camera,
+    background: [f64; 3],
+    what: &str,
+) {
+    let want = reference::render(gs, cam, background);
+    let near = reference::near_cutoffs(gs, cam);
+    // The largest |feature| a pixel blends: colours and queries are in
+    // [-1, 1], depth is the camera-frame depth.
+    let features = gs
+        .iter()
+        .filter_map(|g| reference::project(g, cam))
+        .fold(1.0f64, |m, p| m.max(p.depth));
     for i in 0..gpu.alpha.len() {
         let mut err = (gpu.alpha[i] as f64 - want.alpha[i]).abs();
         let mut scale = 1.0f64;
@@ -132,20 +144,12 @@ fn assert_view_matches(gpu: &RenderedView, want: &reference::Image, what: &str, 
             err = err.max((gpu.query[i][k] as f64 - want.channels[i][4 + k]).abs());
             scale = scale.max(want.channels[i][4 + k].abs());
         }
+        let slack = 2.0 * near.slack[i] * features;
         assert!(
-            err <= 1e-2 * scale,
-            "{what}: pixel {i} differs by {err:e} (scale {scale})"
+            err <= 2e-4 * scale + slack,
+            "{what}: pixel {i} differs by {err:e} (scale {scale}, cut-off slack {slack:e})"
         );
-        if err > 2e-4 * scale {
-            loose.push(i);
-        }
     }
-    assert!(
-        loose.len() as f64 <= (gpu.alpha.len() as f64 * loose_share).max(1.0),
-        "{what}: {} pixels differ by more than 2e-4, e.g. {:?}",
-        loose.len(),
-        &loose[..loose.len().min(8)]
-    );
 }
 
 fn check_forward(ctx: &Context, r: &mut impl Rng, sizes: &[(u32, u32)], n: usize, bg: [f32; 3]) {
@@ -171,9 +175,8 @@ fn check_forward(ctx: &Context, r: &mut impl Rng, sizes: &[(u32, u32)], n: usize
                 .iter()
                 .filter(|g| reference::project(g, cam).is_some())
                 .count();
-            let want = reference::render(&gs, cam, bg64);
             let what = format!("{layout:?}: view {v} ({}x{})", cam.width, cam.height);
-            assert_view_matches(&views[v], &want, &what, 0.003);
+            assert_view_matches(&views[v], &gs, cam, bg64, &what);
         }
         assert_eq!(raster.stats().visible, visible as u64);
         assert!(visible > 0, "the scene must be visible");
@@ -237,8 +240,8 @@ fn measured_batches_render_in_one_submission() {
                     alpha: alpha.read::<f32>().unwrap(),
                     query: bytemuck::cast_slice(&query.read::<f32>().unwrap()).to_vec(),
                 };
-                let want = reference::render(&gs, cam, [0.0; 3]);
-                assert_view_matches(&got, &want, &format!("{layout:?}: view {v}"), 0.003);
+                let what = format!("{layout:?}: view {v}");
+                assert_view_matches(&got, &gs, cam, [0.0; 3], &what);
             }
             for (batch, cams) in batches.iter().zip([&first[..], &second[..]]) {
                 let visible: usize = cams
@@ -306,9 +309,8 @@ fn query_images_larger_than_a_buffer_are_rendered_in_bands() {
                 "one band allocated"
             );
             for (v, cam) in cams.iter().enumerate() {
-                let want = reference::render(&gs, cam, [0.0; 3]);
                 let what = format!("{layout:?}: banded view {v}");
-                assert_view_matches(&views[v], &want, &what, 0.003);
+                assert_view_matches(&views[v], &gs, cam, [0.0; 3], &what);
             }
         }
     });
@@ -325,13 +327,13 @@ fn forward_handles_many_tiles_and_batches() {
             m.iter_mut().for_each(|v| *v *= 0.3);
         }
         let buf = upload(ctx, &host);
-        let want = reference::render(&Gaussian::all(&host), &cams[0], [0.0; 3]);
+        let gs = Gaussian::all(&host);
         for layout in LAYOUTS {
             let mut raster = Rasterizer::new(ctx);
             raster.settings.layout = layout;
             let views = gpu_render(ctx, &mut raster, &buf, 1500, &cams);
-            // 1500 Gaussians in a small cube: near-ties in depth are common.
-            assert_view_matches(&views[0], &want, &format!("{layout:?}: deep tiles"), 0.03);
+            let what = format!("{layout:?}: deep tiles");
+            assert_view_matches(&views[0], &gs, &cams[0], [0.0; 3], &what);
             assert!(raster.stats().intersections > 1500);
         }
     });
@@ -397,6 +399,52 @@ fn rel_err(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
+/// Checks GPU gradients against the reference's, kind by kind, by relative
+/// error over all Gaussians except the few whose own blending decision sits
+/// within f32 rounding of a threshold in some view (see
+/// [`reference::near_cutoffs`]): theirs may rightly jump by a finite amount.
+fn assert_grads_match(
+    got: &[Gaussian],
+    want: &[Gaussian],
+    gs: &[Gaussian],
+    cams: &[Camera],
+    what: &str,
+) {
+    let mut at_cutoff = vec![false; gs.len()];
+    for cam in cams {
+        let near = reference::near_cutoffs(gs, cam);
+        at_cutoff
+            .iter_mut()
+            .zip(near.gaussians)
+            .for_each(|(a, b)| *a |= b);
+    }
+    let excluded = at_cutoff.iter().filter(|&&b| b).count();
+    assert!(
+        excluded * 20 <= gs.len(),
+        "{what}: {excluded} of {} Gaussians at a cut-off: too degenerate to test",
+        gs.len()
+    );
+    let keep = |v: &[Gaussian]| -> Vec<Gaussian> {
+        v.iter()
+            .zip(&at_cutoff)
+            .filter(|(_, &c)| !c)
+            .map(|(g, _)| *g)
+            .collect()
+    };
+    let (got, want) = (keep(got), keep(want));
+    for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
+        assert!(
+            a.iter().all(|v| v.is_finite()),
+            "{what}: {name}: non-finite gradient"
+        );
+        let e = rel_err(&a, &b);
+        assert!(
+            e < 2e-3,
+            "{what}: {name} gradients differ from the reference: relative error {e:e}"
+        );
+    }
+}
+
 fn check_backward_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
     let mut r = rng(seed_name);
     let cams: Vec<Camera> = [(37, 29), (48, 32)]
@@ -422,17 +470,7 @@ fn check_backward_vs_reference(ctx: &Context, seed_name: &str, detach: bool) {
         rec.submit().unwrap().wait().unwrap();
         raster.backward(&buf, &grads).unwrap();
         let got = Gaussian::all(&grads.download(ctx, n as u64).unwrap());
-        for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
-            assert!(
-                a.iter().all(|v| v.is_finite()),
-                "{layout:?}: {name}: non-finite gradient"
-            );
-            let e = rel_err(&a, &b);
-            assert!(
-                e < 2e-3,
-                "{layout:?}: {name} gradients differ from the reference: relative error {e:e}"
-            );
-        }
+        assert_grads_match(&got, &want, &gs, &cams, &format!("{layout:?}"));
     }
 }
 
@@ -660,17 +698,7 @@ fn check_region_gradients_vs_reference(ctx: &Context, seed_name: &str, detach: b
             .unwrap();
         rec.submit().unwrap().wait().unwrap();
         let got = Gaussian::all(&grads.download(ctx, n as u64).unwrap());
-        for ((name, a), (_, b)) in kinds(&got).into_iter().zip(kinds(&want)) {
-            assert!(
-                a.iter().all(|v| v.is_finite()),
-                "{layout:?}: {name}: non-finite gradient"
-            );
-            let e = rel_err(&a, &b);
-            assert!(
-                e < 2e-3,
-                "{layout:?}: {name} gradients differ from the reference: relative error {e:e}"
-            );
-        }
+        assert_grads_match(&got, &want, &gs, &cams, &format!("{layout:?}"));
     }
 }
 
