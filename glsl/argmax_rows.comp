@@ -6,7 +6,7 @@
 #version 450
 #include "common.glsl"
 
-#define THREADS 256
+#define THREADS 64
 #define NONE 0xffffffffu
 
 layout(local_size_x = THREADS) in;

@@ -4,7 +4,7 @@
 #version 450
 #include "common.glsl"
 
-#define THREADS 256
+#define THREADS 64
 
 layout(local_size_x = THREADS) in;
 

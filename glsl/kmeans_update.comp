@@ -7,11 +7,16 @@
 // threads), gathers its members' indices in shared memory (count, scan,
 // scatter: no atomics) and then reads only their rows; a centre with more
 // members than the list holds reads them by rescanning the assignments.
+// kmeans_update_dirty updates only the centres flagged dirty (whose members
+// changed since they were last computed; see kmeans_resim.comp): the others
+// would come out bit for bit as they are.
 // CPU reference: engine/src/reference/kmeans.rs.
+// @kernel kmeans_update DIRTY=0
+// @kernel kmeans_update_dirty DIRTY=1
 #version 450
 #include "common.glsl"
 
-#define THREADS 256
+#define THREADS 64
 #define MAX_MEMBERS 2048u
 
 layout(local_size_x = THREADS) in;
@@ -21,6 +26,9 @@ layout(std430, set = 0, binding = 1) readonly buffer Mass { float mass[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Assign { uint assign[]; };
 layout(std430, set = 0, binding = 3) buffer Centres { float centres[]; };
 layout(std430, set = 0, binding = 4) buffer Weights { float weights[]; };
+#if DIRTY
+layout(std430, set = 0, binding = 5) readonly buffer Dirty { uint dirty[]; };
+#endif
 
 layout(push_constant) uniform Params {
     uint points_count;
@@ -44,6 +52,11 @@ void main() {
     if (j >= pc.centres_count) {
         return;
     }
+#if DIRTY
+    if (dirty[j] == 0u) {
+        return;
+    }
+#endif
     uint t = gl_LocalInvocationID.x;
     // Members: per-thread counts and masses over a strided share of points.
     uint count = 0u;

@@ -1,12 +1,21 @@
 //! Streaming k-means with a fixed dictionary size (SPEC §4.2) on the GPU:
 //! the online initialisation of the decoder's dictionary. Kernels
 //! `glsl/kmeans_seed.comp`, `argmax_rows.comp`, `kmeans_update.comp`,
-//! `kmeans_novelty.comp`, `kmeans_patch_sims.comp`, `kmeans_moved.comp`,
-//! plus row normalisation and GEMM for the cosine similarities. CPU reference (and the statement of the
+//! `kmeans_novelty.comp`, `kmeans_patch_sims.comp`, `kmeans_stale.comp`,
+//! `kmeans_resim.comp`, `kmeans_moved.comp`, plus row normalisation and GEMM
+//! for the cosine similarities. CPU reference (and the statement of the
 //! algorithm): [`crate::reference::kmeans`].
+//!
+//! Once the dictionary is full, each keyframe re-clusters K + m points into
+//! K centres warm-started from the atoms. Only the first Lloyd iteration
+//! needs the whole (K + m) × K cosine matrix (and it reuses the novelty
+//! check's); after it, only the centres whose members changed move, so the
+//! later iterations recompute just their columns and reassign against them:
+//! (K + m) × (a few) × d_f work instead of (K + m) × K × d_f.
 
 use latentam_shaders::{
-    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_SEED, KMEANS_UPDATE,
+    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_REASSIGN,
+    KMEANS_RESIM, KMEANS_SEED, KMEANS_STALE, KMEANS_STALE_LIST, KMEANS_UPDATE, KMEANS_UPDATE_DIRTY,
 };
 
 use std::cell::Cell;
@@ -20,6 +29,13 @@ pub const MAX_KMEANS_ATOMS: u32 = 65536;
 
 /// Norms are divided by (norm + this) when comparing directions.
 const UNIT_EPS: f32 = 1e-12;
+
+/// A centre's column of the cosine matrix is recomputed once its unit
+/// vector is this far (L2) from the one the column was computed with: the
+/// cosines are then off by at most this, below the rounding of a 768-long
+/// f32 dot product, while re-normalising an unchanged centre (~1e-7) does
+/// not count as a change.
+const STALE_TOLERANCE: f32 = 1e-6;
 
 /// Settings of [`StreamingKMeans`]; defaults follow SPEC §4.2 and §12.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,6 +137,12 @@ pub struct StreamingKMeans {
     best_value: Buffer,
     best_index: Buffer,
     replaced: Buffer,
+    /// Per centre: its members changed since it was last computed.
+    dirty: Buffer,
+    /// Per centre: its column of the cosine matrix is stale.
+    stale: Buffer,
+    /// The stale centres: [count, indices...].
+    stale_list: Buffer,
 }
 
 impl StreamingKMeans {
@@ -170,6 +192,9 @@ impl StreamingKMeans {
             best_value: buf("best_value", rows)?,
             best_index: buf("best_index", rows)?,
             replaced: buf("replaced", m)?,
+            dirty: buf("dirty", k)?,
+            stale: buf("stale", k)?,
+            stale_list: buf("stale_list", k + 1)?,
         };
         Ok(s)
     }
@@ -282,6 +307,89 @@ impl StreamingKMeans {
             centres_count,
             &[points, mass, assignment, centres, weights],
             &p,
+        )
+    }
+
+    /// Records a Lloyd iteration after the first of the re-clustering of
+    /// `points` (K + m rows, their unit vectors in `unit`) into `atoms`
+    /// (`centres` rows): recomputes the cosine columns of the centres that
+    /// moved, reassigns the points against those, and updates the centres
+    /// whose members changed. The same assignments as a dense iteration, up
+    /// to [`STALE_TOLERANCE`] in the cosines.
+    fn record_sparse_iteration<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        atoms: &'a Buffer,
+        points: u32,
+        centres: u32,
+        all_dirty: bool,
+    ) -> Result<()> {
+        let dim = self.cfg.dim;
+        rec.dispatch_linear(
+            &KMEANS_STALE,
+            centres,
+            &[atoms, &self.centre_unit, &self.dirty, &self.stale],
+            &push::KmeansStale {
+                centres_count: centres,
+                dim,
+                all_dirty: all_dirty as u32,
+                eps: UNIT_EPS,
+                tolerance: STALE_TOLERANCE,
+            },
+        )?;
+        rec.dispatch(
+            &KMEANS_STALE_LIST,
+            [1, 1, 1],
+            &[&self.stale, &self.dirty, &self.stale_list],
+            &push::KmeansStaleList {
+                centres_count: centres,
+            },
+        )?;
+        rec.dispatch_linear(
+            &KMEANS_RESIM,
+            points,
+            &[&self.unit, &self.centre_unit, &self.stale_list, &self.sims],
+            &push::KmeansResim {
+                rows: points,
+                centres_count: centres,
+                dim,
+            },
+        )?;
+        rec.dispatch_linear(
+            &KMEANS_REASSIGN,
+            points,
+            &[
+                &self.sims,
+                &self.stale,
+                &self.stale_list,
+                &self.best_value,
+                &self.best_index,
+                &self.dirty,
+            ],
+            &push::KmeansReassign {
+                rows: points,
+                centres_count: centres,
+            },
+        )?;
+        rec.dispatch_linear(
+            &KMEANS_UPDATE_DIRTY,
+            centres,
+            &[
+                &self.points,
+                &self.point_mass,
+                &self.best_index,
+                atoms,
+                &self.weights,
+                &self.dirty,
+            ],
+            &push::KmeansUpdateDirty {
+                points_count: points,
+                centres_count: centres,
+                dim,
+                decayed: centres,
+                decay: self.cfg.decay,
+                normalize: self.cfg.normalize as u32,
+            },
         )
     }
 
@@ -425,22 +533,22 @@ impl StreamingKMeans {
                             dim,
                         },
                     )?;
+                    self.best_centres(rec, total, before, false)?;
+                    self.lloyd_update(
+                        rec,
+                        &self.points,
+                        &self.point_mass,
+                        &self.best_index,
+                        atoms,
+                        &self.weights,
+                        total,
+                        before,
+                        before,
+                    )?;
                 } else {
-                    self.normalize(rec, atoms, &self.centre_unit, before)?;
-                    self.similarities(rec, &self.unit, &self.centre_unit, total, before)?;
+                    // The first iteration computed every centre.
+                    self.record_sparse_iteration(rec, atoms, total, before, iteration == 1)?;
                 }
-                self.best_centres(rec, total, before, false)?;
-                self.lloyd_update(
-                    rec,
-                    &self.points,
-                    &self.point_mass,
-                    &self.best_index,
-                    atoms,
-                    &self.weights,
-                    total,
-                    before,
-                    before,
-                )?;
             }
             before
         };
@@ -667,6 +775,112 @@ mod tests {
                 .fold(f64::NEG_INFINITY, f64::max);
             assert!(best > 0.9, "cluster {c} has no atom (best cosine {best})");
         }
+    }
+
+    /// Later Lloyd iterations only recompute the columns of the centres
+    /// that moved (`kmeans_resim.comp`) and reassign against them
+    /// (`kmeans_reassign`). A dictionary on an arc where each iteration
+    /// moves a point: a heavy micro-centre pulls atom A away from its own
+    /// point, which goes to A's close neighbour C in iteration 2; A, freed
+    /// of it, moves on, and a light micro-centre that sat nearer atom B
+    /// goes to A in iteration 3. The GPU must match the dense reference
+    /// after 1, 2, 3 and 6 iterations, and the reference must change at 2
+    /// and at 3 (so the sparse path had work to do).
+    #[test]
+    fn sparse_lloyd_iterations_match_the_dense_reference() {
+        let mut r = rng("sparse_lloyd_iterations_match_the_dense_reference");
+        with_context(|ctx| {
+            let (dim, k, m) = (32usize, 12usize, 2usize);
+            // Two random orthonormal directions span the arc.
+            let e0 = unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect());
+            let raw: Vec<f64> = (0..dim).map(|_| r.random_range(-1.0..1.0)).collect();
+            let along: f64 = raw.iter().zip(&e0).map(|(a, b)| a * b).sum();
+            let e1 = unit(raw.iter().zip(&e0).map(|(a, b)| a - along * b).collect());
+            let on_arc = |angle: f64, r: &mut dyn rand::RngCore| -> Vec<f64> {
+                unit(
+                    (0..dim)
+                        .map(|j| {
+                            angle.cos() * e0[j]
+                                + angle.sin() * e1[j]
+                                + 1e-4 * r.random_range(-1.0..1.0)
+                        })
+                        .collect(),
+                )
+            };
+            let as_f32 = |v: &[f64]| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
+            // C, A, B, then atoms far along the arc.
+            let mut angles = vec![-0.01, 0.0, 0.204];
+            angles.extend((0..k - 3).map(|i| 0.5 + 0.12 * i as f64));
+            let atoms0: Vec<Vec<f64>> =
+                angles.iter().map(|&a| as_f32(&on_arc(a, &mut r))).collect();
+            let weights0: Vec<f64> = (0..k).map(|_| r.random_range(0.8f32..1.2) as f64).collect();
+            // The keyframe: six heavy regions at 0.1, two light ones at 0.15.
+            let mut points = Vec::new();
+            let mut mass = Vec::new();
+            for (angle, count, each) in [(0.1, 6, 3.0f32), (0.15, 2, 0.002)] {
+                for _ in 0..count {
+                    points.extend(on_arc(angle, &mut r).iter().map(|&v| v as f32));
+                    mass.push(each);
+                }
+            }
+            let frame = Frame { points, mass };
+            let mut results = Vec::new();
+            for iterations in [1u32, 2, 3, 6] {
+                let cfg = KMeansConfig {
+                    atoms: k as u32,
+                    dim: dim as u32,
+                    max_points: 64,
+                    micro_clusters: m as u32,
+                    global_iterations: iterations,
+                    ..Default::default()
+                };
+                let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+                let flat: Vec<f32> = atoms0.iter().flatten().map(|&v| v as f32).collect();
+                let atoms = ctx.upload_new("test/atoms", &flat).unwrap();
+                let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
+                let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
+                let w32: Vec<f32> = weights0.iter().map(|&w| w as f32).collect();
+                kmeans.restore(ctx, k as u32, &w32).unwrap();
+                let step = frame.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
+                assert!(step.reclustered);
+                let mut dict = Dictionary {
+                    atoms: atoms0.clone(),
+                    weights: weights0.clone(),
+                    capacity: k,
+                };
+                let want_moved = reference::update_dictionary(
+                    &settings(&cfg),
+                    &mut dict,
+                    &frame.rows(dim),
+                    &frame.mass(),
+                );
+                let got = ctx.download::<f32>(&atoms).unwrap();
+                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+                let got_moved = ctx.download::<u32>(&moved).unwrap();
+                for a in 0..k {
+                    for j in 0..dim {
+                        let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
+                        assert!(
+                            (g - w).abs() < 1e-4,
+                            "{iterations} iterations: atom {a}[{j}]: {g} vs {w}"
+                        );
+                    }
+                    let (g, w) = (got_w[a] as f64, dict.weights[a]);
+                    assert!(
+                        (g - w).abs() <= 1e-4 * w.max(1.0),
+                        "{iterations} iterations: weight {a}: {g} vs {w}"
+                    );
+                    assert_eq!(got_moved[a] != 0, want_moved[a], "moved {a}");
+                }
+                results.push(dict.weights);
+            }
+            // Each further iteration moved mass between centres: the
+            // sparse iterations had work to do.
+            let change =
+                |a: &[f64], b: &[f64]| -> f64 { a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum() };
+            assert!(change(&results[0], &results[1]) > 0.5, "{results:?}");
+            assert!(change(&results[1], &results[2]) > 1e-3, "{results:?}");
+        });
     }
 
     /// A centre with more members than the update kernel's shared list

@@ -1,0 +1,133 @@
+// Sparse Lloyd iterations, continued (see kmeans_stale.comp):
+//   kmeans_resim:    the stale columns of the point-to-centre cosine matrix,
+//                    sims[r, c] = unit[r] . centre_unit[c] for every listed
+//                    centre c; one workgroup per point, one thread per
+//                    listed centre.
+//   kmeans_reassign: each point's best centre again (largest cosine, ties
+//                    to the lowest index, as argmax_rows.comp). Unless its
+//                    current best is stale, only the stale columns can
+//                    beat it (the others did not change), so only they are
+//                    read; otherwise the whole row is. When the best
+//                    changes, the old and the new centre are flagged dirty
+//                    (their members changed) for kmeans_update_dirty.
+// CPU reference: engine/src/reference/kmeans.rs.
+// @kernel kmeans_resim STEP=0
+// @kernel kmeans_reassign STEP=1
+#version 450
+#include "common.glsl"
+
+#define NONE 0xffffffffu
+
+#if STEP == 0
+#define THREADS 64
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer Unit { float unit[]; };
+layout(std430, set = 0, binding = 1) readonly buffer CentreUnit { float centre_unit[]; };
+layout(std430, set = 0, binding = 2) readonly buffer StaleList { uint stale_list[]; };
+layout(std430, set = 0, binding = 3) buffer Sims { float sims[]; };
+
+layout(push_constant) uniform Params {
+    uint rows;
+    uint centres_count;
+    uint dim;
+} pc;
+
+void main() {
+    uint r = linear_group();
+    if (r >= pc.rows) {
+        return;
+    }
+    uint listed = stale_list[0];
+    for (uint e = gl_LocalInvocationID.x; e < listed; e += THREADS) {
+        uint c = stale_list[1u + e];
+        float s = 0.0;
+        for (uint k = 0u; k < pc.dim; k++) {
+            s += unit[r * pc.dim + k] * centre_unit[c * pc.dim + k];
+        }
+        sims[r * pc.centres_count + c] = s;
+    }
+}
+#else
+#define THREADS 64
+layout(local_size_x = THREADS) in;
+
+layout(std430, set = 0, binding = 0) readonly buffer Sims { float sims[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Stale { uint stale[]; };
+layout(std430, set = 0, binding = 2) readonly buffer StaleList { uint stale_list[]; };
+layout(std430, set = 0, binding = 3) buffer BestValue { float best_value[]; };
+layout(std430, set = 0, binding = 4) buffer BestIndex { uint best_index[]; };
+layout(std430, set = 0, binding = 5) buffer Dirty { uint dirty[]; };
+
+layout(push_constant) uniform Params {
+    uint rows;
+    uint centres_count;
+} pc;
+
+shared float sval[THREADS];
+shared uint sidx[THREADS];
+
+// Whether (v, i) beats (w, j): larger value, then lower index.
+bool better(float v, uint i, float w, uint j) {
+    return i != NONE && (j == NONE || v > w || (v == w && i < j));
+}
+
+void main() {
+    uint row = linear_group();
+    if (row >= pc.rows) {
+        return;
+    }
+    uint t = gl_LocalInvocationID.x;
+    uint old = best_index[row];
+    float bv = uintBitsToFloat(0xff800000u);
+    uint bi = NONE;
+    uint base = row * pc.centres_count;
+    if (old == NONE || stale[old] != 0u) {
+        for (uint c = t; c < pc.centres_count; c += THREADS) {
+            float v = sims[base + c];
+            if (better(v, c, bv, bi)) {
+                bv = v;
+                bi = c;
+            }
+        }
+    } else {
+        if (t == 0u) {
+            bv = best_value[row];
+            bi = old;
+        }
+        uint listed = stale_list[0];
+        for (uint e = t; e < listed; e += THREADS) {
+            uint c = stale_list[1u + e];
+            float v = sims[base + c];
+            if (better(v, c, bv, bi)) {
+                bv = v;
+                bi = c;
+            }
+        }
+    }
+    sval[t] = bv;
+    sidx[t] = bi;
+    barrier();
+    for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
+        if (t < h && better(sval[t + h], sidx[t + h], sval[t], sidx[t])) {
+            sval[t] = sval[t + h];
+            sidx[t] = sidx[t + h];
+        }
+        barrier();
+    }
+    if (t == 0u) {
+        uint best = sidx[0];
+        best_value[row] = sval[0];
+        best_index[row] = best;
+        // Several points may flag the same centre: they all write 1.
+        if (best != old) {
+            if (old != NONE) {
+                dirty[old] = 1u;
+            }
+            if (best != NONE) {
+                dirty[best] = 1u;
+            }
+        }
+    }
+}
+#endif
