@@ -133,6 +133,14 @@ static DOCS: &[Doc] = &[
          65536.",
     ),
     doc(
+        "micro_clusters",
+        Val,
+        "Micro-clusters each keyframe's region embeddings are summarised \
+         into before they join the dictionary (m; the paper uses 5). The \
+         dictionary grows by up to this many atoms a keyframe until it \
+         holds `atoms`, then re-clusters. Integer from 1 to `atoms`.",
+    ),
+    doc(
         "temperature",
         Val,
         "Softmax temperature (tau) of the latent decoder, over the cosine \
@@ -1126,6 +1134,8 @@ mod tests {
             ("history_cell=1e9", "history_cell"),
             ("stage_two_iterations=4294967295", "stage_two_iterations"),
             ("stage_two_iterations=1001", "stage_two_iterations"),
+            ("micro_clusters=0", "micro_clusters"),
+            ("micro_clusters=2001", "micro_clusters"),
             // NaN weights and rates turn the map into NaN.
             ("weights.feature=nan", "weights.feature"),
             ("learning_rates.means=-1", "learning_rates.means"),
@@ -1144,6 +1154,7 @@ mod tests {
             "stage_two_iterations=0",
             "stage_two_iterations=1000",
             "sync_distance=6",
+            "micro_clusters=2000",
         ] {
             assert!(apply(&[ok]).is_ok(), "{ok}");
         }

@@ -85,6 +85,10 @@ pub struct MapperConfig {
     pub attach_feature_gradients: bool,
     /// Dictionary size (K).
     pub atoms: u32,
+    /// Micro-clusters a keyframe's region embeddings are summarised into
+    /// (m, the paper's 5): the dictionary grows by up to this many atoms
+    /// a keyframe until it holds `atoms`.
+    pub micro_clusters: u32,
     /// Softmax temperature.
     pub temperature: f32,
     /// Loss weights.
@@ -124,6 +128,7 @@ impl Default for MapperConfig {
             stage_two_iterations: 5,
             attach_feature_gradients: false,
             atoms: 2000,
+            micro_clusters: 5,
             temperature: 0.05,
             weights: LossWeights::default(),
             learning_rates: GaussianLearningRates::default(),
@@ -227,6 +232,12 @@ impl MapperConfig {
         }
         if self.atoms == 0 || self.max_regions == 0 {
             return bad("atoms and max_regions must be at least 1");
+        }
+        if !(1..=self.atoms).contains(&self.micro_clusters) {
+            return bad(&format!(
+                "micro_clusters {} must be from 1 to atoms ({})",
+                self.micro_clusters, self.atoms
+            ));
         }
         // Upper limits far beyond any real setting keep the GPU sizes
         // derived from them within u64.
@@ -831,7 +842,10 @@ impl OnlineMapper {
                 lr_d: self.cfg.latent_lr,
                 weights: self.cfg.weights,
                 seed: self.cfg.seed,
-                ..Default::default()
+                kmeans: crate::latent::KMeansConfig {
+                    micro_clusters: self.cfg.micro_clusters,
+                    ..Default::default()
+                },
             },
         )
     }
