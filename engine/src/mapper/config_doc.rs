@@ -138,7 +138,8 @@ static DOCS: &[Doc] = &[
         "Micro-clusters each keyframe's region embeddings are summarised \
          into before they join the dictionary (m; the paper uses 5). The \
          dictionary grows by up to this many atoms a keyframe until it \
-         holds `atoms`, then re-clusters. Integer from 1 to `atoms`.",
+         holds `atoms`, then re-clusters. Integer from 1 to 65536 (values \
+         above `atoms` act as `atoms`).",
     ),
     doc(
         "temperature",
@@ -1135,7 +1136,7 @@ mod tests {
             ("stage_two_iterations=4294967295", "stage_two_iterations"),
             ("stage_two_iterations=1001", "stage_two_iterations"),
             ("micro_clusters=0", "micro_clusters"),
-            ("micro_clusters=2001", "micro_clusters"),
+            ("micro_clusters=65537", "micro_clusters"),
             // NaN weights and rates turn the map into NaN.
             ("weights.feature=nan", "weights.feature"),
             ("learning_rates.means=-1", "learning_rates.means"),

@@ -87,7 +87,8 @@ pub struct MapperConfig {
     pub atoms: u32,
     /// Micro-clusters a keyframe's region embeddings are summarised into
     /// (m, the paper's 5): the dictionary grows by up to this many atoms
-    /// a keyframe until it holds `atoms`.
+    /// a keyframe until it holds `atoms` (values above `atoms` act as
+    /// `atoms`).
     pub micro_clusters: u32,
     /// Softmax temperature.
     pub temperature: f32,
@@ -233,10 +234,11 @@ impl MapperConfig {
         if self.atoms == 0 || self.max_regions == 0 {
             return bad("atoms and max_regions must be at least 1");
         }
-        if !(1..=self.atoms).contains(&self.micro_clusters) {
+        if !(1..=crate::latent::MAX_KMEANS_ATOMS).contains(&self.micro_clusters) {
             return bad(&format!(
-                "micro_clusters {} must be from 1 to atoms ({})",
-                self.micro_clusters, self.atoms
+                "micro_clusters {} must be from 1 to {}",
+                self.micro_clusters,
+                crate::latent::MAX_KMEANS_ATOMS
             ));
         }
         // Upper limits far beyond any real setting keep the GPU sizes
@@ -843,7 +845,8 @@ impl OnlineMapper {
                 weights: self.cfg.weights,
                 seed: self.cfg.seed,
                 kmeans: crate::latent::KMeansConfig {
-                    micro_clusters: self.cfg.micro_clusters,
+                    // A dictionary smaller than m takes it whole at once.
+                    micro_clusters: self.cfg.micro_clusters.min(self.cfg.atoms),
                     ..Default::default()
                 },
             },
