@@ -293,6 +293,7 @@ impl StreamingKMeans {
         points_count: u32,
         centres_count: u32,
         decayed: u32,
+        only_dirty: Option<&'a Buffer>,
     ) -> Result<()> {
         let p = push::KmeansUpdate {
             points_count,
@@ -302,12 +303,16 @@ impl StreamingKMeans {
             decay: self.cfg.decay,
             normalize: self.cfg.normalize as u32,
         };
-        rec.dispatch_linear(
-            &KMEANS_UPDATE,
-            centres_count,
-            &[points, mass, assignment, centres, weights],
-            &p,
-        )
+        let bufs = [points, mass, assignment, centres, weights];
+        match only_dirty {
+            None => rec.dispatch_linear(&KMEANS_UPDATE, centres_count, &bufs, &p),
+            Some(dirty) => {
+                let mut with_dirty = bufs.to_vec();
+                with_dirty.push(dirty);
+                let p: &push::KmeansUpdateDirty = bytemuck::cast_ref(&p);
+                rec.dispatch_linear(&KMEANS_UPDATE_DIRTY, centres_count, &with_dirty, p)
+            }
+        }
     }
 
     /// Records a Lloyd iteration after the first of the re-clustering of
@@ -371,25 +376,17 @@ impl StreamingKMeans {
                 centres_count: centres,
             },
         )?;
-        rec.dispatch_linear(
-            &KMEANS_UPDATE_DIRTY,
+        self.lloyd_update(
+            rec,
+            &self.points,
+            &self.point_mass,
+            &self.best_index,
+            atoms,
+            &self.weights,
+            points,
             centres,
-            &[
-                &self.points,
-                &self.point_mass,
-                &self.best_index,
-                atoms,
-                &self.weights,
-                &self.dirty,
-            ],
-            &push::KmeansUpdateDirty {
-                points_count: points,
-                centres_count: centres,
-                dim,
-                decayed: centres,
-                decay: self.cfg.decay,
-                normalize: self.cfg.normalize as u32,
-            },
+            centres,
+            Some(&self.dirty),
         )
     }
 
@@ -465,6 +462,7 @@ impl StreamingKMeans {
                 n,
                 m,
                 0,
+                None,
             )?;
         }
 
@@ -544,6 +542,7 @@ impl StreamingKMeans {
                         total,
                         before,
                         before,
+                        None,
                     )?;
                 } else {
                     // The first iteration computed every centre.

@@ -283,6 +283,24 @@ fn sorted_visible(gs: &[Gaussian], cam: &Camera) -> Vec<(usize, Projected)> {
     vis
 }
 
+/// Whether `p`'s tile rectangle covers tile (`tile_x`, `tile_y`).
+fn covers_tile(p: &Projected, tile_x: u32, tile_y: u32) -> bool {
+    let [x0, y0, x1, y1] = p.tiles;
+    (x0..=x1).contains(&tile_x) && (y0..=y1).contains(&tile_y)
+}
+
+/// d = m − p and e^(−σ) of `p` at pixel (`px`, `py`); `None` where σ < 0
+/// (a conic that is not positive definite there), which blending skips.
+fn falloff(p: &Projected, px: u32, py: u32) -> Option<([f64; 2], f64)> {
+    let d = [p.mean2d[0] - px as f64, p.mean2d[1] - py as f64];
+    let [a, b, c] = p.conic;
+    let sigma = 0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) + b * d[0] * d[1];
+    if sigma < 0.0 {
+        return None;
+    }
+    Some((d, (-sigma).exp()))
+}
+
 /// A contribution to a pixel: which Gaussian, its alpha, e^(−σ), the
 /// transmittance in front of it, and d = m − p.
 struct Contribution {
@@ -301,18 +319,13 @@ fn blend_pixel(vis: &[(usize, Projected)], px: u32, py: u32) -> (Vec<Contributio
     let mut out = Vec::new();
     let mut tested = 0;
     for (k, (_, p)) in vis.iter().enumerate() {
-        let [x0, y0, x1, y1] = p.tiles;
-        if tile_x < x0 || tile_x > x1 || tile_y < y0 || tile_y > y1 {
+        if !covers_tile(p, tile_x, tile_y) {
             continue;
         }
         tested += 1;
-        let d = [p.mean2d[0] - px as f64, p.mean2d[1] - py as f64];
-        let [a, b, c] = p.conic;
-        let sigma = 0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) + b * d[0] * d[1];
-        if sigma < 0.0 {
+        let Some((d, v)) = falloff(p, px, py) else {
             continue;
-        }
-        let v = (-sigma).exp();
+        };
         let alpha = (p.opacity * v).min(MAX_ALPHA);
         if alpha < MIN_ALPHA {
             continue;

@@ -10,7 +10,10 @@
 //! amount. Tests compare everything else tightly and use this to know which
 //! pixels and Gaussians to leave out, instead of loosening every tolerance.
 
-use super::{sorted_visible, Camera, Gaussian, MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE, TILE_SIZE};
+use super::{
+    covers_tile, falloff, sorted_visible, Camera, Gaussian, MAX_ALPHA, MIN_ALPHA,
+    MIN_TRANSMITTANCE, TILE_SIZE,
+};
 
 /// Pixels and Gaussians of one view at a blending threshold.
 #[derive(Clone, Debug)]
@@ -57,17 +60,13 @@ pub fn near_cutoffs(gs: &[Gaussian], cam: &Camera) -> NearCutoffs {
             // The previous contributor: index, depth, weight αT.
             let mut last: Option<(usize, f64, f64)> = None;
             for &(gi, ref p) in &vis {
-                let [x0, y0, x1, y1] = p.tiles;
-                if tile_x < x0 || tile_x > x1 || tile_y < y0 || tile_y > y1 {
+                if !covers_tile(p, tile_x, tile_y) {
                     continue;
                 }
-                let d = [p.mean2d[0] - px as f64, p.mean2d[1] - py as f64];
-                let [a, b, c] = p.conic;
-                let sigma = 0.5 * (a * d[0] * d[0] + c * d[1] * d[1]) + b * d[0] * d[1];
-                if sigma < 0.0 {
+                let Some((_, v)) = falloff(p, px, py) else {
                     continue;
-                }
-                let raw = p.opacity * (-sigma).exp();
+                };
+                let raw = p.opacity * v;
                 if near(raw, MIN_ALPHA, ALPHA_MARGIN) {
                     gaussians[gi] = true;
                     *pixel_slack += 2.0 * raw * t;
