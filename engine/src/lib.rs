@@ -5,26 +5,20 @@
 //! stream of RGB-D frames, poses and vision-language embeddings, and decodes
 //! rendered queries back into full embeddings through a learned dictionary.
 //!
-//! This crate is the library a robot program links. Its layers:
-//! * [`gpu`]: the Vulkan context, memory accounting, buffers with explicit
-//!   staging, one way to declare and dispatch a kernel, and a timestamp
-//!   profiler;
-//! * [`ops`]: GPU primitives built on it (prefix scan, reduction, GEMM, row
-//!   softmax, radix sort, float scatter-add);
-//! * [`splat`]: Gaussian storage and the differentiable rasterizer;
-//! * [`latent`]: region pooling, the dictionary attention decoder and the
-//!   streaming k-means that maintains the dictionary;
-//! * [`loss`]: the mapping objective (photometric, depth, feature and
-//!   trust-region terms) with its gradients;
-//! * [`optim`]: Adam with per-tensor parameter groups;
-//! * [`map`]: the CPU global map (voxel hash), keyframe selection and
-//!   Gaussian seeding;
-//! * [`mapper`]: the per-keyframe mapping loop (in progress: keyframe
-//!   history);
-//! * [`io`]: MCAP logs of ROS 2 messages in, checked frames out, and log
-//!   writing;
-//! * [`reference`]: CPU implementations of every kernel's math, the oracle of
-//!   the tests and the readable statement of what each kernel computes.
+//! This crate is the library a robot program links; [`Mapper`] is its
+//! façade. Its layers, each using only those before it (checked by
+//! `tests/layers.rs`):
+//! 1. [`error`](Error), [`files`]: the error type and whole-or-nothing files;
+//! 2. [`gpu`] → [`ops`]: Vulkan, one way to dispatch a kernel, primitives;
+//!    beside them [`io`]: logs in, checked frames out (host only);
+//! 3. [`splat`] → [`loss`] → [`optim`] → [`latent`]: the rasterizer, the
+//!    objective, Adam, and the dictionary decoder with its k-means;
+//! 4. [`map`]: the global map, keyframes, seeding, PLY files;
+//! 5. [`mapper`]: the per-keyframe loop, run folders, evaluation, the façade.
+//!
+//! [`reference`](mod@reference) holds the CPU implementation of every kernel's math: the
+//! tests' oracle and the readable statement of what each kernel computes.
+//! Production code never calls it.
 //!
 //! ```
 //! use latentam::gpu::{Context, ContextOptions};
@@ -44,6 +38,7 @@
 
 mod error;
 mod faults;
+pub mod files;
 pub mod gpu;
 pub mod io;
 pub mod latent;

@@ -3,7 +3,6 @@
 //! integration tests and the benchmarks.
 
 pub mod convert;
-pub mod partial;
 pub mod progress;
 pub mod scene;
 pub mod soak;

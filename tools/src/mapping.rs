@@ -16,10 +16,8 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use latentam::gpu::{Context, ContextOptions, KernelStats};
-use latentam::io::{
-    write_ply, write_ply_without_latents, write_tum, AssemblyConfig, CameraPose, IngestReport,
-    McapFrames, McapLog,
-};
+use latentam::io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog};
+use latentam::map::{write_ply, write_ply_without_latents};
 use latentam::mapper::budget::MemorySplit;
 use latentam::mapper::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, Mapper, MapperConfig,
@@ -588,7 +586,10 @@ impl Run {
 
 /// Writes `text` to `path` whole or not at all.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    Ok(latentam::io::write_bytes_atomically(path, text.as_bytes())?)
+    Ok(latentam::files::write_bytes_atomically(
+        path,
+        text.as_bytes(),
+    )?)
 }
 
 /// An error and its causes in one line, without repeating a cause that

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::write_ply;
+use latentam::map::write_ply;
 use latentam::mapper::eval::Evaluator;
 use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 mod common;
 use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::read_ply;
+use latentam::map::read_ply;
 use latentam::mapper::{Mapper, STATE_FILE};
 
 fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {

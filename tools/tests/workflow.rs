@@ -11,7 +11,8 @@ use std::process::{Output, Stdio};
 mod common;
 use common::{gen_scene, latentam, run_python, scratch, write_npy, SCENE_DIM};
 use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_ply, read_tum, read_vocabulary, unit_quat, AssemblyConfig, McapFrames};
+use latentam::io::{read_tum, read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::map::{read_ply, unit_quat};
 use latentam::mapper::eval::Evaluator;
 use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
 

@@ -227,7 +227,7 @@ impl Profiler {
             "displayTimeUnit": "ms",
             "otherData": { "samples_not_traced": self.dropped },
         });
-        crate::io::write_atomically(path, |f| {
+        crate::files::write_atomically(path, |f| {
             serde_json::to_writer(&mut *f, &doc)?;
             f.flush()
         })

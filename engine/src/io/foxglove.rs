@@ -300,7 +300,7 @@ pub fn write_foxglove_file(
     body: impl FnOnce(&mut FoxgloveWriter<&mut std::io::BufWriter<std::fs::File>>) -> Result<()>,
 ) -> Result<()> {
     let mut failure = None;
-    let written = super::write_atomically(path, |w| {
+    let written = crate::files::write_atomically(path, |w| {
         let run = (|| {
             let mut out = FoxgloveWriter::new(&mut *w, frame_id)?;
             body(&mut out)?;

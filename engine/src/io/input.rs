@@ -97,7 +97,7 @@ pub fn read_input_to_string(path: &Path) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::tests::TempDir;
+    use crate::files::testing::TempDir;
 
     /// Makes a FIFO at `path`.
     fn mkfifo(path: &Path) {
@@ -173,7 +173,7 @@ mod tests {
         let e = within_20s(move || crate::io::read_tum(&path).unwrap_err());
         assert!(e.to_string().contains("a FIFO"), "{e}");
         let path = fifo.clone();
-        let e = within_20s(move || crate::io::read_ply(&path).err().unwrap());
+        let e = within_20s(move || crate::map::read_ply(&path).err().unwrap());
         assert!(e.to_string().contains("a FIFO"), "{e}");
     }
 }

@@ -13,8 +13,6 @@
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
 //! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
-//! * [`ply`]: Gaussian maps as PLY in the Inria 3DGS layout, for splat
-//!   viewers ([`write_ply`] / [`read_ply`]);
 //! * [`foxglove`]: maps and trajectories as Foxglove point clouds and
 //!   poses (JSON messages in MCAP);
 //! * [`trajectory`]: camera trajectories in the TUM RGB-D format
@@ -31,7 +29,6 @@
 //! # Ok::<(), latentam::io::InputError>(())
 //! ```
 
-mod atomic;
 pub mod cdr;
 mod class_names;
 pub mod codec;
@@ -41,7 +38,6 @@ mod frames;
 mod input;
 mod log;
 pub mod messages;
-pub mod ply;
 mod pool;
 mod report;
 pub mod schema;
@@ -52,7 +48,6 @@ mod writer;
 
 use std::path::PathBuf;
 
-pub use atomic::{partial_path, write_atomically, write_bytes_atomically};
 pub use class_names::{parse_class_names, read_class_names, CLASS_NAMES_METADATA};
 pub use frame::{
     decode_floats, embedding_space, encode_floats, CameraPose, ColorImage, DepthData, DepthImage,
@@ -70,7 +65,6 @@ pub use messages::{
     CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
-pub use ply::{read_ply, unit_quat, write_ply, write_ply_without_latents, PlyMap};
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
 pub use topic_plan::{plan_topics, TopicChoice};

@@ -21,9 +21,9 @@ use std::path::Path;
 
 use glam::{DQuat, DVec3};
 
-use super::atomic::write_atomically;
 use super::frame::CameraPose;
 use crate::error::{Error, Result};
+use crate::files::write_atomically;
 
 /// The header line [`write_tum`] writes.
 const HEADER: &str = "# timestamp tx ty tz qx qy qz qw";
@@ -38,7 +38,7 @@ const MIN_QUATERNION_NORM: f64 = 1e-6;
 /// The quaternion is written normalised. A pose with a non-finite or zero
 /// component is [`Error::InvalidArgument`], checked before any file is
 /// touched. The write is atomic, as for
-/// [`write_ply`](super::ply::write_ply).
+/// [`write_ply`](crate::map::write_ply).
 pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
     let mut text = String::with_capacity(HEADER.len() + 1 + poses.len() * 96);
     text.push_str(HEADER);
@@ -144,7 +144,7 @@ fn parse_stamp(s: &str) -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::tests::TempDir;
+    use crate::files::testing::TempDir;
 
     fn pose(i: u32) -> CameraPose {
         let f = f64::from(i);

@@ -6,6 +6,7 @@
 
 mod decoder;
 mod head;
+mod host_decoder;
 mod kmeans;
 mod pixel_decoder;
 mod pooling;
@@ -14,6 +15,7 @@ mod relevance;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
 pub use head::{LatentHead, LatentHeadConfig};
+pub use host_decoder::HostDecoder;
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
 pub use pixel_decoder::{FactorisedDecoder, NORM_CUTOFF};
 pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};

@@ -79,7 +79,7 @@ impl ArchiveWriter {
     }
 
     /// The archive's bytes (write them with
-    /// [`crate::io::write_bytes_atomically`]).
+    /// [`crate::files::write_bytes_atomically`]).
     pub fn into_bytes(mut self) -> Result<Vec<u8>> {
         let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
         self.meta.insert("format".into(), format.into());
@@ -367,7 +367,7 @@ mod tests {
         w.tensor("x", &[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
         w.tensor("k", &[2], &[-7i32, 9]);
         w.bytes("raw", 1, 3, vec![1, 2, 3]);
-        crate::io::write_bytes_atomically(&path, &w.into_bytes().unwrap()).unwrap();
+        crate::files::write_bytes_atomically(&path, &w.into_bytes().unwrap()).unwrap();
         let a = Archive::open(&path).unwrap();
         assert_eq!(a.meta_parse::<u32>("answer").unwrap(), 42);
         assert_eq!(a.exact::<f32>("x", &[2, 3]).unwrap()[5], 6.0);

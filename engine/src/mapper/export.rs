@@ -16,7 +16,7 @@ use std::path::Path;
 use super::archive::{Archive, ArchiveWriter};
 use super::online::OnlineMapper;
 use crate::error::Result;
-use crate::reference::decoder::{forward, DecoderShape};
+use crate::latent::HostDecoder;
 use crate::splat::QUERY_DIM;
 
 /// File name of the decoder in a run folder.
@@ -69,28 +69,19 @@ impl DecoderFile {
     /// Decodes queries to embeddings (`queries.len() × dim`, row-major),
     /// in f64 on the CPU.
     pub fn decode(&self, queries: &[[f32; QUERY_DIM]]) -> Vec<f32> {
-        if queries.is_empty() || self.atom_count() == 0 {
-            return vec![0.0; queries.len() * self.dim as usize];
-        }
-        let shape = DecoderShape {
-            n: queries.len(),
-            query_dim: QUERY_DIM,
+        HostDecoder {
             dim: self.dim as usize,
-            atoms: self.atom_count(),
-            tau: self.temperature as f64,
-            eps: self.eps as f64,
-        };
-        let flat: Vec<f32> = queries.iter().flatten().copied().collect();
-        forward(&shape, &flat, &self.w, &self.atoms)
-            .output
-            .into_iter()
-            .map(|x| x as f32)
-            .collect()
+            w: &self.w,
+            atoms: &self.atoms,
+            temperature: self.temperature,
+            eps: self.eps,
+        }
+        .decode(queries)
     }
 
     /// Writes the decoder to `path` atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
-        crate::io::write_bytes_atomically(path, &self.to_bytes()?)
+        crate::files::write_bytes_atomically(path, &self.to_bytes()?)
     }
 
     /// The file [`DecoderFile::write`] writes.

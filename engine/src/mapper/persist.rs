@@ -1060,7 +1060,7 @@ impl OnlineMapper {
         }
         .into_bytes()?;
         drop(map);
-        crate::io::write_bytes_atomically(path, &bytes)
+        crate::files::write_bytes_atomically(path, &bytes)
     }
 
     /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to

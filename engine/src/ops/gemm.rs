@@ -19,7 +19,17 @@ use latentam_shaders::{
 
 use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
-pub use crate::reference::gemm::Transpose;
+
+/// Which operands are used transposed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Transpose {
+    /// A·B with A m×k, B k×n.
+    None,
+    /// Aᵀ·B with A stored k×m.
+    A,
+    /// A·Bᵀ with B stored n×k.
+    B,
+}
 
 /// Rows and columns of C computed per workgroup.
 pub const GEMM_TILE: u32 = 64;

@@ -1,15 +1,6 @@
 //! Dense matrix products (kernel `glsl/gemm.comp`), row-major, f64 accumulation.
 
-/// Which operands are used transposed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Transpose {
-    /// A·B with A m×k, B k×n.
-    None,
-    /// Aᵀ·B with A stored k×m.
-    A,
-    /// A·Bᵀ with B stored n×k.
-    B,
-}
+pub use crate::ops::Transpose;
 
 /// C = alpha·op(A)·op(B) + beta·C, all row-major and contiguous.
 #[allow(clippy::too_many_arguments)]

@@ -47,9 +47,7 @@ pub const MIN_ALPHA: f64 = 1.0 / 255.0;
 pub const MIN_TRANSMITTANCE: f64 = 1e-4;
 /// Low-pass filter added to the 2-D covariance (pixels²).
 pub const LOW_PASS: f64 = 0.3;
-/// Guard band: the Jacobian clamps the view direction to the field of view
-/// widened by this fraction of tan(fov/2).
-pub const GUARD_BAND: f64 = 0.3;
+pub use crate::splat::GUARD_BAND;
 
 /// One Gaussian's parameters in f64.
 #[derive(Clone, Copy, Debug)]

@@ -2,6 +2,11 @@
 
 use glam::{DAffine3, DVec3};
 
+/// Guard band: the projection's Jacobian clamps the view direction to the
+/// field of view widened by this fraction of tan(fov/2), so Gaussians far
+/// outside the image do not get huge 2-D footprints.
+pub const GUARD_BAND: f64 = 0.3;
+
 /// A pinhole view: pose, intrinsics, image size and depth range.
 ///
 /// Axes follow OpenCV: x right, y down, z forward. Pixel `(u, v)` (column,
@@ -110,9 +115,8 @@ impl Camera {
 
     /// Range of tx/tz and ty/tz the projection's Jacobian is evaluated in,
     /// `[lo_x, hi_x, lo_y, hi_y]`: the field of view widened on each side by
-    /// [`GUARD_BAND`](crate::reference::raster::GUARD_BAND) × tan(fov/2).
+    /// [`GUARD_BAND`] × tan(fov/2).
     pub fn guard_band(&self) -> [f64; 4] {
-        use crate::reference::raster::GUARD_BAND;
         let tan_x = 0.5 * self.width as f64 / self.fx;
         let tan_y = 0.5 * self.height as f64 / self.fy;
         [

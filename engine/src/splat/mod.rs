@@ -15,7 +15,7 @@ mod views;
 #[cfg(test)]
 mod tests;
 
-pub use camera::Camera;
+pub use camera::{Camera, GUARD_BAND};
 pub use gaussians::{
     GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS, GAUSSIAN_BYTES, QUERY_DIM,
 };

@@ -157,7 +157,7 @@ pub fn convert(
         }
     }
 
-    let partial = crate::partial::PartialFile::new(out);
+    let partial = latentam::files::PartialFile::new(out)?;
     let mut log = LogWriter::create(partial.path(), options.compression)?;
     let mut summary = ConvertSummary {
         skipped: std::mem::take(&mut dataset.skipped),

@@ -267,7 +267,7 @@ pub fn generate(
     check(config)?;
     let scene = Scene::two_rooms();
     let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
-    let partial = crate::partial::PartialFile::new(out);
+    let partial = latentam::files::PartialFile::new(out)?;
     let mut log = LogWriter::create(partial.path(), config.compression)
         .with_context(|| format!("creating {}", partial.path().display()))?;
     let (w, h) = (config.width, config.height);

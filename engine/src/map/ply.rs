@@ -33,9 +33,9 @@ use std::path::Path;
 
 use bytemuck::Zeroable;
 
-use super::atomic::write_atomically;
+use super::Gaussian;
 use crate::error::{Error, Result};
-use crate::map::Gaussian;
+use crate::files::write_atomically;
 use crate::splat::QUERY_DIM;
 
 /// The degree-0 spherical-harmonic basis constant, `1 / (2√π)`.
@@ -161,7 +161,7 @@ pub fn read_ply(path: &Path) -> Result<PlyMap> {
     };
     let bad = |message: String| Error::InvalidArgument(format!("{}: {message}", path.display()));
 
-    let file = super::open_input(path).map_err(io_err)?;
+    let file = crate::io::open_input(path).map_err(io_err)?;
     let file_len = file.metadata().map_err(io_err)?.len();
     let mut reader = BufReader::with_capacity(1 << 20, file);
     let (header, header_len) = read_header(&mut reader).map_err(|e| match e {
@@ -626,8 +626,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::io::partial_path;
-    use crate::io::tests::TempDir;
+    use crate::files::partial_path;
+    use crate::files::testing::TempDir;
 
     fn random_gaussians(n: usize, seed: u64) -> Vec<Gaussian> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
