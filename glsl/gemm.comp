@@ -9,10 +9,12 @@
 // @kernel gemm_nn TRANS_A=0 TRANS_B=0
 // @kernel gemm_tn TRANS_A=1 TRANS_B=0
 // @kernel gemm_nt TRANS_A=0 TRANS_B=1
+// @push Gemm
 #version 450
+#include "shared.glsl"
 
 #define T 16
-#define TILE 64
+#define TILE GEMM_TILE
 #define DEPTH 16
 #define LOADS (TILE * DEPTH / (T * T))
 

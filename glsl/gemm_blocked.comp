@@ -20,6 +20,7 @@
 // @kernel gemm_blocked_nn_scalar TRANS_A=0 TRANS_B=0 VEC4=0
 // @kernel gemm_blocked_tn_scalar TRANS_A=1 TRANS_B=0 VEC4=0
 // @kernel gemm_blocked_nt_scalar TRANS_A=0 TRANS_B=1 VEC4=0
+// @push Gemm
 #version 450
 
 layout(local_size_x = 8, local_size_y = 8) in;

@@ -27,7 +27,6 @@
 #include "common.glsl"
 #include "splat.glsl"
 
-#define BATCH 256u
 #define QUERY_VEC4 8u
 #define INVOCATIONS (256u / ROWS)
 
@@ -62,9 +61,9 @@ layout(push_constant) uniform Params {
     uint query_count;
 } pc;
 
-shared uint sh_gaussian[BATCH];
-shared vec4 sh_splat[BATCH];
-shared vec3 sh_conic[BATCH];
+shared uint sh_gaussian[BLEND_BATCH];
+shared vec4 sh_splat[BLEND_BATCH];
+shared vec3 sh_conic[BLEND_BATCH];
 
 void main() {
     uint tile = linear_group();
@@ -130,9 +129,9 @@ void main() {
 #endunroll
 #endif
 
-    for (uint base = 0u; base < n; base += BATCH) {
+    for (uint base = 0u; base < n; base += BLEND_BATCH) {
         barrier();
-        for (uint e = t; e < BATCH; e += INVOCATIONS) {
+        for (uint e = t; e < BLEND_BATCH; e += INVOCATIONS) {
             if (base + e < n) {
                 uint pair = pairs[range.x + base + e];
                 sh_gaussian[e] = pair % pc.n_gaussians;
@@ -141,7 +140,7 @@ void main() {
             }
         }
         barrier();
-        uint count = min(BATCH, n - base);
+        uint count = min(BLEND_BATCH, n - base);
 #if ROWS == 1
         for (uint j = 0u; j < count && !done; j++) {
             vec4 s = sh_splat[j];
@@ -156,7 +155,7 @@ void main() {
                 continue;
             }
             float next = trans * (1.0 - alpha);
-            if (next < 1e-4) {
+            if (next < MIN_TRANSMITTANCE) {
                 done = true;
                 break;
             }
@@ -190,7 +189,7 @@ void main() {
                 float alpha = min(MAX_ALPHA, s.w * exp(-sigma));
                 float next = trans[K] * (1.0 - alpha);
                 bool hit = !done[K] && sigma >= 0.0 && alpha >= MIN_ALPHA;
-                bool stop = hit && next < 1e-4;
+                bool stop = hit && next < MIN_TRANSMITTANCE;
                 done[K] = done[K] || stop;
                 active -= stop ? 1u : 0u;
                 hit = hit && !stop;

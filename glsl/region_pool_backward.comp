@@ -5,10 +5,10 @@
 // thread per (pixel, channel). CPU reference: engine/src/reference/pooling.rs.
 #version 450
 #include "common.glsl"
+#include "shared.glsl"
 
 #define CHANNELS 32
 #define THREADS 256
-#define NO_REGION 0xffffffffu
 
 layout(local_size_x = THREADS) in;
 

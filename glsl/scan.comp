@@ -8,12 +8,12 @@
 // @kernel scan_add PASS=1
 #version 450
 #include "common.glsl"
+#include "shared.glsl"
 
 // Few threads with long serial runs: each barrier costs a context switch per
 // SIMD chunk on CPU drivers; 64x16 scanned twice as fast as 256x4 on lavapipe.
 #define THREADS 64
-#define ITEMS 16
-#define SCAN_BLOCK (THREADS * ITEMS)
+#define ITEMS (SCAN_BLOCK / THREADS)
 
 layout(local_size_x = THREADS) in;
 

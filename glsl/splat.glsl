@@ -2,22 +2,10 @@
 // and its conventions are documented in engine/src/reference/raster.rs; keep
 // the two in step.
 
-#define TILE_SIZE 16u
-#define MAX_ALPHA 0.99
-#define MIN_ALPHA (1.0 / 255.0)
-#define LOW_PASS 0.3
-
-// One camera of the batch (mirrors `GpuView` in engine/src/splat/views.rs).
-struct View {
-    vec4 row0;       // world-to-camera [R|t], row 0
-    vec4 row1;
-    vec4 row2;
-    vec4 intrinsics; // fx, fy, cx, cy
-    vec4 guard;      // clamp range of tx/tz (lo, hi) and ty/tz (lo, hi)
-    vec4 clip;       // near, far, -, -
-    uvec4 size;      // width, height, tiles across, tiles down
-    uvec4 offsets;   // first global tile, first pixel, -, -
-};
+// TILE_SIZE, MAX_ALPHA, MIN_ALPHA, LOW_PASS and `View` (one camera of the
+// batch) are declared once for the host and the kernels in
+// shaders/layouts.rs.
+#include "shared.glsl"
 
 // Columns of the rotation of a unit quaternion (w, x, y, z).
 mat3 quat_to_rotmat(vec4 q) {

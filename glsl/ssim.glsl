@@ -16,6 +16,7 @@ float tap(int k) {
     return w[k + RADIUS];
 }
 
+// @push Ssim
 layout(push_constant) uniform Params {
     uint width;
     uint height;

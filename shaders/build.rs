@@ -17,7 +17,19 @@
 //!   has one entry point, renamed after each variant);
 //! * `// @capabilities NAME ...` lists the naga validator capabilities the
 //!   kernel needs beyond push constants (e.g. `SHADER_FLOAT32_ATOMIC`,
-//!   `SUBGROUP`); nothing else is enabled.
+//!   `SUBGROUP`); nothing else is enabled. What each variant actually uses
+//!   of the device (float atomics, subgroup arithmetic or shuffles) is read
+//!   from its IR into `Kernel::requires`, which the engine checks before
+//!   creating a pipeline.
+//! * `// @push NAME` (in a kernel or an include) names the Rust type of the
+//!   push constants, shared by kernels of several files with one layout.
+//!   Without it the variants of one file share a type named after the file
+//!   when their layouts agree; kernels that end up with one type must agree.
+//!
+//! Constants and structs the host shares with kernels are declared once in
+//! `shaders/layouts.rs`; kernels `#include "shared.glsl"` or
+//! `#include "shared.wgsl"` (generated), Rust uses `latentam_shaders::shared`.
+//! Every file is included once per kernel, however many includes name it.
 //! * `#unroll NAME COUNT` ... `#endunroll` (GLSL and WGSL, per variant):
 //!   the lines between are written COUNT times (a number or a variant's
 //!   KEY) with every whole-word NAME replaced by `0u`, `1u`, ... Array
@@ -37,6 +49,16 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
+
+// Scalar field types are part of the declaration language even while no
+// struct uses them.
+#[allow(dead_code)]
+#[path = "layouts.rs"]
+mod layouts;
+
+/// Include names that resolve to the text generated from `layouts.rs`.
+const SHARED_GLSL: &str = "shared.glsl";
+const SHARED_WGSL: &str = "shared.wgsl";
 
 /// A kernel-source location, for error messages that point at the user's file.
 struct LineMap {
@@ -60,8 +82,69 @@ struct KernelOut {
     workgroup: [u32; 3],
     bindings: Vec<(String, bool)>,
     push: Option<PushStruct>,
+    /// The push-constant type named by a `// @push NAME` directive.
+    push_group: Option<String>,
+    requires: Requires,
 }
 
+/// What a kernel needs of the device, read from its IR (not from the
+/// file's `@capabilities`, which covers all its variants).
+#[derive(Clone, Copy, Default)]
+struct Requires {
+    float_atomics: bool,
+    subgroup_arithmetic: bool,
+    subgroup_shuffle: bool,
+}
+
+fn requires(module: &naga::Module, entry: &str) -> Requires {
+    // Only code the entry point reaches: a file's helpers for other
+    // variants are compiled into every module.
+    fn walk(
+        module: &naga::Module,
+        block: &naga::Block,
+        r: &mut Requires,
+        seen: &mut Vec<naga::Handle<naga::Function>>,
+    ) {
+        for stmt in block.iter() {
+            match stmt {
+                naga::Statement::SubgroupCollectiveOperation { .. }
+                | naga::Statement::SubgroupBallot { .. } => r.subgroup_arithmetic = true,
+                naga::Statement::SubgroupGather { .. } => r.subgroup_shuffle = true,
+                naga::Statement::Call { function, .. } if !seen.contains(function) => {
+                    seen.push(*function);
+                    walk(module, &module.functions[*function].body, r, seen);
+                }
+                naga::Statement::Block(b) => walk(module, b, r, seen),
+                naga::Statement::If { accept, reject, .. } => {
+                    walk(module, accept, r, seen);
+                    walk(module, reject, r, seen);
+                }
+                naga::Statement::Switch { cases, .. } => {
+                    cases.iter().for_each(|c| walk(module, &c.body, r, seen))
+                }
+                naga::Statement::Loop {
+                    body, continuing, ..
+                } => {
+                    walk(module, body, r, seen);
+                    walk(module, continuing, r, seen);
+                }
+                _ => {}
+            }
+        }
+    }
+    let mut r = Requires {
+        float_atomics: module.types.iter().any(|(_, t)| {
+            matches!(t.inner, naga::TypeInner::Atomic(s) if s.kind == naga::ScalarKind::Float)
+        }),
+        ..Requires::default()
+    };
+    if let Some(ep) = module.entry_points.iter().find(|e| e.name == entry) {
+        walk(module, &ep.function.body, &mut r, &mut Vec::new());
+    }
+    r
+}
+
+#[derive(PartialEq)]
 struct PushStruct {
     size: u32,
     /// (field name, rust type, byte offset, byte size)
@@ -74,6 +157,19 @@ fn main() {
     let wgsl_dir = manifest.join("wgsl");
     println!("cargo:rerun-if-changed={}", glsl_dir.display());
     println!("cargo:rerun-if-changed={}", wgsl_dir.display());
+
+    println!(
+        "cargo:rerun-if-changed={}",
+        manifest.join("layouts.rs").display()
+    );
+    let out_dir = PathBuf::from(std::env::var("OUT_DIR").unwrap());
+    let shared = match shared_sources() {
+        Ok(s) => s,
+        Err(e) => panic!("shaders/layouts.rs: {e}"),
+    };
+    std::fs::write(out_dir.join(SHARED_GLSL), &shared.glsl).expect("write shared.glsl");
+    std::fs::write(out_dir.join(SHARED_WGSL), &shared.wgsl).expect("write shared.wgsl");
+    std::fs::write(out_dir.join("shared.rs"), &shared.rust).expect("write shared.rs");
 
     let mut kernels = Vec::new();
     let mut errors = Vec::new();
@@ -121,8 +217,107 @@ fn main() {
         );
     }
 
-    let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("kernels.rs");
-    std::fs::write(&out, generate_table(&kernels)).expect("write kernels.rs");
+    let table = match generate_table(&kernels) {
+        Ok(t) => t,
+        Err(e) => panic!("{e}"),
+    };
+    std::fs::write(out_dir.join("kernels.rs"), table).expect("write kernels.rs");
+}
+
+/// `layouts.rs` written out for GLSL, WGSL and Rust.
+struct SharedSources {
+    glsl: String,
+    wgsl: String,
+    rust: String,
+}
+
+fn shared_sources() -> Result<SharedSources, String> {
+    use layouts::{ConstType, FieldType, CONSTANTS, STRUCTS};
+    let head = "// @generated by shaders/build.rs from shaders/layouts.rs. Do not edit.\n";
+    let mut glsl = String::from(head);
+    let mut wgsl = String::from(head);
+    let mut rust = String::from(head);
+    for c in CONSTANTS {
+        let (g, w, r) = match c.ty {
+            ConstType::U32 => {
+                if !c
+                    .value
+                    .chars()
+                    .all(|ch| ch.is_ascii_hexdigit() || ch == 'x')
+                {
+                    return Err(format!("`{}`: u32 values must be integer literals", c.name));
+                }
+                let v = c.value;
+                (format!("{v}u"), format!("{v}u"), v.to_string())
+            }
+            ConstType::F32 => (
+                format!("({})", c.value),
+                c.value.to_string(),
+                c.value.to_string(),
+            ),
+        };
+        let ty = match c.ty {
+            ConstType::U32 => "u32",
+            ConstType::F32 => "f32",
+        };
+        let _ = writeln!(glsl, "// {}\n#define {} {g}", c.doc, c.name);
+        let _ = writeln!(wgsl, "// {}\nconst {}: {ty} = {w};", c.doc, c.name);
+        let _ = writeln!(rust, "/// {}\npub const {}: {ty} = {r};", c.doc, c.name);
+    }
+    for st in STRUCTS {
+        let _ = writeln!(glsl, "\n// {}\nstruct {} {{", st.doc, st.name);
+        let _ = writeln!(wgsl, "\n// {}\nstruct {} {{", st.doc, st.name);
+        let _ = writeln!(
+            rust,
+            "\n/// {}\n#[repr(C)]\n#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]\npub struct {} {{",
+            st.doc, st.name
+        );
+        let mut offset = 0u32;
+        for f in st.fields {
+            let (g, w, r, size) = match f.ty {
+                FieldType::Vec4 => ("vec4", "vec4<f32>", "[f32; 4]", 16),
+                FieldType::UVec4 => ("uvec4", "vec4<u32>", "[u32; 4]", 16),
+                FieldType::F32 => ("float", "f32", "f32", 4),
+                FieldType::U32 => ("uint", "u32", "u32", 4),
+            };
+            if offset % size != 0 {
+                return Err(format!(
+                    "{}.{} sits at byte {offset}, not a multiple of its size {size}: \
+                     Rust and std430 would disagree; pad before it",
+                    st.name, f.name
+                ));
+            }
+            offset += size;
+            let _ = writeln!(glsl, "    {g} {}; // {}", f.name, f.doc);
+            let _ = writeln!(wgsl, "    {}: {w}, // {}", f.name, f.doc);
+            let _ = writeln!(rust, "    /// {}\n    pub {}: {r},", f.doc, f.name);
+        }
+        if offset % 16 != 0 {
+            return Err(format!(
+                "{} is {offset} bytes, not a multiple of 16: pad it so arrays of it agree",
+                st.name
+            ));
+        }
+        glsl.push_str("};\n");
+        wgsl.push_str("}\n");
+        rust.push_str("}\n");
+    }
+    Ok(SharedSources { glsl, wgsl, rust })
+}
+
+/// Byte offsets of a shared struct's fields and its size, as `layouts.rs`
+/// lays them out.
+fn shared_layout(st: &layouts::Struct) -> (Vec<u32>, u32) {
+    let mut offsets = Vec::new();
+    let mut at = 0;
+    for f in st.fields {
+        offsets.push(at);
+        at += match f.ty {
+            layouts::FieldType::Vec4 | layouts::FieldType::UVec4 => 16,
+            layouts::FieldType::F32 | layouts::FieldType::U32 => 4,
+        };
+    }
+    (offsets, at)
 }
 
 fn sorted_files(dir: &Path, ext: &str) -> Vec<PathBuf> {
@@ -138,6 +333,12 @@ fn sorted_files(dir: &Path, ext: &str) -> Vec<PathBuf> {
 }
 
 fn rel(path: &Path) -> String {
+    let name = path.file_name().and_then(|n| n.to_str());
+    if matches!(name, Some(SHARED_GLSL | SHARED_WGSL))
+        && path.starts_with(std::env::var("OUT_DIR").unwrap())
+    {
+        return format!("{} (generated from shaders/layouts.rs)", name.unwrap());
+    }
     // Paths relative to the workspace root read best in errors and tables.
     let s = path.to_string_lossy().replace('\\', "/");
     match s.find("/shaders/../") {
@@ -196,7 +397,11 @@ fn expand_includes(
             let name = rest
                 .trim()
                 .trim_matches(|c| c == '"' || c == '<' || c == '>');
-            let inc = include_dir.join(name);
+            let inc = if name == SHARED_GLSL || name == SHARED_WGSL {
+                PathBuf::from(std::env::var("OUT_DIR").unwrap()).join(name)
+            } else {
+                include_dir.join(name)
+            };
             println!("cargo:rerun-if-changed={}", inc.display());
             if !inc.is_file() {
                 return Err(format!(
@@ -206,7 +411,12 @@ fn expand_includes(
                     rel(include_dir)
                 ));
             }
-            expand_includes(&inc, include_dir, out, map, depth + 1)?;
+            // Each file once, as if it had `#pragma once`: shared.glsl
+            // reaches a kernel directly and through splat.glsl.
+            let inc_rel = PathBuf::from(rel(&inc));
+            if !map.lines.iter().any(|(f, _)| *f == inc_rel) {
+                expand_includes(&inc, include_dir, out, map, depth + 1)?;
+            }
         } else {
             out.push_str(line);
             out.push('\n');
@@ -234,6 +444,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
         map.lines.push((PathBuf::from(&file), 0));
     }
     expand_includes(path, include_dir, &mut expanded, &mut map, 0)?;
+    let push_group = push_group(&expanded, &file)?;
 
     let mut out = Vec::new();
     for (name, defs) in variants {
@@ -268,6 +479,9 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
             &what,
             file.clone(),
         )?);
+    }
+    for k in &mut out {
+        k.push_group = push_group.clone();
     }
     Ok(out)
 }
@@ -443,6 +657,7 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     let mut expanded = String::new();
     let mut map = LineMap { lines: Vec::new() };
     expand_includes(path, include_dir, &mut expanded, &mut map, 0)?;
+    let push_group = push_group(&expanded, &file)?;
     let declared = variants(&raw, &file)?;
     let runs: Vec<(Option<String>, Defines)> = if declared.is_empty() {
         vec![(None, Vec::new())]
@@ -507,7 +722,69 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
             )?);
         }
     }
+    for k in &mut out {
+        k.push_group = push_group.clone();
+    }
     Ok(out)
+}
+
+/// The `// @push NAME` directive of a kernel file or its includes: kernels
+/// of different files whose push constants are one layout share that type.
+fn push_group(expanded: &str, file: &str) -> Result<Option<String>, String> {
+    let mut names: Vec<&str> = directives(expanded, "push");
+    names.dedup();
+    match names.as_slice() {
+        [] => Ok(None),
+        [one] if !one.is_empty() && !one.contains(char::is_whitespace) => Ok(Some(one.to_string())),
+        _ => Err(format!(
+            "{file}: `@push` takes one type name, found {names:?}"
+        )),
+    }
+}
+
+/// The Rust type name of each kernel's push constants: the `@push` name;
+/// else the file's name when all its variants share one layout; else the
+/// kernel's own. Kernels that end up with one name must agree on the
+/// layout.
+fn push_type_names(kernels: &[KernelOut]) -> Result<Vec<Option<String>>, String> {
+    let stem = |source: &str| {
+        let file = source.rsplit('/').next().unwrap_or(source);
+        camel(file.split('.').next().unwrap_or(file))
+    };
+    let names: Vec<Option<String>> = kernels
+        .iter()
+        .map(|k| {
+            k.push.as_ref()?;
+            if let Some(g) = &k.push_group {
+                return Some(g.clone());
+            }
+            let same_file_agrees = kernels
+                .iter()
+                .filter(|o| o.source == k.source)
+                .all(|o| o.push == k.push);
+            Some(if same_file_agrees {
+                stem(&k.source)
+            } else {
+                camel(&k.name)
+            })
+        })
+        .collect();
+    for (i, a) in kernels.iter().enumerate() {
+        for (j, b) in kernels.iter().enumerate().skip(i + 1) {
+            if names[i].is_some() && names[i] == names[j] && a.push != b.push {
+                return Err(format!(
+                    "kernels `{}` ({}) and `{}` ({}) share push-constant type `{}` but \
+                     their layouts differ",
+                    a.name,
+                    a.source,
+                    b.name,
+                    b.source,
+                    names[i].as_deref().unwrap()
+                ));
+            }
+        }
+    }
+    Ok(names)
 }
 
 /// See the module comment: `barrier()` must synchronise the whole workgroup.
@@ -586,6 +863,7 @@ fn finish(
     layouter
         .update(module.to_ctx())
         .map_err(|e| format!("{what}: layout: {e}"))?;
+    check_shared_structs(&module, &layouter, what)?;
     let used = &info.get_entry_point(
         module
             .entry_points
@@ -662,6 +940,7 @@ fn finish(
         shader_stage: naga::ShaderStage::Compute,
         entry_point: entry.to_string(),
     };
+    let requires = requires(&module, entry);
     let spirv = naga::back::spv::write_vec(&module, &info, &options, Some(&pipeline))
         .map_err(|e| format!("{what}: SPIR-V output failed: {e}"))?;
 
@@ -672,7 +951,45 @@ fn finish(
         workgroup: ep.workgroup_size,
         bindings: bindings.into_values().collect(),
         push,
+        push_group: None,
+        requires,
     })
+}
+
+/// Every struct named like one of `layouts.rs` must be laid out as it is
+/// there (a kernel declaring its own `View`, say, would silently disagree
+/// with the host).
+fn check_shared_structs(
+    module: &naga::Module,
+    layouter: &naga::proc::Layouter,
+    what: &str,
+) -> Result<(), String> {
+    for (handle, ty) in module.types.iter() {
+        let Some(st) = layouts::STRUCTS
+            .iter()
+            .find(|st| ty.name.as_deref() == Some(st.name))
+        else {
+            continue;
+        };
+        let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+            continue;
+        };
+        let (offsets, size) = shared_layout(st);
+        let got: Vec<u32> = members.iter().map(|m| m.offset).collect();
+        let names_agree = members
+            .iter()
+            .zip(st.fields)
+            .all(|(m, f)| m.name.as_deref() == Some(f.name));
+        if got != offsets || layouter[handle].size != size || !names_agree {
+            return Err(format!(
+                "{what}: struct `{}` is laid out as offsets {got:?}, size {}, but \
+                 shaders/layouts.rs has offsets {offsets:?}, size {size}: include \
+                 \"shared.glsl\" / \"shared.wgsl\" instead of declaring it",
+                st.name, layouter[handle].size
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn type_name(module: &naga::Module, ty: naga::Handle<naga::Type>) -> Option<String> {
@@ -747,19 +1064,31 @@ fn camel(name: &str) -> String {
         .collect()
 }
 
-fn generate_table(kernels: &[KernelOut]) -> String {
+fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
+    let names = push_type_names(kernels)?;
     let mut s = String::new();
     s.push_str("// @generated by shaders/build.rs. Do not edit.\n\n");
     s.push_str("/// Push-constant blocks of the kernels, mirrored as `#[repr(C)]` structs.\n");
     s.push_str("pub mod push {\n");
-    for k in kernels {
-        let Some(p) = &k.push else { continue };
+    let mut written = std::collections::BTreeSet::new();
+    for (k, name) in kernels.iter().zip(&names) {
+        let (Some(p), Some(name)) = (&k.push, name) else {
+            continue;
+        };
+        if !written.insert(name.clone()) {
+            continue;
+        }
+        let users: Vec<String> = kernels
+            .iter()
+            .zip(&names)
+            .filter(|(_, n)| n.as_ref() == Some(name))
+            .map(|(o, _)| format!("`{}`", o.name))
+            .collect();
         let _ = writeln!(
             s,
-            "    /// Push constants of kernel `{}` ({}).\n    #[repr(C)]\n    #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]\n    pub struct {} {{",
-            k.name,
+            "    /// Push constants of {} ({}).\n    #[repr(C)]\n    #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]\n    pub struct {name} {{",
+            users.join(", "),
             k.source,
-            camel(&k.name)
         );
         let mut at = 0u32;
         let mut pad = 0;
@@ -786,7 +1115,7 @@ fn generate_table(kernels: &[KernelOut]) -> String {
     }
     s.push_str("}\n\n");
 
-    for k in kernels {
+    for (i, k) in kernels.iter().enumerate() {
         let upper = k.name.to_ascii_uppercase();
         let _ = write!(s, "static {upper}_SPIRV: [u32; {}] = [", k.spirv.len());
         for (i, w) in k.spirv.iter().enumerate() {
@@ -796,8 +1125,8 @@ fn generate_table(kernels: &[KernelOut]) -> String {
             let _ = write!(s, "{w:#010x}, ");
         }
         s.push_str("\n];\n");
-        let push_ty = match &k.push {
-            Some(_) => format!("push::{}", camel(&k.name)),
+        let push_ty = match &names[i] {
+            Some(name) => format!("push::{name}"),
             None => "()".to_string(),
         };
         let push_size = k.push.as_ref().map(|p| p.size).unwrap_or(0);
@@ -805,10 +1134,12 @@ fn generate_table(kernels: &[KernelOut]) -> String {
         for (n, w) in &k.bindings {
             let _ = write!(binds, "Binding {{ name: {n:?}, writable: {w} }}, ");
         }
+        let r = k.requires;
         let _ = writeln!(
             s,
-            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n}});\n",
-            k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2]
+            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
+            k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2],
+            r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
         );
     }
     s.push_str("/// Every kernel, in source order.\npub static ALL: &[&Kernel] = &[\n");
@@ -816,5 +1147,5 @@ fn generate_table(kernels: &[KernelOut]) -> String {
         let _ = writeln!(s, "    &{}.kernel,", k.name.to_ascii_uppercase());
     }
     s.push_str("];\n");
-    s
+    Ok(s)
 }

@@ -43,6 +43,21 @@ pub struct Kernel {
     pub bindings: &'static [Binding],
     /// Size in bytes of the push-constant block (0 when it has none).
     pub push_constant_size: u32,
+    /// What the kernel needs of the device beyond Vulkan 1.2 compute.
+    pub requires: Requires,
+}
+
+/// Device features a kernel uses, read by the build from the kernel's own
+/// code (so each variant of a file states only what it uses).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Requires {
+    /// 32-bit float atomic add on storage buffers
+    /// (`VK_EXT_shader_atomic_float`).
+    pub float_atomics: bool,
+    /// Subgroup reductions, scans, ballots or votes in compute.
+    pub subgroup_arithmetic: bool,
+    /// Subgroup shuffles in compute.
+    pub subgroup_shuffle: bool,
 }
 
 impl Kernel {
@@ -80,6 +95,19 @@ impl<P> KernelDef<P> {
 }
 
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
+
+/// Constants and buffer structs shared by the host and the kernels,
+/// generated from `shaders/layouts.rs` (kernels get the same declarations
+/// from `#include "shared.glsl"` or `#include "shared.wgsl"`).
+///
+/// ```
+/// use latentam_shaders::shared::{View, TILE_SIZE};
+/// assert_eq!(std::mem::size_of::<View>(), 128);
+/// assert_eq!(TILE_SIZE, 16);
+/// ```
+pub mod shared {
+    include!(concat!(env!("OUT_DIR"), "/shared.rs"));
+}
 
 #[cfg(test)]
 mod tests;

@@ -63,11 +63,55 @@ fn table_describes_bindings_and_push_constants() {
     assert!(GEMM_NN.kernel.bindings[2].writable);
     assert_eq!(
         GEMM_NN.kernel.push_constant_size as usize,
-        std::mem::size_of::<push::GemmNn>()
+        std::mem::size_of::<push::Gemm>()
     );
     assert_eq!(GEMM_NN.kernel.workgroup, [16, 16, 1]);
     assert_eq!(RADIX_SCATTER.kernel.entry_point(), "radix_scatter");
     for k in ALL {
         assert_eq!(k.push_constant_size % 4, 0, "{}", k.name);
     }
+}
+
+#[test]
+fn each_variant_requires_only_what_its_code_uses() {
+    let none = Requires::default();
+    assert_eq!(
+        RASTER_BACKWARD.kernel.requires,
+        Requires {
+            float_atomics: true,
+            subgroup_arithmetic: true,
+            subgroup_shuffle: false
+        }
+    );
+    assert_eq!(RASTER_BACKWARD_PLAIN_CAS.kernel.requires, none);
+    assert!(ATOMIC_ADD_F32.kernel.requires.float_atomics);
+    assert_eq!(ATOMIC_ADD_F32_CAS.kernel.requires, none);
+    assert!(RASTER_BACKWARD_COLUMNS_CAS.kernel.requires.subgroup_shuffle);
+    assert!(!RASTER_BACKWARD_COLUMNS_CAS.kernel.requires.float_atomics);
+    assert_eq!(GEMM_NN.kernel.requires, none);
+}
+
+#[test]
+fn variants_with_one_push_layout_share_one_type() {
+    // Typed dispatch of every GEMM variant with one `push::Gemm` value:
+    // this compiles only if the build gave them one type.
+    let defs: [&KernelDef<push::Gemm>; 4] = [
+        &GEMM_NN,
+        &GEMM_TN,
+        &GEMM_BLOCKED_NT,
+        &GEMM_BLOCKED_NN_SCALAR,
+    ];
+    assert!(defs
+        .iter()
+        .all(|d| d.kernel.push_constant_size as usize == std::mem::size_of::<push::Gemm>()));
+    let _: [&KernelDef<push::RasterBackward>; 2] = [
+        &RASTER_BACKWARD,
+        &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
+    ];
+}
+
+#[test]
+fn shared_structs_have_the_std430_size() {
+    assert_eq!(std::mem::size_of::<shared::View>(), 128);
+    assert_eq!(std::mem::align_of::<shared::View>(), 4);
 }

@@ -5,6 +5,7 @@
 // tested against engine/src/reference/atomic.rs.
 // @capabilities SHADER_FLOAT32_ATOMIC
 
+// @push ScatterAdd
 struct Params {
     n: u32,
 }

@@ -2,6 +2,7 @@
 // compare-and-swap loop on the bits of the value. WGSL because naga's GLSL
 // front end has no atomics. Same interface as atomic_add_f32.wgsl.
 
+// @push ScatterAdd
 struct Params {
     n: u32,
 }

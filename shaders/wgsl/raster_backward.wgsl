@@ -207,9 +207,9 @@ fn lane_sum(x: vec4<f32>) -> vec4<f32> {
 }
 #endif
 
-var<workgroup> sh_pair: array<u32, BATCH>;
-var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
-var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
+var<workgroup> sh_pair: array<u32, BLEND_BATCH>;
+var<workgroup> sh_splat: array<vec4<f32>, BLEND_BATCH>;
+var<workgroup> sh_conic: array<vec4<f32>, BLEND_BATCH>;
 
 #if COLUMNS
 @compute @workgroup_size(8)
@@ -306,9 +306,9 @@ fn raster_backward(
     let tile_walk = tile_max(t, my_walk);
     let start = ranges[tile].x;
 
-    for (var base = 0u; base < tile_walk; base += BATCH) {
+    for (var base = 0u; base < tile_walk; base += BLEND_BATCH) {
         workgroupBarrier();
-        for (var e = t; e < BATCH; e += INVOCATIONS) {
+        for (var e = t; e < BLEND_BATCH; e += INVOCATIONS) {
             if (base + e < tile_walk) {
                 let pair = pairs[start + base + e];
                 sh_pair[e] = pair;
@@ -317,7 +317,7 @@ fn raster_backward(
             }
         }
         workgroupBarrier();
-        let count = min(BATCH, tile_walk - base);
+        let count = min(BLEND_BATCH, tile_walk - base);
         for (var j = 0u; j < count; j++) {
             let pair = sh_pair[j];
             let gaussian = pair % pc.n_gaussians;
@@ -474,7 +474,7 @@ fn raster_backward(
         q_acc[c] = vec4<f32>(0.0);
     }
 
-    for (var base = 0u; base < tile_walk; base += BATCH) {
+    for (var base = 0u; base < tile_walk; base += BLEND_BATCH) {
         workgroupBarrier();
         if (base + t < tile_walk) {
             let pair = pairs[start + base + t];
@@ -483,7 +483,7 @@ fn raster_backward(
             sh_conic[t] = splats[2u * pair + 1u];
         }
         workgroupBarrier();
-        let count = min(BATCH, tile_walk - base);
+        let count = min(BLEND_BATCH, tile_walk - base);
         for (var j = 0u; j < count; j++) {
             var g: Grads;
             g.rgbd = vec4<f32>(0.0);

@@ -102,9 +102,9 @@ fn region_of(p: u32) -> Region {
     return Region(r, 1.0 / f32(max(size, 1u)));
 }
 
-var<workgroup> sh_gaussian: array<u32, BATCH>;
-var<workgroup> sh_splat: array<vec4<f32>, BATCH>;
-var<workgroup> sh_conic: array<vec4<f32>, BATCH>;
+var<workgroup> sh_gaussian: array<u32, BLEND_BATCH>;
+var<workgroup> sh_splat: array<vec4<f32>, BLEND_BATCH>;
+var<workgroup> sh_conic: array<vec4<f32>, BLEND_BATCH>;
 
 #if COLUMNS
 @compute @workgroup_size(8)
@@ -166,9 +166,9 @@ fn raster_pool(
 #endunroll
 
     let tile_walk = tile_max(t, my_walk);
-    for (var base = 0u; base < tile_walk; base += BATCH) {
+    for (var base = 0u; base < tile_walk; base += BLEND_BATCH) {
         workgroupBarrier();
-        for (var e = t; e < BATCH; e += INVOCATIONS) {
+        for (var e = t; e < BLEND_BATCH; e += INVOCATIONS) {
             if (base + e < tile_walk) {
                 let pair = pairs[start + base + e];
                 sh_gaussian[e] = pair % pc.n_gaussians;
@@ -177,7 +177,7 @@ fn raster_pool(
             }
         }
         workgroupBarrier();
-        let count = min(BATCH, tile_walk - base);
+        let count = min(BLEND_BATCH, tile_walk - base);
         for (var j = 0u; j < count; j++) {
             let s = sh_splat[j];
             let conic = sh_conic[j].xyz;
@@ -259,7 +259,7 @@ fn raster_pool(
     let tile_walk = tile_max(t, walked);
     var trans = 1.0;
     var q: array<vec4<f32>, 8>;
-    for (var base = 0u; base < tile_walk; base += BATCH) {
+    for (var base = 0u; base < tile_walk; base += BLEND_BATCH) {
         workgroupBarrier();
         if (base + t < tile_walk) {
             let pair = pairs[start + base + t];
@@ -268,7 +268,7 @@ fn raster_pool(
             sh_conic[t] = splats[2u * pair + 1u];
         }
         workgroupBarrier();
-        let count = min(BATCH, tile_walk - base);
+        let count = min(BLEND_BATCH, tile_walk - base);
         for (var j = 0u; j < count && base + j < walked; j++) {
             let s = sh_splat[j];
             let conic = sh_conic[j].xyz;

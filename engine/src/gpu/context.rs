@@ -135,6 +135,27 @@ pub struct DeviceInfo {
 }
 
 impl DeviceInfo {
+    /// Whether this device (as configured: `LATENTAM_FLOAT_ATOMICS=cas` and
+    /// `LATENTAM_SUBGROUPS=off` withdraw features) can run `kernel`, from
+    /// the features the build read in its code.
+    pub fn can_run(&self, kernel: &latentam_shaders::Kernel) -> bool {
+        self.missing_for(kernel).is_none()
+    }
+
+    /// The first feature `kernel` needs that this device lacks.
+    pub(crate) fn missing_for(&self, kernel: &latentam_shaders::Kernel) -> Option<&'static str> {
+        let r = kernel.requires;
+        if r.float_atomics && !self.native_float_atomics {
+            Some("float atomic add (VK_EXT_shader_atomic_float)")
+        } else if r.subgroup_arithmetic && !self.subgroup_arithmetic {
+            Some("subgroup arithmetic in compute")
+        } else if r.subgroup_shuffle && !self.subgroup_shuffle {
+            Some("subgroup shuffles in compute")
+        } else {
+            None
+        }
+    }
+
     /// The largest buffer the engine creates for kernels: one binding
     /// ([`DeviceInfo::max_storage_buffer_range`]) in one allocation
     /// ([`DeviceInfo::max_memory_allocation_size`]). Arrays that grow with

@@ -65,8 +65,8 @@ impl Context {
         }
     }
 
-    /// Creates the pipeline of every kernel this device can run (all but the
-    /// native float-atomic ones on devices without float atomics). lavapipe
+    /// Creates the pipeline of every kernel this device can run
+    /// ([`DeviceInfo::can_run`]: not those needing features it lacks). lavapipe
     /// compiles a pipeline on first use; call this before timing anything.
     /// Returns the number of pipelines ready.
     pub fn warm_up(&self) -> crate::Result<usize> {
@@ -83,10 +83,7 @@ impl Context {
     ) -> crate::Result<usize> {
         let mut n = 0;
         for k in latentam_shaders::ALL {
-            if !keep(k)
-                || (k.name == latentam_shaders::ATOMIC_ADD_F32.kernel.name
-                    && !self.info().native_float_atomics)
-            {
+            if !keep(k) || !self.info().can_run(k) {
                 continue;
             }
             self.dev.pipelines.get(&self.dev.raw, k)?;

@@ -430,6 +430,12 @@ impl<'a> Recorder<'a> {
         if groups.contains(&0) {
             return Ok(());
         }
+        if let Some(missing) = self.dev.info.missing_for(k) {
+            return Err(Error::Unsupported(format!(
+                "kernel {} needs {missing}, which {} does not offer (or the options turned off)",
+                k.name, self.dev.info.name
+            )));
+        }
         let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
         let mut reads = Vec::new();
         let mut writes = Vec::new();

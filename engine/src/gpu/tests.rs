@@ -156,7 +156,7 @@ fn dispatch_checks_its_arguments() {
         let a = Buffer::device(ctx, "args/a", 64).unwrap();
         let mut rec = ctx.recorder().unwrap();
         let err = rec
-            .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a], &push::ScanBlocks { n: 4 })
+            .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a], &push::Scan { n: 4 })
             .unwrap_err();
         assert!(err.to_string().contains("takes 2 buffers"), "{err}");
         let too_many = ctx.info().max_workgroup_count[0] + 1;
@@ -165,7 +165,7 @@ fn dispatch_checks_its_arguments() {
                 &SCAN_BLOCKS,
                 [too_many, 1, 1],
                 &[&a, &a],
-                &push::ScanBlocks { n: 4 },
+                &push::Scan { n: 4 },
             )
             .unwrap_err();
         assert!(err.to_string().contains("exceed"), "{err}");
@@ -175,12 +175,7 @@ fn dispatch_checks_its_arguments() {
         let mut t = ctx.transfer_recorder().unwrap();
         if ctx.info().dedicated_transfer_queue {
             assert!(t
-                .dispatch(
-                    &SCAN_BLOCKS,
-                    [1, 1, 1],
-                    &[&a, &a],
-                    &push::ScanBlocks { n: 4 }
-                )
+                .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a, &a], &push::Scan { n: 4 })
                 .is_err());
         }
         t.fill_u32(&a, 0);

@@ -309,8 +309,7 @@ impl StreamingKMeans {
             Some(dirty) => {
                 let mut with_dirty = bufs.to_vec();
                 with_dirty.push(dirty);
-                let p: &push::KmeansUpdateDirty = bytemuck::cast_ref(&p);
-                rec.dispatch_linear(&KMEANS_UPDATE_DIRTY, centres_count, &with_dirty, p)
+                rec.dispatch_linear(&KMEANS_UPDATE_DIRTY, centres_count, &with_dirty, &p)
             }
         }
     }

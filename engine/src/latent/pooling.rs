@@ -19,7 +19,7 @@ use crate::splat::{BatchLayout, QUERY_DIM};
 pub const NO_REGION_LABEL: u16 = u16::MAX;
 
 /// Region index of a batch pixel that belongs to no kept region.
-pub const NO_REGION: u32 = u32::MAX;
+pub use latentam_shaders::shared::NO_REGION;
 
 /// A row-major image of region labels (one u16 per pixel,
 /// [`NO_REGION_LABEL`] for none). It may be smaller or larger than the view

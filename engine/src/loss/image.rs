@@ -234,7 +234,7 @@ impl ImageLoss {
                     w_depth: w_depth as f32,
                 },
             )?;
-            let p = push::SsimStatsH {
+            let p = push::Ssim {
                 width: slot.width,
                 height: slot.height,
                 first_pixel,
@@ -247,19 +247,14 @@ impl ImageLoss {
                 &SSIM_MAP_V,
                 groups,
                 &[&self.stats, &self.dmap, &self.ssim_partial],
-                bytemuck::cast_ref(&p),
+                &p,
             )?;
-            rec.dispatch_linear(
-                &SSIM_GRAD_H,
-                groups,
-                &[&self.dmap, &self.blurred],
-                bytemuck::cast_ref(&p),
-            )?;
+            rec.dispatch_linear(&SSIM_GRAD_H, groups, &[&self.dmap, &self.blurred], &p)?;
             rec.dispatch_linear(
                 &SSIM_GRAD_V,
                 groups,
                 &[&self.blurred, rendered, target, grad],
-                bytemuck::cast_ref(&p),
+                &p,
             )?;
         }
         Ok(())

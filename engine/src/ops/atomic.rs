@@ -23,16 +23,11 @@ pub fn scatter_add_f32<'a>(
     values.ensure_bytes(n * 4, "scatter-add values")?;
     targets.ensure_bytes(n * 4, "scatter-add targets")?;
     let groups = n.div_ceil(SCATTER_THREADS) as u32;
-    let p = push::AtomicAddF32 { n: n as u32 };
+    let p = push::ScatterAdd { n: n as u32 };
     if rec.info().native_float_atomics {
         rec.dispatch_linear(&ATOMIC_ADD_F32, groups, &[values, targets, acc], &p)
     } else {
-        rec.dispatch_linear(
-            &ATOMIC_ADD_F32_CAS,
-            groups,
-            &[values, targets, acc],
-            bytemuck::cast_ref(&p),
-        )
+        rec.dispatch_linear(&ATOMIC_ADD_F32_CAS, groups, &[values, targets, acc], &p)
     }
 }
 
@@ -88,6 +83,29 @@ mod tests {
         with_cas_atomics(|ctx| {
             assert!(!ctx.info().native_float_atomics);
             check(ctx, &mut r);
+        });
+    }
+
+    #[test]
+    fn kernels_needing_float_atomics_are_refused_where_they_are_off() {
+        with_cas_atomics(|ctx| {
+            // Warming up compiles only what the device runs: no pipeline of
+            // a native-atomic variant on a device without the extension.
+            let runnable = latentam_shaders::ALL
+                .iter()
+                .filter(|k| !k.requires.float_atomics && ctx.info().can_run(k))
+                .count();
+            assert!(runnable < latentam_shaders::ALL.len());
+            assert_eq!(ctx.warm_up().unwrap(), runnable);
+            let values = ctx.upload_new("test/values", &[1.0f32]).unwrap();
+            let targets = ctx.upload_new("test/targets", &[0u32]).unwrap();
+            let acc = Buffer::device(ctx, "test/acc", 4).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let p = push::ScatterAdd { n: 1 };
+            let e = rec
+                .dispatch_linear(&ATOMIC_ADD_F32, 1, &[&values, &targets, &acc], &p)
+                .unwrap_err();
+            assert!(e.to_string().contains("float atomic add"), "{e}");
         });
     }
 }

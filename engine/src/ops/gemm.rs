@@ -13,8 +13,8 @@
 
 use ash::vk::PhysicalDeviceType;
 use latentam_shaders::{
-    push, GEMM_BLOCKED_NN, GEMM_BLOCKED_NN_SCALAR, GEMM_BLOCKED_NT, GEMM_BLOCKED_NT_SCALAR,
-    GEMM_BLOCKED_TN, GEMM_BLOCKED_TN_SCALAR, GEMM_NN, GEMM_NT, GEMM_TN,
+    push, KernelDef, GEMM_BLOCKED_NN, GEMM_BLOCKED_NN_SCALAR, GEMM_BLOCKED_NT,
+    GEMM_BLOCKED_NT_SCALAR, GEMM_BLOCKED_TN, GEMM_BLOCKED_TN_SCALAR, GEMM_NN, GEMM_NT, GEMM_TN,
 };
 
 use crate::error::Result;
@@ -31,8 +31,8 @@ pub enum Transpose {
     B,
 }
 
-/// Rows and columns of C computed per workgroup.
-pub const GEMM_TILE: u32 = 64;
+/// Rows and columns of C computed per workgroup (by either kernel).
+pub use latentam_shaders::shared::GEMM_TILE;
 
 /// Which kernel computes a product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -126,7 +126,7 @@ impl Gemm {
             Transpose::A => (self.m, self.n),
             Transpose::B => (self.k, self.k),
         };
-        let p = push::GemmNn {
+        let p = push::Gemm {
             m: self.m,
             n: self.n,
             k: self.k,
@@ -138,46 +138,18 @@ impl Gemm {
         };
         // Both kernels cover a GEMM_TILE × GEMM_TILE tile per workgroup.
         let groups = [self.n.div_ceil(GEMM_TILE), self.m.div_ceil(GEMM_TILE), 1];
-        let abc = [a, b, c];
-        // One push-constant layout for all six kernels, a type for each.
-        match (kernel, self.transpose) {
-            (GemmKernel::Tiled, Transpose::None) => rec.dispatch(&GEMM_NN, groups, &abc, &p),
-            (GemmKernel::Tiled, Transpose::A) => {
-                rec.dispatch(&GEMM_TN, groups, &abc, bytemuck::cast_ref(&p))
-            }
-            (GemmKernel::Tiled, Transpose::B) => {
-                rec.dispatch(&GEMM_NT, groups, &abc, bytemuck::cast_ref(&p))
-            }
-            (GemmKernel::Blocked, t) => match (t, self.vector_loads_fit()) {
-                (Transpose::None, true) => {
-                    rec.dispatch(&GEMM_BLOCKED_NN, groups, &abc, bytemuck::cast_ref(&p))
-                }
-                (Transpose::A, true) => {
-                    rec.dispatch(&GEMM_BLOCKED_TN, groups, &abc, bytemuck::cast_ref(&p))
-                }
-                (Transpose::B, true) => {
-                    rec.dispatch(&GEMM_BLOCKED_NT, groups, &abc, bytemuck::cast_ref(&p))
-                }
-                (Transpose::None, false) => rec.dispatch(
-                    &GEMM_BLOCKED_NN_SCALAR,
-                    groups,
-                    &abc,
-                    bytemuck::cast_ref(&p),
-                ),
-                (Transpose::A, false) => rec.dispatch(
-                    &GEMM_BLOCKED_TN_SCALAR,
-                    groups,
-                    &abc,
-                    bytemuck::cast_ref(&p),
-                ),
-                (Transpose::B, false) => rec.dispatch(
-                    &GEMM_BLOCKED_NT_SCALAR,
-                    groups,
-                    &abc,
-                    bytemuck::cast_ref(&p),
-                ),
-            },
-        }
+        let def: &KernelDef<push::Gemm> = match (kernel, self.transpose, self.vector_loads_fit()) {
+            (GemmKernel::Tiled, Transpose::None, _) => &GEMM_NN,
+            (GemmKernel::Tiled, Transpose::A, _) => &GEMM_TN,
+            (GemmKernel::Tiled, Transpose::B, _) => &GEMM_NT,
+            (GemmKernel::Blocked, Transpose::None, true) => &GEMM_BLOCKED_NN,
+            (GemmKernel::Blocked, Transpose::A, true) => &GEMM_BLOCKED_TN,
+            (GemmKernel::Blocked, Transpose::B, true) => &GEMM_BLOCKED_NT,
+            (GemmKernel::Blocked, Transpose::None, false) => &GEMM_BLOCKED_NN_SCALAR,
+            (GemmKernel::Blocked, Transpose::A, false) => &GEMM_BLOCKED_TN_SCALAR,
+            (GemmKernel::Blocked, Transpose::B, false) => &GEMM_BLOCKED_NT_SCALAR,
+        };
+        rec.dispatch(def, groups, &[a, b, c], &p)
     }
 }
 

@@ -71,18 +71,12 @@ impl Reducer {
             let groups = blocks as u32;
             let n = len as u32;
             match op {
-                ReduceOp::Sum => rec.dispatch_linear(
-                    &REDUCE_SUM_F32,
-                    groups,
-                    &[cur, out],
-                    &push::ReduceSumF32 { n },
-                )?,
-                ReduceOp::Max => rec.dispatch_linear(
-                    &REDUCE_MAX_F32,
-                    groups,
-                    &[cur, out],
-                    &push::ReduceMaxF32 { n },
-                )?,
+                ReduceOp::Sum => {
+                    rec.dispatch_linear(&REDUCE_SUM_F32, groups, &[cur, out], &push::Reduce { n })?
+                }
+                ReduceOp::Max => {
+                    rec.dispatch_linear(&REDUCE_MAX_F32, groups, &[cur, out], &push::Reduce { n })?
+                }
             }
             if blocks == 1 {
                 return Ok(());

@@ -6,8 +6,8 @@ use latentam_shaders::{push, SCAN_ADD, SCAN_BLOCKS};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context, Recorder};
 
-/// Elements scanned per workgroup (THREADS × ITEMS in the kernel).
-pub const SCAN_BLOCK: u64 = 1024;
+/// Elements scanned per workgroup.
+pub const SCAN_BLOCK: u64 = latentam_shaders::shared::SCAN_BLOCK as u64;
 
 /// A reusable exclusive scan for up to `max_len` elements: owns the
 /// block-total buffers of every level, so recording allocates nothing.
@@ -84,11 +84,11 @@ impl PrefixScan {
         }
         let blocks = n.div_ceil(SCAN_BLOCK);
         let sums = &self.levels[level];
-        let p = push::ScanBlocks { n: n as u32 };
+        let p = push::Scan { n: n as u32 };
         rec.dispatch_linear(&SCAN_BLOCKS, blocks as u32, &[data, sums], &p)?;
         if blocks > 1 {
             self.level(rec, sums, blocks, level + 1)?;
-            let p = push::ScanAdd { n: n as u32 };
+            let p = push::Scan { n: n as u32 };
             rec.dispatch_linear(&SCAN_ADD, blocks as u32, &[data, sums], &p)?;
         }
         Ok(())

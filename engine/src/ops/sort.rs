@@ -88,7 +88,7 @@ impl RadixSorter {
         let mut src = (keys, values);
         let mut dst = (&self.keys_alt, &self.vals_alt);
         for pass in 0..passes {
-            let p = push::RadixHistogram {
+            let p = push::RadixSort {
                 n: n as u32,
                 shift: pass * RADIX_BITS,
                 num_blocks: blocks as u32,
@@ -100,7 +100,7 @@ impl RadixSorter {
                 &RADIX_SCATTER,
                 blocks as u32,
                 &[src.0, &self.hist, src.1, dst.0, dst.1],
-                bytemuck::cast_ref(&p),
+                &p,
             )?;
             std::mem::swap(&mut src, &mut dst);
         }

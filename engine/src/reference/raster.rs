@@ -35,18 +35,21 @@
 use glam::{DMat3, DVec3};
 
 use crate::splat::{Camera, HostGaussians, QUERY_DIM, TILE_SIZE};
+use latentam_shaders::shared;
 
 mod cutoffs;
 pub use cutoffs::{near_cutoffs, NearCutoffs};
 
+// The kernels' thresholds (shaders/layouts.rs), at the f32 values they
+// compare against.
 /// Largest alpha a single Gaussian may contribute.
-pub const MAX_ALPHA: f64 = 0.99;
+pub const MAX_ALPHA: f64 = shared::MAX_ALPHA as f64;
 /// Contributions with smaller alpha are skipped.
-pub const MIN_ALPHA: f64 = 1.0 / 255.0;
+pub const MIN_ALPHA: f64 = shared::MIN_ALPHA as f64;
 /// A pixel stops when its transmittance would fall below this.
-pub const MIN_TRANSMITTANCE: f64 = 1e-4;
+pub const MIN_TRANSMITTANCE: f64 = shared::MIN_TRANSMITTANCE as f64;
 /// Low-pass filter added to the 2-D covariance (pixels²).
-pub const LOW_PASS: f64 = 0.3;
+pub const LOW_PASS: f64 = shared::LOW_PASS as f64;
 pub use crate::splat::GUARD_BAND;
 
 /// One Gaussian's parameters in f64.

@@ -26,4 +26,4 @@ pub use rasterizer::{
 pub use views::{BatchLayout, ViewSlot};
 
 /// Tiles are `TILE_SIZE` × `TILE_SIZE` pixels.
-pub const TILE_SIZE: u32 = 16;
+pub use latentam_shaders::shared::TILE_SIZE;

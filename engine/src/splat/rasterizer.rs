@@ -19,13 +19,14 @@
 //! against.
 
 use latentam_shaders::{
-    push, PROJECT_BACKWARD, RASTER_BACKWARD, RASTER_BACKWARD_CAS, RASTER_BACKWARD_COLUMNS,
-    RASTER_BACKWARD_COLUMNS_ATTACHED, RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
-    RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
-    RASTER_BACKWARD_COLUMNS_CAS, RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
-    RASTER_BACKWARD_PLAIN, RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR,
-    RASTER_FORWARD_COLUMNS, RASTER_FORWARD_COLUMNS_COLOUR, RASTER_POOL, RASTER_POOL_CAS,
-    RASTER_POOL_COLUMNS, RASTER_POOL_COLUMNS_CAS, RASTER_POOL_PLAIN, RASTER_POOL_PLAIN_CAS,
+    push, KernelDef, PROJECT_BACKWARD, RASTER_BACKWARD, RASTER_BACKWARD_CAS,
+    RASTER_BACKWARD_COLUMNS, RASTER_BACKWARD_COLUMNS_ATTACHED,
+    RASTER_BACKWARD_COLUMNS_ATTACHED_CAS, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN,
+    RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS, RASTER_BACKWARD_COLUMNS_CAS,
+    RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS, RASTER_BACKWARD_PLAIN,
+    RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR, RASTER_FORWARD_COLUMNS,
+    RASTER_FORWARD_COLUMNS_COLOUR, RASTER_POOL, RASTER_POOL_CAS, RASTER_POOL_COLUMNS,
+    RASTER_POOL_COLUMNS_CAS, RASTER_POOL_PLAIN, RASTER_POOL_PLAIN_CAS,
 };
 
 mod forward;
@@ -235,64 +236,64 @@ pub struct ForwardStats {
 }
 
 // Which variant of each blending kernel a device runs: one table for the
-// dispatches and for `Rasterizer::blend_kernel_names`. Each expands
-// `$then!(KERNEL)` for the chosen kernel (the variants' push constants have
-// one layout, in a generated type each).
+// dispatches and for `Rasterizer::blend_kernel_names`.
 
-macro_rules! select_forward {
-    ($info:expr, $settings:expr, $channels:expr, $then:ident) => {{
-        let columns = $settings.layout.resolve($info.device_type) == BlendLayout::Columns;
-        match (columns, $channels) {
-            (true, Channels::All) => $then!(RASTER_FORWARD_COLUMNS),
-            (true, Channels::Colour) => $then!(RASTER_FORWARD_COLUMNS_COLOUR),
-            (false, Channels::All) => $then!(RASTER_FORWARD),
-            (false, Channels::Colour) => $then!(RASTER_FORWARD_COLOUR),
-        }
-    }};
+fn forward_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+    channels: Channels,
+) -> &'static KernelDef<push::RasterForward> {
+    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+    match (columns, channels) {
+        (true, Channels::All) => &RASTER_FORWARD_COLUMNS,
+        (true, Channels::Colour) => &RASTER_FORWARD_COLUMNS_COLOUR,
+        (false, Channels::All) => &RASTER_FORWARD,
+        (false, Channels::Colour) => &RASTER_FORWARD_COLOUR,
+    }
 }
 
-macro_rules! select_backward {
-    ($info:expr, $settings:expr, $then:ident) => {{
-        let info: &DeviceInfo = $info;
-        let columns = $settings.layout.resolve(info.device_type) == BlendLayout::Columns;
-        let attached = !$settings.detach_query_gradients;
-        // The column kernels sum a tile's 8 invocations with a shuffle
-        // butterfly, which needs them to be exactly one subgroup.
-        let sub = if columns {
-            info.subgroup_shuffle && info.subgroup_size == 8
-        } else {
-            info.subgroup_arithmetic
-        };
-        match (columns, attached, sub, info.native_float_atomics) {
-            (false, _, true, true) => $then!(RASTER_BACKWARD),
-            (false, _, true, false) => $then!(RASTER_BACKWARD_CAS),
-            (false, _, false, true) => $then!(RASTER_BACKWARD_PLAIN),
-            (false, _, false, false) => $then!(RASTER_BACKWARD_PLAIN_CAS),
-            (true, false, true, true) => $then!(RASTER_BACKWARD_COLUMNS),
-            (true, false, true, false) => $then!(RASTER_BACKWARD_COLUMNS_CAS),
-            (true, false, false, true) => $then!(RASTER_BACKWARD_COLUMNS_PLAIN),
-            (true, false, false, false) => $then!(RASTER_BACKWARD_COLUMNS_PLAIN_CAS),
-            (true, true, true, true) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED),
-            (true, true, true, false) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_CAS),
-            (true, true, false, true) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN),
-            (true, true, false, false) => $then!(RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS),
-        }
-    }};
+fn backward_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+) -> &'static KernelDef<push::RasterBackward> {
+    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+    let attached = !settings.detach_query_gradients;
+    // The column kernels sum a tile's 8 invocations with a shuffle
+    // butterfly, which needs them to be exactly one subgroup.
+    let sub = if columns {
+        info.subgroup_shuffle && info.subgroup_size == 8
+    } else {
+        info.subgroup_arithmetic
+    };
+    match (columns, attached, sub, info.native_float_atomics) {
+        (false, _, true, true) => &RASTER_BACKWARD,
+        (false, _, true, false) => &RASTER_BACKWARD_CAS,
+        (false, _, false, true) => &RASTER_BACKWARD_PLAIN,
+        (false, _, false, false) => &RASTER_BACKWARD_PLAIN_CAS,
+        (true, false, true, true) => &RASTER_BACKWARD_COLUMNS,
+        (true, false, true, false) => &RASTER_BACKWARD_COLUMNS_CAS,
+        (true, false, false, true) => &RASTER_BACKWARD_COLUMNS_PLAIN,
+        (true, false, false, false) => &RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
+        (true, true, true, true) => &RASTER_BACKWARD_COLUMNS_ATTACHED,
+        (true, true, true, false) => &RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
+        (true, true, false, true) => &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN,
+        (true, true, false, false) => &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
+    }
 }
 
-macro_rules! select_pool {
-    ($info:expr, $settings:expr, $then:ident) => {{
-        let info: &DeviceInfo = $info;
-        let columns = $settings.layout.resolve(info.device_type) == BlendLayout::Columns;
-        match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
-            (true, _, true) => $then!(RASTER_POOL_COLUMNS),
-            (true, _, false) => $then!(RASTER_POOL_COLUMNS_CAS),
-            (false, true, true) => $then!(RASTER_POOL),
-            (false, true, false) => $then!(RASTER_POOL_CAS),
-            (false, false, true) => $then!(RASTER_POOL_PLAIN),
-            (false, false, false) => $then!(RASTER_POOL_PLAIN_CAS),
-        }
-    }};
+fn pool_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+) -> &'static KernelDef<push::RasterPool> {
+    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
+    match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
+        (true, _, true) => &RASTER_POOL_COLUMNS,
+        (true, _, false) => &RASTER_POOL_COLUMNS_CAS,
+        (false, true, true) => &RASTER_POOL,
+        (false, true, false) => &RASTER_POOL_CAS,
+        (false, false, true) => &RASTER_POOL_PLAIN,
+        (false, false, false) => &RASTER_POOL_PLAIN_CAS,
+    }
 }
 
 /// A buffer that grows (by 25 % headroom) when a batch needs more.
@@ -549,13 +550,8 @@ impl Rasterizer {
             query_first: query_first as u32,
             query_count: query_count as u32,
         };
-        let groups = layout.tiles;
-        macro_rules! blend {
-            ($kernel:expr) => {
-                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))
-            };
-        }
-        select_forward!(rec.info(), &self.settings, batch.channels, blend)
+        let kernel = forward_kernel(rec.info(), &self.settings, batch.channels);
+        rec.dispatch_linear(kernel, layout.tiles, &bufs, &p)
     }
 
     /// Names of the blending kernels a rasterizer with `settings` dispatches
@@ -563,16 +559,11 @@ impl Rasterizer {
     /// backward, pooling): the only `raster_*` kernels worth compiling
     /// ahead of time there (see [`crate::mapper::warm_up`]).
     pub fn blend_kernel_names(info: &DeviceInfo, settings: &RenderSettings) -> [&'static str; 4] {
-        macro_rules! name {
-            ($kernel:expr) => {
-                $kernel.kernel.name
-            };
-        }
         [
-            select_forward!(info, settings, Channels::All, name),
-            select_forward!(info, settings, Channels::Colour, name),
-            select_backward!(info, settings, name),
-            select_pool!(info, settings, name),
+            forward_kernel(info, settings, Channels::All).kernel.name,
+            forward_kernel(info, settings, Channels::Colour).kernel.name,
+            backward_kernel(info, settings).kernel.name,
+            pool_kernel(info, settings).kernel.name,
         ]
     }
 
@@ -674,15 +665,8 @@ impl Rasterizer {
             self.grad_splats.get(),
             labels,
         ];
-        let groups = batch.layout.tiles;
-        // The variants share one push-constant layout (one generated type
-        // each).
-        macro_rules! blend_backward {
-            ($kernel:expr) => {
-                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
-            };
-        }
-        select_backward!(rec.info(), &self.settings, blend_backward);
+        let kernel = backward_kernel(rec.info(), &self.settings);
+        rec.dispatch_linear(kernel, batch.layout.tiles, &bufs, &p)?;
         rec.dispatch_linear(
             &PROJECT_BACKWARD,
             count.div_ceil(256) as u32,
@@ -752,13 +736,8 @@ impl Rasterizer {
             labels,
             pooled,
         ];
-        let groups = batch.layout.tiles;
-        macro_rules! pool {
-            ($kernel:expr) => {
-                rec.dispatch_linear(&$kernel, groups, &bufs, bytemuck::cast_ref(&p))?
-            };
-        }
-        select_pool!(rec.info(), &self.settings, pool);
+        let kernel = pool_kernel(rec.info(), &self.settings);
+        rec.dispatch_linear(kernel, batch.layout.tiles, &bufs, &p)?;
         Ok(())
     }
 

@@ -1,23 +1,10 @@
 //! A batch of cameras as the kernels see it: per-view constants, and where
 //! each view's pixels and tiles start in the batch's flat buffers.
 
-use bytemuck::{Pod, Zeroable};
+use latentam_shaders::shared::View;
 
 use super::Camera;
 use crate::error::Result;
-
-/// One view's constants (mirrors `View` in `glsl/splat.glsl` and
-/// `shaders/wgsl/raster_backward.wgsl`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub(crate) struct GpuView {
-    rows: [[f32; 4]; 3],
-    intrinsics: [f32; 4],
-    guard: [f32; 4],
-    clip: [f32; 4],
-    size: [u32; 4],
-    offsets: [u32; 4],
-}
 
 /// Where one view's data sits in the batch buffers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,7 +42,7 @@ impl BatchLayout {
         Ok(Self::new(cams)?.0)
     }
 
-    pub(crate) fn new(cams: &[Camera]) -> Result<(Self, Vec<GpuView>)> {
+    pub(crate) fn new(cams: &[Camera]) -> Result<(Self, Vec<View>)> {
         let mut layout = BatchLayout::default();
         let mut gpu = Vec::with_capacity(cams.len());
         for cam in cams {
@@ -79,8 +66,10 @@ impl BatchLayout {
                     t[r] as f32,
                 ]
             };
-            gpu.push(GpuView {
-                rows: [row(0), row(1), row(2)],
+            gpu.push(View {
+                row0: row(0),
+                row1: row(1),
+                row2: row(2),
                 intrinsics: [cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32],
                 guard: cam.guard_band().map(|v| v as f32),
                 clip: [cam.near as f32, cam.far as f32, 0.0, 0.0],

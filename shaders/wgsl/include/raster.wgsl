@@ -1,25 +1,9 @@
 // Shared by the blending kernels that replay a tile's list in WGSL
 // (raster_backward.wgsl, raster_pool.wgsl): the constants and view layout
-// of glsl/raster_forward.comp, and the workgroup's walk length.
+// of glsl/raster_forward.comp (declared once in shaders/layouts.rs), and
+// the workgroup's walk length.
 
-const TILE_SIZE: u32 = 16u;
-const BATCH: u32 = 256u;
-const MAX_ALPHA: f32 = 0.99;
-const MIN_ALPHA: f32 = 1.0 / 255.0;
-// A pixel in no region.
-const NO_REGION: u32 = 0xffffffffu;
-
-// Mirrors `View` in glsl/splat.glsl.
-struct View {
-    row0: vec4<f32>,
-    row1: vec4<f32>,
-    row2: vec4<f32>,
-    intrinsics: vec4<f32>,
-    guard: vec4<f32>,
-    clip: vec4<f32>,
-    size: vec4<u32>,
-    offsets: vec4<u32>,
-}
+#include "shared.wgsl"
 
 var<workgroup> wg_walk_atomic: atomic<u32>;
 var<workgroup> wg_walk: u32;

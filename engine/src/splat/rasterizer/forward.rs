@@ -11,8 +11,9 @@ use latentam_shaders::{
 use super::{Channels, ForwardStats, Rasterizer, QUERY_BYTES};
 use crate::error::{Error, Result};
 use crate::gpu::Recorder;
-use crate::splat::views::{BatchLayout, GpuView};
+use crate::splat::views::BatchLayout;
 use crate::splat::{Camera, GaussianBuffers};
+use latentam_shaders::shared::View;
 
 /// A batch of views, measured for rendering: its layout, the Gaussians it
 /// renders and the counts that size the pass. [`Rasterizer::measure`]
@@ -24,7 +25,7 @@ use crate::splat::{Camera, GaussianBuffers};
 #[derive(Clone, Debug, Default)]
 pub struct RenderBatch {
     pub(super) layout: BatchLayout,
-    pub(super) views: Vec<GpuView>,
+    pub(super) views: Vec<View>,
     pub(super) count: u64,
     pub(super) channels: Channels,
     pub(super) stats: ForwardStats,
@@ -227,7 +228,8 @@ impl Rasterizer {
         let ctx = self.ctx.clone();
         let pairs = batches.iter().map(RenderBatch::pairs).max().unwrap_or(0);
         let views = batches.iter().map(|b| b.views.len()).max().unwrap_or(0);
-        self.views.ensure(&ctx, views as u64 * 128)?;
+        self.views
+            .ensure(&ctx, views as u64 * std::mem::size_of::<View>() as u64)?;
         self.splats.ensure(&ctx, pairs * 32)?;
         self.rects.ensure(&ctx, pairs * 8)?;
         self.tile_counts.ensure(&ctx, pairs * 4)?;
@@ -325,14 +327,17 @@ impl Rasterizer {
         if !(grown(&self.splats, pairs * 32)
             && grown(&self.isect_keys, intersections * 4)
             && grown(&self.ranges, batch.layout.tiles as u64 * 8)
-            && grown(&self.views, batch.views.len() as u64 * 128)
+            && grown(
+                &self.views,
+                batch.views.len() as u64 * std::mem::size_of::<View>() as u64,
+            )
             && images_fit
             && sorter.max_len() >= visible.max(intersections))
         {
             return Err(not_measured());
         }
         self.record_projection(rec, gaussians, batch)?;
-        let bins = |n: u64| push::CompactVisible {
+        let bins = |n: u64| push::TileBins {
             n: n as u32,
             n_gaussians: batch.count as u32,
             n_views: batch.views.len() as u32,
@@ -364,7 +369,7 @@ impl Rasterizer {
                 self.depth_order.get(),
                 self.sorted_offsets.get(),
             ],
-            bytemuck::cast_ref(&bins(visible)),
+            &bins(visible),
         )?;
         scan.record(rec, self.sorted_offsets.get(), visible)?;
         rec.dispatch_linear(
@@ -378,7 +383,7 @@ impl Rasterizer {
                 self.isect_keys.get(),
                 self.isect_pairs.get(),
             ],
-            bytemuck::cast_ref(&bins(visible)),
+            &bins(visible),
         )?;
         let tiles = batch.layout.tiles;
         let tile_bits = (32 - tiles.saturating_sub(1).leading_zeros()).max(1);
@@ -394,7 +399,7 @@ impl Rasterizer {
             &TILE_RANGES,
             intersections.div_ceil(256) as u32,
             &[self.isect_keys.get(), self.ranges.get()],
-            bytemuck::cast_ref(&bins(intersections)),
+            &bins(intersections),
         )
     }
 }
