@@ -234,7 +234,12 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     for line in frames.topic_plan() {
         eprintln!("input: {line}");
     }
-    let skip = mapper.stats().frames;
+    // Resume after the last frame the saved state integrated, by stamp; a
+    // state from before stamps were saved resumes by count.
+    let skip_by_count = match mapper.stats().last_frame_stamp_ns {
+        Some(_) => 0,
+        None => mapper.stats().frames,
+    };
     let limit = opts.max_frames.unwrap_or(usize::MAX);
     let total = match (in_log, opts.max_frames) {
         (Some(a), Some(b)) => Some(a.min(b)),
@@ -272,7 +277,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
             Ok(f) => f,
             Err(e) => break Ending::Failed(format!("reading {}: {e}", opts.log.display())),
         };
-        if run.skipped < skip {
+        if run.mapper.already_mapped(&frame) || run.skipped < skip_by_count {
             run.skipped += 1;
             frames.recycle(frame);
             continue;

@@ -170,6 +170,24 @@ impl Mapper {
         self.inner.stats()
     }
 
+    /// Whether `frame` is at or before the last frame this map integrated:
+    /// replaying a log into a resumed map skips those, so a log with a
+    /// dropped or an extra message still resumes at the right frame.
+    /// (States saved before stamps were kept answer `false`.)
+    ///
+    /// ```no_run
+    /// # use latentam::{Mapper, io::Frame};
+    /// # fn replay(mapper: &mut Mapper, log: Vec<Frame>) -> latentam::Result<()> {
+    /// for frame in log.iter().filter(|f| !mapper.already_mapped(f)) {
+    ///     mapper.integrate(frame)?;
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn already_mapped(&self, frame: &Frame) -> bool {
+        self.inner.already_mapped(frame)
+    }
+
     /// The global map (current as of the last sync, query or save).
     pub fn global(&self) -> &GlobalMap {
         self.inner.global()

@@ -541,6 +541,9 @@ pub struct KeyframeReport {
 pub struct MapperStats {
     /// Frames offered.
     pub frames: u64,
+    /// Stamp of the last frame integrated (ns), kept in saved states: a
+    /// resumed run goes on after it (see `Mapper::already_mapped`).
+    pub last_frame_stamp_ns: Option<i64>,
     /// Keyframes mapped.
     pub keyframes: u64,
     /// Gaussians in the global map.
@@ -595,6 +598,8 @@ pub struct OnlineMapper {
     /// Stage I changed resident Gaussians since the last write-back.
     pub(super) window_dirty: bool,
     pub(super) frames: u64,
+    /// Stamp of the last frame integrated: where a resumed run goes on.
+    pub(super) last_stamp_ns: Option<i64>,
     pub(super) stats: MapperStats,
     /// The embedding model of the map's region embeddings (first seen).
     pub(super) model: Option<String>,
@@ -641,6 +646,7 @@ impl OnlineMapper {
             window_partial: false,
             window_dirty: false,
             frames: 0,
+            last_stamp_ns: None,
             stats: MapperStats::default(),
             model: None,
             run_id: None,
@@ -801,11 +807,18 @@ impl OnlineMapper {
         &self.trajectory
     }
 
+    /// Whether `frame` is at or before the last frame integrated.
+    pub(crate) fn already_mapped(&self, frame: &Frame) -> bool {
+        self.last_stamp_ns
+            .is_some_and(|last| frame.stamp_ns <= last)
+    }
+
     /// Counts, memory and summed timings.
     pub fn stats(&self) -> MapperStats {
         let mem = self.ctx.memory_report();
         let mut s = self.stats.clone();
         s.frames = self.frames;
+        s.last_frame_stamp_ns = self.last_stamp_ns;
         s.gaussians = self.global.len();
         s.resident = self.window.as_ref().map_or(0, |w| w.len());
         s.window = self.window_budget;
@@ -970,6 +983,7 @@ impl OnlineMapper {
         let selector = self.selector.state();
         if !self.selector.decide(frame, &self.global).keyframe {
             self.frames += 1;
+            self.last_stamp_ns = Some(frame.stamp_ns);
             return Ok(Integrated::Skipped);
         }
         // The first keyframe sizes the window against the budget before any
@@ -989,6 +1003,7 @@ impl OnlineMapper {
         let report = self.integrate_keyframe(frame)?;
         self.broken = None;
         self.frames += 1;
+        self.last_stamp_ns = Some(frame.stamp_ns);
         Ok(Integrated::Keyframe(report))
     }
 

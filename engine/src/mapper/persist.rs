@@ -143,6 +143,9 @@ pub(super) struct Counters {
     pub evicted: u64,
     pub fetched: u64,
     pub over_capacity: u64,
+    /// Stamp of the last frame integrated (absent in states written before
+    /// it was kept).
+    pub last_stamp_ns: Option<i64>,
 }
 
 /// The latent head as saved.
@@ -241,6 +244,9 @@ impl StateRef<'_> {
         w.meta("evicted", c.evicted);
         w.meta("fetched", c.fetched);
         w.meta("over_capacity", c.over_capacity);
+        if let Some(stamp) = c.last_stamp_ns {
+            w.meta("last_stamp_ns", stamp);
+        }
         if let Some(model) = self.model {
             w.meta("model", model);
         }
@@ -512,6 +518,7 @@ impl SavedState {
                 evicted: 2,
                 fetched: 6,
                 over_capacity: 0,
+                last_stamp_ns: Some(11_000),
             },
             model: Some("example-model".into()),
             selector: (Some(pose(0.2)), 4),
@@ -595,6 +602,10 @@ impl SavedState {
             evicted: a.meta_parse("evicted")?,
             fetched: a.meta_parse("fetched")?,
             over_capacity: a.meta_parse("over_capacity")?,
+            last_stamp_ns: match a.meta("last_stamp_ns") {
+                Ok(_) => Some(a.meta_parse("last_stamp_ns")?),
+                Err(_) => None,
+            },
         };
         if counters.keyframes > counters.frames {
             return Err(bad(format!(
@@ -1046,6 +1057,7 @@ impl OnlineMapper {
                 evicted: self.stats.evicted,
                 fetched: self.stats.fetched,
                 over_capacity: self.stats.over_capacity,
+                last_stamp_ns: self.last_stamp_ns,
             },
             model: self.model.as_deref(),
             selector: self.selector.state(),
@@ -1111,6 +1123,7 @@ impl OnlineMapper {
         m.stats.evicted = counters.evicted;
         m.stats.fetched = counters.fetched;
         m.stats.over_capacity = counters.over_capacity;
+        m.last_stamp_ns = counters.last_stamp_ns;
         m.model = model;
         m.run_id = run_id;
         m.selector.restore(selector.0, selector.1);

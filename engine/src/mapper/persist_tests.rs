@@ -532,6 +532,14 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
             mapper.window().unwrap().keys()
         );
         assert_eq!(loaded.trajectory(), mapper.trajectory());
+        // A resumed run goes on after the last stamp integrated.
+        assert_eq!(loaded.stats().last_frame_stamp_ns, Some(2));
+        assert_eq!(loaded.stats().frames, 3);
+        let mut next = keyframe(DVec3::new(0.2, 0.0, 0.0));
+        for (stamp, mapped) in [(0, true), (2, true), (3, false)] {
+            next.stamp_ns = stamp;
+            assert_eq!(loaded.already_mapped(&next), mapped, "stamp {stamp}");
+        }
         drop(loaded);
         drop(mapper);
 
