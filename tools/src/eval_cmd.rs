@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_class_names, read_vocabulary, McapFrames};
-use latentam::mapper::eval::{add_iou, mean_iou, Evaluator, ViewMetrics};
+use latentam::mapper::eval::{add_iou, mean_iou, ViewMetrics};
 use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
 use serde::Serialize;
@@ -142,12 +142,12 @@ pub fn run(args: Args) -> Result<()> {
     let ctx = Context::new(ContextOptions::default())?;
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
-    let run_report = run_report_of(&args.dir, mapper.online_ref().run_id())?;
+    let run_report = run_report_of(&args.dir, mapper.run_id())?;
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
     if let Some(v) = &vocabulary {
-        if mapper.online_ref().head().is_some() {
-            mapper.online_ref().check_vocabulary(v).with_context(|| {
+        if mapper.head().is_some() {
+            mapper.check_vocabulary(v).with_context(|| {
                 format!(
                     "the vocabulary on {} in {}",
                     assembly.topics.vocabulary,
@@ -159,8 +159,6 @@ pub fn run(args: Args) -> Result<()> {
     let class_table = read_class_names(&args.log)?;
     let frames = McapFrames::open(&args.log, assembly)
         .with_context(|| format!("opening {}", args.log.display()))?;
-    let mut ev = Evaluator::new(&ctx);
-    ev.pixel_stride = args.pixel_stride as usize;
     let started = std::time::Instant::now();
     // Evaluation renders views of any size; the mapping budget is not
     // meant for it.
@@ -182,7 +180,7 @@ pub fn run(args: Args) -> Result<()> {
             continue;
         }
         let frame = frame.with_context(|| format!("reading {}", args.log.display()))?;
-        let m = match ev.evaluate(mapper.online(), &frame, vocabulary.as_ref()) {
+        let m = match mapper.evaluate(&frame, vocabulary.as_ref(), args.pixel_stride as usize) {
             Ok(m) => m,
             Err(latentam::Error::InvalidArgument(why)) => {
                 eprintln!("frame {i}: skipped ({why})");

@@ -126,13 +126,13 @@ pub fn run(args: Args) -> Result<()> {
             [r, gr, b, to_bytes([a; 3])[0]]
         })
         .collect();
-    let trajectory: Vec<(i64, CameraPose)> = mapper.online_ref().trajectory().to_vec();
+    let trajectory: Vec<(i64, CameraPose)> = mapper.trajectory().to_vec();
     let stamp = trajectory.last().map_or(0, |&(s, _)| s.max(0) as u64);
 
     // Relevance per word: a softmax over the whole vocabulary, as
     // `query --name` gives it.
     let mut relevance: Vec<(String, String, Vec<f32>)> = Vec::new();
-    let has_head = mapper.online_ref().head().is_some();
+    let has_head = mapper.head().is_some();
     let vocabulary = if has_head {
         vocabulary_of(&args)?
     } else {
@@ -150,7 +150,6 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let Some((vocab, log)) = &vocabulary {
         mapper
-            .online_ref()
             .check_vocabulary(vocab)
             .with_context(|| format!("the vocabulary in {}", log.display()))?;
         for w in &args.words {

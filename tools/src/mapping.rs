@@ -262,7 +262,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<Run> {
     };
     let start = Instant::now();
     interrupt::install();
-    run.mapper.online().set_hurry_flag(interrupt::flag());
+    run.mapper.set_hurry_flag(interrupt::flag());
     let ending = loop {
         if interrupt::requested() {
             break Ending::Interrupted;
@@ -466,11 +466,7 @@ impl Run {
                 _ => None,
             },
             dedicated_transfer_queue: self.ctx.info().dedicated_transfer_queue,
-            embedding_model: self
-                .mapper
-                .online_ref()
-                .embedding_model()
-                .map(str::to_string),
+            embedding_model: self.mapper.embedding_model().map(str::to_string),
             ingest: self.ingest.clone(),
             autosaved_at: self.autosaved_at,
             autosave_failures: self.autosave_failures.clone(),
@@ -483,7 +479,6 @@ impl Run {
     /// included), camera-to-world.
     pub fn trajectory(&self) -> Vec<(u64, CameraPose)> {
         self.mapper
-            .online_ref()
             .trajectory()
             .iter()
             .map(|&(stamp, pose)| (stamp.max(0) as u64, pose))
@@ -493,7 +488,7 @@ impl Run {
     /// Why the run folder must not be replaced by this run, if so.
     pub fn not_to_save(&self) -> Option<Kept> {
         let stats = self.mapper.stats();
-        if self.mapper.online_ref().is_broken() {
+        if self.mapper.is_broken() {
             Some(Kept::Broken)
         } else if self.frames == 0 && self.skipped > 0 && stats.gaussians > 0 {
             Some(Kept::NothingNew)
@@ -557,12 +552,12 @@ impl Run {
         let config = format!(
             "# The effective configuration of this run (`latentam map --config` reads it back;\n\
              # `latentam config --print-defaults` documents every key).\n{}",
-            self.mapper.online_ref().config().to_toml()
+            self.mapper.config().to_toml()
         );
         write_text(&dir.join("config.toml"), &config)?;
         let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
         // A map without embeddings has no meaningful queries to write.
-        if self.mapper.online_ref().head().is_some() {
+        if self.mapper.head().is_some() {
             write_ply(&dir.join("map.ply"), &gaussians, &[])?;
         } else {
             write_ply_without_latents(&dir.join("map.ply"), &gaussians, &[])?;

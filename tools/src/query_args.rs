@@ -70,7 +70,7 @@ pub struct Query {
 /// be queried.
 pub fn queryable_dim(mapper: &Mapper, dir: &Path) -> Result<usize> {
     // A head's dim is at least 1 (`LatentHead::new` refuses 0).
-    let Some(dim) = mapper.online_ref().head().map(|h| h.config().dim as usize) else {
+    let Some(dim) = mapper.head().map(|h| h.config().dim as usize) else {
         if mapper.stats().keyframes == 0 {
             bail!(
                 "{} holds no keyframe: there is nothing to query",
@@ -131,7 +131,6 @@ impl QueryArgs {
                     );
                 };
                 mapper
-                    .online_ref()
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
                 if !(self.temperature > 0.0 && self.temperature.is_finite()) {
@@ -186,7 +185,6 @@ impl Query {
         view: &RenderedView,
     ) -> Result<Vec<f32>> {
         let head = mapper
-            .online_ref()
             .head()
             .context("the map has no latent head to decode with")?;
         let mut scorer = None;

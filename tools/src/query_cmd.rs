@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::map::write_ply;
-use latentam::mapper::eval::Evaluator;
 use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
 
@@ -115,7 +114,7 @@ pub fn run(args: Args) -> Result<()> {
     if let (Some(pose), Some(png)) = (pose, &args.png) {
         stages.start("rendering the relevance image");
         let camera = camera_at(&mapper, pose)?;
-        let (view, _) = Evaluator::new(&ctx).render(mapper.online(), &camera)?;
+        let (view, _) = mapper.render(&camera)?;
         relevance_picture(&ctx, &mapper, &query, &view)?
             .0
             .write_png(png)?;

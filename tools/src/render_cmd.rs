@@ -8,7 +8,6 @@ use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
 use latentam::gpu::Context;
 use latentam::io::{Frame, McapFrames};
-use latentam::mapper::eval::Evaluator;
 use latentam::mapper::Mapper;
 use latentam::splat::{Camera, RenderedView};
 use latentam_cli::progress::Stages;
@@ -72,7 +71,7 @@ pub fn parse_pose(s: &str) -> Result<DAffine3> {
 
 /// A camera at `pose` with the intrinsics of the map's last keyframe.
 pub fn camera_at(mapper: &Mapper, pose: DAffine3) -> Result<Camera> {
-    let history = mapper.online_ref().history();
+    let history = mapper.history();
     let Some(last) = history.len().checked_sub(1).and_then(|i| history.get(i)) else {
         bail!("the map has no keyframe to take intrinsics from");
     };
@@ -127,13 +126,12 @@ pub fn render_pictures(
     source: ViewSource<'_>,
     query: Option<&Query>,
 ) -> Result<Pictures> {
-    let mut ev = Evaluator::new(ctx);
     let (view, gaussians) = match source {
         ViewSource::Pose(pose) => {
             let camera = camera_at(mapper, pose)?;
-            ev.render(mapper.online(), &camera)?
+            mapper.render(&camera)?
         }
-        ViewSource::Frame(frame) => ev.render_frame(mapper.online(), frame)?,
+        ViewSource::Frame(frame) => mapper.render_frame(frame)?,
     };
     let rendered_depth = pictures::rendered_depth_m(&view);
     let input_depth = match source {

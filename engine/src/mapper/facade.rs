@@ -10,9 +10,15 @@ use super::persist::SavedState;
 use super::run_folder::{RunFolder, RunStaging};
 use crate::error::{Error, Result};
 use crate::gpu::{Context, ContextOptions};
-use crate::io::Frame;
+use std::sync::atomic::AtomicBool;
+
+use super::eval::{Evaluator, ViewMetrics};
+use super::history::History;
+use crate::io::{CameraPose, Frame, Vocabulary};
+use crate::latent::LatentHead;
 use crate::latent::RelevanceScorer;
 use crate::map::GlobalMap;
+use crate::splat::{Camera, RenderedView};
 
 /// File name of the resumable state inside a save directory.
 pub const STATE_FILE: &str = "state.latentam";
@@ -35,6 +41,8 @@ pub const STATE_FILE: &str = "state.latentam";
 pub struct Mapper {
     inner: OnlineMapper,
     scorer: Option<RelevanceScorer>,
+    /// Renders views for `render*` and `evaluate` (made on first use).
+    evaluator: Option<Evaluator>,
 }
 
 impl Mapper {
@@ -50,6 +58,7 @@ impl Mapper {
         Ok(Mapper {
             inner: OnlineMapper::new(ctx, config)?,
             scorer: None,
+            evaluator: None,
         })
     }
 
@@ -162,6 +171,7 @@ impl Mapper {
         Ok(Mapper {
             inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
             scorer: None,
+            evaluator: None,
         })
     }
 
@@ -178,8 +188,10 @@ impl Mapper {
     /// ```no_run
     /// # use latentam::{Mapper, io::Frame};
     /// # fn replay(mapper: &mut Mapper, log: Vec<Frame>) -> latentam::Result<()> {
-    /// for frame in log.iter().filter(|f| !mapper.already_mapped(f)) {
-    ///     mapper.integrate(frame)?;
+    /// for frame in &log {
+    ///     if !mapper.already_mapped(frame) {
+    ///         mapper.integrate(frame)?;
+    ///     }
     /// }
     /// # Ok(())
     /// # }
@@ -193,12 +205,126 @@ impl Mapper {
         self.inner.global()
     }
 
-    /// The mapper underneath, for everything else.
+    /// The settings the map is built with.
+    pub fn config(&self) -> &MapperConfig {
+        self.inner.config()
+    }
+
+    /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
+    pub fn trajectory(&self) -> &[(i64, CameraPose)] {
+        self.inner.trajectory()
+    }
+
+    /// The keyframes kept for replay.
+    pub fn history(&self) -> &History {
+        self.inner.history()
+    }
+
+    /// The latent head (W, D and their training state), once a keyframe
+    /// with embeddings has been mapped.
+    pub fn head(&self) -> Option<&LatentHead> {
+        self.inner.head()
+    }
+
+    /// The embedding model id of the map's region embeddings.
+    pub fn embedding_model(&self) -> Option<&str> {
+        self.inner.embedding_model()
+    }
+
+    /// The id of the run folder version this map was loaded from or last
+    /// saved to.
+    pub fn run_id(&self) -> Option<&str> {
+        self.inner.run_id()
+    }
+
+    /// Whether a keyframe failed part-way: the map refuses further frames
+    /// and saves (reload the last save to go on).
+    pub fn is_broken(&self) -> bool {
+        self.inner.is_broken()
+    }
+
+    /// Checks that a vocabulary's embeddings suit the map (model and
+    /// dimension), with an error that says what differs.
+    pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
+        self.inner.check_vocabulary(vocabulary)
+    }
+
+    /// A flag that, once set (say from a signal handler), makes the
+    /// keyframe in progress skip its remaining optimisation steps, leaving
+    /// the map consistent; clear it to map normally again.
+    ///
+    /// ```no_run
+    /// use std::sync::atomic::{AtomicBool, Ordering};
+    /// static STOP: AtomicBool = AtomicBool::new(false);
+    /// let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
+    /// mapper.set_hurry_flag(&STOP);
+    /// // elsewhere: STOP.store(true, Ordering::Relaxed);
+    /// # Ok::<(), latentam::Error>(())
+    /// ```
+    pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
+        self.inner.set_hurry_flag(flag);
+    }
+
+    /// Renders colour, depth and queries of the map from `camera`, with
+    /// the Gaussians of the global map near it (those paged out included),
+    /// and says how many Gaussians it drew.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, camera: &latentam::splat::Camera) -> latentam::Result<()> {
+    /// let (view, drawn) = mapper.render(camera)?;
+    /// println!("{} pixels rendered", view.rgbd.len());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn render(&mut self, camera: &Camera) -> Result<(RenderedView, usize)> {
+        let ev = self
+            .evaluator
+            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
+        ev.render(&mut self.inner, camera)
+    }
+
+    /// [`Mapper::render`] at a frame's pose and with its camera.
+    pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
+        let ev = self
+            .evaluator
+            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
+        ev.render_frame(&mut self.inner, frame)
+    }
+
+    /// Measures the map on a frame it did not necessarily see (the paper's
+    /// protocol, SPEC §10): PSNR and depth error, and with embeddings the
+    /// per-pixel cosine loss and, given a vocabulary, the class IoUs.
+    /// `pixel_stride` decodes every N-th pixel and row (1: all).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame) -> latentam::Result<()> {
+    /// let m = mapper.evaluate(frame, None, 1)?;
+    /// println!("PSNR {:.2} dB", m.psnr);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn evaluate(
+        &mut self,
+        frame: &Frame,
+        vocabulary: Option<&Vocabulary>,
+        pixel_stride: usize,
+    ) -> Result<ViewMetrics> {
+        let ev = self
+            .evaluator
+            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
+        ev.pixel_stride = pixel_stride.max(1);
+        ev.evaluate(&mut self.inner, frame, vocabulary)
+    }
+
+    /// The mapper underneath. Unstable: for the engine's benchmarks and
+    /// tests; everything a program needs is on `Mapper` itself.
+    #[doc(hidden)]
     pub fn online(&mut self) -> &mut OnlineMapper {
         &mut self.inner
     }
 
-    /// The mapper underneath, read-only.
+    /// The mapper underneath, read-only. Unstable, as [`Mapper::online`].
+    #[doc(hidden)]
     pub fn online_ref(&self) -> &OnlineMapper {
         &self.inner
     }

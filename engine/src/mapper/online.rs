@@ -666,7 +666,7 @@ impl OnlineMapper {
     /// use std::sync::atomic::{AtomicBool, Ordering};
     /// static STOP: AtomicBool = AtomicBool::new(false);
     /// let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
-    /// mapper.online().set_hurry_flag(&STOP);
+    /// mapper.set_hurry_flag(&STOP); // through the façade
     /// // elsewhere: STOP.store(true, Ordering::SeqCst);
     /// # Ok::<(), latentam::Error>(())
     /// ```
