@@ -10,7 +10,6 @@
 //! was.
 
 use std::collections::BTreeMap;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -26,6 +25,7 @@ use latentam::mapper::{RunFolder, DECODER_FILE, STATE_FILE};
 use serde::Serialize;
 
 use crate::interrupt;
+use latentam_cli::progress::StatusLine;
 
 /// What to map.
 pub struct RunOptions {
@@ -119,12 +119,10 @@ impl std::fmt::Display for Kept {
     }
 }
 
-/// Status line of a running map: a line redrawn in place on a terminal,
-/// a plain line every ten seconds otherwise.
+/// Status line of a running map.
 struct MapProgress {
     start: Instant,
-    last: Option<Instant>,
-    terminal: bool,
+    line: StatusLine,
     total: Option<usize>,
 }
 
@@ -132,18 +130,15 @@ impl MapProgress {
     fn new(total: Option<usize>) -> Self {
         MapProgress {
             start: Instant::now(),
-            last: None,
-            terminal: std::io::stderr().is_terminal(),
+            line: StatusLine::default(),
             total,
         }
     }
 
     fn update(&mut self, frames: u64, mapper: &Mapper, last_report: Option<&KeyframeReport>) {
-        let every = if self.terminal { 0.1 } else { 10.0 };
-        if self.last.is_some_and(|t| t.elapsed().as_secs_f64() < every) {
+        if !self.line.due() {
             return;
         }
-        self.last = Some(Instant::now());
         let elapsed = self.start.elapsed().as_secs_f64().max(1e-9);
         let stats = mapper.stats();
         let of = self.total.map_or(String::new(), |t| format!("/{t}"));
@@ -174,17 +169,11 @@ impl MapProgress {
             stats.keyframes as f64 / elapsed,
             gpu as f64 / 1e6,
         );
-        if self.terminal {
-            eprint!("\r{line}\x1b[K");
-        } else {
-            eprintln!("{line}");
-        }
+        self.line.show(&line);
     }
 
     fn finish(&self) {
-        if self.terminal && self.last.is_some() {
-            eprintln!();
-        }
+        self.line.finish();
     }
 }
 

@@ -5,17 +5,56 @@
 use std::io::{IsTerminal, Write};
 use std::time::Instant;
 
-/// Seconds between plain progress lines when stderr is not a terminal.
-const PLAIN_EVERY_S: f64 = 10.0;
+/// A status line on stderr: redrawn in place on a terminal (at most ten
+/// times a second), a plain line every ten seconds otherwise (logs, CI).
+pub struct StatusLine {
+    terminal: bool,
+    /// When the last line was shown.
+    last: Option<Instant>,
+}
+
+impl Default for StatusLine {
+    fn default() -> Self {
+        StatusLine {
+            terminal: std::io::stderr().is_terminal(),
+            last: None,
+        }
+    }
+}
+
+impl StatusLine {
+    /// Whether a line shown now would appear (a final line always does):
+    /// lines that cost something to compose are composed only when due.
+    pub fn due(&self) -> bool {
+        let every = if self.terminal { 0.1 } else { 10.0 };
+        self.last.is_none_or(|t| t.elapsed().as_secs_f64() >= every)
+    }
+
+    /// Shows `line` (call when [`StatusLine::due`], or for the last line).
+    pub fn show(&mut self, line: &str) {
+        self.last = Some(Instant::now());
+        let mut err = std::io::stderr().lock();
+        if self.terminal {
+            let _ = write!(err, "\r{line}\x1b[K");
+        } else {
+            let _ = writeln!(err, "{line}");
+        }
+    }
+
+    /// Ends the redrawn line on a terminal.
+    pub fn finish(&self) {
+        if self.terminal && self.last.is_some() {
+            let _ = writeln!(std::io::stderr().lock());
+        }
+    }
+}
 
 /// Reports `done / total` for one task.
 pub struct Progress {
     label: String,
     total: usize,
     start: Instant,
-    terminal: bool,
-    /// When the last plain line was written.
-    last_line: Option<Instant>,
+    line: StatusLine,
 }
 
 impl Progress {
@@ -25,35 +64,26 @@ impl Progress {
             label: label.to_string(),
             total: total.max(1),
             start: Instant::now(),
-            terminal: std::io::stderr().is_terminal(),
-            last_line: None,
+            line: StatusLine::default(),
         }
     }
 
     /// Records that `done` steps are finished.
     pub fn set(&mut self, done: usize) {
+        let last = done >= self.total;
+        if !(last || self.line.due()) {
+            return;
+        }
         let elapsed = self.start.elapsed().as_secs_f64();
         let rate = done as f64 / elapsed.max(1e-9);
-        let line = format!(
+        self.line.show(&format!(
             "{}: {done}/{} ({:.0}%, {rate:.1}/s)",
             self.label,
             self.total,
             100.0 * done as f64 / self.total as f64
-        );
-        let mut err = std::io::stderr().lock();
-        if self.terminal {
-            let _ = write!(err, "\r{line}\x1b[K");
-            if done >= self.total {
-                let _ = writeln!(err);
-            }
-        } else {
-            let due = self
-                .last_line
-                .is_none_or(|t| t.elapsed().as_secs_f64() >= PLAIN_EVERY_S);
-            if due || done >= self.total {
-                self.last_line = Some(Instant::now());
-                let _ = writeln!(err, "{line}");
-            }
+        ));
+        if last {
+            self.line.finish();
         }
     }
 }
