@@ -200,7 +200,7 @@ fn write_preview(run_dir: &Path, log: &Path, class: Option<&str>, out: &Path) ->
     };
     let frames = McapFrames::open(log, AssemblyConfig::default())?;
     let frame = nth_frame(frames, PREVIEW_FRAME, log)?;
-    let p = render_pictures(&ctx, &mut mapper, ViewSource::Frame(&frame), query.as_ref())?;
+    let p = render_pictures(&mut mapper, ViewSource::Frame(&frame), query.as_ref())?;
     let (input, _) = p.input.as_ref().expect("rendered from a frame");
     let third = p.relevance.as_ref().map_or(&p.depth, |(r, _)| r);
     Picture::side_by_side(&[input, &p.colour, third], 4).write_png(out)

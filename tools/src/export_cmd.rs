@@ -10,7 +10,7 @@ use latentam::io::{read_vocabulary, CameraPose, Vocabulary};
 use latentam_cli::progress::Stages;
 
 use crate::pictures::{heat, to_bytes};
-use crate::query_args::softmax_rows;
+use latentam::latent::softmax_rows;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -5,9 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::Context;
 use latentam::io::read_vocabulary;
-use latentam::latent::RelevanceScorer;
+use latentam::latent::{Relevance, TextQuery};
 use latentam::mapper::Mapper;
 use latentam::splat::RenderedView;
 use latentam_cli::convert::features::read_vector;
@@ -35,33 +34,10 @@ pub struct QueryArgs {
     pub temperature: f32,
 }
 
-/// How scores against the query texts become one relevance per row.
-pub enum Relevance {
-    /// Cosine with the one text.
-    Cosine,
-    /// Softmax over the texts at a temperature; the value for `index`.
-    Softmax { index: usize, temperature: f32 },
-}
-
-/// Each `count`-wide row of `scores` through a softmax at `temperature`.
-pub fn softmax_rows(scores: &[f32], count: usize, temperature: f32) -> Vec<f32> {
-    let mut out = Vec::with_capacity(scores.len());
-    for row in scores.chunks_exact(count) {
-        let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-        let start = out.len();
-        out.extend(row.iter().map(|s| ((s - max) / temperature).exp()));
-        let sum: f32 = out[start..].iter().sum();
-        out[start..].iter_mut().for_each(|e| *e /= sum);
-    }
-    out
-}
-
-/// A resolved query: the texts to score against and how.
+/// A resolved query: what to score against and how (the library's
+/// [`TextQuery`]), and its words for messages.
 pub struct Query {
-    /// `count × dim` text embeddings.
-    pub texts: Vec<f32>,
-    pub count: usize,
-    pub relevance: Relevance,
+    pub text: TextQuery,
     /// The query in words, for messages.
     pub what: String,
 }
@@ -112,9 +88,7 @@ impl QueryArgs {
                     );
                 }
                 Ok(Some(Query {
-                    texts: v,
-                    count: 1,
-                    relevance: Relevance::Cosine,
+                    text: TextQuery::embedding(v),
                     what: path.display().to_string(),
                 }))
             }
@@ -124,27 +98,19 @@ impl QueryArgs {
                 };
                 let vocab = read_vocabulary(log, topic)?
                     .with_context(|| format!("{} has no vocabulary on {topic}", log.display()))?;
-                let Some(index) = vocab.names.iter().position(|n| n == name) else {
-                    bail!(
-                        "`{name}` is not in the vocabulary; it has: {}",
-                        vocab.names.join(", ")
-                    );
-                };
                 mapper
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
                 if !(self.temperature > 0.0 && self.temperature.is_finite()) {
                     bail!("--temperature must be positive");
                 }
-                // The vocabulary's `names × dim` values (its size checked on
-                // reading), so `index < count`.
+                let text = match TextQuery::vocabulary_word(&vocab, name, self.temperature) {
+                    Ok(t) => t,
+                    Err(latentam::Error::InvalidArgument(why)) => bail!("{why}"),
+                    Err(e) => return Err(e.into()),
+                };
                 Ok(Some(Query {
-                    count: vocab.vectors.len() / dim,
-                    texts: vocab.vectors,
-                    relevance: Relevance::Softmax {
-                        index,
-                        temperature: self.temperature,
-                    },
+                    text,
                     what: format!("`{name}`"),
                 }))
             }
@@ -154,23 +120,10 @@ impl QueryArgs {
 }
 
 impl Query {
-    /// One relevance per row of `scores` (`rows × count` cosines).
-    pub fn relevance_of(&self, scores: &[f32]) -> Vec<f32> {
-        match self.relevance {
-            Relevance::Cosine => scores.to_vec(),
-            Relevance::Softmax { index, temperature } => {
-                softmax_rows(scores, self.count, temperature)
-                    .chunks_exact(self.count)
-                    .map(|row| row[index])
-                    .collect()
-            }
-        }
-    }
-
     /// The values the colour ramp spans: the range of the relevances kept
     /// (cosine), or 0..1 (softmax, a probability).
     pub fn colour_range(&self, relevance: &[f32], keep: impl Fn(usize) -> bool) -> (f32, f32) {
-        match self.relevance {
+        match self.text.relevance {
             Relevance::Cosine => crate::pictures::range_of(relevance, keep).unwrap_or((0.0, 1.0)),
             Relevance::Softmax { .. } => (0.0, 1.0),
         }
@@ -178,17 +131,7 @@ impl Query {
 
     /// The relevance of every pixel of `view` (decoded from its rendered
     /// queries).
-    pub fn score_view(
-        &self,
-        ctx: &Context,
-        mapper: &Mapper,
-        view: &RenderedView,
-    ) -> Result<Vec<f32>> {
-        let head = mapper
-            .head()
-            .context("the map has no latent head to decode with")?;
-        let mut scorer = None;
-        let scorer = RelevanceScorer::ensure(&mut scorer, ctx, head, self.count as u32)?;
-        Ok(self.relevance_of(&scorer.score(ctx, head, &view.query, &self.texts)?))
+    pub fn score_view(&self, mapper: &mut Mapper, view: &RenderedView) -> Result<Vec<f32>> {
+        Ok(mapper.view_relevance(view, &self.text)?)
     }
 }

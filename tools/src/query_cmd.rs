@@ -11,8 +11,9 @@ use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
 
 use crate::pictures::heat;
-use crate::query_args::{queryable_dim, QueryArgs, Relevance};
+use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{camera_at, parse_pose, relevance_picture};
+use latentam::latent::Relevance;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["embedding", "name"])))]
@@ -65,8 +66,7 @@ pub fn run(args: Args) -> Result<()> {
         mapper.global().len(),
         query.what
     ));
-    let scores = mapper.query_many(&query.texts)?;
-    let rel = query.relevance_of(&scores);
+    let rel = mapper.relevance(&query.text)?;
     let mut gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
 
     // Heat map: colour spans the scores' range (cosine) or 0..1 (softmax).
@@ -92,7 +92,7 @@ pub fn run(args: Args) -> Result<()> {
         pct(0.5),
         pct(0.0)
     );
-    if matches!(query.relevance, Relevance::Softmax { .. }) {
+    if matches!(query.text.relevance, Relevance::Softmax { .. }) {
         let likely = rel.iter().filter(|&&r| r >= 0.5).count();
         println!("{likely} Gaussians are more likely this class than all others together (≥ 0.5)");
     }
@@ -115,7 +115,7 @@ pub fn run(args: Args) -> Result<()> {
         stages.start("rendering the relevance image");
         let camera = camera_at(&mapper, pose)?;
         let (view, _) = mapper.render(&camera)?;
-        relevance_picture(&ctx, &mapper, &query, &view)?
+        relevance_picture(&mut mapper, &query, &view)?
             .0
             .write_png(png)?;
         println!("relevance image: {}", png.display());

@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
-use latentam::gpu::Context;
 use latentam::io::{Frame, McapFrames};
 use latentam::mapper::Mapper;
 use latentam::splat::{Camera, RenderedView};
@@ -83,12 +82,11 @@ pub fn camera_at(mapper: &Mapper, pose: DAffine3) -> Result<Camera> {
 /// The relevance of every pixel of `view` as a picture (black where the
 /// map covers the pixel too little), with the range its colours span.
 pub fn relevance_picture(
-    ctx: &Context,
-    mapper: &Mapper,
+    mapper: &mut Mapper,
     query: &Query,
     view: &RenderedView,
 ) -> Result<(Picture, (f32, f32))> {
-    let rel = query.score_view(ctx, mapper, view)?;
+    let rel = query.score_view(mapper, view)?;
     let covered = |i: usize| view.alpha[i] >= COVERED_ALPHA;
     let range = query.colour_range(&rel, covered);
     Ok((
@@ -121,7 +119,6 @@ pub struct Pictures {
 /// depth share one colour range (the input's, when there is one) so they
 /// compare at a glance.
 pub fn render_pictures(
-    ctx: &Context,
     mapper: &mut Mapper,
     source: ViewSource<'_>,
     query: Option<&Query>,
@@ -156,7 +153,7 @@ pub fn render_pictures(
         ViewSource::Pose(_) => None,
     };
     let relevance = query
-        .map(|q| relevance_picture(ctx, mapper, q, &view))
+        .map(|q| relevance_picture(mapper, q, &view))
         .transpose()?;
     Ok(Pictures {
         colour: pictures::rendered_colour(&view),
@@ -232,7 +229,7 @@ pub fn run(args: Args) -> Result<()> {
         (None, None) => unreachable!("clap requires --view or --frame"),
     };
     stages.start("rendering");
-    let pictures = render_pictures(&ctx, &mut mapper, source, query.as_ref())?;
+    let pictures = render_pictures(&mut mapper, source, query.as_ref())?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }

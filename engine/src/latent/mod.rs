@@ -20,4 +20,4 @@ pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
 pub use pixel_decoder::{FactorisedDecoder, NORM_CUTOFF};
 pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};
 pub use query_init::projected_queries;
-pub use relevance::RelevanceScorer;
+pub use relevance::{softmax_rows, Relevance, RelevanceScorer, TextQuery};

@@ -11,6 +11,103 @@ use crate::latent::{DecoderParams, LatentHead};
 use crate::ops::{normalize_rows, Gemm, Transpose};
 use crate::splat::QUERY_DIM;
 
+/// What a query scores against, and how scores become one relevance.
+///
+/// ```
+/// use latentam::latent::TextQuery;
+///
+/// let q = TextQuery::embedding(vec![1.0, 0.0]);
+/// assert_eq!(q.relevance_of(&[0.3, -0.2]), vec![0.3, -0.2]); // cosines as they are
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct TextQuery {
+    /// `texts() × d_f` embeddings, back to back.
+    pub embeddings: Vec<f32>,
+    /// Texts among `embeddings`.
+    pub texts: usize,
+    /// How the scores against them become one relevance.
+    pub relevance: Relevance,
+}
+
+/// How scores against a query's texts become one relevance per row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Relevance {
+    /// The cosine with the one text.
+    Cosine,
+    /// The softmax over all texts at `temperature`, taken at `index`: the
+    /// probability that the row shows that text rather than any other of
+    /// the vocabulary (how open-vocabulary segmentation labels pixels).
+    Softmax {
+        /// The text asked about.
+        index: usize,
+        /// Softmax temperature.
+        temperature: f32,
+    },
+}
+
+impl TextQuery {
+    /// Cosine relevance to one embedding.
+    pub fn embedding(embedding: Vec<f32>) -> Self {
+        TextQuery {
+            embeddings: embedding,
+            texts: 1,
+            relevance: Relevance::Cosine,
+        }
+    }
+
+    /// Relevance to the vocabulary word `name` against all the others,
+    /// through a softmax at `temperature` (errors for an unknown word or a
+    /// temperature that is not positive).
+    pub fn vocabulary_word(
+        vocabulary: &crate::io::Vocabulary,
+        name: &str,
+        temperature: f32,
+    ) -> Result<Self> {
+        let Some(index) = vocabulary.names.iter().position(|n| n == name) else {
+            return Err(Error::InvalidArgument(format!(
+                "`{name}` is not in the vocabulary; it has: {}",
+                vocabulary.names.join(", ")
+            )));
+        };
+        if !(temperature > 0.0 && temperature.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "softmax temperature {temperature} is not positive"
+            )));
+        }
+        Ok(TextQuery {
+            embeddings: vocabulary.vectors.clone(),
+            texts: vocabulary.names.len(),
+            relevance: Relevance::Softmax { index, temperature },
+        })
+    }
+
+    /// One relevance per row of `scores` (`rows × texts` cosines).
+    pub fn relevance_of(&self, scores: &[f32]) -> Vec<f32> {
+        match self.relevance {
+            Relevance::Cosine => scores.to_vec(),
+            Relevance::Softmax { index, temperature } => {
+                softmax_rows(scores, self.texts, temperature)
+                    .chunks_exact(self.texts)
+                    .map(|row| row[index])
+                    .collect()
+            }
+        }
+    }
+}
+
+/// Each `texts`-wide row of `scores` through a softmax at `temperature`.
+pub fn softmax_rows(scores: &[f32], texts: usize, temperature: f32) -> Vec<f32> {
+    let mut out = Vec::with_capacity(scores.len());
+    for row in scores.chunks_exact(texts.max(1)) {
+        let max = row.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+        let start = out.len();
+        out.extend(row.iter().map(|s| ((s - max) / temperature).exp()));
+        let sum: f32 = out[start..].iter().sum();
+        out[start..].iter_mut().for_each(|e| *e /= sum);
+    }
+    out
+}
+
 /// Workspace for scoring queries against up to `max_texts` embeddings.
 ///
 /// ```no_run
@@ -166,6 +263,26 @@ impl RelevanceScorer {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn vocabulary_softmax_matches_its_definition() {
+        let vocabulary = crate::io::Vocabulary {
+            names: vec!["wall".into(), "chair".into(), "door".into()],
+            ids: vec![1, 2, 3],
+            dim: 1,
+            vectors: vec![1.0, 2.0, 3.0],
+            model: "m".into(),
+        };
+        let q = super::TextQuery::vocabulary_word(&vocabulary, "chair", 0.5).unwrap();
+        let scores = [0.2f32, 0.9, -0.1, 0.0, 0.0, 0.0];
+        let got = q.relevance_of(&scores);
+        let e = |x: f64| (x / 0.5).exp();
+        let want = e(0.9) / (e(0.2) + e(0.9) + e(-0.1));
+        assert!((got[0] as f64 - want).abs() < 1e-6, "{got:?}");
+        assert!((got[1] - 1.0 / 3.0).abs() < 1e-6);
+        assert!(super::TextQuery::vocabulary_word(&vocabulary, "sofa", 0.5).is_err());
+        assert!(super::TextQuery::vocabulary_word(&vocabulary, "door", 0.0).is_err());
+    }
+
     use rand::Rng;
 
     use super::*;

@@ -16,7 +16,7 @@ use super::eval::{Evaluator, ViewMetrics};
 use super::history::History;
 use crate::io::{CameraPose, Frame, Vocabulary};
 use crate::latent::LatentHead;
-use crate::latent::RelevanceScorer;
+use crate::latent::{RelevanceScorer, TextQuery};
 use crate::map::GlobalMap;
 use crate::splat::{Camera, RenderedView};
 
@@ -95,6 +95,32 @@ impl Mapper {
         let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, count)?;
         let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
         scorer.score(&ctx, head, &queries, embeddings)
+    }
+
+    /// Relevance of every Gaussian to `query` (cosine, or the softmax over
+    /// a vocabulary), in the order of [`GlobalMap::iter`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, vocabulary: &latentam::io::Vocabulary) -> latentam::Result<()> {
+    /// use latentam::latent::TextQuery;
+    /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
+    /// let p: Vec<f32> = mapper.relevance(&chair)?; // per Gaussian, 0..1
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn relevance(&mut self, query: &TextQuery) -> Result<Vec<f32>> {
+        Ok(query.relevance_of(&self.query_many(&query.embeddings)?))
+    }
+
+    /// Relevance of every pixel of a rendered view to `query`, from its
+    /// rendered queries (see [`Mapper::render`]).
+    pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
+        let head = self.inner.head().ok_or_else(|| {
+            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
+        })?;
+        let ctx = self.inner.context().clone();
+        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, query.texts as u32)?;
+        Ok(query.relevance_of(&scorer.score(&ctx, head, &view.query, &query.embeddings)?))
     }
 
     /// Saves the whole state into the run folder `dir` (created if
