@@ -13,7 +13,7 @@ const WIDTH: u32 = 1280;
 const HEIGHT: u32 = 720;
 
 fn frames(count: usize) -> Vec<Frame> {
-    use latentam_cli::scene::{generate, SceneConfig};
+    use latentam_scene::{generate, SceneConfig};
     let dir = std::env::temp_dir().join(format!("latentam-full-res-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();

@@ -471,7 +471,7 @@ fn tum_streams_are_paired_by_stamp_and_poses_interpolated() {
 
 #[test]
 fn the_demo_scene_reads_back_with_consistent_regions_and_classes() {
-    use latentam_cli::scene::{generate, SceneConfig};
+    use latentam_scene::{generate, SceneConfig};
     let dir = TempDir::new("scene");
     let out = dir.join("scene.mcap");
     let config = SceneConfig {

@@ -30,7 +30,7 @@ fn temp_dir(tag: &str) -> PathBuf {
 fn scene() -> &'static Scene {
     static SCENE: OnceLock<Scene> = OnceLock::new();
     SCENE.get_or_init(|| {
-        use latentam_cli::scene::{generate, SceneConfig};
+        use latentam_scene::{generate, SceneConfig};
         let dir = temp_dir("scene");
         let path = dir.join("scene.mcap");
         let config = SceneConfig {

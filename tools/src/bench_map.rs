@@ -134,7 +134,7 @@ pub fn run(b: MapBench) -> Result<()> {
     let (path, source) = match &b.log {
         Some(p) => (p.clone(), p.display().to_string()),
         None => {
-            use latentam_cli::scene::{generate, SceneConfig};
+            use latentam_scene::{generate, SceneConfig};
             std::fs::create_dir_all(&scratch)?;
             let p = scratch.join("scene.mcap");
             let sc = SceneConfig {

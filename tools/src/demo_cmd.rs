@@ -9,7 +9,7 @@ use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_vocabulary, AssemblyConfig, McapFrames};
 use latentam::mapper::Mapper;
 use latentam_cli::progress::Progress;
-use latentam_cli::scene::{generate, SceneConfig};
+use latentam_scene::{generate, SceneConfig};
 
 use crate::config_cmd::ConfigArgs;
 use crate::pictures::Picture;

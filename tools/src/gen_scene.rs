@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::ValueEnum;
 use latentam::io::{Compression, Dtype};
 use latentam_cli::progress::Progress;
-use latentam_cli::scene::{generate, spread_for_cosine, SceneConfig};
+use latentam_scene::{generate, spread_for_cosine, SceneConfig};
 
 /// Chunk compression of written logs.
 #[derive(Clone, Copy, Debug, ValueEnum)]

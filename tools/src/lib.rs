@@ -1,8 +1,8 @@
-//! Library side of the `latentam` command-line tool: the demo-scene
-//! generator and the dataset converters, shared by the binary, the
-//! integration tests and the benchmarks.
+//! Library side of the `latentam` command-line tool: the dataset
+//! converters and progress reporting, shared by the binary, the
+//! integration tests and the benchmarks. The demo scene is its own crate,
+//! `latentam-scene` (`tools/scene/`).
 
 pub mod convert;
 pub mod progress;
-pub mod scene;
 pub mod soak;

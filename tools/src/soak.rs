@@ -17,7 +17,7 @@ use latentam::io::{AssemblyConfig, McapFrames};
 use latentam::mapper::{Integrated, MapperConfig, OnlineMapper};
 use serde::Serialize;
 
-use crate::scene::{generate, SceneConfig};
+use latentam_scene::{generate, SceneConfig};
 
 /// One keyframe of the soak.
 #[derive(Clone, Debug, Serialize)]

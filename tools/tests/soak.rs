@@ -7,8 +7,8 @@
 
 use latentam::gpu::{Context, ContextOptions, Validation};
 use latentam::mapper::MapperConfig;
-use latentam_cli::scene::SceneConfig;
 use latentam_cli::soak::{lap_table, run, SoakOptions};
+use latentam_scene::SceneConfig;
 
 #[test]
 fn a_long_walk_keeps_gpu_memory_flat_leaks_nothing_and_grows_with_the_space_seen() {
