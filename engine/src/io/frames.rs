@@ -10,21 +10,22 @@
 //! skipped and counted, or stop the run, as [`BadInputPolicy`] says.
 
 use std::collections::VecDeque;
-use std::path::Path;
 
 use super::codec;
-use super::frame::{
-    ColorImage, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage,
-};
-use super::log::{Channel, McapLog, MessageReader, RawMessage, ReadFilter};
+use super::frame::{ColorImage, DepthImage, Embeddings, Frame, Intrinsics, LabelImage};
+use super::log::RawMessage;
 use super::messages::{
     CameraInfo, CompressedImage, FeatureGrid, Image, MaskFeatures, Odometry, PoseStamped,
     RosMessage, TextEmbeddings, TfMessage,
+};
+use super::parts::{
+    check_intrinsics, drop_bad_regions, grid_embeddings, intrinsics_of, mask_embeddings,
 };
 use super::pool::BufferPool;
 use super::report::{IngestReport, Rejection};
 use super::schema::normalize_type_name;
 use super::tf::{PoseTrack, TfBuffer};
+use super::vocabulary::{vocabulary_of, Vocabulary};
 use super::{CameraPose, InputError};
 
 /// Where camera poses come from.
@@ -141,7 +142,7 @@ impl Default for AssemblyConfig {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Role {
+pub(super) enum Role {
     Color,
     Depth,
     CameraInfo,
@@ -154,7 +155,7 @@ enum Role {
 }
 
 impl Role {
-    fn accepted_types(self) -> &'static [&'static str] {
+    pub(super) fn accepted_types(self) -> &'static [&'static str] {
         match self {
             Role::Color | Role::Depth => &[Image::TYPE_NAME, CompressedImage::TYPE_NAME],
             Role::CameraInfo => &[CameraInfo::TYPE_NAME],
@@ -165,7 +166,7 @@ impl Role {
             Role::Vocabulary => &[TextEmbeddings::TYPE_NAME],
         }
     }
-    fn stream(self) -> &'static str {
+    pub(super) fn stream(self) -> &'static str {
         match self {
             Role::Color => "colour",
             Role::Depth => "depth",
@@ -265,24 +266,9 @@ impl<T> Queue<T> {
     }
 }
 
-/// The vocabulary found in a log.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Vocabulary {
-    /// Class names.
-    pub names: Vec<String>,
-    /// Class id of each name.
-    pub ids: Vec<u16>,
-    /// Embedding dimension.
-    pub dim: u32,
-    /// `names.len() × dim` vectors.
-    pub vectors: Vec<f32>,
-    /// Embedding model id.
-    pub model: String,
-}
-
 /// Turns a stream of log messages into [`Frame`]s.
 pub struct FrameAssembler {
-    config: AssemblyConfig,
+    pub(super) config: AssemblyConfig,
     color: Queue<PendingFrame>,
     depth: Queue<Result<DepthImage, Rejection>>,
     embeddings: Queue<Embeddings>,
@@ -362,7 +348,7 @@ impl FrameAssembler {
         self.pool.recycle(frame);
     }
 
-    fn role(&self, topic: &str) -> Option<Role> {
+    pub(super) fn role(&self, topic: &str) -> Option<Role> {
         let t = &self.config.topics;
         if topic == t.color {
             Some(Role::Color)
@@ -918,478 +904,5 @@ impl FrameAssembler {
             rotation: pose.rotation,
             translation: pose.translation,
         })
-    }
-}
-
-/// Refuses intrinsics no real camera has: the principal point outside the
-/// image, or a focal length outside 0.05 to 50 image widths (a field of
-/// view from about 1° to 170°), the signs of mis-scaled or garbage
-/// calibration.
-pub(crate) fn check_intrinsics(k: &Intrinsics) -> Result<(), Rejection> {
-    let (w, h) = (k.width as f64, k.height as f64);
-    let focal = 0.05 * w..=50.0 * w;
-    if !(0.0..=w).contains(&k.cx) || !(0.0..=h).contains(&k.cy) {
-        return Err(Rejection::new(
-            "frame: implausible intrinsics",
-            format!(
-                "principal point ({}, {}) outside the {}×{} image",
-                k.cx, k.cy, k.width, k.height
-            ),
-        ));
-    }
-    if !focal.contains(&k.fx) || !focal.contains(&k.fy) {
-        return Err(Rejection::new(
-            "frame: implausible intrinsics",
-            format!(
-                "focal length ({}, {}) px outside 0.05 to 50 times the width of {} px",
-                k.fx, k.fy, k.width
-            ),
-        ));
-    }
-    Ok(())
-}
-
-fn intrinsics_of(m: &CameraInfo<'_>) -> Result<Intrinsics, Rejection> {
-    let [fx, _, cx, _, fy, cy, ..] = m.k;
-    if ![fx, fy, cx, cy].iter().all(|v| v.is_finite()) || fx <= 0.0 || fy <= 0.0 {
-        return Err(Rejection::new(
-            "camera info: invalid intrinsics",
-            format!("fx {fx}, fy {fy}, cx {cx}, cy {cy}"),
-        ));
-    }
-    if m.d.iter().any(|c| c != 0.0) {
-        return Err(Rejection::new(
-            "camera info: distortion not supported",
-            format!(
-                "`{}` coefficients {:?}; rectify the images first (undistortion is not implemented)",
-                m.distortion_model,
-                m.d.to_vec()
-            ),
-        ));
-    }
-    if m.binning_x > 1 || m.binning_y > 1 || m.roi.0 != [0; 4] {
-        return Err(Rejection::new(
-            "camera info: binning or ROI not supported",
-            format!("binning {}×{}, roi {:?}", m.binning_x, m.binning_y, m.roi.0),
-        ));
-    }
-    Ok(Intrinsics {
-        width: m.width,
-        height: m.height,
-        fx,
-        fy,
-        cx,
-        cy,
-    })
-}
-
-/// The largest embedding dimension accepted (far beyond any model's; the
-/// latent head's buffers are sized by it).
-pub const MAX_EMBEDDING_DIM: u32 = 65536;
-
-fn check_vectors(
-    kind: &'static str,
-    count: u64,
-    dim: u32,
-    dtype: &str,
-    len: usize,
-) -> Result<Dtype, Rejection> {
-    let dt = Dtype::parse(dtype).ok_or_else(|| {
-        Rejection::new(
-            "embeddings: unknown dtype",
-            format!("dtype `{dtype}` (accepted: f16, f32)"),
-        )
-    })?;
-    if dim == 0 {
-        return Err(Rejection::new(kind, "dim is 0"));
-    }
-    if dim > MAX_EMBEDDING_DIM {
-        // With no vectors (count 0) any dim matches the empty data; the
-        // mapper sizes buffers by it, so it is bounded here.
-        return Err(Rejection::new(
-            kind,
-            format!("dim {dim} is beyond the {MAX_EMBEDDING_DIM} supported"),
-        ));
-    }
-    let need = count
-        .saturating_mul(dim as u64)
-        .saturating_mul(dt.size() as u64);
-    if need != len as u64 {
-        return Err(Rejection::new(
-            kind,
-            format!("{count} vectors × {dim} × {dtype} need {need} bytes, data has {len}"),
-        ));
-    }
-    Ok(dt)
-}
-
-fn mask_embeddings(m: &MaskFeatures<'_>, pool: &mut BufferPool) -> Result<Embeddings, Rejection> {
-    let kind = "embeddings: size mismatch";
-    let dtype = check_vectors(kind, m.count as u64, m.dim, m.dtype, m.data.len())?;
-    let pixels = m.width as u64 * m.height as u64;
-    if pixels == 0
-        || pixels > codec::MAX_IMAGE_PIXELS
-        || m.width > codec::MAX_IMAGE_SIDE
-        || m.height > codec::MAX_IMAGE_SIDE
-    {
-        return Err(Rejection::new(
-            kind,
-            format!("label image {}×{}", m.width, m.height),
-        ));
-    }
-    if m.labels.len() as u64 != pixels {
-        return Err(Rejection::new(
-            kind,
-            format!(
-                "{} labels for a {}×{} label image",
-                m.labels.len(),
-                m.width,
-                m.height
-            ),
-        ));
-    }
-    let labels = pool.copy_words(&m.labels);
-    if let Some(&bad) = labels
-        .iter()
-        .find(|&&l| l != u16::MAX && l as u32 >= m.count)
-    {
-        pool.recycle_words(labels);
-        return Err(Rejection::new(
-            "embeddings: label out of range",
-            format!("region label {bad} with only {} regions", m.count),
-        ));
-    }
-    Ok(Embeddings {
-        layout: EmbeddingLayout::Regions(LabelImage {
-            width: m.width,
-            height: m.height,
-            labels,
-        }),
-        count: m.count,
-        dim: m.dim,
-        dtype,
-        data: pool.copy_bytes(m.data),
-        model: m.model.to_string(),
-    })
-}
-
-/// Refuses, one by one, region embeddings that hold a NaN or an infinity
-/// or are all zero (no direction to learn): their vectors are zeroed, which
-/// gives them no weight, and their pixels unlabelled. Returns one
-/// rejection per region refused.
-fn drop_bad_regions(e: &mut Embeddings, stamp: i64) -> Vec<Rejection> {
-    let dim = e.dim as usize;
-    let row_bytes = dim * e.dtype.size();
-    let values = e.to_f32();
-    let mut refused = Vec::new();
-    let mut bad_ids = Vec::new();
-    for (i, (row, v)) in e
-        .data
-        .chunks_exact_mut(row_bytes.max(1))
-        .zip(values.chunks_exact(dim.max(1)))
-        .enumerate()
-    {
-        let (kind, what) = if v.iter().any(|x| !x.is_finite()) {
-            (
-                "embeddings: region with non-finite values",
-                "NaN or infinite values",
-            )
-        } else if v.iter().all(|&x| x == 0.0) {
-            ("embeddings: region with zero norm", "all zeros")
-        } else {
-            continue;
-        };
-        row.fill(0);
-        bad_ids.push(i as u16);
-        refused.push(Rejection::new(
-            kind,
-            format!("region {i} of {} at {stamp} ns holds {what}", e.count),
-        ));
-    }
-    if let (EmbeddingLayout::Regions(labels), false) = (&mut e.layout, bad_ids.is_empty()) {
-        for l in labels.labels.iter_mut() {
-            if bad_ids.binary_search(l).is_ok() {
-                *l = u16::MAX;
-            }
-        }
-    }
-    refused
-}
-
-fn grid_embeddings(m: &FeatureGrid<'_>, pool: &mut BufferPool) -> Result<Embeddings, Rejection> {
-    let cells = m.rows as u64 * m.cols as u64;
-    if cells == 0 || cells > u32::MAX as u64 {
-        return Err(Rejection::new(
-            "embeddings: size mismatch",
-            format!("grid of {}×{} cells", m.rows, m.cols),
-        ));
-    }
-    let dtype = check_vectors(
-        "embeddings: size mismatch",
-        cells,
-        m.dim,
-        m.dtype,
-        m.data.len(),
-    )?;
-    Ok(Embeddings {
-        layout: EmbeddingLayout::Grid {
-            rows: m.rows,
-            cols: m.cols,
-        },
-        count: cells as u32,
-        dim: m.dim,
-        dtype,
-        data: pool.copy_bytes(m.data),
-        model: m.model.to_string(),
-    })
-}
-
-/// The first query vocabulary (`TextEmbeddings`) on `topic` of the log at
-/// `path`, without assembling frames: `Ok(None)` when the topic carries
-/// none. A vocabulary message that does not decode is an error, since the
-/// caller asked for exactly that message.
-///
-/// ```no_run
-/// let vocab = latentam::io::read_vocabulary("scene.mcap".as_ref(), "/vocabulary")?;
-/// if let Some(v) = vocab {
-///     println!("{} classes of {}-d {} embeddings", v.names.len(), v.dim, v.model);
-/// }
-/// # Ok::<(), latentam::io::InputError>(())
-/// ```
-pub fn read_vocabulary(path: &Path, topic: &str) -> Result<Option<Vocabulary>, InputError> {
-    let log = McapLog::open(path)?;
-    let mut reader = log.reader(ReadFilter {
-        topics: Some(vec![topic.to_string()]),
-        ..Default::default()
-    });
-    let Some(next) = reader.next_with(|m| {
-        let reject = |rejection| InputError::Rejected {
-            topic: topic.to_string(),
-            stamp_ns: m.log_time as i64,
-            rejection,
-        };
-        let msg = TextEmbeddings::decode(m.data).map_err(|e| {
-            reject(Rejection::new(
-                "vocabulary: undecodable message",
-                e.to_string(),
-            ))
-        })?;
-        vocabulary_of(&msg).map_err(reject)
-    }) else {
-        return Ok(None);
-    };
-    Ok(Some(next??))
-}
-
-fn vocabulary_of(m: &TextEmbeddings<'_>) -> Result<Vocabulary, Rejection> {
-    if m.names.len() != m.ids.len() {
-        return Err(Rejection::new(
-            "vocabulary: size mismatch",
-            format!("{} names but {} ids", m.names.len(), m.ids.len()),
-        ));
-    }
-    let dtype = check_vectors(
-        "vocabulary: size mismatch",
-        m.names.len() as u64,
-        m.dim,
-        m.dtype,
-        m.data.len(),
-    )?;
-    let names: Vec<String> = m.names.iter().map(|s| s.to_string()).collect();
-    let mut seen = std::collections::HashSet::new();
-    if let Some(twice) = names.iter().find(|n| !seen.insert(n.as_str())) {
-        return Err(Rejection::new(
-            "vocabulary: duplicate name",
-            format!("`{twice}` appears more than once"),
-        ));
-    }
-    let vectors = super::frame::decode_floats(m.data, dtype);
-    for (name, v) in names.iter().zip(vectors.chunks_exact(m.dim as usize)) {
-        if v.iter().any(|x| !x.is_finite()) || v.iter().all(|&x| x == 0.0) {
-            return Err(Rejection::new(
-                "vocabulary: unusable vector",
-                format!("the embedding of `{name}` is zero or holds NaN or infinite values"),
-            ));
-        }
-    }
-    Ok(Vocabulary {
-        names,
-        ids: m.ids.to_vec(),
-        dim: m.dim,
-        vectors,
-        model: m.model.to_string(),
-    })
-}
-
-/// Frames from an MCAP log, in stamp order.
-///
-/// ```no_run
-/// use latentam::io::{AssemblyConfig, McapFrames};
-///
-/// let mut frames = McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())?;
-/// for frame in &mut frames {
-///     let frame = frame?;
-///     println!("{} ns: {}×{}", frame.stamp_ns, frame.color.width, frame.color.height);
-/// }
-/// eprintln!("{}", frames.report());
-/// # Ok::<(), latentam::io::InputError>(())
-/// ```
-pub struct McapFrames {
-    reader: MessageReader,
-    assembler: FrameAssembler,
-    done: bool,
-    plan: Vec<String>,
-}
-
-impl McapFrames {
-    /// Opens a log and checks that the topics the configuration needs are
-    /// there with accepted message types.
-    pub fn open(path: &Path, config: AssemblyConfig) -> Result<Self, InputError> {
-        Self::from_log(McapLog::open(path)?, config)
-    }
-
-    /// Frames from an already opened log.
-    pub fn from_log(log: McapLog, mut config: AssemblyConfig) -> Result<Self, InputError> {
-        let channels = log.channels();
-        let (topics, plan) = super::plan_topics(&channels, &config)?;
-        config.topics = topics;
-        let probe = FrameAssembler::new(config.clone(), false, false);
-        let find = |topic: &str| channels.iter().find(|c| c.topic == topic);
-        let mut required = vec![config.topics.color.as_str(), config.topics.depth.as_str()];
-        if config.intrinsics.is_none() {
-            required.push(&config.topics.camera_info);
-        }
-        match &config.topics.pose {
-            PoseSource::Topic(p) => required.push(p),
-            PoseSource::Tf { .. } => {
-                if find("/tf").is_none() && find("/tf_static").is_none() {
-                    required.push("/tf");
-                }
-            }
-        }
-        let missing: Vec<&str> = required
-            .iter()
-            .copied()
-            .filter(|t| find(t).is_none())
-            .collect();
-        if !missing.is_empty() {
-            // Damage read before the topic's first message is the cause.
-            if let Some(e) = log.scan_problem() {
-                return Err(InputError::Topic {
-                    topic: missing.join(", "),
-                    reason: format!("not found before the log became unreadable: {e}"),
-                });
-            }
-            return Err(InputError::Topic {
-                topic: missing.join(", "),
-                reason: format!(
-                    "not in the log; it has: {}",
-                    channels
-                        .iter()
-                        .map(|c| format!("{} ({})", c.topic, c.schema_name))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            });
-        }
-        for c in &channels {
-            if let Some(role) = probe.role(&c.topic) {
-                check_channel(c, role)?;
-            }
-        }
-        let topics = probe.topics();
-        let assembler = FrameAssembler::new(
-            config.clone(),
-            find(&config.topics.embeddings).is_some(),
-            find(&config.topics.semantic).is_some(),
-        );
-        Ok(McapFrames {
-            reader: log.reader(ReadFilter {
-                topics: Some(topics),
-                ..Default::default()
-            }),
-            assembler,
-            done: false,
-            plan,
-        })
-    }
-
-    /// The streams whose topic was chosen from the log, one line each
-    /// (empty when every topic was as configured).
-    pub fn topic_plan(&self) -> &[String] {
-        &self.plan
-    }
-
-    /// The topics being read.
-    pub fn topics(&self) -> &Topics {
-        &self.assembler.config.topics
-    }
-
-    /// Counts so far (complete once the iterator has ended).
-    pub fn report(&self) -> &IngestReport {
-        self.assembler.report()
-    }
-
-    /// Hands a frame that is no longer needed back for its buffers to be
-    /// reused ([`FrameAssembler::recycle`]).
-    pub fn recycle(&mut self, frame: Frame) {
-        self.assembler.recycle(frame);
-    }
-
-    /// The log's vocabulary, once its message has been read.
-    pub fn vocabulary(&self) -> Option<&Vocabulary> {
-        self.assembler.vocabulary()
-    }
-}
-
-fn check_channel(c: &Channel, role: Role) -> Result<(), InputError> {
-    let ty = normalize_type_name(&c.schema_name);
-    let accepted = role.accepted_types();
-    if !accepted.contains(&ty.as_str()) {
-        return Err(InputError::Topic {
-            topic: c.topic.clone(),
-            reason: format!(
-                "carries `{}` but the {} stream needs one of {}",
-                c.schema_name,
-                role.stream(),
-                accepted.join(", ")
-            ),
-        });
-    }
-    if c.message_encoding != "cdr" {
-        return Err(InputError::Topic {
-            topic: c.topic.clone(),
-            reason: format!(
-                "message encoding `{}`, only `cdr` is read",
-                c.message_encoding
-            ),
-        });
-    }
-    Ok(())
-}
-
-impl Iterator for McapFrames {
-    type Item = Result<Frame, InputError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(frame) = self.assembler.pop() {
-                return Some(Ok(frame));
-            }
-            if self.done {
-                return None;
-            }
-            let assembler = &mut self.assembler;
-            match self.reader.next_with(|m| assembler.push(m)) {
-                None => {
-                    self.done = true;
-                    if let Err(e) = self.assembler.finish() {
-                        return Some(Err(e));
-                    }
-                }
-                Some(Err(e)) | Some(Ok(Err(e))) => return Some(Err(e)),
-                Some(Ok(Ok(()))) => {}
-            }
-        }
     }
 }

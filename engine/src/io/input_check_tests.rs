@@ -181,17 +181,17 @@ fn implausible_intrinsics_are_refused() {
         cx,
         cy,
     };
-    assert!(super::frames::check_intrinsics(&k(525.0, 319.5, 239.5)).is_ok());
+    assert!(super::parts::check_intrinsics(&k(525.0, 319.5, 239.5)).is_ok());
     // Wide and narrow lenses are fine.
-    assert!(super::frames::check_intrinsics(&k(40.0, 320.0, 240.0)).is_ok());
-    assert!(super::frames::check_intrinsics(&k(30000.0, 320.0, 240.0)).is_ok());
+    assert!(super::parts::check_intrinsics(&k(40.0, 320.0, 240.0)).is_ok());
+    assert!(super::parts::check_intrinsics(&k(30000.0, 320.0, 240.0)).is_ok());
     for (bad, why) in [
         (k(525.0, 1e30, 240.0), "principal point"),
         (k(525.0, 320.0, -3.0), "principal point"),
         (k(1e-30, 320.0, 240.0), "focal length"),
         (k(1e9, 320.0, 240.0), "focal length"),
     ] {
-        let r = super::frames::check_intrinsics(&bad).unwrap_err();
+        let r = super::parts::check_intrinsics(&bad).unwrap_err();
         assert_eq!(r.kind, "frame: implausible intrinsics");
         assert!(r.detail.contains(why), "{r}");
     }

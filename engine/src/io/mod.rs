@@ -37,13 +37,16 @@ mod frame;
 mod frames;
 mod input;
 mod log;
+mod mcap_frames;
 pub mod messages;
+mod parts;
 mod pool;
 mod report;
 pub mod schema;
 mod tf;
 mod topic_plan;
 pub mod trajectory;
+mod vocabulary;
 mod writer;
 
 use std::path::PathBuf;
@@ -53,22 +56,22 @@ pub use frame::{
     decode_floats, embedding_space, encode_floats, CameraPose, ColorImage, DepthData, DepthImage,
     Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
 };
-pub use frames::{
-    read_vocabulary, AssemblyConfig, BadInputPolicy, FrameAssembler, McapFrames, PoseSource,
-    Topics, Vocabulary, MAX_EMBEDDING_DIM,
-};
+pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, Topics};
 pub use input::{check_input_file, open_input, read_input, read_input_to_string};
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,
 };
+pub use mcap_frames::McapFrames;
 pub use messages::{
     CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
+pub use parts::MAX_EMBEDDING_DIM;
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
 pub use topic_plan::{plan_topics, TopicChoice};
 pub use trajectory::{read_tum, write_tum};
+pub use vocabulary::{read_vocabulary, Vocabulary};
 pub use writer::{Compression, LogWriter};
 
 /// What went wrong reading or writing a log.
