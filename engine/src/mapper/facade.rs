@@ -303,18 +303,14 @@ impl Mapper {
     /// # }
     /// ```
     pub fn render(&mut self, camera: &Camera) -> Result<(RenderedView, usize)> {
-        let ev = self
-            .evaluator
-            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
-        ev.render(&mut self.inner, camera)
+        let (ev, mapper) = self.evaluator();
+        ev.render(mapper, camera)
     }
 
     /// [`Mapper::render`] at a frame's pose and with its camera.
     pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
-        let ev = self
-            .evaluator
-            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
-        ev.render_frame(&mut self.inner, frame)
+        let (ev, mapper) = self.evaluator();
+        ev.render_frame(mapper, frame)
     }
 
     /// Measures the map on a frame it did not necessarily see (the paper's
@@ -335,11 +331,17 @@ impl Mapper {
         vocabulary: Option<&Vocabulary>,
         pixel_stride: usize,
     ) -> Result<ViewMetrics> {
+        let (ev, mapper) = self.evaluator();
+        ev.pixel_stride = pixel_stride.max(1);
+        ev.evaluate(mapper, frame, vocabulary)
+    }
+
+    /// The view renderer (made on first use) beside the mapper it renders.
+    fn evaluator(&mut self) -> (&mut Evaluator, &mut OnlineMapper) {
         let ev = self
             .evaluator
             .get_or_insert_with(|| Evaluator::new(self.inner.context()));
-        ev.pixel_stride = pixel_stride.max(1);
-        ev.evaluate(&mut self.inner, frame, vocabulary)
+        (ev, &mut self.inner)
     }
 
     /// The mapper underneath. Unstable: for the engine's benchmarks and
