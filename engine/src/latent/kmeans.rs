@@ -579,6 +579,31 @@ mod tests {
     use crate::gpu::testing::{rng, with_context};
     use crate::reference::kmeans::{self as reference, Dictionary, KMeansSettings};
 
+    /// The GPU's atoms, weights and moved flags against the reference
+    /// dictionary's, atom by atom.
+    fn assert_matches_reference(
+        got: &[f32],
+        got_w: &[f32],
+        got_moved: &[u32],
+        dict: &Dictionary,
+        want_moved: &[bool],
+        dim: usize,
+        what: &str,
+    ) {
+        for a in 0..dict.atoms.len() {
+            for j in 0..dim {
+                let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
+                assert!((g - w).abs() < 1e-4, "{what}: atom {a}[{j}]: {g} vs {w}");
+            }
+            let (g, w) = (got_w[a] as f64, dict.weights[a]);
+            assert!(
+                (g - w).abs() <= 1e-4 * w.max(1.0),
+                "{what}: weight {a}: {g} vs {w}"
+            );
+            assert_eq!(got_moved[a] != 0, want_moved[a], "{what}: moved {a}");
+        }
+    }
+
     fn unit(v: Vec<f64>) -> Vec<f64> {
         let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
         v.into_iter().map(|x| x / n).collect()
@@ -730,22 +755,13 @@ mod tests {
             let got_anchor = ctx.download::<f32>(&anchor).unwrap();
             let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
             let got_moved = ctx.download::<u32>(&moved).unwrap();
-            for a in 0..count {
-                for j in 0..dim {
-                    let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
-                    assert!(
-                        (g - w).abs() < 1e-4,
-                        "frame {frame} atom {a}[{j}]: {g} vs {w}"
-                    );
-                    assert_eq!(got_anchor[a * dim + j], got[a * dim + j]);
-                }
-                let (g, w) = (got_w[a] as f64, dict.weights[a]);
-                assert!(
-                    (g - w).abs() <= 1e-4 * w.max(1.0),
-                    "frame {frame} weight {a}: {g} vs {w}"
-                );
-                assert_eq!(got_moved[a] != 0, want_moved[a], "frame {frame} moved {a}");
-            }
+            let what = format!("frame {frame}");
+            assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, &what);
+            assert_eq!(
+                got_anchor[..count * dim],
+                got[..count * dim],
+                "{what}: anchors"
+            );
             // Mass is conserved: it moves between atoms, never vanishes.
             let w_sum: f64 = got_w[..count].iter().map(|&v| v as f64).sum();
             assert!(
@@ -855,21 +871,9 @@ mod tests {
                 let got = ctx.download::<f32>(&atoms).unwrap();
                 let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
                 let got_moved = ctx.download::<u32>(&moved).unwrap();
-                for a in 0..k {
-                    for j in 0..dim {
-                        let (g, w) = (got[a * dim + j] as f64, dict.atoms[a][j]);
-                        assert!(
-                            (g - w).abs() < 1e-4,
-                            "{iterations} iterations: atom {a}[{j}]: {g} vs {w}"
-                        );
-                    }
-                    let (g, w) = (got_w[a] as f64, dict.weights[a]);
-                    assert!(
-                        (g - w).abs() <= 1e-4 * w.max(1.0),
-                        "{iterations} iterations: weight {a}: {g} vs {w}"
-                    );
-                    assert_eq!(got_moved[a] != 0, want_moved[a], "moved {a}");
-                }
+                let what = format!("{iterations} iterations");
+                assert_eq!(dict.atoms.len(), k, "{what}: the dictionary is full");
+                assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, &what);
                 results.push(dict.weights);
             }
             // Each further iteration moved mass between centres: the
