@@ -1,6 +1,6 @@
 //! End-to-end mapping on the generated two-room scene (lavapipe, with the
 //! validation layer): quality on held-out views, paging under a tiny GPU
-//! budget, and save → load → continue.
+//! budget, save → load → continue, and a log run with autosave and resume.
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -10,7 +10,9 @@ use latentam::gpu::{Context, ContextOptions, Validation};
 use latentam::io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 use latentam::map::{Gaussian, VoxelKey};
 use latentam::mapper::eval::{add_iou, mean_iou, Evaluator};
-use latentam::mapper::{Integrated, MapperConfig, OnlineMapper};
+use latentam::mapper::{
+    Integrated, KeyframeReport, Mapper, MapperConfig, OnlineMapper, RunObserver, RunReport,
+};
 
 const FRAMES: usize = 60;
 
@@ -391,6 +393,140 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     assert!(OnlineMapper::load(&ctx, &path, None).is_err());
     assert!(OnlineMapper::load(&ctx, Path::new("/nonexistent/state"), None).is_err());
     drop(loaded);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_no_validation_errors(ctx);
+}
+
+/// Counts what a [`LogRun`] showed it, stops on request, and adds a file.
+#[derive(Default)]
+struct CountingObserver {
+    started_with: Option<Option<usize>>,
+    frames_done: u64,
+    stop_after: Option<u64>,
+    extra_files: usize,
+}
+
+impl RunObserver for CountingObserver {
+    fn started(&mut self, _frames: &McapFrames, total: Option<usize>) {
+        self.started_with = Some(total);
+    }
+
+    fn frame_done(&mut self, frames: u64, _mapper: &Mapper, _last: Option<&KeyframeReport>) {
+        assert_eq!(
+            frames,
+            self.frames_done + 1,
+            "frames are reported one by one"
+        );
+        self.frames_done = frames;
+    }
+
+    fn stop_requested(&mut self) -> bool {
+        self.stop_after.is_some_and(|n| self.frames_done >= n)
+    }
+
+    fn write_extra_files(&mut self, dir: &Path, report: &RunReport) -> latentam::Result<()> {
+        self.extra_files += 1;
+        std::fs::write(dir.join("report.html"), &report.run_id).unwrap();
+        Ok(())
+    }
+}
+
+fn report_in(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
+    use latentam::mapper::{Ending, Kept, LogRun, LogRunOptions, RunFolder, Written};
+    const LOG_FRAMES: usize = 20;
+    let ctx = context();
+    let dir = temp_dir("log-run");
+    let log = dir.join("scene.mcap");
+    let scene = latentam_scene::SceneConfig {
+        frames: LOG_FRAMES,
+        ..latentam_scene::SceneConfig::default()
+    };
+    latentam_scene::generate(&scene, &log, |_| {}).unwrap();
+    let folder = RunFolder::lock(dir.join("run")).unwrap();
+    let map = |mapper: Mapper, options: &LogRunOptions, observer: &mut CountingObserver| {
+        let assembly = AssemblyConfig::default();
+        LogRun::map(mapper, &log, assembly, options, Some(&folder), observer).unwrap()
+    };
+
+    // Stopped by a frame limit, with an autosave at every keyframe: the
+    // folder holds the last one, marked as still running.
+    let mut observer = CountingObserver::default();
+    let options = LogRunOptions {
+        max_frames: Some(10),
+        autosave_every: 1,
+    };
+    let mapper = Mapper::with_context(&ctx, config()).unwrap();
+    let mut run = map(mapper, &options, &mut observer);
+    assert_eq!(observer.started_with, Some(Some(10)));
+    assert_eq!((run.frames, run.skipped, observer.frames_done), (10, 0, 10));
+    assert_eq!(run.ending, Ending::FrameLimit);
+    // Keyframes every 4 frames: 0, 4 and 8.
+    assert_eq!(run.keyframes.len(), 3);
+    assert_eq!(run.autosaved_at, Some(3));
+    assert_eq!(observer.extra_files, 3);
+    let autosaved = report_in(folder.dir());
+    assert_eq!(autosaved["ending"], "running");
+    assert_eq!(
+        std::fs::read_to_string(folder.dir().join("report.html")).unwrap(),
+        autosaved["run_id"].as_str().unwrap()
+    );
+    let Written::Saved(report) = run.write_folder(&folder, &mut observer).unwrap() else {
+        panic!("the run was not written");
+    };
+    assert_eq!(report.ending, Ending::FrameLimit);
+    assert_eq!(report_in(folder.dir())["ending"], "frame_limit");
+    drop(run);
+
+    // Resumed, and stopped on request two frames later.
+    let mut observer = CountingObserver {
+        stop_after: Some(12),
+        ..CountingObserver::default()
+    };
+    let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
+    let run = map(mapper, &LogRunOptions::default(), &mut observer);
+    assert_eq!(run.ending, Ending::Interrupted);
+    assert_eq!((run.skipped, run.frames), (10, 2));
+    assert_eq!(run.mapper.stats().frames, 12);
+    // Nothing was written: the folder still holds the first run.
+    assert_eq!(report_in(folder.dir())["run_id"], report.run_id.as_str());
+    drop(run);
+
+    // Resumed to the end: the map is the one a single run makes.
+    let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
+    let mut run = map(
+        mapper,
+        &LogRunOptions::default(),
+        &mut CountingObserver::default(),
+    );
+    assert_eq!(run.ending, Ending::Complete);
+    assert_eq!((run.skipped, run.frames), (10, 10));
+    assert_eq!(run.mapper.stats().keyframes as usize, LOG_FRAMES / 4);
+    assert_eq!(run.trajectory().len(), LOG_FRAMES / 4);
+    assert!(matches!(
+        run.write_folder(&folder, &mut ()).unwrap(),
+        Written::Saved(_)
+    ));
+    drop(run);
+
+    // Once more: every frame was mapped, and the folder is kept.
+    let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
+    let mut run = map(
+        mapper,
+        &LogRunOptions::default(),
+        &mut CountingObserver::default(),
+    );
+    assert_eq!((run.skipped, run.frames), (LOG_FRAMES as u64, 0));
+    assert!(matches!(
+        run.write_folder(&folder, &mut ()).unwrap(),
+        Written::Kept(Kept::NothingNew)
+    ));
+    drop(run);
+    drop(folder);
     std::fs::remove_dir_all(&dir).unwrap();
     assert_no_validation_errors(ctx);
 }

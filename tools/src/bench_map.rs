@@ -90,7 +90,7 @@ struct Report {
     keyframes_per_s: f64,
     ms_per_keyframe: KeyframeTimings,
     /// Host waits, submissions and dispatches per keyframe.
-    gpu_calls_per_keyframe: crate::mapping::HostWaits,
+    gpu_calls_per_keyframe: latentam::mapper::HostWaits,
     /// The dictionary's capacity, and the time per keyframe while it
     /// filled and once it was full (the first keyframe, which creates
     /// every workspace, is left out of both).
@@ -254,8 +254,8 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         keyframes,
         wall_s: wall,
         keyframes_per_s: keyframes as f64 / wall,
-        ms_per_keyframe: crate::mapping::mean_timings(t, keyframes),
-        gpu_calls_per_keyframe: crate::mapping::HostWaits::of(&gpu_calls),
+        ms_per_keyframe: t.per_keyframe(keyframes),
+        gpu_calls_per_keyframe: latentam::mapper::HostWaits::of(&gpu_calls),
         atoms,
         while_filling: phase(false),
         once_full: phase(true),

@@ -17,7 +17,8 @@ use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{nth_frame, render_pictures, ViewSource};
 use latentam::mapper::RunFolder;
 
-use crate::mapping::{map_log, summary, Ending, RunOptions, Written, RUN_FILES};
+use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
+use latentam::mapper::{Ending, Written};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -72,7 +73,7 @@ pub fn run(args: Args) -> Result<()> {
         },
         Some(&folder),
     )?;
-    let report = match run.write_folder(&folder)? {
+    let report = match write_folder(&mut run, &folder)? {
         Written::Saved(report) => report,
         Written::Kept(why) => bail!("{}: {why}", run_dir.display()),
     };
@@ -82,7 +83,7 @@ pub fn run(args: Args) -> Result<()> {
         Ending::Interrupted => bail!("interrupted; what was mapped is in {}", run_dir.display()),
         _ => {}
     }
-    let profile = run.ctx.profiler_snapshot();
+    let profile = run.mapper.context().profiler_snapshot();
     drop(run);
 
     println!("3/4 evaluating on views that were not keyframes (frames 2, 10, 18, …)");

@@ -8,7 +8,8 @@ use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
 use latentam::mapper::{RunFolder, STATE_FILE};
 
-use crate::mapping::{map_log, summary, Ending, Kept, RunOptions, Written, RUN_FILES};
+use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
+use latentam::mapper::{Ending, Kept, Written};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -70,7 +71,7 @@ pub fn run(args: Args) -> Result<bool> {
         },
         Some(&folder),
     )?;
-    let report = match run.write_folder(&folder) {
+    let report = match write_folder(&mut run, &folder) {
         Ok(Written::Saved(report)) => {
             print!("{}", summary(&report));
             println!("run folder {}:", args.out.display());

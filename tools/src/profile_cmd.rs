@@ -7,7 +7,8 @@ use anyhow::{bail, Result};
 
 use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
-use crate::mapping::{map_log, Ending, RunOptions};
+use crate::mapping::{map_log, RunOptions};
+use latentam::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -42,11 +43,11 @@ pub fn run(args: Args) -> Result<()> {
     if let Ending::Failed(e) = &run.ending {
         bail!("{e}");
     }
-    let profile = run.ctx.profiler_snapshot();
+    let profile = run.mapper.context().profiler_snapshot();
     if profile.stats().is_empty() {
         bail!(
             "no kernel was timed: {} has no timestamp support on its compute queue",
-            run.ctx.info().name
+            run.mapper.context().info().name
         );
     }
     let wall_ms = run.wall_s * 1e3;
@@ -57,7 +58,7 @@ pub fn run(args: Args) -> Result<()> {
         run.frames,
         run.keyframes.len(),
         run.wall_s,
-        run.ctx.info().name,
+        run.mapper.context().info().name,
         wall_ms / frames,
         profile.total_ms() / frames,
         100.0 * profile.total_ms() / wall_ms.max(1e-9)

@@ -8,7 +8,7 @@ use anyhow::{anyhow, Result};
 use latentam::mapper::KeyframeReport;
 use plotters::prelude::*;
 
-use crate::mapping::RunReport;
+use latentam::mapper::RunReport;
 
 const PLOT_SIZE: (u32, u32) = (900, 320);
 /// Rows of the kernel table.

@@ -62,6 +62,12 @@ impl Mapper {
         })
     }
 
+    /// The GPU context the mapper runs on (device information, the
+    /// profiler's kernel timings).
+    pub fn context(&self) -> &Context {
+        self.inner.context()
+    }
+
     /// Offers one frame; keyframes are mapped (see
     /// [`OnlineMapper::integrate`]).
     pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {

@@ -12,17 +12,20 @@ pub mod eval;
 mod export;
 mod facade;
 mod history;
+mod log_run;
 mod online;
 mod persist;
 pub mod pixel_metrics;
 mod preset;
 mod run_folder;
+mod run_report;
 mod trainer;
 
 pub use config_doc::{apply_overrides, documented_defaults};
 pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 pub use facade::{Mapper, STATE_FILE};
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
+pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use online::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperConfig, MapperStats,
     OnlineMapper, PagingReport,
@@ -30,6 +33,7 @@ pub use online::{
 pub use persist::SavedState;
 pub use preset::Preset;
 pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES};
+pub use run_report::{Ending, HostWaits, RunReport};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 
 #[cfg(test)]
