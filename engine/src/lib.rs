@@ -8,7 +8,8 @@
 //! This crate is the library a robot program links; [`Mapper`] is its
 //! façade. Its layers, each using only those before it (checked by
 //! `tests/layers.rs`):
-//! 1. [`error`](Error), [`files`]: the error type and whole-or-nothing files;
+//! 1. [`error`](Error), [`files`], `settings`: the error type, whole-or-nothing
+//!    files, and the one declaration of each configuration setting;
 //! 2. [`gpu`] → [`ops`]: Vulkan, one way to dispatch a kernel, primitives;
 //!    beside them [`io`]: logs in, checked frames out (host only);
 //! 3. [`splat`] → [`loss`] → [`optim`] → [`latent`]: the rasterizer, the
@@ -49,6 +50,7 @@ pub mod ops;
 pub mod optim;
 mod random;
 pub mod reference;
+pub(crate) mod settings;
 pub mod splat;
 
 pub use error::{Error, Result};

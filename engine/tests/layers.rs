@@ -15,6 +15,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("faults", 0),
     ("random", 0),
     ("files", 0),
+    ("settings", 0),
     ("gpu", 1),
     ("io", 1),
     ("ops", 2),

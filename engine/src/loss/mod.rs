@@ -11,50 +11,46 @@ mod image;
 pub use feature::{FeatureLoss, TrustRegion, COSINE_EPS};
 pub use image::{depth_is_valid, ImageLoss, ImageLossReadback, ImageLossValues};
 
-/// Weights of every loss term. Defaults are the paper's values.
-///
-/// The total is `rgb · (rgb_l1 · L1 + ssim · (1 − SSIM)) + depth · L_depth +
-/// feature · (cosine · L_cos + l2 · L_l2 + trust_region · L_trust)`. The
-/// paper's 0.2/0.8 split between L1 and SSIM is the reverse of every
-/// reference 3DGS system (0.8/0.2); swap it here if wanted.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct LossWeights {
-    /// λ_rgb, weight of the photometric term (not given by the paper).
-    pub rgb: f32,
-    /// λ_I1, L1 share of the photometric term.
-    pub rgb_l1: f32,
-    /// λ_I2, 1 − SSIM share of the photometric term.
-    pub ssim: f32,
-    /// λ_d, depth L1 on pixels with valid measured depth.
-    pub depth: f32,
-    /// λ_f, weight of the whole feature loss.
-    pub feature: f32,
-    /// λ_cos, cosine term inside the feature loss.
-    pub cosine: f32,
-    /// λ_2, mean-squared-error term inside the feature loss.
-    pub l2: f32,
-    /// λ_D, trust-region term inside the feature loss.
-    pub trust_region: f32,
-    /// δ, trust-region radius (L2 norm per atom).
-    pub trust_radius: f32,
-}
+use crate::settings::settings;
 
-impl Default for LossWeights {
-    fn default() -> Self {
-        Self {
-            rgb: 1.0,
-            rgb_l1: 0.2,
-            ssim: 0.8,
-            depth: 0.1,
-            feature: 5.0,
-            cosine: 0.5,
-            l2: 0.5,
-            trust_region: 0.2,
-            trust_radius: 0.1,
-        }
+settings! {
+    /// Weights of every loss term. Defaults are the paper's values.
+    ///
+    /// The total is `rgb · (rgb_l1 · L1 + ssim · (1 − SSIM)) + depth · L_depth +
+    /// feature · (cosine · L_cos + l2 · L_l2 + trust_region · L_trust)`. The
+    /// paper's 0.2/0.8 split between L1 and SSIM is the reverse of every
+    /// reference 3DGS system (0.8/0.2); swap it here if wanted.
+    #[derive(Copy)]
+    pub struct LossWeights {
+        /// lambda_rgb, weight of the photometric term (not given by the
+        /// paper).
+        pub rgb: f32 = 1.0 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_I1, share of L1 in the photometric term.
+        pub rgb_l1: f32 = 0.2 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_I2, share of 1 - SSIM in the photometric term.
+        pub ssim: f32 = 0.8 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_d, weight of the depth L1 term, on pixels with a valid
+        /// measured depth.
+        pub depth: f32 = 0.1 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_f, weight of the whole feature loss.
+        pub feature: f32 = 5.0 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_cos, weight of the cosine term inside the feature loss.
+        pub cosine: f32 = 0.5 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_2, weight of the mean-squared-error term inside the
+        /// feature loss.
+        pub l2: f32 = 0.5 => value().range(0.0, MAX_WEIGHT),
+        /// lambda_D, weight of the trust-region term inside the feature
+        /// loss, which keeps the dictionary near its k-means anchor.
+        pub trust_region: f32 = 0.2 => value().range(0.0, MAX_WEIGHT),
+        /// delta, the trust-region radius: how far (L2 norm, per atom) the
+        /// dictionary may move from its anchor before the term applies.
+        pub trust_radius: f32 = 0.1 => value().range(0.0, MAX_WEIGHT),
     }
 }
+
+/// Largest loss weight: far beyond any useful value, weights overflow f32
+/// in the first step (`rgb = 1e30` made the state infinite).
+pub const MAX_WEIGHT: f32 = 1e4;
 
 /// Per-row weights that make a loss over several views' regions the mean
 /// over each view's regions, then the mean over views (SPEC §5). `counts[v]`

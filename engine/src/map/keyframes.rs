@@ -4,6 +4,7 @@ use glam::DVec3;
 
 use super::global::GlobalMap;
 use crate::io::{CameraPose, Frame};
+use crate::settings::{join, settings, KeyDoc, Kind, Setting, MAX_DISTANCE};
 
 /// The rule that proposes keyframes.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -23,25 +24,73 @@ pub enum KeyframePolicy {
     },
 }
 
-/// Keyframe selection settings.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct KeyframeConfig {
-    /// The proposing rule.
-    pub policy: KeyframePolicy,
-    /// A proposal is dropped unless the camera moved at least this far
-    /// (metres) ...
-    pub min_translation: f64,
-    /// ... or turned at least this much (degrees) since the last keyframe.
-    pub min_rotation_deg: f64,
+settings! {
+    /// Keyframe selection settings.
+    #[derive(Copy)]
+    pub struct KeyframeConfig {
+        /// The rule that proposes keyframes; a proposal is then kept only
+        /// if the camera moved enough (min_translation, min_rotation_deg).
+        pub policy: KeyframePolicy = KeyframePolicy::Interval(4) => choice(),
+        /// A proposed keyframe is dropped unless the camera moved at least
+        /// this far (metres) or turned at least min_rotation_deg since the
+        /// last keyframe; with both at 0 every proposal is kept.
+        pub min_translation: f64 = 0.0 => value().range(0.0, MAX_DISTANCE).unit("metres"),
+        /// See min_translation: the rotation (degrees) since the last
+        /// keyframe that is enough on its own.
+        pub min_rotation_deg: f64 = 0.0 => value().range(0.0, 360.0).unit("degrees"),
+    }
 }
 
-impl Default for KeyframeConfig {
-    fn default() -> Self {
-        KeyframeConfig {
-            policy: KeyframePolicy::Interval(4),
-            min_translation: 0.0,
-            min_rotation_deg: 0.0,
+/// Documented and checked by hand: the variants are the keys below it.
+impl Setting for KeyframePolicy {
+    fn nested_docs(prefix: &str, out: &mut Vec<KeyDoc>) {
+        let mut doc = |key: &str, kind, text: &str| {
+            out.push(KeyDoc {
+                key: join(prefix, key),
+                kind,
+                text: text.into(),
+            })
+        };
+        doc(
+            "interval",
+            Kind::Variant { payload: "4" },
+            "Every N-th frame, N an integer >= 1 (for ORB-SLAM3-style \
+             trackers; the paper reports N from 4 to 10).",
+        );
+        doc(
+            "overlap",
+            Kind::Variant {
+                payload: "{ min_overlap = 0.9, stride = 8 }",
+            },
+            "When the share of the frame's back-projected depth points that \
+             lie on already mapped surface drops below min_overlap \
+             (GS-ICP-style). The values shown are a starting point, not \
+             defaults.",
+        );
+        doc(
+            "overlap.min_overlap",
+            Kind::VariantField,
+            "a keyframe when the overlap is below this; range 0 to 1.",
+        );
+        doc(
+            "overlap.stride",
+            Kind::VariantField,
+            "the check uses every stride-th pixel along rows and columns; \
+             integer >= 1.",
+        );
+    }
+
+    fn check_nested(&self, prefix: &str) -> Result<(), String> {
+        match *self {
+            KeyframePolicy::Interval(0) => Err(format!("{prefix} interval must be at least 1")),
+            KeyframePolicy::Overlap {
+                min_overlap,
+                stride,
+            } if !(0.0..=1.0).contains(&min_overlap) || stride == 0 => Err(format!(
+                "{prefix} overlap: min_overlap {min_overlap} must be within 0..1 and stride \
+                 {stride} at least 1"
+            )),
+            _ => Ok(()),
         }
     }
 }

@@ -9,49 +9,62 @@ use super::global::{Gaussian, GlobalMap};
 use super::voxel::VoxelKey;
 use crate::io::{DepthImage, Frame};
 use crate::random::SplitMix;
+use crate::settings::{settings, Setting, MAX_DISTANCE};
 use crate::splat::QUERY_DIM;
 
-/// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
-/// variant: scale from depth over focal length, identity rotation).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SeedingConfig {
-    /// Every `stride`-th pixel along rows and columns is a candidate.
-    pub stride: u32,
-    /// Depths beyond this (metres) are not seeded.
-    pub max_depth: f32,
-    /// A pixel is unexplained where the rendered alpha is below this.
-    pub alpha_threshold: f32,
-    /// ... or where the rendered depth is off by more than this fraction
-    /// of the measured depth.
-    pub depth_error: f32,
-    /// Initial opacity (0..1). High, because a Gaussian gets few steps
-    /// online: seeded at 0.5, surfaces stayed half transparent over the
-    /// black background (a keyframe rendered at its own pose right after
-    /// seeding: 18.5 dB at 0.5, 23.8 dB at 0.9 with `scale_factor` 0.75, on
-    /// 7-Scenes).
-    pub opacity: f32,
-    /// Initial standard deviation as a multiple of the spacing between
-    /// seeds (`stride × depth / focal`), at least half a voxel.
-    pub scale_factor: f32,
-    /// Where the map already has a Gaussian within the seed spacing
-    /// (`stride × depth / focal`, [`GlobalMap::is_mapped_within`]), a
-    /// pixel is seeded only if the render is nearly empty there (alpha
-    /// below this): holes are refilled and closer views still add finer
-    /// Gaussians, but the partial alpha and depth disagreements at edges
-    /// that every revisit from a new position brings add nothing, so the
-    /// map grows with the space (and detail) explored rather than with
-    /// time. Set it to `alpha_threshold` to seed every unexplained pixel.
-    pub refill_alpha: f32,
-    /// Where a new Gaussian's query starts.
-    pub query_init: QueryInit,
-    /// A candidate pixel without a valid depth (RGB-D sensors leave 5–15 %
-    /// empty: shadows beside edges, dark, shiny or distant surfaces)
-    /// borrows the median depth of the nearest ring of pixels around it
-    /// that has valid ones, up to this many pixels away; 0 seeds only
-    /// measured depth, and empty pixels then stay holes in the map.
-    pub hole_fill_radius: u32,
+settings! {
+    /// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
+    /// variant: scale from depth over focal length, identity rotation).
+    #[derive(Copy)]
+    pub struct SeedingConfig {
+        /// Every stride-th pixel along rows and columns is a candidate.
+        pub stride: u32 = 2 => value().at_least(1u32),
+        /// Depths beyond this (metres) are not seeded.
+        pub max_depth: f32 = 10.0 => value().above(0.0, MAX_DISTANCE).unit("metres"),
+        /// A pixel is unexplained, and may be seeded, where the rendered
+        /// (accumulated) alpha is below this.
+        pub alpha_threshold: f32 = 0.5 => value().range(0.0, 1.0),
+        /// ... or where the rendered depth is off by more than this
+        /// fraction of the measured depth (0.05 = 5 %).
+        pub depth_error: f32 = 0.05 => value().at_least(0.0),
+        // High, because a Gaussian gets few steps online: seeded at 0.5,
+        // surfaces stayed half transparent over the black background (a
+        // keyframe rendered at its own pose right after seeding: 18.5 dB
+        // at 0.5, 23.8 dB at 0.9 with `scale_factor` 0.75, on 7-Scenes).
+        /// Initial opacity of new Gaussians.
+        pub opacity: f32 = 0.9 => value().range(0.0, 1.0),
+        /// Initial standard deviation of new Gaussians as a multiple of the
+        /// spacing between seeds (stride x depth / focal length); at least
+        /// half a voxel in any case.
+        pub scale_factor: f32 = 0.75 => value().positive(),
+        // Partial alpha and depth disagreements at edges come with every
+        // revisit from a new position; seeding them would grow the map
+        // with time rather than with the space (and detail) explored.
+        /// Where the map already has a Gaussian within the seed spacing
+        /// (stride x depth / focal), a pixel is seeded only if the rendered
+        /// alpha is below this (a hole); partial alpha or depth
+        /// disagreements there add nothing, so revisits do not grow the map
+        /// while closer views still add detail. Set it to alpha_threshold
+        /// to seed every unexplained pixel.
+        pub refill_alpha: f32 = 0.5 => value().range(0.0, 1.0),
+        /// Where a new Gaussian's query starts: "embedding" (its pixel's
+        /// region embedding projected through the decoder's W, so it
+        /// decodes to about that embedding before any step; pixels without
+        /// one copy a neighbour's query or start at random) or "random" (a
+        /// neighbouring Gaussian's query, else N(0, 1)).
+        pub query_init: QueryInit = QueryInit::Embedding => value(),
+        /// A pixel without a valid depth (RGB-D sensors leave 5-15 % of
+        /// pixels empty: shadows beside edges, dark, shiny or distant
+        /// surfaces) is seeded at the median depth of the nearest ring of
+        /// pixels around it that has valid ones, up to this many pixels
+        /// away. 0 seeds measured depth only, and empty pixels stay holes
+        /// in the map.
+        pub hole_fill_radius: u32 = 8 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
+    }
 }
+
+/// Largest `hole_fill_radius`: wider holes are not one surface.
+pub const MAX_HOLE_FILL_RADIUS: u32 = 64;
 
 /// Where a new Gaussian's query starts (SPEC §12 leaves it open).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -93,21 +106,7 @@ impl RegionQueries<'_> {
     }
 }
 
-impl Default for SeedingConfig {
-    fn default() -> Self {
-        SeedingConfig {
-            stride: 2,
-            max_depth: 10.0,
-            alpha_threshold: 0.5,
-            depth_error: 0.05,
-            opacity: 0.9,
-            scale_factor: 0.75,
-            refill_alpha: 0.5,
-            query_init: QueryInit::Embedding,
-            hole_fill_radius: 8,
-        }
-    }
-}
+impl Setting for QueryInit {}
 
 /// How much of a keyframe the current map covers: what it renders at the
 /// keyframe's pose, per pixel.

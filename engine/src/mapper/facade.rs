@@ -4,8 +4,9 @@
 use std::borrow::Borrow;
 use std::path::{Path, PathBuf};
 
+use super::config::MapperConfig;
 use super::export::{DecoderFile, DECODER_FILE};
-use super::online::{Integrated, MapperConfig, MapperStats, OnlineMapper};
+use super::online::{Integrated, MapperStats, OnlineMapper};
 use super::persist::SavedState;
 use super::run_folder::{RunFolder, RunStaging};
 use crate::error::{Error, Result};

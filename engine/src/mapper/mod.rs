@@ -7,6 +7,7 @@
 
 mod archive;
 pub mod budget;
+mod config;
 mod config_doc;
 pub mod eval;
 mod export;
@@ -21,14 +22,15 @@ mod run_folder;
 mod run_report;
 mod trainer;
 
+pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
 pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 pub use facade::{Mapper, STATE_FILE};
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use online::{
-    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperConfig, MapperStats,
-    OnlineMapper, PagingReport,
+    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, OnlineMapper,
+    PagingReport,
 };
 pub use persist::SavedState;
 pub use preset::Preset;

@@ -16,8 +16,9 @@ use std::path::{Path, PathBuf};
 use glam::{DAffine3, DMat3, DQuat, DVec3};
 
 use super::archive::{Archive, ArchiveWriter, FORMAT, VERSION};
+use super::config::MapperConfig;
 use super::history::{KeyframeRecord, RegionTargets};
-use super::online::{MapperConfig, OnlineMapper};
+use super::online::OnlineMapper;
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::io::CameraPose;

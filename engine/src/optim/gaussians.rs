@@ -3,46 +3,40 @@
 use super::adam::{AdamGroup, AdamHyper};
 use crate::error::Result;
 use crate::gpu::{Buffer, Context, Recorder};
+use crate::settings::settings;
 use crate::splat::{GaussianBuffers, FIELD_WIDTHS};
 
-/// Learning rates per Gaussian field (SPEC §6/§12: GS-ICP's values for
-/// means, scales and rotations). Online, a Gaussian gets one Adam step per
-/// keyframe batch that sees it, so the rates of what the loss must still
-/// change are above the offline methods' (measured on the demo and on
-/// 7-Scenes, see the README's ablation): queries 0.1 (offline 2.5e-3, at
-/// which queries stayed near their start: per-pixel mIoU 0.085 on the demo
-/// scene), colours 0.005 (7e-4 before: +0.4 dB on 7-Scenes; 0.02 and 0.05
-/// fit the newest keyframe at the expense of the others) and opacity 0.2
-/// (0.05 before: +0.2 dB).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct GaussianLearningRates {
-    /// Means (effectively frozen: poses come from the tracker).
-    pub means: f32,
-    /// Log-scales.
-    pub log_scales: f32,
-    /// Quaternions.
-    pub quats: f32,
-    /// RGB colours.
-    pub colors: f32,
-    /// Opacity logits.
-    pub opacity: f32,
-    /// Latent queries.
-    pub queries: f32,
-}
-
-impl Default for GaussianLearningRates {
-    fn default() -> Self {
-        GaussianLearningRates {
-            means: 4e-6,
-            log_scales: 5e-3,
-            quats: 1e-3,
-            colors: 5e-3,
-            opacity: 0.2,
-            queries: 0.1,
-        }
+settings! {
+    /// Learning rates per Gaussian field (SPEC §6/§12: GS-ICP's values for
+    /// means, scales and rotations). Online, a Gaussian gets one Adam step per
+    /// keyframe batch that sees it, so the rates of what the loss must still
+    /// change are above the offline methods' (measured on the demo and on
+    /// 7-Scenes, see the README's ablation): queries 0.1 (offline 2.5e-3, at
+    /// which queries stayed near their start: per-pixel mIoU 0.085 on the demo
+    /// scene), colours 0.005 (7e-4 before: +0.4 dB on 7-Scenes; 0.02 and 0.05
+    /// fit the newest keyframe at the expense of the others) and opacity 0.2
+    /// (0.05 before: +0.2 dB).
+    #[derive(Copy)]
+    pub struct GaussianLearningRates {
+        /// Means (positions). Effectively frozen: the poses come from the
+        /// tracker.
+        pub means: f32 = 4e-6 => value().range(0.0, MAX_LEARNING_RATE),
+        /// Log-scales.
+        pub log_scales: f32 = 5e-3 => value().range(0.0, MAX_LEARNING_RATE),
+        /// Rotation quaternions.
+        pub quats: f32 = 1e-3 => value().range(0.0, MAX_LEARNING_RATE),
+        /// RGB colours.
+        pub colors: f32 = 5e-3 => value().range(0.0, MAX_LEARNING_RATE),
+        /// Opacity logits.
+        pub opacity: f32 = 0.2 => value().range(0.0, MAX_LEARNING_RATE),
+        /// Latent queries.
+        pub queries: f32 = 0.1 => value().range(0.0, MAX_LEARNING_RATE),
     }
 }
+
+/// Largest learning rate: far beyond any useful value, a step overflows
+/// f32.
+pub const MAX_LEARNING_RATE: f32 = 10.0;
 
 impl GaussianLearningRates {
     fn in_field_order(&self) -> [f32; 6] {
