@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 
 use super::config::MapperConfig;
 use super::export::{DecoderFile, DECODER_FILE};
-use super::online::{Integrated, MapperStats, OnlineMapper};
+use super::keyframe_report::{Integrated, MapperStats};
+use super::online::OnlineMapper;
 use super::persist::SavedState;
 use super::run_folder::{RunFolder, RunStaging};
 use crate::error::{Error, Result};

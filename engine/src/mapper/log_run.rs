@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::facade::Mapper;
-use super::online::{Integrated, KeyframeReport};
+use super::keyframe_report::{Integrated, KeyframeReport};
 use super::run_folder::RunFolder;
 use super::run_report::{Ending, HostWaits, RunReport};
 use crate::error::{Error, Result};

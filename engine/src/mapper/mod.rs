@@ -13,6 +13,7 @@ pub mod eval;
 mod export;
 mod facade;
 mod history;
+mod keyframe_report;
 mod log_run;
 mod online;
 mod persist;
@@ -27,11 +28,11 @@ pub use config_doc::{apply_overrides, documented_defaults};
 pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 pub use facade::{Mapper, STATE_FILE};
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
-pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
-pub use online::{
-    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, OnlineMapper,
-    PagingReport,
+pub use keyframe_report::{
+    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
 };
+pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
+pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;
 pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES};

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::budget::MemorySplit;
-use super::online::{KeyframeGpuCalls, KeyframeReport, KeyframeTimings};
+use super::keyframe_report::{KeyframeGpuCalls, KeyframeReport, KeyframeTimings};
 use crate::gpu::KernelStats;
 use crate::io::IngestReport;
 

@@ -1,0 +1,350 @@
+//! Choosing a physical device and opening it: the queue families (an
+//! async transfer queue where the device has one), the features and
+//! extensions the kernels need, checked rather than assumed.
+
+use super::*;
+
+/// What to do when no Vulkan device is found.
+pub(super) const INSTALL_HINT: &str =
+    "install a Vulkan driver: on Debian/Ubuntu `sudo apt-get install \
+     libvulkan1 mesa-vulkan-drivers` provides lavapipe, a CPU implementation; for a GPU \
+     install its vendor driver";
+
+/// A physical device that can run the engine.
+pub(super) struct Candidate {
+    pub(super) physical: vk::PhysicalDevice,
+    pub(super) name: String,
+    pub(super) props: vk::PhysicalDeviceProperties,
+}
+
+/// Preference of a device type: discrete GPUs first, CPUs last.
+pub(super) fn rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 4,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 3,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 1,
+        _ => 0,
+    }
+}
+
+/// Destroys a half-built instance on an early return.
+pub(super) struct InstanceGuard(pub(super) Option<ash::Instance>);
+
+impl Drop for InstanceGuard {
+    fn drop(&mut self) {
+        if let Some(i) = self.0.take() {
+            // SAFETY: only reached when `Device` was never built.
+            unsafe { i.destroy_instance(None) };
+        }
+    }
+}
+
+pub(super) struct DebugGuard(
+    pub(super) Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+);
+
+impl Drop for DebugGuard {
+    fn drop(&mut self) {
+        if let Some((du, m)) = self.0.take() {
+            // SAFETY: only reached when `Device` was never built.
+            unsafe { du.destroy_debug_utils_messenger(m, None) };
+        }
+    }
+}
+
+pub(super) fn pick_device(instance: &ash::Instance, wanted: Option<&str>) -> Result<Candidate> {
+    // SAFETY: enumeration on a valid instance.
+    let physicals =
+        unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+    let mut all = Vec::new();
+    for p in physicals {
+        // SAFETY: valid physical device handle.
+        let props = unsafe { instance.get_physical_device_properties(p) };
+        let name = props
+            .device_name_as_c_str()
+            .map(|c| c.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        all.push(Candidate {
+            physical: p,
+            name,
+            props,
+        });
+    }
+    if all.is_empty() {
+        return Err(Error::NoVulkan(format!(
+            "no Vulkan device found; {INSTALL_HINT}"
+        )));
+    }
+    let names = || {
+        all.iter()
+            .enumerate()
+            .map(|(i, c)| format!("{i}: {}", c.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let usable = |c: &Candidate| c.props.api_version >= vk::API_VERSION_1_2;
+    let chosen = match wanted {
+        Some(w) => {
+            let idx = match w.parse::<usize>() {
+                Ok(i) if i < all.len() => Some(i),
+                Ok(_) => None,
+                Err(_) => all
+                    .iter()
+                    .position(|c| c.name.to_lowercase().contains(&w.to_lowercase())),
+            };
+            let i = idx.ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "LATENTAM_DEVICE={w} matches no device (available: {})",
+                    names()
+                ))
+            })?;
+            if !usable(&all[i]) {
+                return Err(Error::Unsupported(format!(
+                    "{} supports only Vulkan {}.{}; the engine needs 1.2",
+                    all[i].name,
+                    vk::api_version_major(all[i].props.api_version),
+                    vk::api_version_minor(all[i].props.api_version)
+                )));
+            }
+            i
+        }
+        None => all
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| usable(c))
+            .max_by_key(|(i, c)| (rank(c.props.device_type), std::cmp::Reverse(*i)))
+            .map(|(i, _)| i)
+            .ok_or_else(|| {
+                Error::Unsupported(format!(
+                    "no device supports Vulkan 1.2 (available: {}); {INSTALL_HINT}",
+                    names()
+                ))
+            })?,
+    };
+    Ok(all.swap_remove(chosen))
+}
+
+pub(super) fn open_device(
+    entry: ash::Entry,
+    instance: ash::Instance,
+    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    validation_log: Arc<ValidationLog>,
+    c: Candidate,
+    options: &ContextOptions,
+) -> Result<Device> {
+    let p = c.physical;
+    // SAFETY: queries on a valid physical device.
+    let families = unsafe { instance.get_physical_device_queue_family_properties(p) };
+    let compute_family = families
+        .iter()
+        .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
+        .ok_or_else(|| Error::Unsupported(format!("{} has no compute queue", c.name)))?
+        as u32;
+    // A family with transfer but neither graphics nor compute is a DMA engine.
+    let transfer_family = families
+        .iter()
+        .position(|f| {
+            f.queue_flags.contains(vk::QueueFlags::TRANSFER)
+                && !f.queue_flags.contains(vk::QueueFlags::COMPUTE)
+                && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS)
+        })
+        .map(|i| i as u32);
+    let timestamp_valid_bits = families[compute_family as usize].timestamp_valid_bits;
+
+    // SAFETY: valid physical device.
+    let exts = unsafe { instance.enumerate_device_extension_properties(p) }
+        .vk("vkEnumerateDeviceExtensionProperties")?;
+    let has_ext = |name: &CStr| {
+        exts.iter()
+            .any(|e| e.extension_name_as_c_str().ok() == Some(name))
+    };
+
+    let mut atomic_feats = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+    let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
+    let has_atomic_float_ext = has_ext(ash::ext::shader_atomic_float::NAME);
+    {
+        let mut feats2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut v12);
+        if has_atomic_float_ext {
+            feats2 = feats2.push_next(&mut atomic_feats);
+        }
+        // SAFETY: valid chain of feature structs.
+        unsafe { instance.get_physical_device_features2(p, &mut feats2) };
+    }
+    if v12.timeline_semaphore == vk::FALSE {
+        return Err(Error::Unsupported(format!(
+            "{} lacks timeline semaphores (Vulkan 1.2)",
+            c.name
+        )));
+    }
+    let native_float_atomics = has_atomic_float_ext
+        && atomic_feats.shader_buffer_float32_atomic_add == vk::TRUE
+        && options.float_atomics == FloatAtomics::Auto;
+
+    let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+    let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
+    {
+        let mut props2 = vk::PhysicalDeviceProperties2::default()
+            .push_next(&mut subgroup)
+            .push_next(&mut maintenance3);
+        // SAFETY: valid chain.
+        unsafe { instance.get_physical_device_properties2(p, &mut props2) };
+    }
+
+    let priorities = [1.0f32];
+    let mut queue_infos = vec![vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(compute_family)
+        .queue_priorities(&priorities)];
+    if let Some(t) = transfer_family {
+        queue_infos.push(
+            vk::DeviceQueueCreateInfo::default()
+                .queue_family_index(t)
+                .queue_priorities(&priorities),
+        );
+    }
+    let host_query_reset = v12.host_query_reset == vk::TRUE;
+    let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
+        .timeline_semaphore(true)
+        .host_query_reset(host_query_reset);
+    let mut enable_atomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+        .shader_buffer_float32_atomic_add(true);
+    let mut ext_names: Vec<*const i8> = Vec::new();
+    let mut create = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_infos)
+        .push_next(&mut enable12);
+    if native_float_atomics {
+        ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+        create = create.push_next(&mut enable_atomic);
+    }
+    let create = create.enabled_extension_names(&ext_names);
+    // SAFETY: valid create info built from queried support.
+    let raw = unsafe { instance.create_device(p, &create, None) }.vk("vkCreateDevice")?;
+
+    let make_queue = |family: u32| -> Result<Queue> {
+        let mut ti = vk::SemaphoreTypeCreateInfo::default()
+            .semaphore_type(vk::SemaphoreType::TIMELINE)
+            .initial_value(0);
+        let ci = vk::SemaphoreCreateInfo::default().push_next(&mut ti);
+        // SAFETY: valid device; destroyed in `Device::drop`.
+        let timeline = unsafe { raw.create_semaphore(&ci, None) }.vk("vkCreateSemaphore")?;
+        Ok(Queue {
+            family,
+            // SAFETY: queue index 0 was requested for this family.
+            queue: Mutex::new(unsafe { raw.get_device_queue(family, 0) }),
+            timeline,
+            submitted: AtomicU64::new(0),
+            timestamp_bits: families[family as usize].timestamp_valid_bits,
+        })
+    };
+    let compute = match make_queue(compute_family) {
+        Ok(q) => q,
+        Err(e) => {
+            // SAFETY: nothing else created on the device yet.
+            unsafe { raw.destroy_device(None) };
+            return Err(e);
+        }
+    };
+    let transfer = match transfer_family.map(make_queue).transpose() {
+        Ok(t) => t,
+        Err(e) => {
+            // SAFETY: only the compute semaphore exists.
+            unsafe {
+                raw.destroy_semaphore(compute.timeline, None);
+                raw.destroy_device(None);
+            }
+            return Err(e);
+        }
+    };
+
+    let allocator =
+        gpu_allocator::vulkan::Allocator::new(&gpu_allocator::vulkan::AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: raw.clone(),
+            physical_device: p,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        });
+    let allocator = match allocator {
+        Ok(a) => a,
+        Err(e) => {
+            // SAFETY: only the semaphores exist.
+            unsafe {
+                raw.destroy_semaphore(compute.timeline, None);
+                if let Some(t) = &transfer {
+                    raw.destroy_semaphore(t.timeline, None);
+                }
+                raw.destroy_device(None);
+            }
+            return Err(Error::OutOfMemory(format!("creating the allocator: {e}")));
+        }
+    };
+
+    let limits = c.props.limits;
+    // SAFETY: valid physical device.
+    let mem = unsafe { instance.get_physical_device_memory_properties(p) };
+    let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
+    let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
+    // Subgroup operations kernels may use: allowed, and supported in compute.
+    let subgroup_ops = |ops: vk::SubgroupFeatureFlags| {
+        options.subgroup_arithmetic
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup.supported_operations.contains(ops)
+    };
+    let info = DeviceInfo {
+        name: c.name,
+        device_type: c.props.device_type,
+        api_version: c.props.api_version,
+        native_float_atomics,
+        subgroup_size: subgroup.subgroup_size,
+        subgroup_arithmetic: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC
+                | vk::SubgroupFeatureFlags::VOTE
+                | vk::SubgroupFeatureFlags::ARITHMETIC,
+        ),
+        subgroup_shuffle: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE,
+        ),
+        timestamp_period_ns,
+        max_storage_buffer_range: (limits.max_storage_buffer_range as u64)
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
+        max_memory_allocation_size: maintenance3
+            .max_memory_allocation_size
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
+        max_workgroup_count: limits.max_compute_work_group_count,
+        max_shared_memory: limits.max_compute_shared_memory_size,
+        dedicated_transfer_queue: transfer.is_some(),
+        transfer_timestamps: match &transfer {
+            Some(t) => t.timestamp_bits > 0 && host_query_reset && timestamp_valid_bits > 0,
+            None => timestamp_valid_bits > 0,
+        },
+        device_local_bytes,
+    };
+    let profiler = (options.profiling && timestamp_period_ns.is_some())
+        .then(|| Mutex::new(Profiler::default()));
+    Ok(Device {
+        _entry: entry,
+        instance,
+        debug,
+        validation_log,
+        raw,
+        info,
+        compute,
+        transfer,
+        allocator: Mutex::new(Some(allocator)),
+        memory: MemoryAccounting::new(options.memory_budget),
+        retired: RetireQueue::default(),
+        objects: ObjectCounts::default(),
+        pipelines: PipelineCache::default(),
+        profiler,
+        host_query_reset,
+        calls: CallCounters::default(),
+    })
+}

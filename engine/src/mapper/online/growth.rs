@@ -1,0 +1,205 @@
+//! What a keyframe adds: the latent head on the first embeddings, the
+//! dictionary's k-means update, the per-pixel workspace, and new Gaussians
+//! seeded where the map does not explain the view.
+
+use super::*;
+
+impl OnlineMapper {
+    pub(in crate::mapper) fn make_head(&self, dim: u32) -> Result<LatentHead> {
+        LatentHead::new(
+            &self.ctx,
+            LatentHeadConfig {
+                dim,
+                atoms: self.cfg.atoms,
+                max_regions: self.cfg.max_regions,
+                temperature: self.cfg.temperature,
+                lr_w: self.cfg.latent_lr,
+                lr_d: self.cfg.latent_lr,
+                weights: self.cfg.weights,
+                seed: self.cfg.seed,
+                kmeans: crate::latent::KMeansConfig {
+                    // A dictionary smaller than m takes it whole at once.
+                    micro_clusters: self.cfg.micro_clusters.min(self.cfg.atoms),
+                    ..Default::default()
+                },
+            },
+        )
+    }
+
+    /// Creates the latent head on the first keyframe with embeddings and
+    /// folds the keyframe's region embeddings into the dictionary.
+    pub(super) fn update_dictionary(&mut self, record: &KeyframeRecord) -> Result<()> {
+        let Some(r) = &record.regions else {
+            return Ok(());
+        };
+        if self.head.is_none() {
+            self.head = Some(self.make_head(r.dim)?);
+        }
+        // `check_frame` refused another dimension before anything changed.
+        let head = self.head.as_ref().expect("created above");
+        let rows: Vec<f32> = r
+            .vectors
+            .chunks(r.dim as usize)
+            .filter(|row| row.iter().any(|&x| x != 0.0))
+            .flatten()
+            .copied()
+            .collect();
+        if !rows.is_empty() {
+            let mut rec = self.ctx.recorder()?;
+            head.record_keyframe_update(&mut rec, &rows)?;
+            rec.submit()?.wait()?;
+        }
+        Ok(())
+    }
+
+    /// Sizes the window from the budget and creates it and the trainer
+    /// (first keyframe only).
+    /// `dim` is the embedding dimension the head has or will have (the
+    /// frame's), `None` when no embeddings were seen yet.
+    pub(in crate::mapper) fn ensure_workspace(
+        &mut self,
+        pixels: u64,
+        dim: Option<u32>,
+    ) -> Result<()> {
+        if self.trainer.is_some() {
+            return Ok(());
+        }
+        // Stage I renders its batch a chunk of views at a time: the pixel
+        // buffers and the rasterizer's per-view buffers are sized for one
+        // chunk, whatever the number of replayed keyframes.
+        let views = views_per_chunk(pixels, self.cfg.replay + 1, DEFAULT_CHUNK_PIXELS) as u64;
+        let budget = Self::budget_of(&self.ctx, &self.cfg);
+        // The head is created after the workspace, from this keyframe's
+        // embeddings; one created later (embeddings arriving after the first
+        // keyframes) must still fit: room for a 1024-d one is kept.
+        let later_head = match &self.head {
+            Some(_) => 0,
+            None => head_bytes(
+                self.cfg.atoms as u64,
+                dim.unwrap_or(1024) as u64,
+                self.cfg.max_regions as u64,
+            ),
+        };
+        let in_use = self.ctx.memory_report().total.current;
+        let later = pixel_bytes(pixels, views, self.cfg.attach_feature_gradients) + later_head;
+        let max_buffer = self.ctx.info().max_buffer_bytes();
+        let sized = match self.cfg.window_capacity {
+            Some(capacity) => {
+                let buffer_limit_rows = max_buffer / largest_row_bytes(views);
+                if capacity > buffer_limit_rows {
+                    return Err(Error::InvalidArgument(format!(
+                        "window_capacity = {capacity}, but {} can hold at most {buffer_limit_rows} \
+                         Gaussians in one buffer ({max_buffer} bytes); lower window_capacity",
+                        self.ctx.info().name
+                    )));
+                }
+                WindowBudget {
+                    budget,
+                    reserved: in_use + later,
+                    bytes_per_row: crate::mapper::budget::bytes_per_window_row(views),
+                    capacity,
+                    buffer_limit_rows,
+                }
+            }
+            None => window_budget(budget, in_use, later, views, max_buffer)?,
+        };
+        log::info!(
+            "window: {} Gaussians ({} bytes each) in a GPU budget of {} bytes",
+            sized.capacity,
+            sized.bytes_per_row,
+            budget
+        );
+        let window = LocalWindow::new(&self.ctx, sized.capacity)?;
+        let trainer = Trainer::new(
+            &self.ctx,
+            TrainerConfig {
+                capacity: sized.capacity,
+                max_view_pixels: pixels,
+                max_views: self.cfg.replay + 1,
+                chunk_pixels: DEFAULT_CHUNK_PIXELS,
+                max_regions: self.cfg.max_regions,
+                min_region_pixels: self.cfg.min_region_pixels,
+                weights: self.cfg.weights,
+                learning_rates: self.cfg.learning_rates,
+                attach_feature_gradients: self.cfg.attach_feature_gradients,
+            },
+            dim.unwrap_or(1),
+        )?;
+        self.window = Some(window);
+        self.trainer = Some(trainer);
+        self.window_budget = Some(sized);
+        Ok(())
+    }
+
+    /// Renders the window at the keyframe's pose, seeds Gaussians where
+    /// the map does not explain the view, and inserts them into the global
+    /// map, nearest first. Returns their keys.
+    pub(super) fn seed(
+        &mut self,
+        frame: &Frame,
+        record: &KeyframeRecord,
+        seed: u64,
+    ) -> Result<Vec<VoxelKey>> {
+        let window = self.window.as_ref().expect("ensured");
+        let coverage = if window.is_empty() {
+            None
+        } else {
+            let raster = self.trainer.as_mut().expect("ensured").rasterizer();
+            // Coverage needs alpha and depth only.
+            raster.forward_channels(
+                window.params(),
+                window.len() as u64,
+                &[record.camera],
+                Channels::Colour,
+            )?;
+            Some(raster.download_alpha_depth(0)?)
+        };
+        // Paged-out Gaussians beyond the window's radius do not render: their
+        // surface must not be seeded again.
+        let complete = self.global.len() == window.len();
+        let partial = self.window_partial || (!complete && self.last_sync.is_none());
+        let complete_within = match (complete, self.last_sync) {
+            (false, Some(c)) => Some((c, self.cfg.window_radius)),
+            _ => None,
+        };
+        // New Gaussians in a region start from its embedding projected
+        // through the decoder's W (read back once per keyframe, 32 × d_f).
+        let projected = match (&record.regions, self.head.as_ref()) {
+            (Some(r), Some(head)) if self.cfg.seeding.query_init == QueryInit::Embedding => {
+                let w: Vec<f32> = self.ctx.download(head.w())?;
+                let dim = r.dim as usize;
+                Some((
+                    r,
+                    projected_queries(w.get(..QUERY_DIM * dim).unwrap_or(&[]), dim, &r.vectors),
+                ))
+            }
+            _ => None,
+        };
+        let queries = projected.as_ref().map(|(r, queries)| RegionQueries {
+            width: r.width,
+            height: r.height,
+            labels: &r.labels,
+            queries,
+        });
+        let mut seeds = seed_from_frame(
+            frame,
+            coverage.as_ref().map(|(alpha, depth)| ViewCoverage {
+                alpha,
+                depth,
+                partial,
+                complete_within,
+            }),
+            &self.global,
+            &self.cfg.seeding,
+            seed,
+            queries.as_ref(),
+        );
+        let centre = frame.pose.translation;
+        let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);
+        seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
+        Ok(seeds
+            .into_iter()
+            .filter_map(|g| self.global.insert(g))
+            .collect())
+    }
+}

@@ -1,0 +1,144 @@
+//! Paging between the GPU window and the global map: bringing new
+//! Gaussians in, re-synchronising the window with the camera (on the
+//! transfer queue, beside Stage II), writing it back, and pruning.
+
+use super::*;
+
+/// A paging batch in flight on the transfer queue.
+pub(super) struct PagingRun {
+    submission: Submission,
+    pending: PendingSync,
+    report: PagingReport,
+}
+
+impl OnlineMapper {
+    /// Uploads Gaussians of the global map into free window rows.
+    pub(in crate::mapper) fn append(&mut self, keys: &[VoxelKey]) -> Result<()> {
+        if keys.is_empty() {
+            return Ok(());
+        }
+        let trainer = self.trainer.as_ref().expect("ensured");
+        let window = self.window.as_mut().expect("ensured");
+        let companions = optimizer_rows(trainer);
+        let mut rec = self.ctx.recorder()?;
+        window.record_append(&mut rec, keys, &self.global, &companions)?;
+        rec.submit()?.wait()
+    }
+
+    /// Records and submits a window sync on the transfer queue (timed).
+    pub(super) fn submit_sync(&mut self, plan: &SyncPlan, blocking: bool) -> Result<PagingRun> {
+        let trainer = self
+            .trainer
+            .as_ref()
+            .expect("the trainer exists before the first sync");
+        let window = self.window.as_mut().expect("ensured");
+        let companions = optimizer_rows(trainer);
+        let report = PagingReport {
+            written_back: window.len(),
+            evicted: plan.evict.len(),
+            fetched: plan.fetch.len(),
+            over_capacity: plan.over_capacity,
+            blocking,
+        };
+        let mut rec = self.ctx.transfer_recorder()?;
+        rec.start_span();
+        let pending = window.record_sync(&mut rec, plan, &self.global, &companions)?;
+        let submission = rec.submit()?;
+        Ok(PagingRun {
+            submission,
+            pending,
+            report,
+        })
+    }
+
+    /// Waits for a sync and writes the window back to the global map.
+    /// Returns the report and, when timed, (GPU ms, ms overlapping
+    /// `beside`).
+    #[allow(clippy::type_complexity)]
+    pub(super) fn finish_sync(
+        &mut self,
+        run: PagingRun,
+        beside: Option<&GpuSpan>,
+    ) -> Result<(PagingReport, Option<(f64, Option<f64>)>)> {
+        let span = run.submission.wait_span()?;
+        run.pending.apply(&mut self.global)?;
+        self.window_dirty = false;
+        let timing = span.map(|s| (s.ms(), beside.map(|b| s.overlap_ms(b))));
+        Ok((run.report, timing))
+    }
+
+    /// Writes the window back to the global map (nothing moves), so that
+    /// [`OnlineMapper::global`] is current; nothing to do when no training
+    /// step ran since the last write-back.
+    pub fn flush(&mut self) -> Result<()> {
+        let Some(window) = &self.window else {
+            return Ok(());
+        };
+        if window.is_empty() || !self.window_dirty {
+            return Ok(());
+        }
+        let plan = SyncPlan {
+            keep: window.len(),
+            ..SyncPlan::default()
+        };
+        let run = self.submit_sync(&plan, true)?;
+        self.finish_sync(run, None)?;
+        Ok(())
+    }
+
+    /// Removes the resident Gaussians that are nearly transparent or too
+    /// large ([`MapperConfig::prune_min_opacity`], `prune_max_scale`) from
+    /// the window and the global map, after writing the window back.
+    /// Returns how many were removed.
+    pub fn prune(&mut self) -> Result<usize> {
+        let Some(window) = &self.window else {
+            return Ok(0);
+        };
+        let n = window.len();
+        if n == 0 {
+            return Ok(0);
+        }
+        let host = window.params().download(&self.ctx, n as u64)?;
+        let min_logit = {
+            let o = self.cfg.prune_min_opacity.clamp(1e-7, 1.0 - 1e-7);
+            (o / (1.0 - o)).ln()
+        };
+        let max_log_scale = self.cfg.prune_max_scale.max(1e-9).ln();
+        let evict: Vec<u32> = (0..n)
+            .filter(|&i| {
+                let o = host.opacity_logits[i];
+                let s = host.log_scales[i].iter().copied().fold(f32::MIN, f32::max);
+                // NaN parameters are pruned too.
+                let keep = o >= min_logit && s <= max_log_scale;
+                !keep
+            })
+            .map(|i| i as u32)
+            .collect();
+        if evict.is_empty() {
+            return Ok(0);
+        }
+        let doomed: Vec<_> = evict.iter().map(|&r| window.keys()[r as usize]).collect();
+        let plan = SyncPlan {
+            keep: n - evict.len(),
+            evict,
+            fetch: Vec::new(),
+            over_capacity: 0,
+        };
+        let run = self.submit_sync(&plan, true)?;
+        self.finish_sync(run, None)?;
+        for key in &doomed {
+            self.global.remove(*key);
+        }
+        Ok(doomed.len())
+    }
+}
+
+/// The Gaussian optimiser's per-row state, moved with the window's rows.
+pub(super) fn optimizer_rows(trainer: &Trainer) -> Vec<Companion<'_>> {
+    trainer
+        .optimizer()
+        .state()
+        .into_iter()
+        .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+        .collect()
+}

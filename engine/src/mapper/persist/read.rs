@@ -1,0 +1,382 @@
+//! Reading a saved state: every section of the archive checked against
+//! the others (sizes, ranges, finiteness) before anything reaches the GPU.
+
+use std::collections::HashSet;
+
+use super::*;
+
+impl SavedState {
+    pub(super) fn from_archive(a: &Archive<'_>) -> Result<Self> {
+        let bad = |why: String| a.corrupt(why);
+        let config = MapperConfig::from_toml(a.meta("config")?)
+            .map_err(|e| bad(format!("saved {}", message(e))))?;
+
+        // Sizes that shape GPU allocations, before anything is read.
+        let window_meta = if a.has("window/keys") {
+            let capacity: u64 = a.meta_parse("window_capacity")?;
+            if capacity == 0 || capacity > MAX_WINDOW_ROWS {
+                return Err(bad(format!(
+                    "window capacity {capacity} is outside 1..={MAX_WINDOW_ROWS}"
+                )));
+            }
+            let view_pixels: u64 = a.meta_parse("view_pixels")?;
+            if view_pixels > MAX_VIEW_PIXELS {
+                return Err(bad(format!(
+                    "view of {view_pixels} pixels; at most {MAX_VIEW_PIXELS}"
+                )));
+            }
+            Some((capacity, view_pixels))
+        } else {
+            None
+        };
+
+        let counters = Counters {
+            frames: a.meta_parse("frames")?,
+            keyframes: a.meta_parse("keyframes")?,
+            evicted: a.meta_parse("evicted")?,
+            fetched: a.meta_parse("fetched")?,
+            over_capacity: a.meta_parse("over_capacity")?,
+            last_stamp_ns: match a.meta("last_stamp_ns") {
+                Ok(_) => Some(a.meta_parse("last_stamp_ns")?),
+                Err(_) => None,
+            },
+        };
+        if counters.keyframes > counters.frames {
+            return Err(bad(format!(
+                "{} keyframes among {} frames",
+                counters.keyframes, counters.frames
+            )));
+        }
+        let model = a.meta("model").ok().map(str::to_string);
+        let since: u32 = a.meta_parse("selector_since")?;
+        let last = if a.has("selector/pose") {
+            let v = a.exact::<f64>("selector/pose", &[POSE_FLOATS])?;
+            Some(
+                pose_from_f64(&v)
+                    .ok_or_else(|| bad(format!("selector/pose {v:?} is not a pose")))?,
+            )
+        } else {
+            None
+        };
+        let last_sync = if a.has("state/last_sync") {
+            let v = a.exact::<f64>("state/last_sync", &[3])?;
+            let p = DVec3::new(v[0], v[1], v[2]);
+            if !p.is_finite() {
+                return Err(bad(format!("state/last_sync {v:?} is not finite")));
+            }
+            Some(p)
+        } else {
+            None
+        };
+
+        // Global map.
+        let n = match a.shape::<i32>("map/keys")? {
+            &[n, 3] => n,
+            s => return Err(bad(format!("map/keys has shape {s:?}, expected [n, 3]"))),
+        };
+        let gaussians = a.exact::<f32>("map/gaussians", &[n, GAUSSIAN_FLOATS])?;
+        let keys = keys_from_i32(&a.exact::<i32>("map/keys", &[n, 3])?);
+        let mut seen = HashSet::with_capacity(n);
+        let mut map = Vec::with_capacity(n);
+        for (key, g) in keys
+            .into_iter()
+            .zip(gaussians.chunks_exact(GAUSSIAN_FLOATS))
+        {
+            if !seen.insert(key) {
+                return Err(bad(format!("voxel {key:?} appears twice in the map")));
+            }
+            if !g.iter().all(|x| x.is_finite()) {
+                return Err(bad(format!(
+                    "the Gaussian of voxel {key:?} holds non-finite values"
+                )));
+            }
+            let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
+            map.push((key, g));
+        }
+
+        let head = Self::parse_head(a, &config)?;
+        let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
+        if history.len() as u64 > counters.keyframes {
+            return Err(bad(format!(
+                "{} keyframes in the history of a map of {} keyframes",
+                history.len(),
+                counters.keyframes
+            )));
+        }
+
+        // Every keyframe's pose; files from before it was saved rebuild it
+        // from the history.
+        let trajectory = if a.has("trajectory/stamp") || a.has("trajectory/pose") {
+            let n = match a.shape::<i64>("trajectory/stamp")? {
+                &[n] => n,
+                s => return Err(bad(format!("trajectory/stamp has shape {s:?}"))),
+            };
+            if n as u64 != counters.keyframes {
+                return Err(bad(format!(
+                    "a trajectory of {n} poses for {} keyframes",
+                    counters.keyframes
+                )));
+            }
+            let poses = a.exact::<f64>("trajectory/pose", &[n, POSE_FLOATS])?;
+            let stamps = a.exact::<i64>("trajectory/stamp", &[n])?;
+            stamps
+                .into_iter()
+                .zip(poses.chunks_exact(POSE_FLOATS))
+                .enumerate()
+                .map(|(i, (s, v))| {
+                    pose_from_f64(v)
+                        .map(|p| (s, p))
+                        .ok_or_else(|| bad(format!("trajectory pose {i} {v:?} is not a pose")))
+                })
+                .collect::<Result<Vec<_>>>()?
+        } else {
+            history
+                .iter()
+                .map(|k| {
+                    let (_, rotation, translation) =
+                        k.camera.cam_to_world.to_scale_rotation_translation();
+                    let pose = CameraPose {
+                        rotation,
+                        translation,
+                    };
+                    (k.stamp_ns, pose)
+                })
+                .collect()
+        };
+
+        // Window: the same residents in the same rows, with their Adam
+        // state.
+        let window = match window_meta {
+            None => None,
+            Some((capacity, view_pixels)) => {
+                let rows = match a.shape::<i32>("window/keys")? {
+                    &[r, 3] => r,
+                    s => return Err(bad(format!("window/keys has shape {s:?}, expected [n, 3]"))),
+                };
+                if rows as u64 > capacity {
+                    return Err(bad(format!(
+                        "{rows} resident Gaussians in a window of {capacity}"
+                    )));
+                }
+                let keys = keys_from_i32(&a.exact::<i32>("window/keys", &[rows, 3])?);
+                let mut resident = HashSet::with_capacity(rows);
+                for k in &keys {
+                    if !seen.contains(k) {
+                        return Err(bad(format!("window voxel {k:?} is not in the map")));
+                    }
+                    if !resident.insert(*k) {
+                        return Err(bad(format!("voxel {k:?} is resident twice")));
+                    }
+                }
+                let state = window_state_row_bytes()
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, row)| {
+                        let name = format!("window/state/{i}");
+                        let t = a.exact::<u8>(&name, &[rows, row as usize])?;
+                        if i % 3 != 2 {
+                            finite_bytes(&t, &name).map_err(bad)?;
+                        }
+                        Ok(t)
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedWindow {
+                    capacity,
+                    view_pixels,
+                    keys,
+                    state,
+                })
+            }
+        };
+
+        Ok(SavedState {
+            origin: a.path().to_path_buf(),
+            run_id: a.meta("run_id").ok().map(str::to_string),
+            config,
+            counters,
+            model,
+            selector: (last, since),
+            last_sync,
+            map,
+            head,
+            history,
+            trajectory,
+            window,
+        })
+    }
+
+    fn parse_head(a: &Archive<'_>, config: &MapperConfig) -> Result<Option<SavedHead>> {
+        if !a.has("head/W") {
+            return Ok(None);
+        }
+        let bad = |why: String| a.corrupt(why);
+        let dim: u32 = a.meta_parse("head_dim")?;
+        let used: u32 = a.meta_parse("head_atoms")?;
+        if dim == 0 || dim > MAX_EMBEDDING_DIM {
+            return Err(bad(format!(
+                "embedding dimension {dim} is outside 1..={MAX_EMBEDDING_DIM}"
+            )));
+        }
+        let k = config.atoms;
+        if used > k {
+            return Err(bad(format!("{used} atoms in use of a dictionary of {k}")));
+        }
+        let (d, k) = (dim as usize, k as usize);
+        let w = a.exact::<f32>("head/W", &[QUERY_DIM, d])?;
+        let atoms = a.exact::<f32>("head/D", &[k, d])?;
+        let anchors = a.exact::<f32>("head/D0", &[k, d])?;
+        let weights = a.exact::<f32>("head/kmeans_weights", &[used as usize])?;
+        for (name, values) in [
+            ("head/W", &w),
+            ("head/D", &atoms),
+            ("head/D0", &anchors),
+            ("head/kmeans_weights", &weights),
+        ] {
+            finite(values, name).map_err(bad)?;
+        }
+        let sizes = head_state_bytes(dim as u64, k as u64)
+            .ok_or_else(|| bad(format!("a head of {k} atoms of {dim} dimensions")))?;
+        let adam = sizes
+            .iter()
+            .enumerate()
+            .map(|(i, &bytes)| {
+                let bytes = usize::try_from(bytes)
+                    .map_err(|_| bad(format!("head/adam/{i} of {bytes} bytes")))?;
+                let t = a.exact::<u8>(&format!("head/adam/{i}"), &[1, bytes])?;
+                // Moments; every third tensor counts steps.
+                if i % 3 != 2 {
+                    finite_bytes(&t, &format!("head/adam/{i}")).map_err(bad)?;
+                }
+                Ok(t)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Some(SavedHead {
+            dim,
+            used,
+            w,
+            atoms,
+            anchors,
+            weights,
+            adam,
+        }))
+    }
+
+    fn parse_history(a: &Archive<'_>, head_dim: Option<u32>) -> Result<Vec<KeyframeRecord>> {
+        let bad = |why: String| a.corrupt(why);
+        let h: usize = a.meta_parse("history")?;
+        // Shapes first: `h` is checked against the bytes present before
+        // anything is sized by it.
+        let stamps = a.exact::<i64>("history/stamp", &[h])?;
+        let cams = a.exact::<f64>("history/camera", &[h, CAMERA_FLOATS])?;
+        let sizes = a.exact::<u32>("history/size", &[h, 2])?;
+        let info = a.exact::<u32>("history/regions", &[h, 6])?;
+        let rgb = a.flat::<u8>("history/rgb")?;
+        let depth = a.flat::<u16>("history/depth_mm")?;
+        let labels = a.flat::<u16>("history/labels")?;
+        let vectors = a.flat::<f32>("history/vectors")?;
+        let (mut o_rgb, mut o_depth, mut o_labels, mut o_vec) = (0usize, 0usize, 0usize, 0usize);
+        // The next `len` values of a tensor of `total`.
+        let take =
+            |total: usize, o: &mut usize, len: u64, what: &str| -> Result<std::ops::Range<usize>> {
+                let end = usize::try_from(len)
+                    .ok()
+                    .and_then(|len| o.checked_add(len))
+                    .filter(|&end| end <= total)
+                    .ok_or_else(|| bad(format!("history/{what} is too short")))?;
+                let r = *o..end;
+                *o = end;
+                Ok(r)
+            };
+        let mut records = Vec::with_capacity(h);
+        for i in 0..h {
+            let keyframe = |why: String| bad(format!("history keyframe {i}: {why}"));
+            let (width, height) = (sizes[2 * i], sizes[2 * i + 1]);
+            let px = width as u64 * height as u64;
+            if px == 0 || px > MAX_VIEW_PIXELS {
+                return Err(keyframe(format!("image of {width}x{height}")));
+            }
+            let mut c = [0.0; CAMERA_FLOATS];
+            c.copy_from_slice(&cams[i * CAMERA_FLOATS..(i + 1) * CAMERA_FLOATS]);
+            let (fx, fy, near, far) = (c[12], c[13], c[16], c[17]);
+            let ok =
+                c.iter().all(|x| x.is_finite()) && fx > 0.0 && fy > 0.0 && near > 0.0 && far > near;
+            if !ok {
+                return Err(keyframe(format!("camera {c:?} is malformed")));
+            }
+            let camera = camera_from_f64(&c, width, height);
+            let rgb_r = take(rgb.len(), &mut o_rgb, px * 3, "rgb")?;
+            let depth_r = take(depth.len(), &mut o_depth, px, "depth_mm")?;
+            let r = &info[i * 6..i * 6 + 6];
+            let regions = match r[0] {
+                0 if r[1..].iter().all(|&x| x == 0) => None,
+                1 => {
+                    let (rw, rh, grid, count, dim) = (r[1], r[2], r[3], r[4], r[5]);
+                    let cells = rw as u64 * rh as u64;
+                    if cells == 0 || cells > MAX_VIEW_PIXELS || grid > 1 {
+                        return Err(keyframe(format!("regions of {rw}x{rh} (grid flag {grid})")));
+                    }
+                    if dim == 0 || Some(dim) != head_dim {
+                        return Err(keyframe(match head_dim {
+                            Some(d) => format!("{dim}-d embeddings; the map's are {d}-d"),
+                            None => "region embeddings but the map has no latent head".into(),
+                        }));
+                    }
+                    let grid = grid == 1;
+                    if grid && count as u64 != cells {
+                        return Err(keyframe(format!(
+                            "a {rw}x{rh} feature grid of {count} regions"
+                        )));
+                    }
+                    let lab = take(labels.len(), &mut o_labels, cells, "labels")?;
+                    let vec = take(
+                        vectors.len(),
+                        &mut o_vec,
+                        count as u64 * dim as u64,
+                        "vectors",
+                    )?;
+                    let labels = labels[lab].to_vec();
+                    if let Some(&l) = labels
+                        .iter()
+                        .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
+                    {
+                        return Err(keyframe(format!("region label {l} of {count} regions")));
+                    }
+                    let vectors = vectors[vec].to_vec();
+                    if !vectors.iter().all(|x| x.is_finite()) {
+                        return Err(keyframe("non-finite region embeddings".into()));
+                    }
+                    Some(RegionTargets {
+                        width: rw,
+                        height: rh,
+                        labels,
+                        grid,
+                        count,
+                        vectors,
+                        dim,
+                    })
+                }
+                _ => return Err(keyframe(format!("region record {r:?} is malformed"))),
+            };
+            records.push(KeyframeRecord {
+                stamp_ns: stamps[i],
+                camera,
+                rgb: rgb[rgb_r].to_vec(),
+                depth_mm: depth[depth_r].to_vec(),
+                regions,
+            });
+        }
+        for (what, used, total) in [
+            ("rgb", o_rgb, rgb.len()),
+            ("depth_mm", o_depth, depth.len()),
+            ("labels", o_labels, labels.len()),
+            ("vectors", o_vec, vectors.len()),
+        ] {
+            if used != total {
+                return Err(bad(format!(
+                    "history/{what} holds {total} values; the keyframes use {used}"
+                )));
+            }
+        }
+        Ok(records)
+    }
+}
