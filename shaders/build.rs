@@ -56,6 +56,17 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 #[path = "layouts.rs"]
 mod layouts;
 
+#[path = "build/codegen.rs"]
+mod codegen;
+#[path = "build/ir.rs"]
+mod ir;
+#[path = "build/preprocess.rs"]
+mod preprocess;
+
+use codegen::*;
+use ir::*;
+use preprocess::*;
+
 /// Include names that resolve to the text generated from `layouts.rs`.
 const SHARED_GLSL: &str = "shared.glsl";
 const SHARED_WGSL: &str = "shared.wgsl";
@@ -85,63 +96,6 @@ struct KernelOut {
     /// The push-constant type named by a `// @push NAME` directive.
     push_group: Option<String>,
     requires: Requires,
-}
-
-/// What a kernel needs of the device, read from its IR (not from the
-/// file's `@capabilities`, which covers all its variants).
-#[derive(Clone, Copy, Default)]
-struct Requires {
-    float_atomics: bool,
-    subgroup_arithmetic: bool,
-    subgroup_shuffle: bool,
-}
-
-fn requires(module: &naga::Module, entry: &str) -> Requires {
-    // Only code the entry point reaches: a file's helpers for other
-    // variants are compiled into every module.
-    fn walk(
-        module: &naga::Module,
-        block: &naga::Block,
-        r: &mut Requires,
-        seen: &mut Vec<naga::Handle<naga::Function>>,
-    ) {
-        for stmt in block.iter() {
-            match stmt {
-                naga::Statement::SubgroupCollectiveOperation { .. }
-                | naga::Statement::SubgroupBallot { .. } => r.subgroup_arithmetic = true,
-                naga::Statement::SubgroupGather { .. } => r.subgroup_shuffle = true,
-                naga::Statement::Call { function, .. } if !seen.contains(function) => {
-                    seen.push(*function);
-                    walk(module, &module.functions[*function].body, r, seen);
-                }
-                naga::Statement::Block(b) => walk(module, b, r, seen),
-                naga::Statement::If { accept, reject, .. } => {
-                    walk(module, accept, r, seen);
-                    walk(module, reject, r, seen);
-                }
-                naga::Statement::Switch { cases, .. } => {
-                    cases.iter().for_each(|c| walk(module, &c.body, r, seen))
-                }
-                naga::Statement::Loop {
-                    body, continuing, ..
-                } => {
-                    walk(module, body, r, seen);
-                    walk(module, continuing, r, seen);
-                }
-                _ => {}
-            }
-        }
-    }
-    let mut r = Requires {
-        float_atomics: module.types.iter().any(|(_, t)| {
-            matches!(t.inner, naga::TypeInner::Atomic(s) if s.kind == naga::ScalarKind::Float)
-        }),
-        ..Requires::default()
-    };
-    if let Some(ep) = module.entry_points.iter().find(|e| e.name == entry) {
-        walk(module, &ep.function.body, &mut r, &mut Vec::new());
-    }
-    r
 }
 
 #[derive(PartialEq)]
@@ -305,21 +259,6 @@ fn shared_sources() -> Result<SharedSources, String> {
     Ok(SharedSources { glsl, wgsl, rust })
 }
 
-/// Byte offsets of a shared struct's fields and its size, as `layouts.rs`
-/// lays them out.
-fn shared_layout(st: &layouts::Struct) -> (Vec<u32>, u32) {
-    let mut offsets = Vec::new();
-    let mut at = 0;
-    for f in st.fields {
-        offsets.push(at);
-        at += match f.ty {
-            layouts::FieldType::Vec4 | layouts::FieldType::UVec4 => 16,
-            layouts::FieldType::F32 | layouts::FieldType::U32 => 4,
-        };
-    }
-    (offsets, at)
-}
-
 fn sorted_files(dir: &Path, ext: &str) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = match std::fs::read_dir(dir) {
         Ok(rd) => rd
@@ -348,82 +287,6 @@ fn rel(path: &Path) -> String {
             None => s,
         },
     }
-}
-
-/// `// @word rest...` directives in a file.
-fn directives<'a>(text: &'a str, word: &str) -> Vec<&'a str> {
-    let tag = format!("@{word}");
-    text.lines()
-        .filter_map(|l| {
-            let l = l.trim_start();
-            let l = l.strip_prefix("//")?.trim_start();
-            let rest = l.strip_prefix(tag.as_str())?;
-            if rest.is_empty() || rest.starts_with(char::is_whitespace) {
-                Some(rest.trim())
-            } else {
-                None
-            }
-        })
-        .collect()
-}
-
-fn capabilities(text: &str, file: &str) -> Result<Capabilities, String> {
-    let mut caps = Capabilities::IMMEDIATES;
-    for d in directives(text, "capabilities") {
-        for name in d.split_whitespace() {
-            match Capabilities::from_name(name) {
-                Some(c) => caps |= c,
-                None => return Err(format!("{file}: unknown naga capability `{name}`")),
-            }
-        }
-    }
-    Ok(caps)
-}
-
-fn expand_includes(
-    path: &Path,
-    include_dir: &Path,
-    out: &mut String,
-    map: &mut LineMap,
-    depth: u32,
-) -> Result<(), String> {
-    if depth > 16 {
-        return Err(format!("{}: #include nested too deeply", rel(path)));
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", rel(path)))?;
-    for (i, line) in text.lines().enumerate() {
-        let trimmed = line.trim_start();
-        if let Some(rest) = trimmed.strip_prefix("#include") {
-            let name = rest
-                .trim()
-                .trim_matches(|c| c == '"' || c == '<' || c == '>');
-            let inc = if name == SHARED_GLSL || name == SHARED_WGSL {
-                PathBuf::from(std::env::var("OUT_DIR").unwrap()).join(name)
-            } else {
-                include_dir.join(name)
-            };
-            println!("cargo:rerun-if-changed={}", inc.display());
-            if !inc.is_file() {
-                return Err(format!(
-                    "{}:{}: cannot find include file `{name}` in {}/",
-                    rel(path),
-                    i + 1,
-                    rel(include_dir)
-                ));
-            }
-            // Each file once, as if it had `#pragma once`: shared.glsl
-            // reaches a kernel directly and through splat.glsl.
-            let inc_rel = PathBuf::from(rel(&inc));
-            if !map.lines.iter().any(|(f, _)| *f == inc_rel) {
-                expand_includes(&inc, include_dir, out, map, depth + 1)?;
-            }
-        } else {
-            out.push_str(line);
-            out.push('\n');
-            map.lines.push((PathBuf::from(rel(path)), i as u32 + 1));
-        }
-    }
-    Ok(())
 }
 
 fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, String> {
@@ -489,164 +352,9 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
 /// `KEY=VALUE` definitions of one variant.
 type Defines = Vec<(String, String)>;
 
-/// `@kernel` directives of a file: (variant name, definitions).
-fn variants(raw: &str, file: &str) -> Result<Vec<(String, Defines)>, String> {
-    let mut out = Vec::new();
-    for d in directives(raw, "kernel") {
-        let mut parts = d.split_whitespace();
-        let name = parts
-            .next()
-            .ok_or_else(|| format!("{file}: `@kernel` needs a name"))?
-            .to_string();
-        let mut defs = Vec::new();
-        for p in parts {
-            let (k, v) = p
-                .split_once('=')
-                .ok_or_else(|| format!("{file}: `@kernel {name}`: `{p}` is not KEY=VALUE"))?;
-            defs.push((k.to_string(), v.to_string()));
-        }
-        out.push((name, defs));
-    }
-    Ok(out)
-}
-
 /// An open `#unroll` block: the name, the count, and the body lines with
 /// the index of the input line each came from.
 type UnrollBlock = (String, u32, Vec<(String, usize)>);
-
-/// Expands `#unroll NAME COUNT` / `#endunroll` blocks (which may nest) of
-/// `text`, whose line `i` comes from `map.lines[i]`; returns the new text
-/// and its line map.
-fn expand_unroll(
-    text: &str,
-    map: &LineMap,
-    defs: &[(String, String)],
-    file: &str,
-) -> Result<(String, LineMap), String> {
-    let mut out = String::with_capacity(text.len());
-    let mut lines = Vec::new();
-    let origin = |i: usize| {
-        map.lines
-            .get(i)
-            .cloned()
-            .unwrap_or((PathBuf::from(file), i as u32 + 1))
-    };
-    // Open blocks, innermost last.
-    let mut blocks: Vec<UnrollBlock> = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let t = line.trim();
-        if let Some(rest) = t.strip_prefix("#unroll ") {
-            let mut parts = rest.split_whitespace();
-            let (Some(name), Some(count), None) = (parts.next(), parts.next(), parts.next()) else {
-                return Err(format!(
-                    "{}: expected `#unroll NAME COUNT`",
-                    map.describe(i as u32 + 1)
-                ));
-            };
-            let value = defs
-                .iter()
-                .find(|(k, _)| k == count)
-                .map_or(count, |(_, v)| v.as_str());
-            let count: u32 = value.parse().map_err(|_| {
-                format!(
-                    "{}: `#unroll` count `{count}` is neither a number nor a variant key",
-                    map.describe(i as u32 + 1)
-                )
-            })?;
-            blocks.push((name.to_string(), count, Vec::new()));
-        } else if t == "#endunroll" {
-            let (name, count, body) = blocks.pop().ok_or_else(|| {
-                format!(
-                    "{}: `#endunroll` without `#unroll`",
-                    map.describe(i as u32 + 1)
-                )
-            })?;
-            for k in 0..count {
-                for (l, at) in &body {
-                    let l = replace_word(l, &name, &format!("{k}u"));
-                    match blocks.last_mut() {
-                        Some((_, _, outer)) => outer.push((l, *at)),
-                        None => {
-                            out.push_str(&l);
-                            out.push('\n');
-                            lines.push(origin(*at));
-                        }
-                    }
-                }
-            }
-        } else if let Some((_, _, body)) = blocks.last_mut() {
-            body.push((line.to_string(), i));
-        } else {
-            out.push_str(line);
-            out.push('\n');
-            lines.push(origin(i));
-        }
-    }
-    if !blocks.is_empty() {
-        return Err(format!("{file}: `#unroll` without `#endunroll`"));
-    }
-    Ok((out, LineMap { lines }))
-}
-
-/// `line` with every whole-word (identifier) occurrence of `name` replaced.
-fn replace_word(line: &str, name: &str, with: &str) -> String {
-    let is_ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
-    let mut out = String::with_capacity(line.len());
-    let mut rest = line;
-    while let Some(at) = rest.find(name) {
-        let before = rest[..at].chars().next_back();
-        let after = rest[at + name.len()..].chars().next();
-        out.push_str(&rest[..at]);
-        if before.is_some_and(is_ident) || after.is_some_and(is_ident) {
-            out.push_str(name);
-        } else {
-            out.push_str(with);
-        }
-        rest = &rest[at + name.len()..];
-    }
-    out.push_str(rest);
-    out
-}
-
-/// WGSL has no preprocessor; variants select code with whole-line
-/// `#if KEY` / `#else` / `#endif` (KEY is true when defined and not `0`).
-/// Removed lines become empty so error positions stay those of the file.
-fn preprocess_wgsl(text: &str, defs: &[(String, String)], file: &str) -> Result<String, String> {
-    let truthy = |key: &str| defs.iter().any(|(k, v)| k == key && v != "0");
-    // Stack of (this branch active, some branch of this #if was taken).
-    let mut stack: Vec<(bool, bool)> = Vec::new();
-    let mut out = String::with_capacity(text.len());
-    for (i, line) in text.lines().enumerate() {
-        let t = line.trim();
-        let outer = stack.iter().all(|(a, _)| *a);
-        if let Some(key) = t.strip_prefix("#if ") {
-            let on = truthy(key.trim());
-            stack.push((on, on));
-        } else if t == "#else" {
-            let top = stack
-                .last_mut()
-                .ok_or_else(|| format!("{file}:{}: `#else` without `#if`", i + 1))?;
-            *top = (!top.1, true);
-        } else if t == "#endif" {
-            stack
-                .pop()
-                .ok_or_else(|| format!("{file}:{}: `#endif` without `#if`", i + 1))?;
-        } else if t.starts_with('#') && !t.starts_with("#unroll ") && t != "#endunroll" {
-            return Err(format!(
-                "{file}:{}: unknown directive `{t}` (WGSL kernels support #if/#else/#endif \
-                 and #unroll/#endunroll)",
-                i + 1
-            ));
-        } else if outer {
-            out.push_str(line);
-        }
-        out.push('\n');
-    }
-    if !stack.is_empty() {
-        return Err(format!("{file}: `#if` without `#endif`"));
-    }
-    Ok(out)
-}
 
 fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, String> {
     let file = rel(path);
@@ -787,44 +495,6 @@ fn push_type_names(kernels: &[KernelOut]) -> Result<Vec<Option<String>>, String>
     Ok(names)
 }
 
-/// See the module comment: `barrier()` must synchronise the whole workgroup.
-fn fix_glsl_barriers(module: &mut naga::Module) {
-    fn fix_block(block: &mut naga::Block) {
-        for (stmt, _) in block.span_iter_mut() {
-            match stmt {
-                naga::Statement::ControlBarrier(flags)
-                    if flags.contains(naga::Barrier::SUB_GROUP) =>
-                {
-                    *flags = naga::Barrier::WORK_GROUP;
-                }
-                naga::Statement::Block(b) => fix_block(b),
-                naga::Statement::If { accept, reject, .. } => {
-                    fix_block(accept);
-                    fix_block(reject);
-                }
-                naga::Statement::Switch { cases, .. } => {
-                    for c in cases.iter_mut() {
-                        fix_block(&mut c.body);
-                    }
-                }
-                naga::Statement::Loop {
-                    body, continuing, ..
-                } => {
-                    fix_block(body);
-                    fix_block(continuing);
-                }
-                _ => {}
-            }
-        }
-    }
-    for (_, f) in module.functions.iter_mut() {
-        fix_block(&mut f.body);
-    }
-    for ep in module.entry_points.iter_mut() {
-        fix_block(&mut ep.function.body);
-    }
-}
-
 #[allow(clippy::too_many_arguments)]
 fn finish(
     module: naga::Module,
@@ -954,198 +624,4 @@ fn finish(
         push_group: None,
         requires,
     })
-}
-
-/// Every struct named like one of `layouts.rs` must be laid out as it is
-/// there (a kernel declaring its own `View`, say, would silently disagree
-/// with the host).
-fn check_shared_structs(
-    module: &naga::Module,
-    layouter: &naga::proc::Layouter,
-    what: &str,
-) -> Result<(), String> {
-    for (handle, ty) in module.types.iter() {
-        let Some(st) = layouts::STRUCTS
-            .iter()
-            .find(|st| ty.name.as_deref() == Some(st.name))
-        else {
-            continue;
-        };
-        let naga::TypeInner::Struct { members, .. } = &ty.inner else {
-            continue;
-        };
-        let (offsets, size) = shared_layout(st);
-        let got: Vec<u32> = members.iter().map(|m| m.offset).collect();
-        let names_agree = members
-            .iter()
-            .zip(st.fields)
-            .all(|(m, f)| m.name.as_deref() == Some(f.name));
-        if got != offsets || layouter[handle].size != size || !names_agree {
-            return Err(format!(
-                "{what}: struct `{}` is laid out as offsets {got:?}, size {}, but \
-                 shaders/layouts.rs has offsets {offsets:?}, size {size}: include \
-                 \"shared.glsl\" / \"shared.wgsl\" instead of declaring it",
-                st.name, layouter[handle].size
-            ));
-        }
-    }
-    Ok(())
-}
-
-fn type_name(module: &naga::Module, ty: naga::Handle<naga::Type>) -> Option<String> {
-    module.types[ty].name.clone()
-}
-
-fn push_struct(
-    module: &naga::Module,
-    layouter: &naga::proc::Layouter,
-    ty: naga::Handle<naga::Type>,
-    what: &str,
-) -> Result<PushStruct, String> {
-    let naga::TypeInner::Struct { members, span } = &module.types[ty].inner else {
-        return Err(format!("{what}: push constants must be a struct/block"));
-    };
-    let mut fields = Vec::new();
-    for m in members {
-        let mname = m
-            .name
-            .clone()
-            .unwrap_or_else(|| format!("field{}", fields.len()));
-        let size = layouter[m.ty].size;
-        let rust = rust_type(&module.types[m.ty].inner, size).ok_or_else(|| {
-            format!("{what}: push-constant member `{mname}` has an unsupported type")
-        })?;
-        fields.push((mname, rust, m.offset, size));
-    }
-    Ok(PushStruct {
-        size: *span,
-        fields,
-    })
-}
-
-fn scalar_rust(s: naga::Scalar) -> Option<&'static str> {
-    match (s.kind, s.width) {
-        (naga::ScalarKind::Uint, 4) => Some("u32"),
-        (naga::ScalarKind::Sint, 4) => Some("i32"),
-        (naga::ScalarKind::Float, 4) => Some("f32"),
-        _ => None,
-    }
-}
-
-fn rust_type(inner: &naga::TypeInner, size: u32) -> Option<String> {
-    match *inner {
-        naga::TypeInner::Scalar(s) => scalar_rust(s).map(str::to_string),
-        naga::TypeInner::Vector { size: n, scalar } => {
-            Some(format!("[{}; {}]", scalar_rust(scalar)?, n as u32))
-        }
-        naga::TypeInner::Matrix { scalar, .. } => {
-            // Column-major with padded columns, exactly as laid out.
-            Some(format!("[{}; {}]", scalar_rust(scalar)?, size / 4))
-        }
-        naga::TypeInner::Array {
-            base: _,
-            size: naga::ArraySize::Constant(n),
-            stride: 4,
-        } => Some(format!("[u32; {n}]")),
-        _ => None,
-    }
-}
-
-fn camel(name: &str) -> String {
-    name.split('_')
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            let mut c = s.chars();
-            match c.next() {
-                Some(f) => f.to_ascii_uppercase().to_string() + c.as_str(),
-                None => String::new(),
-            }
-        })
-        .collect()
-}
-
-fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
-    let names = push_type_names(kernels)?;
-    let mut s = String::new();
-    s.push_str("// @generated by shaders/build.rs. Do not edit.\n\n");
-    s.push_str("/// Push-constant blocks of the kernels, mirrored as `#[repr(C)]` structs.\n");
-    s.push_str("pub mod push {\n");
-    let mut written = std::collections::BTreeSet::new();
-    for (k, name) in kernels.iter().zip(&names) {
-        let (Some(p), Some(name)) = (&k.push, name) else {
-            continue;
-        };
-        if !written.insert(name.clone()) {
-            continue;
-        }
-        let users: Vec<String> = kernels
-            .iter()
-            .zip(&names)
-            .filter(|(_, n)| n.as_ref() == Some(name))
-            .map(|(o, _)| format!("`{}`", o.name))
-            .collect();
-        let _ = writeln!(
-            s,
-            "    /// Push constants of {} ({}).\n    #[repr(C)]\n    #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]\n    pub struct {name} {{",
-            users.join(", "),
-            k.source,
-        );
-        let mut at = 0u32;
-        let mut pad = 0;
-        for (name, ty, off, size) in &p.fields {
-            if *off > at {
-                let _ = writeln!(
-                    s,
-                    "        /// Layout padding.\n        pub _pad{pad}: [u32; {}],",
-                    (off - at) / 4
-                );
-                pad += 1;
-            }
-            let _ = writeln!(s, "        /// `{name}` in the kernel's push-constant block.\n        pub {name}: {ty},");
-            at = off + size;
-        }
-        if p.size > at {
-            let _ = writeln!(
-                s,
-                "        /// Layout padding.\n        pub _pad{pad}: [u32; {}],",
-                (p.size - at) / 4
-            );
-        }
-        s.push_str("    }\n");
-    }
-    s.push_str("}\n\n");
-
-    for (i, k) in kernels.iter().enumerate() {
-        let upper = k.name.to_ascii_uppercase();
-        let _ = write!(s, "static {upper}_SPIRV: [u32; {}] = [", k.spirv.len());
-        for (i, w) in k.spirv.iter().enumerate() {
-            if i % 12 == 0 {
-                s.push_str("\n    ");
-            }
-            let _ = write!(s, "{w:#010x}, ");
-        }
-        s.push_str("\n];\n");
-        let push_ty = match &names[i] {
-            Some(name) => format!("push::{name}"),
-            None => "()".to_string(),
-        };
-        let push_size = k.push.as_ref().map(|p| p.size).unwrap_or(0);
-        let mut binds = String::new();
-        for (n, w) in &k.bindings {
-            let _ = write!(binds, "Binding {{ name: {n:?}, writable: {w} }}, ");
-        }
-        let r = k.requires;
-        let _ = writeln!(
-            s,
-            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
-            k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2],
-            r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
-        );
-    }
-    s.push_str("/// Every kernel, in source order.\npub static ALL: &[&Kernel] = &[\n");
-    for k in kernels {
-        let _ = writeln!(s, "    &{}.kernel,", k.name.to_ascii_uppercase());
-    }
-    s.push_str("];\n");
-    Ok(s)
 }
