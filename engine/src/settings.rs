@@ -232,23 +232,28 @@ impl<C> Spec<C> {
         }
     }
 
-    /// What the range allows, for users ("Integer from 1 to 1000.").
-    fn range_text(&self, integer: bool) -> String {
-        let Some(r) = &self.range else {
-            return String::new();
-        };
+    /// What the range allows, with the bounds as given ("from 1 to 1000
+    /// metres"): the documented text and the error message say the same.
+    fn allows(&self, r: &Range<C>, low: &str, high: &str) -> String {
         let unit = if self.unit.is_empty() {
             String::new()
         } else {
             format!(" {}", self.unit)
         };
-        let (low, high) = (r.low.text(), r.high.text());
-        let text = match (r.open, &r.high) {
+        match (r.open, &r.high) {
             (false, Bound::Finite) => format!("at least {low}{unit}"),
             (true, Bound::Finite) => format!("above {low}{unit}"),
             (false, _) => format!("from {low} to {high}{unit}"),
             (true, _) => format!("above {low} and at most {high}{unit}"),
+        }
+    }
+
+    /// What the range allows, for users ("Integer from 1 to 1000.").
+    fn range_text(&self, integer: bool) -> String {
+        let Some(r) = &self.range else {
+            return String::new();
         };
+        let text = self.allows(r, &r.low.text(), &r.high.text());
         if integer {
             format!("Integer {text}.")
         } else {
@@ -282,25 +287,12 @@ impl<C> Spec<C> {
         if above_low && x <= high && x.is_finite() {
             return Ok(());
         }
-        let unit = if self.unit.is_empty() {
-            String::new()
-        } else {
-            format!(" {}", self.unit)
-        };
         let named = |b: &Bound<C>, v: f64| match b {
             Bound::Setting(name, _) => format!("{name} ({v})"),
             _ => display(v),
         };
-        let (low, high) = (named(&r.low, low), named(&r.high, high));
-        Err(match (r.open, &r.high) {
-            (false, Bound::Finite) => format!("{key} {} must be at least {low}{unit}", display(x)),
-            (true, Bound::Finite) => format!("{key} {} must be above {low}{unit}", display(x)),
-            (false, _) => format!("{key} {} must be from {low} to {high}{unit}", display(x)),
-            (true, _) => format!(
-                "{key} {} must be above {low} and at most {high}{unit}",
-                display(x)
-            ),
-        })
+        let allowed = self.allows(r, &named(&r.low, low), &named(&r.high, high));
+        Err(format!("{key} {} must be {allowed}", display(x)))
     }
 }
 

@@ -497,12 +497,15 @@ fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
     drop(run);
 
     // Resumed to the end: the map is the one a single run makes.
-    let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
-    let mut run = map(
-        mapper,
-        &LogRunOptions::default(),
-        &mut CountingObserver::default(),
-    );
+    let resume_to_the_end = || {
+        let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
+        map(
+            mapper,
+            &LogRunOptions::default(),
+            &mut CountingObserver::default(),
+        )
+    };
+    let mut run = resume_to_the_end();
     assert_eq!(run.ending, Ending::Complete);
     assert_eq!((run.skipped, run.frames), (10, 10));
     assert_eq!(run.mapper.stats().keyframes as usize, LOG_FRAMES / 4);
@@ -514,12 +517,7 @@ fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
     drop(run);
 
     // Once more: every frame was mapped, and the folder is kept.
-    let mapper = Mapper::load(&ctx, folder.dir()).unwrap();
-    let mut run = map(
-        mapper,
-        &LogRunOptions::default(),
-        &mut CountingObserver::default(),
-    );
+    let mut run = resume_to_the_end();
     assert_eq!((run.skipped, run.frames), (LOG_FRAMES as u64, 0));
     assert!(matches!(
         run.write_folder(&folder, &mut ()).unwrap(),
