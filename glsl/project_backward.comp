@@ -18,7 +18,7 @@ layout(std430, set = 0, binding = 2) readonly buffer LogScales { float log_scale
 layout(std430, set = 0, binding = 3) readonly buffer Quats { vec4 quats[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Logits { float opacity_logits[]; };
 layout(std430, set = 0, binding = 5) readonly buffer TileCounts { uint tile_counts[]; };
-layout(std430, set = 0, binding = 6) readonly buffer GradSplats { vec4 grad_splats[]; };
+layout(std430, set = 0, binding = 6) readonly buffer GradSplats { Splat grad_splats[]; };
 layout(std430, set = 0, binding = 7) buffer GradMeans { float grad_means[]; };
 layout(std430, set = 0, binding = 8) buffer GradLogScales { float grad_log_scales[]; };
 layout(std430, set = 0, binding = 9) buffer GradQuats { vec4 grad_quats[]; };
@@ -67,8 +67,8 @@ void main() {
         if (!p.visible) {
             continue;
         }
-        vec4 gs0 = grad_splats[2u * pair];     // mean x, mean y, depth, opacity
-        vec3 gconic = grad_splats[2u * pair + 1u].xyz;
+        vec4 gs0 = grad_splats[pair].mean_depth_opacity;
+        vec3 gconic = grad_splats[pair].conic.xyz;
         v_logit += gs0.w * p.opacity * (1.0 - p.opacity);
 
         // Conic = inverse 2-D covariance.

@@ -15,9 +15,9 @@ layout(std430, set = 0, binding = 2) readonly buffer LogScales { float log_scale
 layout(std430, set = 0, binding = 3) readonly buffer Quats { vec4 quats[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Logits { float opacity_logits[]; };
 // Per pair: (mean x, mean y, depth, opacity), (conic a, b, c, 0).
-layout(std430, set = 0, binding = 5) buffer Splats { vec4 splats[]; };
+layout(std430, set = 0, binding = 5) buffer Splats { Splat splats[]; };
 // Per pair: x0 | y0 << 16, x1 | y1 << 16 (inclusive tile rectangle).
-layout(std430, set = 0, binding = 6) buffer Rects { uvec2 rects[]; };
+layout(std430, set = 0, binding = 6) buffer Rects { TileRect rects[]; };
 layout(std430, set = 0, binding = 7) buffer TileCounts { uint tile_counts[]; };
 layout(std430, set = 0, binding = 8) buffer Flags { uint visible[]; };
 
@@ -39,9 +39,8 @@ void main() {
     uint count = 0u;
     if (p.visible) {
         count = (p.tiles.z - p.tiles.x + 1u) * (p.tiles.w - p.tiles.y + 1u);
-        splats[2u * pair] = vec4(p.mean2d, p.depth, p.opacity);
-        splats[2u * pair + 1u] = vec4(p.conic, 0.0);
-        rects[pair] = uvec2(p.tiles.x | (p.tiles.y << 16), p.tiles.z | (p.tiles.w << 16));
+        splats[pair] = Splat(vec4(p.mean2d, p.depth, p.opacity), vec4(p.conic, 0.0));
+        rects[pair] = TileRect(p.tiles.x | (p.tiles.y << 16), p.tiles.z | (p.tiles.w << 16));
     }
     tile_counts[pair] = count;
     visible[pair] = count > 0u ? 1u : 0u;

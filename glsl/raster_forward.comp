@@ -39,14 +39,14 @@ layout(local_size_x = 8, local_size_y = 1) in;
 layout(std430, set = 0, binding = 0) readonly buffer Views { View views[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Colors { float colors[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Queries { vec4 queries[]; };
-layout(std430, set = 0, binding = 3) readonly buffer Splats { vec4 splats[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Splats { Splat splats[]; };
 layout(std430, set = 0, binding = 4) readonly buffer Pairs { uint pairs[]; };
-layout(std430, set = 0, binding = 5) readonly buffer Ranges { uvec2 ranges[]; };
+layout(std430, set = 0, binding = 5) readonly buffer Ranges { TileRange ranges[]; };
 layout(std430, set = 0, binding = 6) buffer Rgbd { vec4 out_rgbd[]; };
 layout(std430, set = 0, binding = 7) buffer Alpha { float out_alpha[]; };
 layout(std430, set = 0, binding = 8) buffer Query { vec4 out_query[]; };
 // Per pixel: (list entries walked, final transmittance bits).
-layout(std430, set = 0, binding = 9) buffer State { uvec2 out_state[]; };
+layout(std430, set = 0, binding = 9) buffer State { PixelState out_state[]; };
 
 layout(push_constant) uniform Params {
     uint n_gaussians;
@@ -85,8 +85,8 @@ void main() {
 #endif
     uint local_tile = tile - v.offsets.x;
     uint t = gl_LocalInvocationIndex;
-    uvec2 range = ranges[tile];
-    uint n = range.y - range.x;
+    TileRange range = ranges[tile];
+    uint n = range.end - range.start;
 
 #if ROWS == 1
     uint px = (local_tile % v.size.z) * TILE_SIZE + gl_LocalInvocationID.x;
@@ -133,10 +133,10 @@ void main() {
         barrier();
         for (uint e = t; e < BLEND_BATCH; e += INVOCATIONS) {
             if (base + e < n) {
-                uint pair = pairs[range.x + base + e];
+                uint pair = pairs[range.start + base + e];
                 sh_gaussian[e] = pair % pc.n_gaussians;
-                sh_splat[e] = splats[2u * pair];
-                sh_conic[e] = splats[2u * pair + 1u].xyz;
+                sh_splat[e] = splats[pair].mean_depth_opacity;
+                sh_conic[e] = splats[pair].conic.xyz;
             }
         }
         barrier();
@@ -224,7 +224,7 @@ void main() {
             }
         }
 #endif
-        out_state[p] = uvec2(walked, floatBitsToUint(trans));
+        out_state[p] = PixelState(walked, trans);
     }
 #else
 #unroll K 32
@@ -243,7 +243,7 @@ void main() {
 #endunroll
             }
 #endif
-            out_state[p] = uvec2(walked[K], floatBitsToUint(trans[K]));
+            out_state[p] = PixelState(walked[K], trans[K]);
         }
     }
 #endunroll

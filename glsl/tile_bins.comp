@@ -23,7 +23,7 @@ layout(push_constant) uniform Params {
 } pc;
 
 #if STEP == 0
-layout(std430, set = 0, binding = 0) readonly buffer Splats { vec4 splats[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Splats { Splat splats[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Counts { uint tile_counts[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Positions { uint positions[]; };
 layout(std430, set = 0, binding = 3) buffer Keys { uint keys[]; };
@@ -34,15 +34,14 @@ layout(std430, set = 0, binding = 1) readonly buffer Order { uint order[]; };
 layout(std430, set = 0, binding = 2) buffer Sorted { uint sorted_counts[]; };
 #elif STEP == 2
 layout(std430, set = 0, binding = 0) readonly buffer Views { View views[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Rects { uvec2 rects[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Rects { TileRect rects[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Order { uint order[]; };
 layout(std430, set = 0, binding = 3) readonly buffer Offsets { uint offsets[]; };
 layout(std430, set = 0, binding = 4) buffer Keys { uint keys[]; };
 layout(std430, set = 0, binding = 5) buffer Vals { uint vals[]; };
 #else
 layout(std430, set = 0, binding = 0) readonly buffer Keys { uint keys[]; };
-// Per global tile: (start, end); zero-filled before this step.
-layout(std430, set = 0, binding = 1) buffer Ranges { uvec2 ranges[]; };
+layout(std430, set = 0, binding = 1) buffer Ranges { TileRange ranges[]; };
 #endif
 
 void main() {
@@ -53,7 +52,7 @@ void main() {
 #if STEP == 0
     if (tile_counts[i] > 0u) {
         // Depth is positive, so its IEEE bits sort like the value.
-        keys[positions[i]] = floatBitsToUint(splats[2u * i].z);
+        keys[positions[i]] = floatBitsToUint(splats[i].mean_depth_opacity.z);
         vals[positions[i]] = i;
     }
 #elif STEP == 1
@@ -61,8 +60,8 @@ void main() {
 #elif STEP == 2
     uint pair = order[i];
     View v = views[pair / pc.n_gaussians];
-    uvec2 r = rects[pair];
-    uint x0 = r.x & 0xffffu, y0 = r.x >> 16, x1 = r.y & 0xffffu, y1 = r.y >> 16;
+    TileRect r = rects[pair];
+    uint x0 = r.first & 0xffffu, y0 = r.first >> 16, x1 = r.last & 0xffffu, y1 = r.last >> 16;
     uint out_i = offsets[i];
     for (uint y = y0; y <= y1; y++) {
         for (uint x = x0; x <= x1; x++) {
@@ -74,10 +73,10 @@ void main() {
 #else
     uint tile = keys[i];
     if (i == 0u || keys[i - 1u] != tile) {
-        ranges[tile].x = i;
+        ranges[tile].start = i;
     }
     if (i + 1u == pc.n || keys[i + 1u] != tile) {
-        ranges[tile].y = i + 1u;
+        ranges[tile].end = i + 1u;
     }
 #endif
 }

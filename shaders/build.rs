@@ -246,17 +246,46 @@ fn shared_sources() -> Result<SharedSources, String> {
             let _ = writeln!(wgsl, "    {}: {w}, // {}", f.name, f.doc);
             let _ = writeln!(rust, "    /// {}\n    pub {}: {r},", f.doc, f.name);
         }
-        if offset % 16 != 0 {
+        // std430 aligns a struct to its largest member, and Rust's repr(C)
+        // does the same, so only a struct holding a vector needs padding.
+        let align = if st
+            .fields
+            .iter()
+            .any(|f| matches!(f.ty, FieldType::Vec4 | FieldType::UVec4))
+        {
+            16
+        } else {
+            4
+        };
+        if offset % align != 0 {
             return Err(format!(
-                "{} is {offset} bytes, not a multiple of 16: pad it so arrays of it agree",
+                "{} is {offset} bytes, not a multiple of {align}: pad it so arrays of it agree",
                 st.name
             ));
         }
         glsl.push_str("};\n");
         wgsl.push_str("}\n");
         rust.push_str("}\n");
+        let words = format!("{}_WORDS", upper_snake(st.name));
+        let doc = format!("Size of `{}` in 4-byte words.", st.name);
+        let n = offset / 4;
+        let _ = writeln!(glsl, "// {doc}\n#define {words} {n}u");
+        let _ = writeln!(wgsl, "// {doc}\nconst {words}: u32 = {n}u;");
+        let _ = writeln!(rust, "/// {doc}\npub const {words}: u32 = {n};");
     }
     Ok(SharedSources { glsl, wgsl, rust })
+}
+
+/// `PixelState` -> `PIXEL_STATE`.
+fn upper_snake(name: &str) -> String {
+    let mut out = String::new();
+    for (i, ch) in name.chars().enumerate() {
+        if ch.is_ascii_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(ch.to_ascii_uppercase());
+    }
+    out
 }
 
 fn sorted_files(dir: &Path, ext: &str) -> Vec<PathBuf> {

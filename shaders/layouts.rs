@@ -6,9 +6,11 @@
 //! * `latentam_shaders::shared`: Rust constants and `#[repr(C)]` structs.
 //!
 //! Struct fields are 16-byte vectors or 4-byte scalars with any vector at
-//! a 16-byte offset, so the Rust layout equals std430's; the build checks
-//! that and compares each struct with naga's layout in every kernel that
-//! uses it.
+//! a 16-byte offset, and a struct holding a vector is a multiple of 16
+//! bytes, so the Rust layout equals std430's; the build checks that and
+//! compares each struct with naga's layout in every kernel that uses it.
+//! Each struct `FooBar` also gets `FOO_BAR_WORDS`, its size in 4-byte
+//! words, for kernels that address its fields in a flat array (atomics).
 
 /// A constant's type.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -156,6 +158,70 @@ pub const STRUCTS: &[Struct] = &[Struct {
             name: "offsets",
             ty: FieldType::UVec4,
             doc: "First tile and first pixel of the view in the batch; the rest unused.",
+        },
+    ],
+},
+Struct {
+    name: "Splat",
+    doc: "A Gaussian projected into one view of a batch (one per Gaussian and view); its gradients use the same layout.",
+    fields: &[
+        Field {
+            name: "mean_depth_opacity",
+            ty: FieldType::Vec4,
+            doc: "Screen position x, y (pixels), camera depth (metres), opacity.",
+        },
+        Field {
+            name: "conic",
+            ty: FieldType::Vec4,
+            doc: "Inverse 2-D covariance (xx, xy, yy); w unused.",
+        },
+    ],
+},
+Struct {
+    name: "TileRect",
+    doc: "The tiles a projected Gaussian covers, inclusive, each corner packed as column | row << 16.",
+    fields: &[
+        Field {
+            name: "first",
+            ty: FieldType::U32,
+            doc: "Top-left tile.",
+        },
+        Field {
+            name: "last",
+            ty: FieldType::U32,
+            doc: "Bottom-right tile.",
+        },
+    ],
+},
+Struct {
+    name: "TileRange",
+    doc: "A tile's run `[start, end)` in the depth-sorted intersection list; zero-filled for empty tiles.",
+    fields: &[
+        Field {
+            name: "start",
+            ty: FieldType::U32,
+            doc: "First intersection of the tile.",
+        },
+        Field {
+            name: "end",
+            ty: FieldType::U32,
+            doc: "One past its last intersection.",
+        },
+    ],
+},
+Struct {
+    name: "PixelState",
+    doc: "What the forward blend leaves per pixel for the backward pass to replay.",
+    fields: &[
+        Field {
+            name: "walked",
+            ty: FieldType::U32,
+            doc: "Entries of the tile's list the pixel walked before it stopped.",
+        },
+        Field {
+            name: "transmittance",
+            ty: FieldType::F32,
+            doc: "Transmittance left after the last blended Gaussian.",
         },
     ],
 }];

@@ -84,12 +84,12 @@ var<immediate> pc: Params;
 @group(0) @binding(0) var<storage, read> views: array<View>;
 @group(0) @binding(1) var<storage, read> colors: array<f32>;
 @group(0) @binding(2) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> splats: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> splats: array<Splat>;
 @group(0) @binding(4) var<storage, read> pairs: array<u32>;
-@group(0) @binding(5) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(5) var<storage, read> ranges: array<TileRange>;
 @group(0) @binding(6) var<storage, read> rgbd: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read> query_image: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read> state: array<vec2<u32>>;
+@group(0) @binding(8) var<storage, read> state: array<PixelState>;
 @group(0) @binding(9) var<storage, read> grad_rgbd: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read> grad_alpha: array<f32>;
 // Per pixel (query_source 0) or per pooled region row (1).
@@ -189,13 +189,13 @@ fn flush(g: Grads, gaussian: u32, pair: u32) {
         add_query(32u * gaussian + 4u * c + 2u, g.query[c].z);
         add_query(32u * gaussian + 4u * c + 3u, g.query[c].w);
     }
-    add_splat(8u * pair, g.mean_opacity.x);
-    add_splat(8u * pair + 1u, g.mean_opacity.y);
-    add_splat(8u * pair + 2u, g.rgbd.w);
-    add_splat(8u * pair + 3u, g.mean_opacity.z);
-    add_splat(8u * pair + 4u, g.conic.x);
-    add_splat(8u * pair + 5u, g.conic.y);
-    add_splat(8u * pair + 6u, g.conic.z);
+    add_splat(SPLAT_WORDS * pair, g.mean_opacity.x);
+    add_splat(SPLAT_WORDS * pair + 1u, g.mean_opacity.y);
+    add_splat(SPLAT_WORDS * pair + 2u, g.rgbd.w);
+    add_splat(SPLAT_WORDS * pair + 3u, g.mean_opacity.z);
+    add_splat(SPLAT_WORDS * pair + 4u, g.conic.x);
+    add_splat(SPLAT_WORDS * pair + 5u, g.conic.y);
+    add_splat(SPLAT_WORDS * pair + 6u, g.conic.z);
 }
 
 #if SUBGROUP
@@ -284,8 +284,8 @@ fn raster_backward(
         if (px < v.size.x && py < v.size.y) {
             let p = v.offsets.y + py * v.size.x + px;
             let st = state[p];
-            walked[K] = st.x;
-            t_final = bitcast<f32>(st.y);
+            walked[K] = st.walked;
+            t_final = st.transmittance;
             let out = rgbd[p];
             c_final[K] = vec4<f32>(out.xyz - t_final * bg, out.w);
             v_rgbd[K] = grad_rgbd[p];
@@ -304,7 +304,7 @@ fn raster_backward(
 #endunroll
 
     let tile_walk = tile_max(t, my_walk);
-    let start = ranges[tile].x;
+    let start = ranges[tile].start;
 
     for (var base = 0u; base < tile_walk; base += BLEND_BATCH) {
         workgroupBarrier();
@@ -312,8 +312,8 @@ fn raster_backward(
             if (base + e < tile_walk) {
                 let pair = pairs[start + base + e];
                 sh_pair[e] = pair;
-                sh_splat[e] = splats[2u * pair];
-                sh_conic[e] = splats[2u * pair + 1u];
+                sh_splat[e] = splats[pair].mean_depth_opacity;
+                sh_conic[e] = splats[pair].conic;
             }
         }
         workgroupBarrier();
@@ -416,7 +416,7 @@ fn raster_backward(
 #unroll C 7
                 v = select(v, sv[C], lane == C);
 #endunroll
-                add_splat(8u * pair + lane, v);
+                add_splat(SPLAT_WORDS * pair + lane, v);
             }
 #else
             flush(g, gaussian, pair);
@@ -442,8 +442,8 @@ fn raster_backward(
     if (inside) {
         let p = v.offsets.y + py * v.size.x + px;
         let s = state[p];
-        walked = s.x;
-        t_final = bitcast<f32>(s.y);
+        walked = s.walked;
+        t_final = s.transmittance;
         let out = rgbd[p];
         c_final = vec4<f32>(out.xyz - t_final * bg, out.w);
         v_rgbd = grad_rgbd[p];
@@ -465,7 +465,7 @@ fn raster_backward(
     let bg_term = (v_alpha_out - dot(bg, v_rgbd.xyz)) * t_final;
 
     let tile_walk = tile_max(t, walked);
-    let start = ranges[tile].x;
+    let start = ranges[tile].start;
 
     var trans = 1.0;
     var c_acc = vec4<f32>(0.0);
@@ -479,8 +479,8 @@ fn raster_backward(
         if (base + t < tile_walk) {
             let pair = pairs[start + base + t];
             sh_pair[t] = pair;
-            sh_splat[t] = splats[2u * pair];
-            sh_conic[t] = splats[2u * pair + 1u];
+            sh_splat[t] = splats[pair].mean_depth_opacity;
+            sh_conic[t] = splats[pair].conic;
         }
         workgroupBarrier();
         let count = min(BLEND_BATCH, tile_walk - base);

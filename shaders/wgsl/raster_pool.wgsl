@@ -53,11 +53,11 @@ var<immediate> pc: Params;
 
 @group(0) @binding(0) var<storage, read> views: array<View>;
 @group(0) @binding(1) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> splats: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> splats: array<Splat>;
 @group(0) @binding(3) var<storage, read> pairs: array<u32>;
-@group(0) @binding(4) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read> ranges: array<TileRange>;
 // Per pixel: (list entries walked, final transmittance bits).
-@group(0) @binding(5) var<storage, read> state: array<vec2<u32>>;
+@group(0) @binding(5) var<storage, read> state: array<PixelState>;
 @group(0) @binding(6) var<storage, read> labels: array<u32>;
 #if CAS
 @group(0) @binding(7) var<storage, read_write> pooled: array<atomic<u32>>;
@@ -131,7 +131,7 @@ fn raster_pool(
     }
     let v = views[vi];
     let local_tile = tile - v.offsets.x;
-    let start = ranges[tile].x;
+    let start = ranges[tile].start;
 #if COLUMNS
     let px0 = (local_tile % v.size.z) * TILE_SIZE + t;
     let py0 = (local_tile / v.size.z) * TILE_SIZE;
@@ -159,7 +159,7 @@ fn raster_pool(
             let reg = region_of(p);
             region[K] = reg.index;
             share[K] = reg.share;
-            walked[K] = select(0u, state[p].x, reg.index != NO_REGION);
+            walked[K] = select(0u, state[p].walked, reg.index != NO_REGION);
         }
         my_walk = max(my_walk, walked[K]);
     }
@@ -172,8 +172,8 @@ fn raster_pool(
             if (base + e < tile_walk) {
                 let pair = pairs[start + base + e];
                 sh_gaussian[e] = pair % pc.n_gaussians;
-                sh_splat[e] = splats[2u * pair];
-                sh_conic[e] = splats[2u * pair + 1u];
+                sh_splat[e] = splats[pair].mean_depth_opacity;
+                sh_conic[e] = splats[pair].conic;
             }
         }
         workgroupBarrier();
@@ -254,7 +254,7 @@ fn raster_pool(
     if (px < v.size.x && py < v.size.y) {
         let p = v.offsets.y + py * v.size.x + px;
         reg = region_of(p);
-        walked = select(0u, state[p].x, reg.index != NO_REGION);
+        walked = select(0u, state[p].walked, reg.index != NO_REGION);
     }
     let tile_walk = tile_max(t, walked);
     var trans = 1.0;
@@ -264,8 +264,8 @@ fn raster_pool(
         if (base + t < tile_walk) {
             let pair = pairs[start + base + t];
             sh_gaussian[t] = pair % pc.n_gaussians;
-            sh_splat[t] = splats[2u * pair];
-            sh_conic[t] = splats[2u * pair + 1u];
+            sh_splat[t] = splats[pair].mean_depth_opacity;
+            sh_conic[t] = splats[pair].conic;
         }
         workgroupBarrier();
         let count = min(BLEND_BATCH, tile_walk - base);

@@ -18,6 +18,7 @@
 //! [`crate::reference::raster`], the f64 CPU reference the tests compare
 //! against.
 
+use latentam_shaders::shared::TileRange;
 use latentam_shaders::{
     push, KernelDef, PROJECT_BACKWARD, RASTER_BACKWARD, RASTER_BACKWARD_CAS,
     RASTER_BACKWARD_COLUMNS, RASTER_BACKWARD_COLUMNS_ATTACHED,
@@ -533,12 +534,13 @@ impl Rasterizer {
             return Err(no_forward());
         }
         let mut rec = self.ctx.recorder()?;
-        let rb = rec.download(self.ranges.get(), 0, tiles * 8)?;
+        let bytes = tiles * std::mem::size_of::<TileRange>() as u64;
+        let rb = rec.download(self.ranges.get(), 0, bytes)?;
         rec.submit()?.wait()?;
         Ok(rb
-            .read::<u32>()?
-            .chunks_exact(2)
-            .map(|r| r[1].saturating_sub(r[0]))
+            .read::<TileRange>()?
+            .iter()
+            .map(|r| r.end.saturating_sub(r.start))
             .collect())
     }
 

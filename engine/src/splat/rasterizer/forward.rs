@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::gpu::Recorder;
 use crate::splat::views::BatchLayout;
 use crate::splat::{Camera, GaussianBuffers};
-use latentam_shaders::shared::View;
+use latentam_shaders::shared::{PixelState, Splat, TileRange, TileRect, View};
 
 /// A batch of views, measured for rendering: its layout, the Gaussians it
 /// renders and the counts that size the pass. [`Rasterizer::measure`]
@@ -228,10 +228,9 @@ impl Rasterizer {
         let ctx = self.ctx.clone();
         let pairs = batches.iter().map(RenderBatch::pairs).max().unwrap_or(0);
         let views = batches.iter().map(|b| b.views.len()).max().unwrap_or(0);
-        self.views
-            .ensure(&ctx, views as u64 * std::mem::size_of::<View>() as u64)?;
-        self.splats.ensure(&ctx, pairs * 32)?;
-        self.rects.ensure(&ctx, pairs * 8)?;
+        self.views.ensure(&ctx, bytes::<View>(views as u64))?;
+        self.splats.ensure(&ctx, bytes::<Splat>(pairs))?;
+        self.rects.ensure(&ctx, bytes::<TileRect>(pairs))?;
         self.tile_counts.ensure(&ctx, pairs * 4)?;
         self.positions.ensure(&ctx, (pairs + 1) * 4)?;
         self.pair_offsets.ensure(&ctx, (pairs + 1) * 4)?;
@@ -252,11 +251,11 @@ impl Rasterizer {
         self.depth_keys.ensure(&ctx, pairs * 4)?;
         self.depth_order.ensure(&ctx, pairs * 4)?;
         self.sorted_offsets.ensure(&ctx, (pairs + 1) * 4)?;
-        self.grad_splats.ensure(&ctx, pairs * 32)?;
+        self.grad_splats.ensure(&ctx, bytes::<Splat>(pairs))?;
         self.isect_keys.ensure(&ctx, intersections * 4)?;
         self.isect_pairs.ensure(&ctx, intersections * 4)?;
-        self.ranges.ensure(&ctx, tiles * 8)?;
-        self.state.ensure(&ctx, pixels * 8)?;
+        self.ranges.ensure(&ctx, bytes::<TileRange>(tiles))?;
+        self.state.ensure(&ctx, bytes::<PixelState>(pixels))?;
         let channels = if all_channels {
             Channels::All
         } else {
@@ -324,13 +323,10 @@ impl Rasterizer {
             .images
             .as_ref()
             .is_some_and(|i| i.pixels >= batch.layout.pixels);
-        if !(grown(&self.splats, pairs * 32)
+        if !(grown(&self.splats, bytes::<Splat>(pairs))
             && grown(&self.isect_keys, intersections * 4)
-            && grown(&self.ranges, batch.layout.tiles as u64 * 8)
-            && grown(
-                &self.views,
-                batch.views.len() as u64 * std::mem::size_of::<View>() as u64,
-            )
+            && grown(&self.ranges, bytes::<TileRange>(batch.layout.tiles as u64))
+            && grown(&self.views, bytes::<View>(batch.views.len() as u64))
             && images_fit
             && sorter.max_len() >= visible.max(intersections))
         {
@@ -410,4 +406,9 @@ fn not_measured() -> Error {
          for it first"
             .into(),
     )
+}
+
+/// Bytes of `n` elements of a layout shared with the kernels.
+fn bytes<T>(n: u64) -> u64 {
+    n * std::mem::size_of::<T>() as u64
 }
