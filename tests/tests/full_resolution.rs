@@ -7,7 +7,7 @@
 use latentam::gpu::{Context, ContextOptions, Validation};
 use latentam::io::{AssemblyConfig, Frame, McapFrames};
 use latentam::mapper::budget::pixel_bytes;
-use latentam::mapper::{Integrated, MapperConfig, OnlineMapper};
+use latentam::mapper::{Integrated, Mapper, MapperConfig};
 
 const WIDTH: u32 = 1280;
 const HEIGHT: u32 = 720;
@@ -50,7 +50,7 @@ fn a_1280x720_log_maps_with_five_replayed_keyframes_in_one_view_of_image_memory(
     };
     assert_eq!(cfg.replay, 5, "the paper's B is the default");
     assert!(cfg.gpu_budget.is_none(), "the default budget");
-    let mut mapper = OnlineMapper::new(&ctx, cfg).unwrap();
+    let mut mapper = Mapper::with_context(&ctx, cfg).unwrap();
     let mut widest_batch = 0;
     for f in &frames {
         if let Integrated::Keyframe(r) = mapper.integrate(f).unwrap() {

@@ -9,10 +9,8 @@ use std::sync::OnceLock;
 use latentam::gpu::{Context, ContextOptions, Validation};
 use latentam::io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 use latentam::map::{Gaussian, VoxelKey};
-use latentam::mapper::eval::{add_iou, mean_iou, Evaluator};
-use latentam::mapper::{
-    Integrated, KeyframeReport, Mapper, MapperConfig, OnlineMapper, RunObserver, RunReport,
-};
+use latentam::mapper::eval::{add_iou, mean_iou};
+use latentam::mapper::{Integrated, KeyframeReport, Mapper, MapperConfig, RunObserver, RunReport};
 
 const FRAMES: usize = 60;
 
@@ -82,17 +80,16 @@ struct Quality {
     gaussians: usize,
 }
 
-fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
+fn quality(mapper: &mut Mapper) -> Quality {
     let s = scene();
-    let mut ev = Evaluator::new(ctx);
     let (mut psnr, mut depth, mut cos, mut cos_n) = (0.0, 0.0, 0.0, 0u64);
     let (mut pooled_cos, mut pooled_n) = (0.0, 0);
     let mut iou = BTreeMap::new();
     let mut pooled_iou = BTreeMap::new();
     let views = held_out();
     for &i in &views {
-        let m = ev
-            .evaluate(mapper, &s.frames[i], Some(&s.vocabulary))
+        let m = mapper
+            .evaluate(&s.frames[i], Some(&s.vocabulary), 1)
             .unwrap();
         psnr += m.psnr;
         depth += m.depth_l1;
@@ -123,11 +120,10 @@ fn quality(ctx: &Context, mapper: &mut OnlineMapper) -> Quality {
 /// mIoU counts only pixels whose true class a query word names: with one
 /// class left out of the vocabulary, its pixels drop out and nothing else
 /// changes for the others' ground truth.
-fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
+fn vocabulary_classes_only(mapper: &mut Mapper) {
     let s = scene();
     let frame = &s.frames[held_out()[1]];
-    let mut ev = Evaluator::new(ctx);
-    let full = ev.evaluate(mapper, frame, Some(&s.vocabulary)).unwrap();
+    let full = mapper.evaluate(frame, Some(&s.vocabulary), 1).unwrap();
     let mut fewer = s.vocabulary.clone();
     let dim = fewer.dim as usize;
     // Leave out the class with the most pixels in this view.
@@ -136,7 +132,7 @@ fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
     fewer.ids.remove(at);
     fewer.names.remove(at);
     fewer.vectors.drain(at * dim..(at + 1) * dim);
-    let part = ev.evaluate(mapper, frame, Some(&fewer)).unwrap();
+    let part = mapper.evaluate(frame, Some(&fewer), 1).unwrap();
     assert!(!part.class_iou.contains_key(&gone));
     let truth = |m: &latentam::mapper::eval::ViewMetrics| -> u64 {
         m.class_iou.values().map(|c| c.truth).sum()
@@ -152,13 +148,13 @@ fn vocabulary_classes_only(ctx: &Context, mapper: &mut OnlineMapper) {
 
 /// On a real map, the per-pixel evaluation's factorised decoding gives the
 /// cosines the GPU decoder gives for the same rendered pixels.
-fn factorised_decoding_matches_the_gpu_decoder(ctx: &Context, mapper: &mut OnlineMapper) {
+fn factorised_decoding_matches_the_gpu_decoder(mapper: &mut Mapper) {
     use latentam::latent::{FactorisedDecoder, RelevanceScorer};
     let s = scene();
     let frame = &s.frames[held_out()[0]];
-    let mut ev = Evaluator::new(ctx);
     let camera = latentam::mapper::camera_of(frame);
-    let (view, _) = ev.render(mapper, &camera).unwrap();
+    let (view, _) = mapper.render(&camera).unwrap();
+    let ctx = mapper.context();
     let head = mapper.head().unwrap();
     let dec = FactorisedDecoder::from_head(ctx, head).unwrap();
     let texts = &s.vocabulary.vectors;
@@ -193,7 +189,7 @@ fn factorised_decoding_matches_the_gpu_decoder(ctx: &Context, mapper: &mut Onlin
     }
 }
 
-fn map_frames(mapper: &mut OnlineMapper, range: std::ops::Range<usize>) -> usize {
+fn map_frames(mapper: &mut Mapper, range: std::ops::Range<usize>) -> usize {
     let mut keyframes = 0;
     for f in &scene().frames[range] {
         if let Integrated::Keyframe(_) = mapper.integrate(f).unwrap() {
@@ -208,12 +204,12 @@ fn reference() -> &'static Quality {
     static REF: OnceLock<Quality> = OnceLock::new();
     REF.get_or_init(|| {
         let ctx = context();
-        let mut mapper = OnlineMapper::new(&ctx, config()).unwrap();
+        let mut mapper = Mapper::with_context(&ctx, config()).unwrap();
         let keyframes = map_frames(&mut mapper, 0..FRAMES);
         assert_eq!(keyframes, FRAMES / 4);
-        let q = quality(&ctx, &mut mapper);
-        vocabulary_classes_only(&ctx, &mut mapper);
-        factorised_decoding_matches_the_gpu_decoder(&ctx, &mut mapper);
+        let q = quality(&mut mapper);
+        vocabulary_classes_only(&mut mapper);
+        factorised_decoding_matches_the_gpu_decoder(&mut mapper);
         let stats = mapper.stats();
         eprintln!(
             "reference: {q:?}\n{}",
@@ -262,8 +258,10 @@ fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views
 }
 
 /// Every Gaussian once in the global map, every resident row equal to its
-/// key's Gaussian after a write-back.
-fn check_consistent(ctx: &Context, mapper: &mut OnlineMapper) {
+/// key's Gaussian after a write-back (the window is internal: reached
+/// through the unstable `Mapper::online`).
+fn check_consistent(ctx: &Context, mapper: &mut Mapper) {
+    let mapper = mapper.online();
     mapper.flush().unwrap();
     let global = mapper.global();
     let keys: HashSet<VoxelKey> = global.iter().map(|(k, _)| k).collect();
@@ -286,7 +284,7 @@ fn a_tiny_gpu_budget_pages_and_maps_about_as_well_as_an_unbounded_run() {
     // the map's 45 000 Gaussians.
     let budget = 215_000_000;
     let ctx = context();
-    let mut mapper = OnlineMapper::new(
+    let mut mapper = Mapper::with_context(
         &ctx,
         MapperConfig {
             gpu_budget: Some(budget),
@@ -313,7 +311,7 @@ fn a_tiny_gpu_budget_pages_and_maps_about_as_well_as_an_unbounded_run() {
     // Evaluation renders every Gaussian near a view at once: not part of
     // the mapping budget.
     ctx.set_memory_budget(None);
-    let q = quality(&ctx, &mut mapper);
+    let q = quality(&mut mapper);
     let r = reference();
     eprintln!("tiny budget: {q:?}\nreference: {r:?}");
     assert!((q.psnr - r.psnr).abs() < 1.5, "{q:?} vs {r:?}");
@@ -331,25 +329,24 @@ fn a_tiny_gpu_budget_pages_and_maps_about_as_well_as_an_unbounded_run() {
     assert_no_validation_errors(ctx);
 }
 
-fn gaussians_of(m: &OnlineMapper) -> Vec<(VoxelKey, Gaussian)> {
+fn gaussians_of(m: &Mapper) -> Vec<(VoxelKey, Gaussian)> {
     m.global().iter().map(|(k, g)| (k, *g)).collect()
 }
 
 #[test]
 fn save_load_continue_matches_an_uninterrupted_run() {
     let ctx = context();
-    let dir = temp_dir("resume");
-    let path = dir.join("state.latentam");
-    let mut first = OnlineMapper::new(&ctx, config()).unwrap();
+    let dir = temp_dir("resume").join("run");
+    let mut first = Mapper::with_context(&ctx, config()).unwrap();
     map_frames(&mut first, 0..FRAMES / 2);
-    first.save(&path).unwrap();
+    let path = first.save(&dir).unwrap();
 
     // The loaded state is the saved one, exactly.
-    let mut loaded = OnlineMapper::load(&ctx, &path, None).unwrap();
+    let mut loaded = Mapper::load(&ctx, &dir).unwrap();
     assert_eq!(gaussians_of(&loaded), gaussians_of(&first));
     assert_eq!(
-        loaded.window().unwrap().keys(),
-        first.window().unwrap().keys()
+        loaded.online_ref().window().unwrap().keys(),
+        first.online_ref().window().unwrap().keys()
     );
     assert_eq!(loaded.history().len(), first.history().len());
     for i in 0..first.history().len() {
@@ -372,7 +369,7 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     drop(first);
 
     map_frames(&mut loaded, FRAMES / 2..FRAMES);
-    let q = quality(&ctx, &mut loaded);
+    let q = quality(&mut loaded);
     let r = reference();
     eprintln!("resumed: {q:?}\nreference: {r:?}");
     assert_eq!(loaded.stats().keyframes as usize, FRAMES / 4);
@@ -388,12 +385,12 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     // A corrupt or foreign file is refused with a clear error.
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(OnlineMapper::load(&ctx, &path, None).is_err());
+    assert!(Mapper::load(&ctx, &dir).is_err());
     std::fs::write(&path, b"{}").unwrap();
-    assert!(OnlineMapper::load(&ctx, &path, None).is_err());
-    assert!(OnlineMapper::load(&ctx, Path::new("/nonexistent/state"), None).is_err());
+    assert!(Mapper::load(&ctx, &dir).is_err());
+    assert!(Mapper::load(&ctx, Path::new("/nonexistent/run")).is_err());
     drop(loaded);
-    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(dir.parent().unwrap()).unwrap();
     assert_no_validation_errors(ctx);
 }
 

@@ -11,8 +11,8 @@ use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
 use latentam::mapper::budget::MemorySplit;
-use latentam::mapper::eval::{add_iou, mean_iou, Evaluator};
-use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, MapperConfig, OnlineMapper};
+use latentam::mapper::eval::{add_iou, mean_iou};
+use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
 use serde::Serialize;
 
 pub struct MapBench {
@@ -161,7 +161,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
     })?;
     latentam::mapper::warm_up(&ctx)?;
     let atoms = cfg.atoms;
-    let mut mapper = OnlineMapper::new(&ctx, cfg)?;
+    let mut mapper = Mapper::with_context(&ctx, cfg)?;
     let mut gpu_calls = Vec::new();
     let frames = McapFrames::open(path, AssemblyConfig::default())
         .with_context(|| format!("opening {}", path.display()))?;
@@ -210,7 +210,6 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
 
     // PSNR of re-rendered keyframes, spread over the run.
     let every = (kept.len() / b.eval_keyframes.max(1)).max(1);
-    let mut ev = Evaluator::new(&ctx);
     let mut psnr = Vec::new();
     let vocabulary = read_vocabulary(path, &AssemblyConfig::default().topics.vocabulary)?;
     let (mut cos, mut cos_pixels) = (0.0, 0u64);
@@ -218,7 +217,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
     if b.eval_keyframes > 0 {
         ctx.set_memory_budget(None);
         for f in kept.iter().step_by(every).take(b.eval_keyframes) {
-            let m = ev.evaluate(&mut mapper, f, vocabulary.as_ref())?;
+            let m = mapper.evaluate(f, vocabulary.as_ref(), 1)?;
             psnr.push(m.psnr);
             if let Some(c) = m.cosine_loss {
                 cos += c * m.cosine_pixels as f64;

@@ -14,7 +14,7 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use latentam::gpu::{Context, LiveObjects};
 use latentam::io::{AssemblyConfig, McapFrames};
-use latentam::mapper::{Integrated, MapperConfig, OnlineMapper};
+use latentam::mapper::{Integrated, Mapper, MapperConfig};
 use serde::Serialize;
 
 use latentam_scene::{generate, SceneConfig};
@@ -100,7 +100,7 @@ pub fn run(
         .with_context(|| format!("opening {}", log.display()))?;
     // Every pipeline up front, so the object counts compare like with like.
     latentam::mapper::warm_up(ctx)?;
-    let mut mapper = OnlineMapper::new(ctx, opts.config.clone())?;
+    let mut mapper = Mapper::with_context(ctx, opts.config.clone())?;
     let validation = ctx.validation_log();
     let per_lap = opts.scene.frames as f64 / opts.scene.laps as f64;
     let mut curve = Vec::new();

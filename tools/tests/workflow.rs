@@ -13,7 +13,6 @@ use common::{gen_scene, latentam, run_python, scratch, write_npy, SCENE_DIM};
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{read_tum, read_vocabulary, AssemblyConfig, McapFrames};
 use latentam::map::{read_ply, unit_quat};
-use latentam::mapper::eval::Evaluator;
 use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
 
 const FRAMES: usize = 32;
@@ -281,9 +280,7 @@ fn map_query_eval_profile_on_a_generated_log() {
         buf
     };
     let mut again = Mapper::load(&ctx, &run).unwrap();
-    let (view, _) = Evaluator::new(&ctx)
-        .render_frame(again.online(), &frames[6])
-        .unwrap();
+    let (view, _) = again.render_frame(&frames[6]).unwrap();
     let expected: Vec<u8> = view
         .rgbd
         .iter()

@@ -352,8 +352,10 @@ impl Mapper {
         (ev, &mut self.inner)
     }
 
-    /// The mapper underneath. Unstable: for the engine's benchmarks and
-    /// tests; everything a program needs is on `Mapper` itself.
+    /// The mapper underneath. Unstable: for the engine's integration tests
+    /// that check its internals (the GPU window against the global map);
+    /// everything a program needs is on `Mapper` itself, and neither the
+    /// CLI nor the benchmarks call this.
     #[doc(hidden)]
     pub fn online(&mut self) -> &mut OnlineMapper {
         &mut self.inner
