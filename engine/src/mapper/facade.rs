@@ -49,6 +49,13 @@ pub struct Mapper {
 
 impl Mapper {
     /// A mapper on the first suitable Vulkan device.
+    ///
+    /// ```no_run
+    /// let mut config = latentam::Config::default();
+    /// config.gpu_budget = Some(2 << 30); // bytes of GPU memory the map may use
+    /// let mapper = latentam::Mapper::new(config)?;
+    /// # Ok::<(), latentam::Error>(())
+    /// ```
     pub fn new(config: MapperConfig) -> Result<Self> {
         let ctx = Context::new(ContextOptions::default())?;
         Self::with_context(&ctx, config)
@@ -56,6 +63,13 @@ impl Mapper {
 
     /// A mapper on a context of your choosing (device, validation,
     /// profiling). It sets the context's memory budget.
+    ///
+    /// ```no_run
+    /// use latentam::gpu::{Context, ContextOptions};
+    /// let ctx = Context::new(ContextOptions { profiling: true, ..ContextOptions::default() })?;
+    /// let mapper = latentam::Mapper::with_context(&ctx, latentam::Config::default())?;
+    /// # Ok::<(), latentam::Error>(())
+    /// ```
     pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
         Ok(Mapper {
             inner: OnlineMapper::new(ctx, config)?,
@@ -66,12 +80,29 @@ impl Mapper {
 
     /// The GPU context the mapper runs on (device information, the
     /// profiler's kernel timings).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// println!("mapping on {}", mapper.context().info().name);
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn context(&self) -> &Context {
         self.inner.context()
     }
 
     /// Offers one frame; keyframes are mapped (see
     /// [`OnlineMapper::integrate`]).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, frame: latentam::io::Frame) -> latentam::Result<()> {
+    /// use latentam::mapper::Integrated;
+    /// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+    ///     println!("keyframe {}: {} Gaussians", report.index, report.gaussians);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {
         self.inner.integrate(frame.borrow())
     }
@@ -79,12 +110,31 @@ impl Mapper {
     /// Relevance of every Gaussian to `text_embedding` (cosine similarity
     /// of its decoded embedding), in the order of
     /// [`GlobalMap::iter`] on [`Mapper::global`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper) -> latentam::Result<()> {
+    /// let text_embedding = vec![0.0f32; 512]; // from the map's embedding model
+    /// let scores = mapper.query(&text_embedding)?;
+    /// let best = scores.iter().cloned().fold(f32::MIN, f32::max);
+    /// println!("best match {best:.3} over {} Gaussians", scores.len());
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn query(&mut self, text_embedding: &[f32]) -> Result<Vec<f32>> {
         self.query_many(text_embedding)
     }
 
     /// Relevance of every Gaussian to each of several embeddings given
     /// back to back: Gaussians × embeddings scores, row-major.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper) -> latentam::Result<()> {
+    /// let (a, b) = (vec![0.0f32; 512], vec![1.0f32; 512]);
+    /// let scores = mapper.query_many(&[a, b].concat())?;
+    /// let first_gaussian = &scores[0..2]; // its score for a, then for b
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
         let head = self.inner.head().ok_or_else(|| {
             Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
@@ -122,6 +172,16 @@ impl Mapper {
 
     /// Relevance of every pixel of a rendered view to `query`, from its
     /// rendered queries (see [`Mapper::render`]).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame, vocabulary: &latentam::io::Vocabulary) -> latentam::Result<()> {
+    /// use latentam::latent::TextQuery;
+    /// let (view, _) = mapper.render_frame(frame)?;
+    /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
+    /// let heat: Vec<f32> = mapper.view_relevance(&view, &chair)?; // per pixel
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
         let head = self.inner.head().ok_or_else(|| {
             Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
@@ -136,6 +196,14 @@ impl Mapper {
     /// [`DECODER_FILE`]. The folder is replaced whole and atomically (see
     /// [`RunFolder`]): it must hold nothing but a run's files, and no other
     /// process may be writing it. Returns the state file's path.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper) -> latentam::Result<()> {
+    /// let state = mapper.save("runs/kitchen")?;
+    /// println!("saved {}", state.display());
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn save(&mut self, dir: impl AsRef<Path>) -> Result<PathBuf> {
         let folder = RunFolder::lock(dir)?;
         let staging = folder.stage()?;
@@ -147,6 +215,18 @@ impl Mapper {
     /// Writes [`STATE_FILE`] and [`DECODER_FILE`] (when the map has
     /// embeddings) into a staged run folder, tagged with its run id, for
     /// callers that add files of their own before committing it.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+    /// use latentam::mapper::RunFolder;
+    /// let folder = RunFolder::lock("runs/kitchen")?;
+    /// let staging = folder.stage()?;
+    /// mapper.save_into(&staging)?;
+    /// std::fs::write(staging.path().join("notes.txt"), "first floor")?;
+    /// staging.commit()?;
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
         let id = staging.run_id();
         self.inner
@@ -161,6 +241,14 @@ impl Mapper {
     /// Loads a state saved by [`Mapper::save`] from directory `dir` onto
     /// `ctx`, to continue mapping or to query. A decoder beside it must
     /// come from the same save.
+    ///
+    /// ```no_run
+    /// use latentam::gpu::{Context, ContextOptions};
+    /// let ctx = Context::new(ContextOptions::default())?;
+    /// let mut mapper = latentam::Mapper::load(&ctx, "runs/kitchen")?;
+    /// println!("{} keyframes so far", mapper.stats().keyframes);
+    /// # Ok::<(), latentam::Error>(())
+    /// ```
     pub fn load(ctx: &Context, dir: impl AsRef<Path>) -> Result<Self> {
         Self::load_with(ctx, dir, &|saved| Ok(saved.clone()))
     }
@@ -170,6 +258,18 @@ impl Mapper {
     /// settings that shape the saved state (voxel size, dictionary size,
     /// region count, replay count, history cell, seed, window capacity)
     /// must come back unchanged: a change is refused.
+    ///
+    /// ```no_run
+    /// # fn f(ctx: &latentam::gpu::Context) -> latentam::Result<()> {
+    /// // Go on with a smaller GPU budget; the map's shape stays as saved.
+    /// let mapper = latentam::Mapper::load_with(ctx, "runs/kitchen", &|saved| {
+    ///     let mut c = saved.clone();
+    ///     c.gpu_budget = Some(512 << 20);
+    ///     Ok(c)
+    /// })?;
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn load_with(
         ctx: &Context,
         dir: impl AsRef<Path>,
@@ -210,6 +310,14 @@ impl Mapper {
     }
 
     /// Counts, memory and timings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// let s = mapper.stats();
+    /// println!("{} keyframes, {} Gaussians, {} bytes peak GPU", s.keyframes, s.gaussians, s.gpu_peak_bytes);
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn stats(&self) -> MapperStats {
         self.inner.stats()
     }
@@ -235,50 +343,126 @@ impl Mapper {
     }
 
     /// The global map (current as of the last sync, query or save).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// for (key, gaussian) in mapper.global().iter().take(3) {
+    ///     println!("{key:?}: opacity logit {}", gaussian.opacity_logit);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn global(&self) -> &GlobalMap {
         self.inner.global()
     }
 
     /// The settings the map is built with.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// println!("{} atoms, voxel {} m", mapper.config().atoms, mapper.config().voxel_size);
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn config(&self) -> &MapperConfig {
         self.inner.config()
     }
 
     /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// for (stamp_ns, pose) in mapper.trajectory() {
+    ///     println!("{stamp_ns}: {:?}", pose.translation);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn trajectory(&self) -> &[(i64, CameraPose)] {
         self.inner.trajectory()
     }
 
     /// The keyframes kept for replay.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// println!("{} keyframes kept for replay", mapper.history().len());
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn history(&self) -> &History {
         self.inner.history()
     }
 
     /// The latent head (W, D and their training state), once a keyframe
     /// with embeddings has been mapped.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// if let Some(head) = mapper.head() {
+    ///     println!("{} dictionary atoms in use", head.atom_count());
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn head(&self) -> Option<&LatentHead> {
         self.inner.head()
     }
 
     /// The embedding model id of the map's region embeddings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// println!("embeddings from {}", mapper.embedding_model().unwrap_or("no model yet"));
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn embedding_model(&self) -> Option<&str> {
         self.inner.embedding_model()
     }
 
     /// The id of the run folder version this map was loaded from or last
     /// saved to.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// if let Some(id) = mapper.run_id() {
+    ///     println!("run {id}");
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn run_id(&self) -> Option<&str> {
         self.inner.run_id()
     }
 
     /// Whether a keyframe failed part-way: the map refuses further frames
     /// and saves (reload the last save to go on).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, ctx: &latentam::gpu::Context) -> latentam::Result<()> {
+    /// if mapper.is_broken() {
+    ///     *mapper = latentam::Mapper::load(ctx, "runs/kitchen")?; // back to the last save
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn is_broken(&self) -> bool {
         self.inner.is_broken()
     }
 
     /// Checks that a vocabulary's embeddings suit the map (model and
     /// dimension), with an error that says what differs.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+    /// let vocabulary = latentam::io::read_vocabulary("words.mcap".as_ref(), "/vocabulary")?;
+    /// if let Some(v) = vocabulary {
+    ///     mapper.check_vocabulary(&v)?; // names the model or dimension that differs
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
         self.inner.check_vocabulary(vocabulary)
     }
@@ -316,6 +500,14 @@ impl Mapper {
     }
 
     /// [`Mapper::render`] at a frame's pose and with its camera.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame) -> latentam::Result<()> {
+    /// let (view, drawn) = mapper.render_frame(frame)?;
+    /// println!("{drawn} Gaussians drawn, {} pixels", view.rgbd.len());
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
         let (ev, mapper) = self.evaluator();
         ev.render_frame(mapper, frame)

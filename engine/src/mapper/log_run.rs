@@ -27,6 +27,15 @@ use crate::io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames,
 use crate::map::{write_ply, write_ply_without_latents};
 
 /// How [`LogRun::map`] goes through a log.
+///
+/// ```no_run
+/// # fn f() -> latentam::Result<()> {
+/// use latentam::mapper::LogRunOptions;
+/// // The first 500 frames, saving every 10 keyframes.
+/// let options = LogRunOptions { max_frames: Some(500), autosave_every: 10 };
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct LogRunOptions {
     /// Stop after this many frames of the log (those a resumed run skips
@@ -40,6 +49,21 @@ pub struct LogRunOptions {
 
 /// What a client sees of a run of a log, and what it adds to it. Every
 /// method has a default that does nothing, so `&mut ()` observes nothing.
+///
+/// ```no_run
+/// # fn f() -> latentam::Result<()> {
+/// use latentam::mapper::{KeyframeReport, Mapper, RunObserver};
+/// struct Printer;
+/// impl RunObserver for Printer {
+///     fn frame_done(&mut self, frames: u64, _: &Mapper, last: Option<&KeyframeReport>) {
+///         if let Some(k) = last {
+///             eprintln!("frame {frames}: keyframe {} took {:.0} ms", k.index, k.timings.total_ms);
+///         }
+///     }
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub trait RunObserver {
     /// Before the first frame: the log's frame source (its topic plan, its
     /// vocabulary) and the number of frames the run will go through, when
@@ -72,6 +96,17 @@ pub trait RunObserver {
 impl RunObserver for () {}
 
 /// What [`LogRun::write_folder`] did.
+///
+/// ```no_run
+/// # fn f(run: &mut latentam::mapper::LogRun, folder: &latentam::mapper::RunFolder) -> latentam::Result<()> {
+/// use latentam::mapper::Written;
+/// match run.write_folder(folder, &mut ())? {
+///     Written::Saved(report) => println!("saved {} keyframes", report.keyframes),
+///     Written::Kept(why) => eprintln!("folder unchanged: {why}"),
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Debug)]
 pub enum Written {
     /// The folder now holds this run, described by the report.
@@ -81,6 +116,16 @@ pub enum Written {
 }
 
 /// Why [`LogRun::write_folder`] left the folder as it was.
+///
+/// ```no_run
+/// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+/// use latentam::mapper::Kept;
+/// if let Some(Kept::NothingMapped(why)) = run.not_to_save() {
+///     eprintln!("the log gave no map: {why}");
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Debug, Clone, PartialEq)]
 pub enum Kept {
     /// A resumed run whose log frames were all mapped already: the folder
@@ -166,6 +211,18 @@ impl LogRun {
     /// part-way end the run with [`Ending::Failed`]. The final write is
     /// the caller's ([`LogRun::write_folder`]), so it can decide what an
     /// unfinished run is worth.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: latentam::Mapper) -> latentam::Result<()> {
+    /// use latentam::io::AssemblyConfig;
+    /// use latentam::mapper::{LogRun, LogRunOptions};
+    /// // No run folder: map only, in memory.
+    /// let run = LogRun::map(mapper, "log.mcap".as_ref(), AssemblyConfig::default(),
+    ///                       &LogRunOptions::default(), None, &mut ())?;
+    /// println!("{} keyframes in {:.1} s", run.keyframes.len(), run.wall_s);
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn map(
         mapper: Mapper,
         log: &Path,
@@ -263,6 +320,14 @@ impl LogRun {
 
     /// The report of this run, with the profiler's per-kernel statistics,
     /// for the run folder version `run_id`.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+    /// let report = run.report("example-run");
+    /// println!("{}", serde_json::to_string_pretty(&report).unwrap());
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn report(&self, run_id: &str) -> RunReport {
         let kernels = self.mapper.context().profiler_snapshot().stats();
         self.report_with(run_id, kernels)
@@ -315,6 +380,15 @@ impl LogRun {
 
     /// The keyframe trajectory, every keyframe of the map (resumed runs
     /// included), camera-to-world.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+    /// for (stamp_ns, pose) in run.trajectory() {
+    ///     println!("{stamp_ns} {:?}", pose.translation);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn trajectory(&self) -> Vec<(u64, CameraPose)> {
         self.mapper
             .trajectory()
@@ -324,6 +398,16 @@ impl LogRun {
     }
 
     /// Why the run folder must not be replaced by this run, if so.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+    /// match run.not_to_save() {
+    ///     Some(why) => eprintln!("not saving: {why}"),
+    ///     None => println!("ready to save"),
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn not_to_save(&self) -> Option<Kept> {
         let stats = self.mapper.stats();
         if self.mapper.is_broken() {
@@ -338,6 +422,15 @@ impl LogRun {
     }
 
     /// What the folder holds when this run did not replace it.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+    /// if run.not_to_save().is_some() {
+    ///     eprintln!("{}", run.kept_description());
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn kept_description(&self) -> String {
         match self.autosaved_at {
             Some(k) => format!("its autosave at keyframe {k}"),
@@ -346,6 +439,15 @@ impl LogRun {
     }
 
     /// Why no keyframe (or no Gaussian) came of the log, with counts.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam::mapper::LogRun) -> latentam::Result<()> {
+    /// if run.keyframes.is_empty() {
+    ///     eprintln!("no keyframe: {}", run.why_nothing());
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn why_nothing(&self) -> String {
         let mut parts = Vec::new();
         let stats = self.mapper.stats();
@@ -378,6 +480,13 @@ impl LogRun {
     /// Either every file is written and the folder swapped in whole, or it
     /// is left as it was: kept for [`LogRun::not_to_save`]'s reasons, an
     /// error for a file that could not be written.
+    ///
+    /// ```no_run
+    /// # fn f(run: &mut latentam::mapper::LogRun, folder: &latentam::mapper::RunFolder) -> latentam::Result<()> {
+    /// let written = run.write_folder(folder, &mut ())?;
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn write_folder(
         &mut self,
         folder: &RunFolder,
