@@ -5,7 +5,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::ValueEnum;
 use latentam_cli::convert::features::{FeatureDir, Oracle};
-use latentam_cli::convert::{convert, datasets, ConvertOptions, EmbeddingSource};
+use latentam_cli::convert::{
+    convert, datasets, ConvertOptions, DepthCamera, EmbeddingSource, Registration,
+};
 use latentam_cli::progress::Progress;
 
 use crate::gen_scene::{CompressionArg, DtypeArg};
@@ -49,9 +51,39 @@ pub struct Args {
     /// `vectors` (and optional `names`, `model` metadata).
     #[arg(long, requires = "oracle_labels")]
     class_vectors: Option<PathBuf>,
-    /// Intrinsics `fx,fy,cx,cy` in pixels, instead of the dataset's.
+    /// The colour camera's intrinsics `fx,fy,cx,cy` in pixels, instead of
+    /// the dataset's.
     #[arg(long, value_delimiter = ',', num_args = 4)]
     intrinsics: Option<Vec<f64>>,
+    /// Depth comes from a second lens with these intrinsics `fx,fy,cx,cy`:
+    /// it is re-projected into the colour camera (nearest surface wins).
+    /// 7-Scenes does this by default with its measured colour lens.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 4,
+        conflicts_with = "no_registration"
+    )]
+    depth_intrinsics: Option<Vec<f64>>,
+    /// With --depth-intrinsics: the depth lens's origin `x,y,z` in metres
+    /// in the colour camera's optical frame (x right, y down, z forward;
+    /// the lenses are taken as parallel).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        requires = "depth_intrinsics",
+        allow_hyphen_values = true
+    )]
+    depth_offset: Option<Vec<f64>>,
+    /// With --depth-intrinsics: the dataset's poses are the depth lens's
+    /// (they are moved to the colour lens).
+    #[arg(long, requires = "depth_intrinsics")]
+    depth_poses: bool,
+    /// Keep depth as recorded, with the depth camera as the camera (for
+    /// datasets registered by default, 7-Scenes).
+    #[arg(long)]
+    no_registration: bool,
     /// Depth units per metre of the dataset's PNGs, instead of the layout's
     /// default (7-Scenes 1000, TUM 5000, Replica 6553.5).
     #[arg(long)]
@@ -90,6 +122,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let options = ConvertOptions {
         embeddings,
         intrinsics: args.intrinsics.as_ref().map(|v| [v[0], v[1], v[2], v[3]]),
+        registration: match (&args.depth_intrinsics, args.no_registration) {
+            (Some(k), _) => Registration::Given(DepthCamera {
+                intrinsics: [k[0], k[1], k[2], k[3]],
+                translation: args
+                    .depth_offset
+                    .as_ref()
+                    .map_or([0.0; 3], |t| [t[0], t[1], t[2]]),
+                poses_are_depth: args.depth_poses,
+            }),
+            (None, true) => Registration::Off,
+            (None, false) => Registration::Dataset,
+        },
         depth_units_per_metre: args.depth_units_per_metre,
         dtype: args.dtype.into(),
         compression: args.compression.into(),

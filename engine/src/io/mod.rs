@@ -12,6 +12,8 @@
 //! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
+//! * [`DepthRegistration`]: depth from a second lens re-projected into
+//!   the colour camera (raw Kinect streams, unregistered datasets);
 //! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
 //! * [`foxglove`]: maps and trajectories as Foxglove point clouds and
 //!   poses (JSON messages in MCAP);
@@ -41,6 +43,7 @@ mod mcap_frames;
 pub mod messages;
 mod parts;
 mod pool;
+mod registration;
 mod report;
 pub mod schema;
 mod tf;
@@ -67,6 +70,7 @@ pub use messages::{
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
 pub use parts::MAX_EMBEDDING_DIM;
+pub use registration::DepthRegistration;
 pub use report::{IngestReport, ReasonCount, Rejection};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
 pub use topic_plan::{plan_topics, TopicChoice};

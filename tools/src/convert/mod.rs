@@ -15,11 +15,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use latentam::io::{
-    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
-    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings, MAX_RECORD_BYTES,
+    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, DepthRegistration, Dtype,
+    FeatureGrid, Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings,
+    MAX_RECORD_BYTES,
 };
 
-pub use datasets::Dataset;
+pub use datasets::{Dataset, DepthCamera};
 use features::{FeatureDir, FrameFeatures, LoadedFeatures, Oracle};
 
 /// Where a log's embeddings come from.
@@ -32,12 +33,27 @@ pub enum EmbeddingSource {
     Oracle(Oracle),
 }
 
+/// Whether depth is re-projected into the colour camera.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Registration {
+    /// As the dataset reader says (7-Scenes: yes, with its measured colour
+    /// lens; the others are registered already).
+    #[default]
+    Dataset,
+    /// Keep depth as recorded, and the depth camera as the camera.
+    Off,
+    /// Depth comes from this camera.
+    Given(DepthCamera),
+}
+
 /// How to convert.
 pub struct ConvertOptions {
     /// Embeddings.
     pub embeddings: EmbeddingSource,
-    /// `[fx, fy, cx, cy]` instead of the dataset's.
+    /// The colour camera's `[fx, fy, cx, cy]` instead of the dataset's.
     pub intrinsics: Option<[f64; 4]>,
+    /// Depth registration.
+    pub registration: Registration,
     /// Depth units per metre instead of the dataset's.
     pub depth_units_per_metre: Option<f64>,
     /// Element type of written embeddings.
@@ -98,6 +114,13 @@ fn stem(path: &Path) -> String {
         .unwrap_or_default()
 }
 
+fn check_intrinsics(what: &str, k: &[f64; 4]) -> anyhow::Result<()> {
+    if k.iter().any(|v| !v.is_finite()) || k[0] <= 0.0 || k[1] <= 0.0 {
+        bail!("{what} {k:?} are not valid");
+    }
+    Ok(())
+}
+
 /// Writes `dataset` to `out` (through `out.partial`, renamed at the end),
 /// calling `progress(colour frames done, total)`.
 pub fn convert(
@@ -106,13 +129,42 @@ pub fn convert(
     out: &Path,
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<ConvertSummary> {
+    let depth_camera = match options.registration {
+        Registration::Dataset => dataset.depth_camera,
+        Registration::Off => None,
+        Registration::Given(c) => Some(c),
+    };
+    // Unregistered, the depth camera is the camera.
+    let recorded = match (options.registration, dataset.depth_camera) {
+        (Registration::Off, Some(c)) => Some(c.intrinsics),
+        _ => dataset.intrinsics,
+    };
     let intrinsics = options
         .intrinsics
-        .or(dataset.intrinsics)
+        .or(recorded)
         .context("the dataset does not state its intrinsics; pass --intrinsics fx,fy,cx,cy")?;
-    if intrinsics.iter().any(|v| !v.is_finite()) || intrinsics[0] <= 0.0 || intrinsics[1] <= 0.0 {
-        bail!("intrinsics {intrinsics:?} are not valid");
-    }
+    check_intrinsics("intrinsics", &intrinsics)?;
+    let registration = match depth_camera {
+        Some(c) => {
+            check_intrinsics("depth intrinsics", &c.intrinsics)?;
+            let t = glam::DVec3::from(c.translation);
+            if !(t.is_finite() && t.length() <= 1.0) {
+                bail!(
+                    "depth camera offset {t} m is not a lens beside the colour one (at most 1 m)"
+                );
+            }
+            Some((
+                DepthRegistration {
+                    depth: c.intrinsics,
+                    colour: intrinsics,
+                    rotation: glam::DQuat::IDENTITY,
+                    translation: t,
+                },
+                c.poses_are_depth,
+            ))
+        }
+        None => None,
+    };
     let units = options
         .depth_units_per_metre
         .unwrap_or(dataset.depth_units_per_metre);
@@ -135,6 +187,39 @@ pub fn convert(
     if dataset.color.is_empty() {
         bail!("no frames to convert");
     }
+    // Registered depth takes the colour images' size.
+    let registration = match registration {
+        Some((reg, poses_are_depth)) => {
+            let first = &dataset.color[0].path;
+            let bytes = latentam::io::read_input(first)
+                .with_context(|| format!("reading {}", first.display()))?;
+            let (w, h, _) = codec::compressed_image_size(&bytes)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
+            if poses_are_depth {
+                for (_, p) in &mut dataset.poses {
+                    *p = reg.colour_pose(p);
+                }
+            }
+            let [fx, _, cx, cy] = reg.depth;
+            let t = reg.translation;
+            dataset.notes.push(format!(
+                "depth registered to the colour camera (depth lens f {fx:.1} c ({cx:.1}, {cy:.1}), \
+                 {:.1} cm away){}; --no-registration keeps it as recorded",
+                t.length() * 100.0,
+                if poses_are_depth { ", poses moved from the depth lens to the colour lens" } else { "" }
+            ));
+            Some((reg, w as usize, h as usize))
+        }
+        None => {
+            if dataset.depth_camera.is_some() {
+                dataset.notes.push(
+                    "depth is not registered to colour (a few pixels apart, more at silhouettes)"
+                        .into(),
+                );
+            }
+            None
+        }
+    };
     // ROS stamps are absolute times; datasets without them start at 0.
     let offset = if dataset.color[0].stamp_ns < 1_000_000_000_000 {
         latentam_cli_epoch()
@@ -216,6 +301,13 @@ pub fn convert(
                         *v = (*v as f64 * k).round().min(u16::MAX as f64) as u16;
                     }
                 }
+                let (w, h) = match &registration {
+                    Some((reg, cw, ch)) => {
+                        values = reg.register(w as usize, h as usize, &values, 1000.0, *cw, *ch);
+                        (*cw as u32, *ch as u32)
+                    }
+                    None => (w, h),
+                };
                 // `values` holds the w × h samples `decode_png_u16` returned
                 // (at most codec::MAX_IMAGE_PIXELS of them), as the encoder requires.
                 let data = codec::encode_compressed_depth_u16(w, h, &values);
@@ -419,6 +511,7 @@ mod tests {
         ConvertOptions {
             embeddings: EmbeddingSource::None,
             intrinsics: None,
+            registration: Registration::Dataset,
             depth_units_per_metre: None,
             dtype: Dtype::F16,
             compression: Compression::None,
@@ -457,6 +550,39 @@ mod tests {
         let last = i64::MAX - 5;
         let e = convert(dataset(last, last), &options(Some(1)), &out, |_, _| {}).unwrap_err();
         assert!(format!("{e:#}").contains("colour.png"), "{e:#}");
+        assert!(!out.exists());
+    }
+
+    #[test]
+    fn depth_cameras_that_cannot_be_beside_the_colour_lens_are_refused() {
+        let out = std::env::temp_dir().join(format!(
+            "latentam-convert-depth-camera-{}.mcap",
+            std::process::id()
+        ));
+        let given = |intrinsics, translation| ConvertOptions {
+            registration: Registration::Given(DepthCamera {
+                intrinsics,
+                translation,
+                poses_are_depth: false,
+            }),
+            ..options(None)
+        };
+        let e = convert(
+            dataset(0, 0),
+            &given([0.0, 585.0, 320.0, 240.0], [0.0; 3]),
+            &out,
+            |_, _| {},
+        )
+        .unwrap_err();
+        assert!(format!("{e:#}").contains("depth intrinsics"), "{e:#}");
+        let e = convert(
+            dataset(0, 0),
+            &given([585.0, 585.0, 320.0, 240.0], [5.0, 0.0, 0.0]),
+            &out,
+            |_, _| {},
+        )
+        .unwrap_err();
+        assert!(format!("{e:#}").contains("at most 1 m"), "{e:#}");
         assert!(!out.exists());
     }
 
