@@ -126,6 +126,17 @@ fn pose(p: &CameraPose) -> Value {
 
 /// One point cloud: a position, an RGBA colour and one named value per
 /// point.
+///
+/// ```
+/// use latentam::io::foxglove::Cloud;
+///
+/// // Points coloured by their relevance to a query, the score kept as a field.
+/// let positions = [[0.0, 0.0, 1.0], [0.5, 0.0, 1.0]];
+/// let scores = [0.9f32, 0.1];
+/// let colours: Vec<[u8; 4]> = scores.iter().map(|s| [(s * 255.0) as u8, 0, 0, 255]).collect();
+/// let cloud = Cloud { positions: &positions, colours: &colours, value: ("relevance", &scores) };
+/// assert_eq!(cloud.positions.len(), cloud.value.1.len());
+/// ```
 pub struct Cloud<'a> {
     /// World positions, metres.
     pub positions: &'a [[f32; 3]],

@@ -9,6 +9,15 @@ use glam::{DQuat, DVec3};
 use super::messages::Pose;
 
 /// Pixel layout of a colour image.
+///
+/// ```
+/// use latentam::io::PixelFormat;
+///
+/// let format = PixelFormat::from_ros("bgr8").expect("a supported encoding");
+/// assert_eq!(format.bytes_per_pixel(), 3);
+/// assert_eq!(format.ros_name(), "bgr8");
+/// assert!(PixelFormat::from_ros("yuv422").is_none()); // not supported
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PixelFormat {
     /// 3 bytes: R, G, B.
@@ -56,6 +65,17 @@ impl PixelFormat {
 }
 
 /// A colour image with packed rows.
+///
+/// ```
+/// use latentam::io::{ColorImage, PixelFormat};
+///
+/// // Two pixels from a BGR camera: red, then blue.
+/// let data = vec![0, 0, 255, 255, 0, 0];
+/// let image = ColorImage { width: 2, height: 1, format: PixelFormat::Bgr8, data };
+/// assert_eq!(image.rgb(0, 0), [255, 0, 0]);
+/// let rgb: Vec<u8> = image.to_rgb8(); // packed RGB, e.g. for a PNG encoder
+/// assert_eq!(rgb, vec![255, 0, 0, 0, 0, 255]);
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColorImage {
     /// Columns.
@@ -96,6 +116,15 @@ impl ColorImage {
 }
 
 /// Depth samples as the log stored them.
+///
+/// ```
+/// use latentam::io::{DepthData, DepthImage};
+///
+/// // A `32FC1` image in metres; NaN marks a pixel without a return.
+/// let data = DepthData::Metres(vec![2.0, f32::NAN]);
+/// let depth = DepthImage { width: 2, height: 1, data };
+/// assert_eq!(depth.to_metres(), vec![2.0, 0.0]); // invalid samples become 0
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub enum DepthData {
     /// Integer units (`16UC1` / `mono16`); 0 = invalid.
@@ -110,6 +139,18 @@ pub enum DepthData {
 }
 
 /// A depth image.
+///
+/// ```
+/// use latentam::io::{DepthData, DepthImage};
+///
+/// // A `16UC1` image in millimetres, as most RGB-D drivers publish.
+/// let data = DepthData::Units { values: vec![2000, 0], metres_per_unit: 0.001 };
+/// let mut depth = DepthImage { width: 2, height: 1, data };
+/// assert_eq!(depth.metres(0), Some(2.0));
+/// assert_eq!(depth.metres(1), None); // 0 = no return
+/// depth.invalidate_beyond(1.5); // ignore everything past 1.5 m
+/// assert!(!depth.has_valid_sample());
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct DepthImage {
     /// Columns.
@@ -185,6 +226,16 @@ impl DepthImage {
 
 /// Pinhole intrinsics in pixels, OpenCV convention (pixel centres at
 /// integer coordinates).
+///
+/// ```
+/// use latentam::io::Intrinsics;
+///
+/// let k = Intrinsics { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 };
+/// // Back-project pixel (u, v) with depth z into the camera frame.
+/// let (u, v, z) = (319.5, 239.5, 2.0);
+/// let point = [(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z];
+/// assert_eq!(point, [0.0, 0.0, 2.0]); // the principal point lies on the optical axis
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Intrinsics {
     /// Image columns.
@@ -202,6 +253,14 @@ pub struct Intrinsics {
 }
 
 /// A per-pixel label image (regions or semantic classes).
+///
+/// ```
+/// use latentam::io::LabelImage;
+///
+/// let semantic = LabelImage { width: 2, height: 2, labels: vec![0, 0, 7, 7] };
+/// let class_at = |x: u32, y: u32| semantic.labels[(y * semantic.width + x) as usize];
+/// assert_eq!(class_at(1, 1), 7);
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct LabelImage {
     /// Columns.
@@ -213,6 +272,15 @@ pub struct LabelImage {
 }
 
 /// Element type of embedding data.
+///
+/// ```
+/// use latentam::io::{decode_floats, encode_floats, Dtype};
+///
+/// let dtype = Dtype::parse("float16").expect("a known dtype");
+/// let bytes = encode_floats(&[0.5, -1.0], dtype);
+/// assert_eq!(bytes.len(), 2 * dtype.size());
+/// assert_eq!(decode_floats(&bytes, dtype), vec![0.5, -1.0]);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dtype {
     /// IEEE half, little-endian.
@@ -247,6 +315,18 @@ impl Dtype {
 }
 
 /// Where a frame's embeddings live in the image.
+///
+/// ```
+/// use latentam::io::EmbeddingLayout;
+/// # fn f(frame: &latentam::io::Frame) {
+/// if let Some(e) = &frame.embeddings {
+///     match &e.layout {
+///         EmbeddingLayout::Regions(mask) => println!("{} regions on a {}×{} mask", e.count, mask.width, mask.height),
+///         EmbeddingLayout::Grid { rows, cols } => println!("a {rows}×{cols} feature grid"),
+///     }
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub enum EmbeddingLayout {
     /// One embedding per region of a label image (`MaskFeatures`).
@@ -261,6 +341,22 @@ pub enum EmbeddingLayout {
 }
 
 /// The target embeddings of one frame.
+///
+/// ```
+/// use latentam::io::{encode_floats, Dtype, EmbeddingLayout, Embeddings};
+///
+/// // A 1×2 feature grid of 3-d embeddings.
+/// let values = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+/// let grid = Embeddings {
+///     layout: EmbeddingLayout::Grid { rows: 1, cols: 2 },
+///     count: 2,
+///     dim: 3,
+///     dtype: Dtype::F32,
+///     data: encode_floats(&values, Dtype::F32),
+///     model: "clip-vit-b16".into(),
+/// };
+/// assert_eq!(grid.to_f32(), values);
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Embeddings {
     /// Regions or grid.
@@ -317,6 +413,16 @@ pub fn encode_floats(values: &[f32], dtype: Dtype) -> Vec<u8> {
 
 /// A camera-to-world pose: `p_world = rotation · p_camera + translation`,
 /// camera axes as OpenCV (x right, y down, z forward).
+///
+/// ```
+/// use glam::{DQuat, DVec3};
+/// use latentam::io::CameraPose;
+///
+/// let pose = CameraPose { rotation: DQuat::IDENTITY, translation: DVec3::new(0.0, 0.0, 1.5) };
+/// // A point 2 m in front of the camera, in world coordinates.
+/// let p_world = pose.rotation * DVec3::new(0.0, 0.0, 2.0) + pose.translation;
+/// assert_eq!(p_world, DVec3::new(0.0, 0.0, 3.5));
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CameraPose {
     /// Unit quaternion.
@@ -335,6 +441,25 @@ impl From<CameraPose> for Pose {
 }
 
 /// Everything the mapper needs about one moment of the stream.
+///
+/// ```no_run
+/// use latentam::io::{CameraPose, ColorImage, DepthData, DepthImage, Frame, Intrinsics, PixelFormat};
+/// # fn f(mapper: &mut latentam::Mapper, rgb: Vec<u8>, depth_mm: Vec<u16>, pose: CameraPose) -> latentam::Result<()> {
+/// // A frame straight from the robot's own camera driver and localisation.
+/// let (width, height) = (640, 480);
+/// let frame = Frame {
+///     stamp_ns: 1_700_000_000_000_000_000,
+///     pose,
+///     intrinsics: Intrinsics { width, height, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 },
+///     color: ColorImage { width, height, format: PixelFormat::Rgb8, data: rgb },
+///     depth: DepthImage { width, height, data: DepthData::Units { values: depth_mm, metres_per_unit: 0.001 } },
+///     embeddings: None, // geometry and colour only
+///     semantic: None,
+/// };
+/// mapper.integrate(&frame)?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Frame {
     /// `header.stamp` of the colour image, nanoseconds.

@@ -9,6 +9,17 @@ use glam::{DQuat, DVec3};
 use super::cdr::{CdrError, CdrReader, CdrWriter, Endian, Seq};
 
 /// A message type with a CDR layout.
+///
+/// ```
+/// use latentam::io::{Header, Pose, PoseStamped, RosMessage};
+///
+/// let msg = PoseStamped { header: Header::at(1_000, "map"), pose: Pose::IDENTITY };
+/// let bytes = msg.encode(); // little-endian CDR, as ROS 2 publishes it
+/// let back = PoseStamped::decode(&bytes)?;
+/// assert_eq!(back.header.frame_id, "map");
+/// assert_eq!(PoseStamped::TYPE_NAME, "geometry_msgs/msg/PoseStamped");
+/// # Ok::<(), latentam::io::cdr::CdrError>(())
+/// ```
 pub trait RosMessage<'a>: Sized {
     /// `pkg/msg/Type`.
     const TYPE_NAME: &'static str;
@@ -34,6 +45,14 @@ pub trait RosMessage<'a>: Sized {
 }
 
 /// `builtin_interfaces/Time`.
+///
+/// ```
+/// use latentam::io::Time;
+///
+/// let t = Time::from_nanos(1_500_000_000);
+/// assert_eq!((t.sec, t.nanosec), (1, 500_000_000));
+/// assert_eq!(t.as_nanos(), 1_500_000_000);
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Time {
     /// Seconds (may be negative in principle).
@@ -60,6 +79,14 @@ impl Time {
 }
 
 /// `std_msgs/Header`.
+///
+/// ```
+/// use latentam::io::Header;
+///
+/// let header = Header::at(1_700_000_000_123_000_000, "camera_color_optical_frame");
+/// assert_eq!(header.stamp.nanosec, 123_000_000);
+/// assert_eq!(header.stamp.as_nanos(), 1_700_000_000_123_000_000);
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Header<'a> {
     /// Acquisition time.
@@ -98,6 +125,18 @@ impl<'a> Header<'a> {
 }
 
 /// `sensor_msgs/Image`.
+///
+/// ```
+/// use latentam::io::{Header, Image, PixelFormat, RosMessage};
+///
+/// let rgb = vec![0u8; 4 * 2 * 3]; // 4×2 pixels
+/// let msg = Image::packed(Header::at(1_000, "camera"), 4, 2, "rgb8", &rgb);
+/// assert_eq!(msg.step, 12);
+/// let bytes = msg.encode();
+/// let decoded = Image::decode(&bytes)?; // borrows `data` from `bytes`
+/// assert_eq!(PixelFormat::from_ros(decoded.encoding), Some(PixelFormat::Rgb8));
+/// # Ok::<(), latentam::io::cdr::CdrError>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct Image<'a> {
     /// Stamp and frame.
@@ -163,6 +202,17 @@ impl<'a> Image<'a> {
 }
 
 /// `sensor_msgs/CompressedImage`.
+///
+/// ```no_run
+/// use latentam::io::{CompressedImage, Compression, Header, LogWriter};
+/// # fn f(jpeg: &[u8]) -> Result<(), latentam::io::InputError> {
+/// let mut log = LogWriter::create("out.mcap".as_ref(), Compression::Zstd)?;
+/// let msg = CompressedImage { header: Header::at(1_000, "camera"), format: "jpeg", data: jpeg };
+/// log.write("/camera/color/image_raw/compressed", 1_000, &msg)?;
+/// log.finish()?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct CompressedImage<'a> {
     /// Stamp and frame.
@@ -190,6 +240,15 @@ impl<'a> RosMessage<'a> for CompressedImage<'a> {
 }
 
 /// `sensor_msgs/CameraInfo`.
+///
+/// ```
+/// use latentam::io::{CameraInfo, Header};
+///
+/// let info = CameraInfo::pinhole(Header::at(0, "camera"), 640, 480, [525.0, 525.0, 319.5, 239.5]);
+/// let [fx, _, cx, _, fy, cy, ..] = info.k;
+/// assert_eq!((fx, fy, cx, cy), (525.0, 525.0, 319.5, 239.5));
+/// assert_eq!((info.width, info.height), (640, 480));
+/// ```
 #[derive(Clone, Debug)]
 pub struct CameraInfo<'a> {
     /// Stamp and frame.
@@ -276,6 +335,17 @@ impl<'a> CameraInfo<'a> {
 
 /// A rigid transform (rotation then translation), in double precision:
 /// `geometry_msgs/Pose` and `geometry_msgs/Transform` alike.
+///
+/// ```
+/// use glam::DVec3;
+/// use latentam::io::Pose;
+///
+/// let base_in_map = Pose { translation: DVec3::new(2.0, 0.0, 0.0), ..Pose::IDENTITY };
+/// let camera_in_base = Pose { translation: DVec3::new(0.0, 0.0, 0.3), ..Pose::IDENTITY };
+/// let camera_in_map = base_in_map.compose(&camera_in_base).checked()?; // finite, unit quaternion
+/// assert_eq!(camera_in_map.translation, DVec3::new(2.0, 0.0, 0.3));
+/// # Ok::<(), latentam::io::Rejection>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
     /// Position / translation.
@@ -307,6 +377,16 @@ impl Pose {
 }
 
 /// `geometry_msgs/PoseStamped`.
+///
+/// ```no_run
+/// use latentam::io::{Header, LogWriter, PoseStamped};
+/// # fn f(log: &mut LogWriter<std::io::BufWriter<std::fs::File>>, stamp_ns: i64, pose: latentam::io::CameraPose) -> Result<(), latentam::io::InputError> {
+/// // Record the robot's camera pose beside its images.
+/// let msg = PoseStamped { header: Header::at(stamp_ns, "map"), pose: pose.into() };
+/// log.write("/camera/pose", stamp_ns as u64, &msg)?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct PoseStamped<'a> {
     /// Stamp and the frame the pose is expressed in.
@@ -330,6 +410,17 @@ impl<'a> RosMessage<'a> for PoseStamped<'a> {
 }
 
 /// `nav_msgs/Odometry` (the twist is read past, not kept).
+///
+/// ```
+/// use latentam::io::{Header, Odometry, Pose, RosMessage};
+///
+/// let header = Header::at(1_000, "odom");
+/// let odom = Odometry { header, child_frame_id: "camera_optical", pose: Pose::IDENTITY };
+/// let bytes = odom.encode(); // the twist is written as zeros
+/// let back = Odometry::decode(&bytes)?;
+/// assert_eq!((back.header.frame_id, back.child_frame_id), ("odom", "camera_optical"));
+/// # Ok::<(), latentam::io::cdr::CdrError>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct Odometry<'a> {
     /// Stamp and the parent frame.
@@ -363,6 +454,20 @@ impl<'a> RosMessage<'a> for Odometry<'a> {
 }
 
 /// `geometry_msgs/TransformStamped`.
+///
+/// ```
+/// use glam::DVec3;
+/// use latentam::io::{Header, Pose, TfBuffer, TransformStamped};
+///
+/// // The camera mounted 30 cm above the robot's base (a `/tf_static` entry).
+/// let mount = TransformStamped {
+///     header: Header::at(0, "base_link"),
+///     child_frame_id: "camera_color_optical_frame",
+///     transform: Pose { translation: DVec3::new(0.0, 0.0, 0.3), ..Pose::IDENTITY },
+/// };
+/// TfBuffer::default().insert(&mount, true)?;
+/// # Ok::<(), latentam::io::Rejection>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct TransformStamped<'a> {
     /// Stamp and the parent frame.
@@ -374,6 +479,19 @@ pub struct TransformStamped<'a> {
 }
 
 /// `tf2_msgs/TFMessage` (on `/tf` and `/tf_static`).
+///
+/// ```
+/// use latentam::io::{Header, Pose, RosMessage, TfBuffer, TfMessage, TransformStamped};
+///
+/// # let t = TransformStamped { header: Header::at(5, "odom"), child_frame_id: "base_link", transform: Pose::IDENTITY };
+/// # let bytes = TfMessage { transforms: vec![t] }.encode();
+/// let mut tf = TfBuffer::default();
+/// for t in &TfMessage::decode(&bytes)?.transforms { // one `/tf` message
+///     tf.insert(t, false)?;
+/// }
+/// assert_eq!(tf.latest(), Some(5));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct TfMessage<'a> {
     /// The transforms.
@@ -406,6 +524,21 @@ impl<'a> RosMessage<'a> for TfMessage<'a> {
 }
 
 /// `latentam_msgs/MaskFeatures`: one embedding per region of a label image.
+///
+/// ```
+/// use latentam::io::cdr::{Endian, Seq};
+/// use latentam::io::{encode_floats, Dtype, Header, MaskFeatures};
+///
+/// // Two regions on a 2×2 mask (one pixel in none), with 4-d embeddings.
+/// let labels: Vec<u8> = [0u16, 0, 1, 65535].iter().flat_map(|l| l.to_le_bytes()).collect();
+/// let data = encode_floats(&[1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0], Dtype::F16);
+/// let msg = MaskFeatures {
+///     header: Header::at(1_000, "camera"), height: 2, width: 2,
+///     labels: Seq::new(&labels, Endian::Little), count: 2, dim: 4,
+///     dtype: "f16", data: &data, model: "clip-vit-b16",
+/// };
+/// assert_eq!(msg.labels.get(2), Some(1));
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct MaskFeatures<'a> {
     /// Stamp of the colour image the regions belong to.
@@ -457,6 +590,21 @@ impl<'a> RosMessage<'a> for MaskFeatures<'a> {
 }
 
 /// `latentam_msgs/FeatureGrid`: embeddings on a coarse grid.
+///
+/// ```
+/// use latentam::io::{encode_floats, Compression, Dtype, FeatureGrid, Header, LogWriter};
+///
+/// let values = vec![0.5f32; 2 * 3 * 8]; // a 2×3 grid of 8-d embeddings
+/// let data = encode_floats(&values, Dtype::F32);
+/// let grid = FeatureGrid {
+///     header: Header::at(1_000, "camera"), rows: 2, cols: 3, dim: 8,
+///     dtype: "f32", data: &data, model: "clip-vit-b16",
+/// };
+/// let mut log = LogWriter::new(std::io::Cursor::new(Vec::new()), Compression::Zstd)?;
+/// log.write("/camera/embeddings", 1_000, &grid)?;
+/// log.finish()?;
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct FeatureGrid<'a> {
     /// Stamp of the colour image.
@@ -500,6 +648,22 @@ impl<'a> RosMessage<'a> for FeatureGrid<'a> {
 }
 
 /// `latentam_msgs/TextEmbeddings`: the query vocabulary.
+///
+/// ```
+/// use latentam::io::cdr::{Endian, Seq};
+/// use latentam::io::{encode_floats, Compression, Dtype, Header, LogWriter, TextEmbeddings};
+///
+/// let ids: Vec<u8> = [3u16, 7].iter().flat_map(|i| i.to_le_bytes()).collect();
+/// let data = encode_floats(&[1.0, 0.0, 0.0, 1.0], Dtype::F32); // one 2-d vector per name
+/// let vocabulary = TextEmbeddings {
+///     header: Header::at(0, ""), names: vec!["chair", "table"], ids: Seq::new(&ids, Endian::Little),
+///     dim: 2, dtype: "f32", data: &data, model: "clip-vit-b16",
+/// };
+/// let mut log = LogWriter::new(std::io::Cursor::new(Vec::new()), Compression::Zstd)?;
+/// log.write("/vocabulary", 0, &vocabulary)?;
+/// log.finish()?;
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct TextEmbeddings<'a> {
     /// Stamp.

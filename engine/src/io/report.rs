@@ -4,6 +4,16 @@ use std::collections::BTreeMap;
 use std::fmt;
 
 /// Why one message or frame was not used.
+///
+/// ```
+/// use latentam::io::{IngestReport, Rejection};
+///
+/// let why = Rejection::new("depth: size mismatch", "depth 320×240, colour 640×480");
+/// assert_eq!(why.to_string(), "depth: size mismatch: depth 320×240, colour 640×480");
+/// let mut report = IngestReport::default();
+/// report.count(&why);
+/// assert_eq!(report.skipped_for("depth: size mismatch"), 1);
+/// ```
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Rejection {
     /// A stable short reason, `"stream: what"`, the key counts are kept by.
@@ -31,6 +41,14 @@ impl fmt::Display for Rejection {
 impl std::error::Error for Rejection {}
 
 /// How often one reason occurred, with its first instance as an example.
+///
+/// ```
+/// # fn f(report: &latentam::io::IngestReport) {
+/// for (reason, c) in &report.skipped {
+///     eprintln!("{reason}: {} times (first: {})", c.count, c.first);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct ReasonCount {
     /// Occurrences.
@@ -42,6 +60,20 @@ pub struct ReasonCount {
 /// What the ingest did with a log: messages read, frames produced, and
 /// every message or frame not used, by reason. Nothing is dropped without
 /// being counted here.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, McapFrames};
+///
+/// let mut frames = McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())?;
+/// for frame in &mut frames {
+///     let _frame = frame?;
+/// }
+/// let report = frames.report();
+/// if report.total_skipped() > report.frames / 10 {
+///     eprintln!("much of the log was not used:\n{report}");
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct IngestReport {
     /// Messages read on the configured topics.

@@ -63,6 +63,18 @@ impl Pose {
 }
 
 /// Time-stamped poses of one thing, interpolated between samples.
+///
+/// ```
+/// use glam::DVec3;
+/// use latentam::io::{Pose, PoseTrack};
+///
+/// let mut track = PoseTrack::default();
+/// track.insert(0, Pose::IDENTITY);
+/// track.insert(100_000_000, Pose { translation: DVec3::X, ..Pose::IDENTITY });
+/// // Halfway between two samples 100 ms apart (exact match only, gaps up to 200 ms).
+/// let p = track.at(50_000_000, 0, 200_000_000).expect("interpolated");
+/// assert!((p.translation.x - 0.5).abs() < 1e-9);
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct PoseTrack {
     samples: Vec<(i64, Pose)>,
@@ -137,6 +149,22 @@ struct Edge {
 
 /// A TF tree: for each child frame, its parent and the transform from
 /// child to parent, static or over time.
+///
+/// ```
+/// use glam::DVec3;
+/// use latentam::io::{Header, Pose, TfBuffer, TransformStamped};
+///
+/// let mut tf = TfBuffer::default();
+/// let mount = Pose { translation: DVec3::new(0.0, 0.0, 0.3), ..Pose::IDENTITY };
+/// let edge = |parent, child, ns, transform| TransformStamped {
+///     header: Header::at(ns, parent), child_frame_id: child, transform,
+/// };
+/// tf.insert(&edge("base_link", "camera", 0, mount), true)?; // `/tf_static`
+/// tf.insert(&edge("map", "base_link", 1_000, Pose::IDENTITY), false)?; // `/tf`
+/// let camera_in_map = tf.lookup("map", "camera", 1_000, 200_000_000)?;
+/// assert!((camera_in_map.translation.z - 0.3).abs() < 1e-12);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Default)]
 pub struct TfBuffer {
     edges: HashMap<String, Edge>,

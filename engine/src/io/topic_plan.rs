@@ -16,6 +16,18 @@ use super::InputError;
 
 /// The streams that may be chosen from the log when their configured topic
 /// is absent (the command line allows it for every topic flag not given).
+///
+/// ```no_run
+/// use latentam::io::{plan_topics, AssemblyConfig, McapLog, TopicChoice};
+///
+/// // Map a robot's bag without naming its topics.
+/// let log = McapLog::open("robot_bag/".as_ref())?;
+/// let config = AssemblyConfig { choose: TopicChoice::all(), ..AssemblyConfig::default() };
+/// let (topics, plan) = plan_topics(&log.channels(), &config)?;
+/// println!("colour images from {}", topics.color);
+/// plan.iter().for_each(|line| println!("{line}"));
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TopicChoice {
     /// Colour images.

@@ -9,6 +9,18 @@ use super::report::Rejection;
 use super::InputError;
 
 /// The vocabulary found in a log.
+///
+/// ```no_run
+/// # fn f(mapper: &mut latentam::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+/// let vocab = latentam::io::read_vocabulary("scene.mcap".as_ref(), "/vocabulary")?.expect("a vocabulary");
+/// // Score the map against the text embedding of one class.
+/// let i = vocab.names.iter().position(|n| n == "chair").expect("`chair` in the vocabulary");
+/// let d = vocab.dim as usize;
+/// let scores = mapper.query(&vocab.vectors[i * d..(i + 1) * d])?;
+/// println!("class {} ({}): {} Gaussians scored", vocab.ids[i], vocab.model, scores.len());
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Vocabulary {
     /// Class names.

@@ -9,6 +9,15 @@ use super::schema::schema_text;
 use super::InputError;
 
 /// Chunk compression of a written log.
+///
+/// ```no_run
+/// use latentam::io::{Compression, LogWriter};
+///
+/// // lz4 for a log that is replayed often; zstd (the default) for archives.
+/// let log = LogWriter::create("replay.mcap".as_ref(), Compression::Lz4)?;
+/// log.finish()?;
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Compression {
     /// zstd (the default: best ratio for images and depth).

@@ -13,6 +13,17 @@ use crate::splat::QUERY_DIM;
 
 /// Sizes and constants of a decoder; the workspace is allocated for the
 /// largest batch once.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::latent::{AttentionDecoder, DecoderConfig};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// // Up to 256 queries a call, against up to 1000 atoms of 512-d embeddings.
+/// let cfg = DecoderConfig { max_regions: 256, max_atoms: 1000, dim: 512, ..Default::default() };
+/// let decoder = AttentionDecoder::new(&ctx, cfg)?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DecoderConfig {
     /// Most regions decoded in one call (n).
@@ -41,6 +52,19 @@ impl Default for DecoderConfig {
 
 /// The learned parameters a decode reads: the projection W (32 × d_f,
 /// row-major) and the dictionary D (`atom_count` × d_f rows in use).
+///
+/// ```no_run
+/// use latentam::latent::{AttentionDecoder, DecoderParams, LatentHead};
+/// # fn f(ctx: &latentam::gpu::Context, head: &LatentHead, decoder: &AttentionDecoder, queries: &latentam::gpu::Buffer) -> latentam::Result<()> {
+/// // Decode 10 queries with the head's current W and dictionary.
+/// let params = DecoderParams { w: head.w(), atoms: head.atoms(), atom_count: head.atom_count() };
+/// let mut rec = ctx.recorder()?;
+/// decoder.record_forward(&mut rec, params, queries, 10)?;
+/// rec.submit()?.wait()?;
+/// let embeddings: Vec<f32> = ctx.download(decoder.output())?; // 10 × d_f
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy)]
 pub struct DecoderParams<'a> {
     /// Projection W.
@@ -53,6 +77,23 @@ pub struct DecoderParams<'a> {
 
 /// Where [`AttentionDecoder::record_backward`] writes gradients (each is
 /// overwritten, not accumulated).
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context};
+/// use latentam::latent::{AttentionDecoder, DecoderGrads, DecoderParams};
+/// # fn f(ctx: &Context, decoder: &AttentionDecoder, params: DecoderParams<'_>, queries: &Buffer, grad_output: &Buffer) -> latentam::Result<()> {
+/// let (n, d) = (10, decoder.config().dim as u64);
+/// let grad_q = Buffer::device(ctx, "dQ", n as u64 * 32 * 4)?;
+/// let grad_w = Buffer::device(ctx, "dW", 32 * d * 4)?;
+/// let grad_d = Buffer::device(ctx, "dD", params.atom_count as u64 * d * 4)?;
+/// let grads = DecoderGrads { queries: Some(&grad_q), w: &grad_w, atoms: &grad_d };
+/// let mut rec = ctx.recorder()?;
+/// decoder.record_forward(&mut rec, params, queries, n)?;
+/// decoder.record_backward(&mut rec, params, queries, n, grad_output, grads)?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
 pub struct DecoderGrads<'a> {
     /// ∂L/∂Q, n × 32; `None` when the queries are frozen (Stage II).
     pub queries: Option<&'a Buffer>,

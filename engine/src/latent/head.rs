@@ -13,6 +13,18 @@ use crate::random::SplitMix;
 use crate::splat::QUERY_DIM;
 
 /// Sizes, constants and learning rates of the latent head.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::latent::{LatentHead, LatentHeadConfig};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// // 512-d embeddings (e.g. CLIP ViT-B/32) and a 1000-atom dictionary.
+/// let cfg = LatentHeadConfig { dim: 512, atoms: 1000, ..Default::default() };
+/// let head = LatentHead::new(&ctx, cfg)?;
+/// assert_eq!(head.config().max_regions, 2048);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LatentHeadConfig {
     /// Embedding dimension d_f.

@@ -30,6 +30,19 @@ pub struct TextQuery {
 }
 
 /// How scores against a query's texts become one relevance per row.
+///
+/// ```
+/// use latentam::latent::{Relevance, TextQuery};
+///
+/// // Two texts ("mug", "table"); each row of scores is one Gaussian's cosines with them.
+/// let query = TextQuery {
+///     embeddings: vec![1.0, 0.0, 0.0, 1.0],
+///     texts: 2,
+///     relevance: Relevance::Softmax { index: 0, temperature: 0.1 },
+/// };
+/// let p_mug = query.relevance_of(&[0.9, 0.2, 0.1, 0.8]);
+/// assert!(p_mug[0] > 0.99 && p_mug[1] < 0.01);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Relevance {
     /// The cosine with the one text.

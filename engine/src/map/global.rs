@@ -9,6 +9,23 @@ use crate::splat::QUERY_DIM;
 
 /// One Gaussian's parameters, as the optimiser sees them (see
 /// [`crate::splat::HostGaussians`] for the conventions).
+///
+/// ```
+/// use bytemuck::Zeroable;
+/// use latentam::map::Gaussian;
+///
+/// // A 1 cm, 90 % opaque red Gaussian 1 m in front of the origin.
+/// let g = Gaussian {
+///     mean: [0.0, 0.0, 1.0],
+///     log_scale: [0.01f32.ln(); 3],
+///     quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0],
+///     opacity_logit: (0.9f32 / 0.1).ln(),
+///     ..Gaussian::zeroed() // query: all zero
+/// };
+/// let opacity = 1.0 / (1.0 + (-g.opacity_logit).exp());
+/// assert!((opacity - 0.9).abs() < 1e-6);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct Gaussian {

@@ -7,6 +7,15 @@ use crate::io::{CameraPose, Frame};
 use crate::settings::{join, settings, KeyDoc, Kind, Setting, MAX_DISTANCE};
 
 /// The rule that proposes keyframes.
+///
+/// ```
+/// use latentam::map::KeyframePolicy;
+///
+/// // A tracker that hands over every frame: a keyframe whenever less than
+/// // 80 % of the view (every 8th pixel) lies on mapped surface.
+/// let mut config = latentam::Config::default();
+/// config.keyframes.policy = KeyframePolicy::Overlap { min_overlap: 0.8, stride: 8 };
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum KeyframePolicy {
@@ -26,6 +35,15 @@ pub enum KeyframePolicy {
 
 settings! {
     /// Keyframe selection settings.
+    ///
+    /// ```
+    /// use latentam::map::{KeyframeConfig, KeyframePolicy};
+    ///
+    /// // Every 5th frame, once the camera moved 10 cm or turned 10°.
+    /// let policy = KeyframePolicy::Interval(5);
+    /// let keyframes = KeyframeConfig { policy, min_translation: 0.1, min_rotation_deg: 10.0 };
+    /// let config = latentam::Config { keyframes, ..Default::default() };
+    /// ```
     #[derive(Copy)]
     pub struct KeyframeConfig {
         /// The rule that proposes keyframes; a proposal is then kept only
@@ -96,6 +114,15 @@ impl Setting for KeyframePolicy {
 }
 
 /// The decision for one frame, with what it was based on.
+///
+/// ```
+/// # fn f(selector: &mut latentam::map::KeyframeSelector, frame: &latentam::io::Frame, map: &latentam::map::GlobalMap) {
+/// let decision = selector.decide(frame, map);
+/// if let (false, Some(o)) = (decision.keyframe, decision.overlap) {
+///     println!("skipped: {:.0} % of the view is already mapped", 100.0 * o);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KeyframeDecision {
     /// Whether the frame is a keyframe.
@@ -105,6 +132,18 @@ pub struct KeyframeDecision {
 }
 
 /// Decides frame by frame.
+///
+/// ```
+/// use latentam::map::{GlobalMap, KeyframeConfig, KeyframeSelector};
+/// # fn f(frames: &[latentam::io::Frame], map: &GlobalMap) {
+/// let mut selector = KeyframeSelector::new(KeyframeConfig::default()); // every 4th frame
+/// for frame in frames {
+///     if selector.decide(frame, map).keyframe {
+///         println!("keyframe at {} ns", frame.stamp_ns);
+///     }
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug)]
 pub struct KeyframeSelector {
     config: KeyframeConfig,

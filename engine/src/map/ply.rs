@@ -61,6 +61,18 @@ const MAX_HEADER_BYTES: u64 = 1 << 20;
 const ROWS_PER_CHUNK: usize = 4096;
 
 /// A Gaussian map read from a PLY file.
+///
+/// ```no_run
+/// use latentam::map::read_ply;
+///
+/// let map = read_ply("runs/kitchen/map.ply".as_ref())?;
+/// let opaque = map.gaussians.iter().filter(|g| g.opacity_logit > 0.0).count();
+/// println!("{} Gaussians, {opaque} more than half opaque", map.gaussians.len());
+/// for (name, values) in &map.extra {
+///     println!("extra property {name}: {} values", values.len());
+/// }
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlyMap {
     /// The Gaussians, in file order.

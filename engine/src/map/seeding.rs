@@ -15,6 +15,14 @@ use crate::splat::QUERY_DIM;
 settings! {
     /// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
     /// variant: scale from depth over focal length, identity rotation).
+    ///
+    /// ```
+    /// use latentam::map::SeedingConfig;
+    ///
+    /// // Denser seeds, only up to 5 m (a small room, a noisy sensor).
+    /// let seeding = SeedingConfig { stride: 1, max_depth: 5.0, ..SeedingConfig::default() };
+    /// let config = latentam::Config { seeding, ..Default::default() };
+    /// ```
     #[derive(Copy)]
     pub struct SeedingConfig {
         /// Every stride-th pixel along rows and columns is a candidate.
@@ -67,6 +75,13 @@ settings! {
 pub const MAX_HOLE_FILL_RADIUS: u32 = 64;
 
 /// Where a new Gaussian's query starts (SPEC §12 leaves it open).
+///
+/// ```
+/// use latentam::map::QueryInit;
+///
+/// let mut config = latentam::Config::default();
+/// config.seeding.query_init = QueryInit::Random; // e.g. an ablation against `Embedding`
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QueryInit {
@@ -83,6 +98,16 @@ pub enum QueryInit {
 
 /// Initial queries by region for the pixels of one keyframe
 /// ([`QueryInit::Embedding`]).
+///
+/// ```
+/// use latentam::map::{seed_from_frame, GlobalMap, RegionQueries, SeedingConfig};
+/// # fn f(frame: &latentam::io::Frame, map: &GlobalMap, labels: &[u16], queries: &[Option<[f32; 32]>]) {
+/// // `queries[r]`: region r's embedding projected to a query (`latent::projected_queries`).
+/// let (width, height) = (frame.color.width, frame.color.height);
+/// let regions = RegionQueries { width, height, labels, queries };
+/// let new = seed_from_frame(frame, None, map, &SeedingConfig::default(), 7, Some(&regions));
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct RegionQueries<'a> {
     /// Label image columns (grid columns for a feature grid).
@@ -110,6 +135,16 @@ impl Setting for QueryInit {}
 
 /// How much of a keyframe the current map covers: what it renders at the
 /// keyframe's pose, per pixel.
+///
+/// ```
+/// use latentam::map::{seed_from_frame, GlobalMap, SeedingConfig, ViewCoverage};
+/// # fn f(frame: &latentam::io::Frame, map: &GlobalMap, alpha: &[f32], depth: &[f32]) {
+/// // What the map renders at the frame's pose: only pixels it does not explain are seeded.
+/// let coverage = ViewCoverage { alpha, depth, partial: false, complete_within: None };
+/// let new = seed_from_frame(frame, Some(coverage), map, &SeedingConfig::default(), 7, None);
+/// println!("{} new Gaussians", new.len());
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct ViewCoverage<'a> {
     /// Accumulated alpha.

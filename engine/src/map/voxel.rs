@@ -3,6 +3,18 @@
 use glam::DVec3;
 
 /// Integer coordinates of a voxel of edge `s_v`: `floor(p / s_v)`.
+///
+/// ```
+/// use glam::DVec3;
+/// use latentam::map::{GlobalMap, VoxelKey};
+///
+/// let map = GlobalMap::new(0.01);
+/// let key = VoxelKey::of(DVec3::new(0.015, -0.001, 2.0), map.voxel_size()).expect("a finite point");
+/// assert_eq!((key.x, key.y, key.z), (1, -1, 200));
+/// // Gaussians in that voxel or the 26 around it.
+/// let near = key.neighbourhood().filter_map(|k| map.get(k)).count();
+/// assert_eq!(near, 0);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct VoxelKey {
     /// x index.

@@ -27,6 +27,20 @@ use crate::splat::{GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTH
 
 /// A buffer with one fixed-size row per window row, moved along with the
 /// Gaussians (e.g. an Adam moment buffer: `row_bytes` = 4 × width).
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context};
+/// use latentam::map::{Companion, GlobalMap, LocalWindow, SyncPlan};
+/// # fn f(ctx: &Context, window: &mut LocalWindow, global: &mut GlobalMap, plan: &SyncPlan) -> latentam::Result<()> {
+/// // A per-Gaussian step count (one u32 a row) that moves with its Gaussian.
+/// let steps = Buffer::device(ctx, "steps", window.capacity() * 4)?;
+/// let mut rec = ctx.transfer_recorder()?;
+/// let pending = window.record_sync(&mut rec, plan, global, &[Companion { buffer: &steps, row_bytes: 4 }])?;
+/// rec.submit()?.wait()?;
+/// pending.apply(global)?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy)]
 pub struct Companion<'a> {
     /// The buffer (at least capacity × `row_bytes`).
@@ -36,6 +50,16 @@ pub struct Companion<'a> {
 }
 
 /// What a re-synchronisation changes.
+///
+/// ```
+/// # fn f(window: &latentam::map::LocalWindow, global: &latentam::map::GlobalMap, camera: glam::DVec3) {
+/// let plan = window.plan(global, camera, 4.0); // keep everything within 4 m
+/// println!("{} stay, {} leave, {} come in", plan.keep, plan.evict.len(), plan.fetch.len());
+/// if plan.over_capacity > 0 {
+///     println!("{} Gaussians within 4 m do not fit the window", plan.over_capacity);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SyncPlan {
     /// Rows whose Gaussians leave the window (outside the radius, or the
@@ -50,6 +74,18 @@ pub struct SyncPlan {
 }
 
 /// A recorded synchronisation: apply it once its submission completed.
+///
+/// ```no_run
+/// use latentam::map::{GlobalMap, LocalWindow};
+/// # fn f(ctx: &latentam::gpu::Context, window: &mut LocalWindow, global: &mut GlobalMap, camera: glam::DVec3) -> latentam::Result<()> {
+/// let plan = window.plan(global, camera, 4.0);
+/// let mut rec = ctx.transfer_recorder()?;
+/// let pending = window.record_sync(&mut rec, &plan, global, &[])?;
+/// rec.submit()?.wait()?; // the download is complete only now
+/// let written_back = pending.apply(global)?;
+/// # Ok(())
+/// # }
+/// ```
 #[must_use = "the write-back must be applied to the global map"]
 pub struct PendingSync {
     readback: GaussianReadback,
@@ -95,6 +131,22 @@ pub fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
 }
 
 /// The resident Gaussians and their GPU buffers.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::map::{GlobalMap, LocalWindow};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let mut global = GlobalMap::new(0.02);
+/// let mut window = LocalWindow::new(&ctx, 100_000)?; // room for 100k Gaussians on the GPU
+/// let plan = window.plan(&global, glam::DVec3::ZERO, 5.0);
+/// let mut rec = ctx.transfer_recorder()?;
+/// let pending = window.record_sync(&mut rec, &plan, &global, &[])?;
+/// rec.submit()?.wait()?;
+/// pending.apply(&mut global)?;
+/// println!("{} resident, {} rows free", window.len(), window.free());
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct LocalWindow {
     ctx: Context,
     params: GaussianBuffers,

@@ -26,6 +26,18 @@ use crate::map::push_gaussian;
 use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
 
 /// Metrics of one view.
+///
+/// ```no_run
+/// use latentam::mapper::eval::mean_iou;
+/// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame, vocabulary: &latentam::io::Vocabulary) -> latentam::Result<()> {
+/// let m = mapper.evaluate(frame, Some(vocabulary), 2)?; // every 2nd pixel and row
+/// println!("PSNR {:.2} dB, depth L1 {:.3} m, coverage {:.0} %", m.psnr, m.depth_l1, 100.0 * m.coverage);
+/// if let Some(miou) = mean_iou(&m.class_iou) {
+///     println!("mIoU {miou:.3} ({} classes)", m.class_iou.len());
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct ViewMetrics {
     /// Colour PSNR (dB), colours clamped to 0..1.
@@ -62,6 +74,17 @@ pub struct ViewMetrics {
 }
 
 /// Pixel counts of one class's masks over the evaluated pixels.
+///
+/// ```
+/// use std::collections::BTreeMap;
+/// use latentam::mapper::eval::{count_pixel, mean_iou, ClassCounts};
+///
+/// let mut counts: BTreeMap<u16, ClassCounts> = BTreeMap::new();
+/// count_pixel(&mut counts, 3, Some(3)); // right
+/// count_pixel(&mut counts, 3, Some(5)); // wrong
+/// assert_eq!(counts[&3].iou(), 0.5);
+/// assert_eq!(mean_iou(&counts), Some(0.5)); // class 5 is never true: not averaged
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ClassCounts {
     /// Pixels both true and predicted for the class.
@@ -86,6 +109,15 @@ impl ClassCounts {
 /// A view's figures with each region's mean rendered query decoded once
 /// and given to all its pixels: more lenient than the per-pixel protocol
 /// (it hides boundary errors inside the ground-truth masks).
+///
+/// ```
+/// # fn f(m: &latentam::mapper::eval::ViewMetrics) {
+/// let pooled = m.region_pooled.as_ref().and_then(|r| r.cosine_loss);
+/// if let (Some(pixel), Some(pooled)) = (m.cosine_loss, pooled) {
+///     println!("cosine loss {pixel:.3} per pixel, {pooled:.3} region-pooled");
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RegionPooled {
     /// Mean over regions of 1 − cos(decoded pooled query, target).
@@ -134,6 +166,22 @@ pub fn count_pixel(counts: &mut BTreeMap<u16, ClassCounts>, truth: u16, predicte
 }
 
 /// Renders and scores views of a map.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::mapper::{eval::Evaluator, MapperConfig, OnlineMapper};
+/// # fn f(frames: &[latentam::io::Frame]) -> latentam::Result<()> {
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let mut mapper = OnlineMapper::new(&ctx, MapperConfig::default())?;
+/// frames.iter().try_for_each(|f| mapper.integrate(f).map(drop))?;
+/// let mut evaluator = Evaluator::new(&ctx);
+/// evaluator.pixel_stride = 4; // a quick look: every 4th pixel and row
+/// for frame in frames.iter().step_by(10) {
+///     println!("{} ns: PSNR {:.2} dB", frame.stamp_ns, evaluator.evaluate(&mut mapper, frame, None)?.psnr);
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub struct Evaluator {
     ctx: Context,
     raster: Rasterizer,

@@ -10,6 +10,15 @@ use crate::random::SplitMix;
 use crate::splat::Camera;
 
 /// Region targets of a keyframe.
+///
+/// ```
+/// # fn f(record: &latentam::mapper::KeyframeRecord) {
+/// if let Some(r) = &record.regions {
+///     let kind = if r.grid { "grid cells" } else { "regions" };
+///     println!("{} {kind} on a {}×{} label image, {}-d targets", r.count, r.width, r.height, r.dim);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegionTargets {
     /// Label image columns.
@@ -31,6 +40,14 @@ pub struct RegionTargets {
 }
 
 /// One keyframe as kept for replay.
+///
+/// ```
+/// use latentam::mapper::KeyframeRecord;
+/// # fn f(frame: &latentam::io::Frame) {
+/// let record = KeyframeRecord::from_frame(frame); // RGB bytes, millimetre depth
+/// println!("{} ns: {} pixels with depth, {} bytes kept", record.stamp_ns, record.valid_depth(), record.bytes());
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct KeyframeRecord {
     /// Stamp of the frame.
@@ -176,6 +193,19 @@ fn view_bin(camera: &Camera, cell: f64) -> ViewBin {
 /// earlier one replaces it, so the history grows with the space explored,
 /// not with time: a robot circling a room for hours keeps a bounded set of
 /// views of it. With cell 0 every keyframe is kept (the paper's setting).
+///
+/// ```
+/// use latentam::mapper::{History, KeyframeRecord};
+/// # fn f(keyframes: &[latentam::io::Frame]) {
+/// let mut history = History::with_cell(0.5); // one view per 0.5 m cell and direction
+/// for frame in keyframes {
+///     history.push(KeyframeRecord::from_frame(frame));
+/// }
+/// for i in history.sample(4, 42) { // a replay batch of 4 past keyframes
+///     println!("replaying keyframe at {} ns", history.get(i).expect("sampled").stamp_ns);
+/// }
+/// # }
+/// ```
 #[derive(Debug, Default)]
 pub struct History {
     records: Vec<KeyframeRecord>,

@@ -7,6 +7,17 @@ use super::trainer::StageOneReport;
 use crate::gpu::GpuCalls;
 
 /// What [`OnlineMapper::integrate`] did with a frame.
+///
+/// ```no_run
+/// use latentam::mapper::Integrated;
+/// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame) -> latentam::Result<()> {
+/// match mapper.integrate(frame)? {
+///     Integrated::Skipped => {} // not a keyframe: nothing was trained
+///     Integrated::Keyframe(report) => println!("keyframe {}: +{} Gaussians", report.index, report.added),
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub enum Integrated {
     /// Not a keyframe.
@@ -16,6 +27,15 @@ pub enum Integrated {
 }
 
 /// One re-synchronisation of the window with the global map.
+///
+/// ```
+/// # fn f(report: &latentam::mapper::KeyframeReport) {
+/// for sync in &report.paging {
+///     let how = if sync.blocking { "blocking" } else { "beside Stage II" };
+///     println!("paging ({how}): {} out, {} in, {} left out for room", sync.evicted, sync.fetched, sync.over_capacity);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct PagingReport {
     /// Resident Gaussians written back to the global map.
@@ -34,6 +54,14 @@ pub struct PagingReport {
 
 /// What a keyframe asked of the GPU, by stage: submissions, host waits
 /// (each a CPU–GPU round trip) and dispatches.
+///
+/// ```
+/// # fn f(report: &latentam::mapper::KeyframeReport) {
+/// let calls = report.gpu_calls;
+/// let (all, training) = (calls.total(), calls.training());
+/// println!("{} host waits ({} in training), {} dispatches", all.host_waits, training.host_waits, all.dispatches);
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct KeyframeGpuCalls {
     /// The dictionary's streaming k-means update.
@@ -70,6 +98,16 @@ impl KeyframeGpuCalls {
 
 /// Where a keyframe's time went (milliseconds of wall time unless named
 /// GPU).
+///
+/// ```
+/// # fn f(report: &latentam::mapper::KeyframeReport) {
+/// let t = &report.timings;
+/// println!("{:.0} ms, of which Stage I {:.1} and Stage II {:.1}", t.total_ms, t.stage_one_ms, t.stage_two_ms);
+/// if let Some(gpu) = t.stage_two_gpu_ms {
+///     println!("Stage II on the GPU: {gpu:.1} ms");
+/// }
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct KeyframeTimings {
     /// Dictionary (streaming k-means) update.
@@ -97,6 +135,17 @@ pub struct KeyframeTimings {
 }
 
 /// What a keyframe did.
+///
+/// ```no_run
+/// use latentam::mapper::Integrated;
+/// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame) -> Result<(), Box<dyn std::error::Error>> {
+/// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+///     println!("keyframe {} (frame {}): {} Gaussians, {} on the GPU", report.index, report.frame, report.gaussians, report.resident);
+///     println!("{}", serde_json::to_string(&report)?); // one JSON line per keyframe
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct KeyframeReport {
     /// Keyframe number (0-based).
@@ -132,6 +181,14 @@ pub struct KeyframeReport {
 }
 
 /// Running totals ([`OnlineMapper::stats`]).
+///
+/// ```no_run
+/// # fn f(mapper: &latentam::Mapper) {
+/// let s = mapper.stats();
+/// println!("{} of {} frames were keyframes; {} Gaussians ({} on the GPU)", s.keyframes, s.frames, s.gaussians, s.resident);
+/// println!("peak GPU {} MiB, peak CPU {} MiB", s.gpu_peak_bytes >> 20, s.cpu_peak_bytes >> 20);
+/// # }
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct MapperStats {
     /// Frames offered.

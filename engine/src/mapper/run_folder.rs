@@ -60,6 +60,19 @@ pub fn new_run_id() -> String {
 
 /// A run folder locked for writing: no other process (or other
 /// `RunFolder` of this one) can write it until this value is dropped.
+///
+/// ```no_run
+/// use latentam::mapper::RunFolder;
+/// # fn f(mapper: &mut latentam::Mapper) -> latentam::Result<()> {
+/// let folder = RunFolder::lock("runs/kitchen")?; // one writer at a time
+/// let staging = folder.stage()?;
+/// mapper.save_into(&staging)?;
+/// let poses: Vec<_> = mapper.trajectory().iter().map(|&(t, p)| (t as u64, p)).collect();
+/// latentam::io::write_tum(&staging.path().join("trajectory.txt"), &poses)?;
+/// staging.commit()?; // the folder now holds exactly this version
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Debug)]
 pub struct RunFolder {
     dir: PathBuf,
@@ -311,6 +324,16 @@ fn sync_dir(dir: &Path) {
 }
 
 /// The next version of a run folder, being written. See [`RunFolder`].
+///
+/// ```no_run
+/// # fn f(folder: &latentam::mapper::RunFolder, report_json: &str) -> Result<(), Box<dyn std::error::Error>> {
+/// let staging = folder.stage()?;
+/// println!("writing run {} into {}", staging.run_id(), staging.path().display());
+/// std::fs::write(staging.path().join("report.json"), report_json)?;
+/// staging.commit()?; // dropped instead, the staged files are removed
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Debug)]
 pub struct RunStaging<'a> {
     folder: &'a RunFolder,

@@ -11,6 +11,18 @@ use crate::gpu::KernelStats;
 use crate::io::IngestReport;
 
 /// How a run of a log ended.
+///
+/// ```
+/// use latentam::mapper::Ending;
+/// # fn f(run: &latentam::mapper::LogRun) {
+/// match &run.ending {
+///     Ending::Complete | Ending::FrameLimit => println!("mapped {} frames", run.frames),
+///     Ending::Interrupted => println!("stopped on request after {} frames", run.frames),
+///     Ending::Running => {}
+///     Ending::Failed(why) => eprintln!("mapping failed ({why}); the map so far is kept"),
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Ending {
@@ -30,6 +42,15 @@ pub enum Ending {
 }
 
 /// `report.json` of a run folder.
+///
+/// ```no_run
+/// # fn f(run: &latentam::mapper::LogRun) -> Result<(), Box<dyn std::error::Error>> {
+/// let report = run.report(&latentam::mapper::new_run_id());
+/// println!("{} keyframes at {:.1} fps, peak GPU {} MiB", report.keyframes, report.fps, report.peak_gpu_bytes >> 20);
+/// std::fs::write("report.json", serde_json::to_string_pretty(&report)?)?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, Serialize)]
 pub struct RunReport {
     /// Shared by every file of this version of the run folder.
@@ -96,6 +117,13 @@ pub struct RunReport {
 
 /// Host waits per keyframe (mean and most), in all and in Stage I and
 /// Stage II together, with the mean submissions and dispatches.
+///
+/// ```
+/// # fn f(report: &latentam::mapper::RunReport) {
+/// let w = &report.host_waits_per_keyframe;
+/// println!("{:.1} host waits per keyframe (at most {}), {:.1} in Stage I + II", w.mean, w.max, w.stage_one_and_two_mean);
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct HostWaits {
     /// Mean host waits per keyframe.

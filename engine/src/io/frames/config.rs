@@ -4,6 +4,14 @@
 use super::*;
 
 /// Where camera poses come from.
+///
+/// ```
+/// use latentam::io::{AssemblyConfig, PoseSource};
+///
+/// let mut config = AssemblyConfig::default();
+/// // Camera poses from the TF tree of a robot localised in `map`.
+/// config.topics.pose = PoseSource::Tf { world_frame: "map".into(), camera_frame: None };
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub enum PoseSource {
     /// `geometry_msgs/PoseStamped` or `nav_msgs/Odometry` messages giving
@@ -20,6 +28,19 @@ pub enum PoseSource {
 }
 
 /// Topic names (DESIGN §3 defaults).
+///
+/// ```
+/// use latentam::io::{AssemblyConfig, Topics};
+///
+/// // A RealSense driver's topic names.
+/// let topics = Topics {
+///     color: "/camera/camera/color/image_raw".into(),
+///     depth: "/camera/camera/aligned_depth_to_color/image_raw".into(),
+///     camera_info: "/camera/camera/color/camera_info".into(),
+///     ..Topics::default()
+/// };
+/// let config = AssemblyConfig { topics, ..AssemblyConfig::default() };
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Topics {
     /// Colour images.
@@ -55,6 +76,17 @@ impl Default for Topics {
 }
 
 /// What to do with a frame or message that is malformed or inconsistent.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, BadInputPolicy, McapFrames};
+///
+/// // Check a recording: stop at the first bad message instead of skipping it.
+/// let config = AssemblyConfig { on_bad_input: BadInputPolicy::Stop, ..AssemblyConfig::default() };
+/// for frame in McapFrames::open("run.mcap".as_ref(), config)? {
+///     frame?;
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BadInputPolicy {
     /// Skip it, count it in the [`IngestReport`] and go on.
@@ -65,6 +97,19 @@ pub enum BadInputPolicy {
 }
 
 /// How frames are assembled.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, Intrinsics, McapFrames};
+///
+/// let config = AssemblyConfig {
+///     tolerance_ns: 5_000_000,       // pair depth within 5 ms
+///     depth_metres_per_unit: 0.0001, // a sensor in 0.1 mm units
+///     intrinsics: Some(Intrinsics { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 }),
+///     ..AssemblyConfig::default()
+/// };
+/// let frames = McapFrames::open("run.mcap".as_ref(), config)?;
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct AssemblyConfig {
     /// Topic names.

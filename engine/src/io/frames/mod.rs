@@ -106,6 +106,21 @@ enum Partner {
 }
 
 /// Turns a stream of log messages into [`Frame`]s.
+///
+/// ```no_run
+/// use latentam::io::{AssemblyConfig, Channel, FrameAssembler, RawMessage};
+/// # fn f(mapper: &mut latentam::Mapper, incoming: Vec<(Channel, u64, Vec<u8>)>) -> Result<(), Box<dyn std::error::Error>> {
+/// // Messages as a live ROS 2 subscriber receives them: channel, receive time, CDR bytes.
+/// let mut assembler = FrameAssembler::new(AssemblyConfig::default(), false, false);
+/// for (channel, log_time, data) in &incoming {
+///     assembler.push(RawMessage { channel, log_time: *log_time, data })?;
+///     while let Some(frame) = assembler.pop() {
+///         mapper.integrate(&frame)?;
+///     }
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub struct FrameAssembler {
     pub(super) config: AssemblyConfig,
     color: Queue<PendingFrame>,

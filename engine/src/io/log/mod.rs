@@ -30,6 +30,16 @@ use reader::*;
 pub const MAX_RECORD_BYTES: usize = 1 << 30;
 
 /// A topic of the log and what its messages are.
+///
+/// ```no_run
+/// use latentam::io::McapLog;
+///
+/// let log = McapLog::open("run.mcap".as_ref())?;
+/// for c in log.channels().iter().filter(|c| c.schema_name == "sensor_msgs/msg/Image") {
+///     println!("{}: {:?} images", c.topic, log.message_count(&c.topic));
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Channel {
     /// Topic name.
@@ -55,6 +65,18 @@ impl Channel {
 }
 
 /// One message, borrowed from the reader for the duration of a callback.
+///
+/// ```no_run
+/// use latentam::io::{McapLog, PoseStamped, ReadFilter, RosMessage};
+///
+/// let log = McapLog::open("run.mcap".as_ref())?;
+/// let mut reader = log.reader(ReadFilter { topics: Some(vec!["/camera/pose".into()]), ..Default::default() });
+/// while let Some(read) = reader.next_with(|m| (m.log_time, PoseStamped::decode(m.data).map(|p| p.pose))) {
+///     let (log_time, pose) = read?;
+///     println!("{log_time} ns: {:?}", pose?.translation);
+/// }
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct RawMessage<'a> {
     /// The channel it was published on.
@@ -69,6 +91,24 @@ pub struct RawMessage<'a> {
 pub type Metadata = BTreeMap<String, String>;
 
 /// Which messages to read.
+///
+/// ```no_run
+/// use latentam::io::{McapLog, ReadFilter};
+///
+/// let log = McapLog::open("run.mcap".as_ref())?;
+/// let (start, _end) = log.time_range().unwrap_or_default();
+/// // The colour images of the first ten seconds.
+/// let filter = ReadFilter {
+///     topics: Some(vec!["/camera/color/image_raw".into()]),
+///     start_ns: Some(start),
+///     end_ns: Some(start + 10_000_000_000),
+/// };
+/// let mut reader = log.reader(filter);
+/// while let Some(bytes) = reader.next_with(|m| m.data.len()) {
+///     println!("{} bytes", bytes?);
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct ReadFilter {
     /// Only these topics (all when `None`).
