@@ -4,6 +4,18 @@ use ash::vk;
 
 /// Everything that can go wrong inside the engine, with enough context to
 /// tell the user what to change.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::Error;
+///
+/// match Context::new(ContextOptions::default()) {
+///     Ok(ctx) => println!("mapping on {}", ctx.info().name),
+///     Err(Error::NoVulkan(hint)) => eprintln!("no Vulkan driver: {hint}"),
+///     Err(e) => return Err(e),
+/// }
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// No Vulkan loader or no Vulkan device on this machine.
@@ -54,6 +66,16 @@ pub enum Error {
 }
 
 /// Result alias used throughout the engine.
+///
+/// ```
+/// use latentam::splat::{BatchLayout, Camera};
+///
+/// fn batch_pixels(cams: &[Camera]) -> latentam::Result<u64> {
+///     Ok(BatchLayout::for_cameras(cams)?.pixels)
+/// }
+/// assert_eq!(batch_pixels(&[Camera::at_origin(4, 4); 2])?, 32);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Attaches the Vulkan entry point name to an `ash` result.

@@ -26,6 +26,17 @@ pub(crate) enum BufferKind {
 
 /// A Vulkan buffer and its memory. Dropping it frees both once the GPU has
 /// finished every submission made before the drop.
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context, ContextOptions};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let buf = Buffer::device(&ctx, "example/weights", 4 * 256)?;
+/// assert_eq!(buf.len_of::<f32>(), 256);
+/// ctx.upload(&buf, 0, &[1.0f32; 256])?;
+/// assert_eq!(ctx.download::<f32>(&buf)?[0], 1.0);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct Buffer {
     dev: Arc<Device>,
     pub(crate) raw: vk::Buffer,
@@ -236,6 +247,17 @@ impl Drop for Buffer {
 
 /// Data read back from the GPU, available after the submission that recorded
 /// it has completed (see [`super::Recorder::download`]).
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context, buf: &latentam::gpu::Buffer) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// let readback = rec.download(buf, 0, buf.bytes())?;
+/// rec.submit()?.wait()?;
+/// let values: Vec<f32> = readback.read()?;
+/// assert_eq!(values.len() as u64, buf.len_of::<f32>());
+/// # Ok(())
+/// # }
+/// ```
 pub struct Readback {
     /// Shared with the recorder, so dropping the readback before the
     /// submission cannot free the buffer the copy writes into.

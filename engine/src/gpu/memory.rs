@@ -6,6 +6,14 @@ use std::sync::Mutex;
 use crate::error::{Error, Result};
 
 /// Bytes in use and the peak, for one category or for the whole context.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) {
+/// let total = ctx.memory_report().total;
+/// println!("{} MiB in use, peak {} MiB", total.current >> 20, total.peak >> 20);
+/// assert!(total.peak >= total.current);
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ByteCount {
     /// Bytes currently allocated.
@@ -15,6 +23,17 @@ pub struct ByteCount {
 }
 
 /// A snapshot of [`MemoryAccounting`].
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context, ContextOptions};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let _pixels = Buffer::device(&ctx, "features/pixels", 1 << 20)?;
+/// let report = ctx.memory_report();
+/// assert!(report.by_category["features"].current >= 1 << 20);
+/// assert_eq!(report.budget, None);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct MemoryReport {
     /// All device-memory allocations of the context (staging included).

@@ -44,6 +44,16 @@ impl ObjectCounts {
 /// Vulkan objects alive on a context (see
 /// [`super::Context::live_objects`]), including those dropped by their
 /// owner but waiting for the GPU before destruction.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) -> latentam::Result<()> {
+/// let before = ctx.live_objects();
+/// drop(ctx.upload_new("example/scratch", &[0u32; 64])?);
+/// ctx.wait_idle()?;
+/// assert_eq!(ctx.live_objects().buffers, before.buffers);
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct LiveObjects {
     /// Buffers, each with its memory allocation.

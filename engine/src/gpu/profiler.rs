@@ -11,6 +11,14 @@ use std::path::Path;
 use crate::error::Result;
 
 /// One timed GPU command.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) {
+/// let profiler = ctx.profiler_snapshot();
+/// let copy_ns: f64 = profiler.samples().iter().filter(|s| s.name == "copy").map(|s| s.duration_ns).sum();
+/// println!("copies took {:.3} ms", copy_ns * 1e-6);
+/// # }
+/// ```
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Sample {
     /// Kernel name (or `copy`).
@@ -24,6 +32,14 @@ pub struct Sample {
 }
 
 /// Aggregate timings of one kernel.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) {
+/// for (kernel, stats) in ctx.profiler_snapshot().stats() {
+///     println!("{kernel}: {} dispatches, {:.3} ± {:.3} ms", stats.count, stats.mean_ms, stats.std_ms);
+/// }
+/// # }
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct KernelStats {
     /// Number of timed dispatches.
@@ -72,6 +88,17 @@ impl Running {
 }
 
 /// Collected timings. Obtain it with [`super::Context::profiler_snapshot`].
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+///
+/// let ctx = Context::new(ContextOptions { profiling: true, ..Default::default() })?;
+/// // ... record, submit and wait on work ...
+/// let profiler = ctx.profiler_snapshot();
+/// println!("{}", profiler.table());
+/// profiler.write_chrome_trace(std::path::Path::new("trace.json"))?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct Profiler {
     samples: Vec<Sample>,

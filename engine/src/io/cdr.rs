@@ -14,6 +14,14 @@
 use std::marker::PhantomData;
 
 /// Byte order of a CDR payload, from its encapsulation header.
+///
+/// ```
+/// use latentam::io::cdr::{CdrReader, Endian};
+///
+/// let msg = [0u8, 1, 0, 0, 7, 0, 0, 0]; // CDR_LE header, then a u32
+/// assert_eq!(CdrReader::new(&msg)?.endian(), Endian::Little);
+/// # Ok::<(), latentam::io::cdr::CdrError>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Endian {
     /// `CDR_LE` (representation id `0x0001`), what ROS 2 writes on every
@@ -34,6 +42,15 @@ impl Endian {
 }
 
 /// Why a CDR payload could not be decoded.
+///
+/// ```
+/// use latentam::io::cdr::CdrReader;
+///
+/// let msg = [0u8, 1, 0, 0, 7, 0]; // a u32 cut short
+/// let e = CdrReader::new(&msg).unwrap().read::<u32>("stamp.sec").unwrap_err();
+/// assert_eq!(e.field, "stamp.sec");
+/// println!("{e}"); // names the field and the byte offset
+/// ```
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("CDR field `{field}` at byte {offset}: {reason}")]
 pub struct CdrError {
@@ -46,6 +63,14 @@ pub struct CdrError {
 }
 
 /// A primitive that can appear in a CDR sequence or fixed array.
+///
+/// ```
+/// use latentam::io::cdr::{CdrPrimitive, Endian};
+///
+/// let mut out = Vec::new();
+/// 1.5f32.put(&mut out, Endian::Big);
+/// assert_eq!(f32::from_bytes(&out, Endian::Big), 1.5);
+/// ```
 pub trait CdrPrimitive: Copy + bytemuck::Pod {
     /// Decodes one value from exactly `size_of::<Self>()` bytes.
     fn from_bytes(bytes: &[u8], endian: Endian) -> Self;
@@ -80,6 +105,16 @@ primitive!(u8, i8, u16, i16, u32, i32, u64, i64, f32, f64);
 
 /// A borrowed CDR sequence or array of primitives: the raw bytes plus their
 /// byte order. Nothing is decoded until an element is asked for.
+///
+/// ```
+/// use latentam::io::cdr::{Endian, Seq};
+///
+/// let bytes = [1u8, 0, 2, 0, 3, 0];
+/// let seq: Seq<u16> = Seq::new(&bytes, Endian::Little);
+/// assert_eq!(seq.len(), 3);
+/// assert_eq!(seq.get(2), Some(3));
+/// assert_eq!(seq.to_vec(), vec![1, 2, 3]);
+/// ```
 #[derive(Clone, Copy)]
 pub struct Seq<'a, T> {
     bytes: &'a [u8],
@@ -153,6 +188,19 @@ impl<'a, T: CdrPrimitive> Seq<'a, T> {
 }
 
 /// Reads one serialized message.
+///
+/// ```
+/// use latentam::io::cdr::{CdrReader, CdrWriter, Endian};
+///
+/// let mut w = CdrWriter::new(Endian::Little);
+/// w.put(42u32);
+/// w.string("camera_color_optical_frame");
+/// let msg = w.finish();
+/// let mut r = CdrReader::new(&msg)?;
+/// assert_eq!(r.read::<u32>("seq")?, 42);
+/// assert_eq!(r.string("frame_id")?, "camera_color_optical_frame");
+/// # Ok::<(), latentam::io::cdr::CdrError>(())
+/// ```
 pub struct CdrReader<'a> {
     /// The whole message including the 4-byte header.
     msg: &'a [u8],
@@ -347,6 +395,15 @@ impl<'a> CdrReader<'a> {
 }
 
 /// Writes one serialized message (the inverse of [`CdrReader`]).
+///
+/// ```
+/// use latentam::io::cdr::{CdrWriter, Endian};
+///
+/// let mut w = CdrWriter::new(Endian::Little);
+/// w.seq(&[1.0f32, 2.0, 3.0]);
+/// let bytes = w.finish(); // 4-byte header, u32 length, then the floats
+/// assert_eq!(bytes.len(), 4 + 4 + 12);
+/// ```
 pub struct CdrWriter {
     out: Vec<u8>,
     endian: Endian,

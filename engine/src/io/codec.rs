@@ -42,6 +42,23 @@ fn check_size(what: &'static str, width: u32, height: u32) -> Result<(), Rejecti
 
 /// The size a compressed image must have, when the frame it belongs to
 /// already says (its camera info, or the other image of the pair).
+///
+/// ```no_run
+/// use latentam::io::codec::{color_from_compressed, ExpectedSize};
+/// # fn f(msg: &latentam::io::CompressedImage<'_>) {
+/// // A 640×480 camera: a 1920×1080 JPEG is refused before it is decoded.
+/// let expected = ExpectedSize {
+///     width: 640,
+///     height: 480,
+///     kind: "colour: size mismatch",
+///     from: "the camera info",
+/// };
+/// match color_from_compressed(msg, Some(expected)) {
+///     Ok(image) => println!("{}×{}", image.width, image.height),
+///     Err(why) => eprintln!("skipped: {why:?}"),
+/// }
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ExpectedSize {
     /// Width in pixels.

@@ -79,6 +79,15 @@ pub use vocabulary::{read_vocabulary, Vocabulary};
 pub use writer::{Compression, LogWriter};
 
 /// What went wrong reading or writing a log.
+///
+/// ```
+/// use latentam::io::McapLog;
+///
+/// match McapLog::open("/nonexistent/run.mcap".as_ref()) {
+///     Err(e) => eprintln!("cannot read the log: {e}"), // names the path
+///     Ok(_) => unreachable!(),
+/// }
+/// ```
 #[derive(Debug, thiserror::Error)]
 pub enum InputError {
     /// The file system refused.

@@ -38,6 +38,18 @@ const UNIT_EPS: f32 = 1e-12;
 const STALE_TOLERANCE: f32 = 1e-6;
 
 /// Settings of [`StreamingKMeans`]; defaults follow SPEC §4.2 and §12.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::latent::{KMeansConfig, StreamingKMeans};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// // 512-d CLIP embeddings into 1000 atoms, slowly forgetting old keyframes.
+/// let cfg = KMeansConfig { atoms: 1000, dim: 512, decay: 0.99, ..Default::default() };
+/// let kmeans = StreamingKMeans::new(&ctx, cfg)?;
+/// assert_eq!(kmeans.config().micro_clusters, 5);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KMeansConfig {
     /// Dictionary capacity K (the paper's 2000).
@@ -83,6 +95,20 @@ impl Default for KMeansConfig {
 }
 
 /// What one keyframe's update did.
+///
+/// ```no_run
+/// # use latentam::gpu::{Buffer, Context};
+/// # use latentam::latent::StreamingKMeans;
+/// # fn f(ctx: &Context, kmeans: &StreamingKMeans, features: &Buffer, n: u32, atoms: &Buffer, anchor: &Buffer, moved: &Buffer) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// let step = kmeans.record_update(&mut rec, features, None, n, atoms, anchor, moved)?;
+/// rec.submit()?.wait()?;
+/// if step.reclustered {
+///     println!("{} micro-centres merged into {} atoms", step.micro_clusters, step.atoms_after);
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct KMeansStep {
     /// Atoms in use before.

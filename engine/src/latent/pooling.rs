@@ -25,6 +25,20 @@ pub use latentam_shaders::shared::NO_REGION;
 /// [`NO_REGION_LABEL`] for none). It may be smaller or larger than the view
 /// it labels: view pixels take the label under their centre (nearest
 /// neighbour).
+///
+/// ```
+/// use latentam::latent::{LabelImage, Regions, NO_REGION_LABEL};
+/// use latentam::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(8, 8)])?;
+/// // A 2×2 mask at a quarter of the view's resolution: two regions on top,
+/// // nothing below.
+/// let labels = [0u16, 1, NO_REGION_LABEL, NO_REGION_LABEL];
+/// let mut regions = Regions::new(&layout, 1);
+/// regions.add_labels(0, LabelImage { width: 2, height: 2, labels: &labels }, 2)?;
+/// assert_eq!(regions.offsets(), &[0, 16, 32]); // two 4×4-pixel regions
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct LabelImage<'a> {
     /// Columns.
@@ -36,6 +50,20 @@ pub struct LabelImage<'a> {
 }
 
 /// What became of one view's regions.
+///
+/// ```
+/// use latentam::latent::Regions;
+/// use latentam::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(8, 8); 2])?;
+/// let mut regions = Regions::new(&layout, 10); // regions need 10 pixels
+/// regions.add_grid(0, 2, 2)?; // four cells of 16 pixels
+/// let second = regions.add_grid(1, 4, 4)?; // sixteen cells of 4 pixels
+/// assert_eq!(second.first_row, 4);
+/// assert_eq!(second.too_small, 16);
+/// assert!(second.sources.is_empty());
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ViewRegions {
     /// Index of the view in the batch.
@@ -261,6 +289,23 @@ fn nearest(i: u32, n: u32, m: u32) -> u32 {
 /// GPU side of region pooling for batches of up to `max_regions` regions and
 /// `max_pixels` pixels: the region lists, and the pooled queries
 /// (regions × 32) that the decoder reads.
+///
+/// ```no_run
+/// # use latentam::gpu::{Buffer, Context};
+/// # use latentam::latent::Regions;
+/// # fn f(ctx: &Context, regions: &Regions, query_image: &Buffer, max_pixels: u64) -> latentam::Result<()> {
+/// use latentam::latent::RegionPooling;
+///
+/// let pooling = RegionPooling::new(ctx, 2048, max_pixels)?;
+/// let mut rec = ctx.recorder()?;
+/// pooling.record_upload(&mut rec, regions)?;
+/// pooling.record_forward(&mut rec, query_image)?; // the rasterizer's query image
+/// let rows = rec.download(pooling.pooled(), 0, regions.len() as u64 * 32 * 4)?;
+/// rec.submit()?.wait()?;
+/// let pooled: Vec<f32> = rows.read()?; // one mean 32-d query per region
+/// # Ok(())
+/// # }
+/// ```
 pub struct RegionPooling {
     max_regions: u32,
     max_pixels: u64,

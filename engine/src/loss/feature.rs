@@ -113,6 +113,21 @@ impl FeatureLoss {
 
 /// Keeps each atom within `δ` of its k-means anchor:
 /// `λ_f · λ_D · Σ_k max(0, ‖D_k − D⁰_k‖ − δ)`, its gradient added to ∂L/∂D.
+///
+/// ```no_run
+/// # use latentam::gpu::{Buffer, Context};
+/// # fn f(ctx: &Context, dictionary: &Buffer, anchor: &Buffer, grad: &Buffer) -> latentam::Result<()> {
+/// use latentam::loss::{FeatureLoss, LossWeights, TrustRegion};
+///
+/// let trust = TrustRegion::new(ctx, 2000, 512, LossWeights::default())?;
+/// let mut rec = ctx.recorder()?;
+/// trust.record(&mut rec, dictionary, anchor, grad, 2000)?; // adds to ∂L/∂D
+/// let penalties = trust.record_readback(&mut rec, 2000)?;
+/// rec.submit()?.wait()?;
+/// println!("trust-region loss {}", FeatureLoss::sum(&penalties)?);
+/// # Ok(())
+/// # }
+/// ```
 pub struct TrustRegion {
     max_atoms: u32,
     dim: u32,

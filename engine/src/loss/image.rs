@@ -26,6 +26,14 @@ pub fn depth_is_valid(z: f32) -> bool {
 
 /// The weighted terms of the last evaluation; they sum to the image part of
 /// the objective (averaged over the batch's views).
+///
+/// ```no_run
+/// # fn f(readback: &latentam::loss::ImageLossReadback) -> latentam::Result<()> {
+/// let v = readback.values()?;
+/// println!("L1 {:.4} + SSIM {:.4} + depth {:.4} = {:.4}", v.l1, v.ssim, v.depth, v.total());
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct ImageLossValues {
     /// λ_rgb · λ_I1 · mean |Î − I|.
@@ -44,6 +52,20 @@ impl ImageLossValues {
 }
 
 /// Downloads of the partial sums of one evaluation.
+///
+/// ```no_run
+/// # use latentam::gpu::{Buffer, Context};
+/// # use latentam::loss::ImageLoss;
+/// # use latentam::splat::BatchLayout;
+/// # fn f(ctx: &Context, loss: &ImageLoss, layout: &BatchLayout, rendered: &Buffer, target: &Buffer, valid: &[u64], grad: &Buffer) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// loss.record(&mut rec, layout, rendered, target, valid, grad)?;
+/// let readback = loss.record_readback(&mut rec)?;
+/// rec.submit()?.wait()?;
+/// let total = readback.values()?.total();
+/// # Ok(())
+/// # }
+/// ```
 pub struct ImageLossReadback {
     l1: Readback,
     ssim: Readback,

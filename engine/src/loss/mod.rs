@@ -20,6 +20,15 @@ settings! {
     /// feature · (cosine · L_cos + l2 · L_l2 + trust_region · L_trust)`. The
     /// paper's 0.2/0.8 split between L1 and SSIM is the reverse of every
     /// reference 3DGS system (0.8/0.2); swap it here if wanted.
+    ///
+    /// ```
+    /// use latentam::loss::LossWeights;
+    ///
+    /// // The usual 3DGS split of the photometric term (0.8 L1, 0.2 SSIM).
+    /// let weights = LossWeights { rgb_l1: 0.8, ssim: 0.2, ..Default::default() };
+    /// assert_eq!(weights.feature, 5.0);
+    /// assert_eq!(weights.trust_radius, 0.1);
+    /// ```
     #[derive(Copy)]
     pub struct LossWeights {
         /// lambda_rgb, weight of the photometric term (not given by the

@@ -91,6 +91,17 @@ pub fn head_bytes(atoms: u64, dim: u64, max_regions: u64) -> u64 {
 }
 
 /// The window's share of a budget.
+///
+/// ```
+/// use latentam::mapper::budget::{head_bytes, pixel_bytes, window_budget, MIN_WINDOW};
+///
+/// // 4 GiB for 640×480 views rendered 4 at a time and a 2000-atom, 512-d head.
+/// let later = pixel_bytes(640 * 480, 4, false) + head_bytes(2000, 512, 2048);
+/// let w = window_budget(4 << 30, 0, later, 4, u64::MAX)?;
+/// assert!(w.capacity >= MIN_WINDOW && w.capacity <= w.buffer_limit_rows);
+/// assert!(w.capacity * w.bytes_per_row <= w.budget - w.reserved);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct WindowBudget {
     /// The whole GPU budget, bytes.
@@ -151,6 +162,18 @@ pub fn window_budget(
 /// Peak GPU bytes by part of the mapper, from the per-category peaks of
 /// the context's accounting (each part's peak; they may have peaked at
 /// different times, so their sum can exceed the overall peak).
+///
+/// ```
+/// use latentam::gpu::{ByteCount, MemoryReport};
+/// use latentam::mapper::budget::MemorySplit;
+///
+/// // Normally `ctx.memory_report()` after a run.
+/// let mut report = MemoryReport::default();
+/// report.by_category.insert("pixels".into(), ByteCount { current: 0, peak: 64 << 20 });
+/// report.by_category.insert("decoder".into(), ByteCount { current: 8 << 20, peak: 8 << 20 });
+/// let split = MemorySplit::of(&report);
+/// assert_eq!((split.images, split.latent_head, split.window), (64 << 20, 8 << 20, 0));
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MemorySplit {
     /// Per-pixel buffers of the chunk of views being rendered: colour,

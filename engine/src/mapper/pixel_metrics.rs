@@ -18,6 +18,27 @@ use crate::latent::{FactorisedDecoder, NO_REGION};
 use crate::splat::QUERY_DIM;
 
 /// What one view contributes to the per-pixel metrics (sums, so views add).
+///
+/// ```
+/// # use latentam::latent::FactorisedDecoder;
+/// # use latentam::mapper::pixel_metrics::PixelInputs;
+/// # let mut w = vec![0.0f32; 32 * 3];
+/// # w[0] = 1.0;
+/// # let dec = FactorisedDecoder::new(&w, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0], 3, 0.05, 1e-6)?;
+/// # let mut q = [0.0f32; 32];
+/// # q[0] = 2.0;
+/// # let view = PixelInputs { width: 1, height: 1, queries: &[q], region: &[0],
+/// #     targets: &[1.0, 0.0, 0.0], truth: &[0], vocabulary: None, stride: 1 };
+/// use latentam::mapper::pixel_metrics::{pixel_metrics, PixelMetrics};
+///
+/// let mut total = PixelMetrics::default();
+/// for view in [&view, &view] {
+///     total.add(&pixel_metrics(&dec, view)?); // sums, so views add up
+/// }
+/// assert_eq!(total.cosine_pixels, 2);
+/// assert!(total.cosine_loss().unwrap() < 1e-3);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct PixelMetrics {
     /// Σ over pixels with a target of 1 − cos(e_p, t).
@@ -51,6 +72,28 @@ impl PixelMetrics {
 }
 
 /// A view's per-pixel inputs (row-major, `width` × `height`).
+///
+/// ```
+/// use latentam::latent::{FactorisedDecoder, NO_REGION};
+/// use latentam::mapper::pixel_metrics::{pixel_metrics, PixelInputs};
+///
+/// // W sends query channel 0 to atom 0 = (1, 0, 0); atom 1 = (0, 1, 0).
+/// let mut w = vec![0.0f32; 32 * 3];
+/// w[0] = 1.0;
+/// let dec = FactorisedDecoder::new(&w, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0], 3, 0.05, 1e-6)?;
+/// let mut q = [0.0f32; 32];
+/// q[0] = 2.0;
+/// let (ids, texts) = ([5u16, 9], [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0]);
+/// let view = PixelInputs {
+///     width: 2, height: 1, queries: &[q, q],
+///     region: &[0, NO_REGION], targets: &[1.0, 0.0, 0.0], // pixel 1 has no target
+///     truth: &[5, 5], vocabulary: Some((&ids[..], &texts[..])), stride: 1,
+/// };
+/// let m = pixel_metrics(&dec, &view)?;
+/// assert_eq!(m.cosine_pixels, 1);
+/// assert!(m.cosine_loss().unwrap() < 1e-3);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct PixelInputs<'a> {
     /// Columns.
     pub width: usize,

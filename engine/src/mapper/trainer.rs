@@ -24,6 +24,20 @@ use crate::splat::{
 pub const DEFAULT_CHUNK_PIXELS: u64 = 1 << 20;
 
 /// Sizes of the trainer's workspace.
+///
+/// ```
+/// use latentam::loss::LossWeights;
+/// use latentam::mapper::{TrainerConfig, DEFAULT_CHUNK_PIXELS};
+/// use latentam::optim::GaussianLearningRates;
+///
+/// let cfg = TrainerConfig {
+///     capacity: 200_000, max_view_pixels: 640 * 480, max_views: 8,
+///     chunk_pixels: DEFAULT_CHUNK_PIXELS, max_regions: 2048, min_region_pixels: 16,
+///     weights: LossWeights::default(), learning_rates: GaussianLearningRates::default(),
+///     attach_feature_gradients: false,
+/// };
+/// assert_eq!(cfg.views_per_chunk(), 3); // 2^20 pixels hold three 640×480 views
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrainerConfig {
     /// Window capacity (Gaussians).
@@ -64,6 +78,19 @@ pub fn views_per_chunk(view_pixels: u64, max_views: u32, chunk_pixels: u64) -> u
 }
 
 /// What a Stage I step measured (before its update).
+///
+/// ```no_run
+/// # use latentam::{gpu::Context, latent::LatentHead, map::LocalWindow};
+/// # use latentam::mapper::{KeyframeRecord, Trainer};
+/// # fn f(ctx: &Context, trainer: &mut Trainer, window: &LocalWindow, head: &LatentHead, batch: &[&KeyframeRecord]) -> latentam::Result<()> {
+/// let report = trainer.stage_one(ctx, window, Some(head), batch)?;
+/// println!(
+///     "image loss {:.4}, feature loss {:.4} over {} regions, {} visible pairs",
+///     report.image.total(), report.feature, report.regions, report.raster.visible
+/// );
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct StageOneReport {
     /// Weighted image losses (mean over views).
@@ -93,6 +120,21 @@ struct Chunk {
 }
 
 /// The Stage I / Stage II executor.
+///
+/// ```no_run
+/// # use latentam::{gpu::Context, latent::LatentHead, map::LocalWindow};
+/// # use latentam::mapper::{KeyframeRecord, TrainerConfig};
+/// # fn f(ctx: &Context, cfg: TrainerConfig, window: &LocalWindow, head: &LatentHead, keyframe: &KeyframeRecord, replayed: &[&KeyframeRecord]) -> latentam::Result<()> {
+/// use latentam::mapper::Trainer;
+///
+/// let mut trainer = Trainer::new(ctx, cfg, head.config().dim)?;
+/// let mut batch = vec![keyframe]; // the new keyframe first, then past ones
+/// batch.extend_from_slice(replayed);
+/// let stage_one = trainer.stage_one(ctx, window, Some(head), &batch)?;
+/// let feature_loss = trainer.stage_two(ctx, Some(head), 10)?;
+/// # Ok(())
+/// # }
+/// ```
 pub struct Trainer {
     cfg: TrainerConfig,
     raster: Rasterizer,
@@ -500,6 +542,19 @@ impl Trainer {
 }
 
 /// A submitted Stage II.
+///
+/// ```no_run
+/// # use latentam::{gpu::Context, latent::LatentHead, mapper::Trainer};
+/// # fn f(ctx: &Context, trainer: &Trainer, head: &LatentHead) -> latentam::Result<()> {
+/// let run = trainer.submit_stage_two(ctx, Some(head), 10)?;
+/// // ... page the window on the transfer queue meanwhile ...
+/// let (feature_loss, span) = run.finish()?;
+/// if let Some(span) = span {
+///     println!("Stage II: loss {feature_loss:.4} in {:.2} ms", span.ms());
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[must_use = "Stage II must be finished"]
 pub struct StageTwoRun(Option<(Submission, Readback)>);
 

@@ -21,6 +21,15 @@ use crate::error::Result;
 use crate::gpu::{Buffer, Recorder};
 
 /// Which operands are used transposed.
+///
+/// ```
+/// use latentam::ops::{Gemm, Transpose};
+///
+/// // Aᵀ·B with A stored k×m (256×64) and B k×n (256×32): a weight gradient.
+/// let grad = Gemm { transpose: Transpose::A, m: 64, n: 32, k: 256, alpha: 1.0, beta: 1.0 };
+/// assert!(grad.vector_loads_fit());
+/// assert_eq!(grad.flops(), 2.0 * 64.0 * 32.0 * 256.0);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Transpose {
     /// A·B with A m×k, B k×n.
@@ -35,6 +44,14 @@ pub enum Transpose {
 pub use latentam_shaders::shared::GEMM_TILE;
 
 /// Which kernel computes a product.
+///
+/// ```
+/// use ash::vk::PhysicalDeviceType;
+/// use latentam::ops::GemmKernel;
+///
+/// assert_eq!(GemmKernel::for_device(PhysicalDeviceType::CPU), GemmKernel::Blocked);
+/// assert_eq!(GemmKernel::for_device(PhysicalDeviceType::DISCRETE_GPU), GemmKernel::Tiled);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GemmKernel {
     /// Shared-memory tiles: any shape; the choice on GPUs.
@@ -56,6 +73,23 @@ impl GemmKernel {
 
 /// Shape and scaling of one product `C = alpha·op(A)·op(B) + beta·C`
 /// (row-major, contiguous; op(A) is m×k, op(B) is k×n).
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context, ContextOptions};
+/// use latentam::ops::{Gemm, Transpose};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let a = ctx.upload_new("example/a", &[1.0f32; 64 * 128])?;
+/// let b = ctx.upload_new("example/b", &[0.5f32; 128 * 32])?;
+/// let c = Buffer::device(&ctx, "example/c", 64 * 32 * 4)?;
+/// // C (64×32) = A (64×128) · B (128×32), overwriting C.
+/// let gemm = Gemm { transpose: Transpose::None, m: 64, n: 32, k: 128, alpha: 1.0, beta: 0.0 };
+/// let mut rec = ctx.recorder()?;
+/// gemm.record(&mut rec, &a, &b, &c)?;
+/// rec.submit()?.wait()?;
+/// assert_eq!(ctx.download::<f32>(&c)?[0], 64.0);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gemm {
     /// Which operand is transposed.

@@ -10,6 +10,20 @@ use crate::gpu::{Buffer, Context, Recorder};
 pub const REDUCE_BLOCK: u64 = 2048;
 
 /// Which reduction.
+///
+/// ```no_run
+/// # use latentam::gpu::{Buffer, Context};
+/// # use latentam::ops::Reducer;
+/// # fn f(ctx: &Context, reducer: &Reducer, depths: &Buffer, n: u64, out: &Buffer) -> latentam::Result<()> {
+/// use latentam::ops::ReduceOp;
+///
+/// let mut rec = ctx.recorder()?;
+/// reducer.record(&mut rec, ReduceOp::Max, depths, n, out)?;
+/// rec.submit()?.wait()?;
+/// let farthest = ctx.download::<f32>(out)?[0];
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ReduceOp {
     /// Sum (0 for no elements).
@@ -19,6 +33,21 @@ pub enum ReduceOp {
 }
 
 /// A reusable multi-pass reduction of up to `max_len` f32 values into one.
+///
+/// ```no_run
+/// use latentam::gpu::{Buffer, Context, ContextOptions};
+/// use latentam::ops::{ReduceOp, Reducer};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let values = ctx.upload_new("example/values", &vec![0.5f32; 10_000])?;
+/// let total = Buffer::device(&ctx, "example/total", 4)?;
+/// let reducer = Reducer::new(&ctx, 10_000)?;
+/// let mut rec = ctx.recorder()?;
+/// reducer.record(&mut rec, ReduceOp::Sum, &values, 10_000, &total)?;
+/// rec.submit()?.wait()?;
+/// assert_eq!(ctx.download::<f32>(&total)?, vec![5000.0]);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct Reducer {
     max_len: u64,
     levels: Vec<Buffer>,

@@ -9,6 +9,14 @@ use crate::gpu::{Buffer, Context, Recorder};
 const THREADS: u64 = 256;
 
 /// Hyper-parameters of one parameter group.
+///
+/// ```
+/// use latentam::optim::AdamHyper;
+///
+/// let mut hyper = AdamHyper::new(0.01, 1e-8);
+/// assert_eq!((hyper.beta1, hyper.beta2), (0.9, 0.999));
+/// hyper.lr *= 0.5; // decay the rate: set `AdamGroup::hyper` before the next step
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdamHyper {
     /// Learning rate.

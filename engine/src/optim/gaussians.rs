@@ -16,6 +16,14 @@ settings! {
     /// scene), colours 0.005 (7e-4 before: +0.4 dB on 7-Scenes; 0.02 and 0.05
     /// fit the newest keyframe at the expense of the others) and opacity 0.2
     /// (0.05 before: +0.2 dB).
+    ///
+    /// ```
+    /// use latentam::optim::GaussianLearningRates;
+    ///
+    /// // Let the tracker's poses be refined too.
+    /// let lrs = GaussianLearningRates { means: 1.6e-4, ..Default::default() };
+    /// assert_eq!(lrs.queries, 0.1);
+    /// ```
     #[derive(Copy)]
     pub struct GaussianLearningRates {
         /// Means (positions). Effectively frozen: the poses come from the
@@ -52,6 +60,22 @@ impl GaussianLearningRates {
 }
 
 /// Adam state for `capacity` Gaussians (ε = 1e-15, the 3DGS convention).
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::optim::{GaussianLearningRates, GaussianOptimizer};
+/// use latentam::splat::GaussianBuffers;
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let params = GaussianBuffers::new(&ctx, "gaussians", 1000)?;
+/// let grads = GaussianBuffers::new(&ctx, "grads", 1000)?;
+/// let adam = GaussianOptimizer::new(&ctx, 1000, GaussianLearningRates::default())?;
+/// // ... render, evaluate the loss, back-propagate into `grads` ...
+/// let mut rec = ctx.recorder()?;
+/// adam.record_step(&mut rec, &params, &grads, 1000, None)?;
+/// rec.submit()?.wait()?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct GaussianOptimizer {
     groups: Vec<AdamGroup>,
 }

@@ -5,6 +5,20 @@
 use crate::optim::AdamHyper;
 
 /// State of one parameter tensor (rows × width) under Adam.
+///
+/// ```
+/// use latentam::optim::AdamHyper;
+/// use latentam::reference::adam::AdamState;
+///
+/// let mut state = AdamState::new(2, 3);
+/// let mut param = vec![1.0f64; 6];
+/// state.step(&AdamHyper::new(0.1, 1e-8), &mut param, &[0.5f32; 6], 2, Some(&[true, false]));
+/// // Adam's first step moves each element by lr against its gradient's sign;
+/// // row 1 was masked out.
+/// assert!((param[0] - 0.9).abs() < 1e-6);
+/// assert_eq!(param[3], 1.0);
+/// assert_eq!(state.steps, vec![1, 0]);
+/// ```
 #[derive(Clone, Debug)]
 pub struct AdamState {
     /// Columns per row.

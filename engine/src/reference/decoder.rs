@@ -15,6 +15,17 @@ use super::normalize::{normalize_rows, normalize_rows_vjp};
 use super::softmax::{row_softmax_f64, row_softmax_vjp};
 
 /// Shapes and constants of one decode.
+///
+/// ```
+/// use latentam::reference::decoder::{forward, DecoderShape};
+///
+/// // Two regions with 2-d queries, 3-d embeddings, a dictionary of two atoms.
+/// let s = DecoderShape { n: 2, query_dim: 2, dim: 3, atoms: 2, tau: 0.1, eps: 1e-12 };
+/// let w = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0]; // d_s × d_f
+/// let d = [2.0f32, 0.0, 0.0, 0.0, 3.0, 0.0]; // K × d_f
+/// let fwd = forward(&s, &[1.0, 0.0, 0.0, 1.0], &w, &d);
+/// assert_eq!(fwd.output.len(), s.n * s.dim);
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct DecoderShape {
     /// Rows (regions).
@@ -32,6 +43,19 @@ pub struct DecoderShape {
 }
 
 /// Everything the forward pass computes (the backward pass reuses it).
+///
+/// ```
+/// use latentam::reference::decoder::{forward, DecoderShape};
+///
+/// let s = DecoderShape { n: 2, query_dim: 2, dim: 3, atoms: 2, tau: 0.1, eps: 1e-12 };
+/// let (w, d) = ([1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0], [2.0f32, 0.0, 0.0, 0.0, 3.0, 0.0]);
+/// let fwd = forward(&s, &[1.0, 0.0, 0.0, 1.0], &w, &d);
+/// for row in fwd.attention.chunks(s.atoms) {
+///     assert!((row.iter().sum::<f64>() - 1.0).abs() < 1e-12); // a softmax over atoms
+/// }
+/// // Region 0 points at atom 0 and decodes to it, unnormalised: ≈ (2, 0, 0).
+/// assert!(fwd.attention[0] > 0.99 && (fwd.output[0] - 2.0).abs() < 1e-3);
+/// ```
 #[derive(Clone, Debug)]
 pub struct DecoderForward {
     /// E = QW, n × d_f.
@@ -51,6 +75,21 @@ pub struct DecoderForward {
 }
 
 /// Gradients of the decoder's inputs.
+///
+/// ```
+/// use latentam::reference::decoder::{backward, forward, DecoderShape};
+///
+/// let s = DecoderShape { n: 2, query_dim: 2, dim: 3, atoms: 2, tau: 0.5, eps: 1e-12 };
+/// let (q, d) = ([1.0f32, 0.2, 0.3, 1.0], [2.0f32, 0.0, 0.5, 0.0, 3.0, 0.0]);
+/// let w = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0];
+/// let loss = |w: &[f32]| forward(&s, &q, w, &d).output.iter().sum::<f64>();
+/// // L = Σ F̂, so the upstream gradient is all ones.
+/// let grads = backward(&s, &q, &w, &d, &forward(&s, &q, &w, &d), &[1.0; 6]);
+/// let (mut up, mut down) = (w, w);
+/// up[1] += 1e-3;
+/// down[1] -= 1e-3;
+/// assert!(((loss(&up) - loss(&down)) / 2e-3 - grads.w[1]).abs() < 1e-3);
+/// ```
 #[derive(Clone, Debug)]
 pub struct DecoderGrads {
     /// ∂L/∂Q, n × d_s.

@@ -14,6 +14,20 @@
 //! 4. Report which atoms moved, for the optimiser's moment reset.
 
 /// Settings of the algorithm.
+///
+/// ```
+/// use latentam::reference::kmeans::{micro_clusters, KMeansSettings};
+///
+/// let s = KMeansSettings {
+///     micro_clusters: 2, local_iterations: 5, global_iterations: 3, decay: 1.0,
+///     novelty_threshold: 0.5, normalize: true, moved_tolerance: 1e-4,
+/// };
+/// // Four regions of a keyframe, in two directions.
+/// let points = vec![vec![1.0, 0.0], vec![0.9, 0.1], vec![0.0, 1.0], vec![0.1, 0.9]];
+/// let (centres, weights) = micro_clusters(&s, &points, &[1.0; 4]);
+/// assert_eq!(centres.len(), 2);
+/// assert_eq!(weights, vec![2.0, 2.0]);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KMeansSettings {
     /// Micro-clusters per keyframe, m (at most the keyframe's region count).
@@ -141,6 +155,21 @@ pub fn micro_clusters(
 }
 
 /// A dictionary with a fixed capacity, as streaming k-means maintains it.
+///
+/// ```
+/// use latentam::reference::kmeans::{update_dictionary, Dictionary, KMeansSettings};
+///
+/// let s = KMeansSettings {
+///     micro_clusters: 2, local_iterations: 5, global_iterations: 3, decay: 1.0,
+///     novelty_threshold: 0.5, normalize: true, moved_tolerance: 1e-4,
+/// };
+/// let mut dict = Dictionary { atoms: Vec::new(), weights: Vec::new(), capacity: 4 };
+/// let points = vec![vec![1.0, 0.0], vec![0.9, 0.1], vec![0.0, 1.0], vec![0.1, 0.9]];
+/// let moved = update_dictionary(&s, &mut dict, &points, &[1.0; 4]);
+/// assert_eq!(dict.atoms.len(), 2); // room left: the micro-centres are appended
+/// assert_eq!(moved.len(), dict.atoms.len());
+/// assert_eq!(dict.weights.iter().sum::<f64>(), 4.0);
+/// ```
 #[derive(Clone, Debug)]
 pub struct Dictionary {
     /// Atoms in use.

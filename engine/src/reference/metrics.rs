@@ -9,6 +9,21 @@ use std::collections::BTreeMap;
 use super::decoder::{forward, DecoderShape};
 
 /// Sums of one view, and per class (intersection, union, truth) counts.
+///
+/// ```
+/// use latentam::reference::decoder::DecoderShape;
+/// use latentam::reference::metrics::pixel_metrics;
+///
+/// // One pixel decoded (identity W, one atom) to (0, 1): its region's target
+/// // and the text embedding of class 7 ("chair"), not of class 3 ("wall").
+/// let shape = DecoderShape { n: 1, query_dim: 2, dim: 2, atoms: 1, tau: 0.1, eps: 1e-12 };
+/// let vocabulary = ([3u16, 7], [1.0f32, 0.0, 0.0, 1.0]);
+/// let m = pixel_metrics(&shape, &[1.0, 0.0], &[1.0, 0.0, 0.0, 1.0], &[0.0, 1.0],
+///     &[0], &[0.0, 1.0], &[7], Some((&vocabulary.0, &vocabulary.1)));
+/// assert_eq!(m.cosine_pixels, 1);
+/// assert!(m.cosine_loss_sum.abs() < 1e-12);
+/// assert_eq!(m.classes[&7], [1, 1, 1]); // intersection, union, true pixels
+/// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Metrics {
     /// Σ 1 − cos over pixels with a target.

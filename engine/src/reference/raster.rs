@@ -53,6 +53,19 @@ pub const LOW_PASS: f64 = shared::LOW_PASS as f64;
 pub use crate::splat::GUARD_BAND;
 
 /// One Gaussian's parameters in f64.
+///
+/// ```
+/// use latentam::reference::raster::{project, Gaussian};
+/// use latentam::splat::{Camera, HostGaussians};
+///
+/// let mut host = HostGaussians::zeros(1);
+/// host.means[0] = [0.0, 0.0, 2.0];
+/// host.quats[0] = [1.0, 0.0, 0.0, 0.0];
+/// host.log_scales[0] = [-2.0; 3];
+/// let g = Gaussian::from_host(&host, 0); // widened to f64
+/// assert_eq!(g.mean, [0.0, 0.0, 2.0]);
+/// assert!(project(&g, &Camera::at_origin(32, 24)).is_some());
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct Gaussian {
     /// Centre.
@@ -121,6 +134,20 @@ pub fn quat_to_rotmat(q: [f64; 4]) -> DMat3 {
 }
 
 /// A Gaussian as one camera sees it.
+///
+/// ```
+/// use latentam::reference::raster::{project, Gaussian};
+/// use latentam::splat::Camera;
+///
+/// let cam = Camera::at_origin(32, 24);
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// let p = project(&g, &cam).expect("in view");
+/// // On the optical axis: at the principal point, 2 m deep.
+/// assert!((p.mean2d[0] - cam.cx).abs() < 1e-9 && (p.mean2d[1] - cam.cy).abs() < 1e-9);
+/// assert!((p.depth - 2.0).abs() < 1e-12);
+/// assert!(p.opacity > 0.88);
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub struct Projected {
     /// Image-plane centre m.
@@ -243,6 +270,21 @@ pub fn project(g: &Gaussian, cam: &Camera) -> Option<Projected> {
 pub const CHANNELS: usize = 4 + QUERY_DIM;
 
 /// One rendered view.
+///
+/// ```
+/// use latentam::reference::raster::{render, Gaussian};
+/// use latentam::splat::Camera;
+///
+/// let cam = Camera::at_origin(32, 24);
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// let img = render(&[g], &cam, [0.0; 3]);
+/// let centre = &img.channels[12 * 32 + 16];
+/// assert!(img.alpha[12 * 32 + 16] > 0.5);
+/// // Red over black; channel 3 is the depth Σ w·z, not normalised by alpha.
+/// assert!(centre[0] > 0.5 && centre[1] == 0.0);
+/// assert!((centre[3] - 2.0 * img.alpha[12 * 32 + 16]).abs() < 1e-9);
+/// ```
 #[derive(Clone, Debug)]
 pub struct Image {
     /// Width in pixels.
@@ -256,6 +298,21 @@ pub struct Image {
 }
 
 /// Upstream gradients of one view, laid out like [`Image`].
+///
+/// ```
+/// use latentam::reference::raster::{backward, Gaussian, ImageGrads, CHANNELS};
+/// use latentam::splat::Camera;
+///
+/// let cam = Camera::at_origin(32, 24);
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// // L = Σ red over the image: ∂L/∂R = 1 at every pixel, 0 elsewhere.
+/// let n = cam.pixels() as usize;
+/// let mut up = ImageGrads { channels: vec![[0.0; CHANNELS]; n], alpha: vec![0.0; n] };
+/// up.channels.iter_mut().for_each(|c| c[0] = 1.0);
+/// let grads = backward(&[g], &[cam], [0.0; 3], &[up], true);
+/// assert!(grads.grads[0].color[0] > 0.0 && grads.grads[0].color[1] == 0.0);
+/// ```
 #[derive(Clone, Debug)]
 pub struct ImageGrads {
     /// ∂L/∂(RGB, depth, query) per pixel.
@@ -349,6 +406,17 @@ fn blend_pixel(vis: &[(usize, Projected)], px: u32, py: u32) -> (Vec<Contributio
 
 /// How much per-pixel blending work one view takes: the counts a cost model
 /// of the blending kernels needs.
+///
+/// ```
+/// use latentam::reference::raster::{blend_work, Gaussian};
+/// use latentam::splat::Camera;
+///
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// let work = blend_work(&[g], &Camera::at_origin(32, 24));
+/// assert!(work.contributing > 0 && work.contributing <= work.tested);
+/// assert!(work.tile_entries_contributing <= work.tile_entries_walked);
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BlendWork {
     /// (pixel, Gaussian) pairs the forward pass tests: every entry of the
@@ -447,6 +515,21 @@ pub fn render(gs: &[Gaussian], cam: &Camera, background: [f64; 3]) -> Image {
 }
 
 /// Gradients of every Gaussian parameter, laid out like [`Gaussian`].
+///
+/// ```
+/// use latentam::reference::raster::{backward, Gaussian, ImageGrads, CHANNELS};
+/// use latentam::splat::Camera;
+///
+/// let cam = Camera::at_origin(32, 24);
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// let n = cam.pixels() as usize;
+/// let mut up = ImageGrads { channels: vec![[0.0; CHANNELS]; n], alpha: vec![0.0; n] };
+/// up.channels.iter_mut().for_each(|c| c[0] = 1.0); // L = Σ red
+/// let grads = backward(&[g], &[cam], [0.0; 3], &[up], true).grads;
+/// // More opacity means more red over a black background.
+/// assert!(grads[0].opacity_logit > 0.0);
+/// ```
 #[derive(Clone, Debug)]
 pub struct GaussianGrads {
     /// One entry per Gaussian.

@@ -13,6 +13,20 @@ pub const QUERY_DIM: usize = 32;
 /// the rotation as an unnormalised quaternion `(w, x, y, z)`, the opacity as
 /// a logit (opacity = sigmoid(logit)), the colour as view-independent linear
 /// RGB.
+///
+/// ```
+/// use latentam::splat::HostGaussians;
+///
+/// let mut g = HostGaussians::zeros(2);
+/// g.means[1] = [0.0, 0.0, 1.5];
+/// g.quats = vec![[1.0, 0.0, 0.0, 0.0]; 2];
+/// g.log_scales = vec![[0.02f32.ln(); 3]; 2]; // 2 cm
+/// g.opacity_logits = vec![2.0; 2]; // opacity ≈ 0.88
+/// assert_eq!(g.len()?, 2);
+/// g.colors.pop();
+/// assert!(g.len().is_err()); // every field needs one entry per Gaussian
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct HostGaussians {
     /// Centres, world frame, metres.
@@ -70,6 +84,18 @@ impl HostGaussians {
 
 /// The fields of [`HostGaussians`] as GPU buffers, for a fixed capacity.
 /// Used both for parameters and for their gradients.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::splat::{GaussianBuffers, HostGaussians};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let params = GaussianBuffers::new(&ctx, "gaussians", 10_000)?;
+/// let grads = GaussianBuffers::new(&ctx, "grads", params.capacity())?;
+/// params.upload(&ctx, 0, &HostGaussians::zeros(100))?;
+/// assert_eq!(params.download(&ctx, 100)?.len()?, 100);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 pub struct GaussianBuffers {
     capacity: u64,
     /// 3 floats per Gaussian.
@@ -207,6 +233,17 @@ impl GaussianBuffers {
 
 /// A recorded download of Gaussians (see
 /// [`GaussianBuffers::record_download`]).
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context, params: &latentam::splat::GaussianBuffers) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// let pending = params.record_download(&mut rec, 100)?;
+/// rec.submit()?.wait()?;
+/// let host = pending.read()?;
+/// assert_eq!(host.means.len(), 100);
+/// # Ok(())
+/// # }
+/// ```
 pub struct GaussianReadback {
     reads: Vec<crate::gpu::Readback>,
 }

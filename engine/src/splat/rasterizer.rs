@@ -45,6 +45,15 @@ use crate::ops::{PrefixScan, RadixSorter};
 /// How the blending kernels map a tile's pixels to invocations. Both give
 /// the same images and gradients (up to f32 summation order); they differ in
 /// speed by device.
+///
+/// ```
+/// use ash::vk::PhysicalDeviceType;
+/// use latentam::splat::{BlendLayout, RenderSettings};
+///
+/// let auto = RenderSettings::default().layout;
+/// assert_eq!(auto.resolve(PhysicalDeviceType::CPU), BlendLayout::Columns);
+/// assert_eq!(auto.resolve(PhysicalDeviceType::DISCRETE_GPU), BlendLayout::Pixels);
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BlendLayout {
     /// [`BlendLayout::Columns`] on CPU devices, [`BlendLayout::Pixels`] on
@@ -71,6 +80,16 @@ impl BlendLayout {
 }
 
 /// How views are rendered and differentiated.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) {
+/// use latentam::splat::{Rasterizer, RenderSettings};
+///
+/// let mut raster = Rasterizer::new(ctx);
+/// raster.settings = RenderSettings { background: [1.0; 3], ..Default::default() };
+/// assert!(raster.settings.detach_query_gradients);
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
     /// Colour behind the Gaussians (linear RGB).
@@ -101,6 +120,19 @@ impl Default for RenderSettings {
 
 /// Where the backward pass takes the upstream gradient of each pixel's
 /// rendered query.
+///
+/// ```no_run
+/// # use latentam::splat::{GaussianBuffers, Rasterizer};
+/// # fn f(ctx: &latentam::gpu::Context, raster: &Rasterizer, params: &GaussianBuffers, grads: &GaussianBuffers) -> latentam::Result<()> {
+/// use latentam::splat::QueryGradients;
+///
+/// // Colour and depth losses only: the query channels get no upstream gradient.
+/// let mut rec = ctx.recorder()?;
+/// raster.record_backward_into(&mut rec, raster.last_batch(), params, grads, false, QueryGradients::Zero)?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug)]
 pub enum QueryGradients<'a> {
     /// The per-pixel image `image_grads()?.query()` (requires
@@ -130,6 +162,19 @@ pub enum QueryGradients<'a> {
 const QUERY_BYTES: u64 = QUERY_DIM as u64 * 4;
 
 /// Which images a forward pass writes.
+///
+/// ```no_run
+/// # use latentam::splat::{Camera, GaussianBuffers, Rasterizer};
+/// # fn f(raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, cams: &[Camera]) -> latentam::Result<()> {
+/// use latentam::splat::Channels;
+///
+/// // Seeding needs coverage and depth only: skip the 32 query channels.
+/// raster.forward_channels(params, count, cams, Channels::Colour)?;
+/// let (alpha, depth) = raster.download_alpha_depth(0)?;
+/// assert_eq!(raster.channels(), Channels::Colour);
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Channels {
     /// Colour, depth, alpha and the 32 query channels.
@@ -147,6 +192,20 @@ pub enum Channels {
 /// Per-pixel buffers of a batch (all views back to back, each row-major; see
 /// [`BatchLayout`]). The forward pass writes them; the same layout carries
 /// the upstream gradients into the backward pass.
+///
+/// ```no_run
+/// # use latentam::splat::{Camera, GaussianBuffers, Rasterizer};
+/// # fn f(ctx: &latentam::gpu::Context, raster: &mut Rasterizer, params: &GaussianBuffers, grads: &GaussianBuffers, cams: &[Camera]) -> latentam::Result<()> {
+/// raster.forward(params, params.capacity(), cams)?;
+/// let rgbd = ctx.download::<[f32; 4]>(&raster.images()?.rgbd)?;
+/// // ∂L/∂(images) go into the same layout, then back to the Gaussians.
+/// let mut rec = ctx.recorder()?;
+/// raster.image_grads()?.record_fill(&mut rec, 0);
+/// raster.record_backward(&mut rec, params, grads)?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
 pub struct PixelBuffers {
     /// 4 floats per pixel: R, G, B (background included), depth Σ w·z.
     pub rgbd: Buffer,
@@ -215,6 +274,17 @@ impl PixelBuffers {
 }
 
 /// One view's images on the host.
+///
+/// ```no_run
+/// # fn f(raster: &latentam::splat::Rasterizer) -> latentam::Result<()> {
+/// let view = raster.download_view(0)?;
+/// let centre = (view.height / 2 * view.width + view.width / 2) as usize;
+/// let [r, g, b, weighted_depth] = view.rgbd[centre];
+/// let depth = weighted_depth / view.alpha[centre].max(1e-6);
+/// let query: &[f32; 32] = &view.query[centre];
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderedView {
     /// Width in pixels.
@@ -230,6 +300,16 @@ pub struct RenderedView {
 }
 
 /// Counts from the last forward pass.
+///
+/// ```no_run
+/// # use latentam::splat::{Camera, GaussianBuffers, Rasterizer};
+/// # fn f(raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, cams: &[Camera]) -> latentam::Result<()> {
+/// let stats = raster.forward(params, count, cams)?;
+/// let per_pair = stats.intersections as f64 / stats.visible.max(1) as f64;
+/// println!("{} visible pairs, {per_pair:.1} tiles each", stats.visible);
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ForwardStats {
     /// (view, Gaussian) pairs that survived culling.

@@ -7,6 +7,17 @@ use super::Camera;
 use crate::error::Result;
 
 /// Where one view's data sits in the batch buffers.
+///
+/// ```
+/// use latentam::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(64, 48), Camera::at_origin(32, 32)])?;
+/// let second = layout.views[1];
+/// assert_eq!(second.first_pixel, 64 * 48);
+/// assert_eq!(second.first_tile, 4 * 3);
+/// assert_eq!((second.tiles_x, second.tiles_y), (2, 2));
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ViewSlot {
     /// Image width.
@@ -25,6 +36,16 @@ pub struct ViewSlot {
 }
 
 /// The layout of a batch of views.
+///
+/// ```
+/// use latentam::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(64, 48); 3])?;
+/// assert_eq!(layout.views.len(), 3);
+/// assert_eq!(layout.pixels, 3 * 64 * 48);
+/// assert_eq!(layout.tiles, 3 * 4 * 3); // 16×16-pixel tiles
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct BatchLayout {
     /// One entry per view, in batch order.

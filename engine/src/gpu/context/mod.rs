@@ -22,6 +22,14 @@ use open::*;
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 
 /// Whether to load the Khronos validation layer.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions, Validation};
+///
+/// let options = ContextOptions { validation: Validation::IfAvailable, ..Default::default() };
+/// let ctx = Context::new(options)?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Validation {
     /// Never (the default for production use).
@@ -34,6 +42,15 @@ pub enum Validation {
 }
 
 /// How kernels add floats atomically.
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions, FloatAtomics};
+///
+/// let options = ContextOptions { float_atomics: FloatAtomics::CompareAndSwap, ..Default::default() };
+/// let ctx = Context::new(options)?;
+/// assert!(!ctx.info().native_float_atomics);
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum FloatAtomics {
     /// Native `shaderBufferFloat32AtomicAdd` when the device has it, else CAS.
@@ -50,6 +67,18 @@ pub enum FloatAtomics {
 /// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
 /// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic),
 /// `LATENTAM_MAX_BUFFER_BYTES=N` (cap the largest buffer below the device's).
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions};
+///
+/// let options = ContextOptions {
+///     device: Some("nvidia".into()), // name substring or index
+///     memory_budget: Some(4 << 30),
+///     ..Default::default()
+/// };
+/// let ctx = Context::new(options)?;
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct ContextOptions {
     /// Device to use: an index into the enumeration or a name substring;
@@ -97,6 +126,14 @@ impl Default for ContextOptions {
 }
 
 /// What the selected device offers, as the engine uses it.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context) {
+/// let info = ctx.info();
+/// println!("{} ({:?}), subgroups of {}", info.name, info.device_type, info.subgroup_size);
+/// let max_floats_per_buffer = info.max_buffer_bytes() / 4;
+/// # }
+/// ```
 #[derive(Clone, Debug)]
 pub struct DeviceInfo {
     /// Device name as the driver reports it.
@@ -177,6 +214,17 @@ impl DeviceInfo {
 /// Validation messages collected from the debug messenger. Tests hold a clone
 /// and assert it stayed empty after the context is gone (leaks are reported
 /// at device destruction).
+///
+/// ```no_run
+/// use latentam::gpu::{Context, ContextOptions, Validation};
+///
+/// let ctx = Context::new(ContextOptions { validation: Validation::Required, ..Default::default() })?;
+/// let log = ctx.validation_log();
+/// // ... run work ...
+/// drop(ctx); // leaks are reported when the device is destroyed
+/// assert!(log.errors().is_empty(), "{:?}", log.errors());
+/// # Ok::<(), latentam::Error>(())
+/// ```
 #[derive(Debug, Default)]
 pub struct ValidationLog {
     errors: Mutex<Vec<String>>,

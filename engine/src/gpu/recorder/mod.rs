@@ -27,6 +27,15 @@ const MAX_BINDINGS: u32 = 16;
 const QUERIES_PER_POOL: u32 = 512;
 
 /// Which queue a recorder submits to.
+///
+/// ```
+/// use latentam::gpu::QueueKind;
+///
+/// // `Context::recorder` records for the compute queue, `Context::transfer_recorder`
+/// // for the transfer queue.
+/// let kind = QueueKind::Transfer;
+/// assert_ne!(kind, QueueKind::Compute);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum QueueKind {
     /// The compute queue: kernels and copies.
@@ -37,6 +46,19 @@ pub enum QueueKind {
 }
 
 /// A point on a queue's timeline: "everything submitted up to here".
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context, staging: &latentam::gpu::Buffer, dst: &latentam::gpu::Buffer) -> latentam::Result<()> {
+/// let mut copies = ctx.transfer_recorder()?;
+/// copies.copy(staging, 0, dst, 0, staging.bytes())?;
+/// let copied = copies.submit()?;
+/// let mut rec = ctx.recorder()?;
+/// rec.wait_for(copied.sync_point()); // the GPU waits; the host does not
+/// let readback = rec.download(dst, 0, dst.bytes())?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SyncPoint {
     pub(crate) transfer: bool,

@@ -4,6 +4,17 @@
 use super::*;
 
 /// A submitted batch of work.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context, buf: &latentam::gpu::Buffer) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// rec.fill_u32(buf, 0);
+/// let submission = rec.submit()?;
+/// // ... CPU work while the GPU runs ...
+/// submission.wait()?;
+/// # Ok(())
+/// # }
+/// ```
 #[must_use = "a submission should be waited on (or its sync point used)"]
 pub struct Submission {
     pub(super) dev: Arc<Device>,
@@ -15,6 +26,18 @@ pub struct Submission {
 
 /// When a timed batch ran on the GPU ([`Recorder::start_span`]), in
 /// nanoseconds of the device's timestamp clock.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam::gpu::Context, buf: &latentam::gpu::Buffer) -> latentam::Result<()> {
+/// let mut rec = ctx.recorder()?;
+/// rec.start_span();
+/// rec.fill_u32(buf, 7);
+/// if let Some(span) = rec.submit()?.wait_span()? {
+///     println!("the batch took {:.3} ms on the GPU", span.ms());
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GpuSpan {
     /// First command started.

@@ -88,6 +88,15 @@ pub struct RawMessage<'a> {
 }
 
 /// The key/value pairs of one MCAP metadata record.
+///
+/// ```no_run
+/// let log = latentam::io::McapLog::open("run.mcap".as_ref())?;
+/// for (name, record) in log.metadata()? {
+///     let converter: Option<&String> = record.get("converter");
+///     println!("{name}: {converter:?}");
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 pub type Metadata = BTreeMap<String, String>;
 
 /// Which messages to read.

@@ -4,6 +4,20 @@
 use super::*;
 
 /// Reads messages one at a time; see [`McapLog::reader`].
+///
+/// ```no_run
+/// use latentam::io::{McapLog, ReadFilter};
+///
+/// let log = McapLog::open("run.mcap".as_ref())?;
+/// let mut reader = log.reader(ReadFilter {
+///     topics: Some(vec!["/camera/pose".into()]),
+///     ..ReadFilter::default()
+/// });
+/// while let Some(bytes) = reader.next_with(|m| m.data.len()) {
+///     println!("{} bytes", bytes?);
+/// }
+/// # Ok::<(), latentam::io::InputError>(())
+/// ```
 pub struct MessageReader {
     pub(super) log: McapLog,
     pub(super) filter: ReadFilter,

@@ -30,6 +30,24 @@ use super::keyframe_report::{
 };
 
 /// The online mapper's state.
+///
+/// ```no_run
+/// # fn f(frames: &[latentam::io::Frame]) -> latentam::Result<()> {
+/// use latentam::gpu::{Context, ContextOptions};
+/// use latentam::mapper::{Integrated, MapperConfig, OnlineMapper};
+///
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let mut mapper = OnlineMapper::new(&ctx, MapperConfig::default())?;
+/// for frame in frames {
+///     if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+///         println!("{report:?}");
+///     }
+/// }
+/// mapper.flush()?; // write the window back before reading the global map
+/// println!("{} Gaussians", mapper.global().len());
+/// # Ok(())
+/// # }
+/// ```
 pub struct OnlineMapper {
     pub(super) ctx: Context,
     pub(super) cfg: MapperConfig,

@@ -16,6 +16,20 @@ use super::{
 };
 
 /// Pixels and Gaussians of one view at a blending threshold.
+///
+/// ```
+/// use latentam::reference::raster::{near_cutoffs, Gaussian};
+/// use latentam::splat::Camera;
+///
+/// let cam = Camera::at_origin(32, 24);
+/// let g = Gaussian { mean: [0.0, 0.0, 2.0], log_scale: [-2.0; 3], quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0], opacity_logit: 2.0, query: [0.0; 32] };
+/// let cut = near_cutoffs(&[g], &cam);
+/// assert_eq!((cut.slack.len(), cut.gaussians.len()), (cam.pixels() as usize, 1));
+/// // A GPU test compares tightly only the pixels with no slack.
+/// let compared = cut.slack.iter().filter(|&&s| s == 0.0).count();
+/// assert!(compared > 0);
+/// ```
 #[derive(Clone, Debug)]
 pub struct NearCutoffs {
     /// Per pixel (row-major): the blending weight that may legitimately

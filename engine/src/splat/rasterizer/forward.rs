@@ -22,6 +22,23 @@ use latentam_shaders::shared::{PixelState, Splat, TileRange, TileRect, View};
 ///
 /// A measured batch stays valid while the Gaussians it was measured on are
 /// unchanged: the counts are those of this exact projection.
+///
+/// ```no_run
+/// # use latentam::splat::{Camera, GaussianBuffers, Rasterizer};
+/// # fn f(ctx: &latentam::gpu::Context, raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, near: &[Camera], far: &[Camera]) -> latentam::Result<()> {
+/// use latentam::splat::Channels;
+///
+/// // One host wait measures both batches; each is then recorded without one.
+/// let batches = raster.measure(params, count, &[near, far], Channels::All)?;
+/// for batch in &batches {
+///     let mut rec = ctx.recorder()?;
+///     raster.record_forward(&mut rec, params, batch)?;
+///     rec.submit()?.wait()?;
+///     println!("{} tile intersections", batch.stats().intersections);
+/// }
+/// # Ok(())
+/// # }
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct RenderBatch {
     pub(super) layout: BatchLayout,
