@@ -19,7 +19,7 @@ use super::history::History;
 use crate::io::{CameraPose, Frame, Vocabulary};
 use crate::latent::LatentHead;
 use crate::latent::{RelevanceScorer, TextQuery};
-use crate::map::GlobalMap;
+use crate::map::{write_ply, write_ply_without_latents, GlobalMap};
 use crate::splat::{Camera, RenderedView};
 
 /// File name of the resumable state inside a save directory.
@@ -534,6 +534,44 @@ impl Mapper {
         let (ev, mapper) = self.evaluator();
         ev.pixel_stride = pixel_stride.max(1);
         ev.evaluate(mapper, frame, vocabulary)
+    }
+
+    /// Writes the map as a 3D Gaussian splatting PLY file (positions,
+    /// scales, rotations, opacities, colours as degree-0 SH, and with
+    /// embeddings the 32 `latent_*` query channels), atomically. The
+    /// queries decode to embeddings with [`Mapper::decoder`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam::Mapper) -> latentam::Result<()> {
+    /// mapper.export_ply("kitchen.ply".as_ref())?; // opens in 3DGS viewers
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn export_ply(&mut self, path: &Path) -> Result<()> {
+        self.inner.flush()?;
+        let gaussians: Vec<_> = self.inner.global().iter().map(|(_, g)| *g).collect();
+        // A map without embeddings has no meaningful queries to write.
+        if self.inner.head().is_some() {
+            write_ply(path, &gaussians, &[])
+        } else {
+            write_ply_without_latents(path, &gaussians, &[])
+        }
+    }
+
+    /// The decoder as it stands (W, the dictionary and the temperature),
+    /// to turn the map's queries into embeddings elsewhere; `None` before
+    /// the first keyframe with embeddings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper) -> latentam::Result<()> {
+    /// if let Some(decoder) = mapper.decoder()? {
+    ///     decoder.write("decoder.safetensors".as_ref())?;
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn decoder(&self) -> Result<Option<DecoderFile>> {
+        self.inner.decoder_file()
     }
 
     /// The view renderer (made on first use) beside the mapper it renders.

@@ -24,7 +24,6 @@ use super::run_report::{Ending, HostWaits, RunReport};
 use crate::error::{Error, Result};
 use crate::files::write_bytes_atomically;
 use crate::io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog};
-use crate::map::{write_ply, write_ply_without_latents};
 
 /// How [`LogRun::map`] goes through a log.
 ///
@@ -505,14 +504,7 @@ impl LogRun {
             self.mapper.config().to_toml()
         );
         write_bytes_atomically(&dir.join("config.toml"), config.as_bytes())?;
-        let gaussians: Vec<_> = self.mapper.global().iter().map(|(_, g)| *g).collect();
-        // A map without embeddings has no meaningful queries to write.
-        if self.mapper.head().is_some() {
-            write_ply(&dir.join("map.ply"), &gaussians, &[])?;
-        } else {
-            write_ply_without_latents(&dir.join("map.ply"), &gaussians, &[])?;
-        }
-        drop(gaussians);
+        self.mapper.export_ply(&dir.join("map.ply"))?;
         write_tum(&dir.join("trajectory.txt"), &self.trajectory())?;
         let profile = self.mapper.context().profiler_snapshot();
         if !profile.samples().is_empty() {
