@@ -183,6 +183,10 @@ impl RunObserver for CliObserver {
         interrupt::requested()
     }
 
+    fn input_warning(&mut self, warning: &str) {
+        eprintln!("warning: {warning}");
+    }
+
     fn autosave_failed(&mut self, keyframe: u64, error: &latentam::Error) {
         let mut message = error.to_string();
         let mut cause = std::error::Error::source(error);
@@ -269,6 +273,9 @@ pub fn summary(r: &RunReport) -> String {
     let skipped = r.ingest.total_skipped();
     if skipped > 0 {
         s += &format!("input: {skipped} messages or frames skipped (see report.json `ingest`)\n");
+    }
+    for w in &r.ingest.warnings {
+        s += &format!("input warning: {w}\n");
     }
     s
 }

@@ -84,6 +84,9 @@ pub struct IngestReport {
     pub frames_with_embeddings: u64,
     /// Messages or frames not used, by reason.
     pub skipped: BTreeMap<&'static str, ReasonCount>,
+    /// What was used but looks wrong (each said once), e.g. depth images
+    /// in another camera frame than the colour images.
+    pub warnings: Vec<String>,
 }
 
 impl IngestReport {
@@ -96,6 +99,12 @@ impl IngestReport {
                 count: 1,
                 first: r.detail.clone(),
             });
+    }
+    /// Records a warning, once.
+    pub fn warn(&mut self, warning: String) {
+        if !self.warnings.contains(&warning) {
+            self.warnings.push(warning);
+        }
     }
     /// Total of all skips.
     pub fn total_skipped(&self) -> u64 {
@@ -119,6 +128,9 @@ impl fmt::Display for IngestReport {
         )?;
         for (kind, c) in &self.skipped {
             writeln!(f, "  {:>6} × {kind} (first: {})", c.count, c.first)?;
+        }
+        for w in &self.warnings {
+            writeln!(f, "  warning: {w}")?;
         }
         Ok(())
     }

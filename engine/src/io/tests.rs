@@ -47,6 +47,7 @@ struct Spec {
     pose_period: i64,
     embeddings: bool,
     compression: Compression,
+    depth_frame: &'static str,
 }
 
 impl Default for Spec {
@@ -59,6 +60,7 @@ impl Default for Spec {
             pose_period: 20 * MS,
             embeddings: true,
             compression: Compression::Zstd,
+            depth_frame: "cam",
         }
     }
 }
@@ -120,7 +122,7 @@ fn write_log(path: &Path, spec: &Spec, tweak: Tweak<'_>) {
             1 => {
                 let data = depth_bytes(1000 + (t / MS % 100) as u16);
                 let img = Image {
-                    header: Header::at(t, "cam"),
+                    header: Header::at(t, spec.depth_frame),
                     height: H,
                     width: W,
                     encoding: "16UC1",
@@ -942,4 +944,38 @@ fn a_flipped_pixel_in_an_uncompressed_log_stops_the_frames() {
         err.contains("became unreadable") && err.contains("CRC mismatch"),
         "{err}"
     );
+}
+
+/// Depth stamped in another optical frame than colour is a lens the
+/// mapper would mistake for the colour one: the frames are still made, and
+/// the report says why their depth may be off, once.
+#[test]
+fn depth_in_another_camera_frame_is_a_warning() {
+    let dir = TempDir::new("depth-frame");
+    let path = dir.path().join("log.mcap");
+    write_log(
+        &path,
+        &Spec {
+            depth_frame: "camera_depth_optical_frame",
+            ..Spec::default()
+        },
+        &|_, _, _| {},
+    );
+    let (frames, report) = read_all(&path, AssemblyConfig::default());
+    assert_eq!(frames.len(), 6, "{report}");
+    assert_eq!(report.warnings.len(), 1, "{report}");
+    let w = &report.warnings[0];
+    assert!(
+        w.contains("`camera_depth_optical_frame`") && w.contains("`cam`"),
+        "{w}"
+    );
+    assert!(
+        report.to_string().contains("warning: depth images"),
+        "{report}"
+    );
+    // Registered depth (same frame) says nothing.
+    let path = dir.path().join("registered.mcap");
+    write_log(&path, &Spec::default(), &|_, _, _| {});
+    let (_, report) = read_all(&path, AssemblyConfig::default());
+    assert!(report.warnings.is_empty(), "{report}");
 }

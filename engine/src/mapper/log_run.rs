@@ -80,6 +80,11 @@ pub trait RunObserver {
         false
     }
 
+    /// The input looks wrong in a way that does not stop mapping (e.g.
+    /// depth in another camera frame than colour): said once per warning,
+    /// as soon as it is seen; all are in the report's `ingest.warnings`.
+    fn input_warning(&mut self, _warning: &str) {}
+
     /// An autosave failed; mapping goes on, and the failure is listed in
     /// the report.
     fn autosave_failed(&mut self, _keyframe: u64, _error: &Error) {}
@@ -261,7 +266,12 @@ impl LogRun {
             not_keyframes: 0,
         };
         let start = Instant::now();
+        let mut warned = 0;
         let ending = loop {
+            for w in &frames.report().warnings[warned..] {
+                observer.input_warning(w);
+            }
+            warned = frames.report().warnings.len();
             if observer.stop_requested() {
                 break Ending::Interrupted;
             }

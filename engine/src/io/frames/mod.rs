@@ -141,6 +141,8 @@ pub struct FrameAssembler {
     /// a log recorded twice), not a new view.
     resolved_stamps: std::collections::HashSet<i64>,
     color_frame_id: Option<String>,
+    /// The depth images' `header.frame_id`, to tell unregistered depth.
+    depth_frame_id: Option<String>,
     has_embeddings: bool,
     has_semantic: bool,
     embedding_signature: Option<(u32, String)>,
@@ -169,6 +171,7 @@ impl FrameAssembler {
             last_resolved: None,
             resolved_stamps: std::collections::HashSet::new(),
             color_frame_id: None,
+            depth_frame_id: None,
             has_embeddings,
             has_semantic,
             embedding_signature: None,
@@ -329,6 +332,7 @@ impl FrameAssembler {
                 let scale = self.config.depth_metres_per_unit;
                 let (stamp, depth) = if ty == CompressedImage::TYPE_NAME {
                     let m = CompressedImage::decode(data).map_err(undecodable)?;
+                    self.note_depth_frame(m.header.frame_id);
                     let expected = self
                         .camera_size()
                         .map(|(width, height)| codec::ExpectedSize {
@@ -343,6 +347,7 @@ impl FrameAssembler {
                     )
                 } else {
                     let m = Image::decode(data).map_err(undecodable)?;
+                    self.note_depth_frame(m.header.frame_id);
                     (
                         m.header.stamp.as_nanos(),
                         codec::depth_from_image_into(&m, scale, self.pool.words(m.data.len() / 2)),
@@ -456,7 +461,35 @@ impl FrameAssembler {
     fn note_color_frame(&mut self, frame_id: &str) {
         if self.color_frame_id.as_deref() != Some(frame_id) {
             self.color_frame_id = Some(frame_id.to_string());
+            self.check_registration();
         }
+    }
+
+    fn note_depth_frame(&mut self, frame_id: &str) {
+        if self.depth_frame_id.as_deref() != Some(frame_id) {
+            self.depth_frame_id = Some(frame_id.to_string());
+            self.check_registration();
+        }
+    }
+
+    /// The mapper reads depth through the colour camera: depth stamped in
+    /// another optical frame (a raw Kinect or RealSense depth stream, not
+    /// its registered twin) puts every surface a few pixels off its
+    /// colour, and more at silhouettes. The map is still built, so this is
+    /// a warning, said once per pair of frames.
+    fn check_registration(&mut self) {
+        let (Some(colour), Some(depth)) = (&self.color_frame_id, &self.depth_frame_id) else {
+            return;
+        };
+        if colour.is_empty() || depth.is_empty() || colour == depth {
+            return;
+        }
+        self.report.warn(format!(
+            "depth images are in frame `{depth}`, colour images in `{colour}`: depth from another \
+             lens must be registered to colour first (record the driver's registered stream, e.g. \
+             `aligned_depth_to_color` or `depth_registered`, or convert with \
+             `latentam convert --depth-intrinsics`); mapping goes on as if they were one camera"
+        ));
     }
 
     fn check_signature(&mut self, e: &Embeddings) -> Result<(), Rejection> {
