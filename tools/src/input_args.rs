@@ -12,8 +12,10 @@ pub struct InputArgs {
     #[arg(long, value_name = "TOPIC", help_heading = "Input")]
     pub color_topic: Option<String>,
     /// Depth image topic, registered to the colour images. Default
-    /// /camera/depth/image_raw; when absent, the one image topic named
-    /// `depth` (preferring `aligned_depth_to_color`).
+    /// /camera/depth/image_raw, unless the log also has the driver's
+    /// registered depth (`aligned_depth_to_color`, then `depth_registered`),
+    /// which is read instead; when absent, the one image topic named
+    /// `depth`, with the same preference.
     #[arg(long, value_name = "TOPIC", help_heading = "Input")]
     pub depth_topic: Option<String>,
     /// Camera calibration topic (sensor_msgs/CameraInfo). Default

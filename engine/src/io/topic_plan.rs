@@ -122,6 +122,13 @@ fn lower(c: &Channel) -> String {
     c.topic.to_ascii_lowercase()
 }
 
+/// A depth topic the driver registered to the colour camera (RealSense's
+/// `aligned_depth_to_color`, the Kinect/OpenNI `depth_registered`).
+fn registered_depth(topic: &str) -> bool {
+    let t = topic.to_ascii_lowercase();
+    t.contains("aligned_depth_to_color") || t.contains("depth_registered")
+}
+
 /// The topics to read from a log with `channels`, and one line per stream
 /// chosen from the log (for the user to see): streams whose configured
 /// topic is present, or that `config.choose` does not allow choosing, stay
@@ -162,17 +169,35 @@ pub fn plan_topics(
         let chosen = one("colour images", "--color-topic", candidates)?;
         take(&mut plan, "colour", &mut topics.color, chosen);
     }
-    if choose.depth && !present(&topics.depth) {
-        let candidates = of_type(channels, &images)
-            .into_iter()
-            .filter(|c| lower(c).contains("depth"))
-            .collect();
+    let depth_images: Vec<&Channel> = of_type(channels, &images)
+        .into_iter()
+        .filter(|c| lower(c).contains("depth"))
+        .collect();
+    // A driver that records its registered depth beside the raw one
+    // names the raw one `.../depth/image_raw`, the default: read through
+    // the colour camera, that one would put every surface off its colour.
+    let registered_beside = present(&topics.depth)
+        && !registered_depth(&topics.depth)
+        && depth_images.iter().any(|c| registered_depth(&c.topic));
+    if choose.depth && (!present(&topics.depth) || registered_beside) {
         let candidates = prefer(
-            drop_compressed_twins(candidates),
-            &[&|c| lower(c).contains("aligned_depth_to_color")],
+            drop_compressed_twins(depth_images),
+            &[&|c| lower(c).contains("aligned_depth_to_color"), &|c| {
+                lower(c).contains("depth_registered")
+            }],
         );
         let chosen = one("depth images", "--depth-topic", candidates)?;
-        take(&mut plan, "depth", &mut topics.depth, chosen);
+        if registered_beside {
+            if let Some(c) = chosen {
+                plan.push(format!(
+                    "depth: {} ({}; registered to colour, preferred over {})",
+                    c.topic, c.schema_name, topics.depth
+                ));
+                topics.depth = c.topic.clone();
+            }
+        } else {
+            take(&mut plan, "depth", &mut topics.depth, chosen);
+        }
     }
     if choose.camera_info && config.intrinsics.is_none() && !present(&topics.camera_info) {
         // The calibration beside the colour images: its parent path is a

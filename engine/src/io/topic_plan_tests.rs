@@ -87,6 +87,8 @@ fn write_realsense_bag(path: &Path, extra_depth: bool) {
         if extra_depth {
             log.write("/camera/camera/depth_registered/image_raw", lt, &depth)
                 .unwrap();
+            log.write("/camera/camera/depth/image_raw", lt, &depth)
+                .unwrap();
         }
     }
     log.finish().unwrap();
@@ -136,20 +138,27 @@ fn an_ambiguous_choice_names_the_candidates_and_the_flag() {
     let dir = TempDir::new("plan-ambiguous");
     let path = dir.path().join("rs.mcap");
     write_realsense_bag(&path, true);
-    // Three depth-named topics: `aligned_depth_to_color` is preferred.
+    // Four depth-named topics: `aligned_depth_to_color` is preferred,
+    // then `depth_registered` (both registered to colour).
     let frames = McapFrames::open(&path, choosing()).unwrap();
     assert_eq!(frames.topics().depth, DEPTH);
-    // Without it, two equally good candidates: an error naming both and
+    let all = McapLog::open(&path).unwrap().channels();
+    let without = |gone: &[&str]| -> Vec<_> {
+        all.iter()
+            .filter(|c| !gone.contains(&c.topic.as_str()))
+            .cloned()
+            .collect()
+    };
+    let registered = "/camera/camera/depth_registered/image_raw";
+    let (topics, _) = plan_topics(&without(&[DEPTH]), &choosing()).unwrap();
+    assert_eq!(topics.depth, registered);
+    // Without them, two equally good candidates: an error naming both and
     // the flag that settles it.
-    let channels: Vec<_> = McapLog::open(&path)
-        .unwrap()
-        .channels()
-        .into_iter()
-        .filter(|c| c.topic != DEPTH)
-        .collect();
-    let e = plan_topics(&channels, &choosing()).unwrap_err().to_string();
+    let e = plan_topics(&without(&[DEPTH, registered]), &choosing())
+        .unwrap_err()
+        .to_string();
     for want in [
-        "/camera/camera/depth_registered/image_raw",
+        "/camera/camera/depth/image_raw",
         "/camera/camera/depth/image_rect_raw",
         "--depth-topic",
     ] {
@@ -161,4 +170,35 @@ fn an_ambiguous_choice_names_the_candidates_and_the_flag() {
     config.choose.depth = false;
     let e = McapFrames::open(&path, config).err().unwrap().to_string();
     assert!(e.contains("/nope") && e.contains("not in the log"), "{e}");
+}
+
+/// A bag with the default depth topic and the driver's registered depth
+/// beside it reads the registered one (the default would be a second
+/// lens); a depth topic the user names is read as named.
+#[test]
+fn registered_depth_is_preferred_over_the_raw_default() {
+    let ty = Image::TYPE_NAME;
+    let channels = [
+        Channel::ros2("/camera/color/image_raw", ty),
+        Channel::ros2("/camera/color/camera_info", CameraInfo::TYPE_NAME),
+        Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
+        Channel::ros2("/camera/depth/image_raw", ty),
+        Channel::ros2("/camera/depth_registered/image_raw", ty),
+    ];
+    let (topics, plan) = plan_topics(&channels, &choosing()).unwrap();
+    assert_eq!(topics.depth, "/camera/depth_registered/image_raw");
+    assert!(
+        plan.iter()
+            .any(|l| l.contains("preferred over /camera/depth/image_raw")),
+        "{plan:?}"
+    );
+    let mut named = choosing();
+    named.choose.depth = false;
+    let (topics, _) = plan_topics(&channels, &named).unwrap();
+    assert_eq!(topics.depth, "/camera/depth/image_raw");
+    // Only the raw one: it is read (and the frame ids tell if it is
+    // unregistered, see `depth_in_another_camera_frame_is_a_warning`).
+    let (topics, plan) = plan_topics(&channels[..4], &choosing()).unwrap();
+    assert_eq!(topics.depth, "/camera/depth/image_raw");
+    assert!(plan.iter().all(|l| !l.starts_with("depth")), "{plan:?}");
 }
