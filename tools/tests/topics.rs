@@ -103,8 +103,7 @@ fn a_log_with_its_own_topic_names_maps_without_flags() {
     // Two depth topics neither name settles: an error naming both and the
     // flag, and --depth-topic settles it.
     let two = dir.join("two-depths.mcap");
-    let plain_names =
-        |t: &str| robot_name(t).map(|n| n.replace("aligned_depth_to_color", "depth_registered"));
+    let plain_names = |t: &str| robot_name(t).map(|n| n.replace("aligned_depth_to_color", "depth"));
     rewrite(
         &log,
         &two,
@@ -115,7 +114,7 @@ fn a_log_with_its_own_topic_names_maps_without_flags() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     for want in [
-        "/robot/front/depth_registered/image_raw",
+        "/robot/front/depth/image_raw",
         "/robot/rear/depth/image_raw",
         "--depth-topic",
     ] {
@@ -129,7 +128,7 @@ fn a_log_with_its_own_topic_names_maps_without_flags() {
         .args([
             "--no-trace",
             "--depth-topic",
-            "/robot/front/depth_registered/image_raw",
+            "/robot/front/depth/image_raw",
         ])
         .output()
         .unwrap();
