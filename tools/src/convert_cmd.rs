@@ -128,7 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 translation: args
                     .depth_offset
                     .as_ref()
-                    .map_or([0.0; 3], |t| [t[0], t[1], t[2]]),
+                    .map_or(glam::DVec3::ZERO, |t| glam::DVec3::new(t[0], t[1], t[2])),
                 poses_are_depth: args.depth_poses,
             }),
             (None, true) => Registration::Off,

@@ -88,13 +88,15 @@ impl DepthRegistration {
                 let span = |c: f64, h: f64, n: usize| {
                     let lo = (c - h).ceil().min(c.round()).max(0.0);
                     let hi = (c + h).floor().max(c.round()).min(n as f64 - 1.0);
-                    (lo as usize, hi as isize)
+                    if hi < lo {
+                        0..0
+                    } else {
+                        lo as usize..hi as usize + 1
+                    }
                 };
-                let (u0, u1) = span(cu, hu, out_width);
-                let (v0, v1) = span(cv, hv, out_height);
                 let zc = p.z.round().clamp(1.0, u16::MAX as f64) as u16;
-                for row in (v0 as isize..=v1).map(|r| r as usize) {
-                    for col in (u0 as isize..=u1).map(|c| c as usize) {
+                for row in span(cv, hv, out_height) {
+                    for col in span(cu, hu, out_width) {
                         let o = &mut out[row * out_width + col];
                         if *o == 0 || zc < *o {
                             *o = zc;

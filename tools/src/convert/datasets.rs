@@ -45,7 +45,7 @@ pub struct DepthCamera {
     pub intrinsics: [f64; 4],
     /// The depth camera's origin in the colour camera's optical frame
     /// (metres); the two are taken as parallel.
-    pub translation: [f64; 3],
+    pub translation: DVec3,
     /// The dataset's poses are the depth camera's, not the colour one's.
     pub poses_are_depth: bool,
 }
@@ -115,6 +115,25 @@ fn stamp_of(index: usize, fps: f64) -> i64 {
     (index as f64 * 1e9 / fps).round() as i64
 }
 
+/// The 7-Scenes colour lens relative to its depth lens, measured on
+/// redkitchen 0-299 by aligning depth silhouettes with colour edges over 30
+/// frames: `u_c = cx + focal_ratio (u - cx) - parallax_px_m / z`,
+/// `v_c = cy + focal_ratio (v - cy) + row_shift` (the Kinect v1 colour
+/// camera's ~525 px focal length, 2.3 cm beside the depth lens). It raised
+/// the colour agreement of the same surface seen from frames 4 apart from
+/// 25.5 to 28.1 dB.
+struct SevenScenesColourLens {
+    focal_ratio: f64,
+    row_shift: f64,
+    parallax_px_m: f64,
+}
+
+const SEVEN_SCENES_COLOUR_LENS: SevenScenesColourLens = SevenScenesColourLens {
+    focal_ratio: 0.905,
+    row_shift: -1.0,
+    parallax_px_m: 12.0,
+};
+
 /// Microsoft 7-Scenes: `frame-XXXXXX.color.{jpg,png}`,
 /// `frame-XXXXXX.depth.png` (mm) and `frame-XXXXXX.pose.txt` (4×4
 /// camera-to-world). The dataset has no time stamps; frames are placed
@@ -154,17 +173,20 @@ pub fn seven_scenes(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
     };
     // 7-Scenes states only the depth camera (its poses come from
     // KinectFusion on depth) and leaves colour unregistered and
-    // uncalibrated. The colour lens below was measured on redkitchen
-    // 0-299 by aligning depth silhouettes with colour edges over 30
-    // frames: 0.905 times the depth focal length (the Kinect v1 colour
-    // camera's ~525 px), principal point 1 px higher, 2.3 cm beside the
-    // depth lens; it raised the colour agreement of the same surface
-    // seen from frames 4 apart from 25.5 to 28.1 dB.
+    // uncalibrated: see SEVEN_SCENES_COLOUR_LENS.
     let [fx, fy, cx, cy] = depth_intrinsics;
-    d.intrinsics = Some([0.905 * fx, 0.905 * fy, cx, cy - 1.0]);
+    let SevenScenesColourLens {
+        focal_ratio,
+        row_shift,
+        parallax_px_m,
+    } = SEVEN_SCENES_COLOUR_LENS;
+    let colour_fx = focal_ratio * fx;
+    d.intrinsics = Some([colour_fx, focal_ratio * fy, cx, cy + row_shift]);
     d.depth_camera = Some(DepthCamera {
         intrinsics: depth_intrinsics,
-        translation: [-12.0 / (0.905 * fx), 0.0, 0.0],
+        // A constant parallax of `p` pixel-metres at focal length f is the
+        // depth lens sitting p / f metres along the colour camera's x.
+        translation: DVec3::new(-parallax_px_m / colour_fx, 0.0, 0.0),
         poses_are_depth: true,
     });
     for (i, name) in names.iter().enumerate() {

@@ -121,6 +121,45 @@ fn check_intrinsics(what: &str, k: &[f64; 4]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The re-projection of `camera`'s depth into the colour camera
+/// `colour`, with the colour images' size (that of the first one), the
+/// poses moved to the colour lens when they were the depth lens's, and a
+/// note saying so.
+fn register_to_colour(
+    dataset: &mut Dataset,
+    camera: &DepthCamera,
+    colour: [f64; 4],
+) -> anyhow::Result<(DepthRegistration, usize, usize)> {
+    let reg = DepthRegistration {
+        depth: camera.intrinsics,
+        colour,
+        rotation: glam::DQuat::IDENTITY,
+        translation: camera.translation,
+    };
+    let first = &dataset.color[0].path;
+    let bytes =
+        latentam::io::read_input(first).with_context(|| format!("reading {}", first.display()))?;
+    let (w, h, _) = codec::compressed_image_size(&bytes)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
+    if camera.poses_are_depth {
+        for (_, p) in &mut dataset.poses {
+            *p = reg.colour_pose(p);
+        }
+    }
+    let [fx, _, cx, cy] = reg.depth;
+    dataset.notes.push(format!(
+        "depth registered to the colour camera (depth lens f {fx:.1} c ({cx:.1}, {cy:.1}), \
+         {:.1} cm away){}; --no-registration keeps it as recorded",
+        reg.translation.length() * 100.0,
+        if camera.poses_are_depth {
+            ", poses moved from the depth lens to the colour lens"
+        } else {
+            ""
+        }
+    ));
+    Ok((reg, w as usize, h as usize))
+}
+
 /// Writes `dataset` to `out` (through `out.partial`, renamed at the end),
 /// calling `progress(colour frames done, total)`.
 pub fn convert(
@@ -144,27 +183,13 @@ pub fn convert(
         .or(recorded)
         .context("the dataset does not state its intrinsics; pass --intrinsics fx,fy,cx,cy")?;
     check_intrinsics("intrinsics", &intrinsics)?;
-    let registration = match depth_camera {
-        Some(c) => {
-            check_intrinsics("depth intrinsics", &c.intrinsics)?;
-            let t = glam::DVec3::from(c.translation);
-            if !(t.is_finite() && t.length() <= 1.0) {
-                bail!(
-                    "depth camera offset {t} m is not a lens beside the colour one (at most 1 m)"
-                );
-            }
-            Some((
-                DepthRegistration {
-                    depth: c.intrinsics,
-                    colour: intrinsics,
-                    rotation: glam::DQuat::IDENTITY,
-                    translation: t,
-                },
-                c.poses_are_depth,
-            ))
+    if let Some(c) = &depth_camera {
+        check_intrinsics("depth intrinsics", &c.intrinsics)?;
+        let t = c.translation;
+        if !(t.is_finite() && t.length() <= 1.0) {
+            bail!("depth camera offset {t} m is not a lens beside the colour one (at most 1 m)");
         }
-        None => None,
-    };
+    }
     let units = options
         .depth_units_per_metre
         .unwrap_or(dataset.depth_units_per_metre);
@@ -187,29 +212,8 @@ pub fn convert(
     if dataset.color.is_empty() {
         bail!("no frames to convert");
     }
-    // Registered depth takes the colour images' size.
-    let registration = match registration {
-        Some((reg, poses_are_depth)) => {
-            let first = &dataset.color[0].path;
-            let bytes = latentam::io::read_input(first)
-                .with_context(|| format!("reading {}", first.display()))?;
-            let (w, h, _) = codec::compressed_image_size(&bytes)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
-            if poses_are_depth {
-                for (_, p) in &mut dataset.poses {
-                    *p = reg.colour_pose(p);
-                }
-            }
-            let [fx, _, cx, cy] = reg.depth;
-            let t = reg.translation;
-            dataset.notes.push(format!(
-                "depth registered to the colour camera (depth lens f {fx:.1} c ({cx:.1}, {cy:.1}), \
-                 {:.1} cm away){}; --no-registration keeps it as recorded",
-                t.length() * 100.0,
-                if poses_are_depth { ", poses moved from the depth lens to the colour lens" } else { "" }
-            ));
-            Some((reg, w as usize, h as usize))
-        }
+    let registration = match depth_camera {
+        Some(c) => Some(register_to_colour(&mut dataset, &c, intrinsics)?),
         None => {
             if dataset.depth_camera.is_some() {
                 dataset.notes.push(
@@ -559,10 +563,10 @@ mod tests {
             "latentam-convert-depth-camera-{}.mcap",
             std::process::id()
         ));
-        let given = |intrinsics, translation| ConvertOptions {
+        let given = |intrinsics, translation: [f64; 3]| ConvertOptions {
             registration: Registration::Given(DepthCamera {
                 intrinsics,
-                translation,
+                translation: translation.into(),
                 poses_are_depth: false,
             }),
             ..options(None)

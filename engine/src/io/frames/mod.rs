@@ -459,15 +459,13 @@ impl FrameAssembler {
     }
 
     fn note_color_frame(&mut self, frame_id: &str) {
-        if self.color_frame_id.as_deref() != Some(frame_id) {
-            self.color_frame_id = Some(frame_id.to_string());
+        if note_frame(&mut self.color_frame_id, frame_id) {
             self.check_registration();
         }
     }
 
     fn note_depth_frame(&mut self, frame_id: &str) {
-        if self.depth_frame_id.as_deref() != Some(frame_id) {
-            self.depth_frame_id = Some(frame_id.to_string());
+        if note_frame(&mut self.depth_frame_id, frame_id) {
             self.check_registration();
         }
     }
@@ -487,8 +485,8 @@ impl FrameAssembler {
         self.report.warn(format!(
             "depth images are in frame `{depth}`, colour images in `{colour}`: depth from another \
              lens must be registered to colour first (record the driver's registered stream, e.g. \
-             `aligned_depth_to_color` or `depth_registered`, or convert with \
-             `latentam convert --depth-intrinsics`); mapping goes on as if they were one camera"
+             `aligned_depth_to_color` or `depth_registered`, and name it with --depth-topic if \
+             the log has it); mapping goes on as if they were one camera"
         ));
     }
 
@@ -536,4 +534,13 @@ impl FrameAssembler {
         self.semantic.items.clear();
         Ok(())
     }
+}
+
+/// Keeps a stream's latest frame id; whether it changed.
+fn note_frame(slot: &mut Option<String>, frame_id: &str) -> bool {
+    if slot.as_deref() == Some(frame_id) {
+        return false;
+    }
+    *slot = Some(frame_id.to_string());
+    true
 }
