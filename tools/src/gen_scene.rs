@@ -90,6 +90,19 @@ pub struct Args {
     /// a segmenter's masks miss and spill; 0 gives exact masks.
     #[arg(long, default_value_t = 0.5, value_parser = probability)]
     mask_noise: f32,
+    /// Auto-exposure: the camera's gain swings between exp(-S) and exp(S)
+    /// over the run (one and a half slow swings), as a camera's does
+    /// between bright and dark parts of a room; 0 keeps it constant.
+    #[arg(long, default_value_t = 0.0, value_parser = exposure_swing)]
+    exposure_swing: f32,
+}
+
+fn exposure_swing(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} is outside [0, 1]")),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 fn unit_interval(s: &str) -> Result<f32, String> {
@@ -121,6 +134,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         laps: args.laps as usize,
         view_spread: spread_for_cosine(args.view_cosine),
         mask_noise: args.mask_noise,
+        exposure_swing: args.exposure_swing,
         ..SceneConfig::default()
     };
     let mut progress = Progress::new("gen-scene", config.frames);

@@ -1,6 +1,7 @@
 //! The map: the CPU global map keyed by voxel, the GPU local window paged
 //! to and from it, keyframe selection and the seeding of new Gaussians.
 
+mod exposure;
 mod global;
 mod keyframes;
 pub mod ply;
@@ -8,6 +9,7 @@ mod seeding;
 mod voxel;
 mod window;
 
+pub use exposure::{relative_exposure, ExposureTrack, EXPOSURE_RANGE};
 pub use global::{Gaussian, GlobalMap, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
 pub use ply::{read_ply, unit_quat, write_ply, write_ply_without_latents, PlyMap};

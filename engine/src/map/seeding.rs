@@ -68,6 +68,11 @@ settings! {
         /// away. 0 seeds measured depth only, and empty pixels stay holes
         /// in the map.
         pub hole_fill_radius: u32 = 8 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
+        /// Holes that reach the image's edge (where the depth camera sees
+        /// less than the colour camera, as registered Kinect and RealSense
+        /// depth does) are filled the same way up to this many pixels
+        /// away. Below hole_fill_radius it acts as hole_fill_radius.
+        pub border_fill_radius: u32 = 16 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
     }
 }
 
@@ -140,7 +145,7 @@ impl Setting for QueryInit {}
 /// use latentam::map::{seed_from_frame, GlobalMap, SeedingConfig, ViewCoverage};
 /// # fn f(frame: &latentam::io::Frame, map: &GlobalMap, alpha: &[f32], depth: &[f32]) {
 /// // What the map renders at the frame's pose: only pixels it does not explain are seeded.
-/// let coverage = ViewCoverage { alpha, depth, partial: false, complete_within: None };
+/// let coverage = ViewCoverage { alpha, depth, partial: false, complete_within: None, exposure: 1.0 };
 /// let new = seed_from_frame(frame, Some(coverage), map, &SeedingConfig::default(), 7, None);
 /// println!("{} new Gaussians", new.len());
 /// # }
@@ -162,6 +167,9 @@ pub struct ViewCoverage<'a> {
     /// Gaussians are paged out): pixels whose points lie beyond are
     /// treated as under `partial`. `None`: no limit.
     pub complete_within: Option<(DVec3, f64)>,
+    /// The frame's gain over the map (`relative_exposure`): new Gaussians
+    /// take the frame's colour divided by it, in the map's brightness.
+    pub exposure: f32,
 }
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
@@ -202,18 +210,56 @@ fn borrowed_depth(
                 }
             }
         };
-        for d in -r..r {
-            take(u + d, v - r);
-            take(u + r, v + d);
-            take(u - d, v + r);
-            take(u - r, v - d);
-        }
+        square_ring(u, v, r, &mut take);
         if !ring.is_empty() {
             let mid = ring.len() / 2;
             return Some(*ring.select_nth_unstable_by(mid, f32::total_cmp).1);
         }
     }
     None
+}
+
+/// Calls `take(x, y)` for each pixel at Chebyshev distance `r` from
+/// `(u, v)`, once each.
+fn square_ring(u: i64, v: i64, r: i64, mut take: impl FnMut(i64, i64)) {
+    for d in -r..r {
+        take(u + d, v - r);
+        take(u + r, v + d);
+        take(u - d, v + r);
+        take(u - r, v - d);
+    }
+}
+
+/// Per pixel: whether it has no valid depth and is connected to the
+/// image's edge through pixels that have none either (4-neighbours).
+fn holes_reaching_the_edge(depth: &DepthImage) -> Vec<bool> {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let mut reached = vec![false; w * h];
+    let mut stack: Vec<usize> = (0..w)
+        .flat_map(|x| [x, (h.max(1) - 1) * w + x])
+        .chain((0..h).flat_map(|y| [y * w, y * w + w.max(1) - 1]))
+        .filter(|&i| i < w * h)
+        .collect();
+    while let Some(i) = stack.pop() {
+        if reached[i] || depth.metres(i).is_some() {
+            continue;
+        }
+        reached[i] = true;
+        let (x, y) = (i % w, i / w);
+        if x > 0 {
+            stack.push(i - 1);
+        }
+        if x + 1 < w {
+            stack.push(i + 1);
+        }
+        if y > 0 {
+            stack.push(i - w);
+        }
+        if y + 1 < h {
+            stack.push(i + w);
+        }
+    }
+    reached
 }
 
 /// Gaussians to add for `frame`: one per free voxel hit by a candidate
@@ -240,6 +286,8 @@ pub fn seed_from_frame(
     let stride = config.stride.max(1);
     let mut taken: HashSet<VoxelKey> = HashSet::new();
     let mut ring = Vec::new();
+    let border_holes = (config.border_fill_radius > config.hole_fill_radius)
+        .then(|| holes_reaching_the_edge(&frame.depth));
     let mut out = Vec::new();
     let start = stride / 2;
     for v in (start..h).step_by(stride as usize) {
@@ -249,6 +297,11 @@ pub fn seed_from_frame(
                 .depth
                 .metres(i)
                 .or_else(|| borrowed_depth(&frame.depth, u, v, config.hole_fill_radius, &mut ring))
+                .or_else(|| {
+                    let border = border_holes.as_ref()?;
+                    let radius = config.border_fill_radius;
+                    border[i].then(|| borrowed_depth(&frame.depth, u, v, radius, &mut ring))?
+                })
             else {
                 continue;
             };
@@ -292,11 +345,12 @@ pub fn seed_from_frame(
             }
             let sigma = (config.scale_factor as f64 * stride as f64 * z / focal).max(0.5 * voxel);
             let rgb = frame.color.rgb(u, v);
+            let gain = rendered.map_or(1.0, |r| r.exposure);
             out.push(Gaussian {
                 mean: p.as_vec3().to_array(),
                 log_scale: [sigma.ln() as f32; 3],
                 quat: [1.0, 0.0, 0.0, 0.0],
-                color: rgb.map(|c| c as f32 / 255.0),
+                color: rgb.map(|c| c as f32 / 255.0 / gain),
                 opacity_logit,
                 query: queries
                     .and_then(|q| q.at(u, v, w, h))
@@ -305,4 +359,43 @@ pub fn seed_from_frame(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::DepthData;
+
+    /// A floor seen at a slant: inverse depth rises by `slope` per row
+    /// (the plane's depths in metres, 0 where masked).
+    fn slanted(w: u32, h: u32, slope: f32, missing: impl Fn(u32, u32) -> bool) -> DepthImage {
+        let values = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if missing(x, y) {
+                    0.0
+                } else {
+                    1.0 / (0.25 + slope * y as f32 + 0.001 * x as f32)
+                }
+            })
+            .collect();
+        DepthImage {
+            width: w,
+            height: h,
+            data: DepthData::Metres(values),
+        }
+    }
+
+    #[test]
+    fn only_holes_that_reach_the_edge_are_border_holes() {
+        // A band along the right edge and a hole in the middle.
+        let depth = slanted(40, 30, 0.01, |x, y| {
+            x >= 34 || (15..18).contains(&x) && (10..13).contains(&y)
+        });
+        let border = holes_reaching_the_edge(&depth);
+        for (i, &b) in border.iter().enumerate() {
+            let (x, y) = (i % 40, i / 40);
+            assert_eq!(b, x >= 34, "pixel ({x}, {y})");
+        }
+    }
 }

@@ -63,6 +63,7 @@ fn seeds_lie_on_the_measured_surface_once_per_voxel() {
         opacity: 0.5,
         scale_factor: 0.5,
         hole_fill_radius: 0,
+        border_fill_radius: 0,
         ..SeedingConfig::default()
     };
     let seeds = seed_from_frame(&frame, None, &map, &config, 1, None);
@@ -119,6 +120,7 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         complete_within: None,
         alpha: &alpha,
         depth: &depth,
+        exposure: 1.0,
     };
     let seeds = seed_from_frame(
         &frame,
@@ -130,6 +132,21 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
     );
     // Right half: 8 × 12 candidates; left half bottom 4 rows: 8 × 2.
     assert_eq!(seeds.len(), 8 * 12 + 8 * 2);
+    // A frame taken at twice the map's exposure seeds the colours the map
+    // holds at its own: halved.
+    let brighter = ViewCoverage {
+        exposure: 2.0,
+        ..rendered
+    };
+    let config = SeedingConfig::default();
+    let dimmed = seed_from_frame(&frame, Some(brighter), &map, &config, 1, None);
+    assert_eq!(dimmed.len(), seeds.len());
+    for (d, s) in dimmed.iter().zip(&seeds) {
+        assert_eq!(d.mean, s.mean);
+        for c in 0..3 {
+            assert!((2.0 * d.color[c] - s.color[c]).abs() < 1e-6);
+        }
+    }
 
     // A dense wall (stride 1 at 0.4 m: 1 cm between pixels): seeds next to
     // existing Gaussians copy their query.
@@ -174,6 +191,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
         depth: &depth,
         partial: false,
         complete_within,
+        exposure: 1.0,
     };
     // The render held everything within 5 m: the wall is unexplained there,
     // so it is seeded (holes in a complete render are real).
@@ -202,6 +220,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
         depth: &depth,
         partial: false,
         complete_within: inside,
+        exposure: 1.0,
     };
     let again_seeded = seed_from_frame(&again, Some(partly), &map, &config, 2, None);
     assert_eq!(again_seeded.len(), seeded.len());
@@ -480,8 +499,10 @@ fn pixels_without_depth_borrow_it_from_the_nearest_ring_within_the_radius() {
     // valid depth one pixel away, (1, 1) only three pixels away.
     let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
     let map = GlobalMap::new(0.01);
+    // (The block touches the image's corner: a border hole too.)
     let with = |radius| SeedingConfig {
         hole_fill_radius: radius,
+        border_fill_radius: radius,
         ..SeedingConfig::default()
     };
     let count = |radius| seed_from_frame(&frame, None, &map, &with(radius), 1, None).len();
@@ -520,4 +541,35 @@ fn pixels_without_depth_borrow_it_from_the_nearest_ring_within_the_radius() {
         })
         .expect("the hole pixel is seeded");
     assert!((at_hole.mean[2] - 3.0).abs() < 1e-5, "{:?}", at_hole.mean);
+}
+
+#[test]
+fn holes_that_reach_the_image_edge_are_filled_further_than_inner_ones() {
+    // No depth in the 12 rightmost columns, as where registered depth does
+    // not reach the colour camera's border.
+    let mut frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    if let DepthData::Units { values, .. } = &mut frame.depth.data {
+        for (i, v) in values.iter_mut().enumerate() {
+            if i as u32 % W >= W - 12 {
+                *v = 0;
+            }
+        }
+    }
+    let map = GlobalMap::new(0.01);
+    let seeds = |border_fill_radius| {
+        let config = SeedingConfig {
+            stride: 1,
+            hole_fill_radius: 4,
+            border_fill_radius,
+            ..SeedingConfig::default()
+        };
+        seed_from_frame(&frame, None, &map, &config, 1, None)
+    };
+    // Filled up to 4 columns into the band as an inner hole would be...
+    let inner = seeds(0);
+    assert_eq!(inner.len(), (W * H - 8 * H) as usize);
+    // ... and all the way with the border's radius, on the wall's plane.
+    let border = seeds(32);
+    assert_eq!(border.len(), (W * H) as usize);
+    assert!(border.iter().all(|g| (g.mean[2] - 2.0).abs() < 1e-4));
 }

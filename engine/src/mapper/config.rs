@@ -83,6 +83,13 @@ settings! {
         /// renders a 32-channel query image per view: 128 more bytes of GPU
         /// memory per pixel of a chunk, and slower backward passes.
         pub attach_feature_gradients: bool = false => value(),
+        /// Compensate the camera's auto-exposure (true/false). Each
+        /// keyframe's brightness gain over the map is measured on the
+        /// surfaces the map already renders, and its colours are divided by
+        /// it before they seed or train the map, so that a surface seen at
+        /// two exposures keeps one colour. Views rendered for evaluation
+        /// take the gain of their time, interpolated between keyframes.
+        pub exposure_compensation: bool = true => value(),
         /// Dictionary size (K): number of latent atoms.
         pub atoms: u32 = 2000 => value().range(1u32, MAX_KMEANS_ATOMS),
         /// Micro-clusters each keyframe's region embeddings are summarised

@@ -231,8 +231,9 @@ impl Evaluator {
     }
 
     /// Renders the view of `frame`'s camera, reaching at least as far as
-    /// the frame measured depth (so every surface it saw is rendered);
-    /// returns the view and the number of Gaussians rendered.
+    /// the frame measured depth (so every surface it saw is rendered), at
+    /// the camera's exposure of the frame's time; returns the view and the
+    /// number of Gaussians rendered.
     pub fn render_frame(
         &mut self,
         mapper: &mut OnlineMapper,
@@ -259,7 +260,14 @@ impl Evaluator {
         } else {
             self.radius
         };
-        self.render_within(mapper, &camera, radius)
+        let (mut view, n) = self.render_within(mapper, &camera, radius)?;
+        // The map holds colours at its own brightness: the view is shown at
+        // the camera's exposure of its time, from the keyframes around it.
+        let gain = mapper.exposure().at(frame.stamp_ns);
+        for p in &mut view.rgbd {
+            p[..3].iter_mut().for_each(|c| *c *= gain);
+        }
+        Ok((view, n))
     }
 
     fn render_within(

@@ -19,7 +19,7 @@ use super::history::History;
 use crate::io::{CameraPose, Frame, Vocabulary};
 use crate::latent::LatentHead;
 use crate::latent::{RelevanceScorer, TextQuery};
-use crate::map::{write_ply, write_ply_without_latents, GlobalMap};
+use crate::map::{write_ply, write_ply_without_latents, ExposureTrack, GlobalMap};
 use crate::splat::{Camera, RenderedView};
 
 /// File name of the resumable state inside a save directory.
@@ -382,6 +382,20 @@ impl Mapper {
         self.inner.trajectory()
     }
 
+    /// The camera's exposure over the map's brightness at each keyframe,
+    /// and in between (`exposure_compensation`): the map's colours times
+    /// `exposure().at(stamp)` are what the camera saw at that time.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam::Mapper, stamp_ns: i64) {
+    /// let gain = mapper.exposure().at(stamp_ns);
+    /// println!("the camera saw the map {:.0} % brighter", 100.0 * (gain - 1.0));
+    /// # }
+    /// ```
+    pub fn exposure(&self) -> &ExposureTrack {
+        self.inner.exposure()
+    }
+
     /// The keyframes kept for replay.
     ///
     /// ```no_run
@@ -499,7 +513,9 @@ impl Mapper {
         ev.render(mapper, camera)
     }
 
-    /// [`Mapper::render`] at a frame's pose and with its camera.
+    /// [`Mapper::render`] at a frame's pose and with its camera, at the
+    /// camera's exposure of the frame's time (interpolated between the
+    /// keyframes around it; see `exposure_compensation`).
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam::Mapper, frame: &latentam::io::Frame) -> latentam::Result<()> {

@@ -60,6 +60,10 @@ pub struct KeyframeRecord {
     pub depth_mm: Vec<u16>,
     /// Region targets, when the frame had embeddings.
     pub regions: Option<RegionTargets>,
+    /// The camera's gain over the map when it took the frame
+    /// (`map::relative_exposure`; 1 without exposure compensation): the
+    /// frame's colours divided by it are in the map's brightness.
+    pub exposure: f32,
 }
 
 /// The camera of a frame (its pose and intrinsics; default depth range).
@@ -129,20 +133,24 @@ impl KeyframeRecord {
             rgb: frame.color.to_rgb8(),
             depth_mm,
             regions,
+            exposure: 1.0,
         }
     }
 
     /// The supervision image: RGB in 0..1 and depth in metres (0 =
     /// invalid), one `[r, g, b, z]` per pixel.
     pub fn target_rgbd(&self) -> Vec<[f32; 4]> {
+        // Divided, not multiplied by a reciprocal: at exposure 1 the same
+        // values as the colour bytes over 255.
+        let scale = 255.0 * self.exposure;
         self.rgb
             .chunks_exact(3)
             .zip(&self.depth_mm)
             .map(|(c, &d)| {
                 [
-                    c[0] as f32 / 255.0,
-                    c[1] as f32 / 255.0,
-                    c[2] as f32 / 255.0,
+                    c[0] as f32 / scale,
+                    c[1] as f32 / scale,
+                    c[2] as f32 / scale,
                     d as f32 * 0.001,
                 ]
             })
@@ -317,6 +325,7 @@ mod tests {
                 rgb: vec![0; 12],
                 depth_mm: vec![0; 4],
                 regions: None,
+                exposure: 1.0,
             }
         };
         let mut h = History::with_cell(0.5);
@@ -345,6 +354,7 @@ mod tests {
                 rgb: vec![0; 12],
                 depth_mm: vec![0; 4],
                 regions: None,
+                exposure: 1.0,
             });
         }
         for seed in 0..50 {
@@ -429,6 +439,7 @@ mod tests {
                 rgb: vec![0; 48],
                 depth_mm: vec![1000; 16],
                 regions: None,
+                exposure: 1.0,
             });
         }
         assert_eq!(h.bytes(), 10 * (48 + 32));

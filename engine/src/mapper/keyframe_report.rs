@@ -176,6 +176,9 @@ pub struct KeyframeReport {
     pub cpu_bytes: u64,
     /// Dictionary atoms after this keyframe's update.
     pub atoms: u32,
+    /// The camera's gain over the map's brightness when it took the
+    /// keyframe (1 without `exposure_compensation`).
+    pub exposure: f32,
     /// What this keyframe asked of the GPU, by stage.
     pub gpu_calls: KeyframeGpuCalls,
 }

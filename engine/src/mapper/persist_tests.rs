@@ -452,8 +452,20 @@ fn inconsistent_states_are_refused_with_the_reason() {
         "trajectory pose 2",
     );
     refused(
-        &|s| s.trajectory.truncate(2),
+        &|s| {
+            s.trajectory.truncate(2);
+            s.exposure.truncate(2);
+        },
         "a trajectory of 2 poses for 3 keyframes",
+    );
+    refused(
+        &|s| s.exposure[1] = 9.0,
+        "trajectory/exposure holds the gain 9",
+    );
+    refused(&|s| s.exposure.truncate(2), "trajectory/exposure");
+    refused(
+        &|s| s.history[0].exposure = 0.0,
+        "history/exposure holds the gain 0",
     );
     refused(&|s| s.counters.keyframes = 1, "keyframes");
     refused(&|s| s.counters.frames = 2, "3 keyframes among 2 frames");
@@ -532,6 +544,8 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
             mapper.window().unwrap().keys()
         );
         assert_eq!(loaded.trajectory(), mapper.trajectory());
+        assert_eq!(loaded.exposure(), mapper.exposure());
+        assert_eq!(loaded.exposure().len(), 3);
         // A resumed run goes on after the last stamp integrated.
         assert_eq!(loaded.stats().last_frame_stamp_ns, Some(2));
         assert_eq!(loaded.stats().frames, 3);

@@ -681,6 +681,13 @@ impl Rasterizer {
     /// of the last forward batch: what seeding needs, without the 32 query
     /// channels [`Rasterizer::download_view`] also fetches.
     pub fn download_alpha_depth(&self, index: usize) -> Result<(Vec<f32>, Vec<f32>)> {
+        let (alpha, rgbd) = self.download_alpha_rgbd(index)?;
+        Ok((alpha, rgbd.iter().map(|p| p[3]).collect()))
+    }
+
+    /// Accumulated alpha and the colour-and-depth image (unnormalised:
+    /// Σ wᵢcᵢ, Σ wᵢzᵢ) of view `index` of the last forward batch.
+    pub fn download_alpha_rgbd(&self, index: usize) -> Result<(Vec<f32>, Vec<[f32; 4]>)> {
         let slot = self.view_slot(index)?;
         let images = self.images()?;
         let n = slot.width as u64 * slot.height as u64;
@@ -689,8 +696,10 @@ impl Rasterizer {
         let rgbd = rec.download(&images.rgbd, first * 16, n * 16)?;
         let alpha = rec.download(&images.alpha, first * 4, n * 4)?;
         rec.submit()?.wait()?;
-        let depth = rgbd.read::<f32>()?.chunks_exact(4).map(|p| p[3]).collect();
-        Ok((alpha.read::<f32>()?, depth))
+        Ok((
+            alpha.read::<f32>()?,
+            bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
+        ))
     }
 }
 

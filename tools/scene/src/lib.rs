@@ -70,6 +70,9 @@ pub struct SceneConfig {
     /// Traversals of the path, alternately forwards and backwards (long
     /// runs that keep revisiting the same rooms).
     pub laps: usize,
+    /// Auto-exposure: the camera's gain swings between `exp(-swing)` and
+    /// `exp(swing)` over the run ([`exposure_gain`]); 0 keeps it at 1.
+    pub exposure_swing: f32,
 }
 
 impl Default for SceneConfig {
@@ -88,8 +91,18 @@ impl Default for SceneConfig {
             mask_noise: 0.5,
             compression: Compression::Zstd,
             laps: 1,
+            exposure_swing: 0.0,
         }
     }
+}
+
+/// The camera's gain at frame `i`: one and a half slow swings of
+/// `exp(±exposure_swing)` over the run, as auto-exposure moves between
+/// bright and dark parts of a scene. Colour channels are multiplied by it
+/// (and clipped at 255).
+pub fn exposure_gain(config: &SceneConfig, i: usize) -> f32 {
+    let phase = 3.0 * std::f32::consts::PI * i as f32 / config.frames.max(1) as f32;
+    (config.exposure_swing * phase.sin()).exp()
 }
 
 /// Model id written in the embedding messages.
@@ -299,7 +312,13 @@ pub fn generate(
         let t = stamp as u64;
         let header = Header::at(stamp, frame_id);
         let (rotation, position) = camera_pose_laps(i, config.frames, config.laps);
-        let view = render(&scene, rotation, position, w, h);
+        let mut view = render(&scene, rotation, position, w, h);
+        let gain = exposure_gain(config, i);
+        if gain != 1.0 {
+            for c in &mut view.color {
+                *c = (*c as f32 * gain).round().min(255.0) as u8;
+            }
+        }
 
         log.write(
             "/camera/color/camera_info",

@@ -137,7 +137,7 @@ impl OnlineMapper {
     pub(super) fn seed(
         &mut self,
         frame: &Frame,
-        record: &KeyframeRecord,
+        record: &mut KeyframeRecord,
         seed: u64,
     ) -> Result<Vec<VoxelKey>> {
         let window = self.window.as_ref().expect("ensured");
@@ -145,15 +145,32 @@ impl OnlineMapper {
             None
         } else {
             let raster = self.trainer.as_mut().expect("ensured").rasterizer();
-            // Coverage needs alpha and depth only.
+            // Coverage needs alpha and depth; exposure colour.
             raster.forward_channels(
                 window.params(),
                 window.len() as u64,
                 &[record.camera],
                 Channels::Colour,
             )?;
-            Some(raster.download_alpha_depth(0)?)
+            let (alpha, rgbd) = raster.download_alpha_rgbd(0)?;
+            let depth: Vec<f32> = rgbd.iter().map(|p| p[3]).collect();
+            Some((alpha, depth, rgbd))
         };
+        if let Some((alpha, _, rgbd)) = &coverage {
+            if self.cfg.exposure_compensation {
+                let measured = |i: usize| frame.depth.metres(i);
+                let gain = relative_exposure(
+                    &record.rgb,
+                    rgbd,
+                    alpha,
+                    measured,
+                    self.cfg.seeding.depth_error,
+                );
+                // Too little of the map in view to tell: the last keyframe's.
+                record.exposure =
+                    gain.unwrap_or_else(|| self.exposure.iter().last().map_or(1.0, |(_, g)| g));
+            }
+        }
         // Paged-out Gaussians beyond the window's radius do not render: their
         // surface must not be seeded again.
         let complete = self.global.len() == window.len();
@@ -183,11 +200,12 @@ impl OnlineMapper {
         });
         let mut seeds = seed_from_frame(
             frame,
-            coverage.as_ref().map(|(alpha, depth)| ViewCoverage {
+            coverage.as_ref().map(|(alpha, depth, _)| ViewCoverage {
                 alpha,
                 depth,
                 partial,
                 complete_within,
+                exposure: record.exposure,
             }),
             &self.global,
             &self.cfg.seeding,

@@ -17,8 +17,8 @@ use crate::gpu::{Context, GpuCalls, GpuSpan, Submission};
 use crate::io::{embedding_space, CameraPose, Frame};
 use crate::latent::{projected_queries, LatentHead, LatentHeadConfig};
 use crate::map::{
-    seed_from_frame, Companion, GlobalMap, KeyframeSelector, LocalWindow, PendingSync, QueryInit,
-    RegionQueries, SyncPlan, ViewCoverage, VoxelKey,
+    relative_exposure, seed_from_frame, Companion, ExposureTrack, GlobalMap, KeyframeSelector,
+    LocalWindow, PendingSync, QueryInit, RegionQueries, SyncPlan, ViewCoverage, VoxelKey,
 };
 use crate::splat::{Channels, QUERY_DIM};
 
@@ -71,6 +71,8 @@ pub struct OnlineMapper {
     pub(super) model: Option<String>,
     /// Stamp and pose of every keyframe (the history may have let some go).
     pub(super) trajectory: Vec<(i64, CameraPose)>,
+    /// Each keyframe's exposure over the map's brightness.
+    pub(super) exposure: ExposureTrack,
     /// The run folder version the state was loaded from.
     pub(super) run_id: Option<String>,
     /// A keyframe step failed after it had changed the map: the state is
@@ -106,6 +108,7 @@ impl OnlineMapper {
             selector: KeyframeSelector::new(cfg.keyframes),
             history: History::with_cell(cfg.history_cell),
             trajectory: Vec::new(),
+            exposure: ExposureTrack::default(),
             head: None,
             trainer: None,
             last_sync: None,
@@ -273,6 +276,11 @@ impl OnlineMapper {
         &self.trajectory
     }
 
+    /// Every keyframe's exposure over the map's brightness.
+    pub fn exposure(&self) -> &ExposureTrack {
+        &self.exposure
+    }
+
     /// Whether `frame` is at or before the last frame integrated.
     pub(crate) fn already_mapped(&self, frame: &Frame) -> bool {
         self.last_stamp_ns
@@ -364,7 +372,7 @@ impl OnlineMapper {
         };
         let mut timings = KeyframeTimings::default();
         let mut paging = Vec::new();
-        let record = KeyframeRecord::from_frame(frame);
+        let mut record = KeyframeRecord::from_frame(frame);
         let keyframe = self.stats.keyframes;
         let seed = self.cfg.seed ^ keyframe.wrapping_mul(0x9e37_79b9);
 
@@ -381,7 +389,7 @@ impl OnlineMapper {
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
         let t = Instant::now();
-        let new_keys = self.seed(frame, &record, seed)?;
+        let new_keys = self.seed(frame, &mut record, seed)?;
         let centre = frame.pose.translation;
         let window = self.window.as_ref().expect("ensured");
         if new_keys.len() <= window.free() {
@@ -471,8 +479,9 @@ impl OnlineMapper {
         }
         timings.stage_two_ms = ms_since(t);
 
-        let stamp_ns = record.stamp_ns;
+        let (stamp_ns, exposure) = (record.stamp_ns, record.exposure);
         self.trajectory.push((stamp_ns, frame.pose));
+        self.exposure.push(stamp_ns, exposure);
         self.history.push(record);
         self.stats.keyframes += 1;
         let t = Instant::now();
@@ -509,6 +518,7 @@ impl OnlineMapper {
             gpu_bytes: self.ctx.memory_report().total.current,
             cpu_bytes,
             atoms: self.head.as_ref().map_or(0, |h| h.atom_count()),
+            exposure,
             gpu_calls: calls,
         }))
     }

@@ -124,6 +124,7 @@ impl OnlineMapper {
                 .filter_map(|i| self.history.get(i))
                 .collect(),
             trajectory: &self.trajectory,
+            exposure: self.exposure.iter().map(|(_, g)| g).collect(),
             window: window.as_ref(),
         }
         .into_bytes()?;
@@ -165,6 +166,7 @@ impl OnlineMapper {
             head,
             history,
             trajectory,
+            exposure,
             window,
         } = saved;
         let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", origin.display()));
@@ -215,6 +217,9 @@ impl OnlineMapper {
 
         for record in history {
             m.history.push(record);
+        }
+        for ((stamp_ns, _), gain) in trajectory.iter().zip(exposure) {
+            m.exposure.push(*stamp_ns, gain);
         }
         m.trajectory = trajectory;
 

@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::io::CameraPose;
 use crate::latent::NO_REGION_LABEL;
-use crate::map::{Gaussian, VoxelKey};
+use crate::map::{Gaussian, VoxelKey, EXPOSURE_RANGE};
 use crate::splat::{Camera, FIELD_WIDTHS, QUERY_DIM};
 
 const GAUSSIAN_FLOATS: usize = std::mem::size_of::<Gaussian>() / 4;
@@ -212,6 +212,8 @@ pub struct SavedState {
     pub(super) head: Option<SavedHead>,
     pub(super) history: Vec<KeyframeRecord>,
     pub(super) trajectory: Vec<(i64, CameraPose)>,
+    /// The exposure of each keyframe on the trajectory.
+    pub(super) exposure: Vec<f32>,
     pub(super) window: Option<SavedWindow>,
 }
 
@@ -228,6 +230,7 @@ struct StateRef<'a> {
     head: Option<&'a SavedHead>,
     history: Vec<&'a KeyframeRecord>,
     trajectory: &'a [(i64, CameraPose)],
+    exposure: Vec<f32>,
     window: Option<&'a SavedWindow>,
 }
 
@@ -343,6 +346,8 @@ impl StateRef<'_> {
         w.tensor("history/regions", &[h, 6], &info);
         w.tensor("history/labels", &[labels.len()], &labels);
         w.tensor("history/vectors", &[vectors.len()], &vectors);
+        let exposure: Vec<f32> = self.history.iter().map(|k| k.exposure).collect();
+        w.tensor("history/exposure", &[h], &exposure);
 
         // Every keyframe's pose (the history may have let some go).
         let n = self.trajectory.len();
@@ -354,6 +359,11 @@ impl StateRef<'_> {
             .collect();
         w.tensor("trajectory/stamp", &[n], &stamps);
         w.tensor("trajectory/pose", &[n, POSE_FLOATS], &poses);
+        w.tensor(
+            "trajectory/exposure",
+            &[self.exposure.len()],
+            &self.exposure,
+        );
         w.into_bytes()
     }
 }
@@ -386,6 +396,7 @@ impl SavedState {
             head: self.head.as_ref(),
             history: self.history.iter().collect(),
             trajectory: &self.trajectory,
+            exposure: self.exposure.clone(),
             window: self.window.as_ref(),
         }
         .into_bytes()
@@ -460,6 +471,7 @@ impl SavedState {
                 rgb: (0..px * 3).map(|j| (j * 7 + i) as u8).collect(),
                 depth_mm: (0..px).map(|j| 1000 + j as u16).collect(),
                 regions,
+                exposure: 1.0 + 0.1 * i as f32,
             }
         };
         let history = vec![
@@ -527,6 +539,7 @@ impl SavedState {
             head: Some(head),
             history,
             trajectory: (0..3).map(|i| (1_000 * i, pose(i as f64 * 0.1))).collect(),
+            exposure: vec![1.0, 1.25, 0.8],
             window: Some(SavedWindow {
                 capacity: 16,
                 view_pixels: px as u64,

@@ -143,6 +143,7 @@ impl SavedState {
                 })
                 .collect()
         };
+        let exposure = read_exposure(a, "trajectory/exposure", trajectory.len())?;
 
         // Window: the same residents in the same rows, with their Adam
         // state.
@@ -201,6 +202,7 @@ impl SavedState {
             head,
             history,
             trajectory,
+            exposure,
             window,
         })
     }
@@ -274,6 +276,8 @@ impl SavedState {
         let depth = a.flat::<u16>("history/depth_mm")?;
         let labels = a.flat::<u16>("history/labels")?;
         let vectors = a.flat::<f32>("history/vectors")?;
+        // Files from before exposure compensation: every keyframe at 1.
+        let exposure = read_exposure(a, "history/exposure", h)?;
         let (mut o_rgb, mut o_depth, mut o_labels, mut o_vec) = (0usize, 0usize, 0usize, 0usize);
         // The next `len` values of a tensor of `total`.
         let take =
@@ -363,6 +367,7 @@ impl SavedState {
                 rgb: rgb[rgb_r].to_vec(),
                 depth_mm: depth[depth_r].to_vec(),
                 regions,
+                exposure: exposure[i],
             });
         }
         for (what, used, total) in [
@@ -378,5 +383,22 @@ impl SavedState {
             }
         }
         Ok(records)
+    }
+}
+
+/// A keyframe exposure per entry of `name` (`len` of them), each a gain
+/// within [`EXPOSURE_RANGE`]; every one 1 when the file has none (saved
+/// before exposure compensation).
+fn read_exposure(a: &Archive<'_>, name: &str, len: usize) -> Result<Vec<f32>> {
+    if !a.has(name) {
+        return Ok(vec![1.0; len]);
+    }
+    let gains = a.exact::<f32>(name, &[len])?;
+    match gains
+        .iter()
+        .find(|g| !(EXPOSURE_RANGE.0..=EXPOSURE_RANGE.1).contains(*g))
+    {
+        Some(g) => Err(a.corrupt(format!("{name} holds the gain {g}"))),
+        None => Ok(gains),
     }
 }
