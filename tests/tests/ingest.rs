@@ -12,18 +12,7 @@ use latentam_cli::convert::features::{FeatureDir, Oracle};
 use latentam_cli::convert::{
     convert, datasets, npy, ConvertOptions, EmbeddingSource, Registration,
 };
-
-fn shared_data(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(name);
-    assert!(
-        p.is_dir(),
-        "test data {} is missing (../shared must sit beside the repository)",
-        p.display()
-    );
-    p
-}
+use latentam_tests::shared_data;
 
 /// A directory removed on drop.
 struct TempDir(PathBuf);

@@ -1,24 +1,13 @@
 //! Mapping real RGB-D data (`../shared/data`) at its own size: the map's
 //! fidelity on views that were not keyframes, the paper's protocol.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use latentam::gpu::{Context, ContextOptions};
 use latentam::io::{AssemblyConfig, Compression, Dtype, Frame, McapFrames};
 use latentam::mapper::{Mapper, MapperConfig};
 use latentam_cli::convert::{convert, datasets, ConvertOptions, EmbeddingSource, Registration};
-
-fn shared_data(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(name);
-    assert!(
-        p.is_dir(),
-        "test data {} is missing (../shared must sit beside the repository)",
-        p.display()
-    );
-    p
-}
+use latentam_tests::shared_data;
 
 /// The first `n` frames of 7-Scenes redkitchen (Kinect v1, 640×480) as
 /// the converter writes them by default: depth registered to colour.
