@@ -62,7 +62,7 @@ fn seven_scenes_is_mapped_to_the_paper_s_fidelity_on_held_out_views() {
         .expect("a Vulkan device (lavapipe: apt install mesa-vulkan-drivers)");
     let (psnr, depth) = held_out(&ctx, &frames, MapperConfig::default());
     eprintln!("7-Scenes frames 0-59, defaults: PSNR {psnr:.2} dB, depth L1 {depth:.4} m");
-    // Measured on lavapipe: 21.14 dB and 0.033 m; without exposure
+    // Measured on lavapipe: 21.14 dB and 0.032 m; without exposure
     // compensation and border filling (`--set exposure_compensation=false
     // --set seeding.border_fill_radius=0`) 18.90 dB and 0.031 m. The
     // paper's Kinect (TUM) figures are 15.1-19.5 dB.

@@ -66,7 +66,8 @@ settings! {
         /// surfaces) is seeded at the median depth of the nearest ring of
         /// pixels around it that has valid ones, up to this many pixels
         /// away. 0 seeds measured depth only, and empty pixels stay holes
-        /// in the map.
+        /// in the map. Gaussians seeded from filled-in depth are removed
+        /// when a later keyframe measures a surface behind them.
         pub hole_fill_radius: u32 = 8 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
         /// Holes that reach the image's edge (where the depth camera sees
         /// less than the colour camera, as registered Kinect and RealSense

@@ -458,6 +458,13 @@ fn inconsistent_states_are_refused_with_the_reason() {
         },
         "a trajectory of 2 poses for 3 keyframes",
     );
+    refused(&|s| s.guesses[0] = 3, "map/guess holds the flag 3");
+    refused(
+        &|s| {
+            s.guesses.pop();
+        },
+        "map/guess",
+    );
     refused(
         &|s| s.exposure[1] = 9.0,
         "trajectory/exposure holds the gain 9",

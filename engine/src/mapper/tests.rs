@@ -663,3 +663,68 @@ fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
         assert!(stage_two(mapper.integrate(&at(2)).unwrap()) > 0.0);
     });
 }
+
+/// Holes filled from their neighbours are guesses: where a later keyframe
+/// measures their pixels further away, the guessed Gaussians float in front
+/// of the real surface and are removed; where it measures them where they
+/// are, they stay.
+#[test]
+fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
+    use crate::map::{KeyframeConfig, KeyframePolicy};
+    const BAND: u32 = 10;
+    let with_depth = |right_mm: u16| {
+        let mut f = keyframe(DVec3::ZERO);
+        f.embeddings = None;
+        if let DepthData::Units { values, .. } = &mut f.depth.data {
+            for (i, v) in values.iter_mut().enumerate() {
+                if i as u32 % W >= W - BAND {
+                    *v = right_mm;
+                }
+            }
+        }
+        f
+    };
+    // The band's Gaussians: in front of 2 m, right of the band's edge.
+    let band = |m: &OnlineMapper| {
+        let edge = (W - BAND) as f32 - 0.5;
+        m.global()
+            .iter()
+            .filter(|(_, g)| g.mean[2] < 2.0 && g.mean[0] / g.mean[2] * 50.0 + 23.5 > edge)
+            .count()
+    };
+    with_context(|ctx| {
+        for (later_mm, kept) in [(3000, false), (1500, true)] {
+            let cfg = MapperConfig {
+                keyframes: KeyframeConfig {
+                    policy: KeyframePolicy::Interval(1),
+                    ..KeyframeConfig::default()
+                },
+                window_capacity: Some(8192),
+                prune_interval: 1,
+                ..MapperConfig::default()
+            };
+            let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+            // No depth in the band, which reaches the image's edge: filled
+            // from the wall beside it.
+            mapper.integrate(&with_depth(0)).unwrap();
+            let guessed = band(&mapper);
+            assert!(guessed >= (BAND / 2 * H / 2) as usize, "{guessed} guesses");
+            assert_eq!(mapper.guesses.len(), guessed);
+            let mut later = with_depth(later_mm);
+            later.stamp_ns = 1;
+            mapper.integrate(&later).unwrap();
+            if kept {
+                assert_eq!(band(&mapper), guessed, "measured where guessed");
+                assert!(mapper.guesses.is_empty(), "confirmed");
+            } else {
+                assert_eq!(band(&mapper), 0, "the guesses in front are gone");
+            }
+            let window = mapper.window().unwrap();
+            assert_eq!(window.len(), mapper.global().len());
+            assert!(window
+                .keys()
+                .iter()
+                .all(|&k| mapper.global().get(k).is_some()));
+        }
+    });
+}

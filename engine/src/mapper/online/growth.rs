@@ -212,12 +212,66 @@ impl OnlineMapper {
             seed,
             queries.as_ref(),
         );
+        self.check_guesses(frame);
         let centre = frame.pose.translation;
         let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);
         seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
-        Ok(seeds
-            .into_iter()
-            .filter_map(|g| self.global.insert(g))
-            .collect())
+        let mut keys = Vec::with_capacity(seeds.len());
+        for g in seeds {
+            let guessed = matches!(measured_at(frame, g.mean), Some(None));
+            if let Some(key) = self.global.insert(g) {
+                if guessed {
+                    self.guesses.insert(key);
+                }
+                keys.push(key);
+            }
+        }
+        Ok(keys)
     }
+
+    /// Guesses this keyframe measures: kept where its depth agrees, marked
+    /// for removal where they float in front of the surface it measured.
+    fn check_guesses(&mut self, frame: &Frame) {
+        let tolerance = self.cfg.seeding.depth_error as f64;
+        let global = &self.global;
+        let superseded = &mut self.superseded;
+        self.guesses.retain(|&key| {
+            let Some(g) = global.get(key) else {
+                return false;
+            };
+            let Some(Some(measured)) = measured_at(frame, g.mean) else {
+                return true;
+            };
+            let z = frame.pose.rotation.inverse()
+                * (DVec3::from(g.mean.map(f64::from)) - frame.pose.translation);
+            let (z, measured) = (z.z, measured as f64);
+            if z < measured * (1.0 - tolerance) {
+                superseded.insert(key);
+                false
+            } else {
+                // On the measured surface: no longer a guess. Behind it:
+                // hidden, so nothing says it is wrong.
+                z > measured * (1.0 + tolerance)
+            }
+        });
+    }
+}
+
+/// The depth `frame` measured at the pixel `mean` projects to: `None`
+/// outside the image (or behind the camera), `Some(None)` on a pixel
+/// without a valid depth.
+fn measured_at(frame: &Frame, mean: [f32; 3]) -> Option<Option<f32>> {
+    let p =
+        frame.pose.rotation.inverse() * (DVec3::from(mean.map(f64::from)) - frame.pose.translation);
+    if p.z <= 1e-6 {
+        return None;
+    }
+    let k = frame.intrinsics;
+    let u = (k.fx * p.x / p.z + k.cx).round();
+    let v = (k.fy * p.y / p.z + k.cy).round();
+    let (w, h) = (frame.depth.width as f64, frame.depth.height as f64);
+    if !(0.0..w).contains(&u) || !(0.0..h).contains(&v) {
+        return None;
+    }
+    Some(frame.depth.metres(v as usize * w as usize + u as usize))
 }

@@ -1,6 +1,7 @@
 //! The per-keyframe loop (paper Alg. 1) over the pieces in `map`,
 //! `latent` and the [`Trainer`].
 
+use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -73,6 +74,13 @@ pub struct OnlineMapper {
     pub(super) trajectory: Vec<(i64, CameraPose)>,
     /// Each keyframe's exposure over the map's brightness.
     pub(super) exposure: ExposureTrack,
+    /// Gaussians seeded where their keyframe measured no depth (holes
+    /// filled from their neighbours), until a later keyframe measures
+    /// their surface.
+    pub(super) guesses: HashSet<VoxelKey>,
+    /// Guesses a later keyframe saw in front of the surface it measured:
+    /// removed at the next pruning.
+    pub(super) superseded: HashSet<VoxelKey>,
     /// The run folder version the state was loaded from.
     pub(super) run_id: Option<String>,
     /// A keyframe step failed after it had changed the map: the state is
@@ -109,6 +117,8 @@ impl OnlineMapper {
             history: History::with_cell(cfg.history_cell),
             trajectory: Vec::new(),
             exposure: ExposureTrack::default(),
+            guesses: HashSet::new(),
+            superseded: HashSet::new(),
             head: None,
             trainer: None,
             last_sync: None,

@@ -94,9 +94,20 @@ impl OnlineMapper {
         let Some(window) = &self.window else {
             return Ok(0);
         };
+        // Superseded guesses outside the window go at once.
+        let mut superseded = std::mem::take(&mut self.superseded);
+        let mut removed = 0;
+        let resident: HashSet<VoxelKey> = window.keys().iter().copied().collect();
+        superseded.retain(|key| {
+            if resident.contains(key) {
+                return true;
+            }
+            removed += self.global.remove(*key).is_some() as usize;
+            false
+        });
         let n = window.len();
         if n == 0 {
-            return Ok(0);
+            return Ok(removed);
         }
         let host = window.params().download(&self.ctx, n as u64)?;
         let min_logit = {
@@ -109,13 +120,14 @@ impl OnlineMapper {
                 let o = host.opacity_logits[i];
                 let s = host.log_scales[i].iter().copied().fold(f32::MIN, f32::max);
                 // NaN parameters are pruned too.
-                let keep = o >= min_logit && s <= max_log_scale;
+                let keep =
+                    o >= min_logit && s <= max_log_scale && !superseded.contains(&window.keys()[i]);
                 !keep
             })
             .map(|i| i as u32)
             .collect();
         if evict.is_empty() {
-            return Ok(0);
+            return Ok(removed);
         }
         let doomed: Vec<_> = evict.iter().map(|&r| window.keys()[r as usize]).collect();
         let plan = SyncPlan {
@@ -129,7 +141,7 @@ impl OnlineMapper {
         for key in &doomed {
             self.global.remove(*key);
         }
-        Ok(doomed.len())
+        Ok(removed + doomed.len())
     }
 }
 

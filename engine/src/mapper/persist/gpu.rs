@@ -104,6 +104,16 @@ impl OnlineMapper {
                 finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
             }
         }
+        let guesses: Vec<u8> = map
+            .iter()
+            .map(|(key, _)| {
+                if self.superseded.contains(key) {
+                    SUPERSEDED
+                } else {
+                    GUESSED * self.guesses.contains(key) as u8
+                }
+            })
+            .collect();
         let bytes = StateRef {
             run_id,
             config: &self.cfg,
@@ -119,6 +129,7 @@ impl OnlineMapper {
             selector: self.selector.state(),
             last_sync: self.last_sync,
             map: &map,
+            guesses: &guesses,
             head: head.as_ref(),
             history: (0..self.history.len())
                 .filter_map(|i| self.history.get(i))
@@ -163,6 +174,7 @@ impl OnlineMapper {
             selector,
             last_sync,
             map,
+            guesses,
             head,
             history,
             trajectory,
@@ -186,9 +198,14 @@ impl OnlineMapper {
         m.run_id = run_id;
         m.selector.restore(selector.0, selector.1);
         m.last_sync = last_sync;
-        for (key, g) in map {
+        for ((key, g), flag) in map.into_iter().zip(guesses) {
             if !m.global.insert_at(key, g) {
                 return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
+            }
+            match flag {
+                GUESSED => _ = m.guesses.insert(key),
+                SUPERSEDED => _ = m.superseded.insert(key),
+                _ => {}
             }
         }
 

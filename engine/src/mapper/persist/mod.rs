@@ -36,6 +36,13 @@ pub(crate) const MAX_VIEW_PIXELS: u64 = 1 << 31;
 /// Largest embedding dimension of a saved map.
 pub(crate) const MAX_EMBEDDING_DIM: u32 = 1 << 20;
 
+/// A Gaussian seeded from depth filled in from neighbouring pixels, which
+/// no later keyframe measured yet (`map/guess`).
+pub(super) const GUESSED: u8 = 1;
+/// A guess a later keyframe saw in front of the surface it measured,
+/// removed at the next pruning.
+pub(super) const SUPERSEDED: u8 = 2;
+
 fn keys_to_i32(keys: impl Iterator<Item = VoxelKey>) -> Vec<i32> {
     keys.flat_map(|k| [k.x, k.y, k.z]).collect()
 }
@@ -209,6 +216,8 @@ pub struct SavedState {
     pub(super) selector: (Option<CameraPose>, u32),
     pub(super) last_sync: Option<DVec3>,
     pub(super) map: Vec<(VoxelKey, Gaussian)>,
+    /// Per Gaussian of `map`: [`GUESSED`], [`SUPERSEDED`] or 0 (measured).
+    pub(super) guesses: Vec<u8>,
     pub(super) head: Option<SavedHead>,
     pub(super) history: Vec<KeyframeRecord>,
     pub(super) trajectory: Vec<(i64, CameraPose)>,
@@ -227,6 +236,7 @@ struct StateRef<'a> {
     selector: (Option<CameraPose>, u32),
     last_sync: Option<DVec3>,
     map: &'a [(VoxelKey, Gaussian)],
+    guesses: &'a [u8],
     head: Option<&'a SavedHead>,
     history: Vec<&'a KeyframeRecord>,
     trajectory: &'a [(i64, CameraPose)],
@@ -269,6 +279,7 @@ impl StateRef<'_> {
             &[n, 3],
             &keys_to_i32(self.map.iter().map(|(k, _)| *k)),
         );
+        w.tensor("map/guess", &[self.guesses.len()], self.guesses);
         let gaussians: Vec<Gaussian> = self.map.iter().map(|(_, g)| *g).collect();
         w.tensor(
             "map/gaussians",
@@ -393,6 +404,7 @@ impl SavedState {
             selector: self.selector,
             last_sync: self.last_sync,
             map: &self.map,
+            guesses: &self.guesses,
             head: self.head.as_ref(),
             history: self.history.iter().collect(),
             trajectory: &self.trajectory,
@@ -536,6 +548,7 @@ impl SavedState {
             selector: (Some(pose(0.2)), 4),
             last_sync: Some(DVec3::new(0.1, 0.2, 0.3)),
             map,
+            guesses: vec![0, 1, 0, 2, 0, 0],
             head: Some(head),
             history,
             trajectory: (0..3).map(|i| (1_000 * i, pose(i as f64 * 0.1))).collect(),

@@ -94,6 +94,17 @@ impl SavedState {
             map.push((key, g));
         }
 
+        // Files from before guesses were kept: every Gaussian measured.
+        let guesses = if a.has("map/guess") {
+            let flags = a.exact::<u8>("map/guess", &[n])?;
+            if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
+                return Err(bad(format!("map/guess holds the flag {f}")));
+            }
+            flags
+        } else {
+            vec![0; n]
+        };
+
         let head = Self::parse_head(a, &config)?;
         let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
         if history.len() as u64 > counters.keyframes {
@@ -199,6 +210,7 @@ impl SavedState {
             selector: (last, since),
             last_sync,
             map,
+            guesses,
             head,
             history,
             trajectory,
