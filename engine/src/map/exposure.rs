@@ -16,8 +16,8 @@ const DARKEST: f32 = 8.0 / 255.0;
 const BRIGHTEST: f32 = 247.0 / 255.0;
 /// Covered pixels need at least this accumulated alpha.
 const COVERED: f32 = 0.95;
-/// At most this many times the median ratio apart are outliers
-/// (misaligned edges, specular highlights, moved objects).
+/// Ratios more than this factor from the median are outliers (misaligned
+/// edges, specular highlights, moved objects).
 const OUTLIER_FACTOR: f32 = 1.5;
 /// Fewer usable pixels than this share of the view give no estimate.
 const MIN_SHARE: f64 = 0.02;
@@ -96,7 +96,11 @@ pub fn relative_exposure(
         .fold((0.0f64, 0.0f64), |(a, b), (s, m, _)| {
             (a + *s as f64, b + *m as f64)
         });
-    let gain = (seen / map.max(1e-12)) as f32;
+    // No inliers left (every pixel one the camera would clip): no estimate.
+    if map <= 0.0 {
+        return None;
+    }
+    let gain = (seen / map) as f32;
     gain.is_finite()
         .then(|| gain.clamp(EXPOSURE_RANGE.0, EXPOSURE_RANGE.1))
 }
@@ -213,6 +217,15 @@ mod tests {
         assert!((g - 1.2).abs() < 0.012, "{g}");
         assert_eq!(
             relative_exposure(&observed, &rendered, &[0.5; 2000], |_| None, 0.05),
+            None
+        );
+        // A red wall the map holds brighter than 1 (divided by a gain below
+        // one), seen just below clipping: every pixel would clip at the
+        // gain, so there is no estimate rather than a gain of 0.
+        let wall = vec![[1.2, 0.3, 0.3, 1.5]; 500];
+        let seen: Vec<u8> = (0..500).flat_map(|_| [246u8, 75, 75]).collect();
+        assert_eq!(
+            relative_exposure(&seen, &wall, &[1.0; 500], |_| Some(1.5), 0.05),
             None
         );
     }

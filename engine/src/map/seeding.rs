@@ -66,13 +66,15 @@ settings! {
         /// surfaces) is seeded at the median depth of the nearest ring of
         /// pixels around it that has valid ones, up to this many pixels
         /// away. 0 seeds measured depth only, and empty pixels stay holes
-        /// in the map. Gaussians seeded from filled-in depth are removed
-        /// when a later keyframe measures a surface behind them.
+        /// in the map. Gaussians seeded from filled-in depth that a later
+        /// keyframe sees floating in front of the surface it measured are
+        /// removed at the next pruning (prune_interval).
         pub hole_fill_radius: u32 = 8 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
         /// Holes that reach the image's edge (where the depth camera sees
         /// less than the colour camera, as registered Kinect and RealSense
         /// depth does) are filled the same way up to this many pixels
-        /// away. Below hole_fill_radius it acts as hole_fill_radius.
+        /// away. Below hole_fill_radius it acts as hole_fill_radius (set
+        /// both to 0 to seed measured depth only).
         pub border_fill_radius: u32 = 16 => value().range(0u32, MAX_HOLE_FILL_RADIUS),
     }
 }

@@ -156,6 +156,11 @@ impl OnlineMapper {
             let depth: Vec<f32> = rgbd.iter().map(|p| p[3]).collect();
             Some((alpha, depth, rgbd))
         };
+        // The last keyframe's gain when this one cannot be measured.
+        let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
+        if coverage.is_none() && self.cfg.exposure_compensation {
+            record.exposure = last_gain;
+        }
         if let Some((alpha, _, rgbd)) = &coverage {
             if self.cfg.exposure_compensation {
                 let measured = |i: usize| frame.depth.metres(i);
@@ -167,8 +172,7 @@ impl OnlineMapper {
                     self.cfg.seeding.depth_error,
                 );
                 // Too little of the map in view to tell: the last keyframe's.
-                record.exposure =
-                    gain.unwrap_or_else(|| self.exposure.iter().last().map_or(1.0, |(_, g)| g));
+                record.exposure = gain.unwrap_or(last_gain);
             }
         }
         // Paged-out Gaussians beyond the window's radius do not render: their
@@ -212,6 +216,12 @@ impl OnlineMapper {
             seed,
             queries.as_ref(),
         );
+        if coverage.is_none() {
+            // Without a render seeding took the colours as they are.
+            for g in &mut seeds {
+                g.color = g.color.map(|c| c / record.exposure);
+            }
+        }
         self.check_guesses(frame);
         let centre = frame.pose.translation;
         let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);

@@ -135,7 +135,12 @@ impl OnlineMapper {
                 .filter_map(|i| self.history.get(i))
                 .collect(),
             trajectory: &self.trajectory,
-            exposure: self.exposure.iter().map(|(_, g)| g).collect(),
+            // In the trajectory's order (the track is in time order).
+            exposure: self
+                .trajectory
+                .iter()
+                .map(|(stamp_ns, _)| self.exposure.at(*stamp_ns))
+                .collect(),
             window: window.as_ref(),
         }
         .into_bytes()?;
