@@ -228,7 +228,7 @@ impl OnlineMapper {
         seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
         let mut keys = Vec::with_capacity(seeds.len());
         for g in seeds {
-            let guessed = matches!(measured_at(frame, g.mean), Some(None));
+            let guessed = matches!(measured_at(frame, g.mean), Some((_, None)));
             if let Some(key) = self.global.insert(g) {
                 if guessed {
                     self.guesses.insert(key);
@@ -249,12 +249,10 @@ impl OnlineMapper {
             let Some(g) = global.get(key) else {
                 return false;
             };
-            let Some(Some(measured)) = measured_at(frame, g.mean) else {
+            let Some((z, Some(measured))) = measured_at(frame, g.mean) else {
                 return true;
             };
-            let z = frame.pose.rotation.inverse()
-                * (DVec3::from(g.mean.map(f64::from)) - frame.pose.translation);
-            let (z, measured) = (z.z, measured as f64);
+            let measured = measured as f64;
             if z < measured * (1.0 - tolerance) {
                 superseded.insert(key);
                 false
@@ -267,10 +265,10 @@ impl OnlineMapper {
     }
 }
 
-/// The depth `frame` measured at the pixel `mean` projects to: `None`
-/// outside the image (or behind the camera), `Some(None)` on a pixel
-/// without a valid depth.
-fn measured_at(frame: &Frame, mean: [f32; 3]) -> Option<Option<f32>> {
+/// The depth of `mean` in `frame`'s camera and what the frame measured at
+/// the pixel it projects to (`None` there: no valid depth); `None` outside
+/// the image or behind the camera.
+fn measured_at(frame: &Frame, mean: [f32; 3]) -> Option<(f64, Option<f32>)> {
     let p =
         frame.pose.rotation.inverse() * (DVec3::from(mean.map(f64::from)) - frame.pose.translation);
     if p.z <= 1e-6 {
@@ -283,5 +281,8 @@ fn measured_at(frame: &Frame, mean: [f32; 3]) -> Option<Option<f32>> {
     if !(0.0..w).contains(&u) || !(0.0..h).contains(&v) {
         return None;
     }
-    Some(frame.depth.metres(v as usize * w as usize + u as usize))
+    Some((
+        p.z,
+        frame.depth.metres(v as usize * w as usize + u as usize),
+    ))
 }
