@@ -2,7 +2,11 @@
 //   kmeans_resim:    the stale columns of the point-to-centre cosine matrix,
 //                    sims[r, c] = unit[r] . centre_unit[c] for every listed
 //                    centre c; one workgroup per point, one thread per
-//                    listed centre.
+//                    listed centre. A row the first assignment left
+//                    incomplete (an atom's, when the atoms' product did
+//                    not run: kmeans_first_assign.comp) is computed whole
+//                    once its best centre is stale, since only then is
+//                    every column read.
 //   kmeans_reassign: each point's best centre again (largest cosine, ties
 //                    to the lowest index, as argmax_rows.comp). Unless its
 //                    current best is stale, only the stale columns can
@@ -25,7 +29,10 @@ layout(local_size_x = THREADS) in;
 layout(std430, set = 0, binding = 0) readonly buffer Unit { float unit[]; };
 layout(std430, set = 0, binding = 1) readonly buffer CentreUnit { float centre_unit[]; };
 layout(std430, set = 0, binding = 2) readonly buffer StaleList { uint stale_list[]; };
-layout(std430, set = 0, binding = 3) buffer Sims { float sims[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Stale { uint stale[]; };
+layout(std430, set = 0, binding = 4) readonly buffer BestIndex { uint best_index[]; };
+layout(std430, set = 0, binding = 5) buffer RowComplete { uint row_complete[]; };
+layout(std430, set = 0, binding = 6) buffer Sims { float sims[]; };
 
 layout(push_constant) uniform Params {
     uint rows;
@@ -33,19 +40,37 @@ layout(push_constant) uniform Params {
     uint dim;
 } pc;
 
+float cosine(uint r, uint c) {
+    float s = 0.0;
+    for (uint k = 0u; k < pc.dim; k++) {
+        s += unit[r * pc.dim + k] * centre_unit[c * pc.dim + k];
+    }
+    return s;
+}
+
 void main() {
     uint r = linear_group();
     if (r >= pc.rows) {
         return;
     }
-    uint listed = stale_list[0];
-    for (uint e = gl_LocalInvocationID.x; e < listed; e += THREADS) {
-        uint c = stale_list[1u + e];
-        float s = 0.0;
-        for (uint k = 0u; k < pc.dim; k++) {
-            s += unit[r * pc.dim + k] * centre_unit[c * pc.dim + k];
+    uint t = gl_LocalInvocationID.x;
+    uint best = best_index[r];
+    bool whole = row_complete[r] == 0u && (best == NONE || stale[best] != 0u);
+    if (whole) {
+        for (uint c = t; c < pc.centres_count; c += THREADS) {
+            sims[r * pc.centres_count + c] = cosine(r, c);
         }
-        sims[r * pc.centres_count + c] = s;
+        // Every invocation has read the flag before it changes.
+        barrier();
+        if (t == 0u) {
+            row_complete[r] = 1u;
+        }
+        return;
+    }
+    uint listed = stale_list[0];
+    for (uint e = t; e < listed; e += THREADS) {
+        uint c = stale_list[1u + e];
+        sims[r * pc.centres_count + c] = cosine(r, c);
     }
 }
 #else

@@ -47,7 +47,10 @@ struct Report {
     /// Multiply-adds ×2 of decoder forward + backward over their median time.
     decode_gflops: f64,
     stage2_iteration_ms_median: f64,
+    /// Regions of concepts the dictionary has not seen.
     kmeans_ms_median: f64,
+    /// Regions near atoms already in the dictionary.
+    kmeans_familiar_ms_median: f64,
     ssim_forward_backward_ms_median: f64,
     image_loss_ms_median: f64,
     kernels: Vec<KernelRow>,
@@ -67,9 +70,20 @@ fn random_buffer(
 /// Rows of unit vectors, clustered around a few directions like real
 /// region embeddings.
 fn unit_rows(rows: usize, dim: usize, rng: &mut impl Rng) -> Vec<f32> {
-    let centres: Vec<Vec<f32>> = (0..32)
+    let centres = directions(dim, rng);
+    rows_around(&centres, rows, rng)
+}
+
+/// 32 random directions in `dim` dimensions (nearly orthogonal).
+fn directions(dim: usize, rng: &mut impl Rng) -> Vec<Vec<f32>> {
+    (0..32)
         .map(|_| (0..dim).map(|_| rng.random_range(-1.0..1.0)).collect())
-        .collect();
+        .collect()
+}
+
+/// Unit rows each near one of `centres` (cosine about 0.8 to it).
+fn rows_around(centres: &[Vec<f32>], rows: usize, rng: &mut impl Rng) -> Vec<f32> {
+    let dim = centres[0].len();
     let mut out = Vec::with_capacity(rows * dim);
     for _ in 0..rows {
         let c = &centres[rng.random_range(0..centres.len())];
@@ -86,12 +100,24 @@ fn time(
     ctx: &Context,
     runs: usize,
     per_kernel: &mut BTreeMap<&'static str, Vec<f64>>,
+    op: impl FnMut() -> latentam::Result<()>,
+) -> Result<f64> {
+    time_after(ctx, runs, per_kernel, || Ok(()), op)
+}
+
+/// [`time`] with `setup` run, untimed, before each run of `op`.
+fn time_after(
+    ctx: &Context,
+    runs: usize,
+    per_kernel: &mut BTreeMap<&'static str, Vec<f64>>,
+    mut setup: impl FnMut() -> latentam::Result<()>,
     mut op: impl FnMut() -> latentam::Result<()>,
 ) -> Result<f64> {
     let mut times = Vec::new();
     let mut progress = latentam_cli::progress::Progress::new("bench latent", runs + 1);
     for run in 0..=runs {
         progress.set(run);
+        setup()?;
         ctx.profiler_reset();
         op()?;
         let samples: Vec<Sample> = ctx.profiler_snapshot().samples().to_vec();
@@ -192,17 +218,32 @@ pub fn run(b: LatentBench) -> Result<()> {
         ..Default::default()
     };
     let kmeans = StreamingKMeans::new(&ctx, kcfg)?;
-    let kd = ctx.upload_new("bench/kmeans_atoms", &unit_rows(k, d, &mut rng))?;
+    // Regions of as many concepts the dictionary knows as the keyframe has
+    // micro-clusters (each micro-centre lands near atoms: no new concept),
+    // and regions in new directions (every micro-centre a new concept,
+    // which also needs the atoms' own K × K cosines).
+    let seen = directions(d, &mut rng);
+    let atoms_host = rows_around(&seen, k, &mut rng);
+    let kd = ctx.upload_new("bench/kmeans_atoms", &atoms_host)?;
     let k_anchor = Buffer::device(&ctx, "bench/kmeans_anchor", (k * d * 4) as u64)?;
     let moved = Buffer::device(&ctx, "bench/moved", (k * 4) as u64)?;
-    let features = ctx.upload_new("bench/features", &unit_rows(n, d, &mut rng))?;
+    let known = &seen[..kcfg.micro_clusters.min(seen.len() as u32) as usize];
+    let familiar = ctx.upload_new("bench/familiar", &rows_around(known, n, &mut rng))?;
+    let novel = ctx.upload_new("bench/novel", &unit_rows(n, d, &mut rng))?;
     let full_weights = vec![1.0f32; k];
-    let kmeans_ms = time(&ctx, b.runs, &mut per_kernel, || {
-        kmeans.restore(&ctx, b.atoms, &full_weights)?;
-        let mut rec = ctx.recorder()?;
-        kmeans.record_update(&mut rec, &features, None, b.regions, &kd, &k_anchor, &moved)?;
-        rec.submit()?.wait()
-    })?;
+    let mut kmeans_time = |features: &Buffer| {
+        let reset = || {
+            ctx.upload(&kd, 0, &atoms_host)?;
+            kmeans.restore(&ctx, b.atoms, &full_weights)
+        };
+        time_after(&ctx, b.runs, &mut per_kernel, reset, || {
+            let mut rec = ctx.recorder()?;
+            kmeans.record_update(&mut rec, features, None, b.regions, &kd, &k_anchor, &moved)?;
+            rec.submit()?.wait()
+        })
+    };
+    let kmeans_ms = kmeans_time(&novel)?;
+    let kmeans_familiar_ms = kmeans_time(&familiar)?;
 
     // Image losses on one view; SSIM is the sum of its four passes.
     let layout = BatchLayout::for_cameras(&[Camera::at_origin(b.ssim_width, b.ssim_height)])?;
@@ -260,6 +301,7 @@ pub fn run(b: LatentBench) -> Result<()> {
         decode_gflops: decode_flops / ((forward + backward) * 1e-3) * 1e-9,
         stage2_iteration_ms_median: stage2,
         kmeans_ms_median: kmeans_ms,
+        kmeans_familiar_ms_median: kmeans_familiar_ms,
         ssim_forward_backward_ms_median: median(&ssim_runs),
         image_loss_ms_median: image_ms,
         // Every measured run of every operation above, pooled by kernel.
@@ -272,7 +314,8 @@ pub fn run(b: LatentBench) -> Result<()> {
     );
     println!("Stage II iteration (decode, feature loss, backward, trust region, Adam W+D): {stage2:.3} ms");
     println!(
-        "streaming k-means, full dictionary, {} regions: {kmeans_ms:.3} ms",
+        "streaming k-means, full dictionary, {} regions: new concepts {kmeans_ms:.3} ms, \
+         familiar ones {kmeans_familiar_ms:.3} ms",
         b.regions
     );
     println!(

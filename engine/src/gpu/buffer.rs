@@ -87,9 +87,12 @@ impl Buffer {
         let alloc_bytes = bytes.max(4).next_multiple_of(4);
         let usage = match kind {
             BufferKind::Device => {
+                // Any device buffer may hold a kernel's workgroup counts
+                // (`Recorder::dispatch_indirect`).
                 vk::BufferUsageFlags::STORAGE_BUFFER
                     | vk::BufferUsageFlags::TRANSFER_SRC
                     | vk::BufferUsageFlags::TRANSFER_DST
+                    | vk::BufferUsageFlags::INDIRECT_BUFFER
             }
             BufferKind::Upload => vk::BufferUsageFlags::TRANSFER_SRC,
             BufferKind::Readback => vk::BufferUsageFlags::TRANSFER_DST,

@@ -7,15 +7,21 @@
 //! algorithm): [`crate::reference::kmeans`].
 //!
 //! Once the dictionary is full, each keyframe re-clusters K + m points into
-//! K centres warm-started from the atoms. Only the first Lloyd iteration
-//! needs the whole (K + m) × K cosine matrix (and it reuses the novelty
-//! check's); after it, only the centres whose members changed move, so the
-//! later iterations recompute just their columns and reassign against them:
-//! (K + m) × (a few) × d_f work instead of (K + m) × K × d_f.
+//! K centres warm-started from the atoms. The K × K cosines of the atoms
+//! are computed only when a micro-centre is a new concept, since only then
+//! does the novelty step need each atom's most similar other atom (the GPU
+//! decides, with an indirect dispatch, so the host does not wait for it).
+//! The first Lloyd iteration needs only the micro-centres' rows: an atom
+//! whose centre was not replaced starts in its own cluster. After it, only
+//! the centres whose members changed move, so the later iterations
+//! recompute just their columns (and a point's whole row once its own
+//! centre moved) and reassign against them: (K + m) × (a few) × d_f work
+//! instead of (K + m) × K × d_f.
 
 use latentam_shaders::{
-    push, ARGMAX_ROWS, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_REASSIGN,
-    KMEANS_RESIM, KMEANS_SEED, KMEANS_STALE, KMEANS_STALE_LIST, KMEANS_UPDATE, KMEANS_UPDATE_DIRTY,
+    push, ARGMAX_ROWS, KMEANS_FIRST_ASSIGN, KMEANS_GATE, KMEANS_MICRO_ROWS, KMEANS_MOVED,
+    KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_REASSIGN, KMEANS_RESIM, KMEANS_SEED, KMEANS_STALE,
+    KMEANS_STALE_LIST, KMEANS_UPDATE, KMEANS_UPDATE_DIRTY,
 };
 
 use std::cell::Cell;
@@ -169,7 +175,17 @@ pub struct StreamingKMeans {
     stale: Buffer,
     /// The stale centres: [count, indices...].
     stale_list: Buffer,
+    /// Per point: its row of `sims` holds every column.
+    row_complete: Buffer,
+    /// Written by `kmeans_gate`: the workgroup counts of the atoms' cosine
+    /// product (bytes 0..12) and its argmax (16..28), then whether a
+    /// micro-centre was new (word 8).
+    gate: Buffer,
 }
+
+/// Byte offsets of the indirect dispatch counts in `StreamingKMeans::gate`.
+const GATE_PRODUCT: u64 = 0;
+const GATE_ARGMAX: u64 = 16;
 
 impl StreamingKMeans {
     /// An empty dictionary state for `cfg`.
@@ -221,6 +237,8 @@ impl StreamingKMeans {
             dirty: buf("dirty", k)?,
             stale: buf("stale", k)?,
             stale_list: buf("stale_list", k + 1)?,
+            row_complete: buf("row_complete", k + m)?,
+            gate: buf("gate", 9)?,
         };
         Ok(s)
     }
@@ -287,14 +305,8 @@ impl StreamingKMeans {
         .record(rec, unit_points, unit_centres, &self.sims)
     }
 
-    /// Each row's best column of `sims` (optionally not its own index).
-    fn best_centres<'a>(
-        &'a self,
-        rec: &mut Recorder<'a>,
-        rows: u32,
-        cols: u32,
-        exclude_diagonal: bool,
-    ) -> Result<()> {
+    /// Each row's best column of `sims`.
+    fn best_centres<'a>(&'a self, rec: &mut Recorder<'a>, rows: u32, cols: u32) -> Result<()> {
         rec.dispatch_linear(
             &ARGMAX_ROWS,
             rows,
@@ -302,7 +314,7 @@ impl StreamingKMeans {
             &push::ArgmaxRows {
                 rows,
                 cols,
-                exclude_diagonal: exclude_diagonal as u32,
+                exclude_diagonal: 0,
             },
         )
     }
@@ -338,6 +350,80 @@ impl StreamingKMeans {
                 rec.dispatch_linear(&KMEANS_UPDATE_DIRTY, centres_count, &with_dirty, &p)
             }
         }
+    }
+
+    /// Records what the novelty step reads: the micro-centres' rows of the
+    /// cosine matrix (points `atoms..atoms + m` against the atoms) with
+    /// their best atom, and, only when one of them is new, the atoms' own
+    /// rows with each atom's most similar other atom.
+    fn record_novelty_similarities<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        atoms: u32,
+        m: u32,
+    ) -> Result<()> {
+        rec.dispatch_linear(
+            &KMEANS_MICRO_ROWS,
+            m,
+            &[
+                &self.unit,
+                &self.centre_unit,
+                &self.sims,
+                &self.best_value,
+                &self.best_index,
+            ],
+            &push::KmeansMicroRows {
+                first: atoms,
+                count: m,
+                centres_count: atoms,
+                dim: self.cfg.dim,
+            },
+        )?;
+        let product = Gemm {
+            transpose: Transpose::B,
+            m: atoms,
+            n: atoms,
+            k: self.cfg.dim,
+            alpha: 1.0,
+            beta: 0.0,
+        };
+        let [product_x, product_y, _] = product.groups();
+        // The argmax's groups as `dispatch_linear` would split them.
+        let argmax_x = atoms.min(rec.info().max_workgroup_count[0].min(65535));
+        let argmax_y = atoms.div_ceil(argmax_x.max(1));
+        rec.dispatch(
+            &KMEANS_GATE,
+            [1, 1, 1],
+            &[&self.best_value, &self.gate],
+            &push::KmeansGate {
+                atoms,
+                micro_count: m,
+                threshold: self.cfg.novelty_threshold,
+                product_x,
+                product_y,
+                argmax_x,
+                argmax_y,
+            },
+        )?;
+        product.record_indirect(
+            rec,
+            &self.unit,
+            &self.centre_unit,
+            &self.sims,
+            &self.gate,
+            GATE_PRODUCT,
+        )?;
+        rec.dispatch_indirect(
+            &ARGMAX_ROWS,
+            &self.gate,
+            GATE_ARGMAX,
+            &[&self.sims, &self.best_value, &self.best_index],
+            &push::ArgmaxRows {
+                rows: atoms,
+                cols: atoms,
+                exclude_diagonal: 1,
+            },
+        )
     }
 
     /// Records a Lloyd iteration after the first of the re-clustering of
@@ -378,7 +464,15 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_RESIM,
             points,
-            &[&self.unit, &self.centre_unit, &self.stale_list, &self.sims],
+            &[
+                &self.unit,
+                &self.centre_unit,
+                &self.stale_list,
+                &self.stale,
+                &self.best_index,
+                &self.row_complete,
+                &self.sims,
+            ],
             &push::KmeansResim {
                 rows: points,
                 centres_count: centres,
@@ -476,7 +570,7 @@ impl StreamingKMeans {
         for _ in 0..self.cfg.local_iterations {
             self.normalize(rec, &self.micro, &self.micro_unit, m)?;
             self.similarities(rec, &self.unit, &self.micro_unit, n, m)?;
-            self.best_centres(rec, n, m, false)?;
+            self.best_centres(rec, n, m)?;
             self.lloyd_update(
                 rec,
                 features,
@@ -521,8 +615,7 @@ impl StreamingKMeans {
             let total = before + m;
             self.normalize(rec, &self.points, &self.unit, total)?;
             self.normalize(rec, atoms, &self.centre_unit, before)?;
-            self.similarities(rec, &self.unit, &self.centre_unit, total, before)?;
-            self.best_centres(rec, total, before, true)?;
+            self.record_novelty_similarities(rec, before, m)?;
             rec.dispatch(
                 &KMEANS_NOVELTY,
                 [1, 1, 1],
@@ -556,7 +649,26 @@ impl StreamingKMeans {
                             dim,
                         },
                     )?;
-                    self.best_centres(rec, total, before, false)?;
+                    rec.dispatch_linear(
+                        &KMEANS_FIRST_ASSIGN,
+                        total,
+                        &[
+                            &self.unit,
+                            &self.centre_unit,
+                            &self.sims,
+                            &self.replaced,
+                            &self.gate,
+                            &self.best_value,
+                            &self.best_index,
+                            &self.row_complete,
+                        ],
+                        &push::KmeansFirstAssign {
+                            rows: total,
+                            atoms: before,
+                            micro_count: m,
+                            dim,
+                        },
+                    )?;
                     self.lloyd_update(
                         rec,
                         &self.points,

@@ -151,6 +151,41 @@ impl Gemm {
         b: &'a Buffer,
         c: &'a Buffer,
     ) -> Result<()> {
+        let (def, p) = self.kernel_and_push(kernel, a, b, c)?;
+        rec.dispatch(def, self.groups(), &[a, b, c], &p)
+    }
+
+    /// Workgroups of the product, either kernel: what an indirect
+    /// dispatch's counts must be for it to run.
+    pub fn groups(&self) -> [u32; 3] {
+        // Both kernels cover a GEMM_TILE × GEMM_TILE tile per workgroup.
+        [self.n.div_ceil(GEMM_TILE), self.m.div_ceil(GEMM_TILE), 1]
+    }
+
+    /// Records the product with the device's kernel, run only if the GPU
+    /// finds [`Self::groups`] at byte `offset` of `args` when it gets there
+    /// (zero groups skip it; see [`Recorder::dispatch_indirect`]).
+    pub fn record_indirect<'a>(
+        &self,
+        rec: &mut Recorder<'a>,
+        a: &'a Buffer,
+        b: &'a Buffer,
+        c: &'a Buffer,
+        args: &'a Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        let kernel = self.kernel_on(rec.info().device_type);
+        let (def, p) = self.kernel_and_push(kernel, a, b, c)?;
+        rec.dispatch_indirect(def, args, offset, &[a, b, c], &p)
+    }
+
+    fn kernel_and_push(
+        &self,
+        kernel: GemmKernel,
+        a: &Buffer,
+        b: &Buffer,
+        c: &Buffer,
+    ) -> Result<(&'static KernelDef<push::Gemm>, push::Gemm)> {
         let (m, n, k) = (self.m as u64, self.n as u64, self.k as u64);
         for (buf, elems, what) in [(a, m * k, "A"), (b, k * n, "B"), (c, m * n, "C")] {
             buf.ensure_bytes(elems * 4, &format!("GEMM {m}x{n}x{k} operand {what}"))?;
@@ -170,20 +205,19 @@ impl Gemm {
             alpha: self.alpha,
             beta: self.beta,
         };
-        // Both kernels cover a GEMM_TILE × GEMM_TILE tile per workgroup.
-        let groups = [self.n.div_ceil(GEMM_TILE), self.m.div_ceil(GEMM_TILE), 1];
-        let def: &KernelDef<push::Gemm> = match (kernel, self.transpose, self.vector_loads_fit()) {
-            (GemmKernel::Tiled, Transpose::None, _) => &GEMM_NN,
-            (GemmKernel::Tiled, Transpose::A, _) => &GEMM_TN,
-            (GemmKernel::Tiled, Transpose::B, _) => &GEMM_NT,
-            (GemmKernel::Blocked, Transpose::None, true) => &GEMM_BLOCKED_NN,
-            (GemmKernel::Blocked, Transpose::A, true) => &GEMM_BLOCKED_TN,
-            (GemmKernel::Blocked, Transpose::B, true) => &GEMM_BLOCKED_NT,
-            (GemmKernel::Blocked, Transpose::None, false) => &GEMM_BLOCKED_NN_SCALAR,
-            (GemmKernel::Blocked, Transpose::A, false) => &GEMM_BLOCKED_TN_SCALAR,
-            (GemmKernel::Blocked, Transpose::B, false) => &GEMM_BLOCKED_NT_SCALAR,
-        };
-        rec.dispatch(def, groups, &[a, b, c], &p)
+        let def: &'static KernelDef<push::Gemm> =
+            match (kernel, self.transpose, self.vector_loads_fit()) {
+                (GemmKernel::Tiled, Transpose::None, _) => &GEMM_NN,
+                (GemmKernel::Tiled, Transpose::A, _) => &GEMM_TN,
+                (GemmKernel::Tiled, Transpose::B, _) => &GEMM_NT,
+                (GemmKernel::Blocked, Transpose::None, true) => &GEMM_BLOCKED_NN,
+                (GemmKernel::Blocked, Transpose::A, true) => &GEMM_BLOCKED_TN,
+                (GemmKernel::Blocked, Transpose::B, true) => &GEMM_BLOCKED_NT,
+                (GemmKernel::Blocked, Transpose::None, false) => &GEMM_BLOCKED_NN_SCALAR,
+                (GemmKernel::Blocked, Transpose::A, false) => &GEMM_BLOCKED_TN_SCALAR,
+                (GemmKernel::Blocked, Transpose::B, false) => &GEMM_BLOCKED_NT_SCALAR,
+            };
+        Ok((def, p))
     }
 }
 
@@ -275,6 +309,70 @@ mod tests {
                     }
                 }
             }
+        });
+    }
+
+    /// The counts are written on the GPU in the same batch as the product
+    /// that reads them: the full grid computes every tile (the grid spans
+    /// several workgroups both ways), zero groups leave C as it was.
+    #[test]
+    fn gemm_runs_only_when_its_indirect_counts_say_so() {
+        let mut r = rng("gemm_runs_only_when_its_indirect_counts_say_so");
+        with_context(|ctx| {
+            let (m, n, k) = (70u32, 90u32, 36u32);
+            let a: Vec<f32> = (0..m * k).map(|_| r.random_range(-1.0..1.0)).collect();
+            let b: Vec<f32> = (0..k * n).map(|_| r.random_range(-1.0..1.0)).collect();
+            let ab = ctx.upload_new("test/a", &a).unwrap();
+            let bb = ctx.upload_new("test/b", &b).unwrap();
+            let g = Gemm {
+                transpose: Transpose::None,
+                m,
+                n,
+                k,
+                alpha: 1.0,
+                beta: 0.0,
+            };
+            assert!(g.groups()[0] > 1 && g.groups()[1] > 1);
+            let mut want = vec![0.0f32; (m * n) as usize];
+            gemm(
+                Transpose::None,
+                m as usize,
+                n as usize,
+                k as usize,
+                1.0,
+                &a,
+                &b,
+                0.0,
+                &mut want,
+            );
+            let args = Buffer::device(ctx, "test/args", 32).unwrap();
+            for run in [true, false] {
+                let cb = Buffer::device(ctx, "test/c", (m * n * 4) as u64).unwrap();
+                let counts = if run { g.groups() } else { [0, 1, 1] };
+                let mut rec = ctx.recorder().unwrap();
+                rec.fill_u32(&cb, 0x7fc0_0000);
+                rec.upload(&args, 16, &counts).unwrap();
+                g.record_indirect(&mut rec, &ab, &bb, &cb, &args, 16)
+                    .unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                let got = ctx.download::<f32>(&cb).unwrap();
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    if run {
+                        assert!((g - w).abs() <= 1e-4, "C[{i}] = {g} want {w}");
+                    } else {
+                        assert!(g.is_nan(), "C[{i}] = {g} written with zero groups");
+                    }
+                }
+            }
+            let cb = Buffer::device(ctx, "test/c", (m * n * 4) as u64).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            let err = g
+                .record_indirect(&mut rec, &ab, &bb, &cb, &args, 2)
+                .unwrap_err();
+            assert!(err.to_string().contains("multiple of 4"), "{err}");
+            assert!(g
+                .record_indirect(&mut rec, &ab, &bb, &cb, &args, 24)
+                .is_err());
         });
     }
 

@@ -10,7 +10,11 @@
 //!    micro-centres unlike every atom (cosine below the novelty threshold)
 //!    replace the lighter atom of the most similar pair as warm-start
 //!    centres; then weighted Lloyd over the points [atoms; micro-centres]
-//!    (atom masses scaled by the decay), warm-started from the atoms.
+//!    (atom masses scaled by the decay), warm-started from the atoms. In
+//!    the first assignment an atom whose centre was not replaced stays in
+//!    its own cluster (its cosine to itself is 1, which no centre exceeds;
+//!    an exact duplicate does not take it), so that assignment needs only
+//!    the other points' similarities.
 //! 4. Report which atoms moved, for the optimiser's moment reset.
 
 /// Settings of the algorithm.
@@ -216,6 +220,7 @@ pub fn update_dictionary(
             })
             .collect();
         let mut touched = vec![false; k];
+        let mut replaced = vec![false; k];
         let mut centres = old.clone();
         for j in 0..micro.len() {
             if best_of[k + j].is_some_and(|b| b.0 >= s.novelty_threshold) {
@@ -237,11 +242,19 @@ pub fn update_dictionary(
                 a
             };
             centres[lighter] = micro[j].clone();
+            replaced[lighter] = true;
             touched[a] = true;
             touched[b] = true;
         }
-        for _ in 0..s.global_iterations {
-            let a = assign(&all, &centres);
+        for iteration in 0..s.global_iterations {
+            let mut a = assign(&all, &centres);
+            if iteration == 0 {
+                for (i, own) in a.iter_mut().enumerate().take(k) {
+                    if !replaced[i] {
+                        *own = i;
+                    }
+                }
+            }
             dict.weights = update(&all, &all_mass, &a, &mut centres, s.normalize);
         }
         dict.atoms = centres;

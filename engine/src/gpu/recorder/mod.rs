@@ -65,6 +65,14 @@ pub struct SyncPoint {
     pub(crate) value: u64,
 }
 
+/// How many workgroups a dispatch runs: known now, or read by the GPU from
+/// a buffer (x, y, z at a byte offset) when it runs.
+#[derive(Clone, Copy)]
+enum Groups<'a> {
+    Direct([u32; 3]),
+    Indirect(&'a Buffer, u64),
+}
+
 struct QueryBlock {
     pool: vk::QueryPool,
     used: u32,
@@ -241,19 +249,29 @@ impl<'a> Recorder<'a> {
                 vk::AccessFlags::SHADER_READ
                     | vk::AccessFlags::SHADER_WRITE
                     | vk::AccessFlags::TRANSFER_READ
-                    | vk::AccessFlags::TRANSFER_WRITE,
+                    | vk::AccessFlags::TRANSFER_WRITE
+                    | if self.transfer {
+                        vk::AccessFlags::empty()
+                    } else {
+                        vk::AccessFlags::INDIRECT_COMMAND_READ
+                    },
             )];
-        let stages = if self.transfer {
-            vk::PipelineStageFlags::TRANSFER
+        let (src, dst) = if self.transfer {
+            (
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::TRANSFER,
+            )
         } else {
-            vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER
+            let work = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
+            // Indirect dispatches read their counts at DRAW_INDIRECT.
+            (work, work | vk::PipelineStageFlags::DRAW_INDIRECT)
         };
         // SAFETY: recording into our own command buffer.
         unsafe {
             self.dev.raw.cmd_pipeline_barrier(
                 self.cmd,
-                stages,
-                stages,
+                src,
+                dst,
                 vk::DependencyFlags::empty(),
                 &mb,
                 &[],
@@ -380,6 +398,47 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
         push: &P,
     ) -> Result<()> {
+        self.record_dispatch(kernel, Groups::Direct(groups), buffers, push)
+    }
+
+    /// Records one dispatch of `kernel` whose workgroup counts the GPU
+    /// reads when it runs: three u32 (x, y, z) at byte `offset` of `args`,
+    /// written by earlier work (the recorder orders the two). A count of 0
+    /// dispatches nothing, so a kernel can decide on the GPU whether a later
+    /// one runs, without a host round trip. The counts must stay within
+    /// the device's `max_workgroup_count`.
+    pub fn dispatch_indirect<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        args: &'a Buffer,
+        offset: u64,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        if offset % 4 != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
+                kernel.kernel.name
+            )));
+        }
+        args.ensure_bytes(offset + 12, "indirect dispatch arguments")?;
+        if args.kind() != BufferKind::Device {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments in staging buffer `{}`",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        self.record_dispatch(kernel, Groups::Indirect(args, offset), buffers, push)
+    }
+
+    fn record_dispatch<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: Groups<'a>,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
         let k = &kernel.kernel;
         if self.transfer {
             return Err(Error::InvalidArgument(format!(
@@ -407,11 +466,13 @@ impl<'a> Recorder<'a> {
             )));
         }
         let max = self.dev.info.max_workgroup_count;
-        if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
-                k.name
-            )));
+        if let Groups::Direct(groups) = groups {
+            if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
+                    k.name
+                )));
+            }
         }
         for b in buffers {
             if b.kind() != BufferKind::Device {
@@ -422,7 +483,7 @@ impl<'a> Recorder<'a> {
                 )));
             }
         }
-        if groups.contains(&0) {
+        if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
             return Ok(());
         }
         if let Some(missing) = self.dev.info.missing_for(k) {
@@ -434,6 +495,9 @@ impl<'a> Recorder<'a> {
         let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
         let mut reads = Vec::new();
         let mut writes = Vec::new();
+        if let Groups::Indirect(args, _) = groups {
+            reads.push(args.raw);
+        }
         for (b, decl) in buffers.iter().zip(k.bindings) {
             if decl.writable {
                 writes.push(b.raw);
@@ -499,7 +563,12 @@ impl<'a> Recorder<'a> {
                     bytemuck::bytes_of(push),
                 );
             }
-            d.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
+            match groups {
+                Groups::Direct([x, y, z]) => d.cmd_dispatch(self.cmd, x, y, z),
+                Groups::Indirect(args, offset) => {
+                    d.cmd_dispatch_indirect(self.cmd, args.raw, offset)
+                }
+            }
         }
         self.dev.calls.dispatched();
         let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
