@@ -154,6 +154,7 @@ fn transfer_work_waits_on_compute_through_the_timeline() {
 fn dispatch_checks_its_arguments() {
     with_context(|ctx| {
         let a = Buffer::device(ctx, "args/a", 64).unwrap();
+        let counts = Buffer::device(ctx, "args/counts", 16).unwrap();
         let mut rec = ctx.recorder().unwrap();
         let err = rec
             .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a], &push::Scan { n: 4 })
@@ -169,6 +170,17 @@ fn dispatch_checks_its_arguments() {
             )
             .unwrap_err();
         assert!(err.to_string().contains("exceed"), "{err}");
+        let err = rec
+            .dispatch_indirect(&SCAN_BLOCKS, &a, 0, &[&a, &counts], &push::Scan { n: 4 })
+            .unwrap_err();
+        assert!(
+            err.to_string().contains("its own workgroup counts"),
+            "{err}"
+        );
+        let err = rec
+            .dispatch_indirect(&SCAN_BLOCKS, &counts, 8, &[&a, &a], &push::Scan { n: 4 })
+            .unwrap_err();
+        assert!(err.to_string().contains("needs 20"), "{err}");
         assert!(rec.upload(&a, 60, &[1u32, 2]).is_err());
         assert!(rec.download(&a, 0, 65).is_err());
         assert!(rec.copy(&a, 0, &a, 32, 64).is_err());

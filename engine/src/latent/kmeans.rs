@@ -388,7 +388,8 @@ impl StreamingKMeans {
             beta: 0.0,
         };
         let [product_x, product_y, _] = product.groups();
-        // The argmax's groups as `dispatch_linear` would split them.
+        // The argmax's groups as `dispatch_linear` would split them (at
+        // most MAX_KMEANS_ATOMS rows: within every device's limits).
         let argmax_x = atoms.min(rec.info().max_workgroup_count[0].min(65535));
         let argmax_y = atoms.div_ceil(argmax_x.max(1));
         rec.dispatch(
@@ -1020,6 +1021,72 @@ mod tests {
                 |a: &[f64], b: &[f64]| -> f64 { a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum() };
             assert!(change(&results[0], &results[1]) > 0.5, "{results:?}");
             assert!(change(&results[1], &results[2]) > 1e-3, "{results:?}");
+        });
+    }
+
+    /// Bitwise-identical atoms (a camera that stood still appends the same
+    /// micro-centre twice) each keep their own cluster when the keyframe
+    /// lands elsewhere: the later one is not merged into the earlier by a
+    /// tie. Known concepts and new ones, both checked against the
+    /// reference.
+    #[test]
+    fn duplicate_atoms_keep_their_own_clusters() {
+        let mut r = rng("duplicate_atoms_keep_their_own_clusters");
+        with_context(|ctx| {
+            let (k, dim) = (8usize, 16usize);
+            let dirs: Vec<Vec<f64>> = (0..k + 1)
+                .map(|_| unit((0..dim).map(|_| r.random_range(-1.0..1.0)).collect()))
+                .collect();
+            let as_f32 = |v: &[f64]| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
+            let mut atoms0: Vec<Vec<f64>> = dirs[..k].iter().map(|d| as_f32(d)).collect();
+            atoms0[5] = atoms0[1].clone();
+            let weights0: Vec<f64> = (0..k).map(|i| 1.0 + 0.25 * i as f64).collect();
+            // Regions near atoms 3 and 6, then regions of a new concept.
+            for (clusters, what) in [(vec![3usize, 6], "known"), (vec![k], "new")] {
+                let frame = Frame::new(&mut r, &dirs, &clusters, 4);
+                let cfg = KMeansConfig {
+                    atoms: k as u32,
+                    dim: dim as u32,
+                    max_points: 16,
+                    micro_clusters: clusters.len() as u32,
+                    decay: 0.9,
+                    ..Default::default()
+                };
+                let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
+                let flat: Vec<f32> = atoms0.iter().flatten().map(|&v| v as f32).collect();
+                let atoms = ctx.upload_new("test/atoms", &flat).unwrap();
+                let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
+                let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
+                let w32: Vec<f32> = weights0.iter().map(|&w| w as f32).collect();
+                kmeans.restore(ctx, k as u32, &w32).unwrap();
+                assert!(
+                    frame
+                        .update(ctx, &kmeans, &[&atoms, &anchor, &moved])
+                        .reclustered
+                );
+                let mut dict = Dictionary {
+                    atoms: atoms0.clone(),
+                    weights: weights0.clone(),
+                    capacity: k,
+                };
+                let want_moved = reference::update_dictionary(
+                    &settings(&cfg),
+                    &mut dict,
+                    &frame.rows(dim),
+                    &frame.mass(),
+                );
+                let got = ctx.download::<f32>(&atoms).unwrap();
+                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+                let got_moved = ctx.download::<u32>(&moved).unwrap();
+                assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, what);
+                if what == "known" {
+                    // Each copy kept its own (decayed) mass.
+                    for a in [1, 5] {
+                        let want = cfg.decay as f64 * weights0[a];
+                        assert!((dict.weights[a] - want).abs() < 1e-6, "{what}: weight {a}");
+                    }
+                }
+            }
         });
     }
 

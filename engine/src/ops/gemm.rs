@@ -17,7 +17,7 @@ use latentam_shaders::{
     GEMM_BLOCKED_NT_SCALAR, GEMM_BLOCKED_TN, GEMM_BLOCKED_TN_SCALAR, GEMM_NN, GEMM_NT, GEMM_TN,
 };
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Recorder};
 
 /// Which operands are used transposed.
@@ -174,6 +174,16 @@ impl Gemm {
         args: &'a Buffer,
         offset: u64,
     ) -> Result<()> {
+        let max = rec.info().max_workgroup_count;
+        if self.groups().iter().zip(max).any(|(g, m)| *g > m) {
+            return Err(Error::InvalidArgument(format!(
+                "GEMM {}x{}x{}: {:?} workgroups exceed the device limit {max:?}",
+                self.m,
+                self.n,
+                self.k,
+                self.groups()
+            )));
+        }
         let kernel = self.kernel_on(rec.info().device_type);
         let (def, p) = self.kernel_and_push(kernel, a, b, c)?;
         rec.dispatch_indirect(def, args, offset, &[a, b, c], &p)

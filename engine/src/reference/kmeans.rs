@@ -14,7 +14,9 @@
 //!    the first assignment an atom whose centre was not replaced stays in
 //!    its own cluster (its cosine to itself is 1, which no centre exceeds;
 //!    an exact duplicate does not take it), so that assignment needs only
-//!    the other points' similarities.
+//!    the other points' similarities. In later assignments a point whose
+//!    centre did not move keeps it unless a centre that moved beats it,
+//!    as the GPU's sparse iterations do.
 //! 4. Report which atoms moved, for the optimiser's moment reset.
 
 /// Settings of the algorithm.
@@ -88,6 +90,58 @@ fn assign(points: &[Vec<f64>], centres: &[Vec<f64>]) -> Vec<usize> {
     p.iter()
         .map(|x| best(c.iter().map(|y| dot(x, y)), None).map_or(0, |b| b.1))
         .collect()
+}
+
+/// A centre's direction counts as moved once it is this far (L2) from the
+/// one its similarities were computed with (the GPU's `STALE_TOLERANCE`).
+const MOVED_DIRECTION: f64 = 1e-6;
+
+/// A Lloyd assignment after the first: a point whose centre moved takes
+/// the best centre; one whose centre did not move keeps it unless a moved
+/// centre beats it (larger cosine, or equal and a lower index). Without
+/// exact ties this is the nearest centre of every point; with them, an
+/// atom that began in its own cluster keeps it against an exact duplicate
+/// that did not move. `seen` holds the directions last compared against and
+/// is updated for the centres that moved.
+fn reassign(
+    unit_points: &[Vec<f64>],
+    centres: &[Vec<f64>],
+    seen: &mut [Vec<f64>],
+    assignment: &mut [usize],
+) {
+    let now = unit_rows(centres);
+    let moved: Vec<bool> = now
+        .iter()
+        .zip(seen.iter())
+        .map(|(c, s)| {
+            c.iter()
+                .zip(s)
+                .map(|(x, y)| (x - y) * (x - y))
+                .sum::<f64>()
+                .sqrt()
+                > MOVED_DIRECTION
+        })
+        .collect();
+    for (j, m) in moved.iter().enumerate() {
+        if *m {
+            seen[j] = now[j].clone();
+        }
+    }
+    for (p, a) in unit_points.iter().zip(assignment.iter_mut()) {
+        let cosine = |j: usize| dot(p, &seen[j]);
+        *a = if moved[*a] {
+            best((0..seen.len()).map(cosine), None).map_or(*a, |b| b.1)
+        } else {
+            let (mut value, mut index) = (cosine(*a), *a);
+            for j in (0..seen.len()).filter(|&j| moved[j]) {
+                let v = cosine(j);
+                if v > value || (v == value && j < index) {
+                    (value, index) = (v, j);
+                }
+            }
+            index
+        };
+    }
 }
 
 /// One weighted Lloyd update in place; returns the new weights.
@@ -246,14 +300,18 @@ pub fn update_dictionary(
             touched[a] = true;
             touched[b] = true;
         }
+        let mut a = assign(&all, &centres);
+        for (i, own) in a.iter_mut().enumerate().take(k) {
+            if !replaced[i] {
+                *own = i;
+            }
+        }
+        // The directions each centre's similarities were last computed
+        // with (before the replacements, as the GPU keeps them).
+        let mut seen = unit_rows(&old);
         for iteration in 0..s.global_iterations {
-            let mut a = assign(&all, &centres);
-            if iteration == 0 {
-                for (i, own) in a.iter_mut().enumerate().take(k) {
-                    if !replaced[i] {
-                        *own = i;
-                    }
-                }
+            if iteration > 0 {
+                reassign(&unit, &centres, &mut seen, &mut a);
             }
             dict.weights = update(&all, &all_mass, &a, &mut centres, s.normalize);
         }

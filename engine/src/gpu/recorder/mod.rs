@@ -403,7 +403,8 @@ impl<'a> Recorder<'a> {
 
     /// Records one dispatch of `kernel` whose workgroup counts the GPU
     /// reads when it runs: three u32 (x, y, z) at byte `offset` of `args`,
-    /// written by earlier work (the recorder orders the two). A count of 0
+    /// written by earlier work in this recorder (which orders the two;
+    /// across batches, as for any buffer, [`Self::wait_for`]). A count of 0
     /// dispatches nothing, so a kernel can decide on the GPU whether a later
     /// one runs, without a host round trip. The counts must stay within
     /// the device's `max_workgroup_count`.
@@ -425,6 +426,17 @@ impl<'a> Recorder<'a> {
         if args.kind() != BufferKind::Device {
             return Err(Error::InvalidArgument(format!(
                 "kernel `{}`: indirect arguments in staging buffer `{}`",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        let written = buffers
+            .iter()
+            .zip(kernel.kernel.bindings)
+            .any(|(b, decl)| decl.writable && b.raw == args.raw);
+        if written {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` writes `{}`, which holds its own workgroup counts",
                 kernel.kernel.name,
                 args.name()
             )));
