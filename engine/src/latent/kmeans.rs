@@ -807,6 +807,46 @@ mod tests {
         }
     }
 
+    /// One keyframe into a full dictionary (`atoms0`, `weights0`) on the
+    /// GPU and in the reference; checks that they agree and returns the
+    /// reference's result.
+    fn recluster_full(
+        ctx: &Context,
+        cfg: &KMeansConfig,
+        atoms0: &[Vec<f64>],
+        weights0: &[f64],
+        frame: &Frame,
+        what: &str,
+    ) -> Dictionary {
+        let (k, dim) = (atoms0.len(), cfg.dim as usize);
+        let kmeans = StreamingKMeans::new(ctx, *cfg).unwrap();
+        let flat: Vec<f32> = atoms0.iter().flatten().map(|&v| v as f32).collect();
+        let atoms = ctx.upload_new("test/atoms", &flat).unwrap();
+        let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
+        let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
+        let w32: Vec<f32> = weights0.iter().map(|&w| w as f32).collect();
+        kmeans.restore(ctx, k as u32, &w32).unwrap();
+        let step = frame.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
+        assert!(step.reclustered, "{what}: the dictionary is full");
+        let mut dict = Dictionary {
+            atoms: atoms0.to_vec(),
+            weights: weights0.to_vec(),
+            capacity: k,
+        };
+        let want_moved = reference::update_dictionary(
+            &settings(cfg),
+            &mut dict,
+            &frame.rows(dim),
+            &frame.mass(),
+        );
+        assert_eq!(dict.atoms.len(), k, "{what}: the dictionary stays full");
+        let got = ctx.download::<f32>(&atoms).unwrap();
+        let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
+        let got_moved = ctx.download::<u32>(&moved).unwrap();
+        assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, what);
+        dict
+    }
+
     fn settings(cfg: &KMeansConfig) -> KMeansSettings {
         KMeansSettings {
             micro_clusters: cfg.micro_clusters as usize,
@@ -987,32 +1027,8 @@ mod tests {
                     global_iterations: iterations,
                     ..Default::default()
                 };
-                let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
-                let flat: Vec<f32> = atoms0.iter().flatten().map(|&v| v as f32).collect();
-                let atoms = ctx.upload_new("test/atoms", &flat).unwrap();
-                let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
-                let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
-                let w32: Vec<f32> = weights0.iter().map(|&w| w as f32).collect();
-                kmeans.restore(ctx, k as u32, &w32).unwrap();
-                let step = frame.update(ctx, &kmeans, &[&atoms, &anchor, &moved]);
-                assert!(step.reclustered);
-                let mut dict = Dictionary {
-                    atoms: atoms0.clone(),
-                    weights: weights0.clone(),
-                    capacity: k,
-                };
-                let want_moved = reference::update_dictionary(
-                    &settings(&cfg),
-                    &mut dict,
-                    &frame.rows(dim),
-                    &frame.mass(),
-                );
-                let got = ctx.download::<f32>(&atoms).unwrap();
-                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
-                let got_moved = ctx.download::<u32>(&moved).unwrap();
                 let what = format!("{iterations} iterations");
-                assert_eq!(dict.atoms.len(), k, "{what}: the dictionary is full");
-                assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, &what);
+                let dict = recluster_full(ctx, &cfg, &atoms0, &weights0, &frame, &what);
                 results.push(dict.weights);
             }
             // Each further iteration moved mass between centres: the
@@ -1052,33 +1068,7 @@ mod tests {
                     decay: 0.9,
                     ..Default::default()
                 };
-                let kmeans = StreamingKMeans::new(ctx, cfg).unwrap();
-                let flat: Vec<f32> = atoms0.iter().flatten().map(|&v| v as f32).collect();
-                let atoms = ctx.upload_new("test/atoms", &flat).unwrap();
-                let anchor = Buffer::device(ctx, "test/anchor", (k * dim * 4) as u64).unwrap();
-                let moved = Buffer::device(ctx, "test/moved", (k * 4) as u64).unwrap();
-                let w32: Vec<f32> = weights0.iter().map(|&w| w as f32).collect();
-                kmeans.restore(ctx, k as u32, &w32).unwrap();
-                assert!(
-                    frame
-                        .update(ctx, &kmeans, &[&atoms, &anchor, &moved])
-                        .reclustered
-                );
-                let mut dict = Dictionary {
-                    atoms: atoms0.clone(),
-                    weights: weights0.clone(),
-                    capacity: k,
-                };
-                let want_moved = reference::update_dictionary(
-                    &settings(&cfg),
-                    &mut dict,
-                    &frame.rows(dim),
-                    &frame.mass(),
-                );
-                let got = ctx.download::<f32>(&atoms).unwrap();
-                let got_w = ctx.download::<f32>(kmeans.weights()).unwrap();
-                let got_moved = ctx.download::<u32>(&moved).unwrap();
-                assert_matches_reference(&got, &got_w, &got_moved, &dict, &want_moved, dim, what);
+                let dict = recluster_full(ctx, &cfg, &atoms0, &weights0, &frame, what);
                 if what == "known" {
                     // Each copy kept its own (decayed) mass.
                     for a in [1, 5] {
