@@ -388,10 +388,9 @@ impl StreamingKMeans {
             beta: 0.0,
         };
         let [product_x, product_y, _] = product.groups();
-        // The argmax's groups as `dispatch_linear` would split them (at
-        // most MAX_KMEANS_ATOMS rows: within every device's limits).
-        let argmax_x = atoms.min(rec.info().max_workgroup_count[0].min(65535));
-        let argmax_y = atoms.div_ceil(argmax_x.max(1));
+        // One workgroup per row, at most MAX_KMEANS_ATOMS: within every
+        // device's limits once split.
+        let [argmax_x, argmax_y, _] = rec.linear_groups(atoms);
         rec.dispatch(
             &KMEANS_GATE,
             [1, 1, 1],

@@ -10,7 +10,9 @@ use crate::io::{
 };
 use crate::latent::{LatentHead, LatentHeadConfig};
 use crate::loss::LossWeights;
-use crate::map::{seed_from_frame, GlobalMap, LocalWindow, SeedingConfig};
+use crate::map::{
+    seed_from_frame, GlobalMap, KeyframeConfig, KeyframePolicy, LocalWindow, SeedingConfig,
+};
 use crate::optim::GaussianLearningRates;
 
 const W: u32 = 48;
@@ -77,6 +79,14 @@ pub(super) fn keyframe(eye: DVec3) -> Frame {
             model: "test".into(),
         }),
         semantic: None,
+    }
+}
+
+/// Keyframe selection that takes every frame, so a test's frames all train.
+fn every_frame_a_keyframe() -> KeyframeConfig {
+    KeyframeConfig {
+        policy: KeyframePolicy::Interval(1),
+        ..Default::default()
     }
 }
 
@@ -187,13 +197,9 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
 
 #[test]
 fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     with_context(|ctx| {
         let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             seeding: SeedingConfig {
                 stride: 2,
                 ..SeedingConfig::default()
@@ -274,13 +280,9 @@ fn psnr_of_first_keyframe(ctx: &crate::gpu::Context, mapper: &OnlineMapper) -> f
 
 #[test]
 fn frames_without_embeddings_map_geometry_and_colour_only() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     with_context(|ctx| {
         let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             window_capacity: Some(8192),
             replay: 2,
             ..MapperConfig::default()
@@ -499,10 +501,7 @@ fn the_window_and_batches_stay_within_a_small_binding_limit() {
     crate::gpu::testing::with_options(o, |ctx| {
         assert_eq!(ctx.info().max_buffer_bytes(), limit);
         let cfg = MapperConfig {
-            keyframes: crate::map::KeyframeConfig {
-                policy: crate::map::KeyframePolicy::Interval(1),
-                ..crate::map::KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             gpu_budget: Some(1 << 30),
             replay: 3,
             // K² similarities must fit a buffer too.
@@ -533,13 +532,9 @@ fn the_window_and_batches_stay_within_a_small_binding_limit() {
 
 #[test]
 fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     with_context(|ctx| {
         let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             window_capacity: Some(8192),
             replay: 2,
             atoms: 16,
@@ -568,13 +563,9 @@ fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
 
 #[test]
 fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     with_context(|ctx| {
         let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             window_capacity: Some(8192),
             ..MapperConfig::default()
         };
@@ -629,15 +620,11 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
 
 #[test]
 fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     use std::sync::atomic::{AtomicBool, Ordering};
     static STOP: AtomicBool = AtomicBool::new(false);
     with_context(|ctx| {
         let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
+            keyframes: every_frame_a_keyframe(),
             window_capacity: Some(8192),
             stage_two_iterations: 20,
             ..MapperConfig::default()
@@ -670,7 +657,6 @@ fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
 /// are, they stay.
 #[test]
 fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
-    use crate::map::{KeyframeConfig, KeyframePolicy};
     const BAND: u32 = 10;
     let with_depth = |right_mm: u16| {
         let mut f = keyframe(DVec3::ZERO);
@@ -695,10 +681,7 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
     with_context(|ctx| {
         for (later_mm, kept) in [(3000, false), (1500, true)] {
             let cfg = MapperConfig {
-                keyframes: KeyframeConfig {
-                    policy: KeyframePolicy::Interval(1),
-                    ..KeyframeConfig::default()
-                },
+                keyframes: every_frame_a_keyframe(),
                 window_capacity: Some(8192),
                 prune_interval: 1,
                 ..MapperConfig::default()

@@ -600,11 +600,18 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
         push: &P,
     ) -> Result<()> {
+        let split = self.linear_groups(groups);
+        self.dispatch(kernel, split, buffers, push)
+    }
+
+    /// How [`Self::dispatch_linear`] splits `groups` workgroups over x and
+    /// y: the counts an indirect dispatch of such a kernel needs.
+    pub fn linear_groups(&self, groups: u32) -> [u32; 3] {
         let max_x = self.dev.info.max_workgroup_count[0].min(65535);
         let x = groups.min(max_x);
         // `dispatch` records nothing for zero groups.
         let y = groups.div_ceil(x.max(1));
-        self.dispatch(kernel, [x, y, 1], buffers, push)
+        [x, y, 1]
     }
 
     fn queue(&self) -> &Queue {
