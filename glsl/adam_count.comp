@@ -1,6 +1,6 @@
 // Advances the per-row Adam step counts after adam_step.comp (a separate
 // pass, because every element of a row reads the count during the update).
-// CPU reference: engine/src/reference/adam.rs.
+// CPU reference: engine/reference/src/adam.rs.
 #version 450
 #include "common.glsl"
 

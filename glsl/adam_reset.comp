@@ -1,7 +1,7 @@
 // Forgets the Adam history of the rows whose flag is non-zero (e.g.
 // dictionary atoms that streaming k-means moved or replaced): both moments
 // and the step count go back to zero. CPU reference:
-// engine/src/reference/adam.rs.
+// engine/reference/src/adam.rs.
 #version 450
 #include "common.glsl"
 

@@ -6,7 +6,7 @@
 // Rows whose mask is 0 (when use_mask != 0) are left untouched, and so is an
 // element whose gradient is not finite (it must not poison the map).
 // adam_count.comp advances the step counts afterwards. CPU reference:
-// engine/src/reference/adam.rs.
+// engine/reference/src/adam.rs.
 #version 450
 #include "common.glsl"
 

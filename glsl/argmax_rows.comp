@@ -2,7 +2,7 @@
 // index (ties: the lowest index). With exclude_diagonal != 0, column r is
 // skipped in row r (nearest *other* atom). A row with no candidate gets
 // value -inf and index 0xffffffff. One workgroup per row. CPU reference:
-// engine/src/reference/kmeans.rs.
+// engine/reference/src/kmeans.rs.
 #version 450
 #include "common.glsl"
 

@@ -3,7 +3,7 @@
 //     grad_m = dloss_m / dp_m
 // with cos = p.t / (max(|p|, eps) max(|t|, eps)), so an all-zero row has a
 // defined loss and gradient. One workgroup per row; `grad` and `row_loss`
-// are overwritten. CPU reference: engine/src/reference/loss.rs
+// are overwritten. CPU reference: engine/reference/src/loss.rs
 // (`feature_loss`).
 #version 450
 #include "common.glsl"

@@ -5,7 +5,7 @@
 //   gemm_nt: A is M x K,  B is N x K (B^T used)
 // Each 16x16 workgroup computes a 64x64 tile of C, 4x4 per thread, staging
 // 16-deep slabs of A and B in shared memory. beta = 0 never reads C, so C may
-// start as garbage. CPU reference: engine/src/reference/gemm.rs.
+// start as garbage. CPU reference: engine/reference/src/gemm.rs.
 // @kernel gemm_nn TRANS_A=0 TRANS_B=0
 // @kernel gemm_tn TRANS_A=1 TRANS_B=0
 // @kernel gemm_nt TRANS_A=0 TRANS_B=1

@@ -1,7 +1,7 @@
 // Register-blocked single-precision GEMM for CPU Vulkan drivers, row-major:
 //   C = alpha * op(A) * op(B) + beta * C,  op(A) M x K, op(B) K x N.
 // Same contract and variants as glsl/gemm.comp (CPU reference:
-// engine/src/reference/gemm.rs), without shared memory or barriers: on a
+// engine/reference/src/gemm.rs), without shared memory or barriers: on a
 // CPU driver every invocation is a SIMD lane, shared memory is ordinary
 // memory reached lane by lane and a barrier splits the kernel in two. Each
 // invocation instead computes an 8 x 8 block of C from 16-byte loads, 4 deep

@@ -4,7 +4,7 @@
 //     grad[p].z   = w_depth * sign(r.z - t.z)   where t.z is valid (> 0, finite), else 0
 // The gradient is overwritten (the SSIM pass adds to it afterwards); each
 // workgroup writes its share of both weighted losses to the partial sums.
-// CPU reference: engine/src/reference/loss.rs (`image_l1_depth`).
+// CPU reference: engine/reference/src/loss.rs (`image_l1_depth`).
 #version 450
 #include "common.glsl"
 

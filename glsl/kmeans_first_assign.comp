@@ -1,5 +1,5 @@
 // The first Lloyd assignment of the full-dictionary k-means update
-// (SPEC §4.2), orchestrated by engine/src/latent/kmeans.rs, without the
+// (SPEC §4.2), orchestrated by engine/core/src/latent/kmeans.rs, without the
 // K x K cosine matrix of the atoms unless a new concept needs it:
 //   kmeans_micro_rows:   the micro-centres' rows of the point-to-centre
 //                        cosine matrix (points `first`.. of `unit` against
@@ -22,7 +22,7 @@
 //                        micro-centres' always, the atoms' only when their
 //                        product ran. Later iterations complete a row when
 //                        they need it (kmeans_resim.comp).
-// CPU reference: engine/src/reference/kmeans.rs.
+// CPU reference: engine/reference/src/kmeans.rs.
 // @kernel kmeans_micro_rows STEP=0
 // @kernel kmeans_gate STEP=1
 // @kernel kmeans_first_assign STEP=2

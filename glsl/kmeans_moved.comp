@@ -1,6 +1,6 @@
 // Which atoms a k-means update changed, for the optimiser's moment reset:
 // flag = 1 for a new row (k >= old_count) or when |D_k - old_k| > tolerance.
-// One workgroup per atom. CPU reference: engine/src/reference/kmeans.rs.
+// One workgroup per atom. CPU reference: engine/reference/src/kmeans.rs.
 #version 450
 #include "common.glsl"
 

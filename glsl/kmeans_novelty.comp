@@ -8,7 +8,7 @@
 // other atom, rows atoms.. the micro-centres' most similar atom.
 // replaced[j] receives the atom slot micro-centre j took, or 0xffffffff, so
 // that the first Lloyd assignment only recomputes those columns of the
-// similarities (kmeans_patch_sims.comp). A single workgroup; atoms <= 65536. CPU reference: engine/src/reference/kmeans.rs.
+// similarities (kmeans_patch_sims.comp). A single workgroup; atoms <= 65536. CPU reference: engine/reference/src/kmeans.rs.
 #version 450
 
 #define THREADS 256

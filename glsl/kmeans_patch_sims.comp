@@ -3,7 +3,7 @@
 // cosine matrix (rows x atoms) instead of the whole (K + m) x K x d_f
 // product: sims[r, replaced[j]] = unit[r] . unit[atoms + j], the
 // micro-centres being the last rows of the unit points. One thread per
-// (point, micro-centre). CPU reference: engine/src/reference/kmeans.rs.
+// (point, micro-centre). CPU reference: engine/reference/src/kmeans.rs.
 #version 450
 #include "common.glsl"
 

@@ -14,7 +14,7 @@
 //                    read; otherwise the whole row is. When the best
 //                    changes, the old and the new centre are flagged dirty
 //                    (their members changed) for kmeans_update_dirty.
-// CPU reference: engine/src/reference/kmeans.rs.
+// CPU reference: engine/reference/src/kmeans.rs.
 // @kernel kmeans_resim STEP=0
 // @kernel kmeans_reassign STEP=1
 #version 450

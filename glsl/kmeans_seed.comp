@@ -3,7 +3,7 @@
 // similar (by cosine) to all seeds so far; ties go to the lowest index. The
 // seeds' rows of the raw points are copied to the centres. A single
 // workgroup: n is a keyframe's region count. CPU reference:
-// engine/src/reference/kmeans.rs.
+// engine/reference/src/kmeans.rs.
 #version 450
 
 #define THREADS 256

@@ -1,5 +1,5 @@
 // Sparse Lloyd iterations of the full-dictionary k-means update (SPEC §4.2),
-// orchestrated by engine/src/latent/kmeans.rs. After the first iteration
+// orchestrated by engine/core/src/latent/kmeans.rs. After the first iteration
 // only the centres that gained or lost members change, so the
 // point-to-centre cosine matrix needs only their columns again:
 //   kmeans_stale:      for each centre that may have changed (its members
@@ -12,7 +12,7 @@
 //                      compares equal.
 //   kmeans_stale_list: the flagged centres as a list (one workgroup), and
 //                      the dirty flags cleared for the next reassignment.
-// CPU reference: engine/src/reference/kmeans.rs (dense Lloyd iterations;
+// CPU reference: engine/reference/src/kmeans.rs (dense Lloyd iterations;
 // the sparse ones reach the same assignments).
 // @kernel kmeans_stale STEP=0
 // @kernel kmeans_stale_list STEP=1

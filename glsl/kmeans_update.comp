@@ -10,7 +10,7 @@
 // kmeans_update_dirty updates only the centres flagged dirty (whose members
 // changed since they were last computed; see kmeans_resim.comp): the others
 // would come out bit for bit as they are.
-// CPU reference: engine/src/reference/kmeans.rs.
+// CPU reference: engine/reference/src/kmeans.rs.
 // @kernel kmeans_update DIRTY=0
 // @kernel kmeans_update_dirty DIRTY=1
 #version 450

@@ -1,6 +1,6 @@
 // Row normalisation with an epsilon on the norm, as the attention decoder
 // uses it (SPEC §2.5):  y[r, :] = x[r, :] / (‖x[r, :]‖ + eps),  norm[r] = ‖x[r, :]‖.
-// One workgroup per row. CPU reference: engine/src/reference/decoder.rs
+// One workgroup per row. CPU reference: engine/reference/src/decoder.rs
 // (`normalize_rows`).
 #version 450
 #include "common.glsl"

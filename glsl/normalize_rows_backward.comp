@@ -3,7 +3,7 @@
 //     dx = beta * dx + g/(r + eps) - y (y.g)/r
 // (the second term tends to 0 with r and is 0 at r = 0). beta = 0 never reads
 // dx, so it may start as garbage. One workgroup per row. CPU reference:
-// engine/src/reference/decoder.rs (`normalize_rows_vjp`).
+// engine/reference/src/decoder.rs (`normalize_rows_vjp`).
 #version 450
 #include "common.glsl"
 

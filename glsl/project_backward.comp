@@ -4,7 +4,7 @@
 // One thread per Gaussian, looping over the views, so views combine without
 // atomics. Overwrites those four gradient fields, or adds to them when
 // `accumulate` is set (a batch streamed through the rasterizer one chunk of
-// views at a time; colour and query gradients come from raster_backward). CPU reference: engine/src/reference/raster.rs
+// views at a time; colour and query gradients come from raster_backward). CPU reference: engine/reference/src/raster.rs
 // (`projection_backward`).
 #version 450
 #include "common.glsl"

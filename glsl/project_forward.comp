@@ -2,7 +2,7 @@
 // (view, Gaussian) pair, pair index = view * n_gaussians + gaussian. Writes
 // the splat the blending kernels use, its tile rectangle and tile count (0
 // when culled), and a 0/1 visibility flag for stream compaction.
-// CPU reference: engine/src/reference/raster.rs (`project`).
+// CPU reference: engine/reference/src/raster.rs (`project`).
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

@@ -3,7 +3,7 @@
 // x camera z, not normalised), alpha, the 32 query channels, and per pixel
 // the state the backward pass replays: how many of the tile's list it walked
 // up to its last contributor, and the final transmittance. CPU reference:
-// engine/src/reference/raster.rs (`render`).
+// engine/reference/src/raster.rs (`render`).
 //
 // raster_forward gives each invocation one pixel, the usual layout for
 // GPUs. CPU drivers run a subgroup as SIMD lanes, emulate every buffer or

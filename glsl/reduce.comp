@@ -1,7 +1,7 @@
 // One level of a tree reduction of f32 (sum or max): each workgroup folds
 // REDUCE_BLOCK elements of `src` into dst[group]; the host repeats until one
-// value is left (engine/src/ops/reduce.rs). CPU reference:
-// engine/src/reference/reduce.rs. The shared-memory tree is also the test of
+// value is left (engine/gpu/src/ops/reduce.rs). CPU reference:
+// engine/reference/src/reduce.rs. The shared-memory tree is also the test of
 // the build's barrier() fix-up: with subgroup scope it races on any device
 // whose subgroups are smaller than the workgroup.
 // @kernel reduce_sum_f32 OP=0

@@ -4,7 +4,7 @@
 // over a CSR list of pixel indices (built on the CPU, so no atomics). One
 // workgroup per region: 8 pixel lanes x 32 channels, lanes summed in shared
 // memory. Regions are never empty (the builder drops small ones). CPU
-// reference: engine/src/reference/pooling.rs.
+// reference: engine/reference/src/pooling.rs.
 #version 450
 #include "common.glsl"
 

@@ -2,7 +2,7 @@
 //     grad_query[p, c] = grad_pooled[first_row + r(p), c] / |r(p)|,  0 for pixels in no region
 // Regions are disjoint (one label per pixel), so each pixel has at most one
 // region and the whole image gradient is overwritten without atomics. One
-// thread per (pixel, channel). CPU reference: engine/src/reference/pooling.rs.
+// thread per (pixel, channel). CPU reference: engine/reference/src/pooling.rs.
 #version 450
 #include "common.glsl"
 #include "shared.glsl"

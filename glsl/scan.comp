@@ -1,9 +1,9 @@
 // Exclusive prefix sum of u32, any length, in two kernels driven by the host
-// recursively (engine/src/ops/scan.rs):
+// recursively (engine/gpu/src/ops/scan.rs):
 //   scan_blocks: each workgroup scans SCAN_BLOCK elements in place and writes
 //                the block total to `sums`;
 //   scan_add:    adds the (already scanned) block totals back.
-// CPU reference: engine/src/reference/scan.rs.
+// CPU reference: engine/reference/src/scan.rs.
 // @kernel scan_blocks PASS=0
 // @kernel scan_add PASS=1
 #version 450

@@ -1,7 +1,7 @@
 // Row softmax:  y[r, :] = softmax(scale * x[r, :]) for a rows x cols matrix,
 // one workgroup per row. Each thread keeps a running (max, sum of exp) pair
 // that is rescaled when the max grows (online softmax), so the row is read
-// twice instead of three times. CPU reference: engine/src/reference/softmax.rs.
+// twice instead of three times. CPU reference: engine/reference/src/softmax.rs.
 #version 450
 #include "common.glsl"
 

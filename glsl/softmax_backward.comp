@@ -3,7 +3,7 @@
 //     ds = scale * a * (g - sum_j a_j g_j)
 // written over g (in place: each element is read and written by the same
 // thread, after the row's dot product is complete). One workgroup per row.
-// CPU reference: engine/src/reference/decoder.rs (`backward`).
+// CPU reference: engine/reference/src/decoder.rs (`backward`).
 #version 450
 #include "common.glsl"
 

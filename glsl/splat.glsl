@@ -1,5 +1,5 @@
 // Shared by the Gaussian projection kernels (forward and backward). The math
-// and its conventions are documented in engine/src/reference/raster.rs; keep
+// and its conventions are documented in engine/reference/src/raster.rs; keep
 // the two in step.
 
 // TILE_SIZE, MAX_ALPHA, MIN_ALPHA, LOW_PASS and `View` (one camera of the

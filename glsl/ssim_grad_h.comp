@@ -1,7 +1,7 @@
 // SSIM pass 3 of 4: the backward pass is the window applied again (the
 // zero-padded symmetric window is its own adjoint): horizontal sums of the
 // three derivative maps of ssim_map_v.comp. CPU reference:
-// engine/src/reference/ssim.rs.
+// engine/reference/src/ssim.rs.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

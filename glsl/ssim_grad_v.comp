@@ -2,7 +2,7 @@
 // (s0, s1, s2 for S[x], S[x²], S[xy]); the chain rule through x gives
 //     dL/dx = s0 + 2 x s1 + y s2
 // added to the colour gradient of the batch image. CPU reference:
-// engine/src/reference/ssim.rs.
+// engine/reference/src/ssim.rs.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

@@ -3,7 +3,7 @@
 // the loss -weight * m with respect to the three window sums it depends on
 // through x: S[x], S[x²] and S[xy]. Each workgroup adds weight * (1 - m)
 // over its items to the partial sums. CPU reference:
-// engine/src/reference/ssim.rs.
+// engine/reference/src/ssim.rs.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

@@ -1,7 +1,7 @@
 // SSIM pass 1 of 4: horizontal window sums of x, y, x², y², xy per (pixel,
 // channel) of one view, x the rendered and y the target colour. See
-// engine/src/loss/image.rs for the pass structure; CPU reference:
-// engine/src/reference/ssim.rs.
+// engine/core/src/loss/image.rs for the pass structure; CPU reference:
+// engine/reference/src/ssim.rs.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

@@ -1,5 +1,5 @@
 // Tile binning, between projection and blending (orchestrated by
-// engine/src/splat/tile_bins.rs):
+// engine/core/src/splat/tile_bins.rs):
 //   compact_visible:  visible pairs -> (depth key, pair) lists, in pair order
 //   gather_counts:    tile counts in depth-sorted order (for the offset scan)
 //   emit_tiles:       one (global tile, pair) intersection per covered tile,

@@ -3,7 +3,7 @@
 //     grad_k += lambda * (D_k - D0_k) / |D_k - D0_k|   when the norm exceeds radius
 // The gradient is added to `grad` (the decoder's dL/dD); `atom_loss` is
 // overwritten. One workgroup per atom. CPU reference:
-// engine/src/reference/loss.rs (`trust_region`).
+// engine/reference/src/loss.rs (`trust_region`).
 #version 450
 #include "common.glsl"
 

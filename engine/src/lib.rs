@@ -5,55 +5,44 @@
 //! stream of RGB-D frames, poses and vision-language embeddings, and decodes
 //! rendered queries back into full embeddings through a learned dictionary.
 //!
-//! This crate is the library a robot program links; [`Mapper`] is its
-//! façade. Its layers, each using only those before it (checked by
-//! `tests/layers.rs`):
-//! 1. [`error`](Error), [`files`], `settings`: the error type, whole-or-nothing
-//!    files, and the one declaration of each configuration setting;
-//! 2. [`gpu`] → [`ops`]: Vulkan, one way to dispatch a kernel, primitives;
-//!    beside them [`io`]: logs in, checked frames out (host only);
-//! 3. [`splat`] → [`loss`] → [`optim`] → [`latent`]: the rasterizer, the
-//!    objective, Adam, and the dictionary decoder with its k-means;
-//! 4. [`map`]: the global map, keyframes, seeding, PLY files;
-//! 5. [`mapper`]: the per-keyframe loop, run folders, evaluation, the façade.
+//! This crate is what a robot program depends on: [`Mapper`] maps frames
+//! and answers queries, [`LogRun`] maps a whole recorded log into a run
+//! folder, and [`frames`] holds what a frame is made of and how logs are
+//! read. The engine behind it is split into crates along its layers, each
+//! seeing only those below it:
 //!
-//! [`reference`](mod@reference) holds the CPU implementation of every kernel's math: the
-//! tests' oracle and the readable statement of what each kernel computes.
-//! Production code never calls it.
+//! | crate | what |
+//! |---|---|
+//! | `latentam-base` | errors, whole-or-nothing files, settings, the camera and host-side Gaussians |
+//! | `latentam-gpu` | Vulkan: device, memory, the one way to dispatch a kernel, the profiler, GPU primitives |
+//! | `latentam-io` | MCAP logs and rosbag2 folders in, checked frames out |
+//! | `latentam-core` | the rasterizer, the objective, Adam, the latent head, the map, the per-keyframe loop |
+//! | `latentam-reference` | the CPU statement of every kernel's math; tests and `selfcheck` only |
 //!
-//! ```
-//! use latentam::gpu::{Context, ContextOptions};
-//! use latentam::ops::PrefixScan;
+//! ```no_run
+//! use latentam::frames::{AssemblyConfig, McapFrames};
 //!
-//! let ctx = Context::new(ContextOptions::default())?;
-//! let data = ctx.upload_new("example", &[3u32, 1, 4, 1, 5])?;
-//! let scan = PrefixScan::new(&ctx, 5)?;
-//! let mut rec = ctx.recorder()?;
-//! scan.record(&mut rec, &data, 5)?;
-//! rec.submit()?.wait()?;
-//! assert_eq!(ctx.download::<u32>(&data)?, vec![0, 3, 4, 8, 9]);
-//! # Ok::<(), latentam::Error>(())
+//! let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
+//! for frame in McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())? {
+//!     mapper.integrate(&frame?)?; // keyframes are mapped, other frames skipped
+//! }
+//! mapper.save("out/")?; // out/state.latentam: resume or query later
+//! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
 #![warn(missing_docs)]
 
-mod error;
-mod faults;
-pub mod files;
-pub mod gpu;
-pub mod io;
-pub mod latent;
-pub mod loss;
-pub mod map;
-pub mod mapper;
-pub mod ops;
-pub mod optim;
-mod random;
-pub mod reference;
-pub(crate) mod settings;
-pub mod splat;
+pub use latentam_base::{Camera, Error, HostGaussians, InputError, Result};
+pub use latentam_core::latent::TextQuery;
+pub use latentam_core::mapper::{
+    LogRun, LogRunOptions, Mapper, MapperConfig as Config, RunObserver, RunReport,
+};
 
-pub use error::{Error, Result};
-/// The compiled kernel table (see the `latentam-shaders` crate).
-pub use latentam_shaders as kernels;
-pub use mapper::{Mapper, MapperConfig as Config};
+/// What a frame is made of, and reading frames from MCAP logs and rosbag2
+/// folders.
+pub mod frames {
+    pub use latentam_io::{
+        AssemblyConfig, BadInputPolicy, CameraPose, ColorImage, DepthData, DepthImage, Embeddings,
+        Frame, IngestReport, Intrinsics, LabelImage, McapFrames, PixelFormat, Topics, Vocabulary,
+    };
+}

@@ -3,7 +3,7 @@
 //! decode to the same fields.
 #![no_main]
 
-use latentam::io::{
+use latentam_io::{
     CameraInfo, CompressedImage, FeatureGrid, Image, MaskFeatures, Odometry, PoseStamped,
     RosMessage, TextEmbeddings, TfMessage,
 };

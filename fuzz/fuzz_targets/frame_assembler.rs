@@ -6,7 +6,7 @@
 
 use arbitrary::Arbitrary;
 use glam::{DQuat, DVec3};
-use latentam::io::{
+use latentam_io::{
     cdr, AssemblyConfig, BadInputPolicy, CameraInfo, Channel, CompressedImage, FrameAssembler,
     Header, Image, MaskFeatures, Pose, PoseStamped, RawMessage, RosMessage,
 };

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use arbitrary::{Arbitrary, Unstructured};
-use latentam::mapper::{DecoderFile, SavedState};
+use latentam_core::mapper::{DecoderFile, SavedState};
 use libfuzzer_sys::fuzz_target;
 use serde_json::{Map, Value};
 

@@ -6,7 +6,7 @@
 #![no_main]
 
 use arbitrary::{Arbitrary, Unstructured};
-use latentam::mapper::{apply_overrides, documented_defaults, MapperConfig};
+use latentam_core::mapper::{apply_overrides, documented_defaults, MapperConfig};
 use libfuzzer_sys::fuzz_target;
 
 const KEYS: &[&str] = &[

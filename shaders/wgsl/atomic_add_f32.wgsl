@@ -1,8 +1,8 @@
 // Scatter-add of f32 values into bins with native float atomics
 // (VK_EXT_shader_atomic_float, shaderBufferFloat32AtomicAdd). WGSL because
 // naga's GLSL front end has no atomics. The engine picks this kernel or
-// atomic_add_f32_cas.wgsl at start-up (engine/src/gpu/features.rs); both are
-// tested against engine/src/reference/atomic.rs.
+// atomic_add_f32_cas.wgsl at start-up (engine/gpu/src/features.rs); both are
+// tested against engine/reference/src/atomic.rs.
 // @capabilities SHADER_FLOAT32_ATOMIC
 
 // @push ScatterAdd

@@ -1,7 +1,7 @@
-// Stable key-value radix sort, one 4-bit digit per pass (engine/src/ops/sort.rs
+// Stable key-value radix sort, one 4-bit digit per pass (engine/gpu/src/ops/sort.rs
 // drives it: histogram -> exclusive scan of the histogram -> scatter).
 // WGSL because the histogram counts with workgroup atomics, which naga's GLSL
-// front end does not have. CPU reference: engine/src/reference/sort.rs.
+// front end does not have. CPU reference: engine/reference/src/sort.rs.
 //
 // A block is THREADS * ITEMS consecutive elements. The histogram is stored
 // digit-major, hist[digit * num_blocks + block], so one exclusive scan over it

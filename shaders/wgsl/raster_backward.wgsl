@@ -4,7 +4,7 @@
 // For every (pixel, Gaussian) it forms the gradients of the Gaussian's
 // colour, query, depth, opacity, image mean and conic, and adds them into
 // per-Gaussian (colour, query) and per-(view, Gaussian) (the rest) buffers.
-// CPU reference: engine/src/reference/raster.rs (`backward`).
+// CPU reference: engine/reference/src/raster.rs (`backward`).
 //
 // WGSL because the accumulation needs float atomics (or a compare-and-swap
 // loop where the device lacks them) and, where available, subgroup sums that

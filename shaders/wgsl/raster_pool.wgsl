@@ -6,8 +6,8 @@
 // glsl/raster_forward.comp does, up to each pixel's last contributor (its
 // state), blending only the 32 query channels, and adds each pixel's share
 // into its region's row. Pixels in no region are not walked. CPU reference:
-// engine/src/reference/raster.rs (`render`) followed by
-// engine/src/reference/pooling.rs (`pool`).
+// engine/reference/src/raster.rs (`render`) followed by
+// engine/reference/src/pooling.rs (`pool`).
 //
 // WGSL because the sums need float atomics (or a compare-and-swap loop
 // where the device lacks them), and subgroup operations where available;

@@ -4,10 +4,10 @@
 //! memory for images stays that of one view however many keyframes a batch
 //! replays, and no per-pixel feature image is allocated.
 
-use latentam::gpu::{Context, ContextOptions, Validation};
-use latentam::io::{AssemblyConfig, Frame, McapFrames};
-use latentam::mapper::budget::pixel_bytes;
-use latentam::mapper::{Integrated, Mapper, MapperConfig};
+use latentam_core::mapper::budget::pixel_bytes;
+use latentam_core::mapper::{Integrated, Mapper, MapperConfig};
+use latentam_gpu::{Context, ContextOptions, Validation};
+use latentam_io::{AssemblyConfig, Frame, McapFrames};
 
 const WIDTH: u32 = 1280;
 const HEIGHT: u32 = 720;

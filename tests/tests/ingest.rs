@@ -5,12 +5,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
-use latentam::io::{
-    codec, AssemblyConfig, Compression, DepthData, Dtype, EmbeddingLayout, Frame, McapFrames,
-};
 use latentam_cli::convert::features::{FeatureDir, Oracle};
 use latentam_cli::convert::{
     convert, datasets, npy, ConvertOptions, EmbeddingSource, Registration,
+};
+use latentam_io::{
+    codec, AssemblyConfig, Compression, DepthData, Dtype, EmbeddingLayout, Frame, McapFrames,
 };
 use latentam_tests::shared_data;
 
@@ -54,7 +54,7 @@ fn options(kind: &str, embeddings: EmbeddingSource, max_frames: Option<usize>) -
     }
 }
 
-fn frames_of(path: &Path) -> (Vec<Frame>, latentam::io::IngestReport) {
+fn frames_of(path: &Path) -> (Vec<Frame>, latentam_io::IngestReport) {
     let mut it = McapFrames::open(path, AssemblyConfig::default()).unwrap();
     let frames: Vec<Frame> = (&mut it).map(|f| f.unwrap()).collect();
     (frames, it.report().clone())

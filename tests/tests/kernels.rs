@@ -2,7 +2,7 @@
 //! the validation layer silent (catches SPIR-V a driver rejects), and the
 //! table agrees with what the engine dispatches.
 
-use latentam::gpu::{Context, ContextOptions, Validation};
+use latentam_gpu::{Context, ContextOptions, Validation};
 
 #[test]
 fn every_kernel_builds_a_valid_pipeline() {

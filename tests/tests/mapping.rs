@@ -6,11 +6,13 @@ use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use latentam::gpu::{Context, ContextOptions, Validation};
-use latentam::io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
-use latentam::map::{Gaussian, VoxelKey};
-use latentam::mapper::eval::{add_iou, mean_iou};
-use latentam::mapper::{Integrated, KeyframeReport, Mapper, MapperConfig, RunObserver, RunReport};
+use latentam_core::map::{Gaussian, VoxelKey};
+use latentam_core::mapper::eval::{add_iou, mean_iou};
+use latentam_core::mapper::{
+    Integrated, KeyframeReport, Mapper, MapperConfig, RunObserver, RunReport,
+};
+use latentam_gpu::{Context, ContextOptions, Validation};
+use latentam_io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 
 const FRAMES: usize = 60;
 
@@ -134,7 +136,7 @@ fn vocabulary_classes_only(mapper: &mut Mapper) {
     fewer.vectors.drain(at * dim..(at + 1) * dim);
     let part = mapper.evaluate(frame, Some(&fewer), 1).unwrap();
     assert!(!part.class_iou.contains_key(&gone));
-    let truth = |m: &latentam::mapper::eval::ViewMetrics| -> u64 {
+    let truth = |m: &latentam_core::mapper::eval::ViewMetrics| -> u64 {
         m.class_iou.values().map(|c| c.truth).sum()
     };
     assert_eq!(truth(&part), truth(&full) - gone_counts.truth);
@@ -149,10 +151,10 @@ fn vocabulary_classes_only(mapper: &mut Mapper) {
 /// On a real map, the per-pixel evaluation's factorised decoding gives the
 /// cosines the GPU decoder gives for the same rendered pixels.
 fn factorised_decoding_matches_the_gpu_decoder(mapper: &mut Mapper) {
-    use latentam::latent::{FactorisedDecoder, RelevanceScorer};
+    use latentam_core::latent::{FactorisedDecoder, RelevanceScorer};
     let s = scene();
     let frame = &s.frames[held_out()[0]];
-    let camera = latentam::mapper::camera_of(frame);
+    let camera = latentam_core::mapper::camera_of(frame);
     let (view, _) = mapper.render(&camera).unwrap();
     let ctx = mapper.context();
     let head = mapper.head().unwrap();
@@ -272,7 +274,7 @@ fn check_consistent(ctx: &Context, mapper: &mut Mapper) {
     assert!(resident.is_subset(&keys));
     let host = window.params().download(ctx, window.len() as u64).unwrap();
     for (row, key) in window.keys().iter().enumerate() {
-        let g = latentam::map::gaussian_at(&host, row);
+        let g = latentam_core::map::gaussian_at(&host, row);
         assert_eq!(&g, global.get(*key).unwrap(), "row {row}");
     }
 }
@@ -434,7 +436,7 @@ fn report_in(dir: &Path) -> serde_json::Value {
 
 #[test]
 fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
-    use latentam::mapper::{Ending, Kept, LogRun, LogRunOptions, RunFolder, Written};
+    use latentam_core::mapper::{Ending, Kept, LogRun, LogRunOptions, RunFolder, Written};
     const LOG_FRAMES: usize = 20;
     let ctx = context();
     let dir = temp_dir("log-run");

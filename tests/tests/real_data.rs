@@ -3,10 +3,10 @@
 
 use std::path::PathBuf;
 
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{AssemblyConfig, Compression, Dtype, Frame, McapFrames};
-use latentam::mapper::{Mapper, MapperConfig};
 use latentam_cli::convert::{convert, datasets, ConvertOptions, EmbeddingSource, Registration};
+use latentam_core::mapper::{Mapper, MapperConfig};
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{AssemblyConfig, Compression, Dtype, Frame, McapFrames};
 use latentam_tests::shared_data;
 
 /// The first `n` frames of 7-Scenes redkitchen (Kinect v1, 640×480) as

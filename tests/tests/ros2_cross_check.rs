@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use glam::{DQuat, DVec3};
-use latentam::io::{
+use latentam_io::{
     cdr, CameraInfo, CompressedImage, Compression, FeatureGrid, Header, Image, LogWriter,
     MaskFeatures, McapLog, Odometry, Pose, PoseStamped, ReadFilter, RosMessage, TextEmbeddings,
     TfMessage, TransformStamped,

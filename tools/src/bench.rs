@@ -8,10 +8,10 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use clap::Subcommand;
-use latentam::gpu::{Buffer, Context, ContextOptions, Recorder};
-use latentam::ops::{
+use latentam_gpu::ops::{
     self, Gemm, GemmKernel, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose,
 };
+use latentam_gpu::{Buffer, Context, ContextOptions, Recorder};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
@@ -398,9 +398,9 @@ pub(crate) fn measure_bandwidth(ctx: &Context, bytes: u64, runs: usize) -> Resul
 pub(crate) fn measure_fma_peak(ctx: &Context, groups: u32, runs: usize) -> Result<Row> {
     let iters = 2048u32;
     let sink = Buffer::device(ctx, "bench/sink", groups as u64 * 256 * 4)?;
-    let p = latentam::kernels::push::FmaPeak { iters, seed: 0.5 };
+    let p = latentam_shaders::push::FmaPeak { iters, seed: 0.5 };
     let t = time(ctx, runs, false, |rec| {
-        rec.dispatch_linear(&latentam::kernels::FMA_PEAK, groups, &[&sink], &p)
+        rec.dispatch_linear(&latentam_shaders::FMA_PEAK, groups, &[&sink], &p)
     })?;
     let flops = groups as f64 * 256.0 * iters as f64 * 16.0;
     Ok(row(

@@ -18,7 +18,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use latentam::io::{
+use latentam_io::{
     cdr, AssemblyConfig, CameraInfo, Channel, Compression, FrameAssembler, Header, Image,
     LogWriter, MaskFeatures, McapFrames, Pose, PoseStamped, RawMessage, RosMessage,
 };

@@ -8,13 +8,15 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use latentam::gpu::{Buffer, Context, Sample};
-use latentam::latent::{
+use latentam_core::latent::{
     AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams, KMeansConfig, StreamingKMeans,
 };
-use latentam::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, LossWeights, TrustRegion};
-use latentam::optim::{AdamGroup, AdamHyper};
-use latentam::splat::{BatchLayout, Camera, QUERY_DIM};
+use latentam_core::loss::{
+    mean_per_view_weights, FeatureLoss, ImageLoss, LossWeights, TrustRegion,
+};
+use latentam_core::optim::{AdamGroup, AdamHyper};
+use latentam_core::splat::{BatchLayout, Camera, QUERY_DIM};
+use latentam_gpu::{Buffer, Context, Sample};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 

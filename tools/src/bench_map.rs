@@ -8,11 +8,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
-use latentam::mapper::budget::MemorySplit;
-use latentam::mapper::eval::{add_iou, mean_iou};
-use latentam::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
+use latentam_core::mapper::budget::MemorySplit;
+use latentam_core::mapper::eval::{add_iou, mean_iou};
+use latentam_core::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
 use serde::Serialize;
 
 pub struct MapBench {
@@ -90,7 +90,7 @@ struct Report {
     keyframes_per_s: f64,
     ms_per_keyframe: KeyframeTimings,
     /// Host waits, submissions and dispatches per keyframe.
-    gpu_calls_per_keyframe: latentam::mapper::HostWaits,
+    gpu_calls_per_keyframe: latentam_core::mapper::HostWaits,
     /// The dictionary's capacity, and the time per keyframe while it
     /// filled and once it was full (the first keyframe, which creates
     /// every workspace, is left out of both).
@@ -122,7 +122,7 @@ struct Report {
 pub fn run(b: MapBench) -> Result<()> {
     let mut cfg = match &b.config {
         Some(p) => MapperConfig::from_toml(
-            &latentam::io::read_input_to_string(p)
+            &latentam_io::read_input_to_string(p)
                 .with_context(|| format!("reading {}", p.display()))?,
         )?,
         None => MapperConfig::default(),
@@ -159,7 +159,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         profiling: true,
         ..ContextOptions::default()
     })?;
-    latentam::mapper::warm_up(&ctx)?;
+    latentam_core::mapper::warm_up(&ctx)?;
     let atoms = cfg.atoms;
     let mut mapper = Mapper::with_context(&ctx, cfg)?;
     let mut gpu_calls = Vec::new();
@@ -254,7 +254,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         wall_s: wall,
         keyframes_per_s: keyframes as f64 / wall,
         ms_per_keyframe: t.per_keyframe(keyframes),
-        gpu_calls_per_keyframe: latentam::mapper::HostWaits::of(&gpu_calls),
+        gpu_calls_per_keyframe: latentam_core::mapper::HostWaits::of(&gpu_calls),
         atoms,
         while_filling: phase(false),
         once_full: phase(true),

@@ -4,7 +4,7 @@
 //!
 //! Besides the times, it states how far they are from what the machine
 //! could do: the blending work is counted exactly (with the f64 reference's
-//! walk of every pixel, [`reference::raster::blend_work`]), turned into
+//! walk of every pixel, `latentam_reference::raster::blend_work`), turned into
 //! arithmetic operations and bytes by [`CostModel`], and divided by the
 //! machine's measured FMA rate and copy bandwidth (the probes of `bench
 //! primitives`). The ratio of the measured time to that bound is what the
@@ -15,8 +15,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use glam::DVec3;
-use latentam::reference;
-use latentam::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
+use latentam_core::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, QUERY_DIM};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
@@ -157,10 +156,10 @@ impl CostModel {
 
 /// Counts the blending work of every view with the f64 reference.
 fn blend_work(host: &HostGaussians, cams: &[Camera]) -> Work {
-    let gs = reference::raster::Gaussian::all(host);
+    let gs = latentam_reference::raster::Gaussian::all(host);
     let mut w = Work::default();
     for cam in cams {
-        let v = reference::raster::blend_work(&gs, cam);
+        let v = latentam_reference::raster::blend_work(&gs, cam);
         w.tested_forward += v.tested;
         w.tested_backward += v.tested_backward;
         w.contributing += v.contributing;
@@ -282,7 +281,7 @@ pub fn run(b: RasterBench) -> Result<()> {
     let mut fwd_wall = Vec::new();
     let mut bwd_wall = Vec::new();
     let mut per_kernel: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-    let gpu_ms = |samples: &[latentam::gpu::Sample]| -> f64 {
+    let gpu_ms = |samples: &[latentam_gpu::Sample]| -> f64 {
         samples.iter().map(|s| s.duration_ns * 1e-6).sum()
     };
     let mut progress = latentam_cli::progress::Progress::new("bench raster", b.runs + 1);

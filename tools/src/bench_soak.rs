@@ -6,9 +6,9 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use latentam::gpu::{Context, ContextOptions, Validation};
 use latentam_cli::progress::Progress;
 use latentam_cli::soak::{lap_table, run, SoakOptions};
+use latentam_gpu::{Context, ContextOptions, Validation};
 use latentam_scene::SceneConfig;
 
 use crate::config_cmd::ConfigArgs;

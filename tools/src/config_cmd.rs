@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
-use latentam::mapper::{apply_overrides, documented_defaults, MapperConfig, Preset};
+use latentam_core::mapper::{apply_overrides, documented_defaults, MapperConfig, Preset};
 
 /// Where the mapper's configuration comes from.
 #[derive(clap::Args, Clone, Debug, Default)]
@@ -38,7 +38,7 @@ impl ConfigArgs {
     pub fn load_over(&self, base: MapperConfig) -> Result<MapperConfig> {
         let base = match &self.config {
             Some(p) => {
-                let text = latentam::io::read_input_to_string(p)
+                let text = latentam_io::read_input_to_string(p)
                     .with_context(|| format!("reading {}", p.display()))?;
                 MapperConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
             }

@@ -5,20 +5,20 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_vocabulary, AssemblyConfig, McapFrames};
-use latentam::mapper::Mapper;
 use latentam_cli::progress::Progress;
+use latentam_core::mapper::Mapper;
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{read_vocabulary, AssemblyConfig, McapFrames};
 use latentam_scene::{generate, SceneConfig};
 
 use crate::config_cmd::ConfigArgs;
 use crate::pictures::Picture;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{nth_frame, render_pictures, ViewSource};
-use latentam::mapper::RunFolder;
+use latentam_core::mapper::RunFolder;
 
 use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam::mapper::{Ending, Written};
+use latentam_core::mapper::{Ending, Written};
 
 #[derive(clap::Args)]
 pub struct Args {

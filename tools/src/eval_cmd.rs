@@ -10,11 +10,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_class_names, read_vocabulary, McapFrames};
-use latentam::mapper::eval::{add_iou, mean_iou, ViewMetrics};
-use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
+use latentam_core::mapper::eval::{add_iou, mean_iou, ViewMetrics};
+use latentam_core::mapper::Mapper;
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{read_class_names, read_vocabulary, McapFrames};
 use serde::Serialize;
 
 #[derive(clap::Args)]
@@ -113,7 +113,7 @@ struct EvalReport {
 /// run than the state's is refused.
 fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_json::Value>> {
     let path = dir.join("report.json");
-    let Ok(text) = latentam::io::read_input_to_string(&path) else {
+    let Ok(text) = latentam_io::read_input_to_string(&path) else {
         return Ok(None);
     };
     let report: serde_json::Value =
@@ -228,7 +228,7 @@ pub fn run(args: Args) -> Result<()> {
         });
         (n > 0).then(|| s / n as f64)
     };
-    let pooled = |f: fn(&latentam::mapper::eval::RegionPooled) -> Option<f64>| {
+    let pooled = |f: fn(&latentam_core::mapper::eval::RegionPooled) -> Option<f64>| {
         mean(
             rows.iter()
                 .filter_map(|r| r.metrics.region_pooled.as_ref().and_then(f)),

@@ -5,12 +5,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::io::foxglove::{write_foxglove_file, Cloud};
-use latentam::io::{read_vocabulary, CameraPose, Vocabulary};
 use latentam_cli::progress::Stages;
+use latentam_io::foxglove::{write_foxglove_file, Cloud};
+use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
 use crate::pictures::{heat, to_bytes};
-use latentam::latent::softmax_rows;
+use latentam_core::latent::softmax_rows;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -56,7 +56,7 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
         })?;
         return Ok(Some((v, log.clone())));
     }
-    let Ok(text) = latentam::io::read_input_to_string(&args.dir.join("report.json")) else {
+    let Ok(text) = latentam_io::read_input_to_string(&args.dir.join("report.json")) else {
         return Ok(None);
     };
     let report: serde_json::Value = serde_json::from_str(&text)

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use latentam::io::{McapFrames, McapLog};
+use latentam_io::{McapFrames, McapLog};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -94,11 +94,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect();
         let t = frames.topics();
         let pose = match &t.pose {
-            latentam::io::PoseSource::Topic(p) => p.clone(),
-            latentam::io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
+            latentam_io::PoseSource::Topic(p) => p.clone(),
+            latentam_io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
                 "/tf (from the root of the tree)".into()
             }
-            latentam::io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
+            latentam_io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
         };
         let doc = serde_json::json!({
             "log": args.log.display().to_string(),

@@ -3,9 +3,9 @@
 use std::path::Path;
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
+use latentam_core::mapper::Mapper;
+use latentam_gpu::{Context, ContextOptions};
 
 /// The map in `dir` on a new context; a map without Gaussians is refused,
 /// as there is nothing to `verb`.

@@ -6,10 +6,10 @@ use anyhow::{bail, Result};
 
 use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
-use latentam::mapper::{RunFolder, STATE_FILE};
+use latentam_core::mapper::{RunFolder, STATE_FILE};
 
 use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam::mapper::{Ending, Kept, Written};
+use latentam_core::mapper::{Ending, Kept, Written};
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{AssemblyConfig, McapFrames};
-use latentam::mapper::{
+use latentam_core::mapper::{
     KeyframeReport, LogRun, LogRunOptions, Mapper, MapperConfig, RunFolder, RunObserver, RunReport,
     Written, DECODER_FILE, STATE_FILE,
 };
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{AssemblyConfig, McapFrames};
 
 use crate::interrupt;
 use latentam_cli::progress::StatusLine;
@@ -116,7 +116,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         profiling: opts.profile,
         ..ContextOptions::default()
     })?;
-    latentam::mapper::warm_up(&ctx)?;
+    latentam_core::mapper::warm_up(&ctx)?;
     let mut mapper = match (folder, &opts.resume) {
         (Some(folder), Some(settings)) => {
             let settings = |saved: &MapperConfig| {
@@ -206,13 +206,13 @@ impl RunObserver for CliObserver {
             path: path.clone(),
             source: std::io::Error::other(format!("{e:#}")),
         })?;
-        latentam::files::write_bytes_atomically(&path, html.as_bytes())
+        latentam_base::files::write_bytes_atomically(&path, html.as_bytes())
     }
 }
 
 /// Writes `text` to `path` whole or not at all.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    Ok(latentam::files::write_bytes_atomically(
+    Ok(latentam_base::files::write_bytes_atomically(
         path,
         text.as_bytes(),
     )?)

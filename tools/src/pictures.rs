@@ -5,8 +5,8 @@
 use std::path::Path;
 
 use anyhow::Result;
-use latentam::io::Frame;
-use latentam::splat::RenderedView;
+use latentam_core::splat::RenderedView;
+use latentam_io::Frame;
 
 /// Pixels whose accumulated opacity is below this show no surface
 /// (black), as in the evaluation's coverage.

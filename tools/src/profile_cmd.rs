@@ -8,7 +8,7 @@ use anyhow::{bail, Result};
 use crate::config_cmd::ConfigArgs;
 use crate::input_args::InputArgs;
 use crate::mapping::{map_log, RunOptions};
-use latentam::mapper::Ending;
+use latentam_core::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -5,11 +5,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::io::read_vocabulary;
-use latentam::latent::{Relevance, TextQuery};
-use latentam::mapper::Mapper;
-use latentam::splat::RenderedView;
 use latentam_cli::convert::features::read_vector;
+use latentam_core::latent::{Relevance, TextQuery};
+use latentam_core::mapper::Mapper;
+use latentam_core::splat::RenderedView;
+use latentam_io::read_vocabulary;
 
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct QueryArgs {

@@ -5,15 +5,15 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::map::write_ply;
-use latentam::mapper::Mapper;
 use latentam_cli::progress::Stages;
+use latentam_core::map::write_ply;
+use latentam_core::mapper::Mapper;
+use latentam_gpu::{Context, ContextOptions};
 
 use crate::pictures::heat;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{camera_at, parse_pose, relevance_picture};
-use latentam::latent::Relevance;
+use latentam_core::latent::Relevance;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["embedding", "name"])))]

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
-use latentam::io::{Frame, McapFrames};
-use latentam::mapper::Mapper;
-use latentam::splat::{Camera, RenderedView};
 use latentam_cli::progress::Stages;
+use latentam_core::mapper::Mapper;
+use latentam_core::splat::{Camera, RenderedView};
+use latentam_io::{Frame, McapFrames};
 
 use crate::pictures::{self, heat_picture, range_of, Picture, COVERED_ALPHA};
 use crate::query_args::{queryable_dim, Query, QueryArgs};

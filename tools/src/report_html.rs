@@ -5,10 +5,10 @@
 use std::fmt::Write as _;
 
 use anyhow::{anyhow, Result};
-use latentam::mapper::KeyframeReport;
+use latentam_core::mapper::KeyframeReport;
 use plotters::prelude::*;
 
-use latentam::mapper::RunReport;
+use latentam_core::mapper::RunReport;
 
 const PLOT_SIZE: (u32, u32) = (900, 320);
 /// Rows of the kernel table.

@@ -1,9 +1,8 @@
 //! `latentam devices` and `latentam selfcheck`.
 
 use anyhow::{bail, Context as _, Result};
-use latentam::gpu::{Buffer, Context, ContextOptions, Validation};
-use latentam::ops::{self, Gemm, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose};
-use latentam::reference;
+use latentam_gpu::ops::{self, Gemm, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose};
+use latentam_gpu::{Buffer, Context, ContextOptions, Validation};
 use rand::{Rng, SeedableRng};
 
 pub fn devices() -> Result<()> {
@@ -104,7 +103,7 @@ fn check_scan(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
     let mut rec = ctx.recorder()?;
     scan.record(&mut rec, &buf, data.len() as u64)?;
     rec.submit()?.wait()?;
-    let ok = ctx.download::<u32>(&buf)? == reference::scan::exclusive_scan_u32(&data);
+    let ok = ctx.download::<u32>(&buf)? == latentam_reference::scan::exclusive_scan_u32(&data);
     Ok(Check {
         name: "scan",
         ok,
@@ -121,7 +120,7 @@ fn check_reduce(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
     red.record(&mut rec, ReduceOp::Sum, &src, data.len() as u64, &dst)?;
     rec.submit()?.wait()?;
     let got = ctx.download::<f32>(&dst)?[0] as f64;
-    let want = reference::reduce::sum(&data);
+    let want = latentam_reference::reduce::sum(&data);
     let err = (got - want).abs();
     Ok(Check {
         name: "reduce",
@@ -152,8 +151,13 @@ fn check_gemm(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
         rec.submit()?.wait()?;
         let got = ctx.download::<f32>(&cb)?;
         let mut want = vec![0.0f32; (m * n) as usize];
-        reference::gemm::gemm(
-            t, m as usize, n as usize, k as usize, 1.0, &a, &b, 0.0, &mut want,
+        let layout = match t {
+            Transpose::None => latentam_reference::gemm::Transpose::None,
+            Transpose::A => latentam_reference::gemm::Transpose::A,
+            Transpose::B => latentam_reference::gemm::Transpose::B,
+        };
+        latentam_reference::gemm::gemm(
+            layout, m as usize, n as usize, k as usize, 1.0, &a, &b, 0.0, &mut want,
         );
         for (g, w) in got.iter().zip(&want) {
             worst = worst.max((g - w).abs());
@@ -177,7 +181,7 @@ fn check_softmax(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
     ops::row_softmax(&mut rec, &xb, &yb, rows, cols, 20.0)?;
     rec.submit()?.wait()?;
     let got = ctx.download::<f32>(&yb)?;
-    let want = reference::softmax::row_softmax(&x, rows as usize, cols as usize, 20.0);
+    let want = latentam_reference::softmax::row_softmax(&x, rows as usize, cols as usize, 20.0);
     let worst = got
         .iter()
         .zip(&want)
@@ -200,7 +204,7 @@ fn check_sort(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
     let mut rec = ctx.recorder()?;
     sorter.record(&mut rec, &kb, &vb, n, 32)?;
     rec.submit()?.wait()?;
-    let (wk, wv) = reference::sort::sort_pairs(&keys, &vals, 32);
+    let (wk, wv) = latentam_reference::sort::sort_pairs(&keys, &vals, 32);
     let ok = ctx.download::<u32>(&kb)? == wk && ctx.download::<u32>(&vb)? == wv;
     Ok(Check {
         name: "sort",
@@ -221,7 +225,7 @@ fn check_atomic(ctx: &Context, r: &mut impl Rng) -> Result<Check> {
     ops::scatter_add_f32(&mut rec, &vb, &tb, &acc, n as u64)?;
     rec.submit()?.wait()?;
     let got = ctx.download::<f32>(&acc)?;
-    let want = reference::atomic::scatter_add(&values, &targets, 64);
+    let want = latentam_reference::atomic::scatter_add(&values, &targets, 64);
     let worst = got
         .iter()
         .zip(&want)

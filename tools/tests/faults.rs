@@ -1,5 +1,5 @@
 //! What `latentam map` does when things go wrong, with faults injected
-//! through `LATENTAM_FAULTS` (see `engine/src/faults.rs`) or bad input:
+//! through `LATENTAM_FAULTS` (see `engine/base/src/faults.rs`) or bad input:
 //! a clear error, the exit status says so, and what was mapped is kept.
 //! Killing the process (SIGKILL) during mapping and during saves leaves
 //! one consistent run in the folder every time.
@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 mod common;
 use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::map::read_ply;
-use latentam::mapper::{Mapper, STATE_FILE};
+use latentam_core::map::read_ply;
+use latentam_core::mapper::{Mapper, STATE_FILE};
+use latentam_gpu::{Context, ContextOptions};
 
 fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {
     latentam()

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 mod common;
 use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch, SCENE_DIM};
-use latentam::mapper::{MapperConfig, STATE_FILE};
+use latentam_core::mapper::{MapperConfig, STATE_FILE};
 
 fn map(log: &Path, out: &Path, extra: &[&str]) -> Output {
     latentam()

@@ -7,7 +7,7 @@ use std::process::Output;
 
 mod common;
 use common::{gen_scene, latentam_fast as latentam, scratch};
-use latentam::io::{
+use latentam_io::{
     CameraInfo, Compression, Image, LogWriter, MaskFeatures, McapLog, PoseStamped, ReadFilter,
     TextEmbeddings,
 };

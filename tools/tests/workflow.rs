@@ -10,10 +10,10 @@ use std::process::{Output, Stdio};
 
 mod common;
 use common::{gen_scene, latentam, run_python, scratch, write_npy, SCENE_DIM};
-use latentam::gpu::{Context, ContextOptions};
-use latentam::io::{read_tum, read_vocabulary, AssemblyConfig, McapFrames};
-use latentam::map::{read_ply, unit_quat};
-use latentam::mapper::{DecoderFile, Mapper, MapperConfig};
+use latentam_core::map::{read_ply, unit_quat};
+use latentam_core::mapper::{DecoderFile, Mapper, MapperConfig};
+use latentam_gpu::{Context, ContextOptions};
+use latentam_io::{read_tum, read_vocabulary, AssemblyConfig, McapFrames};
 
 const FRAMES: usize = 32;
 const DIM: usize = SCENE_DIM;

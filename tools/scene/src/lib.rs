@@ -27,7 +27,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use glam::{DQuat, Mat3};
-use latentam::io::{
+use latentam_io::{
     cdr, encode_floats, CameraInfo, Compression, Dtype, Header, Image, LogWriter, MaskFeatures,
     Pose, PoseStamped, TextEmbeddings,
 };
@@ -280,7 +280,7 @@ pub fn generate(
     check(config)?;
     let scene = Scene::two_rooms();
     let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
-    let partial = latentam::files::PartialFile::new(out)?;
+    let partial = latentam_base::files::PartialFile::new(out)?;
     let mut log = LogWriter::create(partial.path(), config.compression)
         .with_context(|| format!("creating {}", partial.path().display()))?;
     let (w, h) = (config.width, config.height);

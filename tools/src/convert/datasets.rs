@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use glam::{DMat3, DQuat, DVec3};
-use latentam::io::Pose;
+use latentam_io::Pose;
 
 /// An image file and its stamp.
 #[derive(Clone, Debug, PartialEq)]
@@ -66,7 +66,7 @@ impl Dataset {
 }
 
 fn read_text(path: &Path) -> anyhow::Result<String> {
-    latentam::io::read_input_to_string(path).with_context(|| format!("reading {}", path.display()))
+    latentam_io::read_input_to_string(path).with_context(|| format!("reading {}", path.display()))
 }
 
 /// A camera-to-world pose from a row-major 4×4 matrix, checked to be rigid.

@@ -31,7 +31,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use latentam::io::{codec, MAX_EMBEDDING_DIM};
+use latentam_io::{codec, MAX_EMBEDDING_DIM};
 
 use super::npy::{self, Npy, NpyType};
 
@@ -86,7 +86,7 @@ impl From<Npy> for Tensor {
 }
 
 fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
-    latentam::io::read_input(path).with_context(|| format!("reading {}", path.display()))
+    latentam_io::read_input(path).with_context(|| format!("reading {}", path.display()))
 }
 
 fn safetensors_tensor(
@@ -267,7 +267,7 @@ impl FeatureDir {
         }
         let model = match model {
             Some(m) => Some(m),
-            None => latentam::io::read_input_to_string(&dir.join("model.txt"))
+            None => latentam_io::read_input_to_string(&dir.join("model.txt"))
                 .ok()
                 .map(|s| s.trim().to_string()),
         };

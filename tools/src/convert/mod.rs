@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use latentam::io::{
+use latentam_io::{
     cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, DepthRegistration, Dtype,
     FeatureGrid, Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings,
     MAX_RECORD_BYTES,
@@ -96,7 +96,7 @@ fn u16_bytes(v: &[u16]) -> Vec<u8> {
 enum Event<'a> {
     Color(&'a datasets::Stamped),
     Depth(&'a datasets::Stamped),
-    Pose(i64, &'a latentam::io::Pose),
+    Pose(i64, &'a latentam_io::Pose),
 }
 
 impl Event<'_> {
@@ -138,7 +138,7 @@ fn register_to_colour(
     };
     let first = &dataset.color[0].path;
     let bytes =
-        latentam::io::read_input(first).with_context(|| format!("reading {}", first.display()))?;
+        latentam_io::read_input(first).with_context(|| format!("reading {}", first.display()))?;
     let (w, h, _) = codec::compressed_image_size(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
     if camera.poses_are_depth {
@@ -246,7 +246,7 @@ pub fn convert(
         }
     }
 
-    let partial = latentam::files::PartialFile::new(out)?;
+    let partial = latentam_base::files::PartialFile::new(out)?;
     let mut log = LogWriter::create(partial.path(), options.compression)?;
     let mut summary = ConvertSummary {
         skipped: std::mem::take(&mut dataset.skipped),
@@ -295,7 +295,7 @@ pub fn convert(
                 summary.poses += 1;
             }
             Event::Depth(s) => {
-                let bytes = latentam::io::read_input(&s.path)
+                let bytes = latentam_io::read_input(&s.path)
                     .with_context(|| format!("reading {}", s.path.display()))?;
                 let (w, h, mut values) = codec::decode_png_u16(&bytes)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
@@ -327,7 +327,7 @@ pub fn convert(
                 summary.depth += 1;
             }
             Event::Color(s) => {
-                let bytes = latentam::io::read_input(&s.path)
+                let bytes = latentam_io::read_input(&s.path)
                     .with_context(|| format!("reading {}", s.path.display()))?;
                 check_payload(&s.path.display().to_string(), bytes.len())?;
                 let (w, h, format) = codec::compressed_image_size(&bytes)
@@ -531,7 +531,7 @@ mod tests {
                 stamp_ns: color,
                 path: PathBuf::from("/nonexistent/latentam/colour.png"),
             }],
-            poses: vec![(pose, latentam::io::Pose::IDENTITY)],
+            poses: vec![(pose, latentam_io::Pose::IDENTITY)],
             intrinsics: Some([500.0, 500.0, 320.0, 240.0]),
             depth_units_per_metre: 1000.0,
             ..Dataset::default()

@@ -1,0 +1,189 @@
+//! The library's error type.
+
+use std::fmt;
+use std::path::PathBuf;
+
+use ash::vk;
+
+/// Everything that can go wrong inside the engine, with enough context to
+/// tell the user what to change.
+///
+/// ```
+/// use latentam_base::Error;
+///
+/// fn advice(e: &Error) -> &'static str {
+///     match e {
+///         Error::NoVulkan(_) => "install a Vulkan driver (mesa-vulkan-drivers)",
+///         Error::OutOfMemory(_) => "lower gpu_budget or the image size",
+///         Error::Locked { .. } => "wait for the other process or pick another folder",
+///         _ => "see the message",
+///     }
+/// }
+/// assert_eq!(advice(&Error::OutOfMemory("window".into())), "lower gpu_budget or the image size");
+/// ```
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// No Vulkan loader or no Vulkan device on this machine.
+    #[error("{0}")]
+    NoVulkan(String),
+    /// A Vulkan call failed.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan {
+        /// The Vulkan entry point that failed.
+        call: &'static str,
+        /// Its result code.
+        result: vk::Result,
+    },
+    /// GPU memory could not be allocated (device memory exhausted or the
+    /// configured budget reached).
+    #[error("GPU memory: {0}")]
+    OutOfMemory(String),
+    /// An argument is outside what the operation supports.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// The device lacks a feature or limit the engine needs.
+    #[error("unsupported device: {0}")]
+    Unsupported(String),
+    /// An input log or one of its messages is unusable.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// Another process is writing the run folder.
+    #[error(
+        "{} is being written by another latentam process{}; wait for it to end or choose another folder",
+        path.display(),
+        pid.map_or(String::new(), |p| format!(" (pid {p})"))
+    )]
+    Locked {
+        /// The run folder.
+        path: std::path::PathBuf,
+        /// The writer's process id, when its lock file says.
+        pid: Option<u32>,
+    },
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// What went wrong reading or writing a log.
+///
+/// ```
+/// use latentam_base::{Error, InputError};
+///
+/// let e = InputError::Topic { topic: "/camera/depth".into(), reason: "not in the log".into() };
+/// assert_eq!(e.to_string(), "topic /camera/depth: not in the log");
+/// let e: Error = e.into(); // the engine's error wraps it unchanged
+/// assert!(matches!(e, Error::Input(InputError::Topic { .. })));
+/// ```
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    /// The file system refused.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The MCAP structure is damaged (truncated, corrupt chunk, bad
+    /// record).
+    #[error("{path}: {reason}")]
+    Log {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A topic the configuration needs is missing or has the wrong type.
+    #[error("topic {topic}: {reason}")]
+    Topic {
+        /// The topic(s).
+        topic: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A message or frame was rejected under `BadInputPolicy::Stop`.
+    #[error("{topic} at stamp {stamp_ns} ns: {rejection}")]
+    Rejected {
+        /// The topic of the message (the colour topic for whole frames).
+        topic: String,
+        /// Its stamp (log time for undecodable messages).
+        stamp_ns: i64,
+        /// Why.
+        rejection: Rejection,
+    },
+    /// Writing a log failed.
+    #[error("writing MCAP: {0}")]
+    Write(String),
+}
+
+/// Why one message or frame was not used.
+///
+/// ```
+/// use latentam_base::Rejection;
+///
+/// let why = Rejection::new("depth: size mismatch", "depth 320×240, colour 640×480");
+/// assert_eq!(why.to_string(), "depth: size mismatch: depth 320×240, colour 640×480");
+/// ```
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Rejection {
+    /// A stable short reason, `"stream: what"`, the key counts are kept by.
+    pub kind: &'static str,
+    /// The specifics of this instance (sizes, values, stamps).
+    pub detail: String,
+}
+
+impl Rejection {
+    /// A rejection of kind `kind`.
+    pub fn new(kind: &'static str, detail: impl Into<String>) -> Self {
+        Rejection {
+            kind,
+            detail: detail.into(),
+        }
+    }
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.kind, self.detail)
+    }
+}
+
+impl std::error::Error for Rejection {}
+
+/// Result alias used throughout the engine.
+///
+/// ```
+/// use latentam_base::{Camera, Result};
+///
+/// fn pixels(cams: &[Camera]) -> Result<u64> {
+///     cams.iter().map(|c| c.validate().map(|()| c.pixels())).sum()
+/// }
+/// assert_eq!(pixels(&[Camera::at_origin(4, 4); 2])?, 32);
+/// # Ok::<(), latentam_base::Error>(())
+/// ```
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Attaches the Vulkan entry point name to an `ash` result.
+#[doc(hidden)]
+pub trait VkContext<T> {
+    /// The result as the engine's error, naming `call`.
+    fn vk(self, call: &'static str) -> Result<T>;
+}
+
+impl<T> VkContext<T> for std::result::Result<T, vk::Result> {
+    fn vk(self, call: &'static str) -> Result<T> {
+        self.map_err(|result| match result {
+            vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
+                Error::OutOfMemory(format!("{call}: {result}"))
+            }
+            _ => Error::Vulkan { call, result },
+        })
+    }
+}

@@ -1,0 +1,172 @@
+//! Files that appear whole or not at all: written to `<name>.partial`
+//! beside the target, synced, then renamed over it (and the directory
+//! synced), so a crash or a full disk leaves the previous file intact.
+//! A `.partial` left by a killed process is simply overwritten next time.
+//!
+//! [`write_atomically`] when the content is written through a `Write`;
+//! [`PartialFile`] when a library writes to a path of its own (an MCAP
+//! writer, say).
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// The sibling `<path>.partial` that [`write_atomically`] writes through.
+pub fn partial_path(path: &Path) -> Option<PathBuf> {
+    let mut name = path.file_name()?.to_os_string();
+    name.push(".partial");
+    Some(path.with_file_name(name))
+}
+
+/// Writes `path` through `<path>.partial` with `body`; on any error the
+/// partial file is removed and `path` is left as it was.
+///
+/// ```no_run
+/// use std::io::Write;
+/// latentam_base::files::write_atomically("out/notes.txt".as_ref(), |w| w.write_all(b"mapped\n"))?;
+/// # Ok::<(), latentam_base::Error>(())
+/// ```
+pub fn write_atomically(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> Result<()> {
+    let Some(partial) = partial_path(path) else {
+        return Err(Error::InvalidArgument(format!(
+            "{}: not a file path",
+            path.display()
+        )));
+    };
+    let io_err = |path: &Path, source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let written = (|| {
+        let file = File::create(&partial)?;
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        body(&mut out)?;
+        if let Some(e) = crate::faults::write_error() {
+            return Err(e);
+        }
+        let file = out.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()
+    })();
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&partial);
+        return Err(io_err(&partial, e));
+    }
+    crate::faults::delay_save();
+    if let Err(e) = std::fs::rename(&partial, path) {
+        let _ = std::fs::remove_file(&partial);
+        return Err(io_err(path, e));
+    }
+    // The rename is durable only once the directory entry is; failing to
+    // sync it (some file systems refuse) leaves a complete file anyway.
+    #[cfg(unix)]
+    if let Some(dir) = path.parent() {
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        if let Ok(d) = File::open(dir) {
+            let _ = d.sync_all();
+        }
+    }
+    Ok(())
+}
+
+/// [`write_atomically`] for bytes already in memory.
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically(path, |w| w.write_all(bytes))
+}
+
+/// A file written under `<path>.partial` by whatever writes to a path:
+/// [`PartialFile::commit`] renames it to its final name, and dropping it
+/// uncommitted (an error on the way) removes it, so a failed write leaves
+/// no half-written output behind.
+///
+/// ```no_run
+/// use latentam_base::files::PartialFile;
+///
+/// let out = PartialFile::new("out/log.mcap".as_ref())?;
+/// std::fs::write(out.path(), b"...")?; // any writer that takes a path
+/// out.commit()?;
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct PartialFile {
+    partial: PathBuf,
+    target: PathBuf,
+    committed: bool,
+}
+
+impl PartialFile {
+    /// Reserves `path`; write to [`PartialFile::path`] (errors when `path`
+    /// names no file).
+    pub fn new(path: &Path) -> Result<Self> {
+        let partial = partial_path(path).ok_or_else(|| {
+            Error::InvalidArgument(format!("{}: not a file path", path.display()))
+        })?;
+        Ok(PartialFile {
+            partial,
+            target: path.to_path_buf(),
+            committed: false,
+        })
+    }
+
+    /// Where to write.
+    pub fn path(&self) -> &Path {
+        &self.partial
+    }
+
+    /// Moves the finished file to its final name.
+    pub fn commit(mut self) -> Result<()> {
+        std::fs::rename(&self.partial, &self.target).map_err(|source| Error::Io {
+            path: self.target.clone(),
+            source,
+        })?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for PartialFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.partial);
+        }
+    }
+}
+
+#[cfg(any(test, feature = "testing"))]
+#[doc(hidden)]
+pub mod testing {
+    use std::path::{Path, PathBuf};
+
+    /// A directory removed on drop.
+    pub struct TempDir(PathBuf);
+
+    impl TempDir {
+        pub fn new(tag: &str) -> Self {
+            use std::sync::atomic::{AtomicUsize, Ordering};
+            static N: AtomicUsize = AtomicUsize::new(0);
+            let p = std::env::temp_dir().join(format!(
+                "latentam-{tag}-{}-{}",
+                std::process::id(),
+                N.fetch_add(1, Ordering::Relaxed)
+            ));
+            std::fs::create_dir_all(&p).unwrap();
+            TempDir(p)
+        }
+        pub fn path(&self) -> &Path {
+            &self.0
+        }
+    }
+
+    impl Drop for TempDir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}

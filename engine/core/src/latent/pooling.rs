@@ -1,0 +1,691 @@
+//! Region pooling (SPEC §2.6): rendered per-pixel queries averaged over each
+//! region of a view (a SAM-style mask or a coarse feature-grid cell), and the
+//! gradient sent back to the pixels. The region lists are built on the CPU
+//! ([`Regions`]) when a frame is ingested; the GPU side is
+//! [`RegionPooling`] (kernels `glsl/region_pool.comp`,
+//! `glsl/region_pool_backward.comp`; CPU reference
+//! `latentam_reference::pooling`).
+
+use latentam_shaders::{push, REGION_POOL, REGION_POOL_BACKWARD};
+
+use std::cell::Cell;
+
+use crate::splat::{BatchLayout, QUERY_DIM};
+use latentam_base::{Error, Result};
+use latentam_gpu::{Buffer, Context, Recorder};
+
+/// Label value meaning "this pixel belongs to no region" in a label image
+/// (as in `latentam_msgs/msg/MaskFeatures`).
+pub const NO_REGION_LABEL: u16 = u16::MAX;
+
+/// Region index of a batch pixel that belongs to no kept region.
+pub use latentam_shaders::shared::NO_REGION;
+
+/// A row-major image of region labels (one u16 per pixel,
+/// [`NO_REGION_LABEL`] for none). It may be smaller or larger than the view
+/// it labels: view pixels take the label under their centre (nearest
+/// neighbour).
+///
+/// ```
+/// use latentam_core::latent::{LabelImage, Regions, NO_REGION_LABEL};
+/// use latentam_core::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(8, 8)])?;
+/// // A 2×2 mask at a quarter of the view's resolution: two regions on top,
+/// // nothing below.
+/// let labels = [0u16, 1, NO_REGION_LABEL, NO_REGION_LABEL];
+/// let mut regions = Regions::new(&layout, 1);
+/// regions.add_labels(0, LabelImage { width: 2, height: 2, labels: &labels }, 2)?;
+/// assert_eq!(regions.offsets(), &[0, 16, 32]); // two 4×4-pixel regions
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Copy, Debug)]
+pub struct LabelImage<'a> {
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// width × height labels.
+    pub labels: &'a [u16],
+}
+
+/// What became of one view's regions.
+///
+/// ```
+/// use latentam_core::latent::Regions;
+/// use latentam_core::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(8, 8); 2])?;
+/// let mut regions = Regions::new(&layout, 10); // regions need 10 pixels
+/// regions.add_grid(0, 2, 2)?; // four cells of 16 pixels
+/// let second = regions.add_grid(1, 4, 4)?; // sixteen cells of 4 pixels
+/// assert_eq!(second.first_row, 4);
+/// assert_eq!(second.too_small, 16);
+/// assert!(second.sources.is_empty());
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ViewRegions {
+    /// Index of the view in the batch.
+    pub view: usize,
+    /// First pooled row of this view.
+    pub first_row: u32,
+    /// For each pooled row of this view, the region's index in the input
+    /// (label value or grid cell), to gather its target embedding.
+    pub sources: Vec<u32>,
+    /// Regions with fewer pixels than the minimum (ignored).
+    pub too_small: u32,
+    /// Regions that cover no pixel of the view.
+    pub empty: u32,
+}
+
+/// The regions of a batch of views as pixel lists (CSR: region → batch pixel
+/// indices) plus the region of every pixel, ready for [`RegionPooling`].
+/// Regions are disjoint: each pixel has one label.
+///
+/// ```
+/// use latentam_core::latent::{LabelImage, Regions};
+/// use latentam_core::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(4, 2)])?;
+/// let mut regions = Regions::new(&layout, 2);
+/// // A 2x1 label image: left half region 0, right half region 1.
+/// let labels = [0u16, 1];
+/// regions.add_labels(0, LabelImage { width: 2, height: 1, labels: &labels }, 2)?;
+/// assert_eq!(regions.len(), 2);
+/// assert_eq!(regions.offsets(), &[0, 4, 8]);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct Regions {
+    layout: BatchLayout,
+    min_pixels: u32,
+    offsets: Vec<u32>,
+    pixels: Vec<u32>,
+    pixel_region: Vec<u32>,
+    views: Vec<ViewRegions>,
+}
+
+impl Regions {
+    /// No regions yet for the views of `layout`; regions with fewer than
+    /// `min_pixels` pixels (at least 1) will be ignored and counted.
+    pub fn new(layout: &BatchLayout, min_pixels: u32) -> Self {
+        Self {
+            layout: layout.clone(),
+            min_pixels: min_pixels.max(1),
+            offsets: vec![0],
+            pixels: Vec::new(),
+            pixel_region: vec![NO_REGION; layout.pixels as usize],
+            views: Vec::new(),
+        }
+    }
+
+    /// Pooled rows (kept regions) over all views.
+    pub fn len(&self) -> u32 {
+        (self.offsets.len() - 1) as u32
+    }
+
+    /// Whether no region was kept.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// CSR offsets: region r owns `pixels()[offsets[r]..offsets[r + 1]]`.
+    pub fn offsets(&self) -> &[u32] {
+        &self.offsets
+    }
+
+    /// Batch pixel indices, grouped by region.
+    pub fn pixels(&self) -> &[u32] {
+        &self.pixels
+    }
+
+    /// Region of every batch pixel ([`NO_REGION`] for none).
+    pub fn pixel_region(&self) -> &[u32] {
+        &self.pixel_region
+    }
+
+    /// Per view that has regions, in the order they were added.
+    pub fn views(&self) -> &[ViewRegions] {
+        &self.views
+    }
+
+    /// Pooled rows per view of the layout (0 for views without regions), as
+    /// [`crate::loss::mean_per_view_weights`] takes them.
+    pub fn rows_per_view(&self) -> Vec<u32> {
+        let mut counts = vec![0; self.layout.views.len()];
+        for v in &self.views {
+            counts[v.view] = v.sources.len() as u32;
+        }
+        counts
+    }
+
+    /// Adds the regions of view `view` from a label image with `count`
+    /// regions (labels 0..count). Views must be added in increasing order.
+    /// A label ≥ `count` or a label image of the wrong length is an error,
+    /// and leaves the regions unchanged.
+    pub fn add_labels(&mut self, view: usize, img: LabelImage, count: u32) -> Result<&ViewRegions> {
+        if img.width == 0
+            || img.height == 0
+            || img.labels.len() != (img.width * img.height) as usize
+        {
+            return Err(Error::InvalidArgument(format!(
+                "label image of {}x{} has {} labels",
+                img.width,
+                img.height,
+                img.labels.len()
+            )));
+        }
+        if let Some(&bad) = img
+            .labels
+            .iter()
+            .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "view {view}: region label {bad} but the message has {count} regions"
+            )));
+        }
+        self.add(view, count, |slot, u, v| {
+            let lu = nearest(u, slot.width, img.width);
+            let lv = nearest(v, slot.height, img.height);
+            let l = img.labels[(lv * img.width + lu) as usize];
+            (l != NO_REGION_LABEL).then_some(l as u32)
+        })
+    }
+
+    /// Adds the regions of view `view` as the cells of a `rows` × `cols`
+    /// feature grid laid over the image (cell index = row · cols + col).
+    pub fn add_grid(&mut self, view: usize, rows: u32, cols: u32) -> Result<&ViewRegions> {
+        if rows == 0 || cols == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "view {view}: feature grid of {rows}x{cols} cells"
+            )));
+        }
+        self.add(view, rows * cols, |slot, u, v| {
+            Some(nearest(v, slot.height, rows) * cols + nearest(u, slot.width, cols))
+        })
+    }
+
+    fn add(
+        &mut self,
+        view: usize,
+        count: u32,
+        label_of: impl Fn(&crate::splat::ViewSlot, u32, u32) -> Option<u32>,
+    ) -> Result<&ViewRegions> {
+        let Some(slot) = self.layout.views.get(view).copied() else {
+            return Err(Error::InvalidArgument(format!(
+                "regions for view {view}, the batch has {} views",
+                self.layout.views.len()
+            )));
+        };
+        if self.views.last().is_some_and(|v| v.view >= view) {
+            return Err(Error::InvalidArgument(format!(
+                "regions for view {view} added after view {}; add views in order, once each",
+                self.views.last().map_or(0, |v| v.view)
+            )));
+        }
+        let mut labels = Vec::with_capacity((slot.width * slot.height) as usize);
+        let mut sizes = vec![0u32; count as usize];
+        for v in 0..slot.height {
+            for u in 0..slot.width {
+                let l = label_of(&slot, u, v);
+                if let Some(l) = l {
+                    sizes[l as usize] += 1;
+                }
+                labels.push(l);
+            }
+        }
+        let mut out = ViewRegions {
+            view,
+            first_row: self.len(),
+            ..Default::default()
+        };
+        // Row of each input region, or NO_REGION when it is not kept.
+        let mut row_of = vec![NO_REGION; count as usize];
+        for (region, &size) in sizes.iter().enumerate() {
+            if size == 0 {
+                out.empty += 1;
+            } else if size < self.min_pixels {
+                out.too_small += 1;
+            } else {
+                row_of[region] = out.first_row + out.sources.len() as u32;
+                out.sources.push(region as u32);
+            }
+        }
+        // Counting sort of the view's pixels by row.
+        let base = self.pixels.len() as u32;
+        let mut next: Vec<u32> = Vec::with_capacity(out.sources.len());
+        let mut start = base;
+        for &src in &out.sources {
+            next.push(start);
+            start += sizes[src as usize];
+            self.offsets.push(start);
+        }
+        self.pixels.resize(start as usize, 0);
+        for (i, l) in labels.iter().enumerate() {
+            let Some(l) = *l else { continue };
+            let row = row_of[l as usize];
+            if row == NO_REGION {
+                continue;
+            }
+            let p = slot.first_pixel as u32 + i as u32;
+            let slot_in_view = &mut next[(row - out.first_row) as usize];
+            self.pixels[*slot_in_view as usize] = p;
+            *slot_in_view += 1;
+            self.pixel_region[p as usize] = row;
+        }
+        self.views.push(out);
+        Ok(self.views.last().expect("just pushed"))
+    }
+}
+
+/// Index of the source cell under the centre of pixel `i` of `n` when the
+/// source has `m` cells along the same axis.
+fn nearest(i: u32, n: u32, m: u32) -> u32 {
+    let x = ((i as f64 + 0.5) * m as f64 / n as f64).floor() as u32;
+    x.min(m - 1)
+}
+
+/// GPU side of region pooling for batches of up to `max_regions` regions and
+/// `max_pixels` pixels: the region lists, and the pooled queries
+/// (regions × 32) that the decoder reads.
+///
+/// ```no_run
+/// # use latentam_gpu::{Buffer, Context};
+/// # use latentam_core::latent::Regions;
+/// # fn f(ctx: &Context, regions: &Regions, query_image: &Buffer, max_pixels: u64) -> latentam_core::Result<()> {
+/// use latentam_core::latent::RegionPooling;
+///
+/// let pooling = RegionPooling::new(ctx, 2048, max_pixels)?;
+/// let mut rec = ctx.recorder()?;
+/// pooling.record_upload(&mut rec, regions)?;
+/// pooling.record_forward(&mut rec, query_image)?; // the rasterizer's query image
+/// let rows = rec.download(pooling.pooled(), 0, regions.len() as u64 * 32 * 4)?;
+/// rec.submit()?.wait()?;
+/// let pooled: Vec<f32> = rows.read()?; // one mean 32-d query per region
+/// # Ok(())
+/// # }
+/// ```
+pub struct RegionPooling {
+    max_regions: u32,
+    max_pixels: u64,
+    /// Regions, their first pooled row and pixels of the last recorded
+    /// upload.
+    regions: Cell<u32>,
+    first_row: Cell<u32>,
+    pixels: Cell<u64>,
+    offsets: Buffer,
+    members: Buffer,
+    pixel_region: Buffer,
+    pooled: Buffer,
+}
+
+impl RegionPooling {
+    /// Allocates the buffers.
+    pub fn new(ctx: &Context, max_regions: u32, max_pixels: u64) -> Result<Self> {
+        let p = max_pixels.max(1);
+        Ok(Self {
+            max_regions,
+            max_pixels,
+            regions: Cell::new(0),
+            first_row: Cell::new(0),
+            pixels: Cell::new(0),
+            offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
+            members: Buffer::device(ctx, "pixels/pooling_members", p * 4)?,
+            pixel_region: Buffer::device(
+                ctx,
+                "pixels/pooling_pixel_region",
+                (p + max_regions as u64 + 1) * 4,
+            )?,
+            pooled: Buffer::device(
+                ctx,
+                "pooling/pooled",
+                max_regions.max(1) as u64 * QUERY_DIM as u64 * 4,
+            )?,
+        })
+    }
+
+    /// Pooled queries of the last forward pass (regions × 32).
+    pub fn pooled(&self) -> &Buffer {
+        &self.pooled
+    }
+
+    /// Regions of the last recorded upload.
+    pub fn regions(&self) -> u32 {
+        self.regions.get()
+    }
+
+    /// u32s: the region of every pixel of the last upload ([`NO_REGION`]
+    /// for none; numbered from 0, row [`Self::first_row`] of the pooled
+    /// rows), then from [`Self::labels_offsets_at`] the regions' CSR
+    /// offsets: what the rasterizer's backward reads for
+    /// `QueryGradients::Regions`.
+    pub fn labels(&self) -> &Buffer {
+        &self.pixel_region
+    }
+
+    /// Index of the first CSR offset in [`Self::labels`].
+    pub fn labels_offsets_at(&self) -> u32 {
+        self.max_pixels as u32
+    }
+
+    /// Pooled row of the last upload's region 0.
+    pub fn first_row(&self) -> u32 {
+        self.first_row.get()
+    }
+
+    /// Records the upload of a batch's region lists, to run before the
+    /// pooling passes recorded after it (in the same or a later submission).
+    pub fn record_upload<'a>(&'a self, rec: &mut Recorder<'a>, regions: &Regions) -> Result<()> {
+        self.record_upload_at(rec, regions, 0)
+    }
+
+    /// [`Self::record_upload`] for one chunk of a batch's views: its regions
+    /// are pooled into (and their gradients read from) rows `first_row..` of
+    /// the batch's pooled rows, so a batch can be rendered a chunk at a
+    /// time into one set of rows.
+    pub fn record_upload_at<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        regions: &Regions,
+        first_row: u32,
+    ) -> Result<()> {
+        let pixels = regions.pixel_region.len() as u64;
+        let rows = first_row as u64 + regions.len() as u64;
+        if rows > self.max_regions as u64 || pixels > self.max_pixels {
+            return Err(Error::InvalidArgument(format!(
+                "{} regions from row {first_row} over {pixels} pixels; region pooling was sized \
+                 for {} over {}",
+                regions.len(),
+                self.max_regions,
+                self.max_pixels
+            )));
+        }
+        rec.upload(&self.offsets, 0, &regions.offsets)?;
+        rec.upload(&self.members, 0, &regions.pixels)?;
+        rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
+        rec.upload(&self.pixel_region, self.max_pixels * 4, &regions.offsets)?;
+        self.regions.set(regions.len());
+        self.first_row.set(first_row);
+        self.pixels.set(pixels);
+        Ok(())
+    }
+
+    /// Records the mean query of every region of `query_image` (the
+    /// rasterizer's 32-channel output for the batch) into [`Self::pooled`].
+    pub fn record_forward<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        query_image: &'a Buffer,
+    ) -> Result<()> {
+        self.check_image(query_image)?;
+        rec.dispatch_linear(
+            &REGION_POOL,
+            self.regions(),
+            &[query_image, &self.offsets, &self.members, &self.pooled],
+            &push::RegionPool {
+                regions: self.regions(),
+                first_row: self.first_row.get(),
+            },
+        )
+    }
+
+    /// Records ∂L/∂query_image from ∂L/∂pooled (regions × 32); every pixel
+    /// of the batch is written (0 outside the regions).
+    pub fn record_backward<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        grad_pooled: &'a Buffer,
+        grad_query_image: &'a Buffer,
+    ) -> Result<()> {
+        self.check_image(grad_query_image)?;
+        grad_pooled.ensure_bytes(
+            (self.first_row.get() + self.regions()) as u64 * QUERY_DIM as u64 * 4,
+            "region pooling backward: pooled gradient",
+        )?;
+        let elems = self.pixels.get() * QUERY_DIM as u64;
+        rec.dispatch_linear(
+            &REGION_POOL_BACKWARD,
+            elems.div_ceil(256) as u32,
+            &[
+                grad_pooled,
+                &self.offsets,
+                &self.pixel_region,
+                grad_query_image,
+            ],
+            &push::RegionPoolBackward {
+                pixels: self.pixels.get() as u32,
+                first_row: self.first_row.get(),
+            },
+        )
+    }
+
+    fn check_image(&self, image: &Buffer) -> Result<()> {
+        image.ensure_bytes(
+            self.pixels.get() * QUERY_DIM as u64 * 4,
+            "region pooling: query image of the uploaded batch",
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::Rng;
+
+    use super::*;
+    use crate::splat::Camera;
+    use latentam_gpu::testing::{rng, with_context};
+    use latentam_reference::pooling as reference;
+
+    fn layout(sizes: &[(u32, u32)]) -> BatchLayout {
+        let cams: Vec<Camera> = sizes
+            .iter()
+            .map(|&(w, h)| Camera::at_origin(w, h))
+            .collect();
+        BatchLayout::for_cameras(&cams).unwrap()
+    }
+
+    fn random_labels(r: &mut impl Rng, w: u32, h: u32, count: u32) -> Vec<u16> {
+        (0..w * h)
+            .map(|_| {
+                if r.random_bool(0.15) {
+                    NO_REGION_LABEL
+                } else {
+                    r.random_range(0..count) as u16
+                }
+            })
+            .collect()
+    }
+
+    /// A label image as given: labels, width, height, region count.
+    type LabelInput = (Vec<u16>, u32, u32, u32);
+
+    /// Two views of odd sizes, label images coarser and finer than the views.
+    fn random_regions(r: &mut impl Rng) -> (BatchLayout, Regions, Vec<LabelInput>) {
+        let layout = layout(&[(37, 29), (20, 16), (9, 5)]);
+        let mut regions = Regions::new(&layout, 5);
+        let mut inputs = Vec::new();
+        for (view, (lw, lh, count)) in [(13u32, 7u32, 12u32), (40, 32, 9)].into_iter().enumerate() {
+            let labels = random_labels(r, lw, lh, count);
+            let img = LabelImage {
+                width: lw,
+                height: lh,
+                labels: &labels,
+            };
+            regions.add_labels(view, img, count).unwrap();
+            inputs.push((labels, lw, lh, count));
+        }
+        (layout, regions, inputs)
+    }
+
+    #[test]
+    fn regions_follow_the_label_images() {
+        let mut r = rng("regions_follow_the_label_images");
+        let (layout, regions, inputs) = random_regions(&mut r);
+        assert_eq!(regions.rows_per_view().len(), 3);
+        assert_eq!(regions.rows_per_view()[2], 0);
+        for (vr, (labels, lw, lh, count)) in regions.views().iter().zip(&inputs) {
+            let slot = layout.views[vr.view];
+            // Label of every view pixel by integer arithmetic: the label
+            // pixel whose span contains the pixel centre.
+            let mut members = vec![Vec::new(); *count as usize];
+            for v in 0..slot.height {
+                for u in 0..slot.width {
+                    let lu = (2 * u + 1) * lw / (2 * slot.width);
+                    let lv = (2 * v + 1) * lh / (2 * slot.height);
+                    let l = labels[(lv * lw + lu) as usize];
+                    if l != NO_REGION_LABEL {
+                        members[l as usize].push(slot.first_pixel as u32 + v * slot.width + u);
+                    }
+                }
+            }
+            let kept: Vec<u32> = (0..*count)
+                .filter(|&l| members[l as usize].len() >= 5)
+                .collect();
+            assert_eq!(vr.sources, kept);
+            let small = members
+                .iter()
+                .filter(|m| !m.is_empty() && m.len() < 5)
+                .count();
+            let empty = members.iter().filter(|m| m.is_empty()).count();
+            assert_eq!((vr.too_small as usize, vr.empty as usize), (small, empty));
+            for (i, &src) in vr.sources.iter().enumerate() {
+                let row = (vr.first_row + i as u32) as usize;
+                let (a, b) = (regions.offsets()[row], regions.offsets()[row + 1]);
+                let mut got = regions.pixels()[a as usize..b as usize].to_vec();
+                got.sort();
+                assert_eq!(got, members[src as usize], "region {src}");
+                assert!(got
+                    .iter()
+                    .all(|&p| regions.pixel_region()[p as usize] == row as u32));
+            }
+        }
+        let in_regions = regions
+            .pixel_region()
+            .iter()
+            .filter(|&&r| r != NO_REGION)
+            .count();
+        assert_eq!(in_regions, regions.pixels().len());
+    }
+
+    #[test]
+    fn feature_grid_cells_become_regions() {
+        let layout = layout(&[(16, 12)]);
+        let mut regions = Regions::new(&layout, 1);
+        let v = regions.add_grid(0, 3, 4).unwrap().clone();
+        assert_eq!(v.sources, (0..12).collect::<Vec<_>>());
+        assert!(regions.offsets().windows(2).all(|w| w[1] - w[0] == 16));
+        // Pixel (5, 9) lies in cell row 2, column 1.
+        assert_eq!(regions.pixel_region()[9 * 16 + 5], 2 * 4 + 1);
+    }
+
+    #[test]
+    fn bad_label_images_are_rejected_without_change() {
+        let layout = layout(&[(8, 8), (8, 8)]);
+        let mut regions = Regions::new(&layout, 1);
+        let labels = vec![0u16, 1, 2, 3];
+        let img = LabelImage {
+            width: 2,
+            height: 2,
+            labels: &labels,
+        };
+        let err = regions.add_labels(0, img, 3).unwrap_err().to_string();
+        assert!(err.contains("label 3"), "{err}");
+        assert!(regions.is_empty() && regions.views().is_empty());
+        let short = LabelImage {
+            width: 3,
+            height: 2,
+            labels: &labels,
+        };
+        assert!(regions.add_labels(0, short, 4).is_err());
+        assert!(regions.add_labels(2, img, 4).is_err());
+        regions.add_labels(1, img, 4).unwrap();
+        assert!(regions.add_labels(0, img, 4).is_err(), "views out of order");
+        assert!(regions.add_grid(1, 0, 3).is_err());
+    }
+
+    #[test]
+    fn pooling_matches_reference_and_its_backward_is_the_adjoint() {
+        let mut r = rng("pooling_matches_reference_and_its_backward_is_the_adjoint");
+        with_context(|ctx| {
+            let (layout, regions, _) = random_regions(&mut r);
+            let pixels = layout.pixels as usize;
+            let c = QUERY_DIM;
+            let image: Vec<f32> = (0..pixels * c).map(|_| r.random_range(-1.0..1.0)).collect();
+            let n = regions.len() as usize;
+            // Rows 0..first of the pooled rows belong to other chunks of the
+            // batch: they must be neither written nor read.
+            for first in [0usize, 7] {
+                let grad: Vec<f32> = (0..(first + n) * c)
+                    .map(|i| {
+                        if i < first * c {
+                            f32::NAN
+                        } else {
+                            r.random_range(-1.0..1.0)
+                        }
+                    })
+                    .collect();
+                let pool = RegionPooling::new(ctx, 64, layout.pixels).unwrap();
+                let ib = ctx.upload_new("test/image", &image).unwrap();
+                let gb = ctx.upload_new("test/grad_pooled", &grad).unwrap();
+                let gi = Buffer::device(ctx, "test/grad_image", (pixels * c * 4) as u64).unwrap();
+                let mut rec = ctx.recorder().unwrap();
+                pool.record_upload_at(&mut rec, &regions, first as u32)
+                    .unwrap();
+                rec.fill_u32(pool.pooled(), 0x7fc0_0000);
+                rec.fill_u32(&gi, 0x7fc0_0000);
+                pool.record_forward(&mut rec, &ib).unwrap();
+                pool.record_backward(&mut rec, &gb, &gi).unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                let all = ctx.download::<f32>(pool.pooled()).unwrap();
+                assert!(
+                    all[..first * c].iter().all(|v| v.is_nan()),
+                    "rows before {first}"
+                );
+                let pooled = &all[first * c..(first + n) * c];
+                let grad = &grad[first * c..];
+                let back = ctx.download::<f32>(&gi).unwrap();
+                let want = reference::pool(&image, c, regions.offsets(), regions.pixels());
+                let want_back =
+                    reference::pool_backward(grad, c, regions.offsets(), regions.pixels(), pixels);
+                for i in 0..n * c {
+                    assert!((pooled[i] as f64 - want[i]).abs() < 1e-5, "pooled[{i}]");
+                }
+                for i in 0..pixels * c {
+                    assert!((back[i] as f64 - want_back[i]).abs() < 1e-6, "grad[{i}]");
+                }
+                // <pool(x), y> = <x, pool^T(y)>: the backward is the exact adjoint.
+                let lhs: f64 = pooled
+                    .iter()
+                    .zip(grad)
+                    .map(|(&a, &b)| a as f64 * b as f64)
+                    .sum();
+                let rhs: f64 = image
+                    .iter()
+                    .zip(&back)
+                    .map(|(&a, &b)| a as f64 * b as f64)
+                    .sum();
+                assert!(
+                    (lhs - rhs).abs() <= 1e-4 * lhs.abs().max(1.0),
+                    "{lhs} vs {rhs}"
+                );
+            }
+        });
+    }
+
+    #[test]
+    fn oversized_uploads_are_rejected() {
+        let mut r = rng("oversized_uploads_are_rejected");
+        with_context(|ctx| {
+            let (layout, regions, _) = random_regions(&mut r);
+            let small = RegionPooling::new(ctx, 2, layout.pixels).unwrap();
+            let few_pixels = RegionPooling::new(ctx, 64, 100).unwrap();
+            let exact = RegionPooling::new(ctx, regions.len(), layout.pixels).unwrap();
+            let mut rec = ctx.recorder().unwrap();
+            assert!(small.record_upload(&mut rec, &regions).is_err());
+            assert!(few_pixels.record_upload(&mut rec, &regions).is_err());
+            assert!(exact.record_upload(&mut rec, &regions).is_ok());
+            assert!(exact.record_upload_at(&mut rec, &regions, 1).is_err());
+        });
+    }
+}

@@ -1,0 +1,422 @@
+//! The global map: every Gaussian, on the CPU, keyed by its voxel.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+
+use super::voxel::VoxelKey;
+use crate::splat::QUERY_DIM;
+
+/// One Gaussian's parameters, as the optimiser sees them (see
+/// [`crate::splat::HostGaussians`] for the conventions).
+///
+/// ```
+/// use bytemuck::Zeroable;
+/// use latentam_core::map::Gaussian;
+///
+/// // A 1 cm, 90 % opaque red Gaussian 1 m in front of the origin.
+/// let g = Gaussian {
+///     mean: [0.0, 0.0, 1.0],
+///     log_scale: [0.01f32.ln(); 3],
+///     quat: [1.0, 0.0, 0.0, 0.0],
+///     color: [1.0, 0.0, 0.0],
+///     opacity_logit: (0.9f32 / 0.1).ln(),
+///     ..Gaussian::zeroed() // query: all zero
+/// };
+/// let opacity = 1.0 / (1.0 + (-g.opacity_logit).exp());
+/// assert!((opacity - 0.9).abs() < 1e-6);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct Gaussian {
+    /// Centre, world frame, metres.
+    pub mean: [f32; 3],
+    /// Log of the per-axis standard deviations.
+    pub log_scale: [f32; 3],
+    /// Rotation quaternion `(w, x, y, z)`.
+    pub quat: [f32; 4],
+    /// Linear RGB.
+    pub color: [f32; 3],
+    /// Opacity logit.
+    pub opacity_logit: f32,
+    /// Latent query.
+    pub query: [f32; QUERY_DIM],
+}
+
+/// Voxels per edge of the cells the spatial index groups Gaussians by.
+const CELL_VOXELS: i32 = 64;
+
+/// Voxels per edge of the occupancy grid used for overlap tests: seeds are
+/// centimetres apart, so "is this surface mapped" is asked at a few voxels.
+pub const OCCUPANCY_VOXELS: i32 = 4;
+
+/// Cell edges (in voxels) of the occupancy grids: "is there surface within
+/// about d" is asked at the level matching d (see
+/// [`GlobalMap::is_mapped_within`]). Level 1 (`OCCUPANCY_VOXELS`) also
+/// answers [`GlobalMap::is_near_occupied`].
+const OCCUPANCY_LEVELS: [i32; 4] = [2, OCCUPANCY_VOXELS, 8, 16];
+
+/// The global map: at most one Gaussian per voxel of edge `voxel_size`; a
+/// Gaussian keeps the key of the voxel it was inserted in (means move by
+/// far less than a voxel during mapping). Radius queries go through a
+/// coarse cell index, so they cost what they return, not the map size.
+///
+/// ```
+/// use latentam_core::map::{Gaussian, GlobalMap};
+/// use bytemuck::Zeroable;
+///
+/// let mut map = GlobalMap::new(0.01);
+/// let g = Gaussian { mean: [0.105, 0.0, 1.0], ..Gaussian::zeroed() };
+/// let key = map.insert(g).expect("voxel was free");
+/// assert!(map.insert(g).is_none(), "one Gaussian per voxel");
+/// assert_eq!(map.within(glam::DVec3::new(0.1, 0.0, 1.0), 0.05), vec![key]);
+/// ```
+#[derive(Clone, Debug)]
+pub struct GlobalMap {
+    voxel_size: f64,
+    slot_of: HashMap<VoxelKey, u32>,
+    keys: Vec<VoxelKey>,
+    gaussians: Vec<Gaussian>,
+    cells: HashMap<VoxelKey, Vec<u32>>,
+    /// Position of each slot in its cell's list, for O(1) removal.
+    in_cell: Vec<u32>,
+    /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`.
+    occupancy: [HashMap<VoxelKey, u32>; 4],
+}
+
+impl GlobalMap {
+    /// An empty map with voxels of `voxel_size` metres.
+    pub fn new(voxel_size: f64) -> Self {
+        assert!(
+            voxel_size > 0.0 && voxel_size.is_finite(),
+            "voxel size must be positive"
+        );
+        GlobalMap {
+            voxel_size,
+            slot_of: HashMap::new(),
+            keys: Vec::new(),
+            gaussians: Vec::new(),
+            cells: HashMap::new(),
+            in_cell: Vec::new(),
+            occupancy: Default::default(),
+        }
+    }
+
+    /// Voxel edge, metres.
+    pub fn voxel_size(&self) -> f64 {
+        self.voxel_size
+    }
+
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether the map is empty.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// The voxel of point `p`.
+    pub fn key_of(&self, p: DVec3) -> Option<VoxelKey> {
+        VoxelKey::of(p, self.voxel_size)
+    }
+
+    /// Whether voxel `key` holds a Gaussian.
+    pub fn contains(&self, key: VoxelKey) -> bool {
+        self.slot_of.contains_key(&key)
+    }
+
+    /// Whether a Gaussian lies in the occupancy cell of `p` (edge
+    /// [`OCCUPANCY_VOXELS`] voxels) or one of its 26 neighbours: `p` is on
+    /// or within about a cell of mapped surface.
+    pub fn is_near_occupied(&self, p: DVec3) -> bool {
+        self.occupied_around(p, 1)
+    }
+
+    /// Whether a Gaussian lies within about `distance` of `p` (at least
+    /// `distance`, at most about three times it; distances beyond 16
+    /// voxels are asked at 16): the grid whose cells are just under
+    /// `distance` is asked for `p`'s cell and its 26 neighbours.
+    pub fn is_mapped_within(&self, p: DVec3, distance: f64) -> bool {
+        let voxels = distance / self.voxel_size;
+        match OCCUPANCY_LEVELS.iter().rposition(|&r| r as f64 <= voxels) {
+            Some(level) => self.occupied_around(p, level),
+            None => self
+                .key_of(p)
+                .is_some_and(|k| k.neighbourhood().any(|n| self.slot_of.contains_key(&n))),
+        }
+    }
+
+    fn occupied_around(&self, p: DVec3, level: usize) -> bool {
+        self.key_of(p).is_some_and(|k| {
+            k.coarse(OCCUPANCY_LEVELS[level])
+                .neighbourhood()
+                .any(|n| self.occupancy[level].contains_key(&n))
+        })
+    }
+
+    /// Inserts `g` in the voxel of its mean; `None` (and nothing changes)
+    /// if that voxel is taken or the mean is not finite.
+    pub fn insert(&mut self, g: Gaussian) -> Option<VoxelKey> {
+        let key = self.key_of(DVec3::from(g.mean.map(f64::from)))?;
+        self.insert_at(key, g).then_some(key)
+    }
+
+    /// Inserts `g` under `key` (a saved map's key: optimised means may
+    /// have left their seeding voxel); false if the voxel is taken.
+    pub fn insert_at(&mut self, key: VoxelKey, g: Gaussian) -> bool {
+        if self.slot_of.contains_key(&key) {
+            return false;
+        }
+        let slot = self.keys.len() as u32;
+        self.slot_of.insert(key, slot);
+        self.keys.push(key);
+        self.gaussians.push(g);
+        let cell = self.cells.entry(key.coarse(CELL_VOXELS)).or_default();
+        self.in_cell.push(cell.len() as u32);
+        cell.push(slot);
+        for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
+            *grid.entry(key.coarse(r)).or_default() += 1;
+        }
+        true
+    }
+
+    /// The Gaussian in voxel `key`.
+    pub fn get(&self, key: VoxelKey) -> Option<&Gaussian> {
+        self.slot_of.get(&key).map(|&s| &self.gaussians[s as usize])
+    }
+
+    /// Overwrites the Gaussian in voxel `key` (write-back from the GPU
+    /// window); `false` if the voxel is empty.
+    pub fn write_back(&mut self, key: VoxelKey, g: Gaussian) -> bool {
+        match self.slot_of.get(&key) {
+            Some(&s) => {
+                self.gaussians[s as usize] = g;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Removes the Gaussian in voxel `key` (pruning).
+    pub fn remove(&mut self, key: VoxelKey) -> Option<Gaussian> {
+        let slot = self.slot_of.remove(&key)? as usize;
+        for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
+            let occ = key.coarse(r);
+            match grid.get_mut(&occ) {
+                Some(n) if *n > 1 => *n -= 1,
+                _ => {
+                    grid.remove(&occ);
+                }
+            }
+        }
+        // Out of its cell.
+        let cell_key = key.coarse(CELL_VOXELS);
+        let cell = self
+            .cells
+            .get_mut(&cell_key)
+            .expect("every slot is in its cell");
+        let at = self.in_cell[slot] as usize;
+        cell.swap_remove(at);
+        if let Some(&moved) = cell.get(at) {
+            self.in_cell[moved as usize] = at as u32;
+        }
+        if cell.is_empty() {
+            self.cells.remove(&cell_key);
+        }
+        // Out of the dense arrays: the last slot takes its place.
+        let last = self.keys.len() - 1;
+        let g = self.gaussians.swap_remove(slot);
+        self.keys.swap_remove(slot);
+        self.in_cell.swap_remove(slot);
+        if slot != last {
+            let moved_key = self.keys[slot];
+            self.slot_of.insert(moved_key, slot as u32);
+            let cell = self
+                .cells
+                .get_mut(&moved_key.coarse(CELL_VOXELS))
+                .expect("every slot is in its cell");
+            cell[self.in_cell[slot] as usize] = slot as u32;
+        }
+        Some(g)
+    }
+
+    /// Keys of the Gaussians whose mean is within `radius` of `centre`, in
+    /// key order.
+    pub fn within(&self, centre: DVec3, radius: f64) -> Vec<VoxelKey> {
+        let cell_edge = self.voxel_size * CELL_VOXELS as f64;
+        let lo = ((centre - radius) / cell_edge).floor();
+        let hi = ((centre + radius) / cell_edge).floor();
+        if !lo.is_finite() || !hi.is_finite() {
+            return Vec::new();
+        }
+        let r2 = radius * radius;
+        let mut out = Vec::new();
+        let mut take = |cell: &Vec<u32>| {
+            for &s in cell {
+                let m = DVec3::from(self.gaussians[s as usize].mean.map(f64::from));
+                if (m - centre).length_squared() <= r2 {
+                    out.push(self.keys[s as usize]);
+                }
+            }
+        };
+        // Walk the box's cells or the occupied ones, whichever are fewer:
+        // the time is bounded by the map, not by radius ÷ cell size.
+        let span = hi - lo + 1.0;
+        let box_cells = span.x * span.y * span.z;
+        if box_cells > self.cells.len() as f64 {
+            let (lo, hi) = (lo.as_ivec3(), hi.as_ivec3());
+            for (k, cell) in &self.cells {
+                if (lo.x..=hi.x).contains(&k.x)
+                    && (lo.y..=hi.y).contains(&k.y)
+                    && (lo.z..=hi.z).contains(&k.z)
+                {
+                    take(cell);
+                }
+            }
+        } else {
+            for x in lo.x as i32..=hi.x as i32 {
+                for y in lo.y as i32..=hi.y as i32 {
+                    for z in lo.z as i32..=hi.z as i32 {
+                        if let Some(cell) = self.cells.get(&VoxelKey { x, y, z }) {
+                            take(cell);
+                        }
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// Every key and Gaussian, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = (VoxelKey, &Gaussian)> {
+        self.keys.iter().copied().zip(self.gaussians.iter())
+    }
+
+    /// Approximate heap bytes held (parameters, keys, hash tables).
+    pub fn bytes(&self) -> u64 {
+        let per = size_of::<Gaussian>() + size_of::<VoxelKey>() * 2 + 4 * 3 + 16;
+        (self.keys.capacity() * per
+            + (self.cells.len() + self.occupancy.iter().map(HashMap::len).sum::<usize>()) * 64)
+            as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bytemuck::Zeroable;
+    use rand::{Rng, SeedableRng};
+
+    fn at(p: [f32; 3]) -> Gaussian {
+        Gaussian {
+            mean: p,
+            ..Gaussian::zeroed()
+        }
+    }
+
+    #[test]
+    fn radius_queries_and_removal_match_a_brute_force_scan() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut map = GlobalMap::new(0.01);
+        let mut live: Vec<[f32; 3]> = Vec::new();
+        for step in 0..6000 {
+            if step % 3 == 2 && !live.is_empty() {
+                let i = rng.random_range(0..live.len());
+                let p = live.swap_remove(i);
+                let key = map.key_of(DVec3::from(p.map(f64::from))).unwrap();
+                assert_eq!(map.remove(key).unwrap().mean, p);
+            } else {
+                let p = [
+                    rng.random_range(-2.0..2.0f32),
+                    rng.random_range(-2.0..2.0f32),
+                    rng.random_range(-0.5..0.5f32),
+                ];
+                if map.insert(at(p)).is_some() {
+                    live.push(p);
+                }
+            }
+        }
+        assert_eq!(map.len(), live.len());
+        for _ in 0..20 {
+            let c = DVec3::new(
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-2.0..2.0),
+                0.0,
+            );
+            // Small radii walk the box's cells, large ones the occupied.
+            let r = rng.random_range(0.05..6.0);
+            let mut want: Vec<VoxelKey> = live
+                .iter()
+                .filter(|p| (DVec3::from(p.map(f64::from)) - c).length() <= r)
+                .map(|p| map.key_of(DVec3::from(p.map(f64::from))).unwrap())
+                .collect();
+            want.sort_unstable();
+            assert_eq!(map.within(c, r), want);
+        }
+        // A radius of any size costs a pass over the occupied cells.
+        assert_eq!(map.within(DVec3::ZERO, 1e300).len(), live.len());
+        assert_eq!(
+            map.within(DVec3::new(1e30, 0.0, 0.0), 2e30).len(),
+            live.len()
+        );
+        // Every live Gaussian is found by its key, exactly once.
+        let mut keys: Vec<VoxelKey> = map.iter().map(|(k, _)| k).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        assert_eq!(keys.len(), live.len());
+        for p in &live {
+            let k = map.key_of(DVec3::from(p.map(f64::from))).unwrap();
+            assert_eq!(map.get(k).unwrap().mean, *p);
+        }
+    }
+
+    #[test]
+    fn mapped_within_a_distance_is_asked_at_the_matching_grid() {
+        let mut map = GlobalMap::new(0.01);
+        let k = map.insert(at([0.0005, 0.0005, 0.0005])).unwrap();
+        for d in [0.005, 0.01, 0.02, 0.04, 0.08, 0.16] {
+            // Always within `d` …
+            assert!(
+                map.is_mapped_within(DVec3::new(d * 0.99, 0.0, 0.0), d),
+                "{d}"
+            );
+            // … never beyond about 3 d (two cells of at most d, plus one).
+            assert!(
+                !map.is_mapped_within(DVec3::new(3.1 * d.max(0.01), 0.0, 0.0), d),
+                "{d}"
+            );
+        }
+        map.remove(k).unwrap();
+        for d in [0.005, 0.02, 0.16] {
+            assert!(
+                !map.is_mapped_within(DVec3::ZERO, d),
+                "removal updates every grid"
+            );
+        }
+    }
+
+    #[test]
+    fn one_gaussian_per_voxel_and_write_back_by_key() {
+        let mut map = GlobalMap::new(0.01);
+        let k = map.insert(at([0.001, 0.002, 0.003])).unwrap();
+        assert!(map.insert(at([0.009, 0.009, 0.009])).is_none());
+        assert!(map.insert(at([f32::NAN, 0.0, 0.0])).is_none());
+        assert!(map.is_near_occupied(DVec3::new(0.015, 0.0, 0.0)));
+        assert!(map.is_near_occupied(DVec3::new(0.075, 0.0, 0.0)));
+        assert!(!map.is_near_occupied(DVec3::new(0.085, 0.0, 0.0)));
+        let mut g = at([0.004, 0.004, 0.004]);
+        g.opacity_logit = 2.0;
+        assert!(map.write_back(k, g));
+        assert_eq!(map.get(k).unwrap().opacity_logit, 2.0);
+        assert!(!map.write_back(k.offset(5, 0, 0), g));
+        assert!(map.bytes() > 0);
+        map.remove(k).unwrap();
+        assert!(
+            !map.is_near_occupied(DVec3::new(0.015, 0.0, 0.0)),
+            "occupancy follows removal"
+        );
+    }
+}

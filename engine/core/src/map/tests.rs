@@ -1,0 +1,596 @@
+//! Seeding and keyframe selection on hand-made frames of a flat wall.
+
+use glam::{DQuat, DVec3};
+
+use super::*;
+use latentam_io::{CameraPose, ColorImage, DepthData, DepthImage, Frame, Intrinsics, PixelFormat};
+
+const W: u32 = 32;
+const H: u32 = 24;
+
+/// A camera at `eye` rotated by `rotation`, seeing a wall at depth `z`
+/// everywhere (depth in mm, 0 in the top-left 4×4 block).
+fn wall_frame(eye: DVec3, rotation: DQuat, z_mm: u16) -> Frame {
+    let n = (W * H) as usize;
+    let color: Vec<u8> = (0..n * 3).map(|i| (i * 7 % 251) as u8).collect();
+    let depth: Vec<u16> = (0..n)
+        .map(|i| {
+            if (i as u32 % W) < 4 && (i as u32 / W) < 4 {
+                0
+            } else {
+                z_mm
+            }
+        })
+        .collect();
+    Frame {
+        stamp_ns: 0,
+        pose: CameraPose {
+            rotation,
+            translation: eye,
+        },
+        intrinsics: Intrinsics {
+            width: W,
+            height: H,
+            fx: 40.0,
+            fy: 40.0,
+            cx: 15.5,
+            cy: 11.5,
+        },
+        color: ColorImage {
+            width: W,
+            height: H,
+            format: PixelFormat::Rgb8,
+            data: color,
+        },
+        depth: DepthImage {
+            width: W,
+            height: H,
+            data: DepthData::Units {
+                values: depth,
+                metres_per_unit: 0.001,
+            },
+        },
+        embeddings: None,
+        semantic: None,
+    }
+}
+
+#[test]
+fn seeds_lie_on_the_measured_surface_once_per_voxel() {
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let mut map = GlobalMap::new(0.01);
+    let config = SeedingConfig {
+        opacity: 0.5,
+        scale_factor: 0.5,
+        hole_fill_radius: 0,
+        border_fill_radius: 0,
+        ..SeedingConfig::default()
+    };
+    let seeds = seed_from_frame(&frame, None, &map, &config, 1, None);
+    // Stride 2 from pixel 1: 16 × 12 candidates, minus the 2 × 2 without depth;
+    // at 2 m a 2-pixel step is 10 cm, so every candidate has its own voxel.
+    assert_eq!(seeds.len(), 16 * 12 - 4);
+    for g in &seeds {
+        assert!((g.mean[2] - 2.0).abs() < 1e-5, "{:?}", g.mean);
+        let u = (g.mean[0] as f64 / 2.0 * 40.0 + 15.5).round() as u32;
+        let v = (g.mean[1] as f64 / 2.0 * 40.0 + 11.5).round() as u32;
+        assert_eq!(frame.color.rgb(u, v).map(|c| c as f32 / 255.0), g.color);
+        // σ = 0.5 × 2 px × 2 m / 40 px = 5 cm; opacity 0.5.
+        assert!((g.log_scale[0] - 0.05f32.ln()).abs() < 1e-5);
+        assert_eq!(g.opacity_logit, 0.0);
+        assert_eq!(g.quat, [1.0, 0.0, 0.0, 0.0]);
+        assert!(
+            g.query.iter().any(|&q| q != 0.0),
+            "queries are never all zero"
+        );
+    }
+    assert_eq!(
+        seed_from_frame(&frame, None, &map, &config, 1, None),
+        seeds,
+        "deterministic"
+    );
+    for g in &seeds {
+        map.insert(*g).unwrap();
+    }
+    // Everything is now occupied: the same view adds nothing.
+    assert!(seed_from_frame(&frame, None, &map, &config, 1, None).is_empty());
+}
+
+#[test]
+fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() {
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    let n = (W * H) as usize;
+    // The map explains the left half (alpha 1, depth right), not the right
+    // half (alpha 0), and gets the depth wrong in the bottom rows.
+    let alpha: Vec<f32> = (0..n)
+        .map(|i| if (i as u32 % W) < W / 2 { 1.0 } else { 0.0 })
+        .collect();
+    let depth: Vec<f32> = (0..n)
+        .map(|i| {
+            if i as u32 / W >= H - 4 {
+                3.0 * alpha[i]
+            } else {
+                2.0 * alpha[i]
+            }
+        })
+        .collect();
+    let rendered = ViewCoverage {
+        partial: false,
+        complete_within: None,
+        alpha: &alpha,
+        depth: &depth,
+        exposure: 1.0,
+    };
+    let seeds = seed_from_frame(
+        &frame,
+        Some(rendered),
+        &map,
+        &SeedingConfig::default(),
+        1,
+        None,
+    );
+    // Right half: 8 × 12 candidates; left half bottom 4 rows: 8 × 2.
+    assert_eq!(seeds.len(), 8 * 12 + 8 * 2);
+    // A frame taken at twice the map's exposure seeds the colours the map
+    // holds at its own: halved.
+    let brighter = ViewCoverage {
+        exposure: 2.0,
+        ..rendered
+    };
+    let config = SeedingConfig::default();
+    let dimmed = seed_from_frame(&frame, Some(brighter), &map, &config, 1, None);
+    assert_eq!(dimmed.len(), seeds.len());
+    for (d, s) in dimmed.iter().zip(&seeds) {
+        assert_eq!(d.mean, s.mean);
+        for c in 0..3 {
+            assert!((2.0 * d.color[c] - s.color[c]).abs() < 1e-6);
+        }
+    }
+
+    // A dense wall (stride 1 at 0.4 m: 1 cm between pixels): seeds next to
+    // existing Gaussians copy their query.
+    let near = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 400);
+    let dense = SeedingConfig {
+        stride: 4,
+        refill_alpha: 1.0,
+        ..SeedingConfig::default()
+    };
+    let mut map = GlobalMap::new(0.01);
+    let first = seed_from_frame(&near, None, &map, &dense, 1, None);
+    for g in &first {
+        map.insert(*g).unwrap();
+    }
+    let moved = wall_frame(DVec3::new(0.011, 0.0, 0.0), DQuat::IDENTITY, 400);
+    let second = seed_from_frame(&moved, None, &map, &dense, 2, None);
+    assert!(!second.is_empty());
+    for g in &second {
+        let key = map.key_of(DVec3::from(g.mean.map(f64::from))).unwrap();
+        if let Some(n) = key.neighbourhood().find_map(|k| map.get(k)) {
+            assert_eq!(g.query, n.query);
+        }
+    }
+}
+
+#[test]
+fn mapped_surface_beyond_the_window_is_not_seeded_again() {
+    // A wall 0.6 m away (seeds 3 cm apart), mapped from one pose; seen
+    // again from 1.5 cm aside (new pixels land in new voxels) with nothing
+    // rendered (alpha 0).
+    let config = SeedingConfig::default();
+    let mut map = GlobalMap::new(0.01);
+    let first = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 600);
+    for g in seed_from_frame(&first, None, &map, &config, 1, None) {
+        map.insert(g).unwrap();
+    }
+    let again = wall_frame(DVec3::new(0.015, 0.0, 0.0), DQuat::IDENTITY, 600);
+    let n = (W * H) as usize;
+    let (alpha, depth) = (vec![0.0f32; n], vec![0.0f32; n]);
+    let coverage = |complete_within| ViewCoverage {
+        alpha: &alpha,
+        depth: &depth,
+        partial: false,
+        complete_within,
+        exposure: 1.0,
+    };
+    // The render held everything within 5 m: the wall is unexplained there,
+    // so it is seeded (holes in a complete render are real).
+    let inside = Some((DVec3::ZERO, 5.0));
+    let reseeded = seed_from_frame(&again, Some(coverage(inside)), &map, &config, 2, None).len();
+    assert!(reseeded > 50, "{reseeded}");
+    // Only what is within 0.3 m was resident: the wall's Gaussians may be
+    // paged out, and its surface is mapped, so only the strip the first
+    // view did not see (past its edge) is seeded.
+    let outside = Some((DVec3::ZERO, 0.3));
+    let seeded = seed_from_frame(&again, Some(coverage(outside)), &map, &config, 2, None);
+    assert!(
+        seeded.len() * 5 < reseeded,
+        "{} of {reseeded}",
+        seeded.len()
+    );
+    let edge = (W as f64 / 2.0) / 40.0 * 0.6;
+    assert!(seeded.iter().all(|g| g.mean[0] as f64 > edge - 0.04));
+    // A render that covers it but with the wrong depth (alpha 0.6, above
+    // `refill_alpha`) is not a hole: mapped surface is not seeded again,
+    // rendered or not.
+    assert!(config.refill_alpha <= 0.6);
+    let faint = vec![0.6f32; n];
+    let partly = ViewCoverage {
+        alpha: &faint,
+        depth: &depth,
+        partial: false,
+        complete_within: inside,
+        exposure: 1.0,
+    };
+    let again_seeded = seed_from_frame(&again, Some(partly), &map, &config, 2, None);
+    assert_eq!(again_seeded.len(), seeded.len());
+}
+
+#[test]
+fn keyframes_by_interval_by_overlap_and_only_after_motion() {
+    let map = GlobalMap::new(0.01);
+    let mut sel = KeyframeSelector::new(KeyframeConfig {
+        policy: KeyframePolicy::Interval(3),
+        min_translation: 0.0,
+        min_rotation_deg: 0.0,
+    });
+    let f = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let picks: Vec<bool> = (0..7).map(|_| sel.decide(&f, &map).keyframe).collect();
+    assert_eq!(picks, [true, false, false, true, false, false, true]);
+
+    // With a minimum translation, a camera standing still makes one keyframe.
+    let mut sel = KeyframeSelector::new(KeyframeConfig {
+        policy: KeyframePolicy::Interval(1),
+        min_translation: 0.1,
+        min_rotation_deg: 5.0,
+    });
+    let picks: Vec<bool> = (0..4).map(|_| sel.decide(&f, &map).keyframe).collect();
+    assert_eq!(picks, [true, false, false, false]);
+    let turned = wall_frame(DVec3::ZERO, DQuat::from_rotation_y(0.2), 2000);
+    assert!(
+        sel.decide(&turned, &map).keyframe,
+        "11° of rotation counts as motion"
+    );
+
+    // Overlap: a view of what is mapped is not a keyframe, a new wall is.
+    // (At 0.5 m the seeds are 2.5 cm apart, the overlap check's points fall
+    // between them.)
+    let f = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 500);
+    let mut map = GlobalMap::new(0.01);
+    for g in seed_from_frame(&f, None, &map, &SeedingConfig::default(), 1, None) {
+        map.insert(g);
+    }
+    let mut sel = KeyframeSelector::new(KeyframeConfig {
+        policy: KeyframePolicy::Overlap {
+            min_overlap: 0.7,
+            stride: 2,
+        },
+        min_translation: 0.0,
+        min_rotation_deg: 0.0,
+    });
+    assert!(sel.decide(&f, &map).keyframe, "the first frame always is");
+    let same = sel.decide(&f, &map);
+    assert!(!same.keyframe && same.overlap.unwrap() > 0.99, "{same:?}");
+    let away = wall_frame(
+        DVec3::ZERO,
+        DQuat::from_rotation_y(std::f64::consts::PI),
+        500,
+    );
+    let d = sel.decide(&away, &map);
+    assert!(d.keyframe && d.overlap.unwrap() < 0.01, "{d:?}");
+}
+
+mod window {
+    use std::collections::HashSet;
+
+    use bytemuck::Zeroable;
+    use glam::DVec3;
+    use rand::Rng;
+
+    use crate::map::{gaussian_at, Companion, Gaussian, GlobalMap, LocalWindow, VoxelKey};
+    use latentam_gpu::testing::{rng, with_context};
+    use latentam_gpu::Buffer;
+
+    /// Gaussians along a 20 m corridor, one every ~2 cm, each with a
+    /// recognisable opacity and query.
+    fn corridor(rng: &mut impl Rng) -> GlobalMap {
+        let mut map = GlobalMap::new(0.01);
+        for i in 0..1000 {
+            let x = i as f32 * 0.02 + rng.random_range(0.0..0.005f32);
+            let g = Gaussian {
+                mean: [x, rng.random_range(-0.5..0.5), rng.random_range(0.0..2.0)],
+                opacity_logit: i as f32,
+                query: std::array::from_fn(|c| (i * 32 + c) as f32),
+                ..Gaussian::zeroed()
+            };
+            map.insert(g);
+        }
+        map
+    }
+
+    #[test]
+    fn paging_follows_the_camera_keeps_state_and_writes_back_by_key() {
+        with_context(|ctx| {
+            let mut rng = rng("paging_follows_the_camera");
+            let mut global = corridor(&mut rng);
+            let total = global.len();
+            let capacity = 160;
+            let mut window = LocalWindow::new(ctx, capacity).unwrap();
+            // A companion row per Gaussian: 2 floats tagging its key.
+            let companion = Buffer::device(ctx, "test/companion", capacity * 8).unwrap();
+            let tag = |k: VoxelKey| [k.x as f32, k.y as f32];
+            let radius = 1.5;
+            let (mut kept, mut moved, mut fetched) = (0, 0, 0);
+            for step in 0..16 {
+                let centre = DVec3::new(step as f64 * 0.6, 0.0, 1.0);
+                let plan = window.plan(&global, centre, radius);
+                kept += plan.keep;
+                fetched += plan.fetch.len();
+                moved += plan
+                    .evict
+                    .iter()
+                    .filter(|&&r| (r as usize) < plan.keep)
+                    .count();
+                let keep_before: HashSet<VoxelKey> = window.keys().iter().copied().collect();
+                let mut rec = ctx.transfer_recorder().unwrap();
+                let pending = window
+                    .record_sync(
+                        &mut rec,
+                        &plan,
+                        &global,
+                        &[Companion {
+                            buffer: &companion,
+                            row_bytes: 8,
+                        }],
+                    )
+                    .unwrap();
+                rec.submit().unwrap().wait().unwrap();
+                pending.apply(&mut global).unwrap();
+
+                // The window holds exactly the nearest Gaussians within the radius.
+                let mut want: Vec<(f64, VoxelKey)> = global
+                    .iter()
+                    .map(|(k, g)| (DVec3::from(g.mean.map(f64::from)).distance(centre), k))
+                    .filter(|(d, _)| *d <= radius)
+                    .collect();
+                want.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                want.truncate(capacity as usize);
+                let got: HashSet<VoxelKey> = window.keys().iter().copied().collect();
+                assert_eq!(got.len(), window.len(), "no key twice in the window");
+                assert_eq!(
+                    got,
+                    want.iter().map(|w| w.1).collect::<HashSet<_>>(),
+                    "step {step}"
+                );
+
+                // Every row holds its key's Gaussian, and companion rows moved
+                // with their Gaussian (fetched rows start at zero).
+                let host = window.params().download(ctx, window.len() as u64).unwrap();
+                let comp: Vec<[f32; 2]> =
+                    bytemuck::cast_slice(&ctx.download::<f32>(&companion).unwrap()).to_vec();
+                for (row, key) in window.keys().iter().enumerate() {
+                    assert_eq!(
+                        gaussian_at(&host, row),
+                        *global.get(*key).unwrap(),
+                        "row {row}"
+                    );
+                    if keep_before.contains(key) {
+                        assert_eq!(comp[row], tag(*key), "row {row} kept its companion");
+                    } else {
+                        assert_eq!(comp[row], [0.0, 0.0], "row {row} is new");
+                    }
+                }
+
+                // "Optimise": change every resident on the GPU and tag the
+                // companions; the next sync must write the changes back.
+                let mut changed = host.clone();
+                for o in &mut changed.opacity_logits {
+                    *o += 0.5;
+                }
+                window.params().upload(ctx, 0, &changed).unwrap();
+                let tags: Vec<[f32; 2]> = window.keys().iter().map(|k| tag(*k)).collect();
+                ctx.upload(&companion, 0, &tags).unwrap();
+            }
+            assert!(
+                kept > 0 && moved > 0 && fetched > 0,
+                "kept {kept}, moved {moved}, fetched {fetched}"
+            );
+            // Final write-back: the global map has every Gaussian exactly once,
+            // with the window's changes.
+            let plan = window.plan(&global, DVec3::new(100.0, 0.0, 0.0), radius);
+            assert_eq!(plan.fetch.len(), 0);
+            let resident: Vec<VoxelKey> = window.keys().to_vec();
+            let mut rec = ctx.transfer_recorder().unwrap();
+            let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
+            rec.submit().unwrap().wait().unwrap();
+            let before: Vec<f32> = resident
+                .iter()
+                .map(|k| global.get(*k).unwrap().opacity_logit)
+                .collect();
+            pending.apply(&mut global).unwrap();
+            assert!(window.is_empty());
+            assert_eq!(global.len(), total);
+            for (k, b) in resident.iter().zip(before) {
+                assert_eq!(global.get(*k).unwrap().opacity_logit, b + 0.5);
+            }
+            // Every Gaussian visited was changed by exactly 0.5 per sync it
+            // was resident for, so all opacities are i + 0.5·m.
+            for (_, g) in global.iter() {
+                let frac = (g.opacity_logit * 2.0).fract();
+                assert_eq!(frac, 0.0, "{}", g.opacity_logit);
+            }
+        });
+    }
+
+    #[test]
+    fn a_full_window_keeps_the_nearest_and_bad_plans_are_errors() {
+        with_context(|ctx| {
+            let mut rng = rng("a_full_window");
+            let global = corridor(&mut rng);
+            let mut window = LocalWindow::new(ctx, 50).unwrap();
+            let plan = window.plan(&global, DVec3::new(5.0, 0.0, 1.0), 3.0);
+            assert_eq!(plan.fetch.len(), 50);
+            assert!(plan.over_capacity > 0);
+            let centre = DVec3::new(5.0, 0.0, 1.0);
+            let far = plan
+                .fetch
+                .iter()
+                .map(|k| DVec3::from(global.get(*k).unwrap().mean.map(f64::from)).distance(centre))
+                .fold(0.0, f64::max);
+            let nearer_left_out = global
+                .within(centre, 3.0)
+                .into_iter()
+                .filter(|k| !plan.fetch.contains(k))
+                .any(|k| {
+                    DVec3::from(global.get(k).unwrap().mean.map(f64::from)).distance(centre) < far
+                });
+            assert!(!nearer_left_out, "the nearest 50 come in");
+            let mut bad = plan.clone();
+            bad.fetch.push(VoxelKey {
+                x: 1 << 20,
+                y: 0,
+                z: 0,
+            });
+            let mut rec = ctx.transfer_recorder().unwrap();
+            assert!(window.record_sync(&mut rec, &bad, &global, &[]).is_err());
+            assert!(LocalWindow::new(ctx, 0).is_err());
+        });
+    }
+}
+
+#[test]
+fn seeds_in_a_region_start_from_its_query_and_others_as_before() {
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    let config = SeedingConfig::default();
+    // A 4 × 3 label image over the 32 × 24 view: region 0 is the left
+    // half, region 1 (no query: e.g. a zero embedding) the top right
+    // quarter, the rest no region.
+    let labels = [0, 0, 1, 1, 0, 0, 9, 9, 0, 0, 9, 9];
+    let q0 = [0.5f32; crate::splat::QUERY_DIM];
+    let queries = [Some(q0), None];
+    let regions = RegionQueries {
+        width: 4,
+        height: 3,
+        labels: &labels,
+        queries: &queries,
+    };
+    let plain = seed_from_frame(&frame, None, &map, &config, 1, None);
+    let seeded = seed_from_frame(&frame, None, &map, &config, 1, Some(&regions));
+    assert_eq!(plain.len(), seeded.len());
+    let mut from_region = 0;
+    for (a, b) in plain.iter().zip(&seeded) {
+        assert_eq!(a.mean, b.mean);
+        let u = (b.mean[0] as f64 / 2.0 * 40.0 + 15.5).round();
+        if u < 16.0 {
+            assert_eq!(b.query, q0, "left half: region 0's query");
+            from_region += 1;
+        } else {
+            assert_eq!(a.query, b.query, "no query for this pixel: as before");
+        }
+    }
+    assert_eq!(from_region, 8 * 12, "with the borrowed-depth pixels");
+}
+
+#[test]
+fn pixels_without_depth_borrow_it_from_the_nearest_ring_within_the_radius() {
+    // The top-left 4 × 4 block has no depth. Its candidates (stride 2 from
+    // pixel 1) are (1, 1), (3, 1), (1, 3) and (3, 3): the last three have
+    // valid depth one pixel away, (1, 1) only three pixels away.
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    // (The block touches the image's corner: a border hole too.)
+    let with = |radius| SeedingConfig {
+        hole_fill_radius: radius,
+        border_fill_radius: radius,
+        ..SeedingConfig::default()
+    };
+    let count = |radius| seed_from_frame(&frame, None, &map, &with(radius), 1, None).len();
+    assert_eq!(count(0), 16 * 12 - 4);
+    assert_eq!(count(1), 16 * 12 - 1);
+    assert_eq!(count(2), 16 * 12 - 1);
+    assert_eq!(count(3), 16 * 12);
+    for g in seed_from_frame(&frame, None, &map, &with(3), 1, None) {
+        assert!((g.mean[2] - 2.0).abs() < 1e-5, "on the wall: {:?}", g.mean);
+    }
+    // The median of the ring: a hole ringed by three pixels at 1 m and
+    // five at 3 m takes 3 m.
+    let mut frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 3000);
+    if let latentam_io::DepthData::Units { values, .. } = &mut frame.depth.data {
+        for y in 0..H {
+            for x in 0..W {
+                let i = (y * W + x) as usize;
+                if (10..=12).contains(&x) && (10..=12).contains(&y) {
+                    values[i] = if (x, y) == (11, 11) {
+                        0
+                    } else if y == 10 {
+                        1000
+                    } else {
+                        3000
+                    };
+                }
+            }
+        }
+    }
+    let at_hole = seed_from_frame(&frame, None, &map, &with(1), 1, None)
+        .into_iter()
+        .find(|g| {
+            let u = g.mean[0] as f64 / g.mean[2] as f64 * 40.0 + 15.5;
+            let v = g.mean[1] as f64 / g.mean[2] as f64 * 40.0 + 11.5;
+            (u - 11.0).abs() < 1e-3 && (v - 11.0).abs() < 1e-3
+        })
+        .expect("the hole pixel is seeded");
+    assert!((at_hole.mean[2] - 3.0).abs() < 1e-5, "{:?}", at_hole.mean);
+}
+
+#[test]
+fn holes_that_reach_the_image_edge_are_filled_further_than_inner_ones() {
+    // No depth in the 12 rightmost columns, as where registered depth does
+    // not reach the colour camera's border.
+    let mut frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    if let DepthData::Units { values, .. } = &mut frame.depth.data {
+        for (i, v) in values.iter_mut().enumerate() {
+            if i as u32 % W >= W - 12 {
+                *v = 0;
+            }
+        }
+    }
+    let map = GlobalMap::new(0.01);
+    let seeds = |border_fill_radius| {
+        let config = SeedingConfig {
+            stride: 1,
+            hole_fill_radius: 4,
+            border_fill_radius,
+            ..SeedingConfig::default()
+        };
+        seed_from_frame(&frame, None, &map, &config, 1, None)
+    };
+    // Filled up to 4 columns into the band as an inner hole would be...
+    let inner = seeds(0);
+    assert_eq!(inner.len(), (W * H - 8 * H) as usize);
+    // ... and all the way with the border's radius, on the wall's plane.
+    let border = seeds(32);
+    assert_eq!(border.len(), (W * H) as usize);
+    assert!(border.iter().all(|g| (g.mean[2] - 2.0).abs() < 1e-4));
+}
+
+/// A PLY named on the command line may be a FIFO (a typo, a shell process
+/// substitution): reading it is refused at once instead of blocking.
+#[test]
+fn a_fifo_ply_is_refused_not_waited_on() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = latentam_base::files::testing::TempDir::new("fifo-ply");
+    let fifo = dir.path().join("map.ply");
+    let c = std::ffi::CString::new(fifo.as_os_str().as_bytes()).unwrap();
+    // SAFETY: `c` is a NUL-terminated path that outlives the call.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(read_ply(&fifo).err().map(|e| e.to_string()));
+    });
+    let e = rx
+        .recv_timeout(std::time::Duration::from_secs(20))
+        .expect("blocked for 20 s")
+        .expect("a FIFO was read as a PLY");
+    assert!(e.contains("a FIFO"), "{e}");
+}

@@ -1,0 +1,484 @@
+//! The file a saved map lives in: one safetensors file (named tensors plus
+//! string metadata), tagged with a format name and version, written
+//! atomically (temporary file, fsync, rename, fsync of the directory) so a
+//! crash leaves either the old file or the new one.
+
+use std::borrow::Cow;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use safetensors::tensor::TensorView;
+use safetensors::Dtype;
+
+use latentam_base::{Error, Result};
+
+/// Format name stored in every archive's metadata.
+pub const FORMAT: &str = "latentam-map";
+/// Version this build writes and reads.
+pub const VERSION: u32 = 1;
+
+/// Element types an archive stores.
+pub(crate) trait Element: bytemuck::Pod {
+    const DTYPE: Dtype;
+}
+
+macro_rules! element {
+    ($t:ty, $d:ident) => {
+        impl Element for $t {
+            const DTYPE: Dtype = Dtype::$d;
+        }
+    };
+}
+element!(f32, F32);
+element!(f64, F64);
+element!(i32, I32);
+element!(i64, I64);
+element!(u8, U8);
+element!(u16, U16);
+element!(u32, U32);
+
+/// Collects tensors and metadata, then writes them in one go.
+#[derive(Default)]
+pub(crate) struct ArchiveWriter {
+    tensors: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
+    meta: HashMap<String, String>,
+    /// Format name and version; unset: the map's.
+    format: Option<(&'static str, u32)>,
+}
+
+impl ArchiveWriter {
+    /// An archive of another format than the saved map.
+    pub fn with_format(name: &'static str, version: u32) -> Self {
+        ArchiveWriter {
+            format: Some((name, version)),
+            ..Default::default()
+        }
+    }
+
+    pub fn meta(&mut self, key: &str, value: impl ToString) {
+        self.meta.insert(key.to_string(), value.to_string());
+    }
+
+    /// Adds `data` as a tensor of `shape` (row-major; the product of
+    /// `shape` must equal `data.len()`, or [`ArchiveWriter::into_bytes`]
+    /// fails).
+    pub fn tensor<T: Element>(&mut self, name: &str, shape: &[usize], data: &[T]) {
+        self.tensors.push((
+            name.to_string(),
+            T::DTYPE,
+            shape.to_vec(),
+            bytemuck::cast_slice(data).to_vec(),
+        ));
+    }
+
+    /// Adds raw rows: `rows` × `row_bytes` bytes (checked like
+    /// [`ArchiveWriter::tensor`]).
+    pub fn bytes(&mut self, name: &str, rows: usize, row_bytes: usize, data: Vec<u8>) {
+        self.tensors
+            .push((name.to_string(), Dtype::U8, vec![rows, row_bytes], data));
+    }
+
+    /// The archive's bytes (write them with
+    /// [`latentam_base::files::write_bytes_atomically`]).
+    pub fn into_bytes(mut self) -> Result<Vec<u8>> {
+        let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
+        self.meta.insert("format".into(), format.into());
+        self.meta.insert("version".into(), version.to_string());
+        let views = self
+            .tensors
+            .iter()
+            .map(|(name, dtype, shape, data)| {
+                TensorView::new(*dtype, shape.clone(), data)
+                    .map(|v| (name.clone(), v))
+                    .map_err(|e| Error::InvalidArgument(format!("tensor `{name}`: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        safetensors::serialize(views, Some(self.meta))
+            .map_err(|e| Error::InvalidArgument(format!("serialising the map: {e}")))
+    }
+}
+
+fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::new(e.kind(), format!("{what}: {e}")),
+    }
+}
+
+/// Largest JSON header read (the `safetensors` crate's limit).
+const MAX_HEADER_BYTES: u64 = 100_000_000;
+
+/// Where a tensor lies in the archive's bytes.
+struct Entry {
+    dtype: Dtype,
+    shape: Vec<usize>,
+    /// Byte range within the whole file (header included).
+    range: std::ops::Range<usize>,
+}
+
+/// Reads a safetensors header and checks every tensor's extent: element
+/// count times size (no overflow), offsets contiguous from the start of
+/// the data, which they cover exactly. Returns the metadata and the
+/// tensors. (Done here rather than by `safetensors::SafeTensors`, whose
+/// 0.8 reader overflows on offsets near `usize::MAX`.)
+#[allow(clippy::type_complexity)]
+fn read_header(
+    bytes: &[u8],
+) -> std::result::Result<(HashMap<String, String>, HashMap<String, Entry>), String> {
+    let Some(n) = bytes.get(..8) else {
+        return Err(format!("{} bytes, shorter than a header", bytes.len()));
+    };
+    let mut len = [0u8; 8];
+    len.copy_from_slice(n);
+    let n = u64::from_le_bytes(len);
+    if n > MAX_HEADER_BYTES {
+        return Err(format!("header of {n} bytes"));
+    }
+    let data_start = 8 + n as usize;
+    let Some(header) = bytes.get(8..data_start) else {
+        return Err(format!(
+            "header of {n} bytes in a file of {} bytes",
+            bytes.len()
+        ));
+    };
+    let header = std::str::from_utf8(header).map_err(|e| format!("header: {e}"))?;
+    let fields: HashMap<String, serde_json::Value> =
+        serde_json::from_str(header).map_err(|e| format!("header: {e}"))?;
+    let mut meta = HashMap::new();
+    let mut tensors = HashMap::with_capacity(fields.len());
+    let data_len = bytes.len() - data_start;
+    for (name, value) in fields {
+        if name == "__metadata__" {
+            meta = serde_json::from_value(value).map_err(|e| format!("metadata: {e}"))?;
+            continue;
+        }
+        let info: safetensors::tensor::TensorInfo =
+            serde_json::from_value(value).map_err(|e| format!("tensor `{name}`: {e}"))?;
+        let (s, e) = info.data_offsets;
+        let bits = info
+            .shape
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .and_then(|count| count.checked_mul(info.dtype.bitsize()));
+        let size = match bits {
+            Some(b) if b % 8 == 0 => b / 8,
+            _ => {
+                return Err(format!(
+                    "tensor `{name}`: shape {:?} of {:?} has no whole byte size",
+                    info.shape, info.dtype
+                ))
+            }
+        };
+        if e < s || e - s != size || e > data_len {
+            return Err(format!(
+                "tensor `{name}`: offsets {s}..{e} for {size} bytes in {data_len} bytes of data"
+            ));
+        }
+        tensors.insert(
+            name,
+            Entry {
+                dtype: info.dtype,
+                shape: info.shape,
+                range: data_start + s..data_start + e,
+            },
+        );
+    }
+    // The tensors tile the data exactly.
+    let mut extents: Vec<_> = tensors.values().map(|t| t.range.clone()).collect();
+    extents.sort_by_key(|r| (r.start, r.end));
+    let mut at = data_start;
+    for r in extents {
+        if r.start != at {
+            return Err(format!(
+                "tensor data overlaps or leaves a gap at byte {}",
+                at.min(r.start)
+            ));
+        }
+        at = r.end;
+    }
+    if at != bytes.len() {
+        return Err(format!(
+            "{} bytes after the last tensor",
+            bytes.len().saturating_sub(at)
+        ));
+    }
+    Ok((meta, tensors))
+}
+
+/// A loaded archive: the file's bytes, owned (read from a path) or
+/// borrowed (parsed from memory).
+pub(crate) struct Archive<'a> {
+    bytes: Cow<'a, [u8]>,
+    meta: HashMap<String, String>,
+    tensors: HashMap<String, Entry>,
+    path: PathBuf,
+}
+
+impl Archive<'static> {
+    /// Reads and checks `path`: a safetensors file of this format and a
+    /// version this build reads.
+    pub fn open(path: &Path) -> Result<Self> {
+        Self::open_as(path, FORMAT, VERSION, "map")
+    }
+
+    /// Reads and checks `path` as an archive of format `format`, version
+    /// `version`; `what` names it in errors.
+    pub fn open_as(path: &Path, format: &str, version: u32, what: &str) -> Result<Self> {
+        let bytes = latentam_io::read_input(path).map_err(|e| io_error(path, "reading", e))?;
+        Archive::parse_as(Cow::Owned(bytes), path, format, version, what)
+    }
+}
+
+impl<'a> Archive<'a> {
+    /// Checks `bytes` (the contents of `origin`, which names it in errors)
+    /// as an archive of format `format`, version `version`. Every
+    /// tensor's extent is checked here, so later reads cannot fail on it.
+    pub fn parse_as(
+        bytes: Cow<'a, [u8]>,
+        origin: &Path,
+        format: &str,
+        version: u32,
+        what: &str,
+    ) -> Result<Self> {
+        let not_ours = |why: String| {
+            Error::InvalidArgument(format!(
+                "{} is not a latentam {what}: {why}",
+                origin.display()
+            ))
+        };
+        let (meta, tensors) = read_header(&bytes).map_err(not_ours)?;
+        match meta.get("format").map(String::as_str) {
+            Some(f) if f == format => {}
+            other => return Err(not_ours(format!("format is {other:?}"))),
+        }
+        let found = meta.get("version").map(String::as_str).unwrap_or("none");
+        if found != version.to_string() {
+            let found: String = found.chars().take(32).collect();
+            return Err(Error::InvalidArgument(format!(
+                "{} is a version {found} {what}; this build reads version {version}",
+                origin.display()
+            )));
+        }
+        Ok(Archive {
+            bytes,
+            meta,
+            tensors,
+            path: origin.to_path_buf(),
+        })
+    }
+
+    /// The file the archive came from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// An error naming the file.
+    pub fn corrupt(&self, why: String) -> Error {
+        Error::InvalidArgument(format!("{}: {why}", self.path.display()))
+    }
+
+    /// A metadata value.
+    pub fn meta(&self, key: &str) -> Result<&str> {
+        self.meta
+            .get(key)
+            .map(String::as_str)
+            .ok_or_else(|| self.corrupt(format!("metadata `{key}` missing")))
+    }
+
+    /// A metadata value parsed.
+    pub fn meta_parse<T: std::str::FromStr>(&self, key: &str) -> Result<T> {
+        let v = self.meta(key)?;
+        v.parse().map_err(|_| {
+            let shown: String = v.chars().take(64).collect();
+            self.corrupt(format!("metadata `{key}` = {shown:?} is malformed"))
+        })
+    }
+
+    /// Whether tensor `name` is present.
+    pub fn has(&self, name: &str) -> bool {
+        self.tensors.contains_key(name)
+    }
+
+    fn entry<T: Element>(&self, name: &str) -> Result<&Entry> {
+        let t = self
+            .tensors
+            .get(name)
+            .ok_or_else(|| self.corrupt(format!("tensor `{name}` missing")))?;
+        if t.dtype != T::DTYPE {
+            return Err(self.corrupt(format!(
+                "tensor `{name}` is {:?}, expected {:?}",
+                t.dtype,
+                T::DTYPE
+            )));
+        }
+        Ok(t)
+    }
+
+    /// The shape of tensor `name`, which must be of type `T`.
+    pub fn shape<T: Element>(&self, name: &str) -> Result<&[usize]> {
+        Ok(&self.entry::<T>(name)?.shape)
+    }
+
+    fn data<T: Element>(&self, name: &str, t: &Entry) -> Result<Vec<T>> {
+        let raw = self
+            .bytes
+            .get(t.range.clone())
+            .filter(|b| b.len() % std::mem::size_of::<T>() == 0)
+            .ok_or_else(|| self.corrupt(format!("tensor `{name}` data out of range")))?;
+        Ok(bytemuck::allocation::pod_collect_to_vec(raw))
+    }
+
+    /// Tensor `name` of exactly `shape`.
+    pub fn exact<T: Element>(&self, name: &str, shape: &[usize]) -> Result<Vec<T>> {
+        let t = self.entry::<T>(name)?;
+        if t.shape != shape {
+            return Err(self.corrupt(format!(
+                "tensor `{name}` has shape {:?}, expected {shape:?}",
+                t.shape
+            )));
+        }
+        self.data(name, t)
+    }
+
+    /// Tensor `name`, one-dimensional, of any length.
+    pub fn flat<T: Element>(&self, name: &str) -> Result<Vec<T>> {
+        let t = self.entry::<T>(name)?;
+        if t.shape.len() != 1 {
+            return Err(self.corrupt(format!(
+                "tensor `{name}` has shape {:?}, expected one dimension",
+                t.shape
+            )));
+        }
+        self.data(name, t)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_refusals() {
+        let dir = std::env::temp_dir().join(format!("latentam-archive-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.map");
+        let mut w = ArchiveWriter::default();
+        w.meta("answer", 42);
+        w.tensor("x", &[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        w.tensor("k", &[2], &[-7i32, 9]);
+        w.bytes("raw", 1, 3, vec![1, 2, 3]);
+        latentam_base::files::write_bytes_atomically(&path, &w.into_bytes().unwrap()).unwrap();
+        let a = Archive::open(&path).unwrap();
+        assert_eq!(a.meta_parse::<u32>("answer").unwrap(), 42);
+        assert_eq!(a.exact::<f32>("x", &[2, 3]).unwrap()[5], 6.0);
+        assert!(a.exact::<f32>("x", &[3, 2]).is_err());
+        assert!(a.flat::<f32>("x").is_err());
+        assert_eq!(a.flat::<i32>("k").unwrap(), vec![-7, 9]);
+        assert!(a.flat::<i64>("k").is_err());
+        assert!(a.flat::<f32>("missing").is_err());
+        assert_eq!(a.shape::<u8>("raw").unwrap(), &[1, 3]);
+        assert!(a.meta("missing").is_err());
+        assert!(a.has("raw") && !a.has("nope"));
+        // No temporary files left behind.
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+
+        // Truncated, foreign, or from a future version: clear errors.
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
+        assert!(Archive::open(&path).is_err());
+        std::fs::write(&path, b"not a map at all").unwrap();
+        let e = Archive::open(&path).err().unwrap().to_string();
+        assert!(e.contains("not a latentam map"), "{e}");
+        let views = vec![(
+            "x".to_string(),
+            TensorView::new(Dtype::U8, vec![1], &[0u8]).unwrap(),
+        )];
+        let mut meta = HashMap::new();
+        meta.insert("format".to_string(), FORMAT.to_string());
+        meta.insert("version".to_string(), "99".to_string());
+        std::fs::write(&path, safetensors::serialize(views, Some(meta)).unwrap()).unwrap();
+        let e = Archive::open(&path).err().unwrap().to_string();
+        assert!(e.contains("version 99"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A safetensors file with a hand-written header.
+    fn raw(header: &str, data: &[u8]) -> Vec<u8> {
+        let mut v = (header.len() as u64).to_le_bytes().to_vec();
+        v.extend_from_slice(header.as_bytes());
+        v.extend_from_slice(data);
+        v
+    }
+
+    fn parse(bytes: &[u8]) -> Result<Archive<'_>> {
+        Archive::parse_as(Cow::Borrowed(bytes), Path::new("t"), FORMAT, VERSION, "map")
+    }
+
+    #[test]
+    fn malformed_headers_are_errors_not_panics() {
+        let meta = r#""__metadata__":{"format":"latentam-map","version":"1"}"#;
+        // Offsets near usize::MAX (the safetensors 0.8 reader overflows
+        // adding them to the header length).
+        let huge = usize::MAX - 7;
+        let h = format!(
+            r#"{{{meta},"a":{{"dtype":"U8","shape":[{huge}],"data_offsets":[0,{huge}]}}}}"#
+        );
+        assert!(parse(&raw(&h, &[0; 8])).is_err());
+        // Shapes whose element count overflows, or with a zero dimension.
+        let h = format!(
+            r#"{{{meta},"a":{{"dtype":"F64","shape":[4294967296,4294967296,16],"data_offsets":[0,0]}}}}"#
+        );
+        assert!(parse(&raw(&h, &[])).is_err());
+        let h =
+            format!(r#"{{{meta},"a":{{"dtype":"F32","shape":[{huge},0],"data_offsets":[0,0]}}}}"#);
+        let bytes = raw(&h, &[]);
+        let a = parse(&bytes).unwrap();
+        assert!(a.exact::<f32>("a", &[huge, 0]).unwrap().is_empty());
+        assert!(a.flat::<f32>("a").is_err());
+        // Overlapping tensors, gaps, trailing bytes, short files.
+        let two = |a: (usize, usize), b: (usize, usize)| {
+            format!(
+                r#"{{{meta},"a":{{"dtype":"U8","shape":[{}],"data_offsets":[{},{}]}},"b":{{"dtype":"U8","shape":[{}],"data_offsets":[{},{}]}}}}"#,
+                a.1 - a.0,
+                a.0,
+                a.1,
+                b.1 - b.0,
+                b.0,
+                b.1
+            )
+        };
+        assert!(parse(&raw(&two((0, 2), (0, 2)), &[0; 2])).is_err());
+        assert!(parse(&raw(&two((0, 2), (1, 3)), &[0; 3])).is_err());
+        assert!(parse(&raw(&two((0, 1), (2, 3)), &[0; 3])).is_err());
+        assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 4])).is_err());
+        assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 2])).is_err());
+        assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 3])).is_ok());
+        for n in 0..8 {
+            assert!(parse(&[0xff; 8][..n]).is_err());
+        }
+        assert!(parse(&u64::MAX.to_le_bytes()).is_err());
+        // Metadata that is not strings.
+        let h = r#"{"__metadata__":{"format":1}}"#;
+        assert!(parse(&raw(h, &[])).is_err());
+    }
+
+    #[test]
+    fn unaligned_tensors_are_read() {
+        // One byte, then f64s starting at an odd offset.
+        let meta = r#""__metadata__":{"format":"latentam-map","version":"1"}"#;
+        let h = format!(
+            r#"{{{meta},"a":{{"dtype":"U8","shape":[1],"data_offsets":[0,1]}},"b":{{"dtype":"F64","shape":[2],"data_offsets":[1,17]}}}}"#
+        );
+        let mut data = vec![7u8];
+        data.extend(1.5f64.to_le_bytes());
+        data.extend((-2.25f64).to_le_bytes());
+        for pad in 0..8 {
+            // Header lengths of every residue move the data's alignment.
+            let h = format!("{h}{}", " ".repeat(pad));
+            let bytes = raw(&h, &data);
+            let a = parse(&bytes).unwrap();
+            assert_eq!(a.flat::<f64>("b").unwrap(), vec![1.5, -2.25]);
+            assert_eq!(a.flat::<u8>("a").unwrap(), vec![7]);
+        }
+    }
+}

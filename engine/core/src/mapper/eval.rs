@@ -1,0 +1,610 @@
+//! Quality of a map on a view (SPEC §10, paper §V): the view is rendered
+//! from the global map's Gaussians near the camera and compared with the
+//! frame's colour (PSNR over all pixels), depth (L1 over valid pixels) and,
+//! per pixel (the paper's protocol, [`super::pixel_metrics`]), with the
+//! region embeddings (cosine loss of each pixel's decoded query against its
+//! region's target) and, with a vocabulary, the true classes (each pixel
+//! classified among the vocabulary; mIoU over its classes). Without
+//! semantic labels the true class of a region is the one its target
+//! embedding is closest to (the teacher/student variant).
+//!
+//! The region-pooled figures of the same view, each region's mean rendered
+//! query decoded once and given to all its pixels (what training
+//! supervises), are kept as a second, more lenient set
+//! ([`ViewMetrics::region_pooled`]) for debugging.
+
+use std::collections::BTreeMap;
+
+use super::history::{camera_of, KeyframeRecord};
+use super::online::OnlineMapper;
+use super::pixel_metrics::{pixel_metrics, PixelInputs};
+use crate::latent::{FactorisedDecoder, RelevanceScorer, NO_REGION};
+use crate::map::push_gaussian;
+use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
+use latentam_base::{Error, Result};
+use latentam_gpu::Context;
+use latentam_io::{Frame, Vocabulary};
+
+/// Metrics of one view.
+///
+/// ```no_run
+/// use latentam_core::mapper::eval::mean_iou;
+/// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {
+/// let m = mapper.evaluate(frame, Some(vocabulary), 2)?; // every 2nd pixel and row
+/// println!("PSNR {:.2} dB, depth L1 {:.3} m, coverage {:.0} %", m.psnr, m.depth_l1, 100.0 * m.coverage);
+/// if let Some(miou) = mean_iou(&m.class_iou) {
+///     println!("mIoU {miou:.3} ({} classes)", m.class_iou.len());
+/// }
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ViewMetrics {
+    /// Colour PSNR (dB), colours clamped to 0..1.
+    pub psnr: f64,
+    /// Mean absolute error (metres) of the rendered depth (Σ w·z / α, 0
+    /// where nothing renders) over every pixel with a valid measured depth.
+    pub depth_l1: f64,
+    /// Share of pixels with α > 0.5.
+    pub coverage: f64,
+    /// Mean over pixels with a region target of 1 − cos(decoded query at
+    /// the pixel, target).
+    pub cosine_loss: Option<f64>,
+    /// Mean over the same pixels of the L2 distance between the
+    /// unit-normalised decoded query and the (unit) target, √(2 − 2 cos).
+    pub l2: Option<f64>,
+    /// Pixels in `cosine_loss` (to weigh views by).
+    pub cosine_pixels: u64,
+    /// Where the true classes of `class_iou` come from: `"labels"` (the
+    /// frame's semantic image) or `"teacher"` (no labels: each region's
+    /// class is the vocabulary entry closest to its target embedding,
+    /// the Feature-3DGS teacher/student variant of SPEC §10).
+    pub segmentation: Option<&'static str>,
+    /// Per vocabulary class id: pixel counts of the predicted and true
+    /// class masks, each pixel classified on its own. Only pixels whose
+    /// true class is in the vocabulary count: no query word can predict
+    /// the others.
+    pub class_iou: BTreeMap<u16, ClassCounts>,
+    /// Every `pixel_stride`-th pixel and row were evaluated.
+    pub pixel_stride: usize,
+    /// The region-pooled figures (debugging).
+    pub region_pooled: Option<RegionPooled>,
+    /// Gaussians rendered.
+    pub gaussians: usize,
+}
+
+/// Pixel counts of one class's masks over the evaluated pixels.
+///
+/// ```
+/// use std::collections::BTreeMap;
+/// use latentam_core::mapper::eval::{count_pixel, mean_iou, ClassCounts};
+///
+/// let mut counts: BTreeMap<u16, ClassCounts> = BTreeMap::new();
+/// count_pixel(&mut counts, 3, Some(3)); // right
+/// count_pixel(&mut counts, 3, Some(5)); // wrong
+/// assert_eq!(counts[&3].iou(), 0.5);
+/// assert_eq!(mean_iou(&counts), Some(0.5)); // class 5 is never true: not averaged
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ClassCounts {
+    /// Pixels both true and predicted for the class.
+    pub intersection: u64,
+    /// Pixels true or predicted for the class.
+    pub union: u64,
+    /// Pixels whose true class it is.
+    pub truth: u64,
+}
+
+impl ClassCounts {
+    /// Intersection over union (0 when the union is empty).
+    pub fn iou(&self) -> f64 {
+        if self.union == 0 {
+            0.0
+        } else {
+            self.intersection as f64 / self.union as f64
+        }
+    }
+}
+
+/// A view's figures with each region's mean rendered query decoded once
+/// and given to all its pixels: more lenient than the per-pixel protocol
+/// (it hides boundary errors inside the ground-truth masks).
+///
+/// ```
+/// # fn f(m: &latentam_core::mapper::eval::ViewMetrics) {
+/// let pooled = m.region_pooled.as_ref().and_then(|r| r.cosine_loss);
+/// if let (Some(pixel), Some(pooled)) = (m.cosine_loss, pooled) {
+///     println!("cosine loss {pixel:.3} per pixel, {pooled:.3} region-pooled");
+/// }
+/// # }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RegionPooled {
+    /// Mean over regions of 1 − cos(decoded pooled query, target).
+    pub cosine_loss: Option<f64>,
+    /// Mean over regions of √(2 − 2 cos).
+    pub l2: Option<f64>,
+    /// Regions compared.
+    pub regions: usize,
+    /// Per vocabulary class: pixel counts with each region's pixels given
+    /// its pooled class.
+    pub class_iou: BTreeMap<u16, ClassCounts>,
+}
+
+/// mIoU over the classes that occur in the ground truth, from counts
+/// summed over all evaluated views.
+pub fn mean_iou(counts: &BTreeMap<u16, ClassCounts>) -> Option<f64> {
+    let ious: Vec<f64> = counts
+        .values()
+        .filter(|c| c.truth > 0)
+        .map(ClassCounts::iou)
+        .collect();
+    (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
+}
+
+/// Adds `b`'s counts into `a`.
+pub fn add_iou(a: &mut BTreeMap<u16, ClassCounts>, b: &BTreeMap<u16, ClassCounts>) {
+    for (&c, n) in b {
+        let e = a.entry(c).or_default();
+        e.intersection += n.intersection;
+        e.union += n.union;
+        e.truth += n.truth;
+    }
+}
+
+/// Adds one pixel to per-class counts: its true class and the predicted
+/// one (`None`: nothing predicted there).
+pub fn count_pixel(counts: &mut BTreeMap<u16, ClassCounts>, truth: u16, predicted: Option<u16>) {
+    let t = counts.entry(truth).or_default();
+    t.truth += 1;
+    t.union += 1;
+    match predicted {
+        Some(p) if p == truth => t.intersection += 1,
+        Some(p) => counts.entry(p).or_default().union += 1,
+        None => {}
+    }
+}
+
+/// Renders and scores views of a map.
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions};
+/// use latentam_core::mapper::{eval::Evaluator, MapperConfig, OnlineMapper};
+/// # fn f(frames: &[latentam_io::Frame]) -> latentam_core::Result<()> {
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let mut mapper = OnlineMapper::new(&ctx, MapperConfig::default())?;
+/// frames.iter().try_for_each(|f| mapper.integrate(f).map(drop))?;
+/// let mut evaluator = Evaluator::new(&ctx);
+/// evaluator.pixel_stride = 4; // a quick look: every 4th pixel and row
+/// for frame in frames.iter().step_by(10) {
+///     println!("{} ns: PSNR {:.2} dB", frame.stamp_ns, evaluator.evaluate(&mut mapper, frame, None)?.psnr);
+/// }
+/// # Ok(())
+/// # }
+/// ```
+pub struct Evaluator {
+    ctx: Context,
+    raster: Rasterizer,
+    /// The rendered Gaussians (grown as views need).
+    gaussians: Option<GaussianBuffers>,
+    scorer: Option<RelevanceScorer>,
+    /// The factorised decoder of the head last seen, with the W and atoms
+    /// it was built from.
+    decoder: Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
+    /// Gaussians within this distance of the camera are rendered (metres);
+    /// [`Evaluator::evaluate`] reaches further when the frame measures
+    /// depth further away, so that every surface in view is rendered.
+    pub radius: f64,
+    /// Every `pixel_stride`-th pixel of every `pixel_stride`-th row is
+    /// evaluated per pixel (1, the default: all). PSNR and depth use all.
+    pub pixel_stride: usize,
+}
+
+impl Evaluator {
+    /// An evaluator on `ctx`.
+    pub fn new(ctx: &Context) -> Self {
+        Evaluator {
+            ctx: ctx.clone(),
+            raster: {
+                // Renders only: no gradient images.
+                let mut r = Rasterizer::new(ctx);
+                r.settings.query_gradient_image = false;
+                r
+            },
+            gaussians: None,
+            scorer: None,
+            decoder: None,
+            radius: 8.0,
+            pixel_stride: 1,
+        }
+    }
+
+    /// Renders `camera`'s view of `mapper`'s map (written back first) from
+    /// the Gaussians within [`Evaluator::radius`] of the camera; returns
+    /// the view and the number of Gaussians rendered.
+    pub fn render(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        camera: &Camera,
+    ) -> Result<(RenderedView, usize)> {
+        self.render_within(mapper, camera, self.radius)
+    }
+
+    /// Renders the view of `frame`'s camera, reaching at least as far as
+    /// the frame measured depth (so every surface it saw is rendered), at
+    /// the camera's exposure of the frame's time; returns the view and the
+    /// number of Gaussians rendered.
+    pub fn render_frame(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+    ) -> Result<(RenderedView, usize)> {
+        self.render_record(mapper, frame, &KeyframeRecord::from_frame(frame))
+    }
+
+    fn render_record(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+        record: &KeyframeRecord,
+    ) -> Result<(RenderedView, usize)> {
+        let camera = camera_of(frame);
+        // The farthest measured surface (a corner of the view lies further
+        // than the depth along the axis), so nothing in view is left out.
+        let k = frame.intrinsics;
+        let corner2 = (k.width as f64 / k.fx).powi(2) + (k.height as f64 / k.fy).powi(2);
+        let farthest = record.depth_mm.iter().copied().max().unwrap_or(0) as f64 * 1e-3;
+        let reach = farthest * (1.0 + corner2).sqrt() + 0.5;
+        let radius = if reach.is_finite() {
+            self.radius.max(reach)
+        } else {
+            self.radius
+        };
+        let (mut view, n) = self.render_within(mapper, &camera, radius)?;
+        // The map holds colours at its own brightness: the view is shown at
+        // the camera's exposure of its time, from the keyframes around it.
+        let gain = mapper.exposure().at(frame.stamp_ns);
+        for p in &mut view.rgbd {
+            p[..3].iter_mut().for_each(|c| *c *= gain);
+        }
+        Ok((view, n))
+    }
+
+    fn render_within(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        camera: &Camera,
+        radius: f64,
+    ) -> Result<(RenderedView, usize)> {
+        mapper.flush()?;
+        let global = mapper.global();
+        let mut host = HostGaussians::default();
+        for key in global.within(camera.cam_to_world.translation, radius) {
+            let g = global.get(key).expect("within() returns present keys");
+            push_gaussian(&mut host, g);
+        }
+        let n = host.means.len();
+        if n == 0 {
+            return Err(Error::InvalidArgument(
+                "no Gaussians near this view: nothing to render".into(),
+            ));
+        }
+        if self
+            .gaussians
+            .as_ref()
+            .is_none_or(|b| b.capacity() < n as u64)
+        {
+            self.gaussians = None;
+            self.gaussians = Some(GaussianBuffers::new(&self.ctx, "eval/gaussians", n as u64)?);
+        }
+        let buffers = self.gaussians.as_ref().expect("sized above");
+        buffers.upload(&self.ctx, 0, &host)?;
+        self.raster
+            .forward(buffers, n as u64, std::slice::from_ref(camera))?;
+        Ok((self.raster.download_view(0)?, n))
+    }
+
+    /// Metrics of `frame` rendered from `mapper`'s map (written back
+    /// first). Segmentation needs `vocabulary` and the frame's semantic
+    /// labels; embeddings need the latent head.
+    pub fn evaluate(
+        &mut self,
+        mapper: &mut OnlineMapper,
+        frame: &Frame,
+        vocabulary: Option<&Vocabulary>,
+    ) -> Result<ViewMetrics> {
+        let record = KeyframeRecord::from_frame(frame);
+        let (view, n) = self.render_record(mapper, frame, &record)?;
+        let target = record.target_rgbd();
+
+        let mut se = 0.0f64;
+        let (mut l1, mut valid) = (0.0f64, 0u64);
+        for ((p, t), &a) in view.rgbd.iter().zip(&target).zip(&view.alpha) {
+            for c in 0..3 {
+                se += (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2);
+            }
+            // Every pixel with a measured depth counts: where the map
+            // renders nothing the error is the whole depth.
+            if t[3] > 0.0 && t[3].is_finite() {
+                let rendered = if a > 1e-6 {
+                    p[3] as f64 / a as f64
+                } else {
+                    0.0
+                };
+                l1 += (rendered - t[3] as f64).abs();
+                valid += 1;
+            }
+        }
+        let mse = se / (3 * target.len()).max(1) as f64;
+        let covered = view.alpha.iter().filter(|&&a| a > 0.5).count();
+        let mut m = ViewMetrics {
+            coverage: covered as f64 / view.alpha.len().max(1) as f64,
+            psnr: -10.0 * mse.max(1e-12).log10(),
+            depth_l1: if valid > 0 { l1 / valid as f64 } else { 0.0 },
+            gaussians: n,
+            pixel_stride: self.pixel_stride.max(1),
+            ..ViewMetrics::default()
+        };
+
+        let Some(head) = mapper.head() else {
+            return Ok(m);
+        };
+        if head.atom_count() == 0 {
+            return Ok(m);
+        }
+        let texts_needed = vocabulary
+            .map_or(0, |v| v.names.len())
+            .max(record.regions.as_ref().map_or(0, |r| r.count as usize));
+        if texts_needed == 0 {
+            return Ok(m);
+        }
+        let scorer =
+            RelevanceScorer::ensure(&mut self.scorer, &self.ctx, head, texts_needed as u32)?;
+        let (w, h) = (view.width as usize, view.height as usize);
+
+        // Regions: pooled rendered queries against their targets and, with a
+        // vocabulary, classified (the class scoring highest) for the
+        // region's pixels — the same mask pooling that training supervises.
+        let Some(r) = record.regions.as_ref().filter(|r| !r.grid) else {
+            return Ok(m);
+        };
+        let dim = r.dim as usize;
+        let mut sums = vec![[0.0f64; QUERY_DIM]; r.count as usize];
+        let mut counts = vec![0u64; r.count as usize];
+        let region_of = |x: usize, y: usize| {
+            let ly = y * r.height as usize / h;
+            let lx = x * r.width as usize / w;
+            r.labels[ly * r.width as usize + lx] as usize
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let l = region_of(x, y);
+                if l < sums.len() {
+                    counts[l] += 1;
+                    for (s, q) in sums[l].iter_mut().zip(&view.query[y * w + x]) {
+                        *s += *q as f64;
+                    }
+                }
+            }
+        }
+        let used: Vec<usize> = (0..sums.len()).filter(|&i| counts[i] > 0).collect();
+        if used.is_empty() {
+            return Ok(m);
+        }
+        // Per pixel, the paper's protocol; pooled below.
+        let stride = self.pixel_stride;
+        let decoder = decoder_for(&self.ctx, &mut self.decoder, head)?;
+        let targets_of_pixels: Vec<u32> = (0..w * h)
+            .map(|p| {
+                let l = region_of(p % w, p / w);
+                if l < sums.len() {
+                    l as u32
+                } else {
+                    NO_REGION
+                }
+            })
+            .collect();
+        let vocab = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty());
+        let no_truth = vec![0u16; w * h];
+        let pixels = pixel_metrics(
+            decoder,
+            &PixelInputs {
+                width: w,
+                height: h,
+                queries: &view.query,
+                region: &targets_of_pixels,
+                targets: &r.vectors,
+                truth: &no_truth,
+                vocabulary: None,
+                stride,
+            },
+        )?;
+        m.cosine_loss = pixels.cosine_loss();
+        m.l2 = pixels.l2();
+        m.cosine_pixels = pixels.cosine_pixels;
+        let mut pooled_m = RegionPooled::default();
+        let pooled: Vec<[f32; QUERY_DIM]> = used
+            .iter()
+            .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
+            .collect();
+        let with_target: Vec<usize> = (0..used.len())
+            .filter(|&j| {
+                r.vectors[used[j] * dim..(used[j] + 1) * dim]
+                    .iter()
+                    .any(|&x| x != 0.0)
+            })
+            .collect();
+        if !with_target.is_empty() {
+            let targets: Vec<f32> = with_target
+                .iter()
+                .flat_map(|&j| {
+                    r.vectors[used[j] * dim..(used[j] + 1) * dim]
+                        .iter()
+                        .copied()
+                })
+                .collect();
+            let q: Vec<[f32; QUERY_DIM]> = with_target.iter().map(|&j| pooled[j]).collect();
+            let s = scorer.score(&self.ctx, head, &q, &targets)?;
+            let k = q.len();
+            pooled_m.cosine_loss =
+                Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
+            pooled_m.l2 = Some(
+                (0..k)
+                    .map(|i| (2.0 - 2.0 * s[i * k + i] as f64).max(0.0).sqrt())
+                    .sum::<f64>()
+                    / k as f64,
+            );
+            pooled_m.regions = k;
+        }
+        let Some(vocab) = vocab else {
+            m.region_pooled = Some(pooled_m);
+            return Ok(m);
+        };
+        let c = vocab.names.len();
+        let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
+        let argmax = |row: &[f32]| {
+            (0..row.len())
+                .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+                .expect("non-empty vocabulary")
+        };
+        let mut predicted = vec![None; sums.len()];
+        for (j, &i) in used.iter().enumerate() {
+            predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
+        }
+        // The true class of a pixel: its label, or without labels its
+        // region's teacher class (targets are unit-norm, so the cosine
+        // ranking is the dot product with the normalised class vectors).
+        let teacher: Option<Vec<Option<u16>>> = match frame.semantic {
+            Some(_) => None,
+            None => {
+                let texts: Vec<Vec<f32>> = vocab
+                    .vectors
+                    .chunks_exact(dim)
+                    .map(|t| {
+                        let n = t.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+                        t.iter().map(|x| x / n).collect()
+                    })
+                    .collect();
+                Some(
+                    (0..sums.len())
+                        .map(|i| {
+                            let target = &r.vectors[i * dim..(i + 1) * dim];
+                            if target.iter().all(|&x| x == 0.0) {
+                                return None;
+                            }
+                            let row: Vec<f32> = texts
+                                .iter()
+                                .map(|t| t.iter().zip(target).map(|(a, b)| a * b).sum())
+                                .collect();
+                            Some(vocab.ids[argmax(&row)])
+                        })
+                        .collect(),
+                )
+            }
+        };
+        m.segmentation = Some(if teacher.is_some() {
+            "teacher"
+        } else {
+            "labels"
+        });
+        let mut truth_of_pixels = vec![0u16; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let region = region_of(x, y);
+                let truth = match (&frame.semantic, &teacher) {
+                    (Some(sem), _) => {
+                        let sy = y * sem.height as usize / h;
+                        let sx = x * sem.width as usize / w;
+                        sem.labels[sy * sem.width as usize + sx]
+                    }
+                    (None, Some(t)) => t.get(region).copied().flatten().unwrap_or(0),
+                    (None, None) => 0,
+                };
+                // Unlabelled pixels, and classes no query word names, are
+                // not evaluated.
+                if truth == 0 || !vocab.ids.contains(&truth) {
+                    continue;
+                }
+                truth_of_pixels[y * w + x] = truth;
+                let pred = predicted.get(region).copied().flatten();
+                count_pixel(&mut pooled_m.class_iou, truth, pred);
+            }
+        }
+        m.region_pooled = Some(pooled_m);
+        let classes = pixel_metrics(
+            decoder,
+            &PixelInputs {
+                width: w,
+                height: h,
+                queries: &view.query,
+                region: &vec![NO_REGION; w * h],
+                targets: &[],
+                truth: &truth_of_pixels,
+                vocabulary: Some((&vocab.ids, &vocab.vectors)),
+                stride,
+            },
+        )?;
+        m.class_iou = classes.class_iou;
+        Ok(m)
+    }
+}
+
+/// The factorised decoder of `head`'s current parameters, kept in `cache`
+/// and rebuilt only when they changed since the last view.
+fn decoder_for<'c>(
+    ctx: &Context,
+    cache: &'c mut Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
+    head: &crate::latent::LatentHead,
+) -> Result<&'c FactorisedDecoder> {
+    let k = head.atom_count() as usize;
+    let dim = head.config().dim as usize;
+    let w = ctx.download::<f32>(head.w())?;
+    let mut atoms = ctx.download::<f32>(head.atoms())?;
+    atoms.truncate(k * dim);
+    let stale = cache
+        .as_ref()
+        .is_none_or(|(w0, d0, _)| *w0 != w || *d0 != atoms);
+    if stale {
+        let dec = FactorisedDecoder::from_head(ctx, head)?;
+        *cache = Some((w, atoms, dec));
+    }
+    match cache {
+        Some((_, _, dec)) => Ok(dec),
+        None => Err(Error::InvalidArgument("no decoder".into())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn miou_averages_the_classes_of_the_ground_truth() {
+        let mut c = BTreeMap::new();
+        // Class 1: 3 true pixels, 2 found; one pixel of class 2 taken for 1.
+        count_pixel(&mut c, 1, Some(1));
+        count_pixel(&mut c, 1, Some(1));
+        count_pixel(&mut c, 1, None);
+        count_pixel(&mut c, 2, Some(1));
+        // Class 3 is only ever predicted (never true): not averaged.
+        count_pixel(&mut c, 2, Some(3));
+        assert_eq!(
+            c[&1],
+            ClassCounts {
+                intersection: 2,
+                union: 4,
+                truth: 3
+            }
+        );
+        assert_eq!(c[&2].iou(), 0.0);
+        assert_eq!(c[&3].truth, 0);
+        let m = mean_iou(&c).unwrap();
+        assert!((m - (0.5 + 0.0) / 2.0).abs() < 1e-12, "{m}");
+        let mut sum = BTreeMap::new();
+        add_iou(&mut sum, &c);
+        add_iou(&mut sum, &c);
+        assert_eq!(sum[&1].union, 8);
+        assert_eq!(mean_iou(&sum), Some(m));
+        assert_eq!(mean_iou(&BTreeMap::new()), None);
+    }
+}

@@ -1,0 +1,615 @@
+//! The library façade: one value that owns the GPU context and the online
+//! mapper, with the calls a robot program needs.
+
+use std::borrow::Borrow;
+use std::path::{Path, PathBuf};
+
+use super::config::MapperConfig;
+use super::export::{DecoderFile, DECODER_FILE};
+use super::keyframe_report::{Integrated, MapperStats};
+use super::online::OnlineMapper;
+use super::persist::SavedState;
+use super::run_folder::{RunFolder, RunStaging};
+use latentam_base::{Error, Result};
+use latentam_gpu::{Context, ContextOptions};
+use std::sync::atomic::AtomicBool;
+
+use super::eval::{Evaluator, ViewMetrics};
+use super::history::History;
+use crate::latent::LatentHead;
+use crate::latent::{RelevanceScorer, TextQuery};
+use crate::map::{write_ply, write_ply_without_latents, ExposureTrack, GlobalMap};
+use crate::splat::{Camera, RenderedView};
+use latentam_io::{CameraPose, Frame, Vocabulary};
+
+/// File name of the resumable state inside a save directory.
+pub const STATE_FILE: &str = "state.latentam";
+
+/// A latent Gaussian map built online.
+///
+/// ```no_run
+/// use latentam_io::{AssemblyConfig, McapFrames};
+///
+/// let mut mapper = latentam_core::mapper::Mapper::new(latentam_core::mapper::MapperConfig::default())?;
+/// for frame in McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())? {
+///     mapper.integrate(&frame?)?;
+/// }
+/// let text_embedding = vec![0.0f32; 512]; // from your vision-language model
+/// let scores: Vec<f32> = mapper.query(&text_embedding)?; // one per Gaussian
+/// mapper.save("out/")?;
+/// println!("{} Gaussians", mapper.stats().gaussians);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct Mapper {
+    inner: OnlineMapper,
+    scorer: Option<RelevanceScorer>,
+    /// Renders views for `render*` and `evaluate` (made on first use).
+    evaluator: Option<Evaluator>,
+}
+
+impl Mapper {
+    /// A mapper on the first suitable Vulkan device.
+    ///
+    /// ```no_run
+    /// let mut config = latentam_core::mapper::MapperConfig::default();
+    /// config.gpu_budget = Some(2 << 30); // bytes of GPU memory the map may use
+    /// let mapper = latentam_core::mapper::Mapper::new(config)?;
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn new(config: MapperConfig) -> Result<Self> {
+        let ctx = Context::new(ContextOptions::default())?;
+        Self::with_context(&ctx, config)
+    }
+
+    /// A mapper on a context of your choosing (device, validation,
+    /// profiling). It sets the context's memory budget.
+    ///
+    /// ```no_run
+    /// use latentam_gpu::{Context, ContextOptions};
+    /// let ctx = Context::new(ContextOptions { profiling: true, ..ContextOptions::default() })?;
+    /// let mapper = latentam_core::mapper::Mapper::with_context(&ctx, latentam_core::mapper::MapperConfig::default())?;
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
+        Ok(Mapper {
+            inner: OnlineMapper::new(ctx, config)?,
+            scorer: None,
+            evaluator: None,
+        })
+    }
+
+    /// The GPU context the mapper runs on (device information, the
+    /// profiler's kernel timings).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// println!("mapping on {}", mapper.context().info().name);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn context(&self) -> &Context {
+        self.inner.context()
+    }
+
+    /// Offers one frame; keyframes are mapped (see
+    /// [`OnlineMapper::integrate`]).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: latentam_io::Frame) -> latentam_core::Result<()> {
+    /// use latentam_core::mapper::Integrated;
+    /// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+    ///     println!("keyframe {}: {} Gaussians", report.index, report.gaussians);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {
+        self.inner.integrate(frame.borrow())
+    }
+
+    /// Relevance of every Gaussian to `text_embedding` (cosine similarity
+    /// of its decoded embedding), in the order of
+    /// [`GlobalMap::iter`] on [`Mapper::global`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// let text_embedding = vec![0.0f32; 512]; // from the map's embedding model
+    /// let scores = mapper.query(&text_embedding)?;
+    /// let best = scores.iter().cloned().fold(f32::MIN, f32::max);
+    /// println!("best match {best:.3} over {} Gaussians", scores.len());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn query(&mut self, text_embedding: &[f32]) -> Result<Vec<f32>> {
+        self.query_many(text_embedding)
+    }
+
+    /// Relevance of every Gaussian to each of several embeddings given
+    /// back to back: Gaussians × embeddings scores, row-major.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// let (a, b) = (vec![0.0f32; 512], vec![1.0f32; 512]);
+    /// let scores = mapper.query_many(&[a, b].concat())?;
+    /// let first_gaussian = &scores[0..2]; // its score for a, then for b
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
+        let head = self.inner.head().ok_or_else(|| {
+            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
+        })?;
+        let dim = head.config().dim as usize;
+        if embeddings.is_empty() || embeddings.len() % dim != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "query of {} values; the map's embeddings are {dim}-d",
+                embeddings.len()
+            )));
+        }
+        let count = (embeddings.len() / dim) as u32;
+        self.inner.flush()?;
+        let ctx = self.inner.context().clone();
+        let head = self.inner.head().expect("checked above");
+        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, count)?;
+        let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
+        scorer.score(&ctx, head, &queries, embeddings)
+    }
+
+    /// Relevance of every Gaussian to `query` (cosine, or the softmax over
+    /// a vocabulary), in the order of [`GlobalMap::iter`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {
+    /// use latentam_core::latent::TextQuery;
+    /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
+    /// let p: Vec<f32> = mapper.relevance(&chair)?; // per Gaussian, 0..1
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn relevance(&mut self, query: &TextQuery) -> Result<Vec<f32>> {
+        Ok(query.relevance_of(&self.query_many(&query.embeddings)?))
+    }
+
+    /// Relevance of every pixel of a rendered view to `query`, from its
+    /// rendered queries (see [`Mapper::render`]).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {
+    /// use latentam_core::latent::TextQuery;
+    /// let (view, _) = mapper.render_frame(frame)?;
+    /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
+    /// let heat: Vec<f32> = mapper.view_relevance(&view, &chair)?; // per pixel
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
+        let head = self.inner.head().ok_or_else(|| {
+            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
+        })?;
+        let ctx = self.inner.context().clone();
+        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, query.texts as u32)?;
+        Ok(query.relevance_of(&scorer.score(&ctx, head, &view.query, &query.embeddings)?))
+    }
+
+    /// Saves the whole state into the run folder `dir` (created if
+    /// missing): [`STATE_FILE`] and, once the map has embeddings,
+    /// [`DECODER_FILE`]. The folder is replaced whole and atomically (see
+    /// [`RunFolder`]): it must hold nothing but a run's files, and no other
+    /// process may be writing it. Returns the state file's path.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// let state = mapper.save("runs/kitchen")?;
+    /// println!("saved {}", state.display());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn save(&mut self, dir: impl AsRef<Path>) -> Result<PathBuf> {
+        let folder = RunFolder::lock(dir)?;
+        let staging = folder.stage()?;
+        self.save_into(&staging)?;
+        staging.commit()?;
+        Ok(folder.dir().join(STATE_FILE))
+    }
+
+    /// Writes [`STATE_FILE`] and [`DECODER_FILE`] (when the map has
+    /// embeddings) into a staged run folder, tagged with its run id, for
+    /// callers that add files of their own before committing it.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+    /// use latentam_core::mapper::RunFolder;
+    /// let folder = RunFolder::lock("runs/kitchen")?;
+    /// let staging = folder.stage()?;
+    /// mapper.save_into(&staging)?;
+    /// std::fs::write(staging.path().join("notes.txt"), "first floor")?;
+    /// staging.commit()?;
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
+        let id = staging.run_id();
+        self.inner
+            .save_as(&staging.path().join(STATE_FILE), Some(id))?;
+        if let Some(mut decoder) = self.inner.decoder_file()? {
+            decoder.run_id = Some(id.to_string());
+            decoder.write(&staging.path().join(DECODER_FILE))?;
+        }
+        Ok(())
+    }
+
+    /// Loads a state saved by [`Mapper::save`] from directory `dir` onto
+    /// `ctx`, to continue mapping or to query. A decoder beside it must
+    /// come from the same save.
+    ///
+    /// ```no_run
+    /// use latentam_gpu::{Context, ContextOptions};
+    /// let ctx = Context::new(ContextOptions::default())?;
+    /// let mut mapper = latentam_core::mapper::Mapper::load(&ctx, "runs/kitchen")?;
+    /// println!("{} keyframes so far", mapper.stats().keyframes);
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn load(ctx: &Context, dir: impl AsRef<Path>) -> Result<Self> {
+        Self::load_with(ctx, dir, &|saved| Ok(saved.clone()))
+    }
+
+    /// [`Mapper::load`], with the run-time settings (budget, learning
+    /// rates, iterations...) that `settings` makes of the saved ones. The
+    /// settings that shape the saved state (voxel size, dictionary size,
+    /// region count, replay count, history cell, seed, window capacity)
+    /// must come back unchanged: a change is refused.
+    ///
+    /// ```no_run
+    /// # fn f(ctx: &latentam_gpu::Context) -> latentam_core::Result<()> {
+    /// // Go on with a smaller GPU budget; the map's shape stays as saved.
+    /// let mapper = latentam_core::mapper::Mapper::load_with(ctx, "runs/kitchen", &|saved| {
+    ///     let mut c = saved.clone();
+    ///     c.gpu_budget = Some(512 << 20);
+    ///     Ok(c)
+    /// })?;
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn load_with(
+        ctx: &Context,
+        dir: impl AsRef<Path>,
+        settings: &dyn Fn(&MapperConfig) -> Result<MapperConfig>,
+    ) -> Result<Self> {
+        let dir = dir.as_ref();
+        let path = dir.join(STATE_FILE);
+        let state = SavedState::read(&path)?;
+        let decoder = dir.join(DECODER_FILE);
+        if let (Some(id), true) = (state.run_id(), decoder.exists()) {
+            let theirs = DecoderFile::read(&decoder)?.run_id;
+            if theirs.as_deref() != Some(id) {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: {DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
+                     ({id}); the folder mixes two runs",
+                    dir.display(),
+                    theirs.as_deref().unwrap_or("no run id")
+                )));
+            }
+        }
+        let overrides = settings(state.config())?;
+        // The settings that shape the saved state stay as saved: a change
+        // asked for would be silently ignored, so it is refused.
+        let asked = overrides.shape_settings();
+        for ((name, saved), (_, asked)) in state.config().shape_settings().into_iter().zip(asked) {
+            if saved != asked {
+                return Err(Error::InvalidArgument(format!(
+                    "{name} = {asked} asked for, but the saved map was built with {name} = \
+                     {saved}, which a resumed map keeps; map from scratch to change it"
+                )));
+            }
+        }
+        Ok(Mapper {
+            inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
+            scorer: None,
+            evaluator: None,
+        })
+    }
+
+    /// Counts, memory and timings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// let s = mapper.stats();
+    /// println!("{} keyframes, {} Gaussians, {} bytes peak GPU", s.keyframes, s.gaussians, s.gpu_peak_bytes);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn stats(&self) -> MapperStats {
+        self.inner.stats()
+    }
+
+    /// Whether `frame` is at or before the last frame this map integrated:
+    /// replaying a log into a resumed map skips those, so a log with a
+    /// dropped or an extra message still resumes at the right frame.
+    /// (States saved before stamps were kept answer `false`.)
+    ///
+    /// ```no_run
+    /// # use latentam_core::mapper::Mapper; use latentam_io::Frame;
+    /// # fn replay(mapper: &mut Mapper, log: Vec<Frame>) -> latentam_core::Result<()> {
+    /// for frame in &log {
+    ///     if !mapper.already_mapped(frame) {
+    ///         mapper.integrate(frame)?;
+    ///     }
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn already_mapped(&self, frame: &Frame) -> bool {
+        self.inner.already_mapped(frame)
+    }
+
+    /// The global map (current as of the last sync, query or save).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// for (key, gaussian) in mapper.global().iter().take(3) {
+    ///     println!("{key:?}: opacity logit {}", gaussian.opacity_logit);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn global(&self) -> &GlobalMap {
+        self.inner.global()
+    }
+
+    /// The settings the map is built with.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// println!("{} atoms, voxel {} m", mapper.config().atoms, mapper.config().voxel_size);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn config(&self) -> &MapperConfig {
+        self.inner.config()
+    }
+
+    /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// for (stamp_ns, pose) in mapper.trajectory() {
+    ///     println!("{stamp_ns}: {:?}", pose.translation);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn trajectory(&self) -> &[(i64, CameraPose)] {
+        self.inner.trajectory()
+    }
+
+    /// The camera's exposure over the map's brightness at each keyframe,
+    /// and in between (`exposure_compensation`): the map's colours times
+    /// `exposure().at(stamp)` are what the camera saw at that time.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper, stamp_ns: i64) {
+    /// let gain = mapper.exposure().at(stamp_ns);
+    /// println!("the camera saw the map {:.0} % brighter", 100.0 * (gain - 1.0));
+    /// # }
+    /// ```
+    pub fn exposure(&self) -> &ExposureTrack {
+        self.inner.exposure()
+    }
+
+    /// The keyframes kept for replay.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// println!("{} keyframes kept for replay", mapper.history().len());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn history(&self) -> &History {
+        self.inner.history()
+    }
+
+    /// The latent head (W, D and their training state), once a keyframe
+    /// with embeddings has been mapped.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// if let Some(head) = mapper.head() {
+    ///     println!("{} dictionary atoms in use", head.atom_count());
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn head(&self) -> Option<&LatentHead> {
+        self.inner.head()
+    }
+
+    /// The embedding model id of the map's region embeddings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// println!("embeddings from {}", mapper.embedding_model().unwrap_or("no model yet"));
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn embedding_model(&self) -> Option<&str> {
+        self.inner.embedding_model()
+    }
+
+    /// The id of the run folder version this map was loaded from or last
+    /// saved to.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// if let Some(id) = mapper.run_id() {
+    ///     println!("run {id}");
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn run_id(&self) -> Option<&str> {
+        self.inner.run_id()
+    }
+
+    /// Whether a keyframe failed part-way: the map refuses further frames
+    /// and saves (reload the last save to go on).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, ctx: &latentam_gpu::Context) -> latentam_core::Result<()> {
+    /// if mapper.is_broken() {
+    ///     *mapper = latentam_core::mapper::Mapper::load(ctx, "runs/kitchen")?; // back to the last save
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn is_broken(&self) -> bool {
+        self.inner.is_broken()
+    }
+
+    /// Checks that a vocabulary's embeddings suit the map (model and
+    /// dimension), with an error that says what differs.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+    /// let vocabulary = latentam_io::read_vocabulary("words.mcap".as_ref(), "/vocabulary")?;
+    /// if let Some(v) = vocabulary {
+    ///     mapper.check_vocabulary(&v)?; // names the model or dimension that differs
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
+        self.inner.check_vocabulary(vocabulary)
+    }
+
+    /// A flag that, once set (say from a signal handler), makes the
+    /// keyframe in progress skip its remaining optimisation steps, leaving
+    /// the map consistent; clear it to map normally again.
+    ///
+    /// ```no_run
+    /// use std::sync::atomic::{AtomicBool, Ordering};
+    /// static STOP: AtomicBool = AtomicBool::new(false);
+    /// let mut mapper = latentam_core::mapper::Mapper::new(latentam_core::mapper::MapperConfig::default())?;
+    /// mapper.set_hurry_flag(&STOP);
+    /// // elsewhere: STOP.store(true, Ordering::Relaxed);
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
+        self.inner.set_hurry_flag(flag);
+    }
+
+    /// Renders colour, depth and queries of the map from `camera`, with
+    /// the Gaussians of the global map near it (those paged out included),
+    /// and says how many Gaussians it drew.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, camera: &latentam_core::splat::Camera) -> latentam_core::Result<()> {
+    /// let (view, drawn) = mapper.render(camera)?;
+    /// println!("{} pixels rendered", view.rgbd.len());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn render(&mut self, camera: &Camera) -> Result<(RenderedView, usize)> {
+        let (ev, mapper) = self.evaluator();
+        ev.render(mapper, camera)
+    }
+
+    /// [`Mapper::render`] at a frame's pose and with its camera, at the
+    /// camera's exposure of the frame's time (interpolated between the
+    /// keyframes around it; see `exposure_compensation`).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame) -> latentam_core::Result<()> {
+    /// let (view, drawn) = mapper.render_frame(frame)?;
+    /// println!("{drawn} Gaussians drawn, {} pixels", view.rgbd.len());
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
+        let (ev, mapper) = self.evaluator();
+        ev.render_frame(mapper, frame)
+    }
+
+    /// Measures the map on a frame it did not necessarily see (the paper's
+    /// protocol, SPEC §10): PSNR and depth error, and with embeddings the
+    /// per-pixel cosine loss and, given a vocabulary, the class IoUs.
+    /// `pixel_stride` decodes every N-th pixel and row (1: all).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame) -> latentam_core::Result<()> {
+    /// let m = mapper.evaluate(frame, None, 1)?;
+    /// println!("PSNR {:.2} dB", m.psnr);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn evaluate(
+        &mut self,
+        frame: &Frame,
+        vocabulary: Option<&Vocabulary>,
+        pixel_stride: usize,
+    ) -> Result<ViewMetrics> {
+        let (ev, mapper) = self.evaluator();
+        ev.pixel_stride = pixel_stride.max(1);
+        ev.evaluate(mapper, frame, vocabulary)
+    }
+
+    /// Writes the map as a 3D Gaussian splatting PLY file (positions,
+    /// scales, rotations, opacities, colours as degree-0 SH, and with
+    /// embeddings the 32 `latent_*` query channels), atomically. The
+    /// queries decode to embeddings with [`Mapper::decoder`].
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// mapper.export_ply("kitchen.ply".as_ref())?; // opens in 3DGS viewers
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn export_ply(&mut self, path: &Path) -> Result<()> {
+        self.inner.flush()?;
+        let gaussians: Vec<_> = self.inner.global().iter().map(|(_, g)| *g).collect();
+        // A map without embeddings has no meaningful queries to write.
+        if self.inner.head().is_some() {
+            write_ply(path, &gaussians, &[])
+        } else {
+            write_ply_without_latents(path, &gaussians, &[])
+        }
+    }
+
+    /// The decoder as it stands (W, the dictionary and the temperature),
+    /// to turn the map's queries into embeddings elsewhere; `None` before
+    /// the first keyframe with embeddings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// if let Some(decoder) = mapper.decoder()? {
+    ///     decoder.write("decoder.safetensors".as_ref())?;
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn decoder(&self) -> Result<Option<DecoderFile>> {
+        self.inner.decoder_file()
+    }
+
+    /// The view renderer (made on first use) beside the mapper it renders.
+    fn evaluator(&mut self) -> (&mut Evaluator, &mut OnlineMapper) {
+        let ev = self
+            .evaluator
+            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
+        (ev, &mut self.inner)
+    }
+
+    /// The mapper underneath. Unstable: for the engine's integration tests
+    /// that check its internals (the GPU window against the global map);
+    /// everything a program needs is on `Mapper` itself, and neither the
+    /// CLI nor the benchmarks call this.
+    #[doc(hidden)]
+    pub fn online(&mut self) -> &mut OnlineMapper {
+        &mut self.inner
+    }
+
+    /// The mapper underneath, read-only. Unstable, as [`Mapper::online`].
+    #[doc(hidden)]
+    pub fn online_ref(&self) -> &OnlineMapper {
+        &self.inner
+    }
+}

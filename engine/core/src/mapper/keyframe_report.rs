@@ -1,0 +1,251 @@
+//! What the mapper reports: per frame ([`Integrated`]), per keyframe
+//! ([`KeyframeReport`], its timings and GPU calls) and over the run
+//! ([`MapperStats`]).
+
+use super::budget::{MemorySplit, WindowBudget};
+use super::trainer::StageOneReport;
+use latentam_gpu::GpuCalls;
+
+/// What the mapper did with a frame ([`Mapper::integrate`](super::Mapper::integrate)).
+///
+/// ```no_run
+/// use latentam_core::mapper::Integrated;
+/// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame) -> latentam_core::Result<()> {
+/// match mapper.integrate(frame)? {
+///     Integrated::Skipped => {} // not a keyframe: nothing was trained
+///     Integrated::Keyframe(report) => println!("keyframe {}: +{} Gaussians", report.index, report.added),
+/// }
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub enum Integrated {
+    /// Not a keyframe.
+    Skipped,
+    /// A keyframe.
+    Keyframe(Box<KeyframeReport>),
+}
+
+/// One re-synchronisation of the window with the global map.
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::KeyframeReport) {
+/// for sync in &report.paging {
+///     let how = if sync.blocking { "blocking" } else { "beside Stage II" };
+///     println!("paging ({how}): {} out, {} in, {} left out for room", sync.evicted, sync.fetched, sync.over_capacity);
+/// }
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PagingReport {
+    /// Resident Gaussians written back to the global map.
+    pub written_back: usize,
+    /// Gaussians that left the window (outside the radius, or farthest
+    /// first when the window was full).
+    pub evicted: usize,
+    /// Gaussians brought in from the global map.
+    pub fetched: usize,
+    /// Gaussians within the radius left out because the window was full.
+    pub over_capacity: usize,
+    /// Whether it ran before Stage I (new Gaussians did not fit), rather
+    /// than beside Stage II.
+    pub blocking: bool,
+}
+
+/// What a keyframe asked of the GPU, by stage: submissions, host waits
+/// (each a CPU–GPU round trip) and dispatches.
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::KeyframeReport) {
+/// let calls = report.gpu_calls;
+/// let (all, training) = (calls.total(), calls.training());
+/// println!("{} host waits ({} in training), {} dispatches", all.host_waits, training.host_waits, all.dispatches);
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct KeyframeGpuCalls {
+    /// The dictionary's streaming k-means update.
+    pub dictionary: GpuCalls,
+    /// Rendering what the map explains, seeding, and paging when new
+    /// Gaussians do not fit the window.
+    pub insertion: GpuCalls,
+    /// Stage I: one measuring wait and one for the step, per iteration.
+    pub stage_one: GpuCalls,
+    /// Stage II: one wait for all its iterations.
+    pub stage_two: GpuCalls,
+    /// Re-synchronising the window beside Stage II.
+    pub paging: GpuCalls,
+    /// Pruning, on the keyframes that prune.
+    pub prune: GpuCalls,
+}
+
+impl KeyframeGpuCalls {
+    /// Every stage together.
+    pub fn total(&self) -> GpuCalls {
+        self.dictionary
+            + self.insertion
+            + self.stage_one
+            + self.stage_two
+            + self.paging
+            + self.prune
+    }
+
+    /// Stage I and Stage II together: the optimisation.
+    pub fn training(&self) -> GpuCalls {
+        self.stage_one + self.stage_two
+    }
+}
+
+/// Where a keyframe's time went (milliseconds of wall time unless named
+/// GPU).
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::KeyframeReport) {
+/// let t = &report.timings;
+/// println!("{:.0} ms, of which Stage I {:.1} and Stage II {:.1}", t.total_ms, t.stage_one_ms, t.stage_two_ms);
+/// if let Some(gpu) = t.stage_two_gpu_ms {
+///     println!("Stage II on the GPU: {gpu:.1} ms");
+/// }
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct KeyframeTimings {
+    /// Dictionary (streaming k-means) update.
+    pub kmeans_ms: f64,
+    /// Coverage render, seeding and bringing new Gaussians into the window.
+    pub insertion_ms: f64,
+    /// Stage I.
+    pub stage_one_ms: f64,
+    /// Stage II and the paging beside it, until both finished.
+    pub stage_two_ms: f64,
+    /// GPU time of Stage II's batch, when timestamps are available.
+    pub stage_two_gpu_ms: Option<f64>,
+    /// Paging on the host: planning, recording, and writing back to the
+    /// global map.
+    pub paging_cpu_ms: f64,
+    /// GPU time of the paging copies, when the transfer queue has
+    /// timestamps.
+    pub paging_gpu_ms: Option<f64>,
+    /// Of that, the time during which Stage II was running too.
+    pub paging_hidden_ms: Option<f64>,
+    /// Pruning.
+    pub prune_ms: f64,
+    /// The whole keyframe.
+    pub total_ms: f64,
+}
+
+/// What a keyframe did.
+///
+/// ```no_run
+/// use latentam_core::mapper::Integrated;
+/// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame) -> Result<(), Box<dyn std::error::Error>> {
+/// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+///     println!("keyframe {} (frame {}): {} Gaussians, {} on the GPU", report.index, report.frame, report.gaussians, report.resident);
+///     println!("{}", serde_json::to_string(&report)?); // one JSON line per keyframe
+/// }
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct KeyframeReport {
+    /// Keyframe number (0-based).
+    pub index: u64,
+    /// Frame number within the stream (0-based).
+    pub frame: u64,
+    /// Frame stamp, ns.
+    pub stamp_ns: i64,
+    /// New Gaussians in the global map.
+    pub added: usize,
+    /// Stage I's measurements.
+    pub stage_one: StageOneReport,
+    /// Feature loss of the last Stage II iteration.
+    pub stage_two: f64,
+    /// Gaussians pruned after this keyframe.
+    pub pruned: usize,
+    /// Window re-synchronisations of this keyframe.
+    pub paging: Vec<PagingReport>,
+    /// Timings.
+    pub timings: KeyframeTimings,
+    /// Gaussians in the global map afterwards.
+    pub gaussians: usize,
+    /// Gaussians resident on the GPU afterwards.
+    pub resident: usize,
+    /// GPU bytes allocated afterwards (allocator accounting).
+    pub gpu_bytes: u64,
+    /// CPU bytes of the global map and the keyframe history afterwards.
+    pub cpu_bytes: u64,
+    /// Dictionary atoms after this keyframe's update.
+    pub atoms: u32,
+    /// The camera's gain over the map's brightness when it took the
+    /// keyframe (1 without `exposure_compensation`).
+    pub exposure: f32,
+    /// What this keyframe asked of the GPU, by stage.
+    pub gpu_calls: KeyframeGpuCalls,
+}
+
+/// Running totals ([`Mapper::stats`](super::Mapper::stats)).
+///
+/// ```no_run
+/// # fn f(mapper: &latentam_core::mapper::Mapper) {
+/// let s = mapper.stats();
+/// println!("{} of {} frames were keyframes; {} Gaussians ({} on the GPU)", s.keyframes, s.frames, s.gaussians, s.resident);
+/// println!("peak GPU {} MiB, peak CPU {} MiB", s.gpu_peak_bytes >> 20, s.cpu_peak_bytes >> 20);
+/// # }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MapperStats {
+    /// Frames offered.
+    pub frames: u64,
+    /// Stamp of the last frame integrated (ns), kept in saved states: a
+    /// resumed run goes on after it (see `Mapper::already_mapped`).
+    pub last_frame_stamp_ns: Option<i64>,
+    /// Keyframes mapped.
+    pub keyframes: u64,
+    /// Gaussians in the global map.
+    pub gaussians: usize,
+    /// Gaussians resident on the GPU.
+    pub resident: usize,
+    /// How the window was sized (once mapping started).
+    pub window: Option<WindowBudget>,
+    /// GPU bytes allocated now and at most (allocator accounting, the
+    /// whole context).
+    pub gpu_bytes: u64,
+    /// Highest GPU bytes.
+    pub gpu_peak_bytes: u64,
+    /// Peak GPU bytes by part (images, latent head, window, staging).
+    pub gpu_peak_split: MemorySplit,
+    /// CPU bytes of the global map and keyframe history.
+    pub cpu_bytes: u64,
+    /// Highest CPU bytes after a keyframe.
+    pub cpu_peak_bytes: u64,
+    /// Gaussians left out of the window for lack of capacity, summed over
+    /// syncs.
+    pub over_capacity: u64,
+    /// Gaussians evicted, summed over syncs.
+    pub evicted: u64,
+    /// Gaussians fetched, summed over syncs.
+    pub fetched: u64,
+    /// Timings summed over keyframes.
+    pub timings: KeyframeTimings,
+}
+
+impl KeyframeTimings {
+    /// Adds `t` to these sums.
+    pub(crate) fn add(&mut self, t: &KeyframeTimings) {
+        let sum = self;
+        let opt = |a: Option<f64>, b: Option<f64>| match (a, b) {
+            (None, None) => None,
+            (a, b) => Some(a.unwrap_or(0.0) + b.unwrap_or(0.0)),
+        };
+        sum.kmeans_ms += t.kmeans_ms;
+        sum.insertion_ms += t.insertion_ms;
+        sum.stage_one_ms += t.stage_one_ms;
+        sum.stage_two_ms += t.stage_two_ms;
+        sum.stage_two_gpu_ms = opt(sum.stage_two_gpu_ms, t.stage_two_gpu_ms);
+        sum.paging_cpu_ms += t.paging_cpu_ms;
+        sum.paging_gpu_ms = opt(sum.paging_gpu_ms, t.paging_gpu_ms);
+        sum.paging_hidden_ms = opt(sum.paging_hidden_ms, t.paging_hidden_ms);
+        sum.prune_ms += t.prune_ms;
+        sum.total_ms += t.total_ms;
+    }
+}

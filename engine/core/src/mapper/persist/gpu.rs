@@ -1,0 +1,295 @@
+//! Between a mapper and its saved state: downloading the GPU state into an
+//! archive, and creating the GPU buffers of a loaded one.
+
+use super::*;
+
+/// Reads a whole device buffer as bytes (first `bytes` kept).
+fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
+    let mut v: Vec<u8> = ctx.download(buf)?;
+    v.truncate(bytes as usize);
+    Ok(v)
+}
+
+impl OnlineMapper {
+    /// Saves the whole state to `path` (one file, replaced atomically).
+    /// The window is written back to the global map first.
+    pub fn save(&mut self, path: &Path) -> Result<()> {
+        self.save_as(path, None)
+    }
+
+    /// [`OnlineMapper::save`], recording `run_id`: the id of the run folder
+    /// version the file belongs to (see [`RunStaging::run_id`](crate::mapper::RunStaging::run_id)).
+    pub fn save_as(&mut self, path: &Path, run_id: Option<&str>) -> Result<()> {
+        self.check_consistent()?;
+        self.flush()?;
+        let ctx = self.ctx.clone();
+        let map: Vec<(VoxelKey, Gaussian)> = self.global.iter().map(|(k, g)| (k, *g)).collect();
+        let window = match (&self.window, &self.trainer, &self.window_budget) {
+            (Some(window), Some(trainer), Some(sized)) => {
+                let n = window.len() as u64;
+                let state = trainer
+                    .optimizer()
+                    .state()
+                    .into_iter()
+                    .map(|(buf, row)| download_bytes(&ctx, buf, n * row))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedWindow {
+                    capacity: sized.capacity,
+                    view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
+                    keys: window.keys().to_vec(),
+                    state,
+                })
+            }
+            _ => None,
+        };
+        let head = match &self.head {
+            Some(head) => {
+                let d = head.config().dim as usize;
+                let k = head.config().atoms as usize;
+                let used = head.atom_count();
+                let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
+                atoms.truncate(k * d);
+                let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
+                anchors.truncate(k * d);
+                let mut weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
+                weights.truncate(used as usize);
+                let adam = head
+                    .optimizer_state()
+                    .into_iter()
+                    .map(|(buf, _)| ctx.download::<u8>(buf))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedHead {
+                    dim: d as u32,
+                    used,
+                    w: ctx.download(head.w())?,
+                    atoms,
+                    anchors,
+                    weights,
+                    adam,
+                })
+            }
+            None => None,
+        };
+        // Loading refuses non-finite values; refusing them here too keeps a
+        // diverged map from replacing a good save.
+        let diverged = |why: String| {
+            Error::InvalidArgument(format!(
+                "the map has diverged and is not saved (it would not load): {why}"
+            ))
+        };
+        for (key, g) in &map {
+            if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
+                .iter()
+                .all(|x| x.is_finite())
+            {
+                return Err(diverged(format!(
+                    "the Gaussian of voxel {key:?} is not finite"
+                )));
+            }
+        }
+        if let Some(h) = &head {
+            for (name, v) in [
+                ("head/W", &h.w),
+                ("head/D", &h.atoms),
+                ("head/D0", &h.anchors),
+            ] {
+                finite(v, name).map_err(diverged)?;
+            }
+            for (i, t) in h.adam.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+                finite_bytes(t, &format!("head/adam/{i}")).map_err(diverged)?;
+            }
+        }
+        if let Some(w) = &window {
+            for (i, t) in w.state.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+                finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
+            }
+        }
+        let guesses: Vec<u8> = map
+            .iter()
+            .map(|(key, _)| {
+                if self.superseded.contains(key) {
+                    SUPERSEDED
+                } else {
+                    GUESSED * self.guesses.contains(key) as u8
+                }
+            })
+            .collect();
+        let bytes = StateRef {
+            run_id,
+            config: &self.cfg,
+            counters: Counters {
+                frames: self.frames,
+                keyframes: self.stats.keyframes,
+                evicted: self.stats.evicted,
+                fetched: self.stats.fetched,
+                over_capacity: self.stats.over_capacity,
+                last_stamp_ns: self.last_stamp_ns,
+            },
+            model: self.model.as_deref(),
+            selector: self.selector.state(),
+            last_sync: self.last_sync,
+            map: &map,
+            guesses: &guesses,
+            head: head.as_ref(),
+            history: (0..self.history.len())
+                .filter_map(|i| self.history.get(i))
+                .collect(),
+            trajectory: &self.trajectory,
+            // In the trajectory's order (the track is in time order).
+            exposure: self
+                .trajectory
+                .iter()
+                .map(|(stamp_ns, _)| self.exposure.at(*stamp_ns))
+                .collect(),
+            window: window.as_ref(),
+        }
+        .into_bytes()?;
+        drop(map);
+        latentam_base::files::write_bytes_atomically(path, &bytes)
+    }
+
+    /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to
+    /// integrate more frames or to be queried. `overrides` replaces the
+    /// saved configuration's run-time settings (budget, learning rates...)
+    /// when given; the settings that shape the saved state (voxel size,
+    /// dictionary size, replay count, window capacity) are kept.
+    ///
+    /// The file is read and checked on the CPU first
+    /// ([`SavedState::read`]), then put on the GPU
+    /// ([`OnlineMapper::from_saved`]).
+    pub fn load(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
+        let state = SavedState::read(path)?;
+        Self::from_saved(ctx, state, overrides)
+    }
+
+    /// A mapper on `ctx` with the state `saved` (see
+    /// [`OnlineMapper::load`] for `overrides`): creates the GPU buffers and
+    /// uploads the window, the latent head and their optimiser state.
+    pub fn from_saved(
+        ctx: &Context,
+        saved: SavedState,
+        overrides: Option<MapperConfig>,
+    ) -> Result<Self> {
+        let SavedState {
+            origin,
+            run_id,
+            config: kept,
+            counters,
+            model,
+            selector,
+            last_sync,
+            map,
+            guesses,
+            head,
+            history,
+            trajectory,
+            exposure,
+            window,
+        } = saved;
+        let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", origin.display()));
+        let mut cfg = overrides.unwrap_or_else(|| kept.clone());
+        cfg.keep_shape_of(&kept);
+        if let Some(w) = &window {
+            cfg.window_capacity = Some(w.capacity);
+        }
+        let mut m = OnlineMapper::new(ctx, cfg)?;
+        m.frames = counters.frames;
+        m.stats.keyframes = counters.keyframes;
+        m.stats.evicted = counters.evicted;
+        m.stats.fetched = counters.fetched;
+        m.stats.over_capacity = counters.over_capacity;
+        m.last_stamp_ns = counters.last_stamp_ns;
+        m.model = model;
+        m.run_id = run_id;
+        m.selector.restore(selector.0, selector.1);
+        m.last_sync = last_sync;
+        for ((key, g), flag) in map.into_iter().zip(guesses) {
+            if !m.global.insert_at(key, g) {
+                return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
+            }
+            match flag {
+                GUESSED => _ = m.guesses.insert(key),
+                SUPERSEDED => _ = m.superseded.insert(key),
+                _ => {}
+            }
+        }
+
+        // Latent head.
+        if let Some(h) = head {
+            let head = m.make_head(h.dim)?;
+            ctx.upload(head.w(), 0, &h.w)?;
+            ctx.upload(head.atoms(), 0, &h.atoms)?;
+            ctx.upload(head.anchor(), 0, &h.anchors)?;
+            head.kmeans().restore(ctx, h.used, &h.weights)?;
+            let expected: Vec<u64> = head
+                .optimizer_state()
+                .iter()
+                .map(|(b, _)| b.bytes())
+                .collect();
+            upload_state(
+                ctx,
+                head.optimizer_state(),
+                &h.adam,
+                &expected,
+                "head/adam",
+                &corrupt,
+            )?;
+            m.head = Some(head);
+        }
+
+        for record in history {
+            m.history.push(record);
+        }
+        for ((stamp_ns, _), gain) in trajectory.iter().zip(exposure) {
+            m.exposure.push(*stamp_ns, gain);
+        }
+        m.trajectory = trajectory;
+
+        // Window: the same residents in the same rows, with their Adam
+        // state.
+        if let Some(w) = window {
+            let dim = m.head.as_ref().map(|h| h.config().dim);
+            m.ensure_workspace(w.view_pixels, dim)?;
+            m.append(&w.keys)?;
+            let rows = w.keys.len() as u64;
+            let trainer = m
+                .trainer
+                .as_ref()
+                .ok_or_else(|| corrupt("no trainer for the window".into()))?;
+            let buffers = trainer.optimizer().state();
+            let expected: Vec<u64> = buffers.iter().map(|(_, row)| rows * row).collect();
+            upload_state(ctx, buffers, &w.state, &expected, "window/state", &corrupt)?;
+        }
+        Ok(m)
+    }
+}
+
+/// Uploads saved optimiser tensors into `buffers`, each of exactly
+/// `expected` bytes (`what` names them in errors).
+fn upload_state(
+    ctx: &Context,
+    buffers: Vec<(&Buffer, u64)>,
+    saved: &[Vec<u8>],
+    expected: &[u64],
+    what: &str,
+    corrupt: &dyn Fn(String) -> Error,
+) -> Result<()> {
+    if buffers.len() != saved.len() {
+        return Err(corrupt(format!(
+            "{} {what} tensors; this build has {}",
+            saved.len(),
+            buffers.len()
+        )));
+    }
+    for (i, (((buf, _), bytes), &want)) in buffers.into_iter().zip(saved).zip(expected).enumerate()
+    {
+        if bytes.len() as u64 != want {
+            return Err(corrupt(format!(
+                "{what}/{i} holds {} bytes, {want} expected",
+                bytes.len()
+            )));
+        }
+        ctx.upload(buf, 0, bytes)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,430 @@
+//! The paper's evaluation protocol on one rendered view (§V, "Performance
+//! Metrics"): every pixel's rendered query is decoded (factorised, see
+//! [`FactorisedDecoder`]) and
+//! * compared with the target embedding of its region: cosine loss
+//!   1 − cos(e_p, t_r(p)) over the pixels that have a target;
+//! * classified among the vocabulary: the class whose text embedding has
+//!   the largest inner product with e_p (the softmax over the vocabulary
+//!   keeps that order; texts are unit-normalised), counted against the
+//!   pixel's true class when that class is in the vocabulary.
+//!
+//! CPU reference: `latentam_reference::metrics` (explicit f64 decoding).
+
+use std::collections::BTreeMap;
+
+use super::eval::{count_pixel, ClassCounts};
+use crate::latent::{FactorisedDecoder, NO_REGION};
+use crate::splat::QUERY_DIM;
+use latentam_base::{Error, Result};
+
+/// What one view contributes to the per-pixel metrics (sums, so views add).
+///
+/// ```
+/// # use latentam_core::latent::FactorisedDecoder;
+/// # use latentam_core::mapper::pixel_metrics::PixelInputs;
+/// # let mut w = vec![0.0f32; 32 * 3];
+/// # w[0] = 1.0;
+/// # let dec = FactorisedDecoder::new(&w, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0], 3, 0.05, 1e-6)?;
+/// # let mut q = [0.0f32; 32];
+/// # q[0] = 2.0;
+/// # let view = PixelInputs { width: 1, height: 1, queries: &[q], region: &[0],
+/// #     targets: &[1.0, 0.0, 0.0], truth: &[0], vocabulary: None, stride: 1 };
+/// use latentam_core::mapper::pixel_metrics::{pixel_metrics, PixelMetrics};
+///
+/// let mut total = PixelMetrics::default();
+/// for view in [&view, &view] {
+///     total.add(&pixel_metrics(&dec, view)?); // sums, so views add up
+/// }
+/// assert_eq!(total.cosine_pixels, 2);
+/// assert!(total.cosine_loss().unwrap() < 1e-3);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PixelMetrics {
+    /// Σ over pixels with a target of 1 − cos(e_p, t).
+    pub cosine_loss_sum: f64,
+    /// Σ over the same pixels of ‖ê_p − t̂‖ = √(2 − 2 cos).
+    pub l2_sum: f64,
+    /// Pixels with a target.
+    pub cosine_pixels: u64,
+    /// Per vocabulary class: the masks' pixel counts.
+    pub class_iou: BTreeMap<u16, ClassCounts>,
+}
+
+impl PixelMetrics {
+    /// Mean cosine loss (None without target pixels).
+    pub fn cosine_loss(&self) -> Option<f64> {
+        (self.cosine_pixels > 0).then(|| self.cosine_loss_sum / self.cosine_pixels as f64)
+    }
+
+    /// Mean L2 distance of the unit vectors.
+    pub fn l2(&self) -> Option<f64> {
+        (self.cosine_pixels > 0).then(|| self.l2_sum / self.cosine_pixels as f64)
+    }
+
+    /// Adds `other` into `self`.
+    pub fn add(&mut self, other: &PixelMetrics) {
+        self.cosine_loss_sum += other.cosine_loss_sum;
+        self.l2_sum += other.l2_sum;
+        self.cosine_pixels += other.cosine_pixels;
+        super::eval::add_iou(&mut self.class_iou, &other.class_iou);
+    }
+}
+
+/// A view's per-pixel inputs (row-major, `width` × `height`).
+///
+/// ```
+/// use latentam_core::latent::{FactorisedDecoder, NO_REGION};
+/// use latentam_core::mapper::pixel_metrics::{pixel_metrics, PixelInputs};
+///
+/// // W sends query channel 0 to atom 0 = (1, 0, 0); atom 1 = (0, 1, 0).
+/// let mut w = vec![0.0f32; 32 * 3];
+/// w[0] = 1.0;
+/// let dec = FactorisedDecoder::new(&w, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0], 3, 0.05, 1e-6)?;
+/// let mut q = [0.0f32; 32];
+/// q[0] = 2.0;
+/// let (ids, texts) = ([5u16, 9], [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0]);
+/// let view = PixelInputs {
+///     width: 2, height: 1, queries: &[q, q],
+///     region: &[0, NO_REGION], targets: &[1.0, 0.0, 0.0], // pixel 1 has no target
+///     truth: &[5, 5], vocabulary: Some((&ids[..], &texts[..])), stride: 1,
+/// };
+/// let m = pixel_metrics(&dec, &view)?;
+/// assert_eq!(m.cosine_pixels, 1);
+/// assert!(m.cosine_loss().unwrap() < 1e-3);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+pub struct PixelInputs<'a> {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Rendered query of each pixel.
+    pub queries: &'a [[f32; QUERY_DIM]],
+    /// Region of each pixel ([`NO_REGION`] for none): a row of `targets`.
+    pub region: &'a [u32],
+    /// Target embedding of each region (regions × d_f; an all-zero row has
+    /// no target).
+    pub targets: &'a [f32],
+    /// True class of each pixel (0: unlabelled).
+    pub truth: &'a [u16],
+    /// The vocabulary: class ids and their text embeddings (ids × d_f).
+    pub vocabulary: Option<(&'a [u16], &'a [f32])>,
+    /// Every `stride`-th pixel of every `stride`-th row is evaluated (1:
+    /// all).
+    pub stride: usize,
+}
+
+/// The per-pixel metrics of one view, computed on all CPU cores.
+pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMetrics> {
+    let dim = dec.dim();
+    let n = v.width * v.height;
+    let vocab_ok = v
+        .vocabulary
+        .is_none_or(|(ids, t)| t.len() == ids.len() * dim);
+    if v.queries.len() != n
+        || v.region.len() != n
+        || v.truth.len() != n
+        || v.targets.len() % dim != 0
+        || !vocab_ok
+    {
+        return Err(Error::InvalidArgument(format!(
+            "per-pixel metrics of a {}x{} view with {} queries, {} regions, {} labels, \
+             {} target values and a vocabulary of another size for {dim}-d embeddings",
+            v.width,
+            v.height,
+            v.queries.len(),
+            v.region.len(),
+            v.truth.len(),
+            v.targets.len()
+        )));
+    }
+    let k = dec.atoms();
+    let unit = |rows: &[f32]| -> (Vec<f32>, Vec<bool>) {
+        let mut out = Vec::with_capacity(rows.len());
+        let mut valid = Vec::new();
+        for r in rows.chunks_exact(dim) {
+            let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
+            valid.push(n > 0.0 && n.is_finite());
+            let s = if n > 0.0 { 1.0 / n } else { 0.0 };
+            out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
+        }
+        (out, valid)
+    };
+    let (targets, has_target) = unit(v.targets);
+    let target_p = dec.project(&targets);
+    let (ids, text_p) = match v.vocabulary {
+        Some((ids, texts)) => (ids, dec.project(&unit(texts).0)),
+        None => (&[][..], Vec::new()),
+    };
+    let stride = v.stride.max(1);
+    let rows: Vec<usize> = (0..v.height).step_by(stride).collect();
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(rows.len().max(1));
+    let per_thread = rows.len().div_ceil(threads.max(1)).max(1);
+    let parts: Vec<PixelMetrics> = std::thread::scope(|s| {
+        let handles: Vec<_> = rows
+            .chunks(per_thread)
+            .map(|chunk| {
+                let (target_p, text_p, has_target) = (&target_p, &text_p, &has_target);
+                s.spawn(move || {
+                    let mut m = PixelMetrics::default();
+                    let mut a = vec![0.0f32; k];
+                    let mut used = Vec::new();
+                    for &y in chunk {
+                        for x in (0..v.width).step_by(stride) {
+                            let p = y * v.width + x;
+                            let r = v.region[p];
+                            let target = (r != NO_REGION
+                                && has_target.get(r as usize) == Some(&true))
+                            .then_some(r as usize);
+                            let truth = v.truth[p];
+                            let classify = truth != 0 && ids.contains(&truth);
+                            if target.is_none() && !classify {
+                                continue;
+                            }
+                            dec.attention(&v.queries[p], &mut a);
+                            if let Some(r) = target {
+                                let norm = dec.norm(&a, &mut used) as f64;
+                                let dot = FactorisedDecoder::dot(&a, &target_p[r * k..(r + 1) * k]);
+                                let cos = if norm > 0.0 {
+                                    (dot as f64 / norm).clamp(-1.0, 1.0)
+                                } else {
+                                    0.0
+                                };
+                                m.cosine_loss_sum += 1.0 - cos;
+                                m.l2_sum += (2.0 - 2.0 * cos).max(0.0).sqrt();
+                                m.cosine_pixels += 1;
+                            }
+                            if classify {
+                                let best = (0..ids.len())
+                                    .map(|c| {
+                                        FactorisedDecoder::dot(&a, &text_p[c * k..(c + 1) * k])
+                                    })
+                                    .enumerate()
+                                    .max_by(|x, y| x.1.total_cmp(&y.1))
+                                    .map(|(c, _)| ids[c]);
+                                count_pixel(&mut m.class_iou, truth, best);
+                            }
+                        }
+                    }
+                    m
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+            .collect()
+    });
+    let mut total = PixelMetrics::default();
+    for p in &parts {
+        total.add(p);
+    }
+    Ok(total)
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::Rng;
+
+    use super::*;
+    use crate::mapper::eval::mean_iou;
+    use latentam_gpu::testing::rng;
+    use latentam_reference::decoder::DecoderShape;
+    use latentam_reference::metrics as reference;
+
+    #[test]
+    fn per_pixel_metrics_match_the_explicit_reference() {
+        let mut r = rng("per_pixel_metrics");
+        let (w_px, h_px, dim, k) = (11usize, 7usize, 24usize, 9usize);
+        let n = w_px * h_px;
+        let w: Vec<f32> = (0..QUERY_DIM * dim)
+            .map(|_| r.random_range(-0.5..0.5))
+            .collect();
+        let d: Vec<f32> = (0..k * dim).map(|_| r.random_range(-1.0..1.0)).collect();
+        let queries: Vec<[f32; QUERY_DIM]> = (0..n)
+            .map(|_| std::array::from_fn(|_| r.random_range(-1.0..1.0)))
+            .collect();
+        // 5 regions, the last without a target; some pixels in none.
+        let mut targets: Vec<f32> = (0..5 * dim).map(|_| r.random_range(-1.0..1.0)).collect();
+        targets[4 * dim..].fill(0.0);
+        let region: Vec<u32> = (0..n)
+            .map(|_| {
+                if r.random_bool(0.2) {
+                    NO_REGION
+                } else {
+                    r.random_range(0..5)
+                }
+            })
+            .collect();
+        // Classes 1..=6; the vocabulary names 1..=4.
+        let truth: Vec<u16> = (0..n).map(|_| r.random_range(0..7)).collect();
+        let ids = [1u16, 2, 3, 4];
+        let texts: Vec<f32> = (0..ids.len() * dim)
+            .map(|_| r.random_range(-1.0..1.0))
+            .collect();
+        let dec = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
+        let inputs = PixelInputs {
+            width: w_px,
+            height: h_px,
+            queries: &queries,
+            region: &region,
+            targets: &targets,
+            truth: &truth,
+            vocabulary: Some((&ids, &texts)),
+            stride: 1,
+        };
+        let got = pixel_metrics(&dec, &inputs).unwrap();
+        let shape = DecoderShape {
+            n,
+            query_dim: QUERY_DIM,
+            dim,
+            atoms: k,
+            tau: 0.05,
+            eps: 1e-6,
+        };
+        let flat: Vec<f32> = queries.iter().flatten().copied().collect();
+        let want = reference::pixel_metrics(
+            &shape,
+            &flat,
+            &w,
+            &d,
+            &region,
+            &targets,
+            &truth,
+            Some((&ids, &texts)),
+        );
+        assert_eq!(got.cosine_pixels, want.cosine_pixels);
+        assert!(got.cosine_pixels > 0);
+        let tol = 1e-4 * got.cosine_pixels as f64;
+        assert!(
+            (got.cosine_loss_sum - want.cosine_loss_sum).abs() < tol,
+            "{} vs {}",
+            got.cosine_loss_sum,
+            want.cosine_loss_sum
+        );
+        let counts: BTreeMap<u16, [u64; 3]> = got
+            .class_iou
+            .iter()
+            .map(|(&c, n)| (c, [n.intersection, n.union, n.truth]))
+            .collect();
+        assert_eq!(counts, want.classes);
+        assert!(
+            counts.keys().all(|c| ids.contains(c)),
+            "only vocabulary classes"
+        );
+        // A stride evaluates a subset.
+        let half = pixel_metrics(
+            &dec,
+            &PixelInputs {
+                stride: 2,
+                ..inputs
+            },
+        )
+        .unwrap();
+        assert!(half.cosine_pixels < got.cosine_pixels && half.cosine_pixels > 0);
+    }
+
+    type Atoms = Vec<f32>;
+
+    /// A 4-class scene the map reproduces exactly: class c's pixels render
+    /// a query that decodes to atom c, which is also the class's target
+    /// and text embedding.
+    fn exact_scene() -> (
+        FactorisedDecoder,
+        Vec<[f32; QUERY_DIM]>,
+        Vec<u32>,
+        Vec<u16>,
+        Atoms,
+    ) {
+        let (dim, k) = (8usize, 4usize);
+        let mut d = vec![0.0f32; k * dim];
+        for c in 0..k {
+            d[c * dim + c] = 1.0;
+        }
+        let mut w = vec![0.0f32; QUERY_DIM * dim];
+        for c in 0..k {
+            w[c * dim + c] = 5.0;
+        }
+        let dec = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
+        // 4 × 3 pixels: column c is class c + 1 (region c), the last row
+        // class 9, which no query word names.
+        let (width, height) = (4usize, 3usize);
+        let mut queries = Vec::new();
+        let mut region = Vec::new();
+        let mut truth = Vec::new();
+        for y in 0..height {
+            for x in 0..width {
+                let mut q = [0.0f32; QUERY_DIM];
+                q[x] = 1.0;
+                queries.push(q);
+                region.push(x as u32);
+                truth.push(if y == 2 { 9 } else { x as u16 + 1 });
+            }
+        }
+        (dec, queries, region, truth, d)
+    }
+
+    #[test]
+    fn an_exact_map_scores_perfectly_and_swapped_words_fail_exactly_their_classes() {
+        let (dec, queries, region, truth, d) = exact_scene();
+        let ids = [1u16, 2, 3, 4];
+        let run = |texts: &[f32], truth: &[u16]| {
+            pixel_metrics(
+                &dec,
+                &PixelInputs {
+                    width: 4,
+                    height: 3,
+                    queries: &queries,
+                    region: &region,
+                    targets: &d,
+                    truth,
+                    vocabulary: Some((&ids, texts)),
+                    stride: 1,
+                },
+            )
+            .unwrap()
+        };
+        let exact = run(&d, &truth);
+        assert_eq!(exact.cosine_pixels, 12);
+        assert!(
+            exact.cosine_loss().unwrap() < 1e-6,
+            "{:?}",
+            exact.cosine_loss()
+        );
+        assert_eq!(mean_iou(&exact.class_iou), Some(1.0));
+        // Class 9's row is not evaluated: the counts are those of a view
+        // without it.
+        let mut no_nine = truth.clone();
+        no_nine.iter_mut().filter(|t| **t == 9).for_each(|t| *t = 0);
+        assert_eq!(run(&d, &no_nine).class_iou, exact.class_iou);
+        assert!(!exact.class_iou.contains_key(&9));
+        // Words 2 and 3 swapped: those two classes fail, the others do not.
+        let mut swapped = d.clone();
+        let dim = 8;
+        for i in 0..dim {
+            swapped.swap(dim + i, 2 * dim + i);
+        }
+        let s = run(&swapped, &truth);
+        let iou = |c: u16| s.class_iou[&c].iou();
+        assert_eq!((iou(1), iou(2), iou(3), iou(4)), (1.0, 0.0, 0.0, 1.0));
+    }
+
+    #[test]
+    fn inputs_of_the_wrong_size_are_errors() {
+        let (dec, queries, region, truth, d) = exact_scene();
+        let v = PixelInputs {
+            width: 5,
+            height: 3,
+            queries: &queries,
+            region: &region,
+            targets: &d,
+            truth: &truth,
+            vocabulary: None,
+            stride: 1,
+        };
+        assert!(pixel_metrics(&dec, &v).is_err());
+    }
+}

@@ -1,0 +1,577 @@
+//! A run folder holds one consistent run: the resumable state, the decoder
+//! and whatever else the caller writes beside them (the CLI adds the PLY
+//! map, the report, the trace...). It is never edited in place. A new
+//! version is written into a fresh hidden sibling directory and swapped in
+//! whole, so a crash, a full disk or a failed run leaves the previous run
+//! intact. One writer at a time holds a lock file beside the folder.
+//!
+//! Every file of one version carries the same run id (the state's and the
+//! decoder's metadata, the CLI's report), so files copied together from
+//! different runs are refused when loaded.
+//!
+//! ```no_run
+//! use latentam_core::mapper::RunFolder;
+//!
+//! let folder = RunFolder::lock("out/run")?; // refuses a second writer
+//! let staging = folder.stage()?;
+//! std::fs::write(staging.path().join("report.json"), b"{}").unwrap();
+//! staging.commit()?; // out/run now holds exactly what was staged
+//! # Ok::<(), latentam_core::Error>(())
+//! ```
+
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+use super::export::DECODER_FILE;
+use super::facade::STATE_FILE;
+use latentam_base::{Error, Result};
+
+/// Every file a latentam run folder may hold. A folder holding anything
+/// else is not replaced (its other files would be lost with it).
+pub const RUN_FOLDER_FILES: &[&str] = &[
+    STATE_FILE,
+    DECODER_FILE,
+    "map.ply",
+    "config.toml",
+    "report.json",
+    "report.html",
+    "trace.json",
+    "trajectory.txt",
+    // Written into the folder by `latentam query` by default.
+    "heatmap.ply",
+];
+
+fn io_error(path: &Path, e: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source: e,
+    }
+}
+
+/// A fresh id for one version of a run folder: the time in nanoseconds and
+/// the process id, in hexadecimal.
+pub fn new_run_id() -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    format!("{nanos:016x}{:08x}", std::process::id())
+}
+
+/// A run folder locked for writing: no other process (or other
+/// `RunFolder` of this one) can write it until this value is dropped.
+///
+/// ```no_run
+/// use latentam_core::mapper::RunFolder;
+/// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+/// let folder = RunFolder::lock("runs/kitchen")?; // one writer at a time
+/// let staging = folder.stage()?;
+/// mapper.save_into(&staging)?;
+/// let poses: Vec<_> = mapper.trajectory().iter().map(|&(t, p)| (t as u64, p)).collect();
+/// latentam_io::write_tum(&staging.path().join("trajectory.txt"), &poses)?;
+/// staging.commit()?; // the folder now holds exactly this version
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Debug)]
+pub struct RunFolder {
+    dir: PathBuf,
+    lock_path: PathBuf,
+    _lock: File,
+}
+
+impl RunFolder {
+    /// Locks `dir` for writing (its parent is created when missing). Fails
+    /// with [`Error::Locked`] when another writer holds it, and with
+    /// [`Error::InvalidArgument`] when `dir` is not a directory or holds
+    /// files that are not part of a run (see [`RUN_FOLDER_FILES`]).
+    ///
+    /// A swap cut short by a crash is finished here: a run moved aside and
+    /// not replaced is moved back, and stale staging folders are removed.
+    pub fn lock(dir: impl AsRef<Path>) -> Result<Self> {
+        let given = dir.as_ref();
+        let dir = match std::fs::canonicalize(given) {
+            // A symbolic link to a folder: the folder it points to is the
+            // run folder (swapping the link itself away would lose it).
+            Ok(d) => d,
+            Err(_) => std::path::absolute(given).map_err(|e| io_error(given, e))?,
+        };
+        let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+            return Err(Error::InvalidArgument(format!(
+                "{}: a run folder needs a name and a parent directory",
+                given.display()
+            )));
+        };
+        let name = name.to_string_lossy().into_owned();
+        std::fs::create_dir_all(parent).map_err(|e| io_error(parent, e))?;
+        let lock_path = parent.join(format!(".{name}.lock"));
+        let lock = acquire(&lock_path, &dir)?;
+        let folder = RunFolder {
+            dir,
+            lock_path,
+            _lock: lock,
+        };
+        folder.recover()?;
+        folder.check_replaceable()?;
+        Ok(folder)
+    }
+
+    /// The folder (absolute).
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    fn name(&self) -> String {
+        self.dir
+            .file_name()
+            .expect("checked in lock")
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    fn parent(&self) -> &Path {
+        self.dir.parent().expect("checked in lock")
+    }
+
+    /// Hidden siblings of the folder with `kind` (`staging`, `old`).
+    fn siblings(&self, kind: &str) -> Result<Vec<PathBuf>> {
+        let prefix = format!(".{}.{kind}-", self.name());
+        let parent = self.parent();
+        let mut found = Vec::new();
+        for entry in std::fs::read_dir(parent).map_err(|e| io_error(parent, e))? {
+            let entry = entry.map_err(|e| io_error(parent, e))?;
+            if entry.file_name().to_string_lossy().starts_with(&prefix) {
+                found.push(entry.path());
+            }
+        }
+        found.sort();
+        Ok(found)
+    }
+
+    fn recover(&self) -> Result<()> {
+        for stale in self.siblings("staging")? {
+            remove_tree(&stale)?;
+        }
+        let mut old = self.siblings("old")?;
+        if !self.dir.exists() {
+            // Cut between moving the run aside and moving its successor in:
+            // the run moved aside is the last complete one.
+            if let Some(last) = old.pop() {
+                std::fs::rename(&last, &self.dir).map_err(|e| io_error(&last, e))?;
+                log::warn!("{}: restored after an interrupted save", self.dir.display());
+            }
+        }
+        for stale in old {
+            remove_tree(&stale)?;
+        }
+        Ok(())
+    }
+
+    fn check_replaceable(&self) -> Result<()> {
+        let meta = match std::fs::metadata(&self.dir) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+            Err(e) => return Err(io_error(&self.dir, e)),
+        };
+        if !meta.is_dir() {
+            return Err(Error::InvalidArgument(format!(
+                "{} exists and is not a directory",
+                self.dir.display()
+            )));
+        }
+        let mut foreign = Vec::new();
+        for entry in std::fs::read_dir(&self.dir).map_err(|e| io_error(&self.dir, e))? {
+            let entry = entry.map_err(|e| io_error(&self.dir, e))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let ours = RUN_FOLDER_FILES
+                .iter()
+                .any(|f| name == *f || name == format!("{f}.partial"));
+            if !ours {
+                foreign.push(name);
+            }
+        }
+        if !foreign.is_empty() {
+            foreign.sort();
+            let shown: Vec<_> = foreign.iter().take(5).map(String::as_str).collect();
+            return Err(Error::InvalidArgument(format!(
+                "{} holds {} that {} not part of a latentam run ({}{}): a run folder is replaced \
+                 whole, so write the run to a new or empty folder",
+                self.dir.display(),
+                if foreign.len() == 1 {
+                    "an entry"
+                } else {
+                    "entries"
+                },
+                if foreign.len() == 1 { "is" } else { "are" },
+                shown.join(", "),
+                if foreign.len() > 5 { ", ..." } else { "" }
+            )));
+        }
+        Ok(())
+    }
+
+    /// A fresh, empty staging folder beside the run folder, with a new
+    /// run id. Write the run's files into [`RunStaging::path`], then
+    /// [`RunStaging::commit`]; dropping it uncommitted removes it.
+    pub fn stage(&self) -> Result<RunStaging<'_>> {
+        let id = new_run_id();
+        let path = self.parent().join(format!(".{}.staging-{id}", self.name()));
+        std::fs::create_dir(&path).map_err(|e| io_error(&path, e))?;
+        Ok(RunStaging {
+            folder: self,
+            path,
+            id,
+            done: false,
+        })
+    }
+}
+
+impl Drop for RunFolder {
+    fn drop(&mut self) {
+        // Unlinked while still locked: a process that opened the old file
+        // and locks it afterwards notices (see `acquire`) and starts over.
+        let _ = std::fs::remove_file(&self.lock_path);
+    }
+}
+
+/// Takes the lock file's exclusive lock (released by the OS if the process
+/// dies), retrying when the file was unlinked by its previous holder
+/// between our open and our lock.
+fn acquire(lock_path: &Path, dir: &Path) -> Result<File> {
+    for _ in 0..100 {
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(lock_path)
+            .map_err(|e| io_error(lock_path, e))?;
+        match try_lock(&file) {
+            Ok(true) => {}
+            Ok(false) => {
+                let mut text = String::new();
+                let _ = file.read_to_string(&mut text);
+                return Err(Error::Locked {
+                    path: dir.to_path_buf(),
+                    pid: text.trim().parse().ok(),
+                });
+            }
+            Err(e) => return Err(io_error(lock_path, e)),
+        }
+        if !same_file(&file, lock_path) {
+            continue;
+        }
+        file.set_len(0).map_err(|e| io_error(lock_path, e))?;
+        write!(file, "{}", std::process::id()).map_err(|e| io_error(lock_path, e))?;
+        return Ok(file);
+    }
+    Err(Error::Locked {
+        path: dir.to_path_buf(),
+        pid: None,
+    })
+}
+
+/// An exclusive, non-blocking `flock`: `Ok(false)` when another open file
+/// holds it.
+#[cfg(unix)]
+fn try_lock(file: &File) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: a valid open descriptor; flock only takes integers.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    match e.raw_os_error() {
+        Some(libc::EWOULDBLOCK) => Ok(false),
+        _ => Err(e),
+    }
+}
+
+#[cfg(not(unix))]
+fn try_lock(_: &File) -> std::io::Result<bool> {
+    // No advisory locks here: a second writer is not detected.
+    Ok(true)
+}
+
+#[cfg(unix)]
+fn same_file(file: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), std::fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn same_file(_: &File, path: &Path) -> bool {
+    path.exists()
+}
+
+fn remove_tree(path: &Path) -> Result<()> {
+    match std::fs::remove_dir_all(path) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(io_error(path, e)),
+    }
+}
+
+fn sync_dir(dir: &Path) {
+    // Some file systems refuse to sync a directory; the entries are then
+    // as durable as that file system makes them.
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// The next version of a run folder, being written. See [`RunFolder`].
+///
+/// ```no_run
+/// # fn f(folder: &latentam_core::mapper::RunFolder, report_json: &str) -> Result<(), Box<dyn std::error::Error>> {
+/// let staging = folder.stage()?;
+/// println!("writing run {} into {}", staging.run_id(), staging.path().display());
+/// std::fs::write(staging.path().join("report.json"), report_json)?;
+/// staging.commit()?; // dropped instead, the staged files are removed
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Debug)]
+pub struct RunStaging<'a> {
+    folder: &'a RunFolder,
+    path: PathBuf,
+    id: String,
+    done: bool,
+}
+
+impl RunStaging<'_> {
+    /// The folder to write the files into.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The id every file of this version records.
+    pub fn run_id(&self) -> &str {
+        &self.id
+    }
+
+    /// Replaces the run folder with the staged one, atomically where the
+    /// file system can exchange two directories (Linux), otherwise by two
+    /// renames whose gap [`RunFolder::lock`] repairs after a crash.
+    pub fn commit(mut self) -> Result<()> {
+        sync_dir(&self.path);
+        let dir = &self.folder.dir;
+        if !dir.exists() {
+            std::fs::rename(&self.path, dir).map_err(|e| io_error(dir, e))?;
+        } else if exchange(&self.path, dir).is_ok() {
+            // The staging path now holds the previous run.
+            remove_tree(&self.path)?;
+        } else {
+            let old = self
+                .folder
+                .parent()
+                .join(format!(".{}.old-{}", self.folder.name(), self.id));
+            replace_by_renames(&self.path, dir, &old)?;
+        }
+        self.done = true;
+        sync_dir(self.folder.parent());
+        Ok(())
+    }
+}
+
+impl Drop for RunStaging<'_> {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+/// Moves `dir` aside to `old`, `staged` into its place, then removes
+/// `old`; a crash between the renames is repaired by [`RunFolder::lock`].
+fn replace_by_renames(staged: &Path, dir: &Path, old: &Path) -> Result<()> {
+    std::fs::rename(dir, old).map_err(|e| io_error(dir, e))?;
+    if let Err(e) = std::fs::rename(staged, dir) {
+        let _ = std::fs::rename(old, dir);
+        return Err(io_error(dir, e));
+    }
+    remove_tree(old)
+}
+
+/// Swaps two directory entries in one step (`renameat2(RENAME_EXCHANGE)`).
+#[cfg(target_os = "linux")]
+fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    use std::ffi::CString;
+    use std::os::unix::ffi::OsStrExt;
+    let c = |p: &Path| {
+        CString::new(p.as_os_str().as_bytes())
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
+    };
+    let (a, b) = (c(a)?, c(b)?);
+    // SAFETY: both paths are NUL-terminated and outlive the call; the
+    // syscall only reads them. The raw syscall avoids needing a C library
+    // new enough to wrap it.
+    let r = unsafe {
+        libc::syscall(
+            libc::SYS_renameat2,
+            libc::AT_FDCWD,
+            a.as_ptr(),
+            libc::AT_FDCWD,
+            b.as_ptr(),
+            libc::RENAME_EXCHANGE,
+        )
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
+    Err(std::io::ErrorKind::Unsupported.into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d =
+            std::env::temp_dir().join(format!("latentam-runfolder-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    fn commit(folder: &RunFolder, files: &[(&str, &str)]) {
+        let s = folder.stage().unwrap();
+        for (name, text) in files {
+            std::fs::write(s.path().join(name), text).unwrap();
+        }
+        s.commit().unwrap();
+    }
+
+    #[test]
+    fn a_commit_replaces_the_whole_folder_and_leaves_nothing_beside_it() {
+        let root = scratch("commit");
+        let dir = root.join("run");
+        let folder = RunFolder::lock(&dir).unwrap();
+        commit(&folder, &[("report.json", "1"), ("trace.json", "1")]);
+        assert_eq!(names(&dir), ["report.json", "trace.json"]);
+        // The second version has no trace: the first's must not linger.
+        commit(&folder, &[("report.json", "2")]);
+        assert_eq!(names(&dir), ["report.json"]);
+        assert_eq!(
+            std::fs::read_to_string(dir.join("report.json")).unwrap(),
+            "2"
+        );
+        // Staged and dropped: nothing changes, nothing is left behind.
+        {
+            let s = folder.stage().unwrap();
+            std::fs::write(s.path().join("report.json"), "3").unwrap();
+        }
+        assert_eq!(
+            std::fs::read_to_string(dir.join("report.json")).unwrap(),
+            "2"
+        );
+        assert_eq!(names(&root), [".run.lock", "run"]);
+        drop(folder);
+        assert_eq!(names(&root), ["run"]);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn a_second_writer_is_refused_with_the_owner_pid() {
+        let root = scratch("lock");
+        let dir = root.join("run");
+        let first = RunFolder::lock(&dir).unwrap();
+        let e = RunFolder::lock(&dir).unwrap_err();
+        match &e {
+            Error::Locked { pid, .. } => assert_eq!(*pid, Some(std::process::id())),
+            other => panic!("{other}"),
+        }
+        assert!(e.to_string().contains("another latentam process"), "{e}");
+        // The same folder through another spelling is the same lock.
+        let e = RunFolder::lock(root.join(".").join("run")).unwrap_err();
+        assert!(matches!(e, Error::Locked { .. }), "{e}");
+        drop(first);
+        RunFolder::lock(&dir).unwrap();
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn folders_that_are_not_runs_are_refused() {
+        let root = scratch("foreign");
+        let dir = root.join("notes");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("thesis.tex"), "precious").unwrap();
+        std::fs::write(dir.join("map.ply"), "ours").unwrap();
+        let e = RunFolder::lock(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains("thesis.tex") && e.contains("not part of a latentam run"),
+            "{e}"
+        );
+        assert!(dir.join("thesis.tex").exists());
+        let file = root.join("file");
+        std::fs::write(&file, "x").unwrap();
+        let e = RunFolder::lock(&file).unwrap_err().to_string();
+        assert!(e.contains("not a directory"), "{e}");
+        assert!(RunFolder::lock("/").is_err());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn a_swap_cut_short_is_repaired_when_locked_again() {
+        let root = scratch("repair");
+        let dir = root.join("run");
+        commit(&RunFolder::lock(&dir).unwrap(), &[("report.json", "old")]);
+        // A crash between moving the run aside and moving the next in, with
+        // a staging folder left behind.
+        std::fs::rename(&dir, root.join(".run.old-00ff")).unwrap();
+        std::fs::create_dir(root.join(".run.staging-0100")).unwrap();
+        std::fs::write(root.join(".run.staging-0100/report.json"), "new").unwrap();
+        // A sibling run whose name shares the prefix is not touched.
+        std::fs::create_dir(root.join(".run.x.staging-1")).unwrap();
+        let folder = RunFolder::lock(&dir).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(dir.join("report.json")).unwrap(),
+            "old"
+        );
+        assert_eq!(names(&root), [".run.lock", ".run.x.staging-1", "run"]);
+        drop(folder);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn the_fallback_swap_gives_the_same_result() {
+        let root = scratch("fallback");
+        let dir = root.join("run");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("map.ply"), "1").unwrap();
+        let folder = RunFolder::lock(&dir).unwrap();
+        // Exchange refused (as on file systems without it): rename twice.
+        let s = folder.stage().unwrap();
+        std::fs::write(s.path().join("report.json"), "2").unwrap();
+        let old = root.join(format!(".run.old-{}", s.run_id()));
+        replace_by_renames(s.path(), &dir, &old).unwrap();
+        assert_eq!(names(&dir), ["report.json"]);
+        assert!(!old.exists() && !s.path().exists());
+        drop(s);
+        // A second rename that fails puts the run back.
+        let missing = root.join("missing-staging");
+        assert!(replace_by_renames(&missing, &dir, &old).is_err());
+        assert_eq!(names(&dir), ["report.json"]);
+        drop(folder);
+        assert!(exchange(&root.join("nope-a"), &root.join("nope-b")).is_err());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}

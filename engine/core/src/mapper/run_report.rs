@@ -1,0 +1,206 @@
+//! `report.json`: what a run of a log did, written into its run folder
+//! (see [`LogRun`](super::LogRun)).
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use super::budget::MemorySplit;
+use super::keyframe_report::{KeyframeGpuCalls, KeyframeReport, KeyframeTimings};
+use latentam_gpu::KernelStats;
+use latentam_io::IngestReport;
+
+/// How a run of a log ended.
+///
+/// ```
+/// use latentam_core::mapper::Ending;
+/// # fn f(run: &latentam_core::mapper::LogRun) {
+/// match &run.ending {
+///     Ending::Complete | Ending::FrameLimit => println!("mapped {} frames", run.frames),
+///     Ending::Interrupted => println!("stopped on request after {} frames", run.frames),
+///     Ending::Running => {}
+///     Ending::Failed(why) => eprintln!("mapping failed ({why}); the map so far is kept"),
+/// }
+/// # }
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ending {
+    /// The log ended.
+    Complete,
+    /// [`LogRunOptions::max_frames`](super::LogRunOptions::max_frames) was
+    /// reached.
+    FrameLimit,
+    /// The caller asked it to stop
+    /// ([`RunObserver::stop_requested`](super::RunObserver::stop_requested)).
+    Interrupted,
+    /// The run was still going when this folder was written (an
+    /// autosave); a later write replaces it.
+    Running,
+    /// An error stopped it; what was mapped before is kept.
+    Failed(String),
+}
+
+/// `report.json` of a run folder.
+///
+/// ```no_run
+/// # fn f(run: &latentam_core::mapper::LogRun) -> Result<(), Box<dyn std::error::Error>> {
+/// let report = run.report(&latentam_core::mapper::new_run_id());
+/// println!("{} keyframes at {:.1} fps, peak GPU {} MiB", report.keyframes, report.fps, report.peak_gpu_bytes >> 20);
+/// std::fs::write("report.json", serde_json::to_string_pretty(&report)?)?;
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    /// Shared by every file of this version of the run folder.
+    pub run_id: String,
+    /// The input log.
+    pub log: String,
+    /// The Vulkan device it ran on.
+    pub device: String,
+    /// How the run ended.
+    pub ending: Ending,
+    /// Frames offered to the mapper in this run.
+    pub frames: u64,
+    /// Frames skipped because a resumed state had mapped them.
+    pub frames_skipped_as_already_mapped: u64,
+    /// Keyframes of the map (resumed runs included).
+    pub keyframes: u64,
+    /// Wall time of this run, seconds.
+    pub wall_s: f64,
+    /// Frames per second of wall time, end to end (reading, decoding,
+    /// mapping; embeddings come precomputed in the log).
+    pub fps: f64,
+    /// Keyframes mapped in this run per second of wall time.
+    pub keyframes_per_s: f64,
+    /// Gaussians in the map.
+    pub gaussians: usize,
+    /// Of those, on the GPU.
+    pub resident: usize,
+    /// The GPU memory budget, bytes.
+    pub gpu_budget: u64,
+    /// Gaussians the GPU window can hold.
+    pub window_capacity: u64,
+    /// Peak GPU bytes.
+    pub peak_gpu_bytes: u64,
+    /// Peak GPU bytes by part (images, latent head, window, staging).
+    pub peak_gpu_split: MemorySplit,
+    /// Peak bytes of the CPU map and its buffers.
+    pub peak_cpu_bytes: u64,
+    /// Gaussians paged out to the CPU map.
+    pub evicted: u64,
+    /// Gaussians paged back in.
+    pub fetched: u64,
+    /// Mean timings per keyframe.
+    pub ms_per_keyframe: KeyframeTimings,
+    /// What each keyframe asked of the GPU: host waits (each a CPU–GPU
+    /// round trip; in all and in Stage I + II), submissions, dispatches.
+    pub host_waits_per_keyframe: HostWaits,
+    /// Share of the paging copies' GPU time hidden behind Stage II.
+    pub paging_hidden_share: Option<f64>,
+    /// Whether paging ran on a transfer queue of its own.
+    pub dedicated_transfer_queue: bool,
+    /// The embedding model named by the log, if any.
+    pub embedding_model: Option<String>,
+    /// Keyframe count of the last autosave.
+    pub autosaved_at: Option<u64>,
+    /// Autosaves that failed (mapping went on).
+    pub autosave_failures: Vec<String>,
+    /// What the log held and what of it was skipped.
+    pub ingest: IngestReport,
+    /// Per kernel, when profiled.
+    pub kernels: BTreeMap<&'static str, KernelStats>,
+    /// Every keyframe mapped in this run.
+    pub keyframe_reports: Vec<KeyframeReport>,
+}
+
+/// Host waits per keyframe (mean and most), in all and in Stage I and
+/// Stage II together, with the mean submissions and dispatches.
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::RunReport) {
+/// let w = &report.host_waits_per_keyframe;
+/// println!("{:.1} host waits per keyframe (at most {}), {:.1} in Stage I + II", w.mean, w.max, w.stage_one_and_two_mean);
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct HostWaits {
+    /// Mean host waits per keyframe.
+    pub mean: f64,
+    /// Most host waits of one keyframe.
+    pub max: u64,
+    /// Mean host waits of Stage I and II together.
+    pub stage_one_and_two_mean: f64,
+    /// Most host waits of Stage I and II together.
+    pub stage_one_and_two_max: u64,
+    /// Mean submissions per keyframe.
+    pub submissions_mean: f64,
+    /// Mean dispatches per keyframe.
+    pub dispatches_mean: f64,
+}
+
+impl HostWaits {
+    /// Over the keyframes' [`KeyframeReport::gpu_calls`].
+    ///
+    /// ```
+    /// let none = latentam_core::mapper::HostWaits::of(&[]);
+    /// assert_eq!((none.mean, none.max), (0.0, 0));
+    /// ```
+    pub fn of(keyframes: &[KeyframeGpuCalls]) -> Self {
+        let n = keyframes.len().max(1) as f64;
+        let mean = |f: &dyn Fn(&KeyframeGpuCalls) -> u64| {
+            keyframes.iter().map(|k| f(k) as f64).sum::<f64>() / n
+        };
+        let max = |f: &dyn Fn(&KeyframeGpuCalls) -> u64| keyframes.iter().map(f).max().unwrap_or(0);
+        let all = |k: &KeyframeGpuCalls| k.total().host_waits;
+        let training = |k: &KeyframeGpuCalls| k.training().host_waits;
+        HostWaits {
+            mean: mean(&all),
+            max: max(&all),
+            stage_one_and_two_mean: mean(&training),
+            stage_one_and_two_max: max(&training),
+            submissions_mean: mean(&|k| k.total().submissions),
+            dispatches_mean: mean(&|k| k.total().dispatches),
+        }
+    }
+
+    /// One line for a summary.
+    pub fn summary(&self) -> String {
+        format!(
+            "host waits on the GPU per keyframe: {:.1} on average, {} at most ({:.1} and {} in \
+             Stage I + II); {:.1} submissions and {:.0} dispatches on average",
+            self.mean,
+            self.max,
+            self.stage_one_and_two_mean,
+            self.stage_one_and_two_max,
+            self.submissions_mean,
+            self.dispatches_mean
+        )
+    }
+}
+
+impl KeyframeTimings {
+    /// Per-keyframe means of timings summed over `keyframes` keyframes.
+    ///
+    /// ```
+    /// let sum = latentam_core::mapper::KeyframeTimings { total_ms: 30.0, ..Default::default() };
+    /// assert_eq!(sum.per_keyframe(3).total_ms, 10.0);
+    /// ```
+    pub fn per_keyframe(&self, keyframes: u64) -> KeyframeTimings {
+        let n = keyframes.max(1) as f64;
+        let s = |x: f64| x / n;
+        KeyframeTimings {
+            kmeans_ms: s(self.kmeans_ms),
+            insertion_ms: s(self.insertion_ms),
+            stage_one_ms: s(self.stage_one_ms),
+            stage_two_ms: s(self.stage_two_ms),
+            stage_two_gpu_ms: self.stage_two_gpu_ms.map(s),
+            paging_cpu_ms: s(self.paging_cpu_ms),
+            paging_gpu_ms: self.paging_gpu_ms.map(s),
+            paging_hidden_ms: self.paging_hidden_ms.map(s),
+            prune_ms: s(self.prune_ms),
+            total_ms: s(self.total_ms),
+        }
+    }
+}

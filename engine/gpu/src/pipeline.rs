@@ -1,0 +1,131 @@
+//! Compute pipelines, created on first use and cached per kernel. The one
+//! binding convention: set 0, binding i = storage buffer i; scalars in push
+//! constants.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use latentam_shaders::Kernel;
+
+use latentam_base::{Result, VkContext};
+
+/// A kernel's pipeline and layouts. Owned by the context's cache and destroyed
+/// with the device.
+pub(crate) struct Pipeline {
+    pub pipeline: vk::Pipeline,
+    pub layout: vk::PipelineLayout,
+    pub set_layout: vk::DescriptorSetLayout,
+    module: vk::ShaderModule,
+}
+
+#[derive(Default)]
+pub(crate) struct PipelineCache {
+    map: Mutex<HashMap<&'static str, Arc<Pipeline>>>,
+}
+
+impl PipelineCache {
+    pub fn get(&self, dev: &ash::Device, k: &'static Kernel) -> Result<Arc<Pipeline>> {
+        let mut map = self.map.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = map.get(k.name) {
+            return Ok(p.clone());
+        }
+        let p = Arc::new(create(dev, k)?);
+        map.insert(k.name, p.clone());
+        Ok(p)
+    }
+
+    /// Pipelines created so far.
+    pub fn len(&self) -> usize {
+        self.map.lock().unwrap_or_else(|p| p.into_inner()).len()
+    }
+
+    pub fn destroy_all(&self, dev: &ash::Device) {
+        let mut map = self.map.lock().unwrap_or_else(|p| p.into_inner());
+        for (_, p) in map.drain() {
+            // SAFETY: called from `Device::drop` after the GPU is idle.
+            unsafe { destroy(dev, &p) };
+        }
+    }
+}
+
+unsafe fn destroy(dev: &ash::Device, p: &Pipeline) {
+    // SAFETY: caller guarantees the GPU no longer uses these objects.
+    unsafe {
+        dev.destroy_pipeline(p.pipeline, None);
+        dev.destroy_pipeline_layout(p.layout, None);
+        dev.destroy_descriptor_set_layout(p.set_layout, None);
+        dev.destroy_shader_module(p.module, None);
+    }
+}
+
+fn create(dev: &ash::Device, k: &'static Kernel) -> Result<Pipeline> {
+    let bindings: Vec<vk::DescriptorSetLayoutBinding> = (0..k.bindings.len() as u32)
+        .map(|i| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(i)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::COMPUTE)
+        })
+        .collect();
+    // SAFETY: all create infos below are fully initialised; objects created
+    // so far are destroyed if a later step fails.
+    unsafe {
+        let set_layout = dev
+            .create_descriptor_set_layout(
+                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                None,
+            )
+            .vk("vkCreateDescriptorSetLayout")?;
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .offset(0)
+            .size(k.push_constant_size)];
+        let set_layouts = [set_layout];
+        let mut li = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
+        if k.push_constant_size > 0 {
+            li = li.push_constant_ranges(&ranges);
+        }
+        let layout = match dev.create_pipeline_layout(&li, None) {
+            Ok(l) => l,
+            Err(e) => {
+                dev.destroy_descriptor_set_layout(set_layout, None);
+                return Err(e).vk("vkCreatePipelineLayout");
+            }
+        };
+        let module = match dev
+            .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(k.spirv), None)
+        {
+            Ok(m) => m,
+            Err(e) => {
+                dev.destroy_pipeline_layout(layout, None);
+                dev.destroy_descriptor_set_layout(set_layout, None);
+                return Err(e).vk("vkCreateShaderModule");
+            }
+        };
+        let entry = std::ffi::CString::new(k.entry_point()).expect("kernel names have no NUL");
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(&entry);
+        let ci = [vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(layout)];
+        let pipeline = match dev.create_compute_pipelines(vk::PipelineCache::null(), &ci, None) {
+            Ok(p) => p[0],
+            Err((_, e)) => {
+                dev.destroy_shader_module(module, None);
+                dev.destroy_pipeline_layout(layout, None);
+                dev.destroy_descriptor_set_layout(set_layout, None);
+                return Err(e).vk("vkCreateComputePipelines");
+            }
+        };
+        Ok(Pipeline {
+            pipeline,
+            layout,
+            set_layout,
+            module,
+        })
+    }
+}

@@ -1,0 +1,269 @@
+//! GPU timestamp profiler: per-kernel statistics and a Chrome/Perfetto trace.
+//!
+//! Enable it with [`super::ContextOptions::profiling`]; every dispatch and
+//! copy is then bracketed by timestamp queries, read back when its submission
+//! is waited on.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::Path;
+
+use latentam_base::Result;
+
+/// One timed GPU command.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam_gpu::Context) {
+/// let profiler = ctx.profiler_snapshot();
+/// let copy_ns: f64 = profiler.samples().iter().filter(|s| s.name == "copy").map(|s| s.duration_ns).sum();
+/// println!("copies took {:.3} ms", copy_ns * 1e-6);
+/// # }
+/// ```
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Sample {
+    /// Kernel name (or `copy`).
+    pub name: &'static str,
+    /// Queue it ran on (`compute` or `transfer`).
+    pub queue: &'static str,
+    /// Start on the device clock, in nanoseconds.
+    pub start_ns: f64,
+    /// Duration in nanoseconds.
+    pub duration_ns: f64,
+}
+
+/// Aggregate timings of one kernel.
+///
+/// ```no_run
+/// # fn f(ctx: &latentam_gpu::Context) {
+/// for (kernel, stats) in ctx.profiler_snapshot().stats() {
+///     println!("{kernel}: {} dispatches, {:.3} ± {:.3} ms", stats.count, stats.mean_ms, stats.std_ms);
+/// }
+/// # }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct KernelStats {
+    /// Number of timed dispatches.
+    pub count: u64,
+    /// Total time, milliseconds.
+    pub total_ms: f64,
+    /// Mean time, milliseconds.
+    pub mean_ms: f64,
+    /// Standard deviation, milliseconds.
+    pub std_ms: f64,
+    /// Fastest dispatch, milliseconds.
+    pub min_ms: f64,
+    /// Slowest dispatch, milliseconds.
+    pub max_ms: f64,
+}
+
+/// Samples kept for the trace by default: a long run times millions of
+/// dispatches, and a trace of the first hundred thousand (about 10 MB)
+/// shows every kernel many times over. Statistics cover every sample.
+pub const DEFAULT_TRACE_SAMPLES: usize = 100_000;
+
+/// Running statistics of one kernel (Welford's mean and variance, so they
+/// stay exact over any number of samples without keeping them).
+#[derive(Clone, Copy, Debug, Default)]
+struct Running {
+    count: u64,
+    mean: f64,
+    m2: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Running {
+    fn add(&mut self, x: f64) {
+        if self.count == 0 {
+            self.min = x;
+            self.max = x;
+        }
+        self.count += 1;
+        let delta = x - self.mean;
+        self.mean += delta / self.count as f64;
+        self.m2 += delta * (x - self.mean);
+        self.min = self.min.min(x);
+        self.max = self.max.max(x);
+    }
+}
+
+/// Collected timings. Obtain it with [`super::Context::profiler_snapshot`].
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions};
+///
+/// let ctx = Context::new(ContextOptions { profiling: true, ..Default::default() })?;
+/// // ... record, submit and wait on work ...
+/// let profiler = ctx.profiler_snapshot();
+/// println!("{}", profiler.table());
+/// profiler.write_chrome_trace(std::path::Path::new("trace.json"))?;
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct Profiler {
+    samples: Vec<Sample>,
+    running: BTreeMap<&'static str, Running>,
+    trace_limit: usize,
+    dropped: u64,
+}
+
+impl Default for Profiler {
+    fn default() -> Self {
+        Profiler {
+            samples: Vec::new(),
+            running: BTreeMap::new(),
+            trace_limit: DEFAULT_TRACE_SAMPLES,
+            dropped: 0,
+        }
+    }
+}
+
+impl Profiler {
+    pub(crate) fn record(&mut self, name: &'static str, queue: &'static str, start: f64, dur: f64) {
+        self.running.entry(name).or_default().add(dur * 1e-6);
+        if self.samples.len() < self.trace_limit {
+            self.samples.push(Sample {
+                name,
+                queue,
+                start_ns: start,
+                duration_ns: dur,
+            });
+        } else {
+            self.dropped += 1;
+        }
+    }
+
+    /// Keeps at most `limit` samples for [`Profiler::samples`] and the
+    /// trace (the first ones); statistics still cover every sample.
+    pub fn set_trace_limit(&mut self, limit: usize) {
+        self.trace_limit = limit;
+        self.samples.truncate(limit);
+    }
+
+    /// The samples kept for the trace, in the order the batches were
+    /// waited on.
+    pub fn samples(&self) -> &[Sample] {
+        &self.samples
+    }
+
+    /// Samples timed but not kept for the trace.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Per-kernel statistics over every timed sample, keyed by kernel name.
+    pub fn stats(&self) -> BTreeMap<&'static str, KernelStats> {
+        self.running
+            .iter()
+            .map(|(&k, r)| {
+                (
+                    k,
+                    KernelStats {
+                        count: r.count,
+                        total_ms: r.mean * r.count as f64,
+                        mean_ms: r.mean,
+                        std_ms: (r.m2 / r.count.max(1) as f64).max(0.0).sqrt(),
+                        min_ms: r.min,
+                        max_ms: r.max,
+                    },
+                )
+            })
+            .collect()
+    }
+
+    /// GPU time of every timed command, milliseconds.
+    pub fn total_ms(&self) -> f64 {
+        self.running.values().map(|r| r.mean * r.count as f64).sum()
+    }
+
+    /// A plain-text table sorted by total time; the share column is of
+    /// the total GPU time.
+    pub fn table(&self) -> String {
+        self.table_with_share_of(self.total_ms())
+    }
+
+    /// The table with the share column taken of `frame_ms` (e.g. the wall
+    /// time of the frames profiled).
+    pub fn table_with_share_of(&self, frame_ms: f64) -> String {
+        let stats = self.stats();
+        let all = frame_ms;
+        let mut rows: Vec<_> = stats.into_iter().collect();
+        rows.sort_by(|a, b| b.1.total_ms.total_cmp(&a.1.total_ms));
+        let mut out = format!(
+            "{:<28} {:>7} {:>11} {:>19} {:>10} {:>10} {:>6}\n",
+            "kernel", "count", "total ms", "mean ± std ms", "min ms", "max ms", "share"
+        );
+        for (k, s) in rows {
+            out.push_str(&format!(
+                "{:<28} {:>7} {:>11.3} {:>10.4} ± {:<7.4} {:>10.4} {:>10.4} {:>5.1}%\n",
+                k,
+                s.count,
+                s.total_ms,
+                s.mean_ms,
+                s.std_ms,
+                s.min_ms,
+                s.max_ms,
+                if all > 0.0 {
+                    100.0 * s.total_ms / all
+                } else {
+                    0.0
+                }
+            ));
+        }
+        out
+    }
+
+    /// Writes the kept samples as a Chrome trace (`chrome://tracing`,
+    /// Perfetto): one complete event per command, one track per queue,
+    /// times relative to the first sample.
+    pub fn write_chrome_trace(&self, path: &Path) -> Result<()> {
+        // Queues become numbered threads of one process, named by metadata
+        // events, which is what trace viewers key their tracks on.
+        let mut queues: Vec<&'static str> = self.samples.iter().map(|s| s.queue).collect();
+        queues.sort_unstable();
+        queues.dedup();
+        let tid = |q: &str| queues.iter().position(|&n| n == q).map_or(0, |i| i + 1);
+        let t0 = self
+            .samples
+            .iter()
+            .map(|s| s.start_ns)
+            .fold(f64::INFINITY, f64::min);
+        let mut events = vec![serde_json::json!({
+            "name": "process_name", "ph": "M", "pid": 1, "tid": 0,
+            "args": { "name": "latentam GPU" },
+        })];
+        for q in &queues {
+            events.push(serde_json::json!({
+                "name": "thread_name", "ph": "M", "pid": 1, "tid": tid(q),
+                "args": { "name": format!("{q} queue") },
+            }));
+        }
+        events.extend(self.samples.iter().map(|s| {
+            serde_json::json!({
+                "name": s.name,
+                "cat": "gpu",
+                "ph": "X",
+                "ts": (s.start_ns - t0) * 1e-3,
+                "dur": s.duration_ns * 1e-3,
+                "pid": 1,
+                "tid": tid(s.queue),
+            })
+        }));
+        let doc = serde_json::json!({
+            "traceEvents": events,
+            "displayTimeUnit": "ms",
+            "otherData": { "samples_not_traced": self.dropped },
+        });
+        latentam_base::files::write_atomically(path, |f| {
+            serde_json::to_writer(&mut *f, &doc)?;
+            f.flush()
+        })
+    }
+
+    /// Forgets every sample.
+    pub fn clear(&mut self) {
+        self.samples.clear();
+        self.running.clear();
+        self.dropped = 0;
+    }
+}

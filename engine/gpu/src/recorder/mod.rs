@@ -1,0 +1,735 @@
+//! Command recording: the one way to dispatch a kernel. The recorder binds
+//! buffers by the kernel's declared bindings, inserts the memory barriers that
+//! read-after-write and write-after-read hazards need, writes profiler
+//! timestamps, and submits with a timeline-semaphore signal.
+
+use std::collections::HashSet;
+use std::marker::PhantomData;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use ash::vk;
+use latentam_shaders::KernelDef;
+
+use super::buffer::{Buffer, BufferKind, Readback};
+use super::context::{Context, Device, Queue};
+use super::objects::ObjectKind;
+use super::retire::Retired;
+use latentam_base::{Error, Result, VkContext};
+
+mod submission;
+mod transfers;
+
+pub use submission::{GpuSpan, Submission};
+
+const SETS_PER_POOL: u32 = 64;
+const MAX_BINDINGS: u32 = 16;
+const QUERIES_PER_POOL: u32 = 512;
+
+/// Which queue a recorder submits to.
+///
+/// ```
+/// use latentam_gpu::QueueKind;
+///
+/// // `Context::recorder` records for the compute queue, `Context::transfer_recorder`
+/// // for the transfer queue.
+/// let kind = QueueKind::Transfer;
+/// assert_ne!(kind, QueueKind::Compute);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum QueueKind {
+    /// The compute queue: kernels and copies.
+    Compute,
+    /// The dedicated transfer queue when the device has one (copies only),
+    /// otherwise the compute queue.
+    Transfer,
+}
+
+/// A point on a queue's timeline: "everything submitted up to here".
+///
+/// ```no_run
+/// # fn f(ctx: &latentam_gpu::Context, staging: &latentam_gpu::Buffer, dst: &latentam_gpu::Buffer) -> latentam_gpu::Result<()> {
+/// let mut copies = ctx.transfer_recorder()?;
+/// copies.copy(staging, 0, dst, 0, staging.bytes())?;
+/// let copied = copies.submit()?;
+/// let mut rec = ctx.recorder()?;
+/// rec.wait_for(copied.sync_point()); // the GPU waits; the host does not
+/// let readback = rec.download(dst, 0, dst.bytes())?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SyncPoint {
+    pub(crate) transfer: bool,
+    pub(crate) value: u64,
+}
+
+/// How many workgroups a dispatch runs: known now, or read by the GPU from
+/// a buffer (x, y, z at a byte offset) when it runs.
+#[derive(Clone, Copy)]
+enum Groups<'a> {
+    Direct([u32; 3]),
+    Indirect(&'a Buffer, u64),
+}
+
+struct QueryBlock {
+    pool: vk::QueryPool,
+    used: u32,
+}
+
+/// Records GPU work. Buffers used by recorded commands are borrowed for the
+/// recorder's lifetime, so they cannot be dropped before submission; after
+/// submission their deferred destruction keeps them alive until the GPU is
+/// done.
+///
+/// ```no_run
+/// # use latentam_gpu::*;
+/// let ctx = Context::new(ContextOptions::default())?;
+/// let buf = Buffer::device(&ctx, "example/buf", 1024)?;
+/// let mut rec = ctx.recorder()?;
+/// rec.fill_u32(&buf, 0);
+/// rec.submit()?.wait()?;
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+pub struct Recorder<'a> {
+    dev: Arc<Device>,
+    transfer: bool,
+    pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    desc_pools: Vec<vk::DescriptorPool>,
+    sets_left: u32,
+    written: HashSet<vk::Buffer>,
+    read: HashSet<vk::Buffer>,
+    /// Staging buffers the recorded copies use, released (into deferred
+    /// destruction) only once the work is submitted.
+    keep: Vec<Arc<Buffer>>,
+    queries: Vec<QueryBlock>,
+    labels: Vec<(&'static str, u32, u32)>,
+    waits: Vec<SyncPoint>,
+    host_reads: bool,
+    readbacks: Vec<Arc<AtomicU64>>,
+    span_start: Option<u32>,
+    _borrows: PhantomData<&'a Buffer>,
+}
+
+impl Context {
+    /// Starts recording work for the compute queue.
+    pub fn recorder(&self) -> Result<Recorder<'_>> {
+        Recorder::new(self, QueueKind::Compute)
+    }
+
+    /// Starts recording copies for the transfer queue (the compute queue on
+    /// devices without a dedicated one).
+    pub fn transfer_recorder(&self) -> Result<Recorder<'_>> {
+        Recorder::new(self, QueueKind::Transfer)
+    }
+
+    /// Creates a device buffer holding `data` (uploads and waits).
+    pub fn upload_new<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
+        let buf = Buffer::device(self, name, std::mem::size_of_val(data) as u64)?;
+        self.upload(&buf, 0, data)?;
+        Ok(buf)
+    }
+
+    /// Writes `data` at byte `offset` of `buf` (uploads and waits).
+    pub fn upload<T: bytemuck::Pod>(&self, buf: &Buffer, offset: u64, data: &[T]) -> Result<()> {
+        let mut rec = self.recorder()?;
+        rec.upload(buf, offset, data)?;
+        rec.submit()?.wait()
+    }
+
+    /// Reads a whole device buffer as `T`s (waits).
+    pub fn download<T: bytemuck::Pod>(&self, buf: &Buffer) -> Result<Vec<T>> {
+        let mut rec = self.recorder()?;
+        let rb = rec.download(buf, 0, buf.bytes())?;
+        rec.submit()?.wait()?;
+        rb.read()
+    }
+}
+
+impl<'a> Recorder<'a> {
+    fn new(ctx: &'a Context, kind: QueueKind) -> Result<Self> {
+        let dev = ctx.dev.clone();
+        dev.collect();
+        let transfer = kind == QueueKind::Transfer && dev.transfer.is_some();
+        let family = if transfer {
+            dev.transfer
+                .as_ref()
+                .map(|q| q.family)
+                .unwrap_or(dev.compute.family)
+        } else {
+            dev.compute.family
+        };
+        // SAFETY: valid create/alloc infos; the pool is retired with the
+        // recorder or its submission.
+        unsafe {
+            let pool = dev
+                .raw
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default()
+                        .queue_family_index(family)
+                        .flags(vk::CommandPoolCreateFlags::TRANSIENT),
+                    None,
+                )
+                .vk("vkCreateCommandPool")?;
+            let cmd = match dev.raw.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .level(vk::CommandBufferLevel::PRIMARY)
+                    .command_buffer_count(1),
+            ) {
+                Ok(c) => c[0],
+                Err(e) => {
+                    dev.raw.destroy_command_pool(pool, None);
+                    return Err(e).vk("vkAllocateCommandBuffers");
+                }
+            };
+            if let Err(e) = dev.raw.begin_command_buffer(
+                cmd,
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+            ) {
+                dev.raw.destroy_command_pool(pool, None);
+                return Err(e).vk("vkBeginCommandBuffer");
+            }
+            dev.objects.created(ObjectKind::CommandPool);
+            Ok(Self {
+                dev,
+                transfer,
+                pool,
+                cmd,
+                desc_pools: Vec::new(),
+                sets_left: 0,
+                written: HashSet::new(),
+                read: HashSet::new(),
+                keep: Vec::new(),
+                queries: Vec::new(),
+                labels: Vec::new(),
+                waits: Vec::new(),
+                host_reads: false,
+                readbacks: Vec::new(),
+                span_start: None,
+                _borrows: PhantomData,
+            })
+        }
+    }
+
+    /// The device this recorder records for.
+    pub fn info(&self) -> &super::DeviceInfo {
+        &self.dev.info
+    }
+
+    /// Makes this batch wait (on the GPU) for `point` before it starts.
+    pub fn wait_for(&mut self, point: SyncPoint) {
+        self.waits.push(point);
+    }
+
+    /// Inserts a barrier if the next command touches a buffer in a
+    /// conflicting way with commands since the last barrier.
+    fn track(&mut self, reads: &[vk::Buffer], writes: &[vk::Buffer]) {
+        let hazard = reads.iter().any(|b| self.written.contains(b))
+            || writes
+                .iter()
+                .any(|b| self.written.contains(b) || self.read.contains(b));
+        if hazard {
+            self.barrier();
+        }
+        self.read.extend(reads.iter().copied());
+        self.written.extend(writes.iter().copied());
+    }
+
+    /// A full memory barrier between all compute and transfer work recorded
+    /// before and after it. The recorder inserts these itself; call it only
+    /// around work it cannot see.
+    pub fn barrier(&mut self) {
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_READ
+                    | vk::AccessFlags::TRANSFER_WRITE
+                    | if self.transfer {
+                        vk::AccessFlags::empty()
+                    } else {
+                        vk::AccessFlags::INDIRECT_COMMAND_READ
+                    },
+            )];
+        let (src, dst) = if self.transfer {
+            (
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::TRANSFER,
+            )
+        } else {
+            let work = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
+            // Indirect dispatches read their counts at DRAW_INDIRECT.
+            (work, work | vk::PipelineStageFlags::DRAW_INDIRECT)
+        };
+        // SAFETY: recording into our own command buffer.
+        unsafe {
+            self.dev.raw.cmd_pipeline_barrier(
+                self.cmd,
+                src,
+                dst,
+                vk::DependencyFlags::empty(),
+                &mb,
+                &[],
+                &[],
+            )
+        };
+        self.written.clear();
+        self.read.clear();
+    }
+
+    fn timestamp(&mut self, stage: vk::PipelineStageFlags) -> Option<u32> {
+        self.dev.profiler.as_ref()?;
+        self.write_query(stage)
+    }
+
+    /// Writes a timestamp into the recorder's query pools; `None` where
+    /// this queue cannot write (or reset) timestamps.
+    fn write_query(&mut self, stage: vk::PipelineStageFlags) -> Option<u32> {
+        if self.queue().timestamp_bits == 0 {
+            return None;
+        }
+        // Only graphics and compute queues can reset a query pool in a
+        // command buffer; elsewhere it must be reset from the host.
+        if self.transfer && !self.dev.host_query_reset {
+            return None;
+        }
+        let need_new = self
+            .queries
+            .last()
+            .is_none_or(|q| q.used == QUERIES_PER_POOL);
+        if need_new {
+            // SAFETY: valid create info; the pool is reset before first use
+            // and retired with the submission.
+            let pool = unsafe {
+                self.dev.raw.create_query_pool(
+                    &vk::QueryPoolCreateInfo::default()
+                        .query_type(vk::QueryType::TIMESTAMP)
+                        .query_count(QUERIES_PER_POOL),
+                    None,
+                )
+            };
+            let pool = match pool {
+                Ok(p) => p,
+                Err(e) => {
+                    log::warn!("timestamps disabled for this batch: vkCreateQueryPool: {e}");
+                    return None;
+                }
+            };
+            // SAFETY: the pool is new and unused by any submission.
+            unsafe {
+                if self.dev.host_query_reset {
+                    self.dev.raw.reset_query_pool(pool, 0, QUERIES_PER_POOL);
+                } else {
+                    self.dev
+                        .raw
+                        .cmd_reset_query_pool(self.cmd, pool, 0, QUERIES_PER_POOL);
+                }
+            }
+            self.dev.objects.created(ObjectKind::QueryPool);
+            self.queries.push(QueryBlock { pool, used: 0 });
+        }
+        let block = self.queries.len() - 1;
+        let q = self.queries.last_mut()?;
+        let idx = q.used;
+        q.used += 1;
+        // SAFETY: the query was reset above.
+        unsafe {
+            self.dev
+                .raw
+                .cmd_write_timestamp(self.cmd, stage, q.pool, idx)
+        };
+        Some(block as u32 * QUERIES_PER_POOL + idx)
+    }
+
+    /// Times this batch on the GPU: a timestamp is written now and one when
+    /// the batch ends, read by [`Submission::wait_span`]. Call it first,
+    /// before recording the work to be timed. No effect on queues without
+    /// timestamps.
+    pub fn start_span(&mut self) {
+        if self.span_start.is_none() {
+            self.span_start = self.write_query(vk::PipelineStageFlags::TOP_OF_PIPE);
+        }
+    }
+
+    fn descriptor_set(&mut self, layout: vk::DescriptorSetLayout) -> Result<vk::DescriptorSet> {
+        if self.sets_left == 0 {
+            let sizes = [vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(SETS_PER_POOL * MAX_BINDINGS)];
+            // SAFETY: valid create info; retired with the recorder.
+            let pool = unsafe {
+                self.dev.raw.create_descriptor_pool(
+                    &vk::DescriptorPoolCreateInfo::default()
+                        .max_sets(SETS_PER_POOL)
+                        .pool_sizes(&sizes),
+                    None,
+                )
+            }
+            .vk("vkCreateDescriptorPool")?;
+            self.dev.objects.created(ObjectKind::DescriptorPool);
+            self.desc_pools.push(pool);
+            self.sets_left = SETS_PER_POOL;
+        }
+        let layouts = [layout];
+        // SAFETY: the pool has room (counted by `sets_left`).
+        let set = unsafe {
+            self.dev.raw.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(*self.desc_pools.last().unwrap())
+                    .set_layouts(&layouts),
+            )
+        }
+        .vk("vkAllocateDescriptorSets")?[0];
+        self.sets_left -= 1;
+        Ok(set)
+    }
+
+    /// Records one dispatch of `kernel` with `groups` workgroups, binding
+    /// `buffers[i]` to binding i and `push` as push constants.
+    pub fn dispatch<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: [u32; 3],
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        self.record_dispatch(kernel, Groups::Direct(groups), buffers, push)
+    }
+
+    /// Records one dispatch of `kernel` whose workgroup counts the GPU
+    /// reads when it runs: three u32 (x, y, z) at byte `offset` of `args`,
+    /// written by earlier work in this recorder (which orders the two;
+    /// across batches, as for any buffer, [`Self::wait_for`]). A count of 0
+    /// dispatches nothing, so a kernel can decide on the GPU whether a later
+    /// one runs, without a host round trip. The counts must stay within
+    /// the device's `max_workgroup_count`.
+    pub fn dispatch_indirect<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        args: &'a Buffer,
+        offset: u64,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        if offset % 4 != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
+                kernel.kernel.name
+            )));
+        }
+        args.ensure_bytes(offset + 12, "indirect dispatch arguments")?;
+        if args.kind() != BufferKind::Device {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments in staging buffer `{}`",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        let written = buffers
+            .iter()
+            .zip(kernel.kernel.bindings)
+            .any(|(b, decl)| decl.writable && b.raw == args.raw);
+        if written {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` writes `{}`, which holds its own workgroup counts",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        self.record_dispatch(kernel, Groups::Indirect(args, offset), buffers, push)
+    }
+
+    fn record_dispatch<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: Groups<'a>,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        let k = &kernel.kernel;
+        if self.transfer {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` recorded on the transfer queue",
+                k.name
+            )));
+        }
+        if buffers.len() != k.bindings.len() {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` takes {} buffers ({}), got {}",
+                k.name,
+                k.bindings.len(),
+                k.bindings
+                    .iter()
+                    .map(|b| b.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                buffers.len()
+            )));
+        }
+        if k.bindings.len() as u32 > MAX_BINDINGS {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` has more than {MAX_BINDINGS} bindings",
+                k.name
+            )));
+        }
+        let max = self.dev.info.max_workgroup_count;
+        if let Groups::Direct(groups) = groups {
+            if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
+                    k.name
+                )));
+            }
+        }
+        for b in buffers {
+            if b.kind() != BufferKind::Device {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: `{}` is a staging buffer",
+                    k.name,
+                    b.name()
+                )));
+            }
+        }
+        if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
+            return Ok(());
+        }
+        if let Some(missing) = self.dev.info.missing_for(k) {
+            return Err(Error::Unsupported(format!(
+                "kernel {} needs {missing}, which {} does not offer (or the options turned off)",
+                k.name, self.dev.info.name
+            )));
+        }
+        let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
+        let mut reads = Vec::new();
+        let mut writes = Vec::new();
+        if let Groups::Indirect(args, _) = groups {
+            reads.push(args.raw);
+        }
+        for (b, decl) in buffers.iter().zip(k.bindings) {
+            if decl.writable {
+                writes.push(b.raw);
+            } else {
+                reads.push(b.raw);
+            }
+        }
+        self.track(&reads, &writes);
+
+        let set = if buffers.is_empty() {
+            None
+        } else {
+            Some(self.descriptor_set(pipe.set_layout)?)
+        };
+        if let Some(set) = set {
+            let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+                .iter()
+                .map(|b| {
+                    [vk::DescriptorBufferInfo::default()
+                        .buffer(b.raw)
+                        .offset(0)
+                        .range(vk::WHOLE_SIZE)]
+                })
+                .collect();
+            let writes: Vec<vk::WriteDescriptorSet> = infos
+                .iter()
+                .enumerate()
+                .map(|(i, info)| {
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(set)
+                        .dst_binding(i as u32)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(info)
+                })
+                .collect();
+            // SAFETY: the set is fresh and not in use.
+            unsafe { self.dev.raw.update_descriptor_sets(&writes, &[]) };
+        }
+
+        let start = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        // SAFETY: recording into our own command buffer with objects that
+        // outlive the submission (pipeline cache, retired pools, borrowed
+        // buffers).
+        unsafe {
+            let d = &self.dev.raw;
+            d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipe.pipeline);
+            if let Some(set) = set {
+                d.cmd_bind_descriptor_sets(
+                    self.cmd,
+                    vk::PipelineBindPoint::COMPUTE,
+                    pipe.layout,
+                    0,
+                    &[set],
+                    &[],
+                );
+            }
+            if k.push_constant_size > 0 {
+                d.cmd_push_constants(
+                    self.cmd,
+                    pipe.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    bytemuck::bytes_of(push),
+                );
+            }
+            match groups {
+                Groups::Direct([x, y, z]) => d.cmd_dispatch(self.cmd, x, y, z),
+                Groups::Indirect(args, offset) => {
+                    d.cmd_dispatch_indirect(self.cmd, args.raw, offset)
+                }
+            }
+        }
+        self.dev.calls.dispatched();
+        let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        if let (Some(s), Some(e)) = (start, end) {
+            self.labels.push((k.name, s, e));
+        }
+        Ok(())
+    }
+
+    /// Dispatches `groups` workgroups along one logical dimension, split over
+    /// x and y when it exceeds the x limit. Kernels recover the index with
+    /// `linear_group()` and must ignore indices past their work.
+    pub fn dispatch_linear<P: bytemuck::Pod>(
+        &mut self,
+        kernel: &'static KernelDef<P>,
+        groups: u32,
+        buffers: &[&'a Buffer],
+        push: &P,
+    ) -> Result<()> {
+        let split = self.linear_groups(groups);
+        self.dispatch(kernel, split, buffers, push)
+    }
+
+    /// How [`Self::dispatch_linear`] splits `groups` workgroups over x and
+    /// y: the counts an indirect dispatch of such a kernel needs.
+    pub fn linear_groups(&self, groups: u32) -> [u32; 3] {
+        let max_x = self.dev.info.max_workgroup_count[0].min(65535);
+        let x = groups.min(max_x);
+        // `dispatch` records nothing for zero groups.
+        let y = groups.div_ceil(x.max(1));
+        [x, y, 1]
+    }
+
+    fn queue(&self) -> &Queue {
+        self.dev.queue(self.transfer)
+    }
+
+    /// Ends recording and submits. The returned [`Submission`] can be waited
+    /// on, or its [`SyncPoint`] passed to another recorder.
+    pub fn submit(mut self) -> Result<Submission> {
+        let span = match self.span_start {
+            Some(s) => self
+                .write_query(vk::PipelineStageFlags::BOTTOM_OF_PIPE)
+                .map(|e| (s, e)),
+            None => None,
+        };
+        if self.host_reads {
+            let mb = [vk::MemoryBarrier::default()
+                .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                .dst_access_mask(vk::AccessFlags::HOST_READ)];
+            // SAFETY: recording into our own command buffer.
+            unsafe {
+                self.dev.raw.cmd_pipeline_barrier(
+                    self.cmd,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::PipelineStageFlags::HOST,
+                    vk::DependencyFlags::empty(),
+                    &mb,
+                    &[],
+                    &[],
+                )
+            };
+        }
+        // SAFETY: ending our own command buffer.
+        unsafe { self.dev.raw.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
+        self.dev.calls.submitted();
+
+        let dev = self.dev.clone();
+        let transfer = self.transfer;
+        // With two queues, a batch waits for everything submitted earlier
+        // to the other queue: submission order is dependency order across
+        // queues (and the semaphore makes the other queue's writes visible).
+        // To overlap two batches, submit the one that must not wait first.
+        if dev.transfer.is_some() {
+            let other = dev.queue(!transfer).submitted.load(Ordering::SeqCst);
+            if other > 0 {
+                self.waits.push(SyncPoint {
+                    transfer: !transfer,
+                    value: other,
+                });
+            }
+        }
+        let mut wait_sems = Vec::new();
+        let mut wait_values = Vec::new();
+        for w in &self.waits {
+            wait_sems.push(dev.queue(w.transfer).timeline);
+            wait_values.push(w.value);
+        }
+        let wait_stages = vec![vk::PipelineStageFlags::ALL_COMMANDS; wait_sems.len()];
+        let q = dev.queue(transfer);
+        let cmds = [self.cmd];
+        let signal = [q.timeline];
+        let value = {
+            let guard = q.queue.lock().unwrap_or_else(|p| p.into_inner());
+            let value = q.submitted.load(Ordering::SeqCst) + 1;
+            let values = [value];
+            let mut ti = vk::TimelineSemaphoreSubmitInfo::default()
+                .wait_semaphore_values(&wait_values)
+                .signal_semaphore_values(&values);
+            let submit = vk::SubmitInfo::default()
+                .wait_semaphores(&wait_sems)
+                .wait_dst_stage_mask(&wait_stages)
+                .command_buffers(&cmds)
+                .signal_semaphores(&signal)
+                .push_next(&mut ti);
+            if latentam_base::faults::device_lost() {
+                return Err(Error::Vulkan {
+                    call: "vkQueueSubmit",
+                    result: vk::Result::ERROR_DEVICE_LOST,
+                });
+            }
+            // SAFETY: the command buffer is complete; the queue is externally
+            // synchronised by `guard`.
+            unsafe { dev.raw.queue_submit(*guard, &[submit], vk::Fence::null()) }
+                .vk("vkQueueSubmit")?;
+            q.submitted.store(value, Ordering::SeqCst);
+            value
+        };
+        for r in self.readbacks.drain(..) {
+            r.store(value, Ordering::SeqCst);
+        }
+        // Everything the batch used is retired behind this submission.
+        let pool = std::mem::replace(&mut self.pool, vk::CommandPool::null());
+        dev.retire(Retired::CommandPool(pool));
+        for p in self.desc_pools.drain(..) {
+            dev.retire(Retired::DescriptorPool(p));
+        }
+        self.keep.clear();
+        Ok(Submission {
+            dev,
+            point: SyncPoint { transfer, value },
+            queries: std::mem::take(&mut self.queries),
+            labels: std::mem::take(&mut self.labels),
+            span,
+        })
+    }
+}
+
+impl Drop for Recorder<'_> {
+    fn drop(&mut self) {
+        // Only reached without submission (or after it, with nothing left).
+        if self.pool != vk::CommandPool::null() {
+            self.dev.retire(Retired::CommandPool(self.pool));
+        }
+        for p in self.desc_pools.drain(..) {
+            self.dev.retire(Retired::DescriptorPool(p));
+        }
+        for q in self.queries.drain(..) {
+            self.dev.retire(Retired::QueryPool(q.pool));
+        }
+    }
+}

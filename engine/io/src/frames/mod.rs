@@ -1,0 +1,548 @@
+//! Frame assembly: pairs colour, depth, intrinsics, pose and embeddings by
+//! `header.stamp`, and checks each part, counting every message it cannot
+//! use by reason.
+//!
+//! A colour image at stamp `t` is resolved once every stream it needs has
+//! moved past `t + tolerance` (or ended): then the nearest depth and
+//! embeddings within the tolerance are taken, the pose is interpolated at
+//! `t`, and the intrinsics are the latest camera info. Messages that no
+//! colour image claims are counted as unpaired; frames with a bad part are
+//! skipped and counted, or stop the run, as [`BadInputPolicy`] says.
+
+use std::collections::VecDeque;
+
+use super::codec;
+use super::frame::{ColorImage, DepthImage, Embeddings, Frame, Intrinsics, LabelImage};
+use super::log::RawMessage;
+use super::messages::{
+    CameraInfo, CompressedImage, FeatureGrid, Image, MaskFeatures, Odometry, PoseStamped,
+    RosMessage, TextEmbeddings, TfMessage,
+};
+use super::parts::{
+    check_intrinsics, drop_bad_regions, grid_embeddings, intrinsics_of, mask_embeddings,
+};
+use super::pool::BufferPool;
+use super::report::IngestReport;
+use super::schema::normalize_type_name;
+use super::tf::{PoseTrack, TfBuffer};
+use super::vocabulary::{vocabulary_of, Vocabulary};
+use super::{CameraPose, InputError};
+use latentam_base::Rejection;
+
+mod config;
+mod pairing;
+
+pub use config::{AssemblyConfig, BadInputPolicy, PoseSource, Topics};
+use pairing::Queue;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Role {
+    Color,
+    Depth,
+    CameraInfo,
+    Pose,
+    Tf,
+    TfStatic,
+    Embeddings,
+    Semantic,
+    Vocabulary,
+}
+
+impl Role {
+    pub(super) fn accepted_types(self) -> &'static [&'static str] {
+        match self {
+            Role::Color | Role::Depth => &[Image::TYPE_NAME, CompressedImage::TYPE_NAME],
+            Role::CameraInfo => &[CameraInfo::TYPE_NAME],
+            Role::Pose => &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME],
+            Role::Tf | Role::TfStatic => &[TfMessage::TYPE_NAME],
+            Role::Embeddings => &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME],
+            Role::Semantic => &[Image::TYPE_NAME],
+            Role::Vocabulary => &[TextEmbeddings::TYPE_NAME],
+        }
+    }
+    pub(super) fn stream(self) -> &'static str {
+        match self {
+            Role::Color => "colour",
+            Role::Depth => "depth",
+            Role::CameraInfo => "camera info",
+            Role::Pose => "pose",
+            Role::Tf | Role::TfStatic => "tf",
+            Role::Embeddings => "embeddings",
+            Role::Semantic => "semantic",
+            Role::Vocabulary => "vocabulary",
+        }
+    }
+}
+
+/// A colour image waiting for its partners; compressed ones are decoded
+/// only once the frame is complete.
+enum PendingColor {
+    Raw(Result<ColorImage, Rejection>),
+    Compressed { format: String, data: Vec<u8> },
+}
+
+/// A colour image waiting for its partners, with the latest stamp each
+/// partner stream has shown since it arrived: a stream whose stamps went
+/// back in time can still deliver a partner after its watermark passed, so
+/// only stamps seen after the colour image prove its partner is not coming.
+struct PendingFrame {
+    color: PendingColor,
+    seen: SeenSince,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct SeenSince {
+    depth: Option<i64>,
+    embeddings: Option<i64>,
+    semantic: Option<i64>,
+    pose: Option<i64>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Partner {
+    Depth,
+    Embeddings,
+    Semantic,
+    Pose,
+}
+
+/// Turns a stream of log messages into [`Frame`]s.
+///
+/// ```no_run
+/// use latentam_io::{AssemblyConfig, Channel, FrameAssembler, RawMessage};
+/// # use latentam_io::Frame;
+/// # fn f(mut integrate: impl FnMut(&Frame) -> latentam_io::Result<()>, incoming: Vec<(Channel, u64, Vec<u8>)>) -> Result<(), Box<dyn std::error::Error>> {
+/// // Messages as a live ROS 2 subscriber receives them: channel, receive time, CDR bytes.
+/// let mut assembler = FrameAssembler::new(AssemblyConfig::default(), false, false);
+/// for (channel, log_time, data) in &incoming {
+///     assembler.push(RawMessage { channel, log_time: *log_time, data })?;
+///     while let Some(frame) = assembler.pop() {
+///         integrate(&frame)?; // `latentam::Mapper::integrate`
+///     }
+/// }
+/// # Ok(())
+/// # }
+/// ```
+pub struct FrameAssembler {
+    pub(super) config: AssemblyConfig,
+    color: Queue<PendingFrame>,
+    depth: Queue<Result<DepthImage, Rejection>>,
+    embeddings: Queue<Embeddings>,
+    semantic: Queue<LabelImage>,
+    /// The latest camera info (a bad one is kept so frames are rejected
+    /// for the right reason).
+    camera_info: Option<Result<Intrinsics, Rejection>>,
+    poses: PoseTrack,
+    tf: TfBuffer,
+    /// A pose (or dynamic transform) came with a stamp before the latest.
+    poses_went_back: bool,
+    /// Stamp of the last colour image resolved.
+    last_resolved: Option<i64>,
+    /// Stamps of every colour image resolved (8 bytes a frame): a second
+    /// image at a stamp already seen is a duplicate (overlapping bag files,
+    /// a log recorded twice), not a new view.
+    resolved_stamps: std::collections::HashSet<i64>,
+    color_frame_id: Option<String>,
+    /// The depth images' `header.frame_id`, to tell unregistered depth.
+    depth_frame_id: Option<String>,
+    has_embeddings: bool,
+    has_semantic: bool,
+    embedding_signature: Option<(u32, String)>,
+    vocabulary: Option<Vocabulary>,
+    ready: VecDeque<Frame>,
+    report: IngestReport,
+    ended: bool,
+    pool: BufferPool,
+}
+
+impl FrameAssembler {
+    /// An assembler for `config`; `has_embeddings` / `has_semantic` say
+    /// whether the log carries those optional streams (frames wait for
+    /// them only if so).
+    pub fn new(config: AssemblyConfig, has_embeddings: bool, has_semantic: bool) -> Self {
+        FrameAssembler {
+            config,
+            color: Queue::default(),
+            depth: Queue::default(),
+            embeddings: Queue::default(),
+            semantic: Queue::default(),
+            camera_info: None,
+            poses: PoseTrack::default(),
+            tf: TfBuffer::default(),
+            poses_went_back: false,
+            last_resolved: None,
+            resolved_stamps: std::collections::HashSet::new(),
+            color_frame_id: None,
+            depth_frame_id: None,
+            has_embeddings,
+            has_semantic,
+            embedding_signature: None,
+            vocabulary: None,
+            ready: VecDeque::new(),
+            report: IngestReport::default(),
+            ended: false,
+            pool: BufferPool::default(),
+        }
+    }
+
+    /// The counts so far.
+    pub fn report(&self) -> &IngestReport {
+        &self.report
+    }
+
+    /// The latest vocabulary message, if the log has one.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.vocabulary.as_ref()
+    }
+
+    /// The next complete frame.
+    pub fn pop(&mut self) -> Option<Frame> {
+        self.ready.pop_front()
+    }
+
+    /// Hands a frame that is no longer needed back, so its buffers are
+    /// reused for the next frames instead of freshly allocated (which
+    /// costs page faults; see `bench ingest`). Optional.
+    pub fn recycle(&mut self, frame: Frame) {
+        self.pool.recycle(frame);
+    }
+
+    pub(super) fn role(&self, topic: &str) -> Option<Role> {
+        let t = &self.config.topics;
+        if topic == t.color {
+            Some(Role::Color)
+        } else if topic == t.depth {
+            Some(Role::Depth)
+        } else if topic == t.camera_info && self.config.intrinsics.is_none() {
+            Some(Role::CameraInfo)
+        } else if matches!(&t.pose, PoseSource::Topic(p) if p == topic) {
+            Some(Role::Pose)
+        } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf" {
+            Some(Role::Tf)
+        } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf_static" {
+            Some(Role::TfStatic)
+        } else if topic == t.embeddings {
+            Some(Role::Embeddings)
+        } else if topic == t.semantic {
+            Some(Role::Semantic)
+        } else if topic == t.vocabulary {
+            Some(Role::Vocabulary)
+        } else {
+            None
+        }
+    }
+
+    /// The topics this configuration reads, for a [`ReadFilter`](crate::ReadFilter).
+    pub fn topics(&self) -> Vec<String> {
+        let t = &self.config.topics;
+        let mut v = vec![t.color.clone(), t.depth.clone()];
+        if self.config.intrinsics.is_none() {
+            v.push(t.camera_info.clone());
+        }
+        match &t.pose {
+            PoseSource::Topic(p) => v.push(p.clone()),
+            PoseSource::Tf { .. } => v.extend(["/tf".to_string(), "/tf_static".to_string()]),
+        }
+        v.extend([
+            t.embeddings.clone(),
+            t.semantic.clone(),
+            t.vocabulary.clone(),
+        ]);
+        v
+    }
+
+    fn reject(&mut self, topic: &str, stamp: i64, r: Rejection) -> Result<(), InputError> {
+        match self.config.on_bad_input {
+            BadInputPolicy::Skip => {
+                log::debug!("skipping {topic} at {stamp} ns: {r}");
+                self.report.count(&r);
+                Ok(())
+            }
+            BadInputPolicy::Stop => Err(InputError::Rejected {
+                topic: topic.to_string(),
+                stamp_ns: stamp,
+                rejection: r,
+            }),
+        }
+    }
+
+    /// Takes one message. Errors only for undecodable messages under
+    /// [`BadInputPolicy::Stop`] and for rejected frames under it.
+    pub fn push(&mut self, msg: RawMessage<'_>) -> Result<(), InputError> {
+        let Some(role) = self.role(&msg.channel.topic) else {
+            return Ok(());
+        };
+        self.report.messages += 1;
+        let topic = msg.channel.topic.as_str();
+        let log_stamp = msg.log_time as i64;
+        match self.decode(role, msg) {
+            Ok(()) => {}
+            Err(r) => self.reject(topic, log_stamp, r)?,
+        }
+        self.resolve(false)
+    }
+
+    fn decode(&mut self, role: Role, msg: RawMessage<'_>) -> Result<(), Rejection> {
+        let ty = normalize_type_name(&msg.channel.schema_name);
+        let undecodable = |e: super::cdr::CdrError| {
+            Rejection::new(
+                match role {
+                    Role::Color => "colour: undecodable message",
+                    Role::Depth => "depth: undecodable message",
+                    Role::CameraInfo => "camera info: undecodable message",
+                    Role::Pose => "pose: undecodable message",
+                    Role::Tf | Role::TfStatic => "tf: undecodable message",
+                    Role::Embeddings => "embeddings: undecodable message",
+                    Role::Semantic => "semantic: undecodable message",
+                    Role::Vocabulary => "vocabulary: undecodable message",
+                },
+                e.to_string(),
+            )
+        };
+        let data = msg.data;
+        match role {
+            Role::Color if ty == CompressedImage::TYPE_NAME => {
+                let m = CompressedImage::decode(data).map_err(undecodable)?;
+                self.note_color_frame(m.header.frame_id);
+                self.color.push(
+                    m.header.stamp.as_nanos(),
+                    PendingFrame {
+                        color: PendingColor::Compressed {
+                            format: m.format.to_string(),
+                            data: m.data.to_vec(),
+                        },
+                        seen: SeenSince::default(),
+                    },
+                );
+            }
+            Role::Color => {
+                let m = Image::decode(data).map_err(undecodable)?;
+                self.note_color_frame(m.header.frame_id);
+                let color = PendingColor::Raw(codec::color_from_image_into(
+                    &m,
+                    self.pool.bytes(m.data.len()),
+                ));
+                self.color.push(
+                    m.header.stamp.as_nanos(),
+                    PendingFrame {
+                        color,
+                        seen: SeenSince::default(),
+                    },
+                );
+            }
+            Role::Depth => {
+                let scale = self.config.depth_metres_per_unit;
+                let (stamp, depth) = if ty == CompressedImage::TYPE_NAME {
+                    let m = CompressedImage::decode(data).map_err(undecodable)?;
+                    self.note_depth_frame(m.header.frame_id);
+                    let expected = self
+                        .camera_size()
+                        .map(|(width, height)| codec::ExpectedSize {
+                            width,
+                            height,
+                            kind: "depth: size mismatch",
+                            from: "the camera info",
+                        });
+                    (
+                        m.header.stamp.as_nanos(),
+                        codec::depth_from_compressed(&m, scale, expected),
+                    )
+                } else {
+                    let m = Image::decode(data).map_err(undecodable)?;
+                    self.note_depth_frame(m.header.frame_id);
+                    (
+                        m.header.stamp.as_nanos(),
+                        codec::depth_from_image_into(&m, scale, self.pool.words(m.data.len() / 2)),
+                    )
+                };
+                // A bad depth image is kept as such so the colour image it
+                // belongs to is rejected for the right reason.
+                self.depth.push(stamp, depth);
+                self.saw(Partner::Depth, stamp);
+            }
+            Role::CameraInfo => {
+                let m = CameraInfo::decode(data).map_err(undecodable)?;
+                self.camera_info = Some(intrinsics_of(&m));
+            }
+            Role::Pose => {
+                let (stamp, pose) = if ty == Odometry::TYPE_NAME {
+                    let m = Odometry::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), m.pose)
+                } else {
+                    let m = PoseStamped::decode(data).map_err(undecodable)?;
+                    (m.header.stamp.as_nanos(), m.pose)
+                };
+                let pose = pose.checked()?;
+                self.poses_went_back |= self.poses.latest().is_some_and(|l| stamp < l);
+                self.poses.insert(stamp, pose);
+                self.saw(Partner::Pose, stamp);
+            }
+            Role::Tf | Role::TfStatic => {
+                let m = TfMessage::decode(data).map_err(undecodable)?;
+                for t in &m.transforms {
+                    self.tf.insert(t, role == Role::TfStatic)?;
+                    if role == Role::Tf {
+                        let stamp = t.header.stamp.as_nanos();
+                        self.saw(Partner::Pose, stamp);
+                    }
+                }
+            }
+            Role::Embeddings => {
+                let (stamp, e) = if ty == FeatureGrid::TYPE_NAME {
+                    let m = FeatureGrid::decode(data).map_err(undecodable)?;
+                    (
+                        m.header.stamp.as_nanos(),
+                        grid_embeddings(&m, &mut self.pool)?,
+                    )
+                } else {
+                    let m = MaskFeatures::decode(data).map_err(undecodable)?;
+                    (
+                        m.header.stamp.as_nanos(),
+                        mask_embeddings(&m, &mut self.pool)?,
+                    )
+                };
+                self.check_signature(&e)?;
+                let mut e = e;
+                let refused = drop_bad_regions(&mut e, stamp);
+                if let (Some(first), BadInputPolicy::Stop) =
+                    (refused.first(), self.config.on_bad_input)
+                {
+                    return Err(first.clone());
+                }
+                for r in &refused {
+                    self.report.count(r);
+                }
+                if refused.len() < e.count as usize {
+                    self.embeddings.push(stamp, e);
+                } else {
+                    // Nothing left to learn from: the frame maps geometry
+                    // only, as if it had no embeddings.
+                    self.embeddings.note(stamp);
+                    self.pool.recycle_embeddings(e);
+                }
+                self.saw(Partner::Embeddings, stamp);
+            }
+            Role::Semantic => {
+                let m = Image::decode(data).map_err(undecodable)?;
+                let labels = codec::labels_from_image(&m)?;
+                let stamp = m.header.stamp.as_nanos();
+                self.semantic.push(stamp, labels);
+                self.saw(Partner::Semantic, stamp);
+            }
+            Role::Vocabulary => {
+                let m = TextEmbeddings::decode(data).map_err(undecodable)?;
+                self.vocabulary = Some(vocabulary_of(&m)?);
+            }
+        }
+        Ok(())
+    }
+
+    /// Notes a partner message's stamp for every colour image waiting.
+    fn saw(&mut self, partner: Partner, stamp: i64) {
+        for pending in &mut self.color.items {
+            let s = &mut pending.value.seen;
+            let mark = match partner {
+                Partner::Depth => &mut s.depth,
+                Partner::Embeddings => &mut s.embeddings,
+                Partner::Semantic => &mut s.semantic,
+                Partner::Pose => &mut s.pose,
+            };
+            *mark = Some(mark.map_or(stamp, |m| m.max(stamp)));
+        }
+    }
+
+    /// The image size the intrinsics state, when they state one.
+    fn camera_size(&self) -> Option<(u32, u32)> {
+        let k = match (&self.config.intrinsics, &self.camera_info) {
+            (Some(k), _) | (None, Some(Ok(k))) => k,
+            _ => return None,
+        };
+        (k.width > 0 && k.height > 0).then_some((k.width, k.height))
+    }
+
+    fn note_color_frame(&mut self, frame_id: &str) {
+        if note_frame(&mut self.color_frame_id, frame_id) {
+            self.check_registration();
+        }
+    }
+
+    fn note_depth_frame(&mut self, frame_id: &str) {
+        if note_frame(&mut self.depth_frame_id, frame_id) {
+            self.check_registration();
+        }
+    }
+
+    /// The mapper reads depth through the colour camera: depth stamped in
+    /// another optical frame (a raw Kinect or RealSense depth stream, not
+    /// its registered twin) puts every surface a few pixels off its
+    /// colour, and more at silhouettes. The map is still built, so this is
+    /// a warning, said once per pair of frames.
+    fn check_registration(&mut self) {
+        let (Some(colour), Some(depth)) = (&self.color_frame_id, &self.depth_frame_id) else {
+            return;
+        };
+        if colour.is_empty() || depth.is_empty() || colour == depth {
+            return;
+        }
+        self.report.warn(format!(
+            "depth images are in frame `{depth}`, colour images in `{colour}`: depth from another \
+             lens must be registered to colour first (record the driver's registered stream, e.g. \
+             `aligned_depth_to_color` or `depth_registered`, and name it with --depth-topic if \
+             the log has it); mapping goes on as if they were one camera"
+        ));
+    }
+
+    fn check_signature(&mut self, e: &Embeddings) -> Result<(), Rejection> {
+        let model = super::embedding_space(&e.model).to_string();
+        match &self.embedding_signature {
+            None => {
+                self.embedding_signature = Some((e.dim, model));
+                Ok(())
+            }
+            Some((dim, _)) if *dim != e.dim => Err(Rejection::new(
+                "embeddings: dimension changed",
+                format!(
+                    "dimension {} after earlier messages of dimension {dim}",
+                    e.dim
+                ),
+            )),
+            Some((_, m)) if *m != model => Err(Rejection::new(
+                "embeddings: model changed",
+                format!("model `{model}` after earlier messages from `{m}`"),
+            )),
+            Some(_) => Ok(()),
+        }
+    }
+
+    /// Declares the end of the log: every pending colour image is resolved
+    /// with what arrived, and leftover messages are counted as unpaired.
+    pub fn finish(&mut self) -> Result<(), InputError> {
+        self.ended = true;
+        self.resolve(true)?;
+        for (kind, n) in [
+            ("depth: unpaired", self.depth.items.len()),
+            ("embeddings: unpaired", self.embeddings.items.len()),
+            ("semantic: unpaired", self.semantic.items.len()),
+        ] {
+            for _ in 0..n {
+                self.report.count(&Rejection::new(
+                    kind,
+                    "no colour image within the tolerance",
+                ));
+            }
+        }
+        self.depth.items.clear();
+        self.embeddings.items.clear();
+        self.semantic.items.clear();
+        Ok(())
+    }
+}
+
+/// Keeps a stream's latest frame id; whether it changed.
+fn note_frame(slot: &mut Option<String>, frame_id: &str) -> bool {
+    if slot.as_deref() == Some(frame_id) {
+        return false;
+    }
+    *slot = Some(frame_id.to_string());
+    true
+}

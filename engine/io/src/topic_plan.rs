@@ -1,0 +1,255 @@
+//! Choosing a log's topics by message type, so a robot's bag maps without
+//! naming them: when a stream's configured topic is not in the log and the
+//! caller allows it, the one topic of the right type is taken (with
+//! preferences that settle the usual layouts of camera drivers), and an
+//! ambiguous choice is an error listing the candidates and the flag that
+//! settles it.
+
+use super::frames::{AssemblyConfig, PoseSource, Topics};
+use super::log::Channel;
+use super::messages::{
+    CameraInfo, CompressedImage, FeatureGrid, Image, MaskFeatures, Odometry, PoseStamped,
+    RosMessage, TextEmbeddings, TfMessage,
+};
+use super::schema::normalize_type_name;
+use super::InputError;
+
+/// The streams that may be chosen from the log when their configured topic
+/// is absent (the command line allows it for every topic flag not given).
+///
+/// ```no_run
+/// use latentam_io::{plan_topics, AssemblyConfig, McapLog, TopicChoice};
+///
+/// // Map a robot's bag without naming its topics.
+/// let log = McapLog::open("robot_bag/".as_ref())?;
+/// let config = AssemblyConfig { choose: TopicChoice::all(), ..AssemblyConfig::default() };
+/// let (topics, plan) = plan_topics(&log.channels(), &config)?;
+/// println!("colour images from {}", topics.color);
+/// plan.iter().for_each(|line| println!("{line}"));
+/// # Ok::<(), latentam_io::InputError>(())
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TopicChoice {
+    /// Colour images.
+    pub color: bool,
+    /// Depth images.
+    pub depth: bool,
+    /// Camera info.
+    pub camera_info: bool,
+    /// Poses: a `PoseStamped`/`Odometry` topic, else the TF tree from its
+    /// root to the colour image's frame.
+    pub pose: bool,
+    /// Region embeddings.
+    pub embeddings: bool,
+    /// The query vocabulary.
+    pub vocabulary: bool,
+}
+
+impl TopicChoice {
+    /// Every stream may be chosen.
+    pub fn all() -> Self {
+        TopicChoice {
+            color: true,
+            depth: true,
+            camera_info: true,
+            pose: true,
+            embeddings: true,
+            vocabulary: true,
+        }
+    }
+}
+
+fn of_type<'a>(channels: &'a [Channel], types: &[&str]) -> Vec<&'a Channel> {
+    channels
+        .iter()
+        .filter(|c| types.contains(&normalize_type_name(&c.schema_name).as_str()))
+        .collect()
+}
+
+/// Narrows `candidates` by each preference in turn, keeping a preference
+/// only when some candidate meets it.
+fn prefer<'a>(
+    mut candidates: Vec<&'a Channel>,
+    preferences: &[&dyn Fn(&Channel) -> bool],
+) -> Vec<&'a Channel> {
+    for p in preferences {
+        let kept: Vec<_> = candidates.iter().copied().filter(|c| p(c)).collect();
+        if !kept.is_empty() {
+            candidates = kept;
+        }
+    }
+    candidates
+}
+
+/// Drops `X/compressed` (and `X/compressedDepth`) when `X` itself is a
+/// candidate: drivers publish both, and the raw one needs no decoding.
+fn drop_compressed_twins(candidates: Vec<&Channel>) -> Vec<&Channel> {
+    let names: Vec<String> = candidates.iter().map(|c| c.topic.clone()).collect();
+    candidates
+        .into_iter()
+        .filter(|c| {
+            let base = c
+                .topic
+                .strip_suffix("/compressed")
+                .or_else(|| c.topic.strip_suffix("/compressedDepth"));
+            base.is_none_or(|b| !names.iter().any(|n| n == b))
+        })
+        .collect()
+}
+
+fn one<'a>(
+    stream: &str,
+    flag: &str,
+    candidates: Vec<&'a Channel>,
+) -> Result<Option<&'a Channel>, InputError> {
+    match candidates.as_slice() {
+        [] => Ok(None),
+        [c] => Ok(Some(c)),
+        many => Err(InputError::Topic {
+            topic: stream.to_string(),
+            reason: format!(
+                "several topics could be the {stream}: {}; name one with {flag}",
+                many.iter()
+                    .map(|c| format!("{} ({})", c.topic, c.schema_name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }),
+    }
+}
+
+fn lower(c: &Channel) -> String {
+    c.topic.to_ascii_lowercase()
+}
+
+/// A depth topic the driver registered to the colour camera (RealSense's
+/// `aligned_depth_to_color`, the Kinect/OpenNI `depth_registered`).
+fn registered_depth(topic: &str) -> bool {
+    let t = topic.to_ascii_lowercase();
+    t.contains("aligned_depth_to_color") || t.contains("depth_registered")
+}
+
+/// The topics to read from a log with `channels`, and one line per stream
+/// chosen from the log (for the user to see): streams whose configured
+/// topic is present, or that `config.choose` does not allow choosing, stay
+/// as configured.
+pub fn plan_topics(
+    channels: &[Channel],
+    config: &AssemblyConfig,
+) -> Result<(Topics, Vec<String>), InputError> {
+    let mut topics = config.topics.clone();
+    let mut plan = Vec::new();
+    let choose = config.choose;
+    let present = |t: &str| channels.iter().any(|c| c.topic == t);
+    fn take(plan: &mut Vec<String>, stream: &str, slot: &mut String, chosen: Option<&Channel>) {
+        if let Some(c) = chosen {
+            plan.push(format!(
+                "{stream}: {} ({}; {} is not in the log)",
+                c.topic, c.schema_name, slot
+            ));
+            *slot = c.topic.clone();
+        }
+    }
+    let images = [Image::TYPE_NAME, CompressedImage::TYPE_NAME];
+
+    if choose.color && !present(&topics.color) {
+        let candidates = of_type(channels, &images)
+            .into_iter()
+            .filter(|c| {
+                let t = lower(c);
+                !["depth", "infra", "/ir", "semantic", "label", "mask"]
+                    .iter()
+                    .any(|w| t.contains(w))
+            })
+            .collect();
+        let candidates = prefer(
+            drop_compressed_twins(candidates),
+            &[&|c| lower(c).contains("color") || lower(c).contains("rgb")],
+        );
+        let chosen = one("colour images", "--color-topic", candidates)?;
+        take(&mut plan, "colour", &mut topics.color, chosen);
+    }
+    let depth_images: Vec<&Channel> = of_type(channels, &images)
+        .into_iter()
+        .filter(|c| lower(c).contains("depth"))
+        .collect();
+    // A driver that records its registered depth beside the raw one
+    // names the raw one `.../depth/image_raw`, the default: read through
+    // the colour camera, that one would put every surface off its colour.
+    let registered_beside = present(&topics.depth)
+        && !registered_depth(&topics.depth)
+        && depth_images.iter().any(|c| registered_depth(&c.topic));
+    if choose.depth && (!present(&topics.depth) || registered_beside) {
+        let candidates = prefer(
+            drop_compressed_twins(depth_images),
+            &[&|c| lower(c).contains("aligned_depth_to_color"), &|c| {
+                lower(c).contains("depth_registered")
+            }],
+        );
+        let chosen = one("depth images", "--depth-topic", candidates)?;
+        if registered_beside {
+            if let Some(c) = chosen {
+                plan.push(format!(
+                    "depth: {} ({}; registered to colour, preferred over {})",
+                    c.topic, c.schema_name, topics.depth
+                ));
+                topics.depth = c.topic.clone();
+            }
+        } else {
+            take(&mut plan, "depth", &mut topics.depth, chosen);
+        }
+    }
+    if choose.camera_info && config.intrinsics.is_none() && !present(&topics.camera_info) {
+        // The calibration beside the colour images: its parent path is a
+        // prefix of theirs.
+        let color = topics.color.clone();
+        let beside = move |c: &Channel| {
+            c.topic
+                .rsplit_once('/')
+                .is_some_and(|(parent, _)| !parent.is_empty() && color.starts_with(parent))
+        };
+        let candidates = prefer(of_type(channels, &[CameraInfo::TYPE_NAME]), &[&beside]);
+        let chosen = one("camera info", "--camera-info-topic", candidates)?;
+        take(&mut plan, "camera info", &mut topics.camera_info, chosen);
+    }
+    if let (true, PoseSource::Topic(p)) = (choose.pose, &topics.pose) {
+        if !present(p) {
+            let candidates = prefer(
+                of_type(channels, &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME]),
+                &[&|c| lower(c).contains("camera")],
+            );
+            let configured = p.clone();
+            match one("camera poses", "--pose-topic or --tf-world", candidates)? {
+                Some(c) => {
+                    plan.push(format!(
+                        "poses: {} ({}; {configured} is not in the log)",
+                        c.topic, c.schema_name
+                    ));
+                    topics.pose = PoseSource::Topic(c.topic.clone());
+                }
+                None if !of_type(channels, &[TfMessage::TYPE_NAME]).is_empty() => {
+                    plan.push(format!(
+                        "poses: /tf + /tf_static, from the root of the tree to the colour \
+                         image's frame ({configured} is not in the log)"
+                    ));
+                    topics.pose = PoseSource::Tf {
+                        world_frame: String::new(),
+                        camera_frame: None,
+                    };
+                }
+                None => {}
+            }
+        }
+    }
+    if choose.embeddings && !present(&topics.embeddings) {
+        let candidates = of_type(channels, &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME]);
+        let chosen = one("region embeddings", "--embeddings-topic", candidates)?;
+        take(&mut plan, "embeddings", &mut topics.embeddings, chosen);
+    }
+    if choose.vocabulary && !present(&topics.vocabulary) {
+        let candidates = of_type(channels, &[TextEmbeddings::TYPE_NAME]);
+        let chosen = one("vocabulary", "--vocabulary-topic", candidates)?;
+        take(&mut plan, "vocabulary", &mut topics.vocabulary, chosen);
+    }
+    Ok((topics, plan))
+}
