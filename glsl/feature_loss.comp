@@ -1,4 +1,4 @@
-// Feature loss per decoded region and its gradient (SPEC §9):
+// Feature loss per decoded region and its gradient (paper Eq. 6, first two terms):
 //     loss_m = w_m * (lambda_cos * (1 - cos(p_m, t_m)) + lambda_l2 * |p_m - t_m|^2 / d)
 //     grad_m = dloss_m / dp_m
 // with cos = p.t / (max(|p|, eps) max(|t|, eps)), so an all-zero row has a

@@ -1,5 +1,5 @@
 // Photometric L1 and depth L1 of one view of the batch, with their gradient
-// (SPEC §9). Per pixel p of the view (rendered r, target t, as R, G, B, depth):
+// (paper Eqs. 7–8). Per pixel p of the view (rendered r, target t, as R, G, B, depth):
 //     grad[p].rgb = w_rgb * sign(r.rgb - t.rgb)
 //     grad[p].z   = w_depth * sign(r.z - t.z)   where t.z is valid (> 0, finite), else 0
 // The gradient is overwritten (the SSIM pass adds to it afterwards); each

@@ -1,5 +1,5 @@
 // The first Lloyd assignment of the full-dictionary k-means update
-// (SPEC §4.2), orchestrated by engine/core/src/latent/kmeans.rs, without the
+// (paper Eq. 10), orchestrated by engine/core/src/latent/kmeans.rs, without the
 // K x K cosine matrix of the atoms unless a new concept needs it:
 //   kmeans_micro_rows:   the micro-centres' rows of the point-to-centre
 //                        cosine matrix (points `first`.. of `unit` against

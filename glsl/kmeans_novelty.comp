@@ -3,7 +3,7 @@
 // `threshold` replaces, as a warm-start centre, the lighter atom of the most
 // similar pair of atoms not yet touched this round. The Lloyd pass that
 // follows then merges that pair's points into the other atom and gives the
-// new concept its own (the STREAM scheme's re-clustering into K, SPEC §4).
+// new concept its own (the STREAM scheme's re-clustering into K, paper Sec. III-C).
 // Rows 0..atoms-1 of best_value/best_index are each atom's most similar
 // other atom, rows atoms.. the micro-centres' most similar atom.
 // replaced[j] receives the atom slot micro-centre j took, or 0xffffffff, so

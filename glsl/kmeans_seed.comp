@@ -1,4 +1,4 @@
-// Farthest-point seeding of the per-keyframe micro-clusters (SPEC §4.2):
+// Farthest-point seeding of the per-keyframe micro-clusters (paper Sec. III-C):
 // the first seed is the heaviest point, each next one the point least
 // similar (by cosine) to all seeds so far; ties go to the lowest index. The
 // seeds' rows of the raw points are copied to the centres. A single

@@ -1,4 +1,4 @@
-// Sparse Lloyd iterations of the full-dictionary k-means update (SPEC §4.2),
+// Sparse Lloyd iterations of the full-dictionary k-means update (paper Eq. 10),
 // orchestrated by engine/core/src/latent/kmeans.rs. After the first iteration
 // only the centres that gained or lost members change, so the
 // point-to-centre cosine matrix needs only their columns again:

@@ -1,4 +1,4 @@
-// Weighted Lloyd update of one centre per workgroup (SPEC §4.2):
+// Weighted Lloyd update of one centre per workgroup (streaming k-means, paper Eq. 10):
 //     C_j = sum_{a_i = j} m_i P_i / sum_{a_i = j} m_i,   weight_j = sum m_i
 // with m_i = decay * mass_i for the first `decayed` points (the old atoms)
 // and mass_i otherwise; re-normalised to unit length when `normalize` != 0.

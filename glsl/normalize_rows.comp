@@ -1,5 +1,5 @@
 // Row normalisation with an epsilon on the norm, as the attention decoder
-// uses it (SPEC §2.5):  y[r, :] = x[r, :] / (‖x[r, :]‖ + eps),  norm[r] = ‖x[r, :]‖.
+// uses it (paper Eq. 5):  y[r, :] = x[r, :] / (‖x[r, :]‖ + eps),  norm[r] = ‖x[r, :]‖.
 // One workgroup per row. CPU reference: engine/reference/src/decoder.rs
 // (`normalize_rows`).
 #version 450

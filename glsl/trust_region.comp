@@ -1,4 +1,4 @@
-// Trust-region penalty on the dictionary (SPEC §9): for each atom k,
+// Trust-region penalty on the dictionary (paper Eq. 6, third term): for each atom k,
 //     loss_k = lambda * max(0, |D_k - D0_k| - radius)
 //     grad_k += lambda * (D_k - D0_k) / |D_k - D0_k|   when the norm exceeds radius
 // The gradient is added to `grad` (the decoder's dL/dD); `atom_loss` is

@@ -172,7 +172,7 @@ fn cross_view_psnr(a: &Frame, b: &Frame) -> f64 {
 /// 7-Scenes colour is not registered to depth: the converter re-projects
 /// depth into the measured colour lens and moves the poses to it. The
 /// same surface must then look alike from two frames, as it does not
-/// unregistered (measured: 2.5-4.5 dB better, README "Map fidelity").
+/// unregistered (measured: 2.5-4.5 dB better, docs/quality.md "Map fidelity").
 #[test]
 fn seven_scenes_depth_is_registered_to_colour() {
     let src = shared_data("7scenes-redkitchen");

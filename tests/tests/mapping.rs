@@ -245,7 +245,7 @@ fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views
     // 0.248-0.273 and mIoU 0.507-0.553 (chance is about 0.09 over the 11
     // classes), region-pooled 0.259-0.288 and 0.617-0.786. Before the
     // queries started from their region's embedding and seeding and the
-    // Gaussian learning rates were tuned (README, "Map fidelity"): PSNR
+    // Gaussian learning rates were tuned (docs/quality.md, "Map fidelity"): PSNR
     // 16.8 dB and per-pixel mIoU 0.25 on the easier scene of then. The
     // margins below are about three times the spread beyond the worst seed.
     assert!(q.psnr > 21.0, "PSNR {q:?}");

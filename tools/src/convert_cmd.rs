@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(short, long)]
     out: PathBuf,
     /// Folder of per-frame feature files (`S.safetensors`, or `.npy`; see
-    /// the README's "Embedding files" section).
+    /// the "Embedding files" section of docs/input-logs.md).
     #[arg(long, conflicts_with = "oracle_labels")]
     features: Option<PathBuf>,
     /// Embedding model id for the feature files (overrides their metadata;

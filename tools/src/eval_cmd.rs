@@ -1,5 +1,5 @@
 //! `latentam eval`: re-renders a log's frames from a mapped run and scores
-//! them as the paper does (§V; SPEC §10): colour PSNR over all pixels,
+//! them as the paper does (Sec. IV-A): colour PSNR over all pixels,
 //! depth L1 over valid ones, and per pixel the cosine loss and L2 of the
 //! decoded embedding against its region's embedding and mIoU over the
 //! vocabulary's classes (against the semantic labels when the log has

@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::foxglove::{write_foxglove_file, Cloud};
 use anyhow::{bail, Context as _, Result};
 use latentam_cli::progress::Stages;
-use latentam_io::foxglove::{write_foxglove_file, Cloud};
 use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
 use crate::pictures::{heat, to_bytes};

@@ -5,21 +5,18 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
-mod bench_ingest;
-mod bench_latent;
-mod bench_map;
-mod bench_raster;
-mod bench_soak;
 mod config_cmd;
 mod convert_cmd;
 mod demo_cmd;
 mod eval_cmd;
 mod export_cmd;
+mod foxglove;
 mod gen_scene;
 mod input_args;
 mod inspect;
 mod interrupt;
 mod loaded_map;
+mod logging;
 mod map_cmd;
 mod mapping;
 mod pictures;
@@ -38,6 +35,11 @@ mod selfcheck;
     about = "Online latent 3D Gaussian mapping on Vulkan"
 )]
 struct Cli {
+    /// Show more of what the engine reports: -v notes, -vv debug detail
+    /// (warnings are always shown; RUST_LOG overrides, e.g.
+    /// RUST_LOG=latentam_io=debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
     #[command(subcommand)]
     command: Command,
 }
@@ -95,6 +97,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    logging::install(cli.verbose);
     let result = match cli.command {
         Command::Devices => selfcheck::devices(),
         Command::Selfcheck { validation } => selfcheck::run(validation),

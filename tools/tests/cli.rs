@@ -404,6 +404,50 @@ fn gen_scene_and_convert_write_logs_that_inspect_reads() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// What the library reports through `log` reaches the user: a log that
+/// lost its summary is read linearly, with a warning, unless `RUST_LOG`
+/// asks for errors only.
+#[test]
+fn library_warnings_reach_stderr() {
+    let dir = std::env::temp_dir().join(format!("latentam-cli-warn-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("scene.mcap");
+    let mut a: Vec<&std::ffi::OsStr> = [
+        "gen-scene",
+        "--frames",
+        "4",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "-o",
+    ]
+    .iter()
+    .map(|s| s.as_ref())
+    .collect();
+    a.push(scene.as_os_str());
+    run_ok(&a);
+    let bytes = std::fs::read(&scene).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+
+    let warned = latentam().arg("inspect").arg(&cut).output().unwrap();
+    let stderr = String::from_utf8_lossy(&warned.stderr);
+    assert!(
+        stderr.contains("warning: ") && stderr.contains("reading it linearly"),
+        "{stderr}"
+    );
+    let quiet = latentam()
+        .arg("inspect")
+        .arg(&cut)
+        .env("RUST_LOG", "error")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&quiet.stderr);
+    assert!(!stderr.contains("reading it linearly"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn bad_inputs_are_clear_errors() {
     let dir = std::env::temp_dir().join(format!("latentam-cli-bad-{}", std::process::id()));

@@ -14,11 +14,7 @@
 //! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
-//! * [`DepthRegistration`]: depth from a second lens re-projected into
-//!   the colour camera (raw Kinect streams, unregistered datasets);
 //! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
-//! * [`foxglove`]: maps and trajectories as Foxglove point clouds and
-//!   poses (JSON messages in MCAP);
 //! * [`trajectory`]: camera trajectories in the TUM RGB-D format
 //!   ([`write_tum`] / [`read_tum`]).
 //!
@@ -38,7 +34,6 @@
 pub mod cdr;
 mod class_names;
 pub mod codec;
-pub mod foxglove;
 mod frame;
 mod frames;
 mod input;
@@ -47,7 +42,6 @@ mod mcap_frames;
 pub mod messages;
 mod parts;
 mod pool;
-mod registration;
 mod report;
 pub mod schema;
 mod tf;
@@ -61,7 +55,7 @@ pub use frame::{
     decode_floats, embedding_space, encode_floats, CameraPose, ColorImage, DepthData, DepthImage,
     Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
 };
-pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, Topics};
+pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, TopicChoice, Topics};
 pub use input::{check_input_file, open_input, read_input, read_input_to_string};
 pub use latentam_base::{Error, InputError, Rejection, Result};
 pub use log::{
@@ -73,10 +67,9 @@ pub use messages::{
     PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
 pub use parts::MAX_EMBEDDING_DIM;
-pub use registration::DepthRegistration;
 pub use report::{IngestReport, ReasonCount};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
-pub use topic_plan::{plan_topics, TopicChoice};
+pub use topic_plan::plan_topics;
 pub use trajectory::{read_tum, write_tum};
 pub use vocabulary::{read_vocabulary, Vocabulary};
 pub use writer::{Compression, LogWriter};

@@ -14,51 +14,6 @@ use super::messages::{
 use super::schema::normalize_type_name;
 use super::InputError;
 
-/// The streams that may be chosen from the log when their configured topic
-/// is absent (the command line allows it for every topic flag not given).
-///
-/// ```no_run
-/// use latentam_io::{plan_topics, AssemblyConfig, McapLog, TopicChoice};
-///
-/// // Map a robot's bag without naming its topics.
-/// let log = McapLog::open("robot_bag/".as_ref())?;
-/// let config = AssemblyConfig { choose: TopicChoice::all(), ..AssemblyConfig::default() };
-/// let (topics, plan) = plan_topics(&log.channels(), &config)?;
-/// println!("colour images from {}", topics.color);
-/// plan.iter().for_each(|line| println!("{line}"));
-/// # Ok::<(), latentam_io::InputError>(())
-/// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct TopicChoice {
-    /// Colour images.
-    pub color: bool,
-    /// Depth images.
-    pub depth: bool,
-    /// Camera info.
-    pub camera_info: bool,
-    /// Poses: a `PoseStamped`/`Odometry` topic, else the TF tree from its
-    /// root to the colour image's frame.
-    pub pose: bool,
-    /// Region embeddings.
-    pub embeddings: bool,
-    /// The query vocabulary.
-    pub vocabulary: bool,
-}
-
-impl TopicChoice {
-    /// Every stream may be chosen.
-    pub fn all() -> Self {
-        TopicChoice {
-            color: true,
-            depth: true,
-            camera_info: true,
-            pose: true,
-            embeddings: true,
-            vocabulary: true,
-        }
-    }
-}
-
 fn of_type<'a>(channels: &'a [Channel], types: &[&str]) -> Vec<&'a Channel> {
     channels
         .iter()

@@ -1,4 +1,4 @@
-//! The dictionary attention decoder (SPEC §2.5; kernels in
+//! The dictionary attention decoder (paper Sec. III-B, Eq. 5; kernels in
 //! `engine/core/src/latent/decoder.rs`), in f64.
 //!
 //! Region queries `Q` (n × d_s) are projected by `W` (d_s × d_f) to `E = QW`;

@@ -1,4 +1,4 @@
-//! Streaming k-means with a fixed number of atoms (SPEC §4.2; GPU side in
+//! Streaming k-means with a fixed number of atoms (paper Sec. III-C, Eq. 10; GPU side in
 //! `engine/core/src/latent/kmeans.rs`), in f64, step for step as the kernels do
 //! it, including their tie rules (lowest index wins).
 //!

@@ -1,6 +1,9 @@
-//! Mapping losses and their gradients (SPEC §9; kernels in
+//! Mapping losses and their gradients (paper Eqs. 6–8; kernels in
 //! `engine/core/src/loss/`), in f64. SSIM has its own module,
 //! [`crate::ssim`].
+//!
+//! `L_f = λ_cos (1 − cos(F̂, F)) + λ_2 ‖F̂ − F‖² + λ_D Σ_j ReLU(‖D⁰_j − D_j‖ − δ)` (Eq. 6),
+//! `L_rgb = λ_I1 ‖Î − I‖₁ + λ_I2 L_SSIM(Î, I)` (Eq. 7), `L_d = ‖Ẑ − Z‖₁` (Eq. 8).
 
 /// Per-row feature loss between decoded embeddings `pred` and targets
 /// `target` (rows × cols), weighted per row:

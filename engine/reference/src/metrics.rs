@@ -1,4 +1,4 @@
-//! The per-pixel evaluation protocol (paper §V) with every pixel decoded
+//! The per-pixel evaluation protocol (paper Sec. IV-A) with every pixel decoded
 //! explicitly in f64: the oracle of `latentam_core::mapper::pixel_metrics`.
 //! Cosine loss: mean over pixels with a target of 1 − cos(e_p, t). Class
 //! of a pixel: the vocabulary entry with the largest ⟨e_p, t̂_c⟩, counted

@@ -1,5 +1,8 @@
-//! Region pooling of rendered queries (SPEC §2.6; kernels
+//! Region pooling of rendered queries (kernels
 //! `glsl/region_pool.comp`, `glsl/region_pool_backward.comp`).
+//! Per region r: `Q_r = (1/|r|) Σ_{p∈r} Q(p)`; backward, each pixel of r gets
+//! `∂L/∂Q_r / |r|`. The paper mask-pools the target embeddings over these
+//! regions (paper Sec. III-B, after Eq. 4); the queries are pooled likewise.
 
 /// Mean of `channels`-wide pixel vectors over each region:
 /// `pooled[r] = (1/|r|) Σ_{p∈r} image[p]`, with regions as CSR

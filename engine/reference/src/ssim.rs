@@ -1,4 +1,4 @@
-//! Structural similarity (SPEC §8; kernels `glsl/ssim_*.comp`, driven by
+//! Structural similarity, the L_SSIM of paper Eq. 7 (kernels `glsl/ssim_*.comp`, driven by
 //! `engine/core/src/loss/image.rs`), in f64, computed directly with the 2-D
 //! window rather than the GPU's separable passes.
 //!
@@ -100,7 +100,7 @@ mod tests {
     fn window_is_normalised_and_matches_published_taps() {
         let w = window();
         assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-15);
-        // fused-ssim's constant table (SPEC §8).
+        // The taps of fused-ssim's published constant table (`cGauss`).
         for (got, want) in w.iter().zip([
             0.0010284, 0.0075988, 0.0360008, 0.1093607, 0.2130055, 0.2660117,
         ]) {

@@ -9,19 +9,20 @@
 pub mod datasets;
 pub mod features;
 pub mod npy;
+mod registration;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use latentam_io::{
-    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, DepthRegistration, Dtype,
-    FeatureGrid, Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings,
-    MAX_RECORD_BYTES,
+    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
+    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings, MAX_RECORD_BYTES,
 };
 
 pub use datasets::{Dataset, DepthCamera};
 use features::{FeatureDir, FrameFeatures, LoadedFeatures, Oracle};
+pub use registration::DepthRegistration;
 
 /// Where a log's embeddings come from.
 pub enum EmbeddingSource {

@@ -1,5 +1,5 @@
 //! The dictionary attention decoder: rendered 32-d region queries back to full
-//! embeddings (SPEC §2.5). Forward and backward are GEMMs ([`Gemm`]) around
+//! embeddings (paper Eq. 5). Forward and backward are GEMMs ([`Gemm`]) around
 //! row normalisation ([`normalize_rows`] and its backward) and the row
 //! softmax ([`row_softmax`] and its backward). CPU reference:
 //! `latentam_reference::decoder`.

@@ -8,7 +8,7 @@ use crate::splat::QUERY_DIM;
 
 /// A decoder's parameters, borrowed: `E = qW`, cosine similarity of `E`
 /// with every atom, softmax at `temperature`, weighted sum of the atoms
-/// (SPEC §2.5).
+/// (paper Eq. 5).
 ///
 /// ```
 /// use latentam_core::latent::HostDecoder;

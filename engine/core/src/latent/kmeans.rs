@@ -1,4 +1,4 @@
-//! Streaming k-means with a fixed dictionary size (SPEC §4.2) on the GPU:
+//! Streaming k-means with a fixed dictionary size (paper Sec. III-C, Eq. 10) on the GPU:
 //! the online initialisation of the decoder's dictionary. Kernels
 //! `glsl/kmeans_seed.comp`, `argmax_rows.comp`, `kmeans_update.comp`,
 //! `kmeans_novelty.comp`, `kmeans_patch_sims.comp`, `kmeans_stale.comp`,
@@ -43,7 +43,7 @@ const UNIT_EPS: f32 = 1e-12;
 /// not count as a change.
 const STALE_TOLERANCE: f32 = 1e-6;
 
-/// Settings of [`StreamingKMeans`]; defaults follow SPEC §4.2 and §12.
+/// Settings of [`StreamingKMeans`]; defaults: the paper's K and m, the rest chosen here.
 ///
 /// ```no_run
 /// use latentam_gpu::{Context, ContextOptions};

@@ -1,7 +1,7 @@
-//! Per-pixel decoding for evaluation (paper §V: 2D embedding maps), without
+//! Per-pixel decoding for evaluation (paper Sec. IV-A: 2D embedding maps), without
 //! decoding any pixel to d_f dimensions.
 //!
-//! The decoder (SPEC §2.5) maps a rendered query q to
+//! The decoder (paper Eq. 5) maps a rendered query q to
 //! e = Σ_k a_k D_k with a = softmax_k(⟨Ê, D̂_k⟩ / τ), Ê = qW / (‖qW‖ + ε).
 //! Everything evaluation needs from e is linear in a:
 //! * the logits: ⟨qW, D̂_k⟩ = q · M_k with M = W D̂ᵀ (d_s × K), and

@@ -1,4 +1,4 @@
-//! Region pooling (SPEC §2.6): rendered per-pixel queries averaged over each
+//! Region pooling (regions as in paper Sec. III-B): rendered per-pixel queries averaged over each
 //! region of a view (a SAM-style mask or a coarse feature-grid cell), and the
 //! gradient sent back to the pixels. The region lists are built on the CPU
 //! ([`Regions`]) when a frame is ingested; the GPU side is

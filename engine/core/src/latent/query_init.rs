@@ -6,7 +6,7 @@
 //! approximation of the region's target `f`,
 //! `q = (W Wᵀ + εI)⁻¹ W f`, decodes to about `f` before any training step:
 //! with one Stage I step per keyframe, a random start would need many
-//! keyframes to get there (SPEC §12 leaves the queries' initialisation
+//! keyframes to get there (the paper leaves the queries' initialisation
 //! open). `Wᵀq` is `f` projected on the 32 rows of W, so the start is as good
 //! as W is at representing the embeddings, and improves as W trains.
 

@@ -1,4 +1,4 @@
-//! The mapping objective (SPEC §9), forward and backward on the GPU:
+//! The mapping objective (paper Eqs. 6–9), forward and backward on the GPU:
 //! photometric L1 + SSIM and depth L1 on rendered images ([`ImageLoss`]), the
 //! feature loss on decoded region embeddings ([`FeatureLoss`]) and the
 //! trust-region penalty that keeps the dictionary near its k-means anchor
@@ -62,7 +62,7 @@ settings! {
 pub const MAX_WEIGHT: f32 = 1e4;
 
 /// Per-row weights that make a loss over several views' regions the mean
-/// over each view's regions, then the mean over views (SPEC §5). `counts[v]`
+/// over each view's regions, then the mean over views (not fixed by the paper). `counts[v]`
 /// is the number of regions of view v; rows are laid out view after view.
 pub fn mean_per_view_weights(counts: &[u32]) -> Vec<f32> {
     let views = counts.iter().filter(|&&c| c > 0).count().max(1) as f32;

@@ -14,7 +14,7 @@ use latentam_base::settings::{Setting, MAX_DISTANCE};
 use latentam_io::{DepthImage, Frame};
 
 settings! {
-    /// How Gaussians are seeded (SPEC §6/§12; the projective, isotropic
+    /// How Gaussians are seeded (the paper gives no rule; SplaTAM's projective, isotropic
     /// variant: scale from depth over focal length, identity rotation).
     ///
     /// ```
@@ -83,7 +83,7 @@ settings! {
 /// Largest `hole_fill_radius`: wider holes are not one surface.
 pub const MAX_HOLE_FILL_RADIUS: u32 = 64;
 
-/// Where a new Gaussian's query starts (SPEC §12 leaves it open).
+/// Where a new Gaussian's query starts (the paper leaves it open).
 ///
 /// ```
 /// use latentam_core::map::QueryInit;
@@ -178,7 +178,7 @@ pub struct ViewCoverage<'a> {
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
 /// while it grows), else N(0, 1) from the voxel and seed. Never all-zero:
-/// zero queries make the decoder's normalisation degenerate (SPEC §12).
+/// zero queries make the decoder's normalisation degenerate (‖qW‖ = 0).
 fn initial_query(key: VoxelKey, map: &GlobalMap, seed: u64) -> [f32; QUERY_DIM] {
     if let Some(g) = key.neighbourhood().find_map(|n| map.get(n)) {
         if g.query.iter().any(|&q| q != 0.0) {

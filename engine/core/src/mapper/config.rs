@@ -28,7 +28,7 @@ const MAX_LATENT_LR: f32 = 10.0;
 
 settings! {
     /// Every setting of the mapper; defaults are the paper's values where it
-    /// gives them and SPEC §12's otherwise. Reads from and writes to TOML
+    /// gives them and chosen here otherwise (see docs/quality.md). Reads from and writes to TOML
     /// ([`MapperConfig::from_toml`]); every field may be left out, and
     /// [`MapperConfig::validate`] checks the ranges documented on each.
     ///
@@ -136,7 +136,7 @@ settings! {
         /// theirs. A weight of 0 turns its term off.
         pub weights: LossWeights = LossWeights::default() => section(),
         /// Adam learning rates per Gaussian parameter (GS-ICP's values,
-        /// raised where online mapping needs it; see the README's
+        /// raised where online mapping needs it; see docs/quality.md's
         /// ablation). A rate of 0 freezes the parameter.
         pub learning_rates: GaussianLearningRates = GaussianLearningRates::default()
             => section(),

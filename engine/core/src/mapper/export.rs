@@ -7,7 +7,7 @@
 //! their trust-region anchors), `atom_weights` (K, the streaming k-means
 //! counts), `tau` (1). Metadata: `format` = `latentam-decoder`, `version`,
 //! `model` (the embedding model id), `dim` (d_f), `query_dim`, `atoms`,
-//! `eps`. Decoding (SPEC §2.5): `E = qW`, cosine similarity of `E` with
+//! `eps`. Decoding (paper Eq. 5): `E = qW`, cosine similarity of `E` with
 //! every atom, softmax at temperature `tau`, weighted sum of the atoms.
 
 use std::borrow::Cow;

@@ -9,7 +9,7 @@ use super::export::{DecoderFile, DECODER_FILE};
 use super::keyframe_report::{Integrated, MapperStats};
 use super::online::OnlineMapper;
 use super::persist::SavedState;
-use super::run_folder::{RunFolder, RunStaging};
+use super::run_folder::{RunFolder, RunStaging, STATE_FILE};
 use latentam_base::{Error, Result};
 use latentam_gpu::{Context, ContextOptions};
 use std::sync::atomic::AtomicBool;
@@ -21,9 +21,6 @@ use crate::latent::{RelevanceScorer, TextQuery};
 use crate::map::{write_ply, write_ply_without_latents, ExposureTrack, GlobalMap};
 use crate::splat::{Camera, RenderedView};
 use latentam_io::{CameraPose, Frame, Vocabulary};
-
-/// File name of the resumable state inside a save directory.
-pub const STATE_FILE: &str = "state.latentam";
 
 /// A latent Gaussian map built online.
 ///
@@ -530,7 +527,7 @@ impl Mapper {
     }
 
     /// Measures the map on a frame it did not necessarily see (the paper's
-    /// protocol, SPEC §10): PSNR and depth error, and with embeddings the
+    /// protocol, Sec. IV-A): PSNR and depth error, and with embeddings the
     /// per-pixel cosine loss and, given a vocabulary, the class IoUs.
     /// `pixel_stride` decodes every N-th pixel and row (1: all).
     ///

@@ -7,6 +7,7 @@
 
 mod archive;
 pub mod budget;
+pub(crate) mod class_iou;
 mod config;
 mod config_doc;
 pub mod eval;
@@ -26,7 +27,7 @@ mod trainer;
 pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
 pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
-pub use facade::{Mapper, STATE_FILE};
+pub use facade::Mapper;
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
@@ -35,7 +36,7 @@ pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;
-pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES};
+pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES, STATE_FILE};
 pub use run_report::{Ending, HostWaits, RunReport};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 

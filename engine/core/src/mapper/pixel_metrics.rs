@@ -12,7 +12,7 @@
 
 use std::collections::BTreeMap;
 
-use super::eval::{count_pixel, ClassCounts};
+use super::class_iou::{add_iou, count_pixel, ClassCounts};
 use crate::latent::{FactorisedDecoder, NO_REGION};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
@@ -67,7 +67,7 @@ impl PixelMetrics {
         self.cosine_loss_sum += other.cosine_loss_sum;
         self.l2_sum += other.l2_sum;
         self.cosine_pixels += other.cosine_pixels;
-        super::eval::add_iou(&mut self.class_iou, &other.class_iou);
+        add_iou(&mut self.class_iou, &other.class_iou);
     }
 }
 
@@ -230,7 +230,7 @@ mod tests {
     use rand::Rng;
 
     use super::*;
-    use crate::mapper::eval::mean_iou;
+    use crate::mapper::class_iou::mean_iou;
     use latentam_gpu::testing::rng;
     use latentam_reference::decoder::DecoderShape;
     use latentam_reference::metrics as reference;

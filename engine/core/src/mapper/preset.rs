@@ -19,7 +19,7 @@ pub enum Preset {
     /// mapping as it moves.
     Realtime,
     /// For mapping a recorded log offline: more Stage I steps per keyframe
-    /// (Stage I's time grows in proportion; see the README's ablation),
+    /// (Stage I's time grows in proportion; see docs/quality.md's ablation),
     /// and every keyframe kept for replay.
     Quality,
 }

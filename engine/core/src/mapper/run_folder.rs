@@ -24,8 +24,10 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 use super::export::DECODER_FILE;
-use super::facade::STATE_FILE;
 use latentam_base::{Error, Result};
+
+/// File name of the resumable state inside a run folder.
+pub const STATE_FILE: &str = "state.latentam";
 
 /// Every file a latentam run folder may hold. A folder holding anything
 /// else is not replaced (its other files would be lost with it).

@@ -7,11 +7,11 @@ use latentam_base::Result;
 use latentam_gpu::{Buffer, Context, Recorder};
 
 settings! {
-    /// Learning rates per Gaussian field (SPEC §6/§12: GS-ICP's values for
+    /// Learning rates per Gaussian field (the paper gives none: GS-ICP's values for
     /// means, scales and rotations). Online, a Gaussian gets one Adam step per
     /// keyframe batch that sees it, so the rates of what the loss must still
     /// change are above the offline methods' (measured on the demo and on
-    /// 7-Scenes, see the README's ablation): queries 0.1 (offline 2.5e-3, at
+    /// 7-Scenes, see docs/quality.md's ablation): queries 0.1 (offline 2.5e-3, at
     /// which queries stayed near their start: per-pixel mIoU 0.085 on the demo
     /// scene), colours 0.005 (7e-4 before: +0.4 dB on 7-Scenes; 0.02 and 0.05
     /// fit the newest keyframe at the expense of the others) and opacity 0.2

@@ -32,7 +32,7 @@ use latentam_base::Rejection;
 mod config;
 mod pairing;
 
-pub use config::{AssemblyConfig, BadInputPolicy, PoseSource, Topics};
+pub use config::{AssemblyConfig, BadInputPolicy, PoseSource, TopicChoice, Topics};
 use pairing::Queue;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

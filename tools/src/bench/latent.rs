@@ -20,7 +20,7 @@ use latentam_gpu::{Buffer, Context, Sample};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::bench::{
+use super::common::{
     kernel_rows, median, print_kernel_rows, profiling_context, write_json, KernelRow,
 };
 

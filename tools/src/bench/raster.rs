@@ -19,7 +19,7 @@ use latentam_core::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, Q
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::bench::{
+use super::common::{
     kernel_rows, measure_bandwidth, measure_fma_peak, median, print_kernel_rows, profiling_context,
     write_json, KernelRow,
 };

@@ -14,8 +14,8 @@ use std::path::Path;
 use base64::Engine as _;
 use serde_json::{json, Value};
 
-use super::CameraPose;
 use latentam_base::{Error, Result};
+use latentam_io::CameraPose;
 
 /// Bytes per packed point: `x y z`, `red green blue alpha`, the value.
 pub const CLOUD_POINT_STRIDE: usize = 20;

@@ -8,7 +8,7 @@
 
 use glam::{DMat3, DQuat, DVec3};
 
-use super::Pose;
+use latentam_io::Pose;
 
 /// The depth camera as seen from the colour camera, and both lenses.
 ///
@@ -18,7 +18,7 @@ use super::Pose;
 ///
 /// ```
 /// use glam::{DQuat, DVec3};
-/// use latentam_io::DepthRegistration;
+/// use latentam_cli::convert::DepthRegistration;
 ///
 /// // Colour lens 10 % shorter, 2.5 cm to the right of the depth lens.
 /// let reg = DepthRegistration {

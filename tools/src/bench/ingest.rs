@@ -24,7 +24,7 @@ use latentam_io::{
 };
 use serde::Serialize;
 
-use crate::bench::{median, write_json};
+use super::common::{median, write_json};
 
 /// Settings of `latentam bench ingest`.
 pub struct IngestBench {
