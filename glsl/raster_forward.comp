@@ -19,10 +19,11 @@
 // image would not fit one buffer is blended once per band of pixels
 // (query_first, query_count), each band written to the start of the image.
 //
-// @kernel raster_forward ROWS=1 QUERY=1
-// @kernel raster_forward_columns ROWS=32 QUERY=1
-// @kernel raster_forward_colour ROWS=1 QUERY=0
-// @kernel raster_forward_columns_colour ROWS=32 QUERY=0
+// @select COLUMNS QUERY
+// @kernel raster_forward COLUMNS=0 ROWS=1 QUERY=1
+// @kernel raster_forward_columns COLUMNS=1 ROWS=32 QUERY=1
+// @kernel raster_forward_colour COLUMNS=0 ROWS=1 QUERY=0
+// @kernel raster_forward_columns_colour COLUMNS=1 ROWS=32 QUERY=0
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

@@ -1,5 +1,7 @@
 //! Compiles every compute kernel to SPIR-V 1.3 with naga and generates the
-//! typed kernel table (`$OUT_DIR/kernels.rs`, included by `src/lib.rs`).
+//! typed kernel table (`$OUT_DIR/kernels.rs`, included by `src/lib.rs`):
+//! each kernel's push-constant struct (`push`), its buffers by name
+//! (`bind`, see `build/bindings.rs`) and its variant selector.
 //!
 //! * `glsl/*.comp` (workspace top level) go through naga's GLSL front end.
 //!   Text before that is expanded here: `#include "x.glsl"` (relative to
@@ -15,6 +17,10 @@
 //!   after its stem); WGSL, which has no preprocessor, selects lines with
 //!   `#if KEY` / `#else` / `#endif` handled here (a WGSL file with variants
 //!   has one entry point, renamed after each variant);
+//! * `// @select KEY ...` (a file with variants): generate a selector,
+//!   `FileVariant { key: bool, ... }.kernel()`, over those keys' 0/1
+//!   values; a variant that leaves a key out serves both values, and the
+//!   build fails unless every combination names exactly one variant;
 //! * `// @capabilities NAME ...` lists the naga validator capabilities the
 //!   kernel needs beyond push constants (e.g. `SHADER_FLOAT32_ATOMIC`,
 //!   `SUBGROUP`); nothing else is enabled. What each variant actually uses
@@ -56,6 +62,8 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 #[path = "layouts.rs"]
 mod layouts;
 
+#[path = "build/bindings.rs"]
+mod bindings;
 #[path = "build/codegen.rs"]
 mod codegen;
 #[path = "build/ir.rs"]
@@ -65,6 +73,7 @@ mod preprocess;
 #[path = "build/shared.rs"]
 mod shared;
 
+use bindings::*;
 use codegen::*;
 use ir::*;
 use preprocess::*;
@@ -99,6 +108,10 @@ struct KernelOut {
     /// The push-constant type named by a `// @push NAME` directive.
     push_group: Option<String>,
     requires: Requires,
+    /// The variant's `KEY=VALUE` definitions (`@kernel` line).
+    defines: Defines,
+    /// The keys of the file's `// @select` directive, if it has one.
+    select: Option<Vec<String>>,
 }
 
 #[derive(PartialEq)]
@@ -230,6 +243,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     }
     expand_includes(path, include_dir, &mut expanded, &mut map, 0)?;
     let push_group = push_group(&expanded, &file)?;
+    let select = select_keys(&raw, &file)?;
 
     let mut out = Vec::new();
     for (name, defs) in variants {
@@ -254,7 +268,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
         })?;
         fix_glsl_barriers(&mut module);
         let what = format!("{file} (kernel `{name}`)");
-        out.push(finish(
+        let mut k = finish(
             module,
             &expanded,
             &map,
@@ -263,10 +277,13 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
             name,
             &what,
             file.clone(),
-        )?);
+        )?;
+        k.defines = defs;
+        out.push(k);
     }
     for k in &mut out {
         k.push_group = push_group.clone();
+        k.select = select.clone();
     }
     Ok(out)
 }
@@ -288,6 +305,7 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     let mut map = LineMap { lines: Vec::new() };
     expand_includes(path, include_dir, &mut expanded, &mut map, 0)?;
     let push_group = push_group(&expanded, &file)?;
+    let select = select_keys(&raw, &file)?;
     let declared = variants(&raw, &file)?;
     let runs: Vec<(Option<String>, Defines)> = if declared.is_empty() {
         vec![(None, Vec::new())]
@@ -326,16 +344,9 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
             }
             module.entry_points[0].name = v.clone();
             let what = format!("{file} (kernel `{v}`)");
-            out.push(finish(
-                module,
-                &text,
-                &map,
-                caps,
-                v,
-                v.clone(),
-                &what,
-                file.clone(),
-            )?);
+            let mut k = finish(module, &text, &map, caps, v, v.clone(), &what, file.clone())?;
+            k.defines = defs.clone();
+            out.push(k);
             continue;
         }
         for ep in entry_names {
@@ -354,8 +365,29 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
     }
     for k in &mut out {
         k.push_group = push_group.clone();
+        k.select = select.clone();
     }
     Ok(out)
+}
+
+/// The keys of a file's `// @select KEY ...` directive: the flags a
+/// generated selector picks its variant by.
+fn select_keys(raw: &str, file: &str) -> Result<Option<Vec<String>>, String> {
+    let found = directives(raw, "select");
+    match found.as_slice() {
+        [] => Ok(None),
+        [one] => {
+            let keys: Vec<String> = one.split_whitespace().map(str::to_string).collect();
+            if keys.is_empty() {
+                return Err(format!("{file}: `@select` needs at least one key"));
+            }
+            if variants(raw, file)?.is_empty() {
+                return Err(format!("{file}: `@select` without `@kernel` variants"));
+            }
+            Ok(Some(keys))
+        }
+        _ => Err(format!("{file}: more than one `@select` line")),
+    }
 }
 
 /// The `// @push NAME` directive of a kernel file or its includes: kernels
@@ -545,5 +577,7 @@ fn finish(
         push,
         push_group: None,
         requires,
+        defines: Vec::new(),
+        select: None,
     })
 }

@@ -60,6 +60,26 @@ pub struct Struct {
 
 pub const CONSTANTS: &[Constant] = &[
     Constant {
+        name: "QUERY_GRAD_FROM_IMAGE",
+        ty: ConstType::U32,
+        value: "0",
+        doc: "raster_backward's `query_source`: each pixel's query gradient is read from a \
+              per-pixel image.",
+    },
+    Constant {
+        name: "QUERY_GRAD_FROM_REGIONS",
+        ty: ConstType::U32,
+        value: "1",
+        doc: "raster_backward's `query_source`: a pixel's query gradient is its region's pooled \
+              row divided by the region's pixel count (the adjoint of region pooling).",
+    },
+    Constant {
+        name: "QUERY_GRAD_ZERO",
+        ty: ConstType::U32,
+        value: "2",
+        doc: "raster_backward's `query_source`: no query gradient (no feature loss).",
+    },
+    Constant {
         name: "TILE_SIZE",
         ty: ConstType::U32,
         value: "16",

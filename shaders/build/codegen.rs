@@ -122,6 +122,10 @@ pub(crate) fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
     }
     s.push_str("}\n\n");
 
+    let sets = binding_set_names(kernels, &names);
+    s.push_str(&generate_bind(kernels, &sets));
+    s.push_str(&generate_selectors(kernels, &names, &sets)?);
+
     for (i, k) in kernels.iter().enumerate() {
         let upper = k.name.to_ascii_uppercase();
         let _ = write!(s, "static {upper}_SPIRV: [u32; {}] = [", k.spirv.len());
@@ -142,9 +146,10 @@ pub(crate) fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
             let _ = write!(binds, "Binding {{ name: {n:?}, writable: {w} }}, ");
         }
         let r = k.requires;
+        let set = &sets[i];
         let _ = writeln!(
             s,
-            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
+            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}, bind::{set}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
             k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2],
             r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
         );

@@ -76,22 +76,45 @@ impl Kernel {
     }
 }
 
-/// A kernel together with the Rust type of its push constants.
+/// A kernel together with the Rust types of its push constants (`P`) and
+/// of the buffers it binds (`S`, a [`BindingSet`] of [`bind`]): a dispatch
+/// through it cannot pass the wrong push constants or the wrong buffers.
 #[derive(Debug)]
-pub struct KernelDef<P> {
+pub struct KernelDef<P, S> {
     /// The untyped kernel.
     pub kernel: Kernel,
-    _push: PhantomData<fn(P)>,
+    _types: PhantomData<fn(P, S)>,
 }
 
-impl<P> KernelDef<P> {
+impl<P, S> KernelDef<P, S> {
     /// Wraps a kernel; used by the generated table.
     pub const fn new(kernel: Kernel) -> Self {
         Self {
             kernel,
-            _push: PhantomData,
+            _types: PhantomData,
         }
     }
+}
+
+/// The storage buffers a set of kernels binds, as a struct with one named
+/// field per binding (`Buffers`), generated for each set in [`bind`].
+///
+/// ```
+/// use latentam_shaders::{bind, BindingSet};
+///
+/// // Any buffer type works; the engine uses its own.
+/// let (x, y) = ("x", "y");
+/// let buffers = bind::SoftmaxBuffers { x: &x, y: &y };
+/// assert_eq!(bind::Softmax::in_order(&buffers), vec![&"x", &"y"]);
+/// assert_eq!(bind::Softmax::COUNT, 2);
+/// ```
+pub trait BindingSet {
+    /// The named buffers, borrowed for `'a`.
+    type Buffers<'a, B: 'a>;
+    /// How many buffers the kernels bind.
+    const COUNT: usize;
+    /// The buffers in binding order (binding 0 first).
+    fn in_order<'a, B: 'a>(buffers: &Self::Buffers<'a, B>) -> Vec<&'a B>;
 }
 
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));

@@ -95,7 +95,7 @@ fn each_variant_requires_only_what_its_code_uses() {
 fn variants_with_one_push_layout_share_one_type() {
     // Typed dispatch of every GEMM variant with one `push::Gemm` value:
     // this compiles only if the build gave them one type.
-    let defs: [&KernelDef<push::Gemm>; 4] = [
+    let defs: [&KernelDef<push::Gemm, bind::Gemm>; 4] = [
         &GEMM_NN,
         &GEMM_TN,
         &GEMM_BLOCKED_NT,
@@ -104,10 +104,108 @@ fn variants_with_one_push_layout_share_one_type() {
     assert!(defs
         .iter()
         .all(|d| d.kernel.push_constant_size as usize == std::mem::size_of::<push::Gemm>()));
-    let _: [&KernelDef<push::RasterBackward>; 2] = [
+    let _: [&KernelDef<push::RasterBackward, bind::RasterBackward>; 2] = [
         &RASTER_BACKWARD,
         &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
     ];
+}
+
+/// The named buffers go to the bindings of those names, in binding order,
+/// for WGSL kernels (snake_case names) and GLSL ones (block names).
+#[test]
+fn named_buffers_are_bound_in_binding_order() {
+    let names = |k: &Kernel| -> Vec<&'static str> { k.bindings.iter().map(|b| b.name).collect() };
+    let b = bind::RasterPoolBuffers {
+        views: &"views",
+        queries: &"queries",
+        splats: &"splats",
+        pairs: &"pairs",
+        ranges: &"ranges",
+        state: &"state",
+        labels: &"labels",
+        pooled: &"pooled",
+    };
+    let got: Vec<&str> = bind::RasterPool::in_order(&b)
+        .into_iter()
+        .copied()
+        .collect();
+    assert_eq!(got, names(&RASTER_POOL_CAS.kernel));
+
+    let b = bind::KmeansFirstAssignBuffers {
+        unit: &"Unit",
+        centre_unit: &"CentreUnit",
+        sims: &"Sims",
+        replaced: &"Replaced",
+        gate: &"Gate",
+        best_value: &"BestValue",
+        best_index: &"BestIndex",
+        row_complete: &"RowComplete",
+    };
+    let got: Vec<&str> = bind::KmeansFirstAssign::in_order(&b)
+        .into_iter()
+        .copied()
+        .collect();
+    assert_eq!(got, names(&KMEANS_FIRST_ASSIGN.kernel));
+    assert_eq!(bind::KmeansFirstAssign::COUNT, got.len());
+}
+
+/// Every combination of a selector's flags names the variant the kernel
+/// file's naming says it should (stated here independently of the
+/// generated match).
+#[test]
+fn selectors_name_the_declared_variant_for_every_combination() {
+    for bits in 0..16u32 {
+        let [columns, attached, subgroup, cas] = [0, 1, 2, 3].map(|i| bits >> i & 1 == 1);
+        let v = RasterBackwardVariant {
+            columns,
+            attached,
+            subgroup,
+            cas,
+        };
+        let mut want = String::from("raster_backward");
+        if columns {
+            want += "_columns";
+            if attached {
+                want += "_attached";
+            }
+        }
+        if !subgroup {
+            want += "_plain";
+        }
+        if cas {
+            want += "_cas";
+        }
+        assert_eq!(v.kernel().kernel.name, want, "{v:?}");
+    }
+    for bits in 0..8u32 {
+        let [columns, subgroup, cas] = [0, 1, 2].map(|i| bits >> i & 1 == 1);
+        let v = RasterPoolVariant {
+            columns,
+            subgroup,
+            cas,
+        };
+        let mut want = String::from("raster_pool");
+        if columns {
+            // The column kernel sums without subgroup operations.
+            want += "_columns";
+        } else if !subgroup {
+            want += "_plain";
+        }
+        if cas {
+            want += "_cas";
+        }
+        assert_eq!(v.kernel().kernel.name, want, "{v:?}");
+    }
+    for bits in 0..4u32 {
+        let [columns, query] = [0, 1].map(|i| bits >> i & 1 == 1);
+        let v = RasterForwardVariant { columns, query };
+        let want = format!(
+            "raster_forward{}{}",
+            if columns { "_columns" } else { "" },
+            if query { "" } else { "_colour" }
+        );
+        assert_eq!(v.kernel().kernel.name, want, "{v:?}");
+    }
 }
 
 #[test]

@@ -29,6 +29,7 @@
 // Gaussian from one invocation cost as much as blending it.
 //
 // @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
+// @select COLUMNS ATTACHED SUBGROUP CAS
 // @kernel raster_backward SUBGROUP=1 CAS=0 COLUMNS=0
 // @kernel raster_backward_cas SUBGROUP=1 CAS=1 COLUMNS=0
 // @kernel raster_backward_plain SUBGROUP=0 CAS=0 COLUMNS=0
@@ -47,10 +48,11 @@
 // costs its full work there even when not taken.
 //
 // The upstream gradient of a pixel's query (`query_source`) is read from a
-// per-pixel image (0), from pooled region rows through the pixel's region
-// (1: rows first_row + r, divided by the region's pixel count, the
-// adjoint of region pooling, so training needs no per-pixel query
-// gradient image), or is zero (2: no feature loss).
+// per-pixel image (QUERY_GRAD_FROM_IMAGE), from pooled region rows through
+// the pixel's region (QUERY_GRAD_FROM_REGIONS: rows first_row + r, divided
+// by the region's pixel count, the adjoint of region pooling, so training
+// needs no per-pixel query gradient image), or is zero (QUERY_GRAD_ZERO:
+// no feature loss).
 
 #include "raster.wgsl"
 
@@ -119,7 +121,7 @@ struct QueryUpstream {
 
 fn query_upstream(p: u32) -> QueryUpstream {
     var u = QueryUpstream(8u * p, 1.0);
-    if (pc.query_source == 1u) {
+    if (pc.query_source == QUERY_GRAD_FROM_REGIONS) {
         let r = pixel_region[p];
         if (r == NO_REGION) {
             u = QueryUpstream(0u, 0.0);
@@ -127,7 +129,7 @@ fn query_upstream(p: u32) -> QueryUpstream {
             let size = pixel_region[pc.offsets_at + r + 1u] - pixel_region[pc.offsets_at + r];
             u = QueryUpstream(8u * (pc.first_row + r), 1.0 / f32(max(size, 1u)));
         }
-    } else if (pc.query_source != 0u) {
+    } else if (pc.query_source != QUERY_GRAD_FROM_IMAGE) {
         u = QueryUpstream(0u, 0.0);
     }
     return u;

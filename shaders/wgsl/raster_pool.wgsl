@@ -25,12 +25,13 @@
 // - labels[offsets_at + r]. The same layout feeds raster_backward.
 //
 // @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
+// @select COLUMNS SUBGROUP CAS
 // @kernel raster_pool SUBGROUP=1 CAS=0 COLUMNS=0
 // @kernel raster_pool_cas SUBGROUP=1 CAS=1 COLUMNS=0
 // @kernel raster_pool_plain SUBGROUP=0 CAS=0 COLUMNS=0
 // @kernel raster_pool_plain_cas SUBGROUP=0 CAS=1 COLUMNS=0
-// @kernel raster_pool_columns SUBGROUP=0 CAS=0 COLUMNS=1
-// @kernel raster_pool_columns_cas SUBGROUP=0 CAS=1 COLUMNS=1
+// @kernel raster_pool_columns CAS=0 COLUMNS=1
+// @kernel raster_pool_columns_cas CAS=1 COLUMNS=1
 
 #include "raster.wgsl"
 

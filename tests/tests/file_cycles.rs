@@ -28,43 +28,6 @@ const ROOTS: &[&str] = &[
     "tools/scene/src/lib.rs",
 ];
 
-/// Cycles still to be broken: a type declared in a module's own file and
-/// implemented in its children. Listed so that a new cycle fails at once;
-/// an entry whose cycle is gone fails too, so the list only shrinks.
-const KNOWN: &[&[&str]] = &[
-    &[
-        "engine/gpu/src/context/mod.rs",
-        "engine/gpu/src/context/open.rs",
-    ],
-    &[
-        "engine/gpu/src/recorder/mod.rs",
-        "engine/gpu/src/recorder/submission.rs",
-    ],
-    &[
-        "engine/io/src/log/chunks.rs",
-        "engine/io/src/log/mod.rs",
-        "engine/io/src/log/reader.rs",
-    ],
-    &[
-        "engine/io/src/frames/mod.rs",
-        "engine/io/src/frames/pairing.rs",
-    ],
-    &[
-        "engine/core/src/loss/feature.rs",
-        "engine/core/src/loss/image.rs",
-        "engine/core/src/loss/mod.rs",
-    ],
-    &[
-        "engine/core/src/splat/rasterizer/backward.rs",
-        "engine/core/src/splat/rasterizer/forward.rs",
-        "engine/core/src/splat/rasterizer.rs",
-    ],
-    &[
-        "engine/reference/src/raster/cutoffs.rs",
-        "engine/reference/src/raster.rs",
-    ],
-];
-
 fn is_cfg_test(attrs: &[syn::Attribute]) -> bool {
     attrs.iter().any(|a| {
         a.path().is_ident("cfg")
@@ -79,8 +42,8 @@ fn is_cfg_test(attrs: &[syn::Attribute]) -> bool {
 #[derive(Default)]
 struct Module {
     file: PathBuf,
-    /// Names of the items defined here (including macro-generated ones
-    /// are not known: a name found nowhere counts as this module's).
+    /// Names of the items defined here. Items a macro generates are not
+    /// seen: a name found nowhere counts as this module's.
     defs: BTreeSet<String>,
     /// `use` imports: the name they bind → the path they name.
     uses: BTreeMap<String, Vec<String>>,
@@ -440,17 +403,11 @@ fn workspace() -> PathBuf {
 fn no_two_files_of_a_crate_depend_on_each_other() {
     let ws = workspace();
     let mut found = Vec::new();
-    let mut known_seen = BTreeSet::new();
     for root in ROOTS {
         let deps = dependencies(&ws.join(root));
         assert!(!deps.is_empty(), "{root}: no source files found");
         let rel = |p: &Path| p.strip_prefix(&ws).unwrap_or(p).display().to_string();
         for cycle in cycles(&deps) {
-            let files: Vec<String> = cycle.iter().map(|p| rel(p)).collect();
-            if let Some(i) = KNOWN.iter().position(|k| *k == files.as_slice()) {
-                known_seen.insert(i);
-                continue;
-            }
             let mut text = cycle.iter().map(|p| rel(p)).collect::<Vec<_>>().join(" ↔ ");
             for a in &cycle {
                 for (b, names) in &deps[a] {
@@ -461,14 +418,6 @@ fn no_two_files_of_a_crate_depend_on_each_other() {
                 }
             }
             found.push(text);
-        }
-    }
-    for (i, k) in KNOWN.iter().enumerate() {
-        if !known_seen.contains(&i) {
-            found.push(format!(
-                "no longer a cycle, remove it from KNOWN: {}",
-                k.join(" ↔ ")
-            ));
         }
     }
     assert!(

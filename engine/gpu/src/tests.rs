@@ -6,6 +6,7 @@ use latentam_shaders::{push, SCAN_BLOCKS};
 use super::testing::{with_context, with_options};
 use super::*;
 use crate::ops::PrefixScan;
+use latentam_shaders::bind;
 
 #[test]
 fn buffers_dropped_while_in_flight_are_freed_after_the_gpu_is_done() {
@@ -156,29 +157,40 @@ fn dispatch_checks_its_arguments() {
         let a = Buffer::device(ctx, "args/a", 64).unwrap();
         let counts = Buffer::device(ctx, "args/counts", 16).unwrap();
         let mut rec = ctx.recorder().unwrap();
-        let err = rec
-            .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a], &push::Scan { n: 4 })
-            .unwrap_err();
-        assert!(err.to_string().contains("takes 2 buffers"), "{err}");
         let too_many = ctx.info().max_workgroup_count[0] + 1;
         let err = rec
             .dispatch(
                 &SCAN_BLOCKS,
                 [too_many, 1, 1],
-                &[&a, &a],
+                bind::ScanBuffers { data: &a, sums: &a },
                 &push::Scan { n: 4 },
             )
             .unwrap_err();
         assert!(err.to_string().contains("exceed"), "{err}");
         let err = rec
-            .dispatch_indirect(&SCAN_BLOCKS, &a, 0, &[&a, &counts], &push::Scan { n: 4 })
+            .dispatch_indirect(
+                &SCAN_BLOCKS,
+                &a,
+                0,
+                bind::ScanBuffers {
+                    data: &a,
+                    sums: &counts,
+                },
+                &push::Scan { n: 4 },
+            )
             .unwrap_err();
         assert!(
             err.to_string().contains("its own workgroup counts"),
             "{err}"
         );
         let err = rec
-            .dispatch_indirect(&SCAN_BLOCKS, &counts, 8, &[&a, &a], &push::Scan { n: 4 })
+            .dispatch_indirect(
+                &SCAN_BLOCKS,
+                &counts,
+                8,
+                bind::ScanBuffers { data: &a, sums: &a },
+                &push::Scan { n: 4 },
+            )
             .unwrap_err();
         assert!(err.to_string().contains("needs 20"), "{err}");
         assert!(rec.upload(&a, 60, &[1u32, 2]).is_err());
@@ -187,7 +199,12 @@ fn dispatch_checks_its_arguments() {
         let mut t = ctx.transfer_recorder().unwrap();
         if ctx.info().dedicated_transfer_queue {
             assert!(t
-                .dispatch(&SCAN_BLOCKS, [1, 1, 1], &[&a, &a], &push::Scan { n: 4 })
+                .dispatch(
+                    &SCAN_BLOCKS,
+                    [1, 1, 1],
+                    bind::ScanBuffers { data: &a, sums: &a },
+                    &push::Scan { n: 4 }
+                )
                 .is_err());
         }
         t.fill_u32(&a, 0);

@@ -38,8 +38,7 @@ use latentam_base::{Camera, HostGaussians, QUERY_DIM};
 use latentam_shaders::shared;
 use latentam_shaders::shared::TILE_SIZE;
 
-mod cutoffs;
-pub use cutoffs::{near_cutoffs, NearCutoffs};
+pub mod cutoffs;
 
 // The kernels' thresholds (shaders/layouts.rs), at the f32 values they
 // compare against.

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use latentam_gpu::{Buffer, Context, ContextOptions, Recorder};
+use latentam_shaders::bind;
 use serde::Serialize;
 
 #[derive(Serialize)]
@@ -174,7 +175,12 @@ pub(crate) fn measure_fma_peak(ctx: &Context, groups: u32, runs: usize) -> Resul
     let sink = Buffer::device(ctx, "bench/sink", groups as u64 * 256 * 4)?;
     let p = latentam_shaders::push::FmaPeak { iters, seed: 0.5 };
     let t = time(ctx, runs, false, |rec| {
-        rec.dispatch_linear(&latentam_shaders::FMA_PEAK, groups, &[&sink], &p)
+        rec.dispatch_linear(
+            &latentam_shaders::FMA_PEAK,
+            groups,
+            bind::FmaPeakBuffers { sink: &sink },
+            &p,
+        )
     })?;
     let flops = groups as f64 * 256.0 * iters as f64 * 16.0;
     Ok(row(

@@ -29,6 +29,7 @@ use std::cell::Cell;
 use latentam_base::{Error, Result};
 use latentam_gpu::ops::{normalize_rows, Gemm, Transpose};
 use latentam_gpu::{Buffer, Context, Recorder};
+use latentam_shaders::bind;
 
 /// Largest dictionary the novelty kernel can track (its shared bit set).
 pub const MAX_KMEANS_ATOMS: u32 = 65536;
@@ -310,7 +311,11 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &ARGMAX_ROWS,
             rows,
-            &[&self.sims, &self.best_value, &self.best_index],
+            bind::ArgmaxRowsBuffers {
+                m: &self.sims,
+                best_value: &self.best_value,
+                best_index: &self.best_index,
+            },
             &push::ArgmaxRows {
                 rows,
                 cols,
@@ -341,14 +346,32 @@ impl StreamingKMeans {
             decay: self.cfg.decay,
             normalize: self.cfg.normalize as u32,
         };
-        let bufs = [points, mass, assignment, centres, weights];
         match only_dirty {
-            None => rec.dispatch_linear(&KMEANS_UPDATE, centres_count, &bufs, &p),
-            Some(dirty) => {
-                let mut with_dirty = bufs.to_vec();
-                with_dirty.push(dirty);
-                rec.dispatch_linear(&KMEANS_UPDATE_DIRTY, centres_count, &with_dirty, &p)
-            }
+            None => rec.dispatch_linear(
+                &KMEANS_UPDATE,
+                centres_count,
+                bind::KmeansUpdateBuffers {
+                    points,
+                    mass,
+                    assign: assignment,
+                    centres,
+                    weights,
+                },
+                &p,
+            ),
+            Some(dirty) => rec.dispatch_linear(
+                &KMEANS_UPDATE_DIRTY,
+                centres_count,
+                bind::KmeansUpdateDirtyBuffers {
+                    points,
+                    mass,
+                    assign: assignment,
+                    centres,
+                    weights,
+                    dirty,
+                },
+                &p,
+            ),
         }
     }
 
@@ -365,13 +388,13 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_MICRO_ROWS,
             m,
-            &[
-                &self.unit,
-                &self.centre_unit,
-                &self.sims,
-                &self.best_value,
-                &self.best_index,
-            ],
+            bind::KmeansMicroRowsBuffers {
+                unit: &self.unit,
+                centre_unit: &self.centre_unit,
+                sims: &self.sims,
+                best_value: &self.best_value,
+                best_index: &self.best_index,
+            },
             &push::KmeansMicroRows {
                 first: atoms,
                 count: m,
@@ -394,7 +417,10 @@ impl StreamingKMeans {
         rec.dispatch(
             &KMEANS_GATE,
             [1, 1, 1],
-            &[&self.best_value, &self.gate],
+            bind::KmeansGateBuffers {
+                best_value: &self.best_value,
+                gate: &self.gate,
+            },
             &push::KmeansGate {
                 atoms,
                 micro_count: m,
@@ -417,7 +443,11 @@ impl StreamingKMeans {
             &ARGMAX_ROWS,
             &self.gate,
             GATE_ARGMAX,
-            &[&self.sims, &self.best_value, &self.best_index],
+            bind::ArgmaxRowsBuffers {
+                m: &self.sims,
+                best_value: &self.best_value,
+                best_index: &self.best_index,
+            },
             &push::ArgmaxRows {
                 rows: atoms,
                 cols: atoms,
@@ -444,7 +474,12 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_STALE,
             centres,
-            &[atoms, &self.centre_unit, &self.dirty, &self.stale],
+            bind::KmeansStaleBuffers {
+                centres: atoms,
+                centre_unit: &self.centre_unit,
+                dirty: &self.dirty,
+                stale: &self.stale,
+            },
             &push::KmeansStale {
                 centres_count: centres,
                 dim,
@@ -456,7 +491,11 @@ impl StreamingKMeans {
         rec.dispatch(
             &KMEANS_STALE_LIST,
             [1, 1, 1],
-            &[&self.stale, &self.dirty, &self.stale_list],
+            bind::KmeansStaleListBuffers {
+                stale: &self.stale,
+                dirty: &self.dirty,
+                stale_list: &self.stale_list,
+            },
             &push::KmeansStaleList {
                 centres_count: centres,
             },
@@ -464,15 +503,15 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_RESIM,
             points,
-            &[
-                &self.unit,
-                &self.centre_unit,
-                &self.stale_list,
-                &self.stale,
-                &self.best_index,
-                &self.row_complete,
-                &self.sims,
-            ],
+            bind::KmeansResimBuffers {
+                unit: &self.unit,
+                centre_unit: &self.centre_unit,
+                stale_list: &self.stale_list,
+                stale: &self.stale,
+                best_index: &self.best_index,
+                row_complete: &self.row_complete,
+                sims: &self.sims,
+            },
             &push::KmeansResim {
                 rows: points,
                 centres_count: centres,
@@ -482,14 +521,14 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_REASSIGN,
             points,
-            &[
-                &self.sims,
-                &self.stale,
-                &self.stale_list,
-                &self.best_value,
-                &self.best_index,
-                &self.dirty,
-            ],
+            bind::KmeansReassignBuffers {
+                sims: &self.sims,
+                stale: &self.stale,
+                stale_list: &self.stale_list,
+                best_value: &self.best_value,
+                best_index: &self.best_index,
+                dirty: &self.dirty,
+            },
             &push::KmeansReassign {
                 rows: points,
                 centres_count: centres,
@@ -564,7 +603,13 @@ impl StreamingKMeans {
         rec.dispatch(
             &KMEANS_SEED,
             [1, 1, 1],
-            &[features, &self.unit, mass, &self.closest, &self.micro],
+            bind::KmeansSeedBuffers {
+                points: features,
+                unit: &self.unit,
+                mass,
+                closest: &self.closest,
+                centres: &self.micro,
+            },
             &push::KmeansSeed { n, dim, seeds: m },
         )?;
         for _ in 0..self.cfg.local_iterations {
@@ -619,14 +664,14 @@ impl StreamingKMeans {
             rec.dispatch(
                 &KMEANS_NOVELTY,
                 [1, 1, 1],
-                &[
-                    &self.best_value,
-                    &self.best_index,
-                    &self.weights,
-                    &self.micro,
-                    atoms,
-                    &self.replaced,
-                ],
+                bind::KmeansNoveltyBuffers {
+                    best_value: &self.best_value,
+                    best_index: &self.best_index,
+                    weights: &self.weights,
+                    micro: &self.micro,
+                    centres: atoms,
+                    replaced: &self.replaced,
+                },
                 &push::KmeansNovelty {
                     atoms: before,
                     micro_count: m,
@@ -641,7 +686,11 @@ impl StreamingKMeans {
                     rec.dispatch_linear(
                         &KMEANS_PATCH_SIMS,
                         (total * m).div_ceil(256),
-                        &[&self.unit, &self.replaced, &self.sims],
+                        bind::KmeansPatchSimsBuffers {
+                            unit: &self.unit,
+                            replaced: &self.replaced,
+                            sims: &self.sims,
+                        },
                         &push::KmeansPatchSims {
                             rows: total,
                             atoms: before,
@@ -652,16 +701,16 @@ impl StreamingKMeans {
                     rec.dispatch_linear(
                         &KMEANS_FIRST_ASSIGN,
                         total,
-                        &[
-                            &self.unit,
-                            &self.centre_unit,
-                            &self.sims,
-                            &self.replaced,
-                            &self.gate,
-                            &self.best_value,
-                            &self.best_index,
-                            &self.row_complete,
-                        ],
+                        bind::KmeansFirstAssignBuffers {
+                            unit: &self.unit,
+                            centre_unit: &self.centre_unit,
+                            sims: &self.sims,
+                            replaced: &self.replaced,
+                            gate: &self.gate,
+                            best_value: &self.best_value,
+                            best_index: &self.best_index,
+                            row_complete: &self.row_complete,
+                        },
                         &push::KmeansFirstAssign {
                             rows: total,
                             atoms: before,
@@ -693,7 +742,11 @@ impl StreamingKMeans {
         rec.dispatch_linear(
             &KMEANS_MOVED,
             after,
-            &[atoms, &self.points, moved],
+            bind::KmeansMovedBuffers {
+                atoms,
+                old: &self.points,
+                moved,
+            },
             &push::KmeansMoved {
                 atoms_count: after,
                 old_count: before,

@@ -13,6 +13,7 @@ use std::cell::Cell;
 use crate::splat::{BatchLayout, QUERY_DIM};
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Recorder};
+use latentam_shaders::bind;
 
 /// Label value meaning "this pixel belongs to no region" in a label image
 /// (as in `latentam_msgs/msg/MaskFeatures`).
@@ -422,7 +423,12 @@ impl RegionPooling {
         rec.dispatch_linear(
             &REGION_POOL,
             self.regions(),
-            &[query_image, &self.offsets, &self.members, &self.pooled],
+            bind::RegionPoolBuffers {
+                query: query_image,
+                offsets: &self.offsets,
+                pixels: &self.members,
+                pooled: &self.pooled,
+            },
             &push::RegionPool {
                 regions: self.regions(),
                 first_row: self.first_row.get(),
@@ -447,12 +453,12 @@ impl RegionPooling {
         rec.dispatch_linear(
             &REGION_POOL_BACKWARD,
             elems.div_ceil(256) as u32,
-            &[
+            bind::RegionPoolBackwardBuffers {
                 grad_pooled,
-                &self.offsets,
-                &self.pixel_region,
-                grad_query_image,
-            ],
+                offsets: &self.offsets,
+                pixel_region: &self.pixel_region,
+                grad_query: grad_query_image,
+            },
             &push::RegionPoolBackward {
                 pixels: self.pixels.get() as u32,
                 first_row: self.first_row.get(),

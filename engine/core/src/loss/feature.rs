@@ -6,6 +6,7 @@ use latentam_shaders::{push, FEATURE_LOSS, TRUST_REGION};
 use super::LossWeights;
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Readback, Recorder};
+use latentam_shaders::bind;
 
 /// Norms below this are clamped in the cosine (an all-zero prediction or
 /// target has a defined loss and gradient).
@@ -93,7 +94,13 @@ impl FeatureLoss {
         rec.dispatch_linear(
             &FEATURE_LOSS,
             rows,
-            &[pred, target, row_weights, &self.grad, &self.row_loss],
+            bind::FeatureLossBuffers {
+                pred,
+                target,
+                weight: row_weights,
+                grad: &self.grad,
+                row_loss: &self.row_loss,
+            },
             &p,
         )
     }
@@ -171,7 +178,12 @@ impl TrustRegion {
         rec.dispatch_linear(
             &TRUST_REGION,
             atoms,
-            &[dictionary, anchor, grad, &self.atom_loss],
+            bind::TrustRegionBuffers {
+                atoms: dictionary,
+                anchor,
+                grad,
+                atom_loss: &self.atom_loss,
+            },
             &p,
         )
     }

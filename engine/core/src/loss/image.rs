@@ -15,6 +15,7 @@ use super::LossWeights;
 use crate::splat::BatchLayout;
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Readback, Recorder};
+use latentam_shaders::bind;
 
 const THREADS: u64 = 256;
 
@@ -241,13 +242,13 @@ impl ImageLoss {
             rec.dispatch_linear(
                 &IMAGE_L1,
                 pixels.div_ceil(THREADS) as u32,
-                &[
+                bind::ImageL1Buffers {
                     rendered,
                     target,
                     grad,
-                    &self.l1_partial,
-                    &self.depth_partial,
-                ],
+                    l1_partial: &self.l1_partial,
+                    depth_partial: &self.depth_partial,
+                },
                 &push::ImageL1 {
                     pixels: pixels as u32,
                     first_pixel,
@@ -264,18 +265,44 @@ impl ImageLoss {
                 weight: (w.rgb as f64 * w.ssim as f64 * per_colour) as f32,
             };
             let groups = (3 * pixels).div_ceil(THREADS) as u32;
-            rec.dispatch_linear(&SSIM_STATS_H, groups, &[rendered, target, &self.stats], &p)?;
+            rec.dispatch_linear(
+                &SSIM_STATS_H,
+                groups,
+                bind::SsimStatsHBuffers {
+                    rendered,
+                    target,
+                    stats: &self.stats,
+                },
+                &p,
+            )?;
             rec.dispatch_linear(
                 &SSIM_MAP_V,
                 groups,
-                &[&self.stats, &self.dmap, &self.ssim_partial],
+                bind::SsimMapVBuffers {
+                    stats: &self.stats,
+                    dmap: &self.dmap,
+                    partial: &self.ssim_partial,
+                },
                 &p,
             )?;
-            rec.dispatch_linear(&SSIM_GRAD_H, groups, &[&self.dmap, &self.blurred], &p)?;
+            rec.dispatch_linear(
+                &SSIM_GRAD_H,
+                groups,
+                bind::SsimGradHBuffers {
+                    dmap: &self.dmap,
+                    blurred: &self.blurred,
+                },
+                &p,
+            )?;
             rec.dispatch_linear(
                 &SSIM_GRAD_V,
                 groups,
-                &[&self.blurred, rendered, target, grad],
+                bind::SsimGradVBuffers {
+                    blurred: &self.blurred,
+                    rendered,
+                    target,
+                    grad,
+                },
                 &p,
             )?;
         }

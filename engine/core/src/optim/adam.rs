@@ -5,6 +5,7 @@ use latentam_shaders::{push, ADAM_COUNT, ADAM_RESET, ADAM_STEP};
 
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Recorder};
+use latentam_shaders::bind;
 
 const THREADS: u64 = 256;
 
@@ -183,13 +184,23 @@ impl AdamGroup {
         rec.dispatch_linear(
             &ADAM_STEP,
             elems.div_ceil(THREADS) as u32,
-            &[param, grad, &self.m, &self.v, &self.steps, mask],
+            bind::AdamStepBuffers {
+                param,
+                grad,
+                m: &self.m,
+                v: &self.v,
+                steps: &self.steps,
+                mask,
+            },
             &p,
         )?;
         rec.dispatch_linear(
             &ADAM_COUNT,
             (rows as u64).div_ceil(THREADS) as u32,
-            &[&self.steps, mask],
+            bind::AdamCountBuffers {
+                steps: &self.steps,
+                mask,
+            },
             &push::AdamCount { rows, use_mask },
         )
     }
@@ -207,7 +218,12 @@ impl AdamGroup {
         rec.dispatch_linear(
             &ADAM_RESET,
             elems.div_ceil(THREADS) as u32,
-            &[&self.m, &self.v, &self.steps, flags],
+            bind::AdamResetBuffers {
+                m: &self.m,
+                v: &self.v,
+                steps: &self.steps,
+                flags,
+            },
             &push::AdamReset {
                 elems: elems as u32,
                 width: self.width,

@@ -18,359 +18,29 @@
 //! `latentam_reference::raster`, the f64 CPU reference the tests compare
 //! against.
 
-use latentam_shaders::shared::TileRange;
-use latentam_shaders::{
-    push, KernelDef, PROJECT_BACKWARD, RASTER_BACKWARD, RASTER_BACKWARD_CAS,
-    RASTER_BACKWARD_COLUMNS, RASTER_BACKWARD_COLUMNS_ATTACHED,
-    RASTER_BACKWARD_COLUMNS_ATTACHED_CAS, RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN,
-    RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS, RASTER_BACKWARD_COLUMNS_CAS,
-    RASTER_BACKWARD_COLUMNS_PLAIN, RASTER_BACKWARD_COLUMNS_PLAIN_CAS, RASTER_BACKWARD_PLAIN,
-    RASTER_BACKWARD_PLAIN_CAS, RASTER_FORWARD, RASTER_FORWARD_COLOUR, RASTER_FORWARD_COLUMNS,
-    RASTER_FORWARD_COLUMNS_COLOUR, RASTER_POOL, RASTER_POOL_CAS, RASTER_POOL_COLUMNS,
-    RASTER_POOL_COLUMNS_CAS, RASTER_POOL_PLAIN, RASTER_POOL_PLAIN_CAS,
-};
-
 mod backward;
-use backward::{backward_kernel, pool_kernel};
+mod batch;
 mod forward;
+mod grow;
+mod images;
+mod settings;
+mod variants;
 
-pub use forward::RenderBatch;
+pub use batch::{ForwardStats, RenderBatch};
+use grow::Grow;
+use images::QUERY_BYTES;
+pub use images::{PixelBuffers, RenderedView};
+pub use settings::{BlendLayout, Channels, QueryGradients, RenderSettings};
+use variants::{backward_kernel, forward_kernel, pool_kernel};
+
+use latentam_shaders::shared::TileRange;
+use latentam_shaders::{bind, push, PROJECT_BACKWARD};
 
 use super::views::BatchLayout;
 use super::{GaussianBuffers, QUERY_DIM};
 use latentam_base::{Error, Result};
 use latentam_gpu::ops::{PrefixScan, RadixSorter};
 use latentam_gpu::{Buffer, Context, DeviceInfo, Recorder};
-
-/// How the blending kernels map a tile's pixels to invocations. Both give
-/// the same images and gradients (up to f32 summation order); they differ in
-/// speed by device.
-///
-/// ```
-/// use ash::vk::PhysicalDeviceType;
-/// use latentam_core::splat::{BlendLayout, RenderSettings};
-///
-/// let auto = RenderSettings::default().layout;
-/// assert_eq!(auto.resolve(PhysicalDeviceType::CPU), BlendLayout::Columns);
-/// assert_eq!(auto.resolve(PhysicalDeviceType::DISCRETE_GPU), BlendLayout::Pixels);
-/// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum BlendLayout {
-    /// [`BlendLayout::Columns`] on CPU devices, [`BlendLayout::Pixels`] on
-    /// GPUs.
-    #[default]
-    Auto,
-    /// One pixel per invocation, the usual GPU layout.
-    Pixels,
-    /// One 16-pixel tile column per invocation: a Gaussian's data is loaded
-    /// once for 16 pixels, which pays on CPU drivers (lavapipe), where
-    /// loads are emulated lane by lane and branches do not skip work.
-    Columns,
-}
-
-impl BlendLayout {
-    /// The layout used on a device of type `device_type`.
-    pub fn resolve(self, device_type: ash::vk::PhysicalDeviceType) -> Self {
-        match self {
-            Self::Auto if device_type == ash::vk::PhysicalDeviceType::CPU => Self::Columns,
-            Self::Auto => Self::Pixels,
-            other => other,
-        }
-    }
-}
-
-/// How views are rendered and differentiated.
-///
-/// ```no_run
-/// # fn f(ctx: &latentam_gpu::Context) {
-/// use latentam_core::splat::{Rasterizer, RenderSettings};
-///
-/// let mut raster = Rasterizer::new(ctx);
-/// raster.settings = RenderSettings { background: [1.0; 3], ..Default::default() };
-/// assert!(raster.settings.detach_query_gradients);
-/// # }
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RenderSettings {
-    /// Colour behind the Gaussians (linear RGB).
-    pub background: [f32; 3],
-    /// When set (the default), gradients of the query channels reach only the
-    /// Gaussians' queries, never their opacity or geometry, so the feature
-    /// loss cannot reshape the map (the Feature-3DGS choice).
-    pub detach_query_gradients: bool,
-    /// Pixel-to-invocation mapping of the blending kernels.
-    pub layout: BlendLayout,
-    /// Whether [`Rasterizer::image_grads`] has a per-pixel query gradient
-    /// image ([`QueryGradients::Image`]); off, the 128 bytes a pixel are
-    /// not allocated and the query gradients come from pooled region rows
-    /// ([`QueryGradients::Regions`]) or are zero.
-    pub query_gradient_image: bool,
-}
-
-impl Default for RenderSettings {
-    fn default() -> Self {
-        Self {
-            background: [0.0; 3],
-            detach_query_gradients: true,
-            layout: BlendLayout::Auto,
-            query_gradient_image: true,
-        }
-    }
-}
-
-/// Where the backward pass takes the upstream gradient of each pixel's
-/// rendered query.
-///
-/// ```no_run
-/// # use latentam_core::splat::{GaussianBuffers, Rasterizer};
-/// # fn f(ctx: &latentam_gpu::Context, raster: &Rasterizer, params: &GaussianBuffers, grads: &GaussianBuffers) -> latentam_core::Result<()> {
-/// use latentam_core::splat::QueryGradients;
-///
-/// // Colour and depth losses only: the query channels get no upstream gradient.
-/// let mut rec = ctx.recorder()?;
-/// raster.record_backward_into(&mut rec, raster.last_batch(), params, grads, false, QueryGradients::Zero)?;
-/// rec.submit()?.wait()?;
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Copy, Debug)]
-pub enum QueryGradients<'a> {
-    /// The per-pixel image `image_grads()?.query()` (requires
-    /// [`RenderSettings::query_gradient_image`]).
-    Image,
-    /// Region pooling's adjoint, without a per-pixel image: pixel p's
-    /// gradient is `rows[first_row + region(p)] / |region(p)|` (32 floats a
-    /// row), 0 for pixels in no region.
-    Regions {
-        /// ∂L/∂(pooled query), one 32-float row per region.
-        rows: &'a Buffer,
-        /// Row of region 0.
-        first_row: u32,
-        /// u32s: every batch pixel's region (`u32::MAX` for none), then,
-        /// from index `offsets_at`, the regions' CSR offsets (sizes by
-        /// difference), as [`crate::latent::Regions`] builds them.
-        labels: &'a Buffer,
-        /// Index of the first offset in `labels` (at least the batch's
-        /// pixel count).
-        offsets_at: u32,
-    },
-    /// No feature loss: zero.
-    Zero,
-}
-
-/// Bytes of one pixel's query channels.
-const QUERY_BYTES: u64 = QUERY_DIM as u64 * 4;
-
-/// Which images a forward pass writes.
-///
-/// ```no_run
-/// # use latentam_core::splat::{Camera, GaussianBuffers, Rasterizer};
-/// # fn f(raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, cams: &[Camera]) -> latentam_core::Result<()> {
-/// use latentam_core::splat::Channels;
-///
-/// // Seeding needs coverage and depth only: skip the 32 query channels.
-/// raster.forward_channels(params, count, cams, Channels::Colour)?;
-/// let (alpha, depth) = raster.download_alpha_depth(0)?;
-/// assert_eq!(raster.channels(), Channels::Colour);
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Channels {
-    /// Colour, depth, alpha and the 32 query channels.
-    #[default]
-    All,
-    /// Colour, depth and alpha only: the query image keeps whatever it
-    /// held. Blending skips the query channels (on lavapipe a forward pass
-    /// then takes about 40 % of the time). The backward pass is exact when
-    /// query gradients are detached
-    /// ([`RenderSettings::detach_query_gradients`]), as it then reads no
-    /// rendered query.
-    Colour,
-}
-
-/// Per-pixel buffers of a batch (all views back to back, each row-major; see
-/// [`BatchLayout`]). The forward pass writes them; the same layout carries
-/// the upstream gradients into the backward pass.
-///
-/// ```no_run
-/// # use latentam_core::splat::{Camera, GaussianBuffers, Rasterizer};
-/// # fn f(ctx: &latentam_gpu::Context, raster: &mut Rasterizer, params: &GaussianBuffers, grads: &GaussianBuffers, cams: &[Camera]) -> latentam_core::Result<()> {
-/// raster.forward(params, params.capacity(), cams)?;
-/// let rgbd = ctx.download::<[f32; 4]>(&raster.images()?.rgbd)?;
-/// // ∂L/∂(images) go into the same layout, then back to the Gaussians.
-/// let mut rec = ctx.recorder()?;
-/// raster.image_grads()?.record_fill(&mut rec, 0);
-/// raster.record_backward(&mut rec, params, grads)?;
-/// rec.submit()?.wait()?;
-/// # Ok(())
-/// # }
-/// ```
-pub struct PixelBuffers {
-    /// 4 floats per pixel: R, G, B (background included), depth Σ w·z.
-    pub rgbd: Buffer,
-    /// 1 float per pixel: accumulated alpha.
-    pub alpha: Buffer,
-    /// [`QUERY_DIM`] floats per pixel: the blended query vector; allocated
-    /// only where query channels are rendered (or their gradients taken
-    /// per pixel).
-    query: Option<Buffer>,
-    name: &'static str,
-    pixels: u64,
-}
-
-impl PixelBuffers {
-    fn new(ctx: &Context, name: &'static str, pixels: u64) -> Result<Self> {
-        let p = pixels.max(1);
-        Ok(Self {
-            rgbd: Buffer::device(ctx, &format!("pixels/{name}_rgbd"), p * 16)?,
-            alpha: Buffer::device(ctx, &format!("pixels/{name}_alpha"), p * 4)?,
-            query: None,
-            name,
-            pixels,
-        })
-    }
-
-    /// Allocates the query image for `pixels` pixels (at most the whole
-    /// batch).
-    fn ensure_query(&mut self, ctx: &Context, pixels: u64) -> Result<()> {
-        if self.query.is_none() {
-            // A category of its own: the per-pixel feature memory.
-            let name = format!("features/{}_query", self.name);
-            let bytes = pixels.min(self.pixels).max(1) * QUERY_BYTES;
-            self.query = Some(Buffer::device(ctx, &name, bytes)?);
-        }
-        Ok(())
-    }
-
-    /// How many pixels the buffers hold.
-    pub fn pixels(&self) -> u64 {
-        self.pixels
-    }
-
-    /// [`QUERY_DIM`] floats per pixel: the blended query vector (or its
-    /// gradient); an error where none is allocated. A batch whose query
-    /// image does not fit one buffer of the device is rendered in bands:
-    /// this buffer then holds only the last band, and
-    /// [`Rasterizer::download_view`] returns the whole view.
-    pub fn query(&self) -> Result<&Buffer> {
-        self.query.as_ref().ok_or_else(|| {
-            Error::InvalidArgument(
-                "no per-pixel query image: render with Channels::All (images) or keep \
-                 RenderSettings::query_gradient_image (gradients)"
-                    .into(),
-            )
-        })
-    }
-
-    /// Records a fill of every allocated buffer with a bit pattern.
-    pub fn record_fill<'a>(&'a self, rec: &mut Recorder<'a>, bits: u32) {
-        rec.fill_u32(&self.rgbd, bits);
-        rec.fill_u32(&self.alpha, bits);
-        if let Some(q) = &self.query {
-            rec.fill_u32(q, bits);
-        }
-    }
-}
-
-/// One view's images on the host.
-///
-/// ```no_run
-/// # fn f(raster: &latentam_core::splat::Rasterizer) -> latentam_core::Result<()> {
-/// let view = raster.download_view(0)?;
-/// let centre = (view.height / 2 * view.width + view.width / 2) as usize;
-/// let [r, g, b, weighted_depth] = view.rgbd[centre];
-/// let depth = weighted_depth / view.alpha[centre].max(1e-6);
-/// let query: &[f32; 32] = &view.query[centre];
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Debug, PartialEq)]
-pub struct RenderedView {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// Per pixel, row-major: R, G, B, depth.
-    pub rgbd: Vec<[f32; 4]>,
-    /// Per pixel: accumulated alpha.
-    pub alpha: Vec<f32>,
-    /// Per pixel: the query vector.
-    pub query: Vec<[f32; QUERY_DIM]>,
-}
-
-/// Counts from the last forward pass.
-///
-/// ```no_run
-/// # use latentam_core::splat::{Camera, GaussianBuffers, Rasterizer};
-/// # fn f(raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, cams: &[Camera]) -> latentam_core::Result<()> {
-/// let stats = raster.forward(params, count, cams)?;
-/// let per_pair = stats.intersections as f64 / stats.visible.max(1) as f64;
-/// println!("{} visible pairs, {per_pair:.1} tiles each", stats.visible);
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct ForwardStats {
-    /// (view, Gaussian) pairs that survived culling.
-    pub visible: u64,
-    /// (tile, Gaussian) intersections blended.
-    pub intersections: u64,
-}
-
-// Which variant of each blending kernel a device runs: one table for the
-// dispatches and for `Rasterizer::blend_kernel_names`.
-
-fn forward_kernel(
-    info: &DeviceInfo,
-    settings: &RenderSettings,
-    channels: Channels,
-) -> &'static KernelDef<push::RasterForward> {
-    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
-    match (columns, channels) {
-        (true, Channels::All) => &RASTER_FORWARD_COLUMNS,
-        (true, Channels::Colour) => &RASTER_FORWARD_COLUMNS_COLOUR,
-        (false, Channels::All) => &RASTER_FORWARD,
-        (false, Channels::Colour) => &RASTER_FORWARD_COLOUR,
-    }
-}
-
-/// A buffer that grows (by 25 % headroom) when a batch needs more.
-struct Grow {
-    name: &'static str,
-    buf: Option<Buffer>,
-}
-
-impl Grow {
-    const fn new(name: &'static str) -> Self {
-        Self { name, buf: None }
-    }
-
-    fn ensure(&mut self, ctx: &Context, bytes: u64) -> Result<()> {
-        let bytes = bytes.max(4);
-        if self.buf.as_ref().is_some_and(|b| b.bytes() >= bytes) {
-            return Ok(());
-        }
-        let limit = ctx.info().max_storage_buffer_range;
-        if bytes > limit {
-            return Err(Error::Unsupported(format!(
-                "`{}` needs {bytes} bytes, over the device's largest storage buffer ({limit}); \
-                 render fewer views or Gaussians per batch",
-                self.name
-            )));
-        }
-        self.buf = None;
-        let padded = (bytes + bytes / 4).min(limit).div_ceil(4) * 4;
-        self.buf = Some(Buffer::device(ctx, self.name, padded)?);
-        Ok(())
-    }
-
-    fn get(&self) -> &Buffer {
-        self.buf
-            .as_ref()
-            .expect("buffer sized by `ensure` before recording")
-    }
-}
 
 /// Renders batches of views of a set of Gaussians and back-propagates
 /// image-space gradients to them.
@@ -566,18 +236,18 @@ impl Rasterizer {
     ) -> Result<()> {
         let images = self.images()?;
         let bg = self.settings.background;
-        let bufs = [
-            self.views.get(),
-            &gaussians.colors,
-            &gaussians.queries,
-            self.splats.get(),
-            self.isect_pairs.get(),
-            self.ranges.get(),
-            &images.rgbd,
-            &images.alpha,
-            images.query.as_ref().unwrap_or(self.stub()?),
-            self.state.get(),
-        ];
+        let bufs = bind::RasterForwardBuffers {
+            views: self.views.get(),
+            colors: &gaussians.colors,
+            queries: &gaussians.queries,
+            splats: self.splats.get(),
+            pairs: self.isect_pairs.get(),
+            ranges: self.ranges.get(),
+            rgbd: &images.rgbd,
+            alpha: &images.alpha,
+            query: images.query.as_ref().unwrap_or(self.stub()?),
+            state: self.state.get(),
+        };
         let layout = &batch.layout;
         let p = push::RasterForward {
             n_gaussians: batch.count as u32,
@@ -590,7 +260,7 @@ impl Rasterizer {
             query_count: query_count as u32,
         };
         let kernel = forward_kernel(rec.info(), &self.settings, batch.channels);
-        rec.dispatch_linear(kernel, layout.tiles, &bufs, &p)
+        rec.dispatch_linear(kernel, layout.tiles, bufs, &p)
     }
 
     /// Names of the blending kernels a rasterizer with `settings` dispatches

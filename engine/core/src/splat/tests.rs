@@ -116,7 +116,7 @@ fn gpu_render(
 /// Checks one rendered view against the f64 reference: every channel
 /// within 2e-4 of the pixel's scale (its largest |value|, at least 1), plus,
 /// where a blending decision sits within f32 rounding of its threshold,
-/// the contribution that decision can move (see [`reference::near_cutoffs`]):
+/// the contribution that decision can move (see [`reference::cutoffs::near_cutoffs`]):
 /// there f32 and f64 may both be right and still differ.
 fn assert_view_matches(
     gpu: &RenderedView,
@@ -126,7 +126,7 @@ fn assert_view_matches(
     what: &str,
 ) {
     let want = reference::render(gs, cam, background);
-    let near = reference::near_cutoffs(gs, cam);
+    let near = reference::cutoffs::near_cutoffs(gs, cam);
     // The largest |feature| a pixel blends: colours and queries are in
     // [-1, 1], depth is the camera-frame depth.
     let features = gs
@@ -400,12 +400,12 @@ fn rel_err(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Which Gaussians' own blending decision sits within f32 rounding of a
-/// threshold in some view (see [`reference::near_cutoffs`]): their
+/// threshold in some view (see [`reference::cutoffs::near_cutoffs`]): their
 /// gradients may rightly jump by a finite amount.
 fn gaussians_at_cutoffs(gs: &[Gaussian], cams: &[Camera]) -> Vec<bool> {
     let mut at_cutoff = vec![false; gs.len()];
     for cam in cams {
-        let near = reference::near_cutoffs(gs, cam);
+        let near = reference::cutoffs::near_cutoffs(gs, cam);
         at_cutoff
             .iter_mut()
             .zip(near.gaussians)

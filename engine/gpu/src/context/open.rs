@@ -2,7 +2,20 @@
 //! async transfer queue where the device has one), the features and
 //! extensions the kernels need, checked rather than assumed.
 
-use super::*;
+use std::ffi::CStr;
+use std::sync::atomic::AtomicU64;
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+
+use super::{ContextOptions, Device, DeviceInfo, FloatAtomics, Queue, ValidationLog};
+use crate::counters::CallCounters;
+use crate::memory::MemoryAccounting;
+use crate::objects::ObjectCounts;
+use crate::pipeline::PipelineCache;
+use crate::profiler::Profiler;
+use crate::retire::RetireQueue;
+use latentam_base::{Error, Result, VkContext};
 
 /// What to do when no Vulkan device is found.
 pub(super) const INSTALL_HINT: &str =

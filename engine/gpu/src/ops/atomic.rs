@@ -6,6 +6,7 @@ use latentam_shaders::{push, ATOMIC_ADD_F32, ATOMIC_ADD_F32_CAS};
 
 use crate::{Buffer, Recorder};
 use latentam_base::Result;
+use latentam_shaders::bind;
 
 /// Threads per workgroup of both kernels.
 pub const SCATTER_THREADS: u64 = 256;
@@ -25,9 +26,27 @@ pub fn scatter_add_f32<'a>(
     let groups = n.div_ceil(SCATTER_THREADS) as u32;
     let p = push::ScatterAdd { n: n as u32 };
     if rec.info().native_float_atomics {
-        rec.dispatch_linear(&ATOMIC_ADD_F32, groups, &[values, targets, acc], &p)
+        rec.dispatch_linear(
+            &ATOMIC_ADD_F32,
+            groups,
+            bind::ScatterAddBuffers {
+                values,
+                targets,
+                acc,
+            },
+            &p,
+        )
     } else {
-        rec.dispatch_linear(&ATOMIC_ADD_F32_CAS, groups, &[values, targets, acc], &p)
+        rec.dispatch_linear(
+            &ATOMIC_ADD_F32_CAS,
+            groups,
+            bind::ScatterAddBuffers {
+                values,
+                targets,
+                acc,
+            },
+            &p,
+        )
     }
 }
 
@@ -103,7 +122,16 @@ mod tests {
             let mut rec = ctx.recorder().unwrap();
             let p = push::ScatterAdd { n: 1 };
             let e = rec
-                .dispatch_linear(&ATOMIC_ADD_F32, 1, &[&values, &targets, &acc], &p)
+                .dispatch_linear(
+                    &ATOMIC_ADD_F32,
+                    1,
+                    bind::ScatterAddBuffers {
+                        values: &values,
+                        targets: &targets,
+                        acc: &acc,
+                    },
+                    &p,
+                )
                 .unwrap_err();
             assert!(e.to_string().contains("float atomic add"), "{e}");
         });

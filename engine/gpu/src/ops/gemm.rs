@@ -19,6 +19,7 @@ use latentam_shaders::{
 
 use crate::{Buffer, Recorder};
 use latentam_base::{Error, Result};
+use latentam_shaders::bind;
 
 /// Which operands are used transposed.
 ///
@@ -152,7 +153,7 @@ impl Gemm {
         c: &'a Buffer,
     ) -> Result<()> {
         let (def, p) = self.kernel_and_push(kernel, a, b, c)?;
-        rec.dispatch(def, self.groups(), &[a, b, c], &p)
+        rec.dispatch(def, self.groups(), bind::GemmBuffers { a, b, c }, &p)
     }
 
     /// Workgroups of the product, either kernel: what an indirect
@@ -186,7 +187,7 @@ impl Gemm {
         }
         let kernel = self.kernel_on(rec.info().device_type);
         let (def, p) = self.kernel_and_push(kernel, a, b, c)?;
-        rec.dispatch_indirect(def, args, offset, &[a, b, c], &p)
+        rec.dispatch_indirect(def, args, offset, bind::GemmBuffers { a, b, c }, &p)
     }
 
     fn kernel_and_push(
@@ -195,7 +196,7 @@ impl Gemm {
         a: &Buffer,
         b: &Buffer,
         c: &Buffer,
-    ) -> Result<(&'static KernelDef<push::Gemm>, push::Gemm)> {
+    ) -> Result<(&'static KernelDef<push::Gemm, bind::Gemm>, push::Gemm)> {
         let (m, n, k) = (self.m as u64, self.n as u64, self.k as u64);
         for (buf, elems, what) in [(a, m * k, "A"), (b, k * n, "B"), (c, m * n, "C")] {
             buf.ensure_bytes(elems * 4, &format!("GEMM {m}x{n}x{k} operand {what}"))?;
@@ -215,7 +216,7 @@ impl Gemm {
             alpha: self.alpha,
             beta: self.beta,
         };
-        let def: &'static KernelDef<push::Gemm> =
+        let def: &'static KernelDef<push::Gemm, bind::Gemm> =
             match (kernel, self.transpose, self.vector_loads_fit()) {
                 (GemmKernel::Tiled, Transpose::None, _) => &GEMM_NN,
                 (GemmKernel::Tiled, Transpose::A, _) => &GEMM_TN,

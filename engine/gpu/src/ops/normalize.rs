@@ -7,6 +7,7 @@ use latentam_shaders::{push, NORMALIZE_ROWS, NORMALIZE_ROWS_BACKWARD};
 
 use crate::{Buffer, Recorder};
 use latentam_base::Result;
+use latentam_shaders::bind;
 
 /// Records `y[r, :] = x[r, :] / (‖x[r, :]‖ + eps)` and `norm[r] = ‖x[r, :]‖` for
 /// a rows × cols row-major matrix.
@@ -24,7 +25,12 @@ pub fn normalize_rows<'a>(
     y.ensure_bytes(elems, "normalize_rows output")?;
     norm.ensure_bytes(rows as u64 * 4, "normalize_rows norms")?;
     let p = push::NormalizeRows { rows, cols, eps };
-    rec.dispatch_linear(&NORMALIZE_ROWS, rows, &[x, y, norm], &p)
+    rec.dispatch_linear(
+        &NORMALIZE_ROWS,
+        rows,
+        bind::NormalizeRowsBuffers { x, y, norm },
+        &p,
+    )
 }
 
 /// Records dx = beta·dx + ∂L/∂x for y = [`normalize_rows`]`(x)` given y, the
@@ -52,5 +58,10 @@ pub fn normalize_rows_backward<'a>(
         eps,
         beta,
     };
-    rec.dispatch_linear(&NORMALIZE_ROWS_BACKWARD, rows, &[y, norm, g, dx], &p)
+    rec.dispatch_linear(
+        &NORMALIZE_ROWS_BACKWARD,
+        rows,
+        bind::NormalizeRowsBackwardBuffers { y, norm, g, dx },
+        &p,
+    )
 }

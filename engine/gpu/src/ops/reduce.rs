@@ -5,6 +5,7 @@ use latentam_shaders::{push, REDUCE_MAX_F32, REDUCE_SUM_F32};
 
 use crate::{Buffer, Context, Recorder};
 use latentam_base::{Error, Result};
+use latentam_shaders::bind;
 
 /// Elements folded per workgroup (THREADS × ITEMS in the kernel).
 pub const REDUCE_BLOCK: u64 = 2048;
@@ -100,12 +101,18 @@ impl Reducer {
             let groups = blocks as u32;
             let n = len as u32;
             match op {
-                ReduceOp::Sum => {
-                    rec.dispatch_linear(&REDUCE_SUM_F32, groups, &[cur, out], &push::Reduce { n })?
-                }
-                ReduceOp::Max => {
-                    rec.dispatch_linear(&REDUCE_MAX_F32, groups, &[cur, out], &push::Reduce { n })?
-                }
+                ReduceOp::Sum => rec.dispatch_linear(
+                    &REDUCE_SUM_F32,
+                    groups,
+                    bind::ReduceBuffers { src: cur, dst: out },
+                    &push::Reduce { n },
+                )?,
+                ReduceOp::Max => rec.dispatch_linear(
+                    &REDUCE_MAX_F32,
+                    groups,
+                    bind::ReduceBuffers { src: cur, dst: out },
+                    &push::Reduce { n },
+                )?,
             }
             if blocks == 1 {
                 return Ok(());

@@ -5,6 +5,7 @@ use latentam_shaders::{push, SCAN_ADD, SCAN_BLOCKS};
 
 use crate::{Buffer, Context, Recorder};
 use latentam_base::{Error, Result};
+use latentam_shaders::bind;
 
 /// Elements scanned per workgroup.
 pub const SCAN_BLOCK: u64 = latentam_shaders::shared::SCAN_BLOCK as u64;
@@ -85,11 +86,21 @@ impl PrefixScan {
         let blocks = n.div_ceil(SCAN_BLOCK);
         let sums = &self.levels[level];
         let p = push::Scan { n: n as u32 };
-        rec.dispatch_linear(&SCAN_BLOCKS, blocks as u32, &[data, sums], &p)?;
+        rec.dispatch_linear(
+            &SCAN_BLOCKS,
+            blocks as u32,
+            bind::ScanBuffers { data, sums },
+            &p,
+        )?;
         if blocks > 1 {
             self.level(rec, sums, blocks, level + 1)?;
             let p = push::Scan { n: n as u32 };
-            rec.dispatch_linear(&SCAN_ADD, blocks as u32, &[data, sums], &p)?;
+            rec.dispatch_linear(
+                &SCAN_ADD,
+                blocks as u32,
+                bind::ScanBuffers { data, sums },
+                &p,
+            )?;
         }
         Ok(())
     }

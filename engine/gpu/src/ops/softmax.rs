@@ -6,6 +6,7 @@ use latentam_shaders::{push, SOFTMAX, SOFTMAX_BACKWARD};
 
 use crate::{Buffer, Recorder};
 use latentam_base::Result;
+use latentam_shaders::bind;
 
 /// Records y[r, :] = softmax(scale · x[r, :]) for a rows × cols row-major
 /// matrix. `x` and `y` may be the same buffer only if the caller accepts
@@ -24,7 +25,7 @@ pub fn row_softmax<'a>(
     rec.dispatch_linear(
         &SOFTMAX,
         rows,
-        &[x, y],
+        bind::SoftmaxBuffers { x, y },
         &push::Softmax { rows, cols, scale },
     )
 }
@@ -46,7 +47,7 @@ pub fn row_softmax_backward<'a>(
     rec.dispatch_linear(
         &SOFTMAX_BACKWARD,
         rows,
-        &[a, grad],
+        bind::SoftmaxBackwardBuffers { a, g: grad },
         &push::SoftmaxBackward { rows, cols, scale },
     )
 }

@@ -7,6 +7,7 @@ use latentam_shaders::{push, RADIX_HISTOGRAM, RADIX_SCATTER};
 use super::scan::PrefixScan;
 use crate::{Buffer, Context, Recorder};
 use latentam_base::{Error, Result};
+use latentam_shaders::bind;
 
 /// Elements per workgroup (THREADS × ITEMS in the kernel).
 pub const SORT_BLOCK: u64 = 2048;
@@ -94,12 +95,26 @@ impl RadixSorter {
                 num_blocks: blocks as u32,
                 bits: (key_bits - pass * RADIX_BITS).min(RADIX_BITS),
             };
-            rec.dispatch_linear(&RADIX_HISTOGRAM, blocks as u32, &[src.0, &self.hist], &p)?;
+            rec.dispatch_linear(
+                &RADIX_HISTOGRAM,
+                blocks as u32,
+                bind::RadixHistogramBuffers {
+                    keys_in: src.0,
+                    hist: &self.hist,
+                },
+                &p,
+            )?;
             self.scan.record(rec, &self.hist, blocks * RADIX)?;
             rec.dispatch_linear(
                 &RADIX_SCATTER,
                 blocks as u32,
-                &[src.0, &self.hist, src.1, dst.0, dst.1],
+                bind::RadixScatterBuffers {
+                    keys_in: src.0,
+                    hist: &self.hist,
+                    vals_in: src.1,
+                    keys_out: dst.0,
+                    vals_out: dst.1,
+                },
                 &p,
             )?;
             std::mem::swap(&mut src, &mut dst);

@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use ash::vk;
-use latentam_shaders::KernelDef;
+use latentam_shaders::{BindingSet, Kernel, KernelDef};
 
 use super::buffer::{Buffer, BufferKind, Readback};
 use super::context::{Context, Device, Queue};
@@ -18,13 +18,16 @@ use super::retire::Retired;
 use latentam_base::{Error, Result, VkContext};
 
 mod submission;
+mod sync_point;
+mod timestamps;
 mod transfers;
 
 pub use submission::{GpuSpan, Submission};
+pub use sync_point::SyncPoint;
+use timestamps::{QueryBlock, QUERIES_PER_POOL};
 
 const SETS_PER_POOL: u32 = 64;
 const MAX_BINDINGS: u32 = 16;
-const QUERIES_PER_POOL: u32 = 512;
 
 /// Which queue a recorder submits to.
 ///
@@ -45,37 +48,12 @@ pub enum QueueKind {
     Transfer,
 }
 
-/// A point on a queue's timeline: "everything submitted up to here".
-///
-/// ```no_run
-/// # fn f(ctx: &latentam_gpu::Context, staging: &latentam_gpu::Buffer, dst: &latentam_gpu::Buffer) -> latentam_gpu::Result<()> {
-/// let mut copies = ctx.transfer_recorder()?;
-/// copies.copy(staging, 0, dst, 0, staging.bytes())?;
-/// let copied = copies.submit()?;
-/// let mut rec = ctx.recorder()?;
-/// rec.wait_for(copied.sync_point()); // the GPU waits; the host does not
-/// let readback = rec.download(dst, 0, dst.bytes())?;
-/// rec.submit()?.wait()?;
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SyncPoint {
-    pub(crate) transfer: bool,
-    pub(crate) value: u64,
-}
-
 /// How many workgroups a dispatch runs: known now, or read by the GPU from
 /// a buffer (x, y, z at a byte offset) when it runs.
 #[derive(Clone, Copy)]
 enum Groups<'a> {
     Direct([u32; 3]),
     Indirect(&'a Buffer, u64),
-}
-
-struct QueryBlock {
-    pool: vk::QueryPool,
-    used: u32,
 }
 
 /// Records GPU work. Buffers used by recorded commands are borrowed for the
@@ -390,15 +368,24 @@ impl<'a> Recorder<'a> {
     }
 
     /// Records one dispatch of `kernel` with `groups` workgroups, binding
-    /// `buffers[i]` to binding i and `push` as push constants.
-    pub fn dispatch<P: bytemuck::Pod>(
+    /// each of `buffers` to the kernel's binding of that name and `push` as
+    /// push constants. The buffers struct and the push type are the
+    /// kernel's own (`latentam_shaders::bind`), so a swapped or missing
+    /// buffer does not compile.
+    pub fn dispatch<P: bytemuck::Pod, S: BindingSet>(
         &mut self,
-        kernel: &'static KernelDef<P>,
+        kernel: &'static KernelDef<P, S>,
         groups: [u32; 3],
-        buffers: &[&'a Buffer],
+        buffers: S::Buffers<'a, Buffer>,
         push: &P,
     ) -> Result<()> {
-        self.record_dispatch(kernel, Groups::Direct(groups), buffers, push)
+        let buffers = S::in_order(&buffers);
+        self.record_dispatch(
+            &kernel.kernel,
+            Groups::Direct(groups),
+            &buffers,
+            bytemuck::bytes_of(push),
+        )
     }
 
     /// Records one dispatch of `kernel` whose workgroup counts the GPU
@@ -408,14 +395,15 @@ impl<'a> Recorder<'a> {
     /// dispatches nothing, so a kernel can decide on the GPU whether a later
     /// one runs, without a host round trip. The counts must stay within
     /// the device's `max_workgroup_count`.
-    pub fn dispatch_indirect<P: bytemuck::Pod>(
+    pub fn dispatch_indirect<P: bytemuck::Pod, S: BindingSet>(
         &mut self,
-        kernel: &'static KernelDef<P>,
+        kernel: &'static KernelDef<P, S>,
         args: &'a Buffer,
         offset: u64,
-        buffers: &[&'a Buffer],
+        buffers: S::Buffers<'a, Buffer>,
         push: &P,
     ) -> Result<()> {
+        let buffers = S::in_order(&buffers);
         if offset % 4 != 0 {
             return Err(Error::InvalidArgument(format!(
                 "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
@@ -441,17 +429,21 @@ impl<'a> Recorder<'a> {
                 args.name()
             )));
         }
-        self.record_dispatch(kernel, Groups::Indirect(args, offset), buffers, push)
+        self.record_dispatch(
+            &kernel.kernel,
+            Groups::Indirect(args, offset),
+            &buffers,
+            bytemuck::bytes_of(push),
+        )
     }
 
-    fn record_dispatch<P: bytemuck::Pod>(
+    fn record_dispatch(
         &mut self,
-        kernel: &'static KernelDef<P>,
+        k: &'static Kernel,
         groups: Groups<'a>,
         buffers: &[&'a Buffer],
-        push: &P,
+        push: &[u8],
     ) -> Result<()> {
-        let k = &kernel.kernel;
         if self.transfer {
             return Err(Error::InvalidArgument(format!(
                 "kernel `{}` recorded on the transfer queue",
@@ -572,7 +564,7 @@ impl<'a> Recorder<'a> {
                     pipe.layout,
                     vk::ShaderStageFlags::COMPUTE,
                     0,
-                    bytemuck::bytes_of(push),
+                    push,
                 );
             }
             match groups {
@@ -593,11 +585,11 @@ impl<'a> Recorder<'a> {
     /// Dispatches `groups` workgroups along one logical dimension, split over
     /// x and y when it exceeds the x limit. Kernels recover the index with
     /// `linear_group()` and must ignore indices past their work.
-    pub fn dispatch_linear<P: bytemuck::Pod>(
+    pub fn dispatch_linear<P: bytemuck::Pod, S: BindingSet>(
         &mut self,
-        kernel: &'static KernelDef<P>,
+        kernel: &'static KernelDef<P, S>,
         groups: u32,
-        buffers: &[&'a Buffer],
+        buffers: S::Buffers<'a, Buffer>,
         push: &P,
     ) -> Result<()> {
         let split = self.linear_groups(groups);

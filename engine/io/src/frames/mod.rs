@@ -31,9 +31,10 @@ use latentam_base::Rejection;
 
 mod config;
 mod pairing;
+mod queue;
 
 pub use config::{AssemblyConfig, BadInputPolicy, PoseSource, TopicChoice, Topics};
-use pairing::Queue;
+use queue::Queue;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Role {

@@ -1,7 +1,12 @@
 //! Chunks of an MCAP file: which need no decompression, unpacking one
 //! with its CRC checked, and saying where a damaged one lies.
 
-use super::*;
+use std::collections::HashMap;
+
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use mcap::McapError;
+
+use super::records::MAX_RECORD_BYTES;
 
 /// The summary as the indexed reader is given it, with every chunk
 /// described as uncompressed.

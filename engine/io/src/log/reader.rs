@@ -1,7 +1,18 @@
 //! Reading messages in log-time order across the files of a log, through
 //! the chunk index, or linearly where a file has none.
 
-use super::*;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+
+use super::chunks::*;
+use super::file::LogFile;
+use super::mcap_log::McapLog;
+use super::records::{channel_of, Channel, RawMessage, ReadFilter, MAX_RECORD_BYTES};
+use crate::InputError;
+use mcap::McapError;
 
 /// Reads messages one at a time; see [`McapLog::reader`].
 ///
@@ -275,5 +286,43 @@ impl FileReader {
                 }
             },
         }
+    }
+}
+
+impl McapLog {
+    /// A reader over the messages `filter` admits: in log-time order within
+    /// each file, files one after the other.
+    pub fn reader(&self, filter: ReadFilter) -> MessageReader {
+        MessageReader {
+            log: self.clone(),
+            filter,
+            file: 0,
+            current: None,
+        }
+    }
+}
+
+impl LogFile {
+    /// The channels of a file without a summary, found by reading it once
+    /// (a damaged file still lists those before the damage).
+    pub(super) fn scanned_channels(&self) -> &(Vec<Channel>, Option<InputError>) {
+        self.scanned.get_or_init(|| {
+            let filter = ReadFilter::default();
+            let mut reader = FileReader::linear(self, &filter);
+            let mut problem = None;
+            while let Some(r) = reader.next_with(self, &filter, |_| ()) {
+                if let Err(e) = r {
+                    problem = Some(e);
+                    break;
+                }
+            }
+            let mut v: Vec<Channel> = reader
+                .channels
+                .into_values()
+                .map(|c| (*c).clone())
+                .collect();
+            v.sort_by(|a, b| a.topic.cmp(&b.topic));
+            (v, problem)
+        })
     }
 }

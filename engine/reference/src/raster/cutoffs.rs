@@ -18,7 +18,7 @@ use super::{
 /// Pixels and Gaussians of one view at a blending threshold.
 ///
 /// ```
-/// use latentam_reference::raster::{near_cutoffs, Gaussian};
+/// use latentam_reference::raster::{cutoffs::near_cutoffs, Gaussian};
 /// use latentam_base::Camera;
 ///
 /// let cam = Camera::at_origin(32, 24);

@@ -3,50 +3,9 @@
 //! rendered queries (`raster_pool`), which walks the same tile lists.
 
 use super::*;
-
-pub(super) fn backward_kernel(
-    info: &DeviceInfo,
-    settings: &RenderSettings,
-) -> &'static KernelDef<push::RasterBackward> {
-    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
-    let attached = !settings.detach_query_gradients;
-    // The column kernels sum a tile's 8 invocations with a shuffle
-    // butterfly, which needs them to be exactly one subgroup.
-    let sub = if columns {
-        info.subgroup_shuffle && info.subgroup_size == 8
-    } else {
-        info.subgroup_arithmetic
-    };
-    match (columns, attached, sub, info.native_float_atomics) {
-        (false, _, true, true) => &RASTER_BACKWARD,
-        (false, _, true, false) => &RASTER_BACKWARD_CAS,
-        (false, _, false, true) => &RASTER_BACKWARD_PLAIN,
-        (false, _, false, false) => &RASTER_BACKWARD_PLAIN_CAS,
-        (true, false, true, true) => &RASTER_BACKWARD_COLUMNS,
-        (true, false, true, false) => &RASTER_BACKWARD_COLUMNS_CAS,
-        (true, false, false, true) => &RASTER_BACKWARD_COLUMNS_PLAIN,
-        (true, false, false, false) => &RASTER_BACKWARD_COLUMNS_PLAIN_CAS,
-        (true, true, true, true) => &RASTER_BACKWARD_COLUMNS_ATTACHED,
-        (true, true, true, false) => &RASTER_BACKWARD_COLUMNS_ATTACHED_CAS,
-        (true, true, false, true) => &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN,
-        (true, true, false, false) => &RASTER_BACKWARD_COLUMNS_ATTACHED_PLAIN_CAS,
-    }
-}
-
-pub(super) fn pool_kernel(
-    info: &DeviceInfo,
-    settings: &RenderSettings,
-) -> &'static KernelDef<push::RasterPool> {
-    let columns = settings.layout.resolve(info.device_type) == BlendLayout::Columns;
-    match (columns, info.subgroup_arithmetic, info.native_float_atomics) {
-        (true, _, true) => &RASTER_POOL_COLUMNS,
-        (true, _, false) => &RASTER_POOL_COLUMNS_CAS,
-        (false, true, true) => &RASTER_POOL,
-        (false, true, false) => &RASTER_POOL_CAS,
-        (false, false, true) => &RASTER_POOL_PLAIN,
-        (false, false, false) => &RASTER_POOL_PLAIN_CAS,
-    }
-}
+use crate::splat::QUERY_DIM;
+use latentam_shaders::bind;
+use latentam_shaders::shared::{QUERY_GRAD_FROM_IMAGE, QUERY_GRAD_FROM_REGIONS, QUERY_GRAD_ZERO};
 
 impl Rasterizer {
     /// Records the backward pass of the last forward batch: from the upstream
@@ -91,7 +50,7 @@ impl Rasterizer {
             ));
         }
         let (source, first_row, grad_query, labels, offsets_at) = match query {
-            QueryGradients::Image => (0u32, 0u32, upstream.query()?, stub, 0u32),
+            QueryGradients::Image => (QUERY_GRAD_FROM_IMAGE, 0, upstream.query()?, stub, 0),
             QueryGradients::Regions {
                 rows,
                 first_row,
@@ -99,9 +58,9 @@ impl Rasterizer {
                 offsets_at,
             } => {
                 Self::check_region_labels(batch, labels, offsets_at)?;
-                (1, first_row, rows, labels, offsets_at)
+                (QUERY_GRAD_FROM_REGIONS, first_row, rows, labels, offsets_at)
             }
-            QueryGradients::Zero => (2, 0, stub, stub, 0),
+            QueryGradients::Zero => (QUERY_GRAD_ZERO, 0, stub, stub, 0),
         };
         let count = batch.count;
         if grads.capacity() < count || gaussians.capacity() < count {
@@ -129,42 +88,42 @@ impl Rasterizer {
             first_row,
             offsets_at,
         };
-        let bufs = [
-            self.views.get(),
-            &gaussians.colors,
-            &gaussians.queries,
-            self.splats.get(),
-            self.isect_pairs.get(),
-            self.ranges.get(),
-            &images.rgbd,
-            images.query.as_ref().unwrap_or(stub),
-            self.state.get(),
-            &upstream.rgbd,
-            &upstream.alpha,
+        let bufs = bind::RasterBackwardBuffers {
+            views: self.views.get(),
+            colors: &gaussians.colors,
+            queries: &gaussians.queries,
+            splats: self.splats.get(),
+            pairs: self.isect_pairs.get(),
+            ranges: self.ranges.get(),
+            rgbd: &images.rgbd,
+            query_image: images.query.as_ref().unwrap_or(stub),
+            state: self.state.get(),
+            grad_rgbd: &upstream.rgbd,
+            grad_alpha: &upstream.alpha,
             grad_query,
-            &grads.colors,
-            &grads.queries,
-            self.grad_splats.get(),
-            labels,
-        ];
+            grad_colors: &grads.colors,
+            grad_queries: &grads.queries,
+            grad_splats: self.grad_splats.get(),
+            pixel_region: labels,
+        };
         let kernel = backward_kernel(rec.info(), &self.settings);
-        rec.dispatch_linear(kernel, batch.layout.tiles, &bufs, &p)?;
+        rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
         rec.dispatch_linear(
             &PROJECT_BACKWARD,
             count.div_ceil(256) as u32,
-            &[
-                self.views.get(),
-                &gaussians.means,
-                &gaussians.log_scales,
-                &gaussians.quats,
-                &gaussians.opacity_logits,
-                self.tile_counts.get(),
-                self.grad_splats.get(),
-                &grads.means,
-                &grads.log_scales,
-                &grads.quats,
-                &grads.opacity_logits,
-            ],
+            bind::ProjectBackwardBuffers {
+                views: self.views.get(),
+                means: &gaussians.means,
+                log_scales: &gaussians.log_scales,
+                quats: &gaussians.quats,
+                logits: &gaussians.opacity_logits,
+                tile_counts: self.tile_counts.get(),
+                grad_splats: self.grad_splats.get(),
+                grad_means: &grads.means,
+                grad_log_scales: &grads.log_scales,
+                grad_quats: &grads.quats,
+                grad_logits: &grads.opacity_logits,
+            },
             &push::ProjectBackward {
                 n_gaussians: count as u32,
                 n_views,
@@ -208,18 +167,18 @@ impl Rasterizer {
             first_row,
             offsets_at,
         };
-        let bufs = [
-            self.views.get(),
-            &gaussians.queries,
-            self.splats.get(),
-            self.isect_pairs.get(),
-            self.ranges.get(),
-            self.state.get(),
+        let bufs = bind::RasterPoolBuffers {
+            views: self.views.get(),
+            queries: &gaussians.queries,
+            splats: self.splats.get(),
+            pairs: self.isect_pairs.get(),
+            ranges: self.ranges.get(),
+            state: self.state.get(),
             labels,
             pooled,
-        ];
+        };
         let kernel = pool_kernel(rec.info(), &self.settings);
-        rec.dispatch_linear(kernel, batch.layout.tiles, &bufs, &p)?;
+        rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
         Ok(())
     }
 

@@ -8,71 +8,13 @@ use latentam_shaders::{
     push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_FORWARD, TILE_RANGES,
 };
 
-use super::{Channels, ForwardStats, Rasterizer, QUERY_BYTES};
+use super::{Channels, ForwardStats, Rasterizer, RenderBatch, QUERY_BYTES};
 use crate::splat::views::BatchLayout;
 use crate::splat::{Camera, GaussianBuffers};
 use latentam_base::{Error, Result};
 use latentam_gpu::Recorder;
+use latentam_shaders::bind;
 use latentam_shaders::shared::{PixelState, Splat, TileRange, TileRect, View};
-
-/// A batch of views, measured for rendering: its layout, the Gaussians it
-/// renders and the counts that size the pass. [`Rasterizer::measure`]
-/// makes them; [`Rasterizer::record_forward`], `record_pool` and
-/// `record_backward_into` take them.
-///
-/// A measured batch stays valid while the Gaussians it was measured on are
-/// unchanged: the counts are those of this exact projection.
-///
-/// ```no_run
-/// # use latentam_core::splat::{Camera, GaussianBuffers, Rasterizer};
-/// # fn f(ctx: &latentam_gpu::Context, raster: &mut Rasterizer, params: &GaussianBuffers, count: u64, near: &[Camera], far: &[Camera]) -> latentam_core::Result<()> {
-/// use latentam_core::splat::Channels;
-///
-/// // One host wait measures both batches; each is then recorded without one.
-/// let batches = raster.measure(params, count, &[near, far], Channels::All)?;
-/// for batch in &batches {
-///     let mut rec = ctx.recorder()?;
-///     raster.record_forward(&mut rec, params, batch)?;
-///     rec.submit()?.wait()?;
-///     println!("{} tile intersections", batch.stats().intersections);
-/// }
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Debug, Default)]
-pub struct RenderBatch {
-    pub(super) layout: BatchLayout,
-    pub(super) views: Vec<View>,
-    pub(super) count: u64,
-    pub(super) channels: Channels,
-    pub(super) stats: ForwardStats,
-}
-
-impl RenderBatch {
-    /// Where each view's pixels and tiles sit.
-    pub fn layout(&self) -> &BatchLayout {
-        &self.layout
-    }
-
-    /// Visible pairs and tile intersections.
-    pub fn stats(&self) -> ForwardStats {
-        self.stats
-    }
-
-    /// Which images the forward pass writes.
-    pub fn channels(&self) -> Channels {
-        self.channels
-    }
-
-    /// Gaussians `0..gaussians()` are rendered.
-    pub fn gaussians(&self) -> u64 {
-        self.count
-    }
-
-    fn pairs(&self) -> u64 {
-        self.count * self.views.len() as u64
-    }
-}
 
 impl Rasterizer {
     /// Renders `cameras` from Gaussians `0..count` of `gaussians` and waits
@@ -297,17 +239,17 @@ impl Rasterizer {
         rec.dispatch_linear(
             &PROJECT_FORWARD,
             pairs.div_ceil(256) as u32,
-            &[
-                self.views.get(),
-                &gaussians.means,
-                &gaussians.log_scales,
-                &gaussians.quats,
-                &gaussians.opacity_logits,
-                self.splats.get(),
-                self.rects.get(),
-                self.tile_counts.get(),
-                positions,
-            ],
+            bind::ProjectForwardBuffers {
+                views: self.views.get(),
+                means: &gaussians.means,
+                log_scales: &gaussians.log_scales,
+                quats: &gaussians.quats,
+                logits: &gaussians.opacity_logits,
+                splats: self.splats.get(),
+                rects: self.rects.get(),
+                tile_counts: self.tile_counts.get(),
+                flags: positions,
+            },
             &push::ProjectForward {
                 n_gaussians: batch.count as u32,
                 n_views: batch.views.len() as u32,
@@ -358,13 +300,13 @@ impl Rasterizer {
         rec.dispatch_linear(
             &COMPACT_VISIBLE,
             pairs.div_ceil(256) as u32,
-            &[
-                self.splats.get(),
-                self.tile_counts.get(),
-                self.positions.get(),
-                self.depth_keys.get(),
-                self.depth_order.get(),
-            ],
+            bind::CompactVisibleBuffers {
+                splats: self.splats.get(),
+                counts: self.tile_counts.get(),
+                positions: self.positions.get(),
+                keys: self.depth_keys.get(),
+                vals: self.depth_order.get(),
+            },
             &bins(pairs),
         )?;
         sorter.record(
@@ -377,25 +319,25 @@ impl Rasterizer {
         rec.dispatch_linear(
             &GATHER_COUNTS,
             visible.div_ceil(256) as u32,
-            &[
-                self.tile_counts.get(),
-                self.depth_order.get(),
-                self.sorted_offsets.get(),
-            ],
+            bind::GatherCountsBuffers {
+                counts: self.tile_counts.get(),
+                order: self.depth_order.get(),
+                sorted: self.sorted_offsets.get(),
+            },
             &bins(visible),
         )?;
         scan.record(rec, self.sorted_offsets.get(), visible)?;
         rec.dispatch_linear(
             &EMIT_TILES,
             visible.div_ceil(256) as u32,
-            &[
-                self.views.get(),
-                self.rects.get(),
-                self.depth_order.get(),
-                self.sorted_offsets.get(),
-                self.isect_keys.get(),
-                self.isect_pairs.get(),
-            ],
+            bind::EmitTilesBuffers {
+                views: self.views.get(),
+                rects: self.rects.get(),
+                order: self.depth_order.get(),
+                offsets: self.sorted_offsets.get(),
+                keys: self.isect_keys.get(),
+                vals: self.isect_pairs.get(),
+            },
             &bins(visible),
         )?;
         let tiles = batch.layout.tiles;
@@ -411,7 +353,10 @@ impl Rasterizer {
         rec.dispatch_linear(
             &TILE_RANGES,
             intersections.div_ceil(256) as u32,
-            &[self.isect_keys.get(), self.ranges.get()],
+            bind::TileRangesBuffers {
+                keys: self.isect_keys.get(),
+                ranges: self.ranges.get(),
+            },
             &bins(intersections),
         )
     }

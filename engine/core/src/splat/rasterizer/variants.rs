@@ -1,0 +1,65 @@
+//! Which variant of each blending kernel a device runs: one table for the
+//! dispatches and for `Rasterizer::blend_kernel_names`. The kernels'
+//! `@select` lines generate the selectors, so every combination of flags
+//! names a kernel that exists.
+
+use latentam_gpu::DeviceInfo;
+use latentam_shaders::{
+    bind, push, KernelDef, RasterBackwardVariant, RasterForwardVariant, RasterPoolVariant,
+};
+
+use super::{BlendLayout, Channels, RenderSettings};
+
+/// Whether the blending kernels map a tile's pixels to columns on this
+/// device (see [`BlendLayout`]).
+fn columns(info: &DeviceInfo, settings: &RenderSettings) -> bool {
+    settings.layout.resolve(info.device_type) == BlendLayout::Columns
+}
+
+pub(super) fn forward_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+    channels: Channels,
+) -> &'static KernelDef<push::RasterForward, bind::RasterForward> {
+    RasterForwardVariant {
+        columns: columns(info, settings),
+        query: channels == Channels::All,
+    }
+    .kernel()
+}
+
+pub(super) fn backward_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+) -> &'static KernelDef<push::RasterBackward, bind::RasterBackward> {
+    let columns = columns(info, settings);
+    // The column kernels sum a tile's 8 invocations with a shuffle
+    // butterfly, which needs them to be exactly one subgroup.
+    let subgroup = if columns {
+        info.subgroup_shuffle && info.subgroup_size == 8
+    } else {
+        info.subgroup_arithmetic
+    };
+    RasterBackwardVariant {
+        columns,
+        // Only the column kernels have a variant that also takes the query
+        // gradients (the pixel ones always do).
+        attached: !settings.detach_query_gradients,
+        subgroup,
+        cas: !info.native_float_atomics,
+    }
+    .kernel()
+}
+
+pub(super) fn pool_kernel(
+    info: &DeviceInfo,
+    settings: &RenderSettings,
+) -> &'static KernelDef<push::RasterPool, bind::RasterPool> {
+    RasterPoolVariant {
+        columns: columns(info, settings),
+        // The column kernel sums without subgroup operations.
+        subgroup: info.subgroup_arithmetic,
+        cas: !info.native_float_atomics,
+    }
+    .kernel()
+}

@@ -1,0 +1,106 @@
+//! How a context is opened: which device, validation, float atomics,
+//! subgroups and memory limits, by default from the environment.
+
+/// Whether to load the Khronos validation layer.
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions, Validation};
+///
+/// let options = ContextOptions { validation: Validation::IfAvailable, ..Default::default() };
+/// let ctx = Context::new(options)?;
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Validation {
+    /// Never (the default for production use).
+    #[default]
+    Off,
+    /// When the layer is installed.
+    IfAvailable,
+    /// Fail if the layer is not installed (tests).
+    Required,
+}
+
+/// How kernels add floats atomically.
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions, FloatAtomics};
+///
+/// let options = ContextOptions { float_atomics: FloatAtomics::CompareAndSwap, ..Default::default() };
+/// let ctx = Context::new(options)?;
+/// assert!(!ctx.info().native_float_atomics);
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FloatAtomics {
+    /// Native `shaderBufferFloat32AtomicAdd` when the device has it, else CAS.
+    #[default]
+    Auto,
+    /// Always the compare-and-swap fallback (to test it, or to work around a
+    /// driver).
+    CompareAndSwap,
+}
+
+/// Options for [`Context::new`]. `Default` reads the environment:
+/// `LATENTAM_DEVICE` (index or case-insensitive name substring),
+/// `LATENTAM_VALIDATION=1` (require the validation layer),
+/// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
+/// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic),
+/// `LATENTAM_MAX_BUFFER_BYTES=N` (cap the largest buffer below the device's).
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions};
+///
+/// let options = ContextOptions {
+///     device: Some("nvidia".into()), // name substring or index
+///     memory_budget: Some(4 << 30),
+///     ..Default::default()
+/// };
+/// let ctx = Context::new(options)?;
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct ContextOptions {
+    /// Device to use: an index into the enumeration or a name substring;
+    /// `None` picks the best (discrete > integrated > virtual > CPU).
+    pub device: Option<String>,
+    /// Validation layer policy.
+    pub validation: Validation,
+    /// Record GPU timestamps around every dispatch.
+    pub profiling: bool,
+    /// Float-atomic strategy.
+    pub float_atomics: FloatAtomics,
+    /// GPU memory budget in bytes for this context (`None` = device limits).
+    pub memory_budget: Option<u64>,
+    /// Use subgroup operations (`subgroupAdd`, shuffles) where the device
+    /// supports them in compute shaders; `false` selects kernels that do
+    /// without.
+    pub subgroup_arithmetic: bool,
+    /// Caps the largest buffer the engine creates (the storage-buffer
+    /// binding and single-allocation limits of [`DeviceInfo`]) below the
+    /// device's own: to leave headroom, or to rehearse a device with small
+    /// limits (`LATENTAM_MAX_BUFFER_BYTES`). `None`: the device's limits.
+    pub max_buffer_bytes: Option<u64>,
+}
+
+impl Default for ContextOptions {
+    fn default() -> Self {
+        let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+        Self {
+            device: env("LATENTAM_DEVICE"),
+            validation: match env("LATENTAM_VALIDATION").as_deref() {
+                Some("1") | Some("required") => Validation::Required,
+                Some("auto") => Validation::IfAvailable,
+                _ => Validation::Off,
+            },
+            profiling: false,
+            float_atomics: match env("LATENTAM_FLOAT_ATOMICS").as_deref() {
+                Some("cas") => FloatAtomics::CompareAndSwap,
+                _ => FloatAtomics::Auto,
+            },
+            memory_budget: None,
+            subgroup_arithmetic: env("LATENTAM_SUBGROUPS").as_deref() != Some("off"),
+            max_buffer_bytes: env("LATENTAM_MAX_BUFFER_BYTES").and_then(|v| v.parse().ok()),
+        }
+    }
+}
