@@ -402,9 +402,11 @@ mod tests {
             };
             let first = loss_after(1);
             // Some draws settle with two classes sharing an atom (about a
-            // third, at a quarter of the first loss): 200 steps leave even
-            // those well under half, where 60 did not always.
-            let later = loss_after(200);
+            // third, at a quarter of the first loss) and converge slowly:
+            // 60 steps did not always reach half, and 200 left seed
+            // 1795644200537425300 at 0.78 of the first loss; 600 reach half
+            // on it and on seeds 1-40.
+            let later = loss_after(600);
             assert!(later < 0.5 * first, "feature loss {first} → {later}");
             // D stays within roughly δ of D⁰ per atom.
             let atoms = ctx.download::<f32>(head.atoms()).unwrap();
