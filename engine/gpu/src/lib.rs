@@ -13,6 +13,7 @@
 mod buffer;
 mod context;
 mod counters;
+mod host_spans;
 mod memory;
 mod objects;
 pub mod ops;
@@ -29,6 +30,7 @@ mod tests;
 pub use buffer::{Buffer, Readback};
 pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
 pub use counters::GpuCalls;
+pub use host_spans::{ClockSync, HostSample, HostSpan, HOST_WAIT};
 pub use latentam_base::{Error, Result};
 pub use memory::{ByteCount, MemoryReport};
 pub use objects::LiveObjects;

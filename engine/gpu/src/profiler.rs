@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
+use crate::host_spans::{ClockSync, HostSample};
 use latentam_base::Result;
 
 /// One timed GPU command.
@@ -105,6 +106,9 @@ pub struct Profiler {
     running: BTreeMap<&'static str, Running>,
     trace_limit: usize,
     dropped: u64,
+    host: Vec<HostSample>,
+    host_dropped: u64,
+    clock: Option<ClockSync>,
 }
 
 impl Default for Profiler {
@@ -114,6 +118,9 @@ impl Default for Profiler {
             running: BTreeMap::new(),
             trace_limit: DEFAULT_TRACE_SAMPLES,
             dropped: 0,
+            host: Vec::new(),
+            host_dropped: 0,
+            clock: None,
         }
     }
 }
@@ -133,11 +140,36 @@ impl Profiler {
         }
     }
 
+    pub(crate) fn record_host(&mut self, sample: HostSample) {
+        if self.host.len() < self.trace_limit {
+            self.host.push(sample);
+        } else {
+            self.host_dropped += 1;
+        }
+    }
+
+    pub(crate) fn set_clock(&mut self, clock: ClockSync) {
+        self.clock = Some(clock);
+    }
+
+    /// The host spans kept for the trace (CPU stages, waits for the GPU),
+    /// on the host clock.
+    pub fn host_samples(&self) -> &[HostSample] {
+        &self.host
+    }
+
+    /// How host times map onto the device clock, when it was measured
+    /// (profiling on a queue with timestamps).
+    pub fn clock(&self) -> Option<ClockSync> {
+        self.clock
+    }
+
     /// Keeps at most `limit` samples for [`Profiler::samples`] and the
     /// trace (the first ones); statistics still cover every sample.
     pub fn set_trace_limit(&mut self, limit: usize) {
         self.trace_limit = limit;
         self.samples.truncate(limit);
+        self.host.truncate(limit);
     }
 
     /// The samples kept for the trace, in the order the batches were
@@ -215,7 +247,10 @@ impl Profiler {
 
     /// Writes the kept samples as a Chrome trace (`chrome://tracing`,
     /// Perfetto): one complete event per command, one track per queue,
-    /// times relative to the first sample.
+    /// and the host spans as a second process with one track per thread,
+    /// placed on the device clock by the calibration ([`Profiler::clock`];
+    /// its error bound is in `otherData`); times relative to the first
+    /// sample.
     pub fn write_chrome_trace(&self, path: &Path) -> Result<()> {
         // Queues become numbered threads of one process, named by metadata
         // events, which is what trace viewers key their tracks on.
@@ -223,10 +258,33 @@ impl Profiler {
         queues.sort_unstable();
         queues.dedup();
         let tid = |q: &str| queues.iter().position(|&n| n == q).map_or(0, |i| i + 1);
+        // Host times on the device clock; without a calibration the host
+        // track starts with the GPU's.
+        let offset = match self.clock {
+            Some(c) => c.host_to_device_ns,
+            None => {
+                let gpu0 = self
+                    .samples
+                    .iter()
+                    .map(|s| s.start_ns)
+                    .fold(f64::INFINITY, f64::min);
+                let host0 = self
+                    .host
+                    .iter()
+                    .map(|s| s.start_ns)
+                    .fold(f64::INFINITY, f64::min);
+                if gpu0.is_finite() && host0.is_finite() {
+                    gpu0 - host0
+                } else {
+                    0.0
+                }
+            }
+        };
         let t0 = self
             .samples
             .iter()
             .map(|s| s.start_ns)
+            .chain(self.host.iter().map(|s| s.start_ns + offset))
             .fold(f64::INFINITY, f64::min);
         let mut events = vec![serde_json::json!({
             "name": "process_name", "ph": "M", "pid": 1, "tid": 0,
@@ -249,10 +307,41 @@ impl Profiler {
                 "tid": tid(s.queue),
             })
         }));
+        let mut threads: Vec<&str> = self.host.iter().map(|s| s.thread.as_str()).collect();
+        threads.sort_unstable();
+        threads.dedup();
+        if !threads.is_empty() {
+            events.push(serde_json::json!({
+                "name": "process_name", "ph": "M", "pid": 2, "tid": 0,
+                "args": { "name": "latentam host" },
+            }));
+        }
+        let host_tid = |t: &str| threads.iter().position(|&n| n == t).map_or(0, |i| i + 1);
+        for t in &threads {
+            events.push(serde_json::json!({
+                "name": "thread_name", "ph": "M", "pid": 2, "tid": host_tid(t),
+                "args": { "name": t },
+            }));
+        }
+        events.extend(self.host.iter().map(|s| {
+            serde_json::json!({
+                "name": s.name,
+                "cat": "host",
+                "ph": "X",
+                "ts": (s.start_ns + offset - t0) * 1e-3,
+                "dur": s.duration_ns * 1e-3,
+                "pid": 2,
+                "tid": host_tid(&s.thread),
+            })
+        }));
         let doc = serde_json::json!({
             "traceEvents": events,
             "displayTimeUnit": "ms",
-            "otherData": { "samples_not_traced": self.dropped },
+            "otherData": {
+                "samples_not_traced": self.dropped,
+                "host_samples_not_traced": self.host_dropped,
+                "host_clock_error_us": self.clock.map(|c| c.error_ns * 1e-3),
+            },
         });
         latentam_base::files::write_atomically(path, |f| {
             serde_json::to_writer(&mut *f, &doc)?;
@@ -260,10 +349,12 @@ impl Profiler {
         })
     }
 
-    /// Forgets every sample.
+    /// Forgets every sample (the clock calibration stays).
     pub fn clear(&mut self) {
         self.samples.clear();
         self.running.clear();
         self.dropped = 0;
+        self.host.clear();
+        self.host_dropped = 0;
     }
 }

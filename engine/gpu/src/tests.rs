@@ -112,18 +112,79 @@ fn profiler_times_every_dispatch_and_writes_a_chrome_trace() {
             serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         let events = v["traceEvents"].as_array().unwrap();
         let (meta, spans): (Vec<_>, Vec<_>) = events.iter().partition(|e| e["ph"] == "M");
-        assert_eq!(spans.len(), 3);
+        // Three GPU commands, and the host's wait for them.
+        assert_eq!(spans.iter().filter(|e| e["pid"] == 1).count(), 3);
+        assert_eq!(spans.iter().filter(|e| e["name"] == HOST_WAIT).count(), 1);
         assert!(spans
             .iter()
             .all(|e| e["ph"] == "X" && e["dur"].as_f64().unwrap() >= 0.0 && e["tid"].is_u64()));
         // The process and every thread the spans use are named.
         assert!(meta.iter().any(|e| e["name"] == "process_name"));
         for s in &spans {
-            assert!(meta
-                .iter()
-                .any(|m| m["name"] == "thread_name" && m["tid"] == s["tid"]));
+            assert!(meta.iter().any(|m| m["name"] == "thread_name"
+                && m["tid"] == s["tid"]
+                && m["pid"] == s["pid"]));
         }
         std::fs::remove_file(&path).ok();
+    });
+}
+
+/// Host spans land on the device clock: a copy submitted and waited for
+/// inside a host span lies within it in the trace, and ends before the
+/// host's wait for it ends (both within the calibration's error bound).
+#[test]
+fn host_spans_enclose_the_gpu_work_they_submit_and_wait_for() {
+    let opts = ContextOptions {
+        profiling: true,
+        ..ContextOptions::default()
+    };
+    with_options(opts, |ctx| {
+        let clock = ctx.profiler_snapshot().clock().expect("a calibrated clock");
+        assert!(clock.error_ns >= 0.0 && clock.error_ns < 1e9, "{clock:?}");
+        let bytes = 32u64 << 20;
+        let a = Buffer::device(ctx, "host_span/a", bytes).unwrap();
+        let b = Buffer::device(ctx, "host_span/b", bytes).unwrap();
+        ctx.profiler_reset();
+        {
+            let _stage = ctx.host_span("stage");
+            for _ in 0..3 {
+                let mut rec = ctx.recorder().unwrap();
+                rec.copy(&a, 0, &b, 0, bytes).unwrap();
+                rec.submit().unwrap().wait().unwrap();
+            }
+        }
+        let path =
+            std::env::temp_dir().join(format!("latentam-hosttrace-{}.json", std::process::id()));
+        ctx.profiler_snapshot().write_chrome_trace(&path).unwrap();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        std::fs::remove_file(&path).ok();
+        let err_us = v["otherData"]["host_clock_error_us"].as_f64().unwrap();
+        let events = v["traceEvents"].as_array().unwrap();
+        let span = |e: &serde_json::Value| {
+            let ts = e["ts"].as_f64().unwrap();
+            (ts, ts + e["dur"].as_f64().unwrap())
+        };
+        let of = |name: &str| -> Vec<(f64, f64)> {
+            events
+                .iter()
+                .filter(|e| e["ph"] == "X" && e["name"] == name)
+                .map(span)
+                .collect()
+        };
+        let (stage, copies, waits) = (of("stage"), of("copy"), of(HOST_WAIT));
+        assert_eq!((stage.len(), copies.len(), waits.len()), (1, 3, 3));
+        let (s0, s1) = stage[0];
+        for (&(c0, c1), &(_, w1)) in copies.iter().zip(&waits) {
+            assert!(
+                c0 >= s0 - err_us && c1 <= s1 + err_us,
+                "copy {c0}..{c1} outside the stage {s0}..{s1} (±{err_us} µs)"
+            );
+            assert!(
+                c1 <= w1 + err_us,
+                "copy ends at {c1}, after the wait for it ended at {w1} (±{err_us} µs)"
+            );
+        }
     });
 }
 

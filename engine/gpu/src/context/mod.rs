@@ -145,7 +145,9 @@ impl Context {
         let dev = open_device(entry, instance, debug, validation_log, candidate, &options)?;
         std::mem::forget(debug_guard);
         std::mem::forget(guard);
-        Ok(Self { dev: Arc::new(dev) })
+        let ctx = Self { dev: Arc::new(dev) };
+        ctx.calibrate_host_clock()?;
+        Ok(ctx)
     }
 
     /// What the device offers.

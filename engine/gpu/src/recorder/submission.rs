@@ -2,6 +2,7 @@
 //! into the profiler.
 
 use super::*;
+use crate::host_spans::{host_ns, thread_name, HostSample, HOST_WAIT};
 
 /// A submitted batch of work.
 ///
@@ -81,6 +82,7 @@ impl Submission {
     /// ([`Recorder::start_span`]) and the queue has timestamps.
     pub fn wait_span(mut self) -> Result<Option<GpuSpan>> {
         self.dev.calls.waited();
+        let waiting = std::time::Instant::now();
         let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
         // SAFETY: waiting on our own timeline semaphore.
@@ -93,6 +95,17 @@ impl Submission {
             )
         }
         .vk("vkWaitSemaphores")?;
+        if let Some(p) = &self.dev.profiler {
+            let start_ns = host_ns(waiting);
+            p.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .record_host(HostSample {
+                    name: HOST_WAIT,
+                    thread: thread_name(),
+                    start_ns,
+                    duration_ns: (host_ns(std::time::Instant::now()) - start_ns).max(0.0),
+                });
+        }
         let span = self.collect_timestamps();
         self.dev.collect();
         Ok(span)

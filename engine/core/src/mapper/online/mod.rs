@@ -391,14 +391,20 @@ impl OnlineMapper {
             // other before anything changed).
             self.model.get_or_insert_with(|| e.model.clone());
         }
+        // Each CPU stage is a host span of the profile (`trace.json`),
+        // beside the GPU's commands and the waits for them.
+        let keyframe_span = ctx.host_span("keyframe");
         let t = Instant::now();
+        let span = ctx.host_span("dictionary");
         self.update_dictionary(&record)?;
+        drop(span);
         timings.kmeans_ms = ms_since(t);
         lap(&mut calls.dictionary);
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
         let t = Instant::now();
+        let span = ctx.host_span("seeding");
         let new_keys = self.seed(frame, &mut record, seed)?;
         let centre = frame.pose.translation;
         let window = self.window.as_ref().expect("ensured");
@@ -414,11 +420,13 @@ impl OnlineMapper {
             paging.push(report);
             self.last_sync = Some(centre);
         }
+        drop(span);
         timings.insertion_ms = ms_since(t);
         lap(&mut calls.insertion);
 
         // Stage I on the keyframe and B past ones.
         let t = Instant::now();
+        let span = ctx.host_span("stage I");
         // Replayed keyframes are drawn among those the window can render.
         let picks = self.history.sample_near(
             self.cfg.replay as usize,
@@ -440,6 +448,7 @@ impl OnlineMapper {
             trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
         }
         self.window_dirty = true;
+        drop(span);
         timings.stage_one_ms = ms_since(t);
         lap(&mut calls.stage_one);
 
@@ -447,6 +456,7 @@ impl OnlineMapper {
         // paging batch is submitted first so that it waits for Stage I
         // only (see `Recorder::submit`).
         let t = Instant::now();
+        let span = ctx.host_span("stage II and paging");
         let moved = self
             .last_sync
             .is_none_or(|p| p.distance(centre) > self.cfg.sync_distance);
@@ -487,6 +497,7 @@ impl OnlineMapper {
             paging.push(report);
             lap(&mut calls.paging);
         }
+        drop(span);
         timings.stage_two_ms = ms_since(t);
 
         let (stamp_ns, exposure) = (record.stamp_ns, record.exposure);
@@ -495,14 +506,17 @@ impl OnlineMapper {
         self.history.push(record);
         self.stats.keyframes += 1;
         let t = Instant::now();
+        let span = ctx.host_span("pruning");
         let interval = self.cfg.prune_interval as u64;
         let pruned = if interval > 0 && self.stats.keyframes % interval == 0 {
             self.prune()?
         } else {
             0
         };
+        drop(span);
         timings.prune_ms = ms_since(t);
         timings.total_ms = ms_since(t_start);
+        drop(keyframe_span);
         lap(&mut calls.prune);
 
         for p in &paging {
