@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use crate::host_spans::{ClockSync, HostSample};
+use crate::host_time::{ClockSync, HostSample};
 use latentam_base::Result;
 
 /// One timed GPU command.

@@ -2,7 +2,7 @@
 //! into the profiler.
 
 use super::*;
-use crate::host_spans::{host_ns, thread_name, HostSample, HOST_WAIT};
+use crate::host_time::{host_ns, thread_name, HostSample, HOST_WAIT};
 
 /// A submitted batch of work.
 ///
