@@ -64,7 +64,9 @@ impl Context {
     /// Measures how host time maps onto the device's timestamps: one
     /// timestamp written by an otherwise empty submission, between the
     /// host times before its submission and after its wait. Does nothing
-    /// without profiling or timestamps.
+    /// without profiling or timestamps. Called when the context opens and
+    /// again once the last measurement is older than
+    /// `RECALIBRATE_AFTER_NS`.
     pub(crate) fn calibrate_host_clock(&self) -> Result<()> {
         if !self.profiling() {
             return Ok(());
@@ -72,17 +74,16 @@ impl Context {
         let before = Instant::now();
         let mut rec = self.recorder()?;
         rec.start_span();
-        let span = rec.submit()?.wait_span()?;
+        let span = rec.submit()?.for_calibration().wait_span()?;
         let after = Instant::now();
         if let (Some(span), Some(p)) = (span, &self.dev.profiler) {
             let (t0, t1) = (host_ns(before), host_ns(after));
             let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
             p.set_clock(ClockSync {
+                host_ns: 0.5 * (t0 + t1),
                 host_to_device_ns: span.start_ns - 0.5 * (t0 + t1),
                 error_ns: 0.5 * (t1 - t0),
             });
-            // The calibration is no work of the caller's.
-            p.clear();
         }
         Ok(())
     }

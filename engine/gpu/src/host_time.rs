@@ -46,11 +46,19 @@ pub struct HostSample {
 /// The name of the host spans that wait on a submission.
 pub const HOST_WAIT: &str = "wait for GPU";
 
+/// How long a clock calibration is trusted: the host's clock and the
+/// device's may run at rates apart by hundreds of ppm (the host's is
+/// slewed, a driver's may not be), a few hundred microseconds a second,
+/// so a profiling context calibrates again at its first wait after this.
+pub(crate) const RECALIBRATE_AFTER_NS: f64 = 100e6;
+
 /// How host time maps onto the device's timestamp clock: device ns =
 /// host ns + `host_to_device_ns`, within `error_ns` (half the round trip
 /// of the calibrating submission).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct ClockSync {
+    /// When it was measured, host ns.
+    pub host_ns: f64,
     /// Added to a host time to get the device time.
     pub host_to_device_ns: f64,
     /// Bound on the error of that offset.

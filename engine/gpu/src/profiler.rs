@@ -108,7 +108,8 @@ pub struct Profiler {
     dropped: u64,
     host: Vec<HostSample>,
     host_dropped: u64,
-    clock: Option<ClockSync>,
+    /// Every calibration, oldest first.
+    clocks: Vec<ClockSync>,
 }
 
 impl Default for Profiler {
@@ -120,7 +121,7 @@ impl Default for Profiler {
             dropped: 0,
             host: Vec::new(),
             host_dropped: 0,
-            clock: None,
+            clocks: Vec::new(),
         }
     }
 }
@@ -149,7 +150,41 @@ impl Profiler {
     }
 
     pub(crate) fn set_clock(&mut self, clock: ClockSync) {
-        self.clock = Some(clock);
+        // Bounded like the samples: past the limit the latest replaces the
+        // last kept (the trace keeps only the first samples anyway).
+        if self.clocks.len() < self.trace_limit.max(2) {
+            self.clocks.push(clock);
+        } else if let Some(last) = self.clocks.last_mut() {
+            *last = clock;
+        }
+    }
+
+    /// Nanoseconds from the last calibration to host time `now_ns`
+    /// (infinite before the first).
+    pub(crate) fn clock_age_ns(&self, now_ns: f64) -> f64 {
+        self.clocks
+            .last()
+            .map_or(f64::INFINITY, |c| now_ns - c.host_ns)
+    }
+
+    /// The device time of host time `host_ns`: the offsets of the
+    /// calibrations on either side interpolated, the nearest one beyond
+    /// them.
+    fn device_ns(&self, host_ns: f64) -> Option<f64> {
+        let i = self.clocks.partition_point(|c| c.host_ns <= host_ns);
+        let offset = match (
+            i.checked_sub(1).map(|j| &self.clocks[j]),
+            self.clocks.get(i),
+        ) {
+            (Some(a), Some(b)) if b.host_ns > a.host_ns => {
+                let f = (host_ns - a.host_ns) / (b.host_ns - a.host_ns);
+                a.host_to_device_ns + f * (b.host_to_device_ns - a.host_to_device_ns)
+            }
+            (Some(a), _) => a.host_to_device_ns,
+            (None, Some(b)) => b.host_to_device_ns,
+            (None, None) => return None,
+        };
+        Some(host_ns + offset)
     }
 
     /// The host spans kept for the trace (CPU stages, waits for the GPU),
@@ -158,10 +193,10 @@ impl Profiler {
         &self.host
     }
 
-    /// How host times map onto the device clock, when it was measured
-    /// (profiling on a queue with timestamps).
+    /// The latest measurement of how host times map onto the device
+    /// clock (profiling on a queue with timestamps).
     pub fn clock(&self) -> Option<ClockSync> {
-        self.clock
+        self.clocks.last().copied()
     }
 
     /// Keeps at most `limit` samples for [`Profiler::samples`] and the
@@ -260,31 +295,29 @@ impl Profiler {
         let tid = |q: &str| queues.iter().position(|&n| n == q).map_or(0, |i| i + 1);
         // Host times on the device clock; without a calibration the host
         // track starts with the GPU's.
-        let offset = match self.clock {
-            Some(c) => c.host_to_device_ns,
-            None => {
-                let gpu0 = self
-                    .samples
-                    .iter()
-                    .map(|s| s.start_ns)
-                    .fold(f64::INFINITY, f64::min);
-                let host0 = self
-                    .host
-                    .iter()
-                    .map(|s| s.start_ns)
-                    .fold(f64::INFINITY, f64::min);
-                if gpu0.is_finite() && host0.is_finite() {
-                    gpu0 - host0
-                } else {
-                    0.0
-                }
+        let fallback = {
+            let gpu0 = self
+                .samples
+                .iter()
+                .map(|s| s.start_ns)
+                .fold(f64::INFINITY, f64::min);
+            let host0 = self
+                .host
+                .iter()
+                .map(|s| s.start_ns)
+                .fold(f64::INFINITY, f64::min);
+            if gpu0.is_finite() && host0.is_finite() {
+                gpu0 - host0
+            } else {
+                0.0
             }
         };
+        let on_device = |h: f64| self.device_ns(h).unwrap_or(h + fallback);
         let t0 = self
             .samples
             .iter()
             .map(|s| s.start_ns)
-            .chain(self.host.iter().map(|s| s.start_ns + offset))
+            .chain(self.host.iter().map(|s| on_device(s.start_ns)))
             .fold(f64::INFINITY, f64::min);
         let mut events = vec![serde_json::json!({
             "name": "process_name", "ph": "M", "pid": 1, "tid": 0,
@@ -328,7 +361,7 @@ impl Profiler {
                 "name": s.name,
                 "cat": "host",
                 "ph": "X",
-                "ts": (s.start_ns + offset - t0) * 1e-3,
+                "ts": (on_device(s.start_ns) - t0) * 1e-3,
                 "dur": s.duration_ns * 1e-3,
                 "pid": 2,
                 "tid": host_tid(&s.thread),
@@ -340,7 +373,12 @@ impl Profiler {
             "otherData": {
                 "samples_not_traced": self.dropped,
                 "host_samples_not_traced": self.host_dropped,
-                "host_clock_error_us": self.clock.map(|c| c.error_ns * 1e-3),
+                "host_clock_error_us": self
+                    .clocks
+                    .iter()
+                    .map(|c| c.error_ns * 1e-3)
+                    .reduce(f64::max),
+                "host_clock_calibrations": self.clocks.len(),
             },
         });
         latentam_base::files::write_atomically(path, |f| {
@@ -356,5 +394,63 @@ impl Profiler {
         self.dropped = 0;
         self.host.clear();
         self.host_dropped = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn host(name: &'static str, start_ns: f64, duration_ns: f64) -> HostSample {
+        HostSample {
+            name,
+            thread: "main".into(),
+            start_ns,
+            duration_ns,
+        }
+    }
+
+    /// Host times map onto the device clock through the calibrations on
+    /// either side, interpolated; before the first and after the last,
+    /// the nearest one holds; the trace places the host spans there.
+    #[test]
+    fn host_spans_are_placed_by_the_calibrations_around_them() {
+        let mut p = Profiler::default();
+        assert_eq!(p.device_ns(5.0), None);
+        // The device clock runs 1000 ns ahead at host 1000, 1100 ahead at
+        // host 2000 (a drift of 10 %, to make it visible).
+        for (h, off) in [(1000.0, 1000.0), (2000.0, 1100.0)] {
+            p.set_clock(ClockSync {
+                host_ns: h,
+                host_to_device_ns: off,
+                error_ns: 5.0,
+            });
+        }
+        assert_eq!(p.device_ns(500.0), Some(1500.0));
+        assert_eq!(p.device_ns(1500.0), Some(1500.0 + 1050.0));
+        assert_eq!(p.device_ns(3000.0), Some(4100.0));
+        assert_eq!(p.clock_age_ns(2500.0), 500.0);
+
+        p.record("k", "compute", 2000.0, 100.0);
+        p.record_host(host("stage", 1500.0, 200.0));
+        let path =
+            std::env::temp_dir().join(format!("latentam-synthetic-{}.json", std::process::id()));
+        p.write_chrome_trace(&path).unwrap();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        std::fs::remove_file(&path).ok();
+        let ev = v["traceEvents"].as_array().unwrap();
+        let ts = |name: &str| {
+            ev.iter()
+                .find(|e| e["name"] == name && e["ph"] == "X")
+                .map(|e| e["ts"].as_f64().unwrap())
+                .unwrap()
+        };
+        // The kernel at device 2000 ns, the stage at device 2550 ns; times
+        // in µs from the first.
+        assert!((ts("k") - 0.0).abs() < 1e-9);
+        assert!((ts("stage") - 0.55).abs() < 1e-9, "{}", ts("stage"));
+        assert_eq!(v["otherData"]["host_clock_calibrations"], 2);
+        assert_eq!(v["otherData"]["host_clock_error_us"], 0.005);
     }
 }

@@ -2,7 +2,7 @@
 //! into the profiler.
 
 use super::*;
-use crate::host_time::{host_ns, thread_name, HostSample, HOST_WAIT};
+use crate::host_time::{host_ns, thread_name, HostSample, HOST_WAIT, RECALIBRATE_AFTER_NS};
 
 /// A submitted batch of work.
 ///
@@ -23,6 +23,9 @@ pub struct Submission {
     pub(super) queries: Vec<QueryBlock>,
     pub(super) labels: Vec<(&'static str, u32, u32)>,
     pub(super) span: Option<(u32, u32)>,
+    /// A clock calibration's own submission: its wait is no work of the
+    /// caller's and triggers no further calibration.
+    pub(super) calibration: bool,
 }
 
 /// When a timed batch ran on the GPU ([`Recorder::start_span`]), in
@@ -78,10 +81,19 @@ impl Submission {
         self.wait_span().map(|_| ())
     }
 
+    /// Marks this submission as a clock calibration's.
+    pub(crate) fn for_calibration(mut self) -> Self {
+        self.dev.calls.calibration_submitted();
+        self.calibration = true;
+        self
+    }
+
     /// [`Submission::wait`], returning when the batch ran if it was timed
     /// ([`Recorder::start_span`]) and the queue has timestamps.
     pub fn wait_span(mut self) -> Result<Option<GpuSpan>> {
-        self.dev.calls.waited();
+        if !self.calibration {
+            self.dev.calls.waited();
+        }
         let waiting = std::time::Instant::now();
         let sems = [self.dev.queue(self.point.transfer).timeline];
         let values = [self.point.value];
@@ -95,18 +107,26 @@ impl Submission {
             )
         }
         .vk("vkWaitSemaphores")?;
-        if let Some(p) = &self.dev.profiler {
+        let mut recalibrate = false;
+        if let (Some(p), false) = (&self.dev.profiler, self.calibration) {
             let start_ns = host_ns(waiting);
-            p.lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .record_host(HostSample {
-                    name: HOST_WAIT,
-                    thread: thread_name(),
-                    start_ns,
-                    duration_ns: (host_ns(std::time::Instant::now()) - start_ns).max(0.0),
-                });
+            let end_ns = host_ns(std::time::Instant::now());
+            let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
+            p.record_host(HostSample {
+                name: HOST_WAIT,
+                thread: thread_name(),
+                start_ns,
+                duration_ns: (end_ns - start_ns).max(0.0),
+            });
+            recalibrate = p.clock_age_ns(end_ns) > RECALIBRATE_AFTER_NS;
         }
         let span = self.collect_timestamps();
+        if recalibrate {
+            Context {
+                dev: self.dev.clone(),
+            }
+            .calibrate_host_clock()?;
+        }
         self.dev.collect();
         Ok(span)
     }

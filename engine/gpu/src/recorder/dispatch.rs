@@ -1,0 +1,282 @@
+//! Recording kernel dispatches: the kernel's buffers bound by name, its
+//! push constants, the barriers its declared accesses need, and a
+//! timestamp pair around it when profiling.
+
+use super::*;
+
+impl<'a> Recorder<'a> {
+    pub(super) fn descriptor_set(
+        &mut self,
+        layout: vk::DescriptorSetLayout,
+    ) -> Result<vk::DescriptorSet> {
+        if self.sets_left == 0 {
+            let sizes = [vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(SETS_PER_POOL * MAX_BINDINGS)];
+            // SAFETY: valid create info; retired with the recorder.
+            let pool = unsafe {
+                self.dev.raw.create_descriptor_pool(
+                    &vk::DescriptorPoolCreateInfo::default()
+                        .max_sets(SETS_PER_POOL)
+                        .pool_sizes(&sizes),
+                    None,
+                )
+            }
+            .vk("vkCreateDescriptorPool")?;
+            self.dev.objects.created(ObjectKind::DescriptorPool);
+            self.desc_pools.push(pool);
+            self.sets_left = SETS_PER_POOL;
+        }
+        let layouts = [layout];
+        // SAFETY: the pool has room (counted by `sets_left`).
+        let set = unsafe {
+            self.dev.raw.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(*self.desc_pools.last().unwrap())
+                    .set_layouts(&layouts),
+            )
+        }
+        .vk("vkAllocateDescriptorSets")?[0];
+        self.sets_left -= 1;
+        Ok(set)
+    }
+
+    /// Records one dispatch of `kernel` with `groups` workgroups, binding
+    /// each of `buffers` to the kernel's binding of that name and `push` as
+    /// push constants. The buffers struct and the push type are the
+    /// kernel's own (`latentam_shaders::bind`), so a swapped or missing
+    /// buffer does not compile.
+    pub fn dispatch<P: bytemuck::Pod, S: BindingSet>(
+        &mut self,
+        kernel: &'static KernelDef<P, S>,
+        groups: [u32; 3],
+        buffers: S::Buffers<'a, Buffer>,
+        push: &P,
+    ) -> Result<()> {
+        let buffers = S::in_order(&buffers);
+        self.record_dispatch(
+            &kernel.kernel,
+            Groups::Direct(groups),
+            &buffers,
+            bytemuck::bytes_of(push),
+        )
+    }
+
+    /// Records one dispatch of `kernel` whose workgroup counts the GPU
+    /// reads when it runs: three u32 (x, y, z) at byte `offset` of `args`,
+    /// written by earlier work in this recorder (which orders the two;
+    /// across batches, as for any buffer, [`Self::wait_for`]). A count of 0
+    /// dispatches nothing, so a kernel can decide on the GPU whether a later
+    /// one runs, without a host round trip. The counts must stay within
+    /// the device's `max_workgroup_count`.
+    pub fn dispatch_indirect<P: bytemuck::Pod, S: BindingSet>(
+        &mut self,
+        kernel: &'static KernelDef<P, S>,
+        args: &'a Buffer,
+        offset: u64,
+        buffers: S::Buffers<'a, Buffer>,
+        push: &P,
+    ) -> Result<()> {
+        let buffers = S::in_order(&buffers);
+        if offset % 4 != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
+                kernel.kernel.name
+            )));
+        }
+        args.ensure_bytes(offset + 12, "indirect dispatch arguments")?;
+        if args.kind() != BufferKind::Device {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}`: indirect arguments in staging buffer `{}`",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        let written = buffers
+            .iter()
+            .zip(kernel.kernel.bindings)
+            .any(|(b, decl)| decl.writable && b.raw == args.raw);
+        if written {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` writes `{}`, which holds its own workgroup counts",
+                kernel.kernel.name,
+                args.name()
+            )));
+        }
+        self.record_dispatch(
+            &kernel.kernel,
+            Groups::Indirect(args, offset),
+            &buffers,
+            bytemuck::bytes_of(push),
+        )
+    }
+
+    pub(super) fn record_dispatch(
+        &mut self,
+        k: &'static Kernel,
+        groups: Groups<'a>,
+        buffers: &[&'a Buffer],
+        push: &[u8],
+    ) -> Result<()> {
+        if self.transfer {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` recorded on the transfer queue",
+                k.name
+            )));
+        }
+        if buffers.len() != k.bindings.len() {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` takes {} buffers ({}), got {}",
+                k.name,
+                k.bindings.len(),
+                k.bindings
+                    .iter()
+                    .map(|b| b.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                buffers.len()
+            )));
+        }
+        if k.bindings.len() as u32 > MAX_BINDINGS {
+            return Err(Error::InvalidArgument(format!(
+                "kernel `{}` has more than {MAX_BINDINGS} bindings",
+                k.name
+            )));
+        }
+        let max = self.dev.info.max_workgroup_count;
+        if let Groups::Direct(groups) = groups {
+            if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
+                    k.name
+                )));
+            }
+        }
+        for b in buffers {
+            if b.kind() != BufferKind::Device {
+                return Err(Error::InvalidArgument(format!(
+                    "kernel `{}`: `{}` is a staging buffer",
+                    k.name,
+                    b.name()
+                )));
+            }
+        }
+        if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
+            return Ok(());
+        }
+        if let Some(missing) = self.dev.info.missing_for(k) {
+            return Err(Error::Unsupported(format!(
+                "kernel {} needs {missing}, which {} does not offer (or the options turned off)",
+                k.name, self.dev.info.name
+            )));
+        }
+        let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
+        let mut reads = Vec::new();
+        let mut writes = Vec::new();
+        if let Groups::Indirect(args, _) = groups {
+            reads.push(args.raw);
+        }
+        for (b, decl) in buffers.iter().zip(k.bindings) {
+            if decl.writable {
+                writes.push(b.raw);
+            } else {
+                reads.push(b.raw);
+            }
+        }
+        self.track(&reads, &writes);
+
+        let set = if buffers.is_empty() {
+            None
+        } else {
+            Some(self.descriptor_set(pipe.set_layout)?)
+        };
+        if let Some(set) = set {
+            let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+                .iter()
+                .map(|b| {
+                    [vk::DescriptorBufferInfo::default()
+                        .buffer(b.raw)
+                        .offset(0)
+                        .range(vk::WHOLE_SIZE)]
+                })
+                .collect();
+            let writes: Vec<vk::WriteDescriptorSet> = infos
+                .iter()
+                .enumerate()
+                .map(|(i, info)| {
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(set)
+                        .dst_binding(i as u32)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(info)
+                })
+                .collect();
+            // SAFETY: the set is fresh and not in use.
+            unsafe { self.dev.raw.update_descriptor_sets(&writes, &[]) };
+        }
+
+        let start = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        // SAFETY: recording into our own command buffer with objects that
+        // outlive the submission (pipeline cache, retired pools, borrowed
+        // buffers).
+        unsafe {
+            let d = &self.dev.raw;
+            d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipe.pipeline);
+            if let Some(set) = set {
+                d.cmd_bind_descriptor_sets(
+                    self.cmd,
+                    vk::PipelineBindPoint::COMPUTE,
+                    pipe.layout,
+                    0,
+                    &[set],
+                    &[],
+                );
+            }
+            if k.push_constant_size > 0 {
+                d.cmd_push_constants(
+                    self.cmd,
+                    pipe.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    push,
+                );
+            }
+            match groups {
+                Groups::Direct([x, y, z]) => d.cmd_dispatch(self.cmd, x, y, z),
+                Groups::Indirect(args, offset) => {
+                    d.cmd_dispatch_indirect(self.cmd, args.raw, offset)
+                }
+            }
+        }
+        self.dev.calls.dispatched();
+        let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        if let (Some(s), Some(e)) = (start, end) {
+            self.labels.push((k.name, s, e));
+        }
+        Ok(())
+    }
+
+    /// Dispatches `groups` workgroups along one logical dimension, split over
+    /// x and y when it exceeds the x limit. Kernels recover the index with
+    /// `linear_group()` and must ignore indices past their work.
+    pub fn dispatch_linear<P: bytemuck::Pod, S: BindingSet>(
+        &mut self,
+        kernel: &'static KernelDef<P, S>,
+        groups: u32,
+        buffers: S::Buffers<'a, Buffer>,
+        push: &P,
+    ) -> Result<()> {
+        let split = self.linear_groups(groups);
+        self.dispatch(kernel, split, buffers, push)
+    }
+
+    /// How [`Self::dispatch_linear`] splits `groups` workgroups over x and
+    /// y: the counts an indirect dispatch of such a kernel needs.
+    pub fn linear_groups(&self, groups: u32) -> [u32; 3] {
+        let max_x = self.dev.info.max_workgroup_count[0].min(65535);
+        let x = groups.min(max_x);
+        // `dispatch` records nothing for zero groups.
+        let y = groups.div_ceil(x.max(1));
+        [x, y, 1]
+    }
+}
