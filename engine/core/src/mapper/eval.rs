@@ -249,36 +249,9 @@ impl Evaluator {
     ) -> Result<ViewMetrics> {
         let record = KeyframeRecord::from_frame(frame);
         let (view, n) = self.render_record(mapper, frame, &record)?;
-        let target = record.target_rgbd();
-
-        let mut se = 0.0f64;
-        let (mut l1, mut valid) = (0.0f64, 0u64);
-        for ((p, t), &a) in view.rgbd.iter().zip(&target).zip(&view.alpha) {
-            for c in 0..3 {
-                se += (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2);
-            }
-            // Every pixel with a measured depth counts: where the map
-            // renders nothing the error is the whole depth.
-            if t[3] > 0.0 && t[3].is_finite() {
-                let rendered = if a > 1e-6 {
-                    p[3] as f64 / a as f64
-                } else {
-                    0.0
-                };
-                l1 += (rendered - t[3] as f64).abs();
-                valid += 1;
-            }
-        }
-        let mse = se / (3 * target.len()).max(1) as f64;
-        let covered = view.alpha.iter().filter(|&&a| a > 0.5).count();
-        let mut m = ViewMetrics {
-            coverage: covered as f64 / view.alpha.len().max(1) as f64,
-            psnr: -10.0 * mse.max(1e-12).log10(),
-            depth_l1: if valid > 0 { l1 / valid as f64 } else { 0.0 },
-            gaussians: n,
-            pixel_stride: self.pixel_stride.max(1),
-            ..ViewMetrics::default()
-        };
+        let mut m = image_metrics(&view, &record.target_rgbd());
+        m.gaussians = n;
+        m.pixel_stride = self.pixel_stride.max(1);
 
         let Some(head) = mapper.head() else {
             return Ok(m);
@@ -303,24 +276,15 @@ impl Evaluator {
             return Ok(m);
         };
         let dim = r.dim as usize;
-        let mut sums = vec![[0.0f64; QUERY_DIM]; r.count as usize];
-        let mut counts = vec![0u64; r.count as usize];
-        let region_of = |x: usize, y: usize| {
-            let ly = y * r.height as usize / h;
-            let lx = x * r.width as usize / w;
-            r.labels[ly * r.width as usize + lx] as usize
-        };
-        for y in 0..h {
-            for x in 0..w {
-                let l = region_of(x, y);
-                if l < sums.len() {
-                    counts[l] += 1;
-                    for (s, q) in sums[l].iter_mut().zip(&view.query[y * w + x]) {
-                        *s += *q as f64;
-                    }
-                }
-            }
-        }
+        // Each pixel's region, the label image scaled to the view.
+        let regions: Vec<usize> = (0..w * h)
+            .map(|p| {
+                let ly = (p / w) * r.height as usize / h;
+                let lx = (p % w) * r.width as usize / w;
+                r.labels[ly * r.width as usize + lx] as usize
+            })
+            .collect();
+        let (sums, counts) = region_sums(&view.query, &regions, r.count as usize);
         let used: Vec<usize> = (0..sums.len()).filter(|&i| counts[i] > 0).collect();
         if used.is_empty() {
             return Ok(m);
@@ -328,15 +292,9 @@ impl Evaluator {
         // Per pixel, the paper's protocol; pooled below.
         let stride = self.pixel_stride;
         let decoder = decoder_for(&self.ctx, &mut self.decoder, head)?;
-        let targets_of_pixels: Vec<u32> = (0..w * h)
-            .map(|p| {
-                let l = region_of(p % w, p / w);
-                if l < sums.len() {
-                    l as u32
-                } else {
-                    NO_REGION
-                }
-            })
+        let targets_of_pixels: Vec<u32> = regions
+            .iter()
+            .map(|&l| if l < sums.len() { l as u32 } else { NO_REGION })
             .collect();
         let vocab = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty());
         let no_truth = vec![0u16; w * h];
@@ -356,51 +314,18 @@ impl Evaluator {
         m.cosine_loss = pixels.cosine_loss();
         m.l2 = pixels.l2();
         m.cosine_pixels = pixels.cosine_pixels;
-        let mut pooled_m = RegionPooled::default();
         let pooled: Vec<[f32; QUERY_DIM]> = used
             .iter()
             .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
             .collect();
-        let with_target: Vec<usize> = (0..used.len())
-            .filter(|&j| {
-                r.vectors[used[j] * dim..(used[j] + 1) * dim]
-                    .iter()
-                    .any(|&x| x != 0.0)
-            })
-            .collect();
-        if !with_target.is_empty() {
-            let targets: Vec<f32> = with_target
-                .iter()
-                .flat_map(|&j| {
-                    r.vectors[used[j] * dim..(used[j] + 1) * dim]
-                        .iter()
-                        .copied()
-                })
-                .collect();
-            let q: Vec<[f32; QUERY_DIM]> = with_target.iter().map(|&j| pooled[j]).collect();
-            let s = scorer.score(&self.ctx, head, &q, &targets)?;
-            let k = q.len();
-            pooled_m.cosine_loss =
-                Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
-            pooled_m.l2 = Some(
-                (0..k)
-                    .map(|i| (2.0 - 2.0 * s[i * k + i] as f64).max(0.0).sqrt())
-                    .sum::<f64>()
-                    / k as f64,
-            );
-            pooled_m.regions = k;
-        }
+        let mut pooled_m =
+            pooled_target_metrics(scorer, &self.ctx, head, &pooled, &used, &r.vectors, dim)?;
         let Some(vocab) = vocab else {
             m.region_pooled = Some(pooled_m);
             return Ok(m);
         };
         let c = vocab.names.len();
         let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
-        let argmax = |row: &[f32]| {
-            (0..row.len())
-                .max_by(|&a, &b| row[a].total_cmp(&row[b]))
-                .expect("non-empty vocabulary")
-        };
         let mut predicted = vec![None; sums.len()];
         for (j, &i) in used.iter().enumerate() {
             predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
@@ -408,58 +333,18 @@ impl Evaluator {
         // The true class of a pixel: its label, or without labels its
         // region's teacher class (targets are unit-norm, so the cosine
         // ranking is the dot product with the normalised class vectors).
-        let teacher: Option<Vec<Option<u16>>> = match frame.semantic {
+        let teacher = match frame.semantic {
             Some(_) => None,
-            None => {
-                let texts: Vec<Vec<f32>> = vocab
-                    .vectors
-                    .chunks_exact(dim)
-                    .map(|t| {
-                        let n = t.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-                        t.iter().map(|x| x / n).collect()
-                    })
-                    .collect();
-                Some(
-                    (0..sums.len())
-                        .map(|i| {
-                            let target = &r.vectors[i * dim..(i + 1) * dim];
-                            if target.iter().all(|&x| x == 0.0) {
-                                return None;
-                            }
-                            let row: Vec<f32> = texts
-                                .iter()
-                                .map(|t| t.iter().zip(target).map(|(a, b)| a * b).sum())
-                                .collect();
-                            Some(vocab.ids[argmax(&row)])
-                        })
-                        .collect(),
-                )
-            }
+            None => Some(teacher_classes(vocab, &r.vectors, dim, sums.len())),
         };
         m.segmentation = Some(if teacher.is_some() {
             "teacher"
         } else {
             "labels"
         });
-        let mut truth_of_pixels = vec![0u16; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let region = region_of(x, y);
-                let truth = match (&frame.semantic, &teacher) {
-                    (Some(sem), _) => {
-                        let sy = y * sem.height as usize / h;
-                        let sx = x * sem.width as usize / w;
-                        sem.labels[sy * sem.width as usize + sx]
-                    }
-                    (None, Some(t)) => t.get(region).copied().flatten().unwrap_or(0),
-                    (None, None) => 0,
-                };
-                // Unlabelled pixels, and classes no query word names, are
-                // not evaluated.
-                if truth == 0 || !vocab.ids.contains(&truth) {
-                    continue;
-                }
-                truth_of_pixels[y * w + x] = truth;
+        let truth_of_pixels = pixel_truth(frame, teacher.as_deref(), &regions, vocab, w, h);
+        for (&truth, &region) in truth_of_pixels.iter().zip(&regions) {
+            if truth != 0 {
                 let pred = predicted.get(region).copied().flatten();
                 count_pixel(&mut pooled_m.class_iou, truth, pred);
             }
@@ -481,6 +366,166 @@ impl Evaluator {
         m.class_iou = classes.class_iou;
         Ok(m)
     }
+}
+
+/// Each pixel's true class: its label scaled to the view, or without
+/// labels its region's teacher class; 0 (not evaluated) for unlabelled
+/// pixels and for classes no word of `vocab` names.
+fn pixel_truth(
+    frame: &Frame,
+    teacher: Option<&[Option<u16>]>,
+    regions: &[usize],
+    vocab: &Vocabulary,
+    w: usize,
+    h: usize,
+) -> Vec<u16> {
+    (0..w * h)
+        .map(|p| {
+            let (x, y) = (p % w, p / w);
+            let truth = match (&frame.semantic, teacher) {
+                (Some(sem), _) => {
+                    let sy = y * sem.height as usize / h;
+                    let sx = x * sem.width as usize / w;
+                    sem.labels[sy * sem.width as usize + sx]
+                }
+                (None, Some(t)) => t.get(regions[p]).copied().flatten().unwrap_or(0),
+                (None, None) => 0,
+            };
+            if vocab.ids.contains(&truth) {
+                truth
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+/// Per region, the sum of its pixels' rendered queries and their count
+/// (pixels whose region is `count` or more belong to none).
+fn region_sums(
+    queries: &[[f32; QUERY_DIM]],
+    regions: &[usize],
+    count: usize,
+) -> (Vec<[f64; QUERY_DIM]>, Vec<u64>) {
+    let mut sums = vec![[0.0f64; QUERY_DIM]; count];
+    let mut counts = vec![0u64; count];
+    for (q, &l) in queries.iter().zip(regions) {
+        if l < count {
+            counts[l] += 1;
+            for (s, v) in sums[l].iter_mut().zip(q) {
+                *s += *v as f64;
+            }
+        }
+    }
+    (sums, counts)
+}
+
+/// Colour PSNR over every pixel, depth L1 over the pixels with a measured
+/// depth, and the share of pixels the map covers.
+fn image_metrics(view: &RenderedView, target: &[[f32; 4]]) -> ViewMetrics {
+    let mut se = 0.0f64;
+    let (mut l1, mut valid) = (0.0f64, 0u64);
+    for ((p, t), &a) in view.rgbd.iter().zip(target).zip(&view.alpha) {
+        for c in 0..3 {
+            se += (p[c].clamp(0.0, 1.0) as f64 - t[c] as f64).powi(2);
+        }
+        // Every pixel with a measured depth counts: where the map renders
+        // nothing the error is the whole depth.
+        if t[3] > 0.0 && t[3].is_finite() {
+            let rendered = if a > 1e-6 {
+                p[3] as f64 / a as f64
+            } else {
+                0.0
+            };
+            l1 += (rendered - t[3] as f64).abs();
+            valid += 1;
+        }
+    }
+    let mse = se / (3 * target.len()).max(1) as f64;
+    let covered = view.alpha.iter().filter(|&&a| a > 0.5).count();
+    ViewMetrics {
+        coverage: covered as f64 / view.alpha.len().max(1) as f64,
+        psnr: -10.0 * mse.max(1e-12).log10(),
+        depth_l1: if valid > 0 { l1 / valid as f64 } else { 0.0 },
+        ..ViewMetrics::default()
+    }
+}
+
+/// Each region's pooled query decoded once against its target (the
+/// regions whose target is not all zero): mean cosine loss and L2.
+fn pooled_target_metrics(
+    scorer: &RelevanceScorer,
+    ctx: &Context,
+    head: &crate::latent::LatentHead,
+    pooled: &[[f32; QUERY_DIM]],
+    used: &[usize],
+    vectors: &[f32],
+    dim: usize,
+) -> Result<RegionPooled> {
+    let mut m = RegionPooled::default();
+    let target_of = |j: usize| &vectors[used[j] * dim..(used[j] + 1) * dim];
+    let with_target: Vec<usize> = (0..used.len())
+        .filter(|&j| target_of(j).iter().any(|&x| x != 0.0))
+        .collect();
+    if with_target.is_empty() {
+        return Ok(m);
+    }
+    let targets: Vec<f32> = with_target
+        .iter()
+        .flat_map(|&j| target_of(j).iter().copied())
+        .collect();
+    let q: Vec<[f32; QUERY_DIM]> = with_target.iter().map(|&j| pooled[j]).collect();
+    let s = scorer.score(ctx, head, &q, &targets)?;
+    let k = q.len();
+    m.cosine_loss = Some((0..k).map(|i| 1.0 - s[i * k + i] as f64).sum::<f64>() / k as f64);
+    m.l2 = Some(
+        (0..k)
+            .map(|i| (2.0 - 2.0 * s[i * k + i] as f64).max(0.0).sqrt())
+            .sum::<f64>()
+            / k as f64,
+    );
+    m.regions = k;
+    Ok(m)
+}
+
+/// Without semantic labels, each region's true class is its teacher
+/// class: the vocabulary word whose normalised vector is closest to the
+/// region's target (targets are unit-norm, so the cosine ranking is the
+/// dot product). Regions without a target have none.
+fn teacher_classes(
+    vocab: &Vocabulary,
+    vectors: &[f32],
+    dim: usize,
+    regions: usize,
+) -> Vec<Option<u16>> {
+    let texts: Vec<Vec<f32>> = vocab
+        .vectors
+        .chunks_exact(dim)
+        .map(|t| {
+            let n = t.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+            t.iter().map(|x| x / n).collect()
+        })
+        .collect();
+    (0..regions)
+        .map(|i| {
+            let target = &vectors[i * dim..(i + 1) * dim];
+            if target.iter().all(|&x| x == 0.0) {
+                return None;
+            }
+            let row: Vec<f32> = texts
+                .iter()
+                .map(|t| t.iter().zip(target).map(|(a, b)| a * b).sum())
+                .collect();
+            Some(vocab.ids[argmax(&row)])
+        })
+        .collect()
+}
+
+/// The index of a row's largest value.
+fn argmax(row: &[f32]) -> usize {
+    (0..row.len())
+        .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+        .expect("a non-empty row")
 }
 
 /// The factorised decoder of `head`'s current parameters, kept in `cache`
