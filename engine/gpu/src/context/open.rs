@@ -2,7 +2,6 @@
 //! async transfer queue where the device has one), the features and
 //! extensions the kernels need, checked rather than assumed.
 
-use std::ffi::CStr;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 
@@ -147,128 +146,17 @@ pub(super) fn open_device(
     options: &ContextOptions,
 ) -> Result<Device> {
     let p = c.physical;
-    // SAFETY: queries on a valid physical device.
-    let families = unsafe { instance.get_physical_device_queue_family_properties(p) };
-    let compute_family = families
-        .iter()
-        .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
-        .ok_or_else(|| Error::Unsupported(format!("{} has no compute queue", c.name)))?
-        as u32;
-    // A family with transfer but neither graphics nor compute is a DMA engine.
-    let transfer_family = families
-        .iter()
-        .position(|f| {
-            f.queue_flags.contains(vk::QueueFlags::TRANSFER)
-                && !f.queue_flags.contains(vk::QueueFlags::COMPUTE)
-                && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS)
-        })
-        .map(|i| i as u32);
-    let timestamp_valid_bits = families[compute_family as usize].timestamp_valid_bits;
-
-    // SAFETY: valid physical device.
-    let exts = unsafe { instance.enumerate_device_extension_properties(p) }
-        .vk("vkEnumerateDeviceExtensionProperties")?;
-    let has_ext = |name: &CStr| {
-        exts.iter()
-            .any(|e| e.extension_name_as_c_str().ok() == Some(name))
-    };
-
-    let mut atomic_feats = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
-    let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
-    let has_atomic_float_ext = has_ext(ash::ext::shader_atomic_float::NAME);
-    {
-        let mut feats2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut v12);
-        if has_atomic_float_ext {
-            feats2 = feats2.push_next(&mut atomic_feats);
-        }
-        // SAFETY: valid chain of feature structs.
-        unsafe { instance.get_physical_device_features2(p, &mut feats2) };
-    }
-    if v12.timeline_semaphore == vk::FALSE {
-        return Err(Error::Unsupported(format!(
-            "{} lacks timeline semaphores (Vulkan 1.2)",
-            c.name
-        )));
-    }
-    let native_float_atomics = has_atomic_float_ext
-        && atomic_feats.shader_buffer_float32_atomic_add == vk::TRUE
-        && options.float_atomics == FloatAtomics::Auto;
-
-    let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
-    let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
-    {
-        let mut props2 = vk::PhysicalDeviceProperties2::default()
-            .push_next(&mut subgroup)
-            .push_next(&mut maintenance3);
-        // SAFETY: valid chain.
-        unsafe { instance.get_physical_device_properties2(p, &mut props2) };
-    }
-
-    let priorities = [1.0f32];
-    let mut queue_infos = vec![vk::DeviceQueueCreateInfo::default()
-        .queue_family_index(compute_family)
-        .queue_priorities(&priorities)];
-    if let Some(t) = transfer_family {
-        queue_infos.push(
-            vk::DeviceQueueCreateInfo::default()
-                .queue_family_index(t)
-                .queue_priorities(&priorities),
-        );
-    }
-    let host_query_reset = v12.host_query_reset == vk::TRUE;
-    let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
-        .timeline_semaphore(true)
-        .host_query_reset(host_query_reset);
-    let mut enable_atomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
-        .shader_buffer_float32_atomic_add(true);
-    let mut ext_names: Vec<*const i8> = Vec::new();
-    let mut create = vk::DeviceCreateInfo::default()
-        .queue_create_infos(&queue_infos)
-        .push_next(&mut enable12);
-    if native_float_atomics {
-        ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
-        create = create.push_next(&mut enable_atomic);
-    }
-    let create = create.enabled_extension_names(&ext_names);
-    // SAFETY: valid create info built from queried support.
-    let raw = unsafe { instance.create_device(p, &create, None) }.vk("vkCreateDevice")?;
-
-    let make_queue = |family: u32| -> Result<Queue> {
-        let mut ti = vk::SemaphoreTypeCreateInfo::default()
-            .semaphore_type(vk::SemaphoreType::TIMELINE)
-            .initial_value(0);
-        let ci = vk::SemaphoreCreateInfo::default().push_next(&mut ti);
-        // SAFETY: valid device; destroyed in `Device::drop`.
-        let timeline = unsafe { raw.create_semaphore(&ci, None) }.vk("vkCreateSemaphore")?;
-        Ok(Queue {
-            family,
-            // SAFETY: queue index 0 was requested for this family.
-            queue: Mutex::new(unsafe { raw.get_device_queue(family, 0) }),
-            timeline,
-            submitted: AtomicU64::new(0),
-            timestamp_bits: families[family as usize].timestamp_valid_bits,
-        })
-    };
-    let compute = match make_queue(compute_family) {
+    let families = QueueFamilies::of(&instance, p, &c.name)?;
+    let features = Features::of(&instance, p, &c.name, options)?;
+    let raw = create_device(&instance, p, &families, &features)?;
+    let (compute, transfer) = match create_queues(&raw, &families) {
         Ok(q) => q,
         Err(e) => {
-            // SAFETY: nothing else created on the device yet.
+            // SAFETY: nothing else was created on the device.
             unsafe { raw.destroy_device(None) };
             return Err(e);
         }
     };
-    let transfer = match transfer_family.map(make_queue).transpose() {
-        Ok(t) => t,
-        Err(e) => {
-            // SAFETY: only the compute semaphore exists.
-            unsafe {
-                raw.destroy_semaphore(compute.timeline, None);
-                raw.destroy_device(None);
-            }
-            return Err(e);
-        }
-    };
-
     let allocator =
         gpu_allocator::vulkan::Allocator::new(&gpu_allocator::vulkan::AllocatorCreateDesc {
             instance: instance.clone(),
@@ -292,55 +180,15 @@ pub(super) fn open_device(
             return Err(Error::OutOfMemory(format!("creating the allocator: {e}")));
         }
     };
-
-    let limits = c.props.limits;
-    // SAFETY: valid physical device.
-    let mem = unsafe { instance.get_physical_device_memory_properties(p) };
-    let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
-        .iter()
-        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
-        .map(|h| h.size)
-        .max()
-        .unwrap_or(0);
-    let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
-    // Subgroup operations kernels may use: allowed, and supported in compute.
-    let subgroup_ops = |ops: vk::SubgroupFeatureFlags| {
-        options.subgroup_arithmetic
-            && subgroup
-                .supported_stages
-                .contains(vk::ShaderStageFlags::COMPUTE)
-            && subgroup.supported_operations.contains(ops)
-    };
-    let info = DeviceInfo {
-        name: c.name,
-        device_type: c.props.device_type,
-        api_version: c.props.api_version,
-        native_float_atomics,
-        subgroup_size: subgroup.subgroup_size,
-        subgroup_arithmetic: subgroup_ops(
-            vk::SubgroupFeatureFlags::BASIC
-                | vk::SubgroupFeatureFlags::VOTE
-                | vk::SubgroupFeatureFlags::ARITHMETIC,
-        ),
-        subgroup_shuffle: subgroup_ops(
-            vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE,
-        ),
-        timestamp_period_ns,
-        max_storage_buffer_range: (limits.max_storage_buffer_range as u64)
-            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
-        max_memory_allocation_size: maintenance3
-            .max_memory_allocation_size
-            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
-        max_workgroup_count: limits.max_compute_work_group_count,
-        max_shared_memory: limits.max_compute_shared_memory_size,
-        dedicated_transfer_queue: transfer.is_some(),
-        transfer_timestamps: match &transfer {
-            Some(t) => t.timestamp_bits > 0 && host_query_reset && timestamp_valid_bits > 0,
-            None => timestamp_valid_bits > 0,
-        },
-        device_local_bytes,
-    };
-    let profiler = (options.profiling && timestamp_period_ns.is_some())
+    let info = device_info(
+        &instance,
+        c,
+        options,
+        &families,
+        &features,
+        transfer.as_ref(),
+    );
+    let profiler = (options.profiling && info.timestamp_period_ns.is_some())
         .then(|| Mutex::new(Profiler::default()));
     Ok(Device {
         _entry: entry,
@@ -357,7 +205,235 @@ pub(super) fn open_device(
         objects: ObjectCounts::default(),
         pipelines: PipelineCache::default(),
         profiler,
-        host_query_reset,
+        host_query_reset: features.host_query_reset,
         calls: CallCounters::default(),
     })
+}
+
+/// The queue families the engine uses: one with compute, and a transfer
+/// family without compute or graphics (a DMA engine) where there is one.
+struct QueueFamilies {
+    all: Vec<vk::QueueFamilyProperties>,
+    compute: u32,
+    transfer: Option<u32>,
+}
+
+impl QueueFamilies {
+    fn of(instance: &ash::Instance, p: vk::PhysicalDevice, name: &str) -> Result<Self> {
+        // SAFETY: queries on a valid physical device.
+        let all = unsafe { instance.get_physical_device_queue_family_properties(p) };
+        let compute = all
+            .iter()
+            .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
+            .ok_or_else(|| Error::Unsupported(format!("{name} has no compute queue")))?
+            as u32;
+        let transfer = all
+            .iter()
+            .position(|f| {
+                f.queue_flags.contains(vk::QueueFlags::TRANSFER)
+                    && !f.queue_flags.contains(vk::QueueFlags::COMPUTE)
+                    && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS)
+            })
+            .map(|i| i as u32);
+        Ok(QueueFamilies {
+            all,
+            compute,
+            transfer,
+        })
+    }
+
+    /// Valid bits of a family's timestamps (0: none).
+    fn timestamp_bits(&self, family: u32) -> u32 {
+        self.all[family as usize].timestamp_valid_bits
+    }
+}
+
+/// What the device supports of what the engine enables, and the
+/// properties it reads.
+struct Features {
+    host_query_reset: bool,
+    native_float_atomics: bool,
+    subgroup: vk::PhysicalDeviceSubgroupProperties<'static>,
+    max_memory_allocation_size: u64,
+}
+
+impl Features {
+    fn of(
+        instance: &ash::Instance,
+        p: vk::PhysicalDevice,
+        name: &str,
+        options: &ContextOptions,
+    ) -> Result<Self> {
+        // SAFETY: valid physical device.
+        let exts = unsafe { instance.enumerate_device_extension_properties(p) }
+            .vk("vkEnumerateDeviceExtensionProperties")?;
+        let has_atomic_float_ext = exts
+            .iter()
+            .any(|e| e.extension_name_as_c_str().ok() == Some(ash::ext::shader_atomic_float::NAME));
+        let mut atomic_feats = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+        let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
+        {
+            let mut feats2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut v12);
+            if has_atomic_float_ext {
+                feats2 = feats2.push_next(&mut atomic_feats);
+            }
+            // SAFETY: valid chain of feature structs.
+            unsafe { instance.get_physical_device_features2(p, &mut feats2) };
+        }
+        if v12.timeline_semaphore == vk::FALSE {
+            return Err(Error::Unsupported(format!(
+                "{name} lacks timeline semaphores (Vulkan 1.2)"
+            )));
+        }
+        let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
+        {
+            let mut props2 = vk::PhysicalDeviceProperties2::default()
+                .push_next(&mut subgroup)
+                .push_next(&mut maintenance3);
+            // SAFETY: valid chain.
+            unsafe { instance.get_physical_device_properties2(p, &mut props2) };
+        }
+        Ok(Features {
+            host_query_reset: v12.host_query_reset == vk::TRUE,
+            native_float_atomics: has_atomic_float_ext
+                && atomic_feats.shader_buffer_float32_atomic_add == vk::TRUE
+                && options.float_atomics == FloatAtomics::Auto,
+            // The chain pointer is not kept.
+            subgroup: vk::PhysicalDeviceSubgroupProperties {
+                p_next: std::ptr::null_mut(),
+                ..subgroup
+            },
+            max_memory_allocation_size: maintenance3.max_memory_allocation_size,
+        })
+    }
+}
+
+/// The logical device with the queues and features the engine uses.
+fn create_device(
+    instance: &ash::Instance,
+    p: vk::PhysicalDevice,
+    families: &QueueFamilies,
+    features: &Features,
+) -> Result<ash::Device> {
+    let priorities = [1.0f32];
+    let mut queue_infos = vec![vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(families.compute)
+        .queue_priorities(&priorities)];
+    if let Some(t) = families.transfer {
+        queue_infos.push(
+            vk::DeviceQueueCreateInfo::default()
+                .queue_family_index(t)
+                .queue_priorities(&priorities),
+        );
+    }
+    let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
+        .timeline_semaphore(true)
+        .host_query_reset(features.host_query_reset);
+    let mut enable_atomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+        .shader_buffer_float32_atomic_add(true);
+    let mut ext_names: Vec<*const i8> = Vec::new();
+    let mut create = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_infos)
+        .push_next(&mut enable12);
+    if features.native_float_atomics {
+        ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+        create = create.push_next(&mut enable_atomic);
+    }
+    let create = create.enabled_extension_names(&ext_names);
+    // SAFETY: valid create info built from queried support.
+    unsafe { instance.create_device(p, &create, None) }.vk("vkCreateDevice")
+}
+
+/// The compute queue and, where the device has one, the transfer queue,
+/// each with its timeline semaphore. On failure what was created is
+/// destroyed (the device is the caller's).
+fn create_queues(raw: &ash::Device, families: &QueueFamilies) -> Result<(Queue, Option<Queue>)> {
+    let make_queue = |family: u32| -> Result<Queue> {
+        let mut ti = vk::SemaphoreTypeCreateInfo::default()
+            .semaphore_type(vk::SemaphoreType::TIMELINE)
+            .initial_value(0);
+        let ci = vk::SemaphoreCreateInfo::default().push_next(&mut ti);
+        // SAFETY: valid device; destroyed in `Device::drop`.
+        let timeline = unsafe { raw.create_semaphore(&ci, None) }.vk("vkCreateSemaphore")?;
+        Ok(Queue {
+            family,
+            // SAFETY: queue index 0 was requested for this family.
+            queue: Mutex::new(unsafe { raw.get_device_queue(family, 0) }),
+            timeline,
+            submitted: AtomicU64::new(0),
+            timestamp_bits: families.timestamp_bits(family),
+        })
+    };
+    let compute = make_queue(families.compute)?;
+    match families.transfer.map(make_queue).transpose() {
+        Ok(transfer) => Ok((compute, transfer)),
+        Err(e) => {
+            // SAFETY: only the compute semaphore exists.
+            unsafe { raw.destroy_semaphore(compute.timeline, None) };
+            Err(e)
+        }
+    }
+}
+
+/// What the engine reads of the opened device.
+fn device_info(
+    instance: &ash::Instance,
+    c: Candidate,
+    options: &ContextOptions,
+    families: &QueueFamilies,
+    features: &Features,
+    transfer: Option<&Queue>,
+) -> DeviceInfo {
+    let limits = c.props.limits;
+    let timestamp_valid_bits = families.timestamp_bits(families.compute);
+    // SAFETY: valid physical device.
+    let mem = unsafe { instance.get_physical_device_memory_properties(c.physical) };
+    let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
+    let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
+    // Subgroup operations kernels may use: allowed, and supported in compute.
+    let subgroup = &features.subgroup;
+    let subgroup_ops = |ops: vk::SubgroupFeatureFlags| {
+        options.subgroup_arithmetic
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            && subgroup.supported_operations.contains(ops)
+    };
+    DeviceInfo {
+        name: c.name,
+        device_type: c.props.device_type,
+        api_version: c.props.api_version,
+        native_float_atomics: features.native_float_atomics,
+        subgroup_size: subgroup.subgroup_size,
+        subgroup_arithmetic: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC
+                | vk::SubgroupFeatureFlags::VOTE
+                | vk::SubgroupFeatureFlags::ARITHMETIC,
+        ),
+        subgroup_shuffle: subgroup_ops(
+            vk::SubgroupFeatureFlags::BASIC | vk::SubgroupFeatureFlags::SHUFFLE,
+        ),
+        timestamp_period_ns,
+        max_storage_buffer_range: (limits.max_storage_buffer_range as u64)
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
+        max_memory_allocation_size: features
+            .max_memory_allocation_size
+            .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
+        max_workgroup_count: limits.max_compute_work_group_count,
+        max_shared_memory: limits.max_compute_shared_memory_size,
+        dedicated_transfer_queue: transfer.is_some(),
+        transfer_timestamps: match transfer {
+            Some(t) => {
+                t.timestamp_bits > 0 && features.host_query_reset && timestamp_valid_bits > 0
+            }
+            None => timestamp_valid_bits > 0,
+        },
+        device_local_bytes,
+    }
 }
