@@ -5,31 +5,80 @@ use std::collections::HashSet;
 
 use super::*;
 
+/// The keyframe selector's last keyframe pose and the frames since.
+type Selector = (Option<CameraPose>, u32);
+
+/// The voxels of the global map.
+type Voxels = HashSet<VoxelKey>;
+
 impl SavedState {
     pub(super) fn from_archive(a: &Archive<'_>) -> Result<Self> {
-        let bad = |why: String| a.corrupt(why);
         let config = MapperConfig::from_toml(a.meta("config")?)
-            .map_err(|e| bad(format!("saved {}", message(e))))?;
-
+            .map_err(|e| a.corrupt(format!("saved {}", message(e))))?;
         // Sizes that shape GPU allocations, before anything is read.
-        let window_meta = if a.has("window/keys") {
-            let capacity: u64 = a.meta_parse("window_capacity")?;
-            if capacity == 0 || capacity > MAX_WINDOW_ROWS {
-                return Err(bad(format!(
-                    "window capacity {capacity} is outside 1..={MAX_WINDOW_ROWS}"
-                )));
+        let window_meta = Self::parse_window_meta(a)?;
+        let counters = Self::parse_counters(a)?;
+        let model = a.meta("model").ok().map(str::to_string);
+        let (selector, last_sync) = Self::parse_selector(a)?;
+        let (map, seen) = Self::parse_map(a)?;
+        let guesses = Self::parse_guesses(a, map.len())?;
+        let head = Self::parse_head(a, &config)?;
+        let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
+        if history.len() as u64 > counters.keyframes {
+            return Err(a.corrupt(format!(
+                "{} keyframes in the history of a map of {} keyframes",
+                history.len(),
+                counters.keyframes
+            )));
+        }
+        let trajectory = Self::parse_trajectory(a, counters.keyframes, &history)?;
+        let exposure = read_exposure(a, "trajectory/exposure", trajectory.len())?;
+        let window = match window_meta {
+            None => None,
+            Some((capacity, view_pixels)) => {
+                Some(Self::parse_window(a, capacity, view_pixels, &seen)?)
             }
-            let view_pixels: u64 = a.meta_parse("view_pixels")?;
-            if view_pixels > MAX_VIEW_PIXELS {
-                return Err(bad(format!(
-                    "view of {view_pixels} pixels; at most {MAX_VIEW_PIXELS}"
-                )));
-            }
-            Some((capacity, view_pixels))
-        } else {
-            None
         };
+        Ok(SavedState {
+            origin: a.path().to_path_buf(),
+            run_id: a.meta("run_id").ok().map(str::to_string),
+            config,
+            counters,
+            model,
+            selector,
+            last_sync,
+            map,
+            guesses,
+            head,
+            history,
+            trajectory,
+            exposure,
+            window,
+        })
+    }
 
+    /// The window's capacity and view size, when the state has a window.
+    fn parse_window_meta(a: &Archive<'_>) -> Result<Option<(u64, u64)>> {
+        let bad = |why: String| a.corrupt(why);
+        if !a.has("window/keys") {
+            return Ok(None);
+        }
+        let capacity: u64 = a.meta_parse("window_capacity")?;
+        if capacity == 0 || capacity > MAX_WINDOW_ROWS {
+            return Err(bad(format!(
+                "window capacity {capacity} is outside 1..={MAX_WINDOW_ROWS}"
+            )));
+        }
+        let view_pixels: u64 = a.meta_parse("view_pixels")?;
+        if view_pixels > MAX_VIEW_PIXELS {
+            return Err(bad(format!(
+                "view of {view_pixels} pixels; at most {MAX_VIEW_PIXELS}"
+            )));
+        }
+        Ok(Some((capacity, view_pixels)))
+    }
+
+    fn parse_counters(a: &Archive<'_>) -> Result<Counters> {
         let counters = Counters {
             frames: a.meta_parse("frames")?,
             keyframes: a.meta_parse("keyframes")?,
@@ -42,12 +91,18 @@ impl SavedState {
             },
         };
         if counters.keyframes > counters.frames {
-            return Err(bad(format!(
+            return Err(a.corrupt(format!(
                 "{} keyframes among {} frames",
                 counters.keyframes, counters.frames
             )));
         }
-        let model = a.meta("model").ok().map(str::to_string);
+        Ok(counters)
+    }
+
+    /// The keyframe selector's last pose and frames since, and where the
+    /// window was last synchronised.
+    fn parse_selector(a: &Archive<'_>) -> Result<(Selector, Option<DVec3>)> {
+        let bad = |why: String| a.corrupt(why);
         let since: u32 = a.meta_parse("selector_since")?;
         let last = if a.has("selector/pose") {
             let v = a.exact::<f64>("selector/pose", &[POSE_FLOATS])?;
@@ -69,7 +124,12 @@ impl SavedState {
             None
         };
 
-        // Global map.
+        Ok(((last, since), last_sync))
+    }
+
+    /// The global map's Gaussians by voxel, and the set of its voxels.
+    fn parse_map(a: &Archive<'_>) -> Result<(Vec<(VoxelKey, Gaussian)>, Voxels)> {
+        let bad = |why: String| a.corrupt(why);
         let n = match a.shape::<i32>("map/keys")? {
             &[n, 3] => n,
             s => return Err(bad(format!("map/keys has shape {s:?}, expected [n, 3]"))),
@@ -94,38 +154,39 @@ impl SavedState {
             map.push((key, g));
         }
 
-        // Files from before guesses were kept: every Gaussian measured.
-        let guesses = if a.has("map/guess") {
-            let flags = a.exact::<u8>("map/guess", &[n])?;
-            if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
-                return Err(bad(format!("map/guess holds the flag {f}")));
-            }
-            flags
-        } else {
-            vec![0; n]
-        };
+        Ok((map, seen))
+    }
 
-        let head = Self::parse_head(a, &config)?;
-        let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
-        if history.len() as u64 > counters.keyframes {
-            return Err(bad(format!(
-                "{} keyframes in the history of a map of {} keyframes",
-                history.len(),
-                counters.keyframes
-            )));
+    /// Which Gaussians are guesses; files from before guesses were kept
+    /// have every Gaussian measured.
+    fn parse_guesses(a: &Archive<'_>, n: usize) -> Result<Vec<u8>> {
+        if !a.has("map/guess") {
+            return Ok(vec![0; n]);
         }
+        let flags = a.exact::<u8>("map/guess", &[n])?;
+        if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
+            return Err(a.corrupt(format!("map/guess holds the flag {f}")));
+        }
+        Ok(flags)
+    }
 
-        // Every keyframe's pose; files from before it was saved rebuild it
-        // from the history.
+    /// Every keyframe's pose; files from before it was saved rebuild it
+    /// from the history.
+    fn parse_trajectory(
+        a: &Archive<'_>,
+        keyframes: u64,
+        history: &[KeyframeRecord],
+    ) -> Result<Vec<(i64, CameraPose)>> {
+        let bad = |why: String| a.corrupt(why);
         let trajectory = if a.has("trajectory/stamp") || a.has("trajectory/pose") {
             let n = match a.shape::<i64>("trajectory/stamp")? {
                 &[n] => n,
                 s => return Err(bad(format!("trajectory/stamp has shape {s:?}"))),
             };
-            if n as u64 != counters.keyframes {
+            if n as u64 != keyframes {
                 return Err(bad(format!(
                     "a trajectory of {n} poses for {} keyframes",
-                    counters.keyframes
+                    keyframes
                 )));
             }
             let poses = a.exact::<f64>("trajectory/pose", &[n, POSE_FLOATS])?;
@@ -154,68 +215,54 @@ impl SavedState {
                 })
                 .collect()
         };
-        let exposure = read_exposure(a, "trajectory/exposure", trajectory.len())?;
+        Ok(trajectory)
+    }
 
-        // Window: the same residents in the same rows, with their Adam
-        // state.
-        let window = match window_meta {
-            None => None,
-            Some((capacity, view_pixels)) => {
-                let rows = match a.shape::<i32>("window/keys")? {
-                    &[r, 3] => r,
-                    s => return Err(bad(format!("window/keys has shape {s:?}, expected [n, 3]"))),
-                };
-                if rows as u64 > capacity {
-                    return Err(bad(format!(
-                        "{rows} resident Gaussians in a window of {capacity}"
-                    )));
-                }
-                let keys = keys_from_i32(&a.exact::<i32>("window/keys", &[rows, 3])?);
-                let mut resident = HashSet::with_capacity(rows);
-                for k in &keys {
-                    if !seen.contains(k) {
-                        return Err(bad(format!("window voxel {k:?} is not in the map")));
-                    }
-                    if !resident.insert(*k) {
-                        return Err(bad(format!("voxel {k:?} is resident twice")));
-                    }
-                }
-                let state = window_state_row_bytes()
-                    .into_iter()
-                    .enumerate()
-                    .map(|(i, row)| {
-                        let name = format!("window/state/{i}");
-                        let t = a.exact::<u8>(&name, &[rows, row as usize])?;
-                        if i % 3 != 2 {
-                            finite_bytes(&t, &name).map_err(bad)?;
-                        }
-                        Ok(t)
-                    })
-                    .collect::<Result<Vec<_>>>()?;
-                Some(SavedWindow {
-                    capacity,
-                    view_pixels,
-                    keys,
-                    state,
-                })
-            }
+    /// The window: the same residents in the same rows, with their Adam
+    /// state.
+    fn parse_window(
+        a: &Archive<'_>,
+        capacity: u64,
+        view_pixels: u64,
+        seen: &HashSet<VoxelKey>,
+    ) -> Result<SavedWindow> {
+        let bad = |why: String| a.corrupt(why);
+        let rows = match a.shape::<i32>("window/keys")? {
+            &[r, 3] => r,
+            s => return Err(bad(format!("window/keys has shape {s:?}, expected [n, 3]"))),
         };
-
-        Ok(SavedState {
-            origin: a.path().to_path_buf(),
-            run_id: a.meta("run_id").ok().map(str::to_string),
-            config,
-            counters,
-            model,
-            selector: (last, since),
-            last_sync,
-            map,
-            guesses,
-            head,
-            history,
-            trajectory,
-            exposure,
-            window,
+        if rows as u64 > capacity {
+            return Err(bad(format!(
+                "{rows} resident Gaussians in a window of {capacity}"
+            )));
+        }
+        let keys = keys_from_i32(&a.exact::<i32>("window/keys", &[rows, 3])?);
+        let mut resident = HashSet::with_capacity(rows);
+        for k in &keys {
+            if !seen.contains(k) {
+                return Err(bad(format!("window voxel {k:?} is not in the map")));
+            }
+            if !resident.insert(*k) {
+                return Err(bad(format!("voxel {k:?} is resident twice")));
+            }
+        }
+        let state = window_state_row_bytes()
+            .into_iter()
+            .enumerate()
+            .map(|(i, row)| {
+                let name = format!("window/state/{i}");
+                let t = a.exact::<u8>(&name, &[rows, row as usize])?;
+                if i % 3 != 2 {
+                    finite_bytes(&t, &name).map_err(bad)?;
+                }
+                Ok(t)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(SavedWindow {
+            capacity,
+            view_pixels,
+            keys,
+            state,
         })
     }
 
