@@ -154,6 +154,22 @@ pub(crate) fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
             r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
         );
     }
+    // FNV-1a over every kernel's name and SPIR-V: a cache of compiled
+    // pipelines made by another build is never mistaken for this one's.
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for k in kernels {
+        for b in k
+            .name
+            .bytes()
+            .chain(k.spirv.iter().flat_map(|w| w.to_le_bytes()))
+        {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    let _ = writeln!(
+        s,
+        "/// Identifies this build's kernels (a hash of their names and SPIR-V).\npub const BUILD_ID: u64 = {h:#018x};\n"
+    );
     s.push_str("/// Every kernel, in source order.\npub static ALL: &[&Kernel] = &[\n");
     for k in kernels {
         let _ = writeln!(s, "    &{}.kernel,", k.name.to_ascii_uppercase());

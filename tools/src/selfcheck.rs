@@ -35,6 +35,14 @@ pub fn devices() -> Result<()> {
         "  device-local memory:   {} MiB",
         i.device_local_bytes >> 20
     );
+    match &i.pipeline_cache_file {
+        Some(f) => println!(
+            "  pipeline cache:        {} ({} bytes found)",
+            f.display(),
+            i.pipeline_cache_loaded_bytes
+        ),
+        None => println!("  pipeline cache:        off"),
+    }
     println!("set LATENTAM_DEVICE=<index or name> to choose another device");
     Ok(())
 }

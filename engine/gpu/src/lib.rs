@@ -19,6 +19,7 @@ mod memory;
 mod objects;
 pub mod ops;
 mod pipeline;
+mod pipeline_cache_file;
 mod profiler;
 mod recorder;
 mod retire;
@@ -97,7 +98,9 @@ impl Context {
             if !keep(k) || !self.info().can_run(k) {
                 continue;
             }
-            self.dev.pipelines.get(&self.dev.raw, k)?;
+            self.dev
+                .pipelines
+                .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
             n += 1;
         }
         Ok(n)

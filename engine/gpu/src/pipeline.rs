@@ -25,12 +25,17 @@ pub(crate) struct PipelineCache {
 }
 
 impl PipelineCache {
-    pub fn get(&self, dev: &ash::Device, k: &'static Kernel) -> Result<Arc<Pipeline>> {
+    pub fn get(
+        &self,
+        dev: &ash::Device,
+        cache: vk::PipelineCache,
+        k: &'static Kernel,
+    ) -> Result<Arc<Pipeline>> {
         let mut map = self.map.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(p) = map.get(k.name) {
             return Ok(p.clone());
         }
-        let p = Arc::new(create(dev, k)?);
+        let p = Arc::new(create(dev, cache, k)?);
         map.insert(k.name, p.clone());
         Ok(p)
     }
@@ -59,7 +64,7 @@ unsafe fn destroy(dev: &ash::Device, p: &Pipeline) {
     }
 }
 
-fn create(dev: &ash::Device, k: &'static Kernel) -> Result<Pipeline> {
+fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Result<Pipeline> {
     let bindings: Vec<vk::DescriptorSetLayoutBinding> = (0..k.bindings.len() as u32)
         .map(|i| {
             vk::DescriptorSetLayoutBinding::default()
@@ -112,7 +117,7 @@ fn create(dev: &ash::Device, k: &'static Kernel) -> Result<Pipeline> {
         let ci = [vk::ComputePipelineCreateInfo::default()
             .stage(stage)
             .layout(layout)];
-        let pipeline = match dev.create_compute_pipelines(vk::PipelineCache::null(), &ci, None) {
+        let pipeline = match dev.create_compute_pipelines(cache, &ci, None) {
             Ok(p) => p[0],
             Err((_, e)) => {
                 dev.destroy_shader_module(module, None);

@@ -191,6 +191,44 @@ fn host_spans_and_waits_are_traced_beside_the_gpu() {
     });
 }
 
+/// Compiled pipelines outlive the process: the first context writes its
+/// device's cache file when it closes, the next one opens with it; a
+/// damaged file is ignored and replaced.
+#[test]
+fn compiled_pipelines_are_kept_between_contexts() {
+    let dir = std::env::temp_dir().join(format!("latentam-pipelines-{}", std::process::id()));
+    let opts = || ContextOptions {
+        pipeline_cache_dir: Some(dir.clone()),
+        ..ContextOptions::default()
+    };
+    let mut file = None;
+    with_options(opts(), |ctx| {
+        assert_eq!(ctx.info().pipeline_cache_loaded_bytes, 0, "a cold start");
+        file = ctx.info().pipeline_cache_file.clone();
+        ctx.warm_up_only(|k| k.name.starts_with("scan")).unwrap();
+    });
+    let file = file.expect("a cache file");
+    let saved = std::fs::read(&file).expect("written when the context closed");
+    assert!(saved.len() > 20, "{} bytes", saved.len());
+    with_options(opts(), |ctx| {
+        assert_eq!(ctx.info().pipeline_cache_loaded_bytes, saved.len() - 20);
+        ctx.warm_up_only(|k| k.name.starts_with("scan")).unwrap();
+    });
+    std::fs::write(&file, b"not a pipeline cache").unwrap();
+    with_options(opts(), |ctx| {
+        assert_eq!(
+            ctx.info().pipeline_cache_loaded_bytes,
+            0,
+            "a damaged file is ignored"
+        );
+    });
+    assert!(
+        std::fs::read(&file).unwrap().starts_with(b"LTAMPC"),
+        "and replaced"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn transfer_work_waits_on_compute_through_the_timeline() {
     with_context(|ctx| {

@@ -42,6 +42,9 @@ pub(crate) struct Device {
     pub retired: RetireQueue,
     pub objects: ObjectCounts,
     pub pipelines: PipelineCache,
+    /// The driver's cache of compiled pipelines (null: none), saved to
+    /// `info.pipeline_cache_file` when the device is destroyed.
+    pub pipeline_cache: vk::PipelineCache,
     pub profiler: Option<Mutex<Profiler>>,
     /// Query pools can be reset from the host (Vulkan 1.2 `hostQueryReset`).
     pub host_query_reset: bool,
@@ -114,6 +117,30 @@ impl Device {
     }
 }
 
+impl Device {
+    /// Writes the driver's compiled pipelines to the cache file (a failure
+    /// only warns: the next process compiles again).
+    fn save_pipeline_cache(&self) {
+        let Some(path) = &self.info.pipeline_cache_file else {
+            return;
+        };
+        if self.pipeline_cache == vk::PipelineCache::null() {
+            return;
+        }
+        // SAFETY: the cache belongs to this device and is not in use.
+        let data = unsafe { self.raw.get_pipeline_cache_data(self.pipeline_cache) };
+        match data {
+            Ok(d) if !d.is_empty() => {
+                if let Err(e) = crate::pipeline_cache_file::save(path, &d) {
+                    log::warn!("{}: pipeline cache not saved: {e}", path.display());
+                }
+            }
+            Ok(_) => {}
+            Err(e) => log::warn!("vkGetPipelineCacheData: {e}"),
+        }
+    }
+}
+
 impl Drop for Device {
     fn drop(&mut self) {
         // SAFETY: nothing else references the device any more (this is the
@@ -122,7 +149,11 @@ impl Drop for Device {
             let _ = self.raw.device_wait_idle();
             let all = self.retired.take_all();
             self.destroy(all);
+            self.save_pipeline_cache();
             self.pipelines.destroy_all(&self.raw);
+            if self.pipeline_cache != vk::PipelineCache::null() {
+                self.raw.destroy_pipeline_cache(self.pipeline_cache, None);
+            }
             // The allocator frees its memory blocks on drop.
             drop(
                 self.allocator

@@ -50,6 +50,12 @@ pub struct DeviceInfo {
     /// Size of the largest device-local memory heap, bytes (system memory
     /// on CPU drivers).
     pub device_local_bytes: u64,
+    /// The file compiled pipelines are kept in between processes, if any
+    /// ([`ContextOptions::pipeline_cache_dir`](crate::ContextOptions)).
+    pub pipeline_cache_file: Option<std::path::PathBuf>,
+    /// Bytes of compiled pipelines found there when the context opened
+    /// (0: a cold start, or a file that could not be used).
+    pub pipeline_cache_loaded_bytes: usize,
 }
 
 impl DeviceInfo {

@@ -180,7 +180,12 @@ pub(super) fn open_device(
             return Err(Error::OutOfMemory(format!("creating the allocator: {e}")));
         }
     };
-    let info = device_info(
+    let cache_file = options
+        .pipeline_cache_dir
+        .as_deref()
+        .map(|d| crate::pipeline_cache_file::path_for(d, &c.props));
+    let (pipeline_cache, loaded) = create_pipeline_cache(&raw, cache_file.as_deref(), &c.props);
+    let mut info = device_info(
         &instance,
         c,
         options,
@@ -188,6 +193,8 @@ pub(super) fn open_device(
         &features,
         transfer.as_ref(),
     );
+    info.pipeline_cache_file = cache_file;
+    info.pipeline_cache_loaded_bytes = loaded;
     let profiler = (options.profiling && info.timestamp_period_ns.is_some())
         .then(|| Mutex::new(Profiler::default()));
     Ok(Device {
@@ -204,6 +211,7 @@ pub(super) fn open_device(
         retired: RetireQueue::default(),
         objects: ObjectCounts::default(),
         pipelines: PipelineCache::default(),
+        pipeline_cache,
         profiler,
         host_query_reset: features.host_query_reset,
         calls: CallCounters::default(),
@@ -435,5 +443,30 @@ fn device_info(
             None => timestamp_valid_bits > 0,
         },
         device_local_bytes,
+        pipeline_cache_file: None,
+        pipeline_cache_loaded_bytes: 0,
     }
+}
+
+/// The driver's pipeline cache, seeded from `file` when it holds a usable
+/// cache of this device; with the bytes it was seeded with. A cache that
+/// cannot be created leaves pipelines uncached (a warning, not an error).
+fn create_pipeline_cache(
+    raw: &ash::Device,
+    file: Option<&std::path::Path>,
+    props: &vk::PhysicalDeviceProperties,
+) -> (vk::PipelineCache, usize) {
+    let data = file
+        .and_then(|f| crate::pipeline_cache_file::load(f, props))
+        .unwrap_or_default();
+    for initial in [&data[..], &[]] {
+        let ci = vk::PipelineCacheCreateInfo::default().initial_data(initial);
+        // SAFETY: valid device; the data was checked against the device's
+        // own cache header.
+        match unsafe { raw.create_pipeline_cache(&ci, None) } {
+            Ok(c) => return (c, initial.len()),
+            Err(e) => log::warn!("vkCreatePipelineCache with {} bytes: {e}", initial.len()),
+        }
+    }
+    (vk::PipelineCache::null(), 0)
 }

@@ -81,6 +81,11 @@ pub struct ContextOptions {
     /// device's own: to leave headroom, or to rehearse a device with small
     /// limits (`LATENTAM_MAX_BUFFER_BYTES`). `None`: the device's limits.
     pub max_buffer_bytes: Option<u64>,
+    /// Where compiled pipelines are kept between processes, one file per
+    /// device, driver and build (`None`: not kept). Default:
+    /// `LATENTAM_PIPELINE_CACHE` (`off` for none), else
+    /// `$XDG_CACHE_HOME/latentam`, else `$HOME/.cache/latentam`.
+    pub pipeline_cache_dir: Option<std::path::PathBuf>,
 }
 
 impl Default for ContextOptions {
@@ -101,6 +106,7 @@ impl Default for ContextOptions {
             memory_budget: None,
             subgroup_arithmetic: env("LATENTAM_SUBGROUPS").as_deref() != Some("off"),
             max_buffer_bytes: env("LATENTAM_MAX_BUFFER_BYTES").and_then(|v| v.parse().ok()),
+            pipeline_cache_dir: crate::pipeline_cache_file::default_dir(),
         }
     }
 }

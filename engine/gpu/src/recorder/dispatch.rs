@@ -170,7 +170,10 @@ impl<'a> Recorder<'a> {
                 k.name, self.dev.info.name
             )));
         }
-        let pipe = self.dev.pipelines.get(&self.dev.raw, k)?;
+        let pipe = self
+            .dev
+            .pipelines
+            .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
         let mut reads = Vec::new();
         let mut writes = Vec::new();
         if let Groups::Indirect(args, _) = groups {
