@@ -45,7 +45,11 @@ pub struct Mapper {
 }
 
 impl Mapper {
-    /// A mapper on the first suitable Vulkan device.
+    /// A mapper on the first suitable Vulkan device, with the pipeline of
+    /// every kernel mapping dispatches there created before it returns
+    /// ([`warm_up`](super::warm_up)), so the first keyframe does not wait
+    /// for kernel compilation (compiled pipelines are also kept between
+    /// processes: `ContextOptions::pipeline_cache_dir`).
     ///
     /// ```no_run
     /// let mut config = latentam_core::mapper::MapperConfig::default();
@@ -55,11 +59,14 @@ impl Mapper {
     /// ```
     pub fn new(config: MapperConfig) -> Result<Self> {
         let ctx = Context::new(ContextOptions::default())?;
+        super::warm_up(&ctx)?;
         Self::with_context(&ctx, config)
     }
 
     /// A mapper on a context of your choosing (device, validation,
-    /// profiling). It sets the context's memory budget.
+    /// profiling). It sets the context's memory budget. Call
+    /// [`warm_up`](super::warm_up) on the context first to keep kernel
+    /// compilation out of the first keyframe.
     ///
     /// ```no_run
     /// use latentam_gpu::{Context, ContextOptions};
