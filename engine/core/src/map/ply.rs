@@ -7,13 +7,13 @@
 //!
 //! | property | value | why |
 //! |---|---|---|
-//! | `x y z` | [`Gaussian::mean`] | |
+//! | `x y z` | [`Gaussian::mean`](crate::map::Gaussian::mean) | |
 //! | `nx ny nz` | 0 | the Inria layout has them; viewers expect the names |
 //! | `f_dc_0..2` | `(color − 0.5) / C0` | degree-0 spherical harmonics, which viewers turn back into `0.5 + C0 · f_dc`, so they show the engine's view-independent colour; `C0 = 1 / (2√π)` |
-//! | `opacity` | [`Gaussian::opacity_logit`] | viewers apply the sigmoid |
-//! | `scale_0..2` | [`Gaussian::log_scale`] | viewers apply `exp` |
-//! | `rot_0..3` | [`Gaussian::quat`] normalised ([`unit_quat`]), as `w, x, y, z` | the Inria order; the engine keeps its quaternions unnormalised (it normalises when rendering), tools expect unit ones |
-//! | `latent_0..31` | [`Gaussian::query`] | the engine's own; viewers ignore unknown properties; left out by [`write_ply_without_latents`] for maps without embeddings |
+//! | `opacity` | [`Gaussian::opacity_logit`](crate::map::Gaussian::opacity_logit) | viewers apply the sigmoid |
+//! | `scale_0..2` | [`Gaussian::log_scale`](crate::map::Gaussian::log_scale) | viewers apply `exp` |
+//! | `rot_0..3` | [`Gaussian::quat`](crate::map::Gaussian::quat) normalised ([`unit_quat`]), as `w, x, y, z` | the Inria order; the engine keeps its quaternions unnormalised (it normalises when rendering), tools expect unit ones |
+//! | `latent_0..31` | [`Gaussian::query`](crate::map::Gaussian::query) | the engine's own; viewers ignore unknown properties; left out by [`write_ply_without_latents`] for maps without embeddings |
 //!
 //! followed by any extra per-Gaussian properties the caller names (a
 //! relevance score, say), also `float`. Every value except the colour and

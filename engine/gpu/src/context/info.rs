@@ -24,10 +24,10 @@ pub struct DeviceInfo {
     /// Subgroup size of compute kernels.
     pub subgroup_size: u32,
     /// Whether kernels use subgroup arithmetic (supported in compute and
-    /// allowed by [`ContextOptions::subgroup_arithmetic`]).
+    /// allowed by [`ContextOptions::subgroup_arithmetic`](crate::ContextOptions::subgroup_arithmetic)).
     pub subgroup_arithmetic: bool,
     /// Whether kernels use subgroup shuffles (supported in compute and
-    /// allowed by [`ContextOptions::subgroup_arithmetic`]).
+    /// allowed by [`ContextOptions::subgroup_arithmetic`](crate::ContextOptions::subgroup_arithmetic)).
     pub subgroup_shuffle: bool,
     /// Nanoseconds per timestamp tick; `None` when the compute queue has no
     /// timestamps.

@@ -41,7 +41,7 @@ pub enum FloatAtomics {
     CompareAndSwap,
 }
 
-/// Options for [`Context::new`]. `Default` reads the environment:
+/// Options for [`Context::new`](crate::Context::new). `Default` reads the environment:
 /// `LATENTAM_DEVICE` (index or case-insensitive name substring),
 /// `LATENTAM_VALIDATION=1` (require the validation layer),
 /// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
@@ -77,7 +77,7 @@ pub struct ContextOptions {
     /// without.
     pub subgroup_arithmetic: bool,
     /// Caps the largest buffer the engine creates (the storage-buffer
-    /// binding and single-allocation limits of [`DeviceInfo`]) below the
+    /// binding and single-allocation limits of [`DeviceInfo`](crate::DeviceInfo)) below the
     /// device's own: to leave headroom, or to rehearse a device with small
     /// limits (`LATENTAM_MAX_BUFFER_BYTES`). `None`: the device's limits.
     pub max_buffer_bytes: Option<u64>,

@@ -24,8 +24,8 @@ pub struct ForwardStats {
 }
 
 /// A batch of views, measured for rendering: its layout, the Gaussians it
-/// renders and the counts that size the pass. [`Rasterizer::measure`]
-/// makes them; [`Rasterizer::record_forward`], `record_pool` and
+/// renders and the counts that size the pass. [`Rasterizer::measure`](super::Rasterizer::measure)
+/// makes them; [`Rasterizer::record_forward`](super::Rasterizer::record_forward), `record_pool` and
 /// `record_backward_into` take them.
 ///
 /// A measured batch stays valid while the Gaussians it was measured on are

@@ -9,7 +9,7 @@ use latentam_gpu::{Buffer, Context, Recorder};
 pub(super) const QUERY_BYTES: u64 = QUERY_DIM as u64 * 4;
 
 /// Per-pixel buffers of a batch (all views back to back, each row-major; see
-/// [`BatchLayout`]). The forward pass writes them; the same layout carries
+/// [`BatchLayout`](crate::splat::BatchLayout)). The forward pass writes them; the same layout carries
 /// the upstream gradients into the backward pass.
 ///
 /// ```no_run
@@ -71,7 +71,7 @@ impl PixelBuffers {
     /// gradient); an error where none is allocated. A batch whose query
     /// image does not fit one buffer of the device is rendered in bands:
     /// this buffer then holds only the last band, and
-    /// [`Rasterizer::download_view`] returns the whole view.
+    /// [`Rasterizer::download_view`](super::Rasterizer::download_view) returns the whole view.
     pub fn query(&self) -> Result<&Buffer> {
         self.query.as_ref().ok_or_else(|| {
             Error::InvalidArgument(

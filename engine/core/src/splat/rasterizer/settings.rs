@@ -61,7 +61,7 @@ pub struct RenderSettings {
     pub detach_query_gradients: bool,
     /// Pixel-to-invocation mapping of the blending kernels.
     pub layout: BlendLayout,
-    /// Whether [`Rasterizer::image_grads`] has a per-pixel query gradient
+    /// Whether [`Rasterizer::image_grads`](super::Rasterizer::image_grads) has a per-pixel query gradient
     /// image ([`QueryGradients::Image`]); off, the 128 bytes a pixel are
     /// not allocated and the query gradients come from pooled region rows
     /// ([`QueryGradients::Regions`]) or are zero.
