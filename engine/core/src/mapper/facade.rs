@@ -47,7 +47,7 @@ pub struct Mapper {
 impl Mapper {
     /// A mapper on the first suitable Vulkan device, with the pipeline of
     /// every kernel mapping dispatches there created before it returns
-    /// ([`warm_up`](super::warm_up)), so the first keyframe does not wait
+    /// ([`warm_up`](super::warm_up())), so the first keyframe does not wait
     /// for kernel compilation (compiled pipelines are also kept between
     /// processes: `ContextOptions::pipeline_cache_dir`).
     ///
@@ -59,7 +59,7 @@ impl Mapper {
     /// ```
     pub fn new(config: MapperConfig) -> Result<Self> {
         let ctx = Context::new(ContextOptions::default())?;
-        super::warm_up(&ctx)?;
+        super::warm_up::warm_up(&ctx)?;
         Self::with_context(&ctx, config)
     }
 

@@ -23,6 +23,7 @@ mod preset;
 mod run_folder;
 mod run_report;
 mod trainer;
+mod warm_up;
 
 pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
@@ -39,26 +40,9 @@ pub use preset::Preset;
 pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES, STATE_FILE};
 pub use run_report::{Ending, HostWaits, RunReport};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
+pub use warm_up::warm_up;
 
 #[cfg(test)]
 mod persist_tests;
 #[cfg(test)]
 mod tests;
-
-/// Creates ahead of time the pipeline of every kernel mapping dispatches on
-/// `ctx`'s device, so that no keyframe pays for compiling one: all kernels
-/// but the rasterizer's blending variants meant for other devices (see
-/// [`crate::splat::Rasterizer::blend_kernel_names`]). Returns the number of
-/// pipelines ready.
-///
-/// ```
-/// let ctx = latentam_gpu::Context::new(Default::default())?;
-/// assert!(latentam_core::mapper::warm_up(&ctx)? < latentam_shaders::ALL.len());
-/// # Ok::<(), latentam_core::Error>(())
-/// ```
-pub fn warm_up(ctx: &latentam_gpu::Context) -> crate::Result<usize> {
-    use crate::splat::{Rasterizer, RenderSettings};
-    // The trainer's and the evaluator's settings: the defaults.
-    let used = Rasterizer::blend_kernel_names(ctx.info(), &RenderSettings::default());
-    ctx.warm_up_only(|k| !k.name.starts_with("raster_") || used.contains(&k.name))
-}
