@@ -25,6 +25,7 @@ use latentam_io::{embedding_space, CameraPose, Frame};
 
 mod growth;
 mod paging;
+mod stages;
 
 use super::keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
@@ -405,21 +406,9 @@ impl OnlineMapper {
         // which must be resident for Stage I.
         let t = Instant::now();
         let span = ctx.host_span("seeding");
-        let new_keys = self.seed(frame, &mut record, seed)?;
         let centre = frame.pose.translation;
-        let window = self.window.as_ref().expect("ensured");
-        if new_keys.len() <= window.free() {
-            self.append(&new_keys)?;
-        } else {
-            let t_page = Instant::now();
-            let plan = window.plan(&self.global, centre, self.cfg.window_radius);
-            self.window_partial = plan.over_capacity > 0;
-            let run = self.submit_sync(&plan, true)?;
-            let (report, _) = self.finish_sync(run, None)?;
-            timings.paging_cpu_ms += ms_since(t_page);
-            paging.push(report);
-            self.last_sync = Some(centre);
-        }
+        let new_keys =
+            self.insert_new_gaussians(frame, &mut record, seed, &mut timings, &mut paging)?;
         drop(span);
         timings.insertion_ms = ms_since(t);
         lap(&mut calls.insertion);
@@ -427,27 +416,7 @@ impl OnlineMapper {
         // Stage I on the keyframe and B past ones.
         let t = Instant::now();
         let span = ctx.host_span("stage I");
-        // Replayed keyframes are drawn among those the window can render.
-        let picks = self.history.sample_near(
-            self.cfg.replay as usize,
-            seed,
-            centre,
-            self.cfg.window_radius,
-        );
-        let mut batch: Vec<&KeyframeRecord> = vec![&record];
-        batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
-        let trainer = self.trainer.as_mut().expect("ensured");
-        let window = self.window.as_ref().expect("ensured");
-        // R1 steps on the batch; the report is the first's (the losses
-        // before this keyframe trained anything).
-        let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
-        for _ in 1..self.cfg.stage_one_iterations {
-            if is_set(self.hurry) {
-                break;
-            }
-            trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
-        }
-        self.window_dirty = true;
+        let stage_one = self.train_stage_one(&record, seed, centre)?;
         drop(span);
         timings.stage_one_ms = ms_since(t);
         lap(&mut calls.stage_one);
@@ -457,46 +426,8 @@ impl OnlineMapper {
         // only (see `Recorder::submit`).
         let t = Instant::now();
         let span = ctx.host_span("stage II and paging");
-        let moved = self
-            .last_sync
-            .is_none_or(|p| p.distance(centre) > self.cfg.sync_distance);
-        let run = if moved {
-            let t_page = Instant::now();
-            let plan = self.window.as_ref().expect("ensured").plan(
-                &self.global,
-                centre,
-                self.cfg.window_radius,
-            );
-            let run = self.submit_sync(&plan, false)?;
-            timings.paging_cpu_ms += ms_since(t_page);
-            self.last_sync = Some(centre);
-            lap(&mut calls.paging);
-            Some(run)
-        } else {
-            None
-        };
-        let stage_two_iterations = if is_set(self.hurry) {
-            0
-        } else {
-            self.cfg.stage_two_iterations
-        };
-        let stage_two_run = self.trainer.as_ref().expect("ensured").submit_stage_two(
-            &self.ctx,
-            self.head.as_ref(),
-            stage_two_iterations,
-        )?;
-        let (stage_two, stage_two_span) = stage_two_run.finish()?;
-        timings.stage_two_gpu_ms = stage_two_span.map(|s| s.ms());
-        lap(&mut calls.stage_two);
-        if let Some(run) = run {
-            let t_page = Instant::now();
-            let (report, span) = self.finish_sync(run, stage_two_span.as_ref())?;
-            timings.paging_cpu_ms += ms_since(t_page);
-            timings.paging_gpu_ms = span.map(|s| s.0);
-            timings.paging_hidden_ms = span.and_then(|s| s.1);
-            paging.push(report);
-            lap(&mut calls.paging);
-        }
+        let stage_two =
+            self.stage_two_and_paging(centre, &mut timings, &mut paging, &mut lap, &mut calls)?;
         drop(span);
         timings.stage_two_ms = ms_since(t);
 
