@@ -226,6 +226,11 @@ impl Trainer {
     /// Two host waits: one measures the batch (how many splats and tile
     /// intersections each chunk's rendering needs), one ends the step;
     /// everything between is one submission.
+    //
+    // Why one long function: the recorder borrows the trainer's buffers
+    // (rasterizer images, pooled rows, gradients) until it is submitted,
+    // so the two passes cannot be methods taking `&mut self` while it is
+    // open; they are the two commented blocks below.
     pub fn stage_one(
         &mut self,
         ctx: &Context,
