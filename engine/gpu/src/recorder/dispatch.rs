@@ -118,6 +118,88 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
         push: &[u8],
     ) -> Result<()> {
+        self.check_dispatch(k, groups, buffers)?;
+        if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
+            return Ok(());
+        }
+        if let Some(missing) = self.dev.info.missing_for(k) {
+            return Err(Error::Unsupported(format!(
+                "kernel {} needs {missing}, which {} does not offer (or the options turned off)",
+                k.name, self.dev.info.name
+            )));
+        }
+        let pipe = self
+            .dev
+            .pipelines
+            .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
+        let mut reads = Vec::new();
+        let mut writes = Vec::new();
+        if let Groups::Indirect(args, _) = groups {
+            reads.push(args.raw);
+        }
+        for (b, decl) in buffers.iter().zip(k.bindings) {
+            if decl.writable {
+                writes.push(b.raw);
+            } else {
+                reads.push(b.raw);
+            }
+        }
+        self.track(&reads, &writes);
+
+        let set = if buffers.is_empty() {
+            None
+        } else {
+            Some(self.bound_set(pipe.set_layout, buffers)?)
+        };
+
+        let start = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        // SAFETY: recording into our own command buffer with objects that
+        // outlive the submission (pipeline cache, retired pools, borrowed
+        // buffers).
+        unsafe {
+            let d = &self.dev.raw;
+            d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipe.pipeline);
+            if let Some(set) = set {
+                d.cmd_bind_descriptor_sets(
+                    self.cmd,
+                    vk::PipelineBindPoint::COMPUTE,
+                    pipe.layout,
+                    0,
+                    &[set],
+                    &[],
+                );
+            }
+            if k.push_constant_size > 0 {
+                d.cmd_push_constants(
+                    self.cmd,
+                    pipe.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    push,
+                );
+            }
+            match groups {
+                Groups::Direct([x, y, z]) => d.cmd_dispatch(self.cmd, x, y, z),
+                Groups::Indirect(args, offset) => {
+                    d.cmd_dispatch_indirect(self.cmd, args.raw, offset)
+                }
+            }
+        }
+        self.dev.calls.dispatched();
+        let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
+        if let (Some(s), Some(e)) = (start, end) {
+            self.labels.push((k.name, s, e));
+        }
+        Ok(())
+    }
+
+    /// Refuses a dispatch the kernel or the device cannot take.
+    fn check_dispatch(
+        &self,
+        k: &'static Kernel,
+        groups: Groups<'a>,
+        buffers: &[&'a Buffer],
+    ) -> Result<()> {
         if self.transfer {
             return Err(Error::InvalidArgument(format!(
                 "kernel `{}` recorded on the transfer queue",
@@ -161,102 +243,39 @@ impl<'a> Recorder<'a> {
                 )));
             }
         }
-        if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
-            return Ok(());
-        }
-        if let Some(missing) = self.dev.info.missing_for(k) {
-            return Err(Error::Unsupported(format!(
-                "kernel {} needs {missing}, which {} does not offer (or the options turned off)",
-                k.name, self.dev.info.name
-            )));
-        }
-        let pipe = self
-            .dev
-            .pipelines
-            .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
-        let mut reads = Vec::new();
-        let mut writes = Vec::new();
-        if let Groups::Indirect(args, _) = groups {
-            reads.push(args.raw);
-        }
-        for (b, decl) in buffers.iter().zip(k.bindings) {
-            if decl.writable {
-                writes.push(b.raw);
-            } else {
-                reads.push(b.raw);
-            }
-        }
-        self.track(&reads, &writes);
-
-        let set = if buffers.is_empty() {
-            None
-        } else {
-            Some(self.descriptor_set(pipe.set_layout)?)
-        };
-        if let Some(set) = set {
-            let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
-                .iter()
-                .map(|b| {
-                    [vk::DescriptorBufferInfo::default()
-                        .buffer(b.raw)
-                        .offset(0)
-                        .range(vk::WHOLE_SIZE)]
-                })
-                .collect();
-            let writes: Vec<vk::WriteDescriptorSet> = infos
-                .iter()
-                .enumerate()
-                .map(|(i, info)| {
-                    vk::WriteDescriptorSet::default()
-                        .dst_set(set)
-                        .dst_binding(i as u32)
-                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                        .buffer_info(info)
-                })
-                .collect();
-            // SAFETY: the set is fresh and not in use.
-            unsafe { self.dev.raw.update_descriptor_sets(&writes, &[]) };
-        }
-
-        let start = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
-        // SAFETY: recording into our own command buffer with objects that
-        // outlive the submission (pipeline cache, retired pools, borrowed
-        // buffers).
-        unsafe {
-            let d = &self.dev.raw;
-            d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipe.pipeline);
-            if let Some(set) = set {
-                d.cmd_bind_descriptor_sets(
-                    self.cmd,
-                    vk::PipelineBindPoint::COMPUTE,
-                    pipe.layout,
-                    0,
-                    &[set],
-                    &[],
-                );
-            }
-            if k.push_constant_size > 0 {
-                d.cmd_push_constants(
-                    self.cmd,
-                    pipe.layout,
-                    vk::ShaderStageFlags::COMPUTE,
-                    0,
-                    push,
-                );
-            }
-            match groups {
-                Groups::Direct([x, y, z]) => d.cmd_dispatch(self.cmd, x, y, z),
-                Groups::Indirect(args, offset) => {
-                    d.cmd_dispatch_indirect(self.cmd, args.raw, offset)
-                }
-            }
-        }
-        self.dev.calls.dispatched();
-        let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
-        if let (Some(s), Some(e)) = (start, end) {
-            self.labels.push((k.name, s, e));
-        }
         Ok(())
+    }
+
+    /// A fresh descriptor set of `layout` with `buffers[i]` at binding i.
+    fn bound_set(
+        &mut self,
+        layout: vk::DescriptorSetLayout,
+        buffers: &[&'a Buffer],
+    ) -> Result<vk::DescriptorSet> {
+        let set = self.descriptor_set(layout)?;
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+            .iter()
+            .map(|b| {
+                [vk::DescriptorBufferInfo::default()
+                    .buffer(b.raw)
+                    .offset(0)
+                    .range(vk::WHOLE_SIZE)]
+            })
+            .collect();
+        let writes: Vec<vk::WriteDescriptorSet> = infos
+            .iter()
+            .enumerate()
+            .map(|(i, info)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(i as u32)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .buffer_info(info)
+            })
+            .collect();
+        // SAFETY: the set is fresh and not in use.
+        unsafe { self.dev.raw.update_descriptor_sets(&writes, &[]) };
+        Ok(set)
     }
 
     /// Dispatches `groups` workgroups along one logical dimension, split over
