@@ -158,66 +158,7 @@ pub(crate) fn generate_selectors(
                 ));
             }
         }
-        // Each variant matches a combination of the keys' flags when every
-        // key it defines has that value; a key it leaves out matches both.
-        let value = |i: usize, key: &str| -> Result<Option<bool>, String> {
-            match kernels[i].defines.iter().find(|(k, _)| k == key) {
-                None => Ok(None),
-                Some((_, v)) if v == "0" => Ok(Some(false)),
-                Some((_, v)) if v == "1" => Ok(Some(true)),
-                Some((_, v)) => Err(format!(
-                    "{}: `@select` key {key} of `{}` is {v}, not 0 or 1",
-                    k.source, kernels[i].name
-                )),
-            }
-        };
-        let mut arms = String::new();
-        for combo in 0..(1u32 << keys.len()) {
-            let flags: Vec<bool> = (0..keys.len()).map(|b| combo >> b & 1 == 1).collect();
-            let mut matching = Vec::new();
-            for &i in &members {
-                let mut all = true;
-                for (key, &f) in keys.iter().zip(&flags) {
-                    if value(i, key)?.is_some_and(|v| v != f) {
-                        all = false;
-                    }
-                }
-                if all {
-                    matching.push(i);
-                }
-            }
-            let described: Vec<String> = keys
-                .iter()
-                .zip(&flags)
-                .map(|(k, f)| format!("{k}={}", *f as u8))
-                .collect();
-            let i = match matching.as_slice() {
-                [i] => *i,
-                [] => {
-                    return Err(format!(
-                        "{}: `@select` has no variant for {}",
-                        k.source,
-                        described.join(" ")
-                    ))
-                }
-                many => {
-                    let names: Vec<&str> = many.iter().map(|&i| kernels[i].name.as_str()).collect();
-                    return Err(format!(
-                        "{}: `@select` {} matches several variants: {}",
-                        k.source,
-                        described.join(" "),
-                        names.join(", ")
-                    ));
-                }
-            };
-            let pattern: Vec<String> = flags.iter().map(|f| f.to_string()).collect();
-            let _ = writeln!(
-                arms,
-                "            ({}) => &{},",
-                pattern.join(", "),
-                kernels[i].name.to_ascii_uppercase()
-            );
-        }
+        let arms = selector_arms(kernels, &members, keys, &k.source)?;
         let stem = k.source.rsplit('/').next().unwrap_or(&k.source);
         let ty = format!("{}Variant", camel(stem.split('.').next().unwrap_or(stem)));
         let push_ty = match &push_names[first] {
@@ -248,4 +189,77 @@ pub(crate) fn generate_selectors(
         );
     }
     Ok(s)
+}
+
+/// The match arms of a selector: for every combination of the keys'
+/// flags, the one variant it names (a variant matches when every key it
+/// defines has that value; a key it leaves out matches both), or an error
+/// when a combination names none or several.
+fn selector_arms(
+    kernels: &[KernelOut],
+    members: &[usize],
+    keys: &[String],
+    source: &str,
+) -> Result<String, String> {
+    // Each variant matches a combination of the keys' flags when every
+    // key it defines has that value; a key it leaves out matches both.
+    let value = |i: usize, key: &str| -> Result<Option<bool>, String> {
+        match kernels[i].defines.iter().find(|(k, _)| k == key) {
+            None => Ok(None),
+            Some((_, v)) if v == "0" => Ok(Some(false)),
+            Some((_, v)) if v == "1" => Ok(Some(true)),
+            Some((_, v)) => Err(format!(
+                "{}: `@select` key {key} of `{}` is {v}, not 0 or 1",
+                source, kernels[i].name
+            )),
+        }
+    };
+    let mut arms = String::new();
+    for combo in 0..(1u32 << keys.len()) {
+        let flags: Vec<bool> = (0..keys.len()).map(|b| combo >> b & 1 == 1).collect();
+        let mut matching = Vec::new();
+        for &i in members {
+            let mut all = true;
+            for (key, &f) in keys.iter().zip(&flags) {
+                if value(i, key)?.is_some_and(|v| v != f) {
+                    all = false;
+                }
+            }
+            if all {
+                matching.push(i);
+            }
+        }
+        let described: Vec<String> = keys
+            .iter()
+            .zip(&flags)
+            .map(|(k, f)| format!("{k}={}", *f as u8))
+            .collect();
+        let i = match matching.as_slice() {
+            [i] => *i,
+            [] => {
+                return Err(format!(
+                    "{}: `@select` has no variant for {}",
+                    source,
+                    described.join(" ")
+                ))
+            }
+            many => {
+                let names: Vec<&str> = many.iter().map(|&i| kernels[i].name.as_str()).collect();
+                return Err(format!(
+                    "{}: `@select` {} matches several variants: {}",
+                    source,
+                    described.join(" "),
+                    names.join(", ")
+                ));
+            }
+        };
+        let pattern: Vec<String> = flags.iter().map(|f| f.to_string()).collect();
+        let _ = writeln!(
+            arms,
+            "            ({}) => &{},",
+            pattern.join(", "),
+            kernels[i].name.to_ascii_uppercase()
+        );
+    }
+    Ok(arms)
 }
