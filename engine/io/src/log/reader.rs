@@ -147,6 +147,11 @@ impl FileReader {
 
     /// Calls `f` with the next admitted message: `Some(Ok(()))` after a
     /// call, `None` at the end of the file.
+    //
+    // Why one long function: each arm borrows its reader out of
+    // `self.source`, and the linear one replaces the source with `Failed`
+    // on a fatal error while that borrow is live; split into methods, the
+    // two could not both hold it.
     pub(super) fn next_with(
         &mut self,
         file: &LogFile,

@@ -417,6 +417,9 @@ impl SavedState {
     /// A small, valid state built on the CPU: six Gaussians, four of them
     /// resident, a 3-d latent head and two keyframes (label regions and a
     /// feature grid). For tests and fuzzing.
+    //
+    // Long because it is data: every section of a saved state spelled out
+    // once, so the persistence tests and the fuzz target start from it.
     #[doc(hidden)]
     pub fn example() -> Self {
         let config = MapperConfig {
