@@ -61,28 +61,56 @@ fn category(name: &str) -> &str {
     name.split('/').next().unwrap_or(name)
 }
 
+/// Refuses a buffer larger than the device binds or allocates at once.
+fn check_size(info: &crate::DeviceInfo, name: &str, bytes: u64, kind: BufferKind) -> Result<()> {
+    if kind == BufferKind::Device && bytes > info.max_buffer_bytes() {
+        return Err(Error::Unsupported(format!(
+            "buffer `{name}` needs {bytes} bytes but {} binds at most {} bytes per storage \
+                 buffer and allocates at most {} at once",
+            info.name, info.max_storage_buffer_range, info.max_memory_allocation_size
+        )));
+    }
+    let alloc_limit = match info.max_memory_allocation_size {
+        0 => u64::MAX,
+        n => n,
+    };
+    if kind != BufferKind::Device && bytes > alloc_limit {
+        return Err(Error::Unsupported(format!(
+            "staging buffer `{name}` needs {bytes} bytes but {} allocates at most {} at once",
+            info.name, info.max_memory_allocation_size
+        )));
+    }
+    Ok(())
+}
+
+/// The buffer's memory, from the device's allocator (or a simulated
+/// failure under `LATENTAM_FAULTS=alloc_fail_after=N`).
+fn allocate(
+    dev: &crate::context::Device,
+    name: &str,
+    requirements: vk::MemoryRequirements,
+    location: MemoryLocation,
+) -> std::result::Result<gpu_allocator::vulkan::Allocation, gpu_allocator::AllocationError> {
+    if latentam_base::faults::allocation_fails() {
+        return Err(gpu_allocator::AllocationError::OutOfMemory);
+    }
+    let mut guard = dev.allocator.lock().unwrap_or_else(|p| p.into_inner());
+    let alloc = guard
+        .as_mut()
+        .expect("allocator lives as long as the device");
+    alloc.allocate(&AllocationCreateDesc {
+        name,
+        requirements,
+        location,
+        linear: true,
+        allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+    })
+}
+
 impl Buffer {
     pub(crate) fn new(ctx: &Context, name: &str, bytes: u64, kind: BufferKind) -> Result<Self> {
         let dev = &ctx.dev;
-        if kind == BufferKind::Device && bytes > dev.info.max_buffer_bytes() {
-            return Err(Error::Unsupported(format!(
-                "buffer `{name}` needs {bytes} bytes but {} binds at most {} bytes per storage \
-                 buffer and allocates at most {} at once",
-                dev.info.name,
-                dev.info.max_storage_buffer_range,
-                dev.info.max_memory_allocation_size
-            )));
-        }
-        let alloc_limit = match dev.info.max_memory_allocation_size {
-            0 => u64::MAX,
-            n => n,
-        };
-        if kind != BufferKind::Device && bytes > alloc_limit {
-            return Err(Error::Unsupported(format!(
-                "staging buffer `{name}` needs {bytes} bytes but {} allocates at most {} at once",
-                dev.info.name, dev.info.max_memory_allocation_size
-            )));
-        }
+        check_size(&dev.info, name, bytes, kind)?;
         // Vulkan forbids empty buffers; keep the logical size separately.
         let alloc_bytes = bytes.max(4).next_multiple_of(4);
         let usage = match kind {
@@ -123,21 +151,7 @@ impl Buffer {
             BufferKind::Upload => MemoryLocation::CpuToGpu,
             BufferKind::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = if latentam_base::faults::allocation_fails() {
-            Err(gpu_allocator::AllocationError::OutOfMemory)
-        } else {
-            let mut guard = dev.allocator.lock().unwrap_or_else(|p| p.into_inner());
-            let alloc = guard
-                .as_mut()
-                .expect("allocator lives as long as the device");
-            alloc.allocate(&AllocationCreateDesc {
-                name,
-                requirements: req,
-                location,
-                linear: true,
-                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-            })
-        };
+        let allocation = allocate(dev, name, req, location);
         let allocation = match allocation {
             Ok(a) => a,
             Err(e) => {
