@@ -96,35 +96,81 @@ pub fn plan_topics(
     let mut plan = Vec::new();
     let choose = config.choose;
     let present = |t: &str| channels.iter().any(|c| c.topic == t);
-    fn take(plan: &mut Vec<String>, stream: &str, slot: &mut String, chosen: Option<&Channel>) {
-        if let Some(c) = chosen {
-            plan.push(format!(
-                "{stream}: {} ({}; {} is not in the log)",
-                c.topic, c.schema_name, slot
-            ));
-            *slot = c.topic.clone();
+    if choose.color && !present(&topics.color) {
+        choose_color(channels, &mut topics, &mut plan)?;
+    }
+    if choose.depth {
+        choose_depth(channels, &mut topics, &mut plan)?;
+    }
+    if choose.camera_info && config.intrinsics.is_none() && !present(&topics.camera_info) {
+        choose_camera_info(channels, &mut topics, &mut plan)?;
+    }
+    if let (true, PoseSource::Topic(p)) = (choose.pose, &topics.pose) {
+        if !present(p) {
+            choose_pose(channels, &mut topics, &mut plan)?;
         }
     }
-    let images = [Image::TYPE_NAME, CompressedImage::TYPE_NAME];
-
-    if choose.color && !present(&topics.color) {
-        let candidates = of_type(channels, &images)
-            .into_iter()
-            .filter(|c| {
-                let t = lower(c);
-                !["depth", "infra", "/ir", "semantic", "label", "mask"]
-                    .iter()
-                    .any(|w| t.contains(w))
-            })
-            .collect();
-        let candidates = prefer(
-            drop_compressed_twins(candidates),
-            &[&|c| lower(c).contains("color") || lower(c).contains("rgb")],
-        );
-        let chosen = one("colour images", "--color-topic", candidates)?;
-        take(&mut plan, "colour", &mut topics.color, chosen);
+    if choose.embeddings && !present(&topics.embeddings) {
+        let candidates = of_type(channels, &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME]);
+        let chosen = one("region embeddings", "--embeddings-topic", candidates)?;
+        take(&mut plan, "embeddings", &mut topics.embeddings, chosen);
     }
-    let depth_images: Vec<&Channel> = of_type(channels, &images)
+    if choose.vocabulary && !present(&topics.vocabulary) {
+        let candidates = of_type(channels, &[TextEmbeddings::TYPE_NAME]);
+        let chosen = one("vocabulary", "--vocabulary-topic", candidates)?;
+        take(&mut plan, "vocabulary", &mut topics.vocabulary, chosen);
+    }
+    Ok((topics, plan))
+}
+
+/// Image types a colour or depth stream may have.
+const IMAGES: [&str; 2] = [Image::TYPE_NAME, CompressedImage::TYPE_NAME];
+
+/// Sets `slot` to the chosen topic, noting the choice in `plan`.
+fn take(plan: &mut Vec<String>, stream: &str, slot: &mut String, chosen: Option<&Channel>) {
+    if let Some(c) = chosen {
+        plan.push(format!(
+            "{stream}: {} ({}; {} is not in the log)",
+            c.topic, c.schema_name, slot
+        ));
+        *slot = c.topic.clone();
+    }
+}
+
+/// The colour images: an image topic that is no depth, infrared or label
+/// stream, a `color`/`rgb` one first.
+fn choose_color(
+    channels: &[Channel],
+    topics: &mut Topics,
+    plan: &mut Vec<String>,
+) -> Result<(), InputError> {
+    let candidates = of_type(channels, &IMAGES)
+        .into_iter()
+        .filter(|c| {
+            let t = lower(c);
+            !["depth", "infra", "/ir", "semantic", "label", "mask"]
+                .iter()
+                .any(|w| t.contains(w))
+        })
+        .collect();
+    let candidates = prefer(
+        drop_compressed_twins(candidates),
+        &[&|c| lower(c).contains("color") || lower(c).contains("rgb")],
+    );
+    let chosen = one("colour images", "--color-topic", candidates)?;
+    take(plan, "colour", &mut topics.color, chosen);
+    Ok(())
+}
+
+/// The depth images when the configured topic is absent, or a registered
+/// depth topic recorded beside the configured raw one.
+fn choose_depth(
+    channels: &[Channel],
+    topics: &mut Topics,
+    plan: &mut Vec<String>,
+) -> Result<(), InputError> {
+    let present = |t: &str| channels.iter().any(|c| c.topic == t);
+    let depth_images: Vec<&Channel> = of_type(channels, &IMAGES)
         .into_iter()
         .filter(|c| lower(c).contains("depth"))
         .collect();
@@ -134,7 +180,7 @@ pub fn plan_topics(
     let registered_beside = present(&topics.depth)
         && !registered_depth(&topics.depth)
         && depth_images.iter().any(|c| registered_depth(&c.topic));
-    if choose.depth && (!present(&topics.depth) || registered_beside) {
+    if !present(&topics.depth) || registered_beside {
         let candidates = prefer(
             drop_compressed_twins(depth_images),
             &[&|c| lower(c).contains("aligned_depth_to_color"), &|c| {
@@ -151,60 +197,67 @@ pub fn plan_topics(
                 topics.depth = c.topic.clone();
             }
         } else {
-            take(&mut plan, "depth", &mut topics.depth, chosen);
+            take(plan, "depth", &mut topics.depth, chosen);
         }
     }
-    if choose.camera_info && config.intrinsics.is_none() && !present(&topics.camera_info) {
-        // The calibration beside the colour images: its parent path is a
-        // prefix of theirs.
-        let color = topics.color.clone();
-        let beside = move |c: &Channel| {
-            c.topic
-                .rsplit_once('/')
-                .is_some_and(|(parent, _)| !parent.is_empty() && color.starts_with(parent))
-        };
-        let candidates = prefer(of_type(channels, &[CameraInfo::TYPE_NAME]), &[&beside]);
-        let chosen = one("camera info", "--camera-info-topic", candidates)?;
-        take(&mut plan, "camera info", &mut topics.camera_info, chosen);
-    }
-    if let (true, PoseSource::Topic(p)) = (choose.pose, &topics.pose) {
-        if !present(p) {
-            let candidates = prefer(
-                of_type(channels, &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME]),
-                &[&|c| lower(c).contains("camera")],
-            );
-            let configured = p.clone();
-            match one("camera poses", "--pose-topic or --tf-world", candidates)? {
-                Some(c) => {
-                    plan.push(format!(
-                        "poses: {} ({}; {configured} is not in the log)",
-                        c.topic, c.schema_name
-                    ));
-                    topics.pose = PoseSource::Topic(c.topic.clone());
-                }
-                None if !of_type(channels, &[TfMessage::TYPE_NAME]).is_empty() => {
-                    plan.push(format!(
-                        "poses: /tf + /tf_static, from the root of the tree to the colour \
-                         image's frame ({configured} is not in the log)"
-                    ));
-                    topics.pose = PoseSource::Tf {
-                        world_frame: String::new(),
-                        camera_frame: None,
-                    };
-                }
-                None => {}
-            }
+    Ok(())
+}
+
+/// The calibration beside the colour images: its parent path is a prefix
+/// of theirs.
+fn choose_camera_info(
+    channels: &[Channel],
+    topics: &mut Topics,
+    plan: &mut Vec<String>,
+) -> Result<(), InputError> {
+    // The calibration beside the colour images: its parent path is a
+    // prefix of theirs.
+    let color = topics.color.clone();
+    let beside = move |c: &Channel| {
+        c.topic
+            .rsplit_once('/')
+            .is_some_and(|(parent, _)| !parent.is_empty() && color.starts_with(parent))
+    };
+    let candidates = prefer(of_type(channels, &[CameraInfo::TYPE_NAME]), &[&beside]);
+    let chosen = one("camera info", "--camera-info-topic", candidates)?;
+    take(plan, "camera info", &mut topics.camera_info, chosen);
+    Ok(())
+}
+
+/// The camera poses: a pose or odometry topic (a `camera` one first), else
+/// the TF tree when the log has one.
+fn choose_pose(
+    channels: &[Channel],
+    topics: &mut Topics,
+    plan: &mut Vec<String>,
+) -> Result<(), InputError> {
+    let PoseSource::Topic(p) = &topics.pose else {
+        return Ok(());
+    };
+    let candidates = prefer(
+        of_type(channels, &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME]),
+        &[&|c| lower(c).contains("camera")],
+    );
+    let configured = p.clone();
+    match one("camera poses", "--pose-topic or --tf-world", candidates)? {
+        Some(c) => {
+            plan.push(format!(
+                "poses: {} ({}; {configured} is not in the log)",
+                c.topic, c.schema_name
+            ));
+            topics.pose = PoseSource::Topic(c.topic.clone());
         }
+        None if !of_type(channels, &[TfMessage::TYPE_NAME]).is_empty() => {
+            plan.push(format!(
+                "poses: /tf + /tf_static, from the root of the tree to the colour \
+                     image's frame ({configured} is not in the log)"
+            ));
+            topics.pose = PoseSource::Tf {
+                world_frame: String::new(),
+                camera_frame: None,
+            };
+        }
+        None => {}
     }
-    if choose.embeddings && !present(&topics.embeddings) {
-        let candidates = of_type(channels, &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME]);
-        let chosen = one("region embeddings", "--embeddings-topic", candidates)?;
-        take(&mut plan, "embeddings", &mut topics.embeddings, chosen);
-    }
-    if choose.vocabulary && !present(&topics.vocabulary) {
-        let candidates = of_type(channels, &[TextEmbeddings::TYPE_NAME]);
-        let chosen = one("vocabulary", "--vocabulary-topic", candidates)?;
-        take(&mut plan, "vocabulary", &mut topics.vocabulary, chosen);
-    }
-    Ok((topics, plan))
+    Ok(())
 }
