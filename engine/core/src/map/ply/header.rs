@@ -30,8 +30,7 @@ pub(super) fn read_header(
     let mut limited = reader.take(MAX_HEADER_BYTES);
     let mut consumed = 0u64;
     let mut line = Vec::new();
-    let mut format_seen = false;
-    let mut vertex: Option<Header> = None;
+    let mut parser = HeaderLines::default();
     let mut line_no = 0;
     loop {
         line_no += 1;
@@ -59,7 +58,25 @@ pub(super) fn read_header(
                 "header line {line_no} is not text; not a PLY file?"
             ));
         };
-        let text = text.trim_end_matches(['\n', '\r']);
+        match parser.line(line_no, text.trim_end_matches(['\n', '\r'])) {
+            Ok(Some(vertex)) => return Ok((vertex, consumed)),
+            Ok(None) => {}
+            Err(m) => return fail(m),
+        }
+    }
+}
+
+/// What the header lines read so far declared.
+#[derive(Default)]
+struct HeaderLines {
+    format_seen: bool,
+    vertex: Option<Header>,
+}
+
+impl HeaderLines {
+    /// Takes one header line after the magic: the header once `text` is
+    /// `end_header`, or why the file cannot be read.
+    fn line(&mut self, line_no: usize, text: &str) -> std::result::Result<Option<Header>, String> {
         let mut words = text.split_ascii_whitespace();
         let keyword = words.next().unwrap_or("");
         let rest: Vec<&str> = words.collect();
@@ -68,84 +85,85 @@ pub(super) fn read_header(
                 match rest.as_slice() {
                     ["binary_little_endian", "1.0"] => {}
                     [format @ ("ascii" | "binary_big_endian"), _] => {
-                        return fail(format!(
+                        return Err(format!(
                             "PLY format `{format}` is not supported; only \
-                             binary_little_endian 1.0 is"
+                         binary_little_endian 1.0 is"
                         ))
                     }
                     _ => {
-                        return fail(format!(
+                        return Err(format!(
                             "header line {line_no}: unknown format line `{text}`; only \
-                             `format binary_little_endian 1.0` is supported"
+                         `format binary_little_endian 1.0` is supported"
                         ))
                     }
                 }
-                format_seen = true;
+                self.format_seen = true;
             }
             "comment" | "obj_info" => {}
             "element" => {
-                if !format_seen {
-                    return fail(format!("header line {line_no}: element before format"));
+                if !self.format_seen {
+                    return Err(format!("header line {line_no}: element before format"));
                 }
                 let [name, count] = rest.as_slice() else {
-                    return fail(format!("header line {line_no}: malformed `{text}`"));
+                    return Err(format!("header line {line_no}: malformed `{text}`"));
                 };
                 if *name != "vertex" {
-                    return fail(format!(
+                    return Err(format!(
                         "element `{name}` is not supported; only a single `vertex` element is"
                     ));
                 }
-                if vertex.is_some() {
-                    return fail("more than one vertex element".to_owned());
+                if self.vertex.is_some() {
+                    return Err("more than one vertex element".to_owned());
                 }
                 let Ok(count) = count.parse::<u64>() else {
-                    return fail(format!("header line {line_no}: bad vertex count `{count}`"));
+                    return Err(format!("header line {line_no}: bad vertex count `{count}`"));
                 };
-                vertex = Some(Header {
+                self.vertex = Some(Header {
                     count,
                     properties: Vec::new(),
                 });
             }
             "property" => {
-                let Some(element) = vertex.as_mut() else {
-                    return fail(format!(
+                let Some(element) = self.vertex.as_mut() else {
+                    return Err(format!(
                         "header line {line_no}: property outside an element"
                     ));
                 };
                 match rest.as_slice() {
                     ["list", ..] => {
-                        return fail(format!(
+                        return Err(format!(
                             "header line {line_no}: list properties are not supported in \
-                             vertices"
+                         vertices"
                         ))
                     }
                     [ty, name] => {
                         let Some(ty) = ScalarType::parse(ty) else {
-                            return fail(format!(
+                            return Err(format!(
                                 "header line {line_no}: unknown property type `{ty}`"
                             ));
                         };
                         element.properties.push((ty, (*name).to_owned()));
                     }
-                    _ => return fail(format!("header line {line_no}: malformed `{text}`")),
+                    _ => return Err(format!("header line {line_no}: malformed `{text}`")),
                 }
             }
             "end_header" if rest.is_empty() => {
-                if !format_seen {
-                    return fail("no format line".to_owned());
+                if !self.format_seen {
+                    return Err("no format line".to_owned());
                 }
-                let Some(vertex) = vertex else {
-                    return fail("no vertex element".to_owned());
+                return match self.vertex.take() {
+                    Some(vertex) => Ok(Some(vertex)),
+                    None => Err("no vertex element".to_owned()),
                 };
-                return Ok((vertex, consumed));
             }
             _ => {
-                return fail(format!(
+                return Err(format!(
                     "header line {line_no}: unknown line `{}`",
                     text.chars().take(80).collect::<String>()
                 ))
             }
         }
+        Ok(None)
     }
 }
 
