@@ -265,47 +265,63 @@ impl ImageLoss {
                 weight: (w.rgb as f64 * w.ssim as f64 * per_colour) as f32,
             };
             let groups = (3 * pixels).div_ceil(THREADS) as u32;
-            rec.dispatch_linear(
-                &SSIM_STATS_H,
-                groups,
-                bind::SsimStatsHBuffers {
-                    rendered,
-                    target,
-                    stats: &self.stats,
-                },
-                &p,
-            )?;
-            rec.dispatch_linear(
-                &SSIM_MAP_V,
-                groups,
-                bind::SsimMapVBuffers {
-                    stats: &self.stats,
-                    dmap: &self.dmap,
-                    partial: &self.ssim_partial,
-                },
-                &p,
-            )?;
-            rec.dispatch_linear(
-                &SSIM_GRAD_H,
-                groups,
-                bind::SsimGradHBuffers {
-                    dmap: &self.dmap,
-                    blurred: &self.blurred,
-                },
-                &p,
-            )?;
-            rec.dispatch_linear(
-                &SSIM_GRAD_V,
-                groups,
-                bind::SsimGradVBuffers {
-                    blurred: &self.blurred,
-                    rendered,
-                    target,
-                    grad,
-                },
-                &p,
-            )?;
+            self.record_ssim(rec, rendered, target, grad, groups, &p)?;
         }
+        Ok(())
+    }
+
+    /// The SSIM term of one view: windowed statistics along rows, then
+    /// columns with the map and its partial sums; the gradient back the same
+    /// way (kernels `glsl/ssim_*.comp`).
+    fn record_ssim<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        rendered: &'a Buffer,
+        target: &'a Buffer,
+        grad: &'a Buffer,
+        groups: u32,
+        p: &push::Ssim,
+    ) -> Result<()> {
+        rec.dispatch_linear(
+            &SSIM_STATS_H,
+            groups,
+            bind::SsimStatsHBuffers {
+                rendered,
+                target,
+                stats: &self.stats,
+            },
+            p,
+        )?;
+        rec.dispatch_linear(
+            &SSIM_MAP_V,
+            groups,
+            bind::SsimMapVBuffers {
+                stats: &self.stats,
+                dmap: &self.dmap,
+                partial: &self.ssim_partial,
+            },
+            p,
+        )?;
+        rec.dispatch_linear(
+            &SSIM_GRAD_H,
+            groups,
+            bind::SsimGradHBuffers {
+                dmap: &self.dmap,
+                blurred: &self.blurred,
+            },
+            p,
+        )?;
+        rec.dispatch_linear(
+            &SSIM_GRAD_V,
+            groups,
+            bind::SsimGradVBuffers {
+                blurred: &self.blurred,
+                rendered,
+                target,
+                grad,
+            },
+            p,
+        )?;
         Ok(())
     }
 
