@@ -108,6 +108,20 @@ impl Rasterizer {
         };
         let kernel = backward_kernel(rec.info(), &self.settings);
         rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
+        self.record_projection_backward(rec, gaussians, grads, count, n_views, accumulate)
+    }
+
+    /// `project_backward`: the splats' gradients through the projection to
+    /// every Gaussian parameter.
+    fn record_projection_backward<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        gaussians: &'a GaussianBuffers,
+        grads: &'a GaussianBuffers,
+        count: u64,
+        n_views: u32,
+        accumulate: bool,
+    ) -> Result<()> {
         rec.dispatch_linear(
             &PROJECT_BACKWARD,
             count.div_ceil(256) as u32,
