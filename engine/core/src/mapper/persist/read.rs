@@ -323,7 +323,6 @@ impl SavedState {
     }
 
     fn parse_history(a: &Archive<'_>, head_dim: Option<u32>) -> Result<Vec<KeyframeRecord>> {
-        let bad = |why: String| a.corrupt(why);
         let h: usize = a.meta_parse("history")?;
         // Shapes first: `h` is checked against the bytes present before
         // anything is sized by it.
@@ -335,24 +334,15 @@ impl SavedState {
         let depth = a.flat::<u16>("history/depth_mm")?;
         let labels = a.flat::<u16>("history/labels")?;
         let vectors = a.flat::<f32>("history/vectors")?;
+        let mut rgb = Consumed::new(&rgb, "rgb");
+        let mut depth = Consumed::new(&depth, "depth_mm");
+        let mut labels = Consumed::new(&labels, "labels");
+        let mut vectors = Consumed::new(&vectors, "vectors");
         // Files from before exposure compensation: every keyframe at 1.
         let exposure = read_exposure(a, "history/exposure", h)?;
-        let (mut o_rgb, mut o_depth, mut o_labels, mut o_vec) = (0usize, 0usize, 0usize, 0usize);
-        // The next `len` values of a tensor of `total`.
-        let take =
-            |total: usize, o: &mut usize, len: u64, what: &str| -> Result<std::ops::Range<usize>> {
-                let end = usize::try_from(len)
-                    .ok()
-                    .and_then(|len| o.checked_add(len))
-                    .filter(|&end| end <= total)
-                    .ok_or_else(|| bad(format!("history/{what} is too short")))?;
-                let r = *o..end;
-                *o = end;
-                Ok(r)
-            };
         let mut records = Vec::with_capacity(h);
         for i in 0..h {
-            let keyframe = |why: String| bad(format!("history keyframe {i}: {why}"));
+            let keyframe = |why: String| a.corrupt(format!("history keyframe {i}: {why}"));
             let (width, height) = (sizes[2 * i], sizes[2 * i + 1]);
             let px = width as u64 * height as u64;
             if px == 0 || px > MAX_VIEW_PIXELS {
@@ -367,80 +357,27 @@ impl SavedState {
                 return Err(keyframe(format!("camera {c:?} is malformed")));
             }
             let camera = camera_from_f64(&c, width, height);
-            let rgb_r = take(rgb.len(), &mut o_rgb, px * 3, "rgb")?;
-            let depth_r = take(depth.len(), &mut o_depth, px, "depth_mm")?;
+            let rgb_i = rgb.next(a, px * 3)?.to_vec();
+            let depth_i = depth.next(a, px)?.to_vec();
             let r = &info[i * 6..i * 6 + 6];
-            let regions = match r[0] {
-                0 if r[1..].iter().all(|&x| x == 0) => None,
-                1 => {
-                    let (rw, rh, grid, count, dim) = (r[1], r[2], r[3], r[4], r[5]);
-                    let cells = rw as u64 * rh as u64;
-                    if cells == 0 || cells > MAX_VIEW_PIXELS || grid > 1 {
-                        return Err(keyframe(format!("regions of {rw}x{rh} (grid flag {grid})")));
-                    }
-                    if dim == 0 || Some(dim) != head_dim {
-                        return Err(keyframe(match head_dim {
-                            Some(d) => format!("{dim}-d embeddings; the map's are {d}-d"),
-                            None => "region embeddings but the map has no latent head".into(),
-                        }));
-                    }
-                    let grid = grid == 1;
-                    if grid && count as u64 != cells {
-                        return Err(keyframe(format!(
-                            "a {rw}x{rh} feature grid of {count} regions"
-                        )));
-                    }
-                    let lab = take(labels.len(), &mut o_labels, cells, "labels")?;
-                    let vec = take(
-                        vectors.len(),
-                        &mut o_vec,
-                        count as u64 * dim as u64,
-                        "vectors",
-                    )?;
-                    let labels = labels[lab].to_vec();
-                    if let Some(&l) = labels
-                        .iter()
-                        .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
-                    {
-                        return Err(keyframe(format!("region label {l} of {count} regions")));
-                    }
-                    let vectors = vectors[vec].to_vec();
-                    if !vectors.iter().all(|x| x.is_finite()) {
-                        return Err(keyframe("non-finite region embeddings".into()));
-                    }
-                    Some(RegionTargets {
-                        width: rw,
-                        height: rh,
-                        labels,
-                        grid,
-                        count,
-                        vectors,
-                        dim,
-                    })
-                }
-                _ => return Err(keyframe(format!("region record {r:?} is malformed"))),
-            };
+            let regions =
+                parse_regions(a, r, head_dim, &mut labels, &mut vectors).map_err(|e| match e {
+                    RegionsError::Keyframe(why) => keyframe(why),
+                    RegionsError::File(e) => e,
+                })?;
             records.push(KeyframeRecord {
                 stamp_ns: stamps[i],
                 camera,
-                rgb: rgb[rgb_r].to_vec(),
-                depth_mm: depth[depth_r].to_vec(),
+                rgb: rgb_i,
+                depth_mm: depth_i,
                 regions,
                 exposure: exposure[i],
             });
         }
-        for (what, used, total) in [
-            ("rgb", o_rgb, rgb.len()),
-            ("depth_mm", o_depth, depth.len()),
-            ("labels", o_labels, labels.len()),
-            ("vectors", o_vec, vectors.len()),
-        ] {
-            if used != total {
-                return Err(bad(format!(
-                    "history/{what} holds {total} values; the keyframes use {used}"
-                )));
-            }
-        }
+        rgb.all_used(a)?;
+        depth.all_used(a)?;
+        labels.all_used(a)?;
+        vectors.all_used(a)?;
         Ok(records)
     }
 }
@@ -459,5 +396,115 @@ fn read_exposure(a: &Archive<'_>, name: &str, len: usize) -> Result<Vec<f32>> {
     {
         Some(g) => Err(a.corrupt(format!("{name} holds the gain {g}"))),
         None => Ok(gains),
+    }
+}
+
+/// A flat tensor of the history read keyframe after keyframe.
+struct Consumed<'t, T> {
+    data: &'t [T],
+    used: usize,
+    what: &'static str,
+}
+
+impl<'t, T> Consumed<'t, T> {
+    fn new(data: &'t [T], what: &'static str) -> Self {
+        Consumed {
+            data,
+            used: 0,
+            what,
+        }
+    }
+
+    /// The next `len` values; an error when the tensor is shorter.
+    fn next(&mut self, a: &Archive<'_>, len: u64) -> Result<&'t [T]> {
+        let end = usize::try_from(len)
+            .ok()
+            .and_then(|len| self.used.checked_add(len))
+            .filter(|&end| end <= self.data.len())
+            .ok_or_else(|| a.corrupt(format!("history/{} is too short", self.what)))?;
+        let r = &self.data[self.used..end];
+        self.used = end;
+        Ok(r)
+    }
+
+    /// An error unless the keyframes used every value.
+    fn all_used(&self, a: &Archive<'_>) -> Result<()> {
+        if self.used == self.data.len() {
+            return Ok(());
+        }
+        Err(a.corrupt(format!(
+            "history/{} holds {} values; the keyframes use {}",
+            self.what,
+            self.data.len(),
+            self.used
+        )))
+    }
+}
+
+/// Why a keyframe's regions could not be read.
+enum RegionsError {
+    /// The keyframe's own record is wrong (the caller names the keyframe).
+    Keyframe(String),
+    /// The file is (a tensor too short).
+    File(Error),
+}
+
+impl From<Error> for RegionsError {
+    fn from(e: Error) -> Self {
+        RegionsError::File(e)
+    }
+}
+
+/// A keyframe's region targets from its record `r` (`[present, width,
+/// height, grid, count, dim]`), its labels and vectors taken from the
+/// history's tensors.
+fn parse_regions(
+    a: &Archive<'_>,
+    r: &[u32],
+    head_dim: Option<u32>,
+    labels: &mut Consumed<'_, u16>,
+    vectors: &mut Consumed<'_, f32>,
+) -> std::result::Result<Option<RegionTargets>, RegionsError> {
+    let bad = |why: String| Err(RegionsError::Keyframe(why));
+    match r[0] {
+        0 if r[1..].iter().all(|&x| x == 0) => Ok(None),
+        1 => {
+            let (rw, rh, grid, count, dim) = (r[1], r[2], r[3], r[4], r[5]);
+            let cells = rw as u64 * rh as u64;
+            if cells == 0 || cells > MAX_VIEW_PIXELS || grid > 1 {
+                return bad(format!("regions of {rw}x{rh} (grid flag {grid})"));
+            }
+            if dim == 0 || Some(dim) != head_dim {
+                return bad(match head_dim {
+                    Some(d) => format!("{dim}-d embeddings; the map's are {d}-d"),
+                    None => "region embeddings but the map has no latent head".into(),
+                });
+            }
+            let grid = grid == 1;
+            if grid && count as u64 != cells {
+                return bad(format!("a {rw}x{rh} feature grid of {count} regions"));
+            }
+            let labels = labels.next(a, cells)?.to_vec();
+            let vectors = vectors.next(a, count as u64 * dim as u64)?.to_vec();
+            if let Some(&l) = labels
+                .iter()
+                .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
+            {
+                return bad(format!("region label {l} of {count} regions"));
+            }
+            if !vectors.iter().all(|x| x.is_finite()) {
+                return bad("non-finite region embeddings".into());
+            }
+            Ok(Some(RegionTargets {
+                width: rw,
+                height: rh,
+                labels,
+                grid,
+                count,
+                vectors,
+                dim,
+            }))
+        }
+        _ => bad(format!("region record {r:?} is malformed")),
     }
 }
