@@ -287,96 +287,104 @@ impl StateRef<'_> {
             bytemuck::cast_slice::<Gaussian, f32>(&gaussians),
         );
 
-        // Window: resident keys in row order and the optimiser's rows.
         if let Some(win) = self.window {
-            let n = win.keys.len();
-            w.meta("window_capacity", win.capacity);
-            w.meta("view_pixels", win.view_pixels);
-            w.tensor(
-                "window/keys",
-                &[n, 3],
-                &keys_to_i32(win.keys.iter().copied()),
-            );
-            let rows = window_state_row_bytes();
-            for (i, bytes) in win.state.iter().enumerate() {
-                // The row size comes from the layout, not the bytes: an
-                // empty window still records it (and loading checks it).
-                let row = rows
-                    .get(i)
-                    .map_or_else(|| bytes.len().checked_div(n).unwrap_or(0), |&r| r as usize);
-                w.bytes(&format!("window/state/{i}"), n, row, bytes.clone());
-            }
+            write_window(&mut w, win);
         }
-
-        // Latent head.
         if let Some(head) = self.head {
-            let d = head.dim as usize;
-            w.meta("head_dim", d);
-            w.meta("head_atoms", head.used);
-            let rows = |v: &[f32]| v.len().checked_div(d).unwrap_or(0);
-            w.tensor("head/W", &[rows(&head.w), d], &head.w);
-            w.tensor("head/D", &[rows(&head.atoms), d], &head.atoms);
-            w.tensor("head/D0", &[rows(&head.anchors), d], &head.anchors);
-            w.tensor("head/kmeans_weights", &[head.weights.len()], &head.weights);
-            for (i, bytes) in head.adam.iter().enumerate() {
-                w.bytes(&format!("head/adam/{i}"), 1, bytes.len(), bytes.clone());
-            }
+            write_head(&mut w, head);
         }
-
-        // Keyframe history, concatenated.
-        let h = self.history.len();
-        let mut stamps = Vec::with_capacity(h);
-        let mut cams = Vec::with_capacity(h * CAMERA_FLOATS);
-        let mut sizes = Vec::with_capacity(h * 2);
-        let mut rgb = Vec::new();
-        let mut depth = Vec::new();
-        let mut info = Vec::with_capacity(h * 6);
-        let mut labels = Vec::new();
-        let mut vectors = Vec::new();
-        for k in &self.history {
-            stamps.push(k.stamp_ns);
-            cams.extend(camera_to_f64(&k.camera));
-            sizes.extend([k.camera.width, k.camera.height]);
-            rgb.extend_from_slice(&k.rgb);
-            depth.extend_from_slice(&k.depth_mm);
-            match &k.regions {
-                Some(r) => {
-                    info.extend([1, r.width, r.height, r.grid as u32, r.count, r.dim]);
-                    labels.extend_from_slice(&r.labels);
-                    vectors.extend_from_slice(&r.vectors);
-                }
-                None => info.extend([0u32; 6]),
-            }
-        }
-        w.meta("history", h);
-        w.tensor("history/stamp", &[h], &stamps);
-        w.tensor("history/camera", &[h, CAMERA_FLOATS], &cams);
-        w.tensor("history/size", &[h, 2], &sizes);
-        w.tensor("history/rgb", &[rgb.len()], &rgb);
-        w.tensor("history/depth_mm", &[depth.len()], &depth);
-        w.tensor("history/regions", &[h, 6], &info);
-        w.tensor("history/labels", &[labels.len()], &labels);
-        w.tensor("history/vectors", &[vectors.len()], &vectors);
-        let exposure: Vec<f32> = self.history.iter().map(|k| k.exposure).collect();
-        w.tensor("history/exposure", &[h], &exposure);
-
-        // Every keyframe's pose (the history may have let some go).
-        let n = self.trajectory.len();
-        let stamps: Vec<i64> = self.trajectory.iter().map(|t| t.0).collect();
-        let poses: Vec<f64> = self
-            .trajectory
-            .iter()
-            .flat_map(|(_, p)| pose_to_f64(p))
-            .collect();
-        w.tensor("trajectory/stamp", &[n], &stamps);
-        w.tensor("trajectory/pose", &[n, POSE_FLOATS], &poses);
-        w.tensor(
-            "trajectory/exposure",
-            &[self.exposure.len()],
-            &self.exposure,
-        );
+        write_history(&mut w, &self.history);
+        write_trajectory(&mut w, self.trajectory, &self.exposure);
         w.into_bytes()
     }
+}
+
+/// The window: resident keys in row order and the optimiser's rows.
+fn write_window(w: &mut ArchiveWriter, win: &SavedWindow) {
+    let n = win.keys.len();
+    w.meta("window_capacity", win.capacity);
+    w.meta("view_pixels", win.view_pixels);
+    w.tensor(
+        "window/keys",
+        &[n, 3],
+        &keys_to_i32(win.keys.iter().copied()),
+    );
+    let rows = window_state_row_bytes();
+    for (i, bytes) in win.state.iter().enumerate() {
+        // The row size comes from the layout, not the bytes: an
+        // empty window still records it (and loading checks it).
+        let row = rows
+            .get(i)
+            .map_or_else(|| bytes.len().checked_div(n).unwrap_or(0), |&r| r as usize);
+        w.bytes(&format!("window/state/{i}"), n, row, bytes.clone());
+    }
+}
+
+/// The latent head: W, D, D⁰, the k-means weights and Adam's state.
+fn write_head(w: &mut ArchiveWriter, head: &SavedHead) {
+    let d = head.dim as usize;
+    w.meta("head_dim", d);
+    w.meta("head_atoms", head.used);
+    let rows = |v: &[f32]| v.len().checked_div(d).unwrap_or(0);
+    w.tensor("head/W", &[rows(&head.w), d], &head.w);
+    w.tensor("head/D", &[rows(&head.atoms), d], &head.atoms);
+    w.tensor("head/D0", &[rows(&head.anchors), d], &head.anchors);
+    w.tensor("head/kmeans_weights", &[head.weights.len()], &head.weights);
+    for (i, bytes) in head.adam.iter().enumerate() {
+        w.bytes(&format!("head/adam/{i}"), 1, bytes.len(), bytes.clone());
+    }
+}
+
+/// The keyframe history, each tensor concatenated over the keyframes.
+fn write_history(w: &mut ArchiveWriter, history: &[&KeyframeRecord]) {
+    let h = history.len();
+    let mut stamps = Vec::with_capacity(h);
+    let mut cams = Vec::with_capacity(h * CAMERA_FLOATS);
+    let mut sizes = Vec::with_capacity(h * 2);
+    let mut rgb = Vec::new();
+    let mut depth = Vec::new();
+    let mut info = Vec::with_capacity(h * 6);
+    let mut labels = Vec::new();
+    let mut vectors = Vec::new();
+    for k in history {
+        stamps.push(k.stamp_ns);
+        cams.extend(camera_to_f64(&k.camera));
+        sizes.extend([k.camera.width, k.camera.height]);
+        rgb.extend_from_slice(&k.rgb);
+        depth.extend_from_slice(&k.depth_mm);
+        match &k.regions {
+            Some(r) => {
+                info.extend([1, r.width, r.height, r.grid as u32, r.count, r.dim]);
+                labels.extend_from_slice(&r.labels);
+                vectors.extend_from_slice(&r.vectors);
+            }
+            None => info.extend([0u32; 6]),
+        }
+    }
+    w.meta("history", h);
+    w.tensor("history/stamp", &[h], &stamps);
+    w.tensor("history/camera", &[h, CAMERA_FLOATS], &cams);
+    w.tensor("history/size", &[h, 2], &sizes);
+    w.tensor("history/rgb", &[rgb.len()], &rgb);
+    w.tensor("history/depth_mm", &[depth.len()], &depth);
+    w.tensor("history/regions", &[h, 6], &info);
+    w.tensor("history/labels", &[labels.len()], &labels);
+    w.tensor("history/vectors", &[vectors.len()], &vectors);
+    let exposure: Vec<f32> = history.iter().map(|k| k.exposure).collect();
+    w.tensor("history/exposure", &[h], &exposure);
+}
+
+/// Every keyframe's pose and exposure (the history may have let some go).
+fn write_trajectory(w: &mut ArchiveWriter, trajectory: &[(i64, CameraPose)], exposure: &[f32]) {
+    let n = trajectory.len();
+    let stamps: Vec<i64> = trajectory.iter().map(|t| t.0).collect();
+    let poses: Vec<f64> = trajectory
+        .iter()
+        .flat_map(|(_, p)| pose_to_f64(p))
+        .collect();
+    w.tensor("trajectory/stamp", &[n], &stamps);
+    w.tensor("trajectory/pose", &[n, POSE_FLOATS], &poses);
+    w.tensor("trajectory/exposure", &[exposure.len()], exposure);
 }
 
 impl SavedState {
