@@ -24,86 +24,9 @@ impl OnlineMapper {
         self.flush()?;
         let ctx = self.ctx.clone();
         let map: Vec<(VoxelKey, Gaussian)> = self.global.iter().map(|(k, g)| (k, *g)).collect();
-        let window = match (&self.window, &self.trainer, &self.window_budget) {
-            (Some(window), Some(trainer), Some(sized)) => {
-                let n = window.len() as u64;
-                let state = trainer
-                    .optimizer()
-                    .state()
-                    .into_iter()
-                    .map(|(buf, row)| download_bytes(&ctx, buf, n * row))
-                    .collect::<Result<Vec<_>>>()?;
-                Some(SavedWindow {
-                    capacity: sized.capacity,
-                    view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
-                    keys: window.keys().to_vec(),
-                    state,
-                })
-            }
-            _ => None,
-        };
-        let head = match &self.head {
-            Some(head) => {
-                let d = head.config().dim as usize;
-                let k = head.config().atoms as usize;
-                let used = head.atom_count();
-                let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
-                atoms.truncate(k * d);
-                let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
-                anchors.truncate(k * d);
-                let mut weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
-                weights.truncate(used as usize);
-                let adam = head
-                    .optimizer_state()
-                    .into_iter()
-                    .map(|(buf, _)| ctx.download::<u8>(buf))
-                    .collect::<Result<Vec<_>>>()?;
-                Some(SavedHead {
-                    dim: d as u32,
-                    used,
-                    w: ctx.download(head.w())?,
-                    atoms,
-                    anchors,
-                    weights,
-                    adam,
-                })
-            }
-            None => None,
-        };
-        // Loading refuses non-finite values; refusing them here too keeps a
-        // diverged map from replacing a good save.
-        let diverged = |why: String| {
-            Error::InvalidArgument(format!(
-                "the map has diverged and is not saved (it would not load): {why}"
-            ))
-        };
-        for (key, g) in &map {
-            if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
-                .iter()
-                .all(|x| x.is_finite())
-            {
-                return Err(diverged(format!(
-                    "the Gaussian of voxel {key:?} is not finite"
-                )));
-            }
-        }
-        if let Some(h) = &head {
-            for (name, v) in [
-                ("head/W", &h.w),
-                ("head/D", &h.atoms),
-                ("head/D0", &h.anchors),
-            ] {
-                finite(v, name).map_err(diverged)?;
-            }
-            for (i, t) in h.adam.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
-                finite_bytes(t, &format!("head/adam/{i}")).map_err(diverged)?;
-            }
-        }
-        if let Some(w) = &window {
-            for (i, t) in w.state.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
-                finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
-            }
-        }
+        let window = self.download_window(&ctx)?;
+        let head = self.download_head(&ctx)?;
+        check_finite(&map, head.as_ref(), window.as_ref())?;
         let guesses: Vec<u8> = map
             .iter()
             .map(|(key, _)| {
@@ -146,6 +69,60 @@ impl OnlineMapper {
         .into_bytes()?;
         drop(map);
         latentam_base::files::write_bytes_atomically(path, &bytes)
+    }
+
+    /// The window's residents and their optimiser rows, from the GPU.
+    fn download_window(&self, ctx: &Context) -> Result<Option<SavedWindow>> {
+        Ok(match (&self.window, &self.trainer, &self.window_budget) {
+            (Some(window), Some(trainer), Some(sized)) => {
+                let n = window.len() as u64;
+                let state = trainer
+                    .optimizer()
+                    .state()
+                    .into_iter()
+                    .map(|(buf, row)| download_bytes(ctx, buf, n * row))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedWindow {
+                    capacity: sized.capacity,
+                    view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
+                    keys: window.keys().to_vec(),
+                    state,
+                })
+            }
+            _ => None,
+        })
+    }
+
+    /// The latent head's parameters and optimiser state, from the GPU.
+    fn download_head(&self, ctx: &Context) -> Result<Option<SavedHead>> {
+        Ok(match &self.head {
+            Some(head) => {
+                let d = head.config().dim as usize;
+                let k = head.config().atoms as usize;
+                let used = head.atom_count();
+                let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
+                atoms.truncate(k * d);
+                let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
+                anchors.truncate(k * d);
+                let mut weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
+                weights.truncate(used as usize);
+                let adam = head
+                    .optimizer_state()
+                    .into_iter()
+                    .map(|(buf, _)| ctx.download::<u8>(buf))
+                    .collect::<Result<Vec<_>>>()?;
+                Some(SavedHead {
+                    dim: d as u32,
+                    used,
+                    w: ctx.download(head.w())?,
+                    atoms,
+                    anchors,
+                    weights,
+                    adam,
+                })
+            }
+            None => None,
+        })
     }
 
     /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to
@@ -290,6 +267,50 @@ fn upload_state(
             )));
         }
         ctx.upload(buf, 0, bytes)?;
+    }
+    Ok(())
+}
+
+/// Refuses to save a diverged map: loading refuses non-finite values, so
+/// refusing them here too keeps a diverged map from replacing a good save.
+fn check_finite(
+    map: &[(VoxelKey, Gaussian)],
+    head: Option<&SavedHead>,
+    window: Option<&SavedWindow>,
+) -> Result<()> {
+    // Loading refuses non-finite values; refusing them here too keeps a
+    // diverged map from replacing a good save.
+    let diverged = |why: String| {
+        Error::InvalidArgument(format!(
+            "the map has diverged and is not saved (it would not load): {why}"
+        ))
+    };
+    for (key, g) in map {
+        if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
+            .iter()
+            .all(|x| x.is_finite())
+        {
+            return Err(diverged(format!(
+                "the Gaussian of voxel {key:?} is not finite"
+            )));
+        }
+    }
+    if let Some(h) = head {
+        for (name, v) in [
+            ("head/W", &h.w),
+            ("head/D", &h.atoms),
+            ("head/D0", &h.anchors),
+        ] {
+            finite(v, name).map_err(diverged)?;
+        }
+        for (i, t) in h.adam.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+            finite_bytes(t, &format!("head/adam/{i}")).map_err(diverged)?;
+        }
+    }
+    if let Some(w) = window {
+        for (i, t) in w.state.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
+            finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
+        }
     }
     Ok(())
 }
