@@ -10,10 +10,10 @@
 //! amount. Tests compare everything else tightly and use this to know which
 //! pixels and Gaussians to leave out, instead of loosening every tolerance.
 
-use super::{
-    covers_tile, falloff, sorted_visible, Camera, Gaussian, MAX_ALPHA, MIN_ALPHA,
-    MIN_TRANSMITTANCE, TILE_SIZE,
-};
+use super::blend::{covers_tile, falloff, sorted_visible};
+use super::gaussian::{Gaussian, MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE};
+use latentam_base::Camera;
+use latentam_shaders::shared::TILE_SIZE;
 
 /// Pixels and Gaussians of one view at a blending threshold.
 ///
