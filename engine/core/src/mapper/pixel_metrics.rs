@@ -139,23 +139,16 @@ pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMe
             v.targets.len()
         )));
     }
-    let k = dec.atoms();
-    let unit = |rows: &[f32]| -> (Vec<f32>, Vec<bool>) {
-        let mut out = Vec::with_capacity(rows.len());
-        let mut valid = Vec::new();
-        for r in rows.chunks_exact(dim) {
-            let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
-            valid.push(n > 0.0 && n.is_finite());
-            let s = if n > 0.0 { 1.0 / n } else { 0.0 };
-            out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
-        }
-        (out, valid)
-    };
-    let (targets, has_target) = unit(v.targets);
-    let target_p = dec.project(&targets);
-    let (ids, text_p) = match v.vocabulary {
-        Some((ids, texts)) => (ids, dec.project(&unit(texts).0)),
+    let (targets, has_target) = unit_rows(v.targets, dim);
+    let (ids, texts) = match v.vocabulary {
+        Some((ids, texts)) => (ids, dec.project(&unit_rows(texts, dim).0)),
         None => (&[][..], Vec::new()),
+    };
+    let scored = Scored {
+        targets: dec.project(&targets),
+        has_target,
+        texts,
+        ids,
     };
     let stride = v.stride.max(1);
     let rows: Vec<usize> = (0..v.height).step_by(stride).collect();
@@ -167,50 +160,8 @@ pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMe
         let handles: Vec<_> = rows
             .chunks(per_thread)
             .map(|chunk| {
-                let (target_p, text_p, has_target) = (&target_p, &text_p, &has_target);
-                s.spawn(move || {
-                    let mut m = PixelMetrics::default();
-                    let mut a = vec![0.0f32; k];
-                    let mut used = Vec::new();
-                    for &y in chunk {
-                        for x in (0..v.width).step_by(stride) {
-                            let p = y * v.width + x;
-                            let r = v.region[p];
-                            let target = (r != NO_REGION
-                                && has_target.get(r as usize) == Some(&true))
-                            .then_some(r as usize);
-                            let truth = v.truth[p];
-                            let classify = truth != 0 && ids.contains(&truth);
-                            if target.is_none() && !classify {
-                                continue;
-                            }
-                            dec.attention(&v.queries[p], &mut a);
-                            if let Some(r) = target {
-                                let norm = dec.norm(&a, &mut used) as f64;
-                                let dot = FactorisedDecoder::dot(&a, &target_p[r * k..(r + 1) * k]);
-                                let cos = if norm > 0.0 {
-                                    (dot as f64 / norm).clamp(-1.0, 1.0)
-                                } else {
-                                    0.0
-                                };
-                                m.cosine_loss_sum += 1.0 - cos;
-                                m.l2_sum += (2.0 - 2.0 * cos).max(0.0).sqrt();
-                                m.cosine_pixels += 1;
-                            }
-                            if classify {
-                                let best = (0..ids.len())
-                                    .map(|c| {
-                                        FactorisedDecoder::dot(&a, &text_p[c * k..(c + 1) * k])
-                                    })
-                                    .enumerate()
-                                    .max_by(|x, y| x.1.total_cmp(&y.1))
-                                    .map(|(c, _)| ids[c]);
-                                count_pixel(&mut m.class_iou, truth, best);
-                            }
-                        }
-                    }
-                    m
-                })
+                let scored = &scored;
+                s.spawn(move || metrics_of_rows(dec, v, scored, chunk, stride))
             })
             .collect();
         handles
@@ -223,6 +174,82 @@ pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMe
         total.add(p);
     }
     Ok(total)
+}
+
+/// Rows of `dim` scaled to unit length, and which had a length to scale.
+fn unit_rows(rows: &[f32], dim: usize) -> (Vec<f32>, Vec<bool>) {
+    let mut out = Vec::with_capacity(rows.len());
+    let mut valid = Vec::new();
+    for r in rows.chunks_exact(dim) {
+        let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
+        valid.push(n > 0.0 && n.is_finite());
+        let s = if n > 0.0 { 1.0 / n } else { 0.0 };
+        out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
+    }
+    (out, valid)
+}
+
+/// What a view's pixels are scored against, projected onto the atoms once.
+struct Scored<'a> {
+    /// Each region's unit target, projected (`atoms` values per region).
+    targets: Vec<f32>,
+    /// Whether a region has a target.
+    has_target: Vec<bool>,
+    /// Each vocabulary word's unit vector, projected.
+    texts: Vec<f32>,
+    /// The words' class ids.
+    ids: &'a [u16],
+}
+
+/// The metrics of the pixels of `rows` (every `stride`-th column): the
+/// cosine to its region's target, and the class its decoded embedding is
+/// closest to.
+fn metrics_of_rows(
+    dec: &FactorisedDecoder,
+    v: &PixelInputs,
+    scored: &Scored<'_>,
+    rows: &[usize],
+    stride: usize,
+) -> PixelMetrics {
+    let k = dec.atoms();
+    let mut m = PixelMetrics::default();
+    let mut a = vec![0.0f32; k];
+    let mut used = Vec::new();
+    for &y in rows {
+        for x in (0..v.width).step_by(stride) {
+            let p = y * v.width + x;
+            let r = v.region[p];
+            let target = (r != NO_REGION && scored.has_target.get(r as usize) == Some(&true))
+                .then_some(r as usize);
+            let truth = v.truth[p];
+            let classify = truth != 0 && scored.ids.contains(&truth);
+            if target.is_none() && !classify {
+                continue;
+            }
+            dec.attention(&v.queries[p], &mut a);
+            if let Some(r) = target {
+                let norm = dec.norm(&a, &mut used) as f64;
+                let dot = FactorisedDecoder::dot(&a, &scored.targets[r * k..(r + 1) * k]);
+                let cos = if norm > 0.0 {
+                    (dot as f64 / norm).clamp(-1.0, 1.0)
+                } else {
+                    0.0
+                };
+                m.cosine_loss_sum += 1.0 - cos;
+                m.l2_sum += (2.0 - 2.0 * cos).max(0.0).sqrt();
+                m.cosine_pixels += 1;
+            }
+            if classify {
+                let best = (0..scored.ids.len())
+                    .map(|c| FactorisedDecoder::dot(&a, &scored.texts[c * k..(c + 1) * k]))
+                    .enumerate()
+                    .max_by(|x, y| x.1.total_cmp(&y.1))
+                    .map(|(c, _)| scored.ids[c]);
+                count_pixel(&mut m.class_iou, truth, best);
+            }
+        }
+    }
+    m
 }
 
 #[cfg(test)]
