@@ -140,41 +140,11 @@ impl OnlineMapper {
         record: &mut KeyframeRecord,
         seed: u64,
     ) -> Result<Vec<VoxelKey>> {
+        let coverage = self.render_coverage(record)?;
+        if self.cfg.exposure_compensation {
+            record.exposure = self.measure_exposure(frame, record, coverage.as_ref());
+        }
         let window = self.window.as_ref().expect("ensured");
-        let coverage = if window.is_empty() {
-            None
-        } else {
-            let raster = self.trainer.as_mut().expect("ensured").rasterizer();
-            // Coverage needs alpha and depth; exposure colour.
-            raster.forward_channels(
-                window.params(),
-                window.len() as u64,
-                &[record.camera],
-                Channels::Colour,
-            )?;
-            let (alpha, rgbd) = raster.download_alpha_rgbd(0)?;
-            let depth: Vec<f32> = rgbd.iter().map(|p| p[3]).collect();
-            Some((alpha, depth, rgbd))
-        };
-        // The last keyframe's gain when this one cannot be measured.
-        let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
-        if coverage.is_none() && self.cfg.exposure_compensation {
-            record.exposure = last_gain;
-        }
-        if let Some((alpha, _, rgbd)) = &coverage {
-            if self.cfg.exposure_compensation {
-                let measured = |i: usize| frame.depth.metres(i);
-                let gain = relative_exposure(
-                    &record.rgb,
-                    rgbd,
-                    alpha,
-                    measured,
-                    self.cfg.seeding.depth_error,
-                );
-                // Too little of the map in view to tell: the last keyframe's.
-                record.exposure = gain.unwrap_or(last_gain);
-            }
-        }
         // Paged-out Gaussians beyond the window's radius do not render: their
         // surface must not be seeded again.
         let complete = self.global.len() == window.len();
@@ -223,6 +193,61 @@ impl OnlineMapper {
             }
         }
         self.check_guesses(frame);
+        Ok(self.insert_seeds(frame, seeds))
+    }
+
+    /// The window rendered at the keyframe's pose: alpha, depth and the
+    /// colour-and-depth image (`None` while the window is empty).
+    fn render_coverage(&mut self, record: &KeyframeRecord) -> Result<Option<Coverage>> {
+        let window = self.window.as_ref().expect("ensured");
+        if window.is_empty() {
+            return Ok(None);
+        }
+        let raster = self.trainer.as_mut().expect("ensured").rasterizer();
+        // Coverage needs alpha and depth; exposure colour.
+        raster.forward_channels(
+            window.params(),
+            window.len() as u64,
+            &[record.camera],
+            Channels::Colour,
+        )?;
+        let (alpha, rgbd) = raster.download_alpha_rgbd(0)?;
+        let depth: Vec<f32> = rgbd.iter().map(|p| p[3]).collect();
+        Ok(Some((alpha, depth, rgbd)))
+    }
+
+    /// The keyframe's exposure against the map where the map renders its
+    /// surface; the last keyframe's where there is too little of the map
+    /// in view to tell.
+    fn measure_exposure(
+        &self,
+        frame: &Frame,
+        record: &KeyframeRecord,
+        coverage: Option<&Coverage>,
+    ) -> f32 {
+        let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
+        let Some((alpha, _, rgbd)) = coverage else {
+            return last_gain;
+        };
+        let measured = |i: usize| frame.depth.metres(i);
+        relative_exposure(
+            &record.rgb,
+            rgbd,
+            alpha,
+            measured,
+            self.cfg.seeding.depth_error,
+        )
+        .unwrap_or(last_gain)
+    }
+
+    /// Inserts the seeds into the global map, nearest the camera first
+    /// (those whose voxel is taken are dropped); those seeded where the
+    /// keyframe measured no depth are guesses. Returns their keys.
+    fn insert_seeds(
+        &mut self,
+        frame: &Frame,
+        mut seeds: Vec<crate::map::Gaussian>,
+    ) -> Vec<VoxelKey> {
         let centre = frame.pose.translation;
         let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);
         seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
@@ -236,7 +261,7 @@ impl OnlineMapper {
                 keys.push(key);
             }
         }
-        Ok(keys)
+        keys
     }
 
     /// Guesses this keyframe measures: kept where its depth agrees, marked
@@ -286,3 +311,7 @@ fn measured_at(frame: &Frame, mean: [f32; 3]) -> Option<(f64, Option<f32>)> {
         frame.depth.metres(v as usize * w as usize + u as usize),
     ))
 }
+
+/// The window rendered at a keyframe's pose: alpha, depth and colour with
+/// depth, per pixel.
+type Coverage = (Vec<f32>, Vec<f32>, Vec<[f32; 4]>);
