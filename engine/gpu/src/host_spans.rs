@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use crate::host_time::{host_ns, thread_name, ClockSync, HostSample};
+use crate::host_time::{host_ns, ClockSync};
 use crate::{Context, Result};
 
 /// A span of host work, recorded into the profiler when dropped (nothing
@@ -49,15 +49,9 @@ impl Context {
     /// Records host time from `start` to `end` when profiling.
     pub(crate) fn record_host(&self, name: &'static str, start: Instant, end: Instant) {
         if let Some(p) = &self.dev.profiler {
-            let start_ns = host_ns(start);
             p.lock()
                 .unwrap_or_else(|e| e.into_inner())
-                .record_host(HostSample {
-                    name,
-                    thread: thread_name(),
-                    start_ns,
-                    duration_ns: (host_ns(end) - start_ns).max(0.0),
-                });
+                .record_host(name, start, end);
         }
     }
 

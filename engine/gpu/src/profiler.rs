@@ -8,7 +8,9 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use crate::host_time::{ClockSync, HostSample};
+use std::time::Instant;
+
+use crate::host_time::{host_ns, thread_name, ClockSync, HostSample};
 use latentam_base::Result;
 
 /// One timed GPU command.
@@ -141,12 +143,21 @@ impl Profiler {
         }
     }
 
-    pub(crate) fn record_host(&mut self, sample: HostSample) {
+    /// Keeps the host span `name` from `start` to `end`, on the current
+    /// thread's track; returns its end on the host clock.
+    pub(crate) fn record_host(&mut self, name: &'static str, start: Instant, end: Instant) -> f64 {
+        let (start_ns, end_ns) = (host_ns(start), host_ns(end));
         if self.host.len() < self.trace_limit {
-            self.host.push(sample);
+            self.host.push(HostSample {
+                name,
+                thread: thread_name(),
+                start_ns,
+                duration_ns: (end_ns - start_ns).max(0.0),
+            });
         } else {
             self.host_dropped += 1;
         }
+        end_ns
     }
 
     pub(crate) fn set_clock(&mut self, clock: ClockSync) {
@@ -432,7 +443,7 @@ mod tests {
         assert_eq!(p.clock_age_ns(2500.0), 500.0);
 
         p.record("k", "compute", 2000.0, 100.0);
-        p.record_host(host("stage", 1500.0, 200.0));
+        p.host.push(host("stage", 1500.0, 200.0));
         let path =
             std::env::temp_dir().join(format!("latentam-synthetic-{}.json", std::process::id()));
         p.write_chrome_trace(&path).unwrap();

@@ -2,7 +2,7 @@
 //! into the profiler.
 
 use super::*;
-use crate::host_time::{host_ns, thread_name, HostSample, HOST_WAIT, RECALIBRATE_AFTER_NS};
+use crate::host_time::{HOST_WAIT, RECALIBRATE_AFTER_NS};
 
 /// A submitted batch of work.
 ///
@@ -109,15 +109,8 @@ impl Submission {
         .vk("vkWaitSemaphores")?;
         let mut recalibrate = false;
         if let (Some(p), false) = (&self.dev.profiler, self.calibration) {
-            let start_ns = host_ns(waiting);
-            let end_ns = host_ns(std::time::Instant::now());
             let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
-            p.record_host(HostSample {
-                name: HOST_WAIT,
-                thread: thread_name(),
-                start_ns,
-                duration_ns: (end_ns - start_ns).max(0.0),
-            });
+            let end_ns = p.record_host(HOST_WAIT, waiting, std::time::Instant::now());
             recalibrate = p.clock_age_ns(end_ns) > RECALIBRATE_AFTER_NS;
         }
         let span = self.collect_timestamps();
