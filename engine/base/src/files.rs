@@ -38,12 +38,51 @@ pub fn write_atomically(
             path.display()
         )));
     };
+    write_through(&partial, path, body)
+}
+
+/// [`write_atomically`] through a partial file of this writer's own
+/// (`<path>.<pid>-<n>.partial`), for files that several processes or
+/// threads may write at once (a cache): each renames a whole file of its
+/// own into place, and the last one wins.
+///
+/// ```no_run
+/// use std::io::Write;
+/// latentam_base::files::write_atomically_shared("cache/table.bin".as_ref(), |w| w.write_all(b"..."))?;
+/// # Ok::<(), latentam_base::Error>(())
+/// ```
+pub fn write_atomically_shared(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> Result<()> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let Some(partial) = partial_path(path) else {
+        return Err(Error::InvalidArgument(format!(
+            "{}: not a file path",
+            path.display()
+        )));
+    };
+    let partial = partial.with_extension(format!(
+        "{}-{}.partial",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    ));
+    write_through(&partial, path, body)
+}
+
+/// Writes `partial` with `body`, syncs it and renames it to `path`.
+fn write_through(
+    partial: &Path,
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> Result<()> {
     let io_err = |path: &Path, source| Error::Io {
         path: path.to_path_buf(),
         source,
     };
     let written = (|| {
-        let file = File::create(&partial)?;
+        let file = File::create(partial)?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         body(&mut out)?;
         if let Some(e) = crate::faults::write_error() {
@@ -53,12 +92,12 @@ pub fn write_atomically(
         file.sync_all()
     })();
     if let Err(e) = written {
-        let _ = std::fs::remove_file(&partial);
-        return Err(io_err(&partial, e));
+        let _ = std::fs::remove_file(partial);
+        return Err(io_err(partial, e));
     }
     crate::faults::delay_save();
-    if let Err(e) = std::fs::rename(&partial, path) {
-        let _ = std::fs::remove_file(&partial);
+    if let Err(e) = std::fs::rename(partial, path) {
+        let _ = std::fs::remove_file(partial);
         return Err(io_err(path, e));
     }
     // The rename is durable only once the directory entry is; failing to

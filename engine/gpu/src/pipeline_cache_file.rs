@@ -7,12 +7,12 @@
 //! own (magic, length, CRC-32) and its Vulkan header is checked against the
 //! device before the driver sees it: a truncated, corrupt or foreign file
 //! is ignored with a warning, never handed to a driver. Files are replaced
-//! whole (written beside, then renamed), so processes starting and ending
-//! at once each read a complete file, whichever wrote last.
+//! whole (`write_atomically_shared`: written beside under a name of the
+//! writer's own, then renamed), so processes starting and ending at once
+//! each read a complete file, whichever wrote last.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use ash::vk;
 
@@ -104,36 +104,22 @@ fn check(bytes: &[u8], props: &vk::PhysicalDeviceProperties) -> Result<(), Strin
     Ok(())
 }
 
-/// Writes `data` as the cache file at `path`, replacing it whole.
-pub(crate) fn save(path: &Path, data: &[u8]) -> std::io::Result<()> {
-    static N: AtomicU64 = AtomicU64::new(0);
+/// Writes `data` as the cache file at `path`, replacing it whole; another
+/// process saving at the same time writes its own file, and the renames are
+/// atomic.
+pub(crate) fn save(path: &Path, data: &[u8]) -> latentam_base::Result<()> {
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir)?;
+        std::fs::create_dir_all(dir).map_err(|source| latentam_base::Error::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
     }
-    // A name of this writer's own: another process or thread saving at
-    // the same time writes its own file, and the renames are atomic.
-    let partial = path.with_extension(format!(
-        "{}-{}.partial",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&partial)?;
+    latentam_base::files::write_atomically_shared(path, |f| {
         f.write_all(MAGIC)?;
         f.write_all(&(data.len() as u64).to_le_bytes())?;
         f.write_all(&crc32fast::hash(data).to_le_bytes())?;
-        f.write_all(data)?;
-        f.sync_all()?;
-        std::fs::rename(&partial, path)
-    };
-    let result = write();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&partial);
-    }
-    result
+        f.write_all(data)
+    })
 }
 
 /// The default directory: `LATENTAM_PIPELINE_CACHE` (`off` for none), else
