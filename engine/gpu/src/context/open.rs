@@ -261,7 +261,10 @@ impl QueueFamilies {
 struct Features {
     host_query_reset: bool,
     native_float_atomics: bool,
-    subgroup: vk::PhysicalDeviceSubgroupProperties<'static>,
+    subgroup_size: u32,
+    /// The subgroup operations compute shaders may use (none when the
+    /// device offers them to other stages only).
+    compute_subgroup_ops: vk::SubgroupFeatureFlags,
     max_memory_allocation_size: u64,
 }
 
@@ -307,10 +310,14 @@ impl Features {
             native_float_atomics: has_atomic_float_ext
                 && atomic_feats.shader_buffer_float32_atomic_add == vk::TRUE
                 && options.float_atomics == FloatAtomics::Auto,
-            // The chain pointer is not kept.
-            subgroup: vk::PhysicalDeviceSubgroupProperties {
-                p_next: std::ptr::null_mut(),
-                ..subgroup
+            subgroup_size: subgroup.subgroup_size,
+            compute_subgroup_ops: if subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE)
+            {
+                subgroup.supported_operations
+            } else {
+                vk::SubgroupFeatureFlags::empty()
             },
             max_memory_allocation_size: maintenance3.max_memory_allocation_size,
         })
@@ -405,20 +412,15 @@ fn device_info(
         .unwrap_or(0);
     let timestamp_period_ns = (timestamp_valid_bits > 0).then_some(limits.timestamp_period as f64);
     // Subgroup operations kernels may use: allowed, and supported in compute.
-    let subgroup = &features.subgroup;
     let subgroup_ops = |ops: vk::SubgroupFeatureFlags| {
-        options.subgroup_arithmetic
-            && subgroup
-                .supported_stages
-                .contains(vk::ShaderStageFlags::COMPUTE)
-            && subgroup.supported_operations.contains(ops)
+        options.subgroup_arithmetic && features.compute_subgroup_ops.contains(ops)
     };
     DeviceInfo {
         name: c.name,
         device_type: c.props.device_type,
         api_version: c.props.api_version,
         native_float_atomics: features.native_float_atomics,
-        subgroup_size: subgroup.subgroup_size,
+        subgroup_size: features.subgroup_size,
         subgroup_arithmetic: subgroup_ops(
             vk::SubgroupFeatureFlags::BASIC
                 | vk::SubgroupFeatureFlags::VOTE
