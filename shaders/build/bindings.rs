@@ -51,21 +51,20 @@ pub(crate) fn binding_set_names(
     kernels: &[KernelOut],
     push_names: &[Option<String>],
 ) -> Vec<String> {
-    let key = |i: usize| (push_names[i].clone(), kernels[i].bindings.clone());
-    kernels
-        .iter()
-        .enumerate()
-        .map(|(i, k)| {
+    let same = |i: usize, j: usize| {
+        push_names[i] == push_names[j] && kernels[i].bindings == kernels[j].bindings
+    };
+    (0..kernels.len())
+        .map(|i| {
             // One layout per push type: the set takes its name; else the
             // first kernel of the set names it.
             let push_shared = (0..kernels.len())
                 .filter(|&j| push_names[j].is_some() && push_names[j] == push_names[i])
-                .all(|j| key(j) == key(i));
+                .all(|j| same(i, j));
             match &push_names[i] {
                 Some(p) if push_shared => p.clone(),
                 _ => {
-                    let first = (0..kernels.len()).find(|&j| key(j) == key(i)).unwrap_or(i);
-                    let _ = k;
+                    let first = (0..kernels.len()).find(|&j| same(i, j)).unwrap_or(i);
                     camel(&kernels[first].name)
                 }
             }
