@@ -71,12 +71,6 @@ impl CallCounters {
         self.host_waits.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Takes back the submission of a profiler's clock calibration, which
-    /// is no work of the caller's (its wait is never counted).
-    pub fn calibration_submitted(&self) {
-        self.submissions.fetch_sub(1, Ordering::Relaxed);
-    }
-
     pub fn dispatched(&self) {
         self.dispatches.fetch_add(1, Ordering::Relaxed);
     }

@@ -68,7 +68,8 @@ impl Context {
         let before = Instant::now();
         let mut rec = self.recorder()?;
         rec.start_span();
-        let span = rec.submit()?.for_calibration().wait_span()?;
+        rec.for_calibration();
+        let span = rec.submit()?.wait_span()?;
         let after = Instant::now();
         if let (Some(span), Some(p)) = (span, &self.dev.profiler) {
             let (t0, t1) = (host_ns(before), host_ns(after));

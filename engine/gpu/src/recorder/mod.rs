@@ -89,6 +89,9 @@ pub struct Recorder<'a> {
     host_reads: bool,
     readbacks: Vec<Arc<AtomicU64>>,
     span_start: Option<u32>,
+    /// A clock calibration's own batch: neither its submission nor its
+    /// wait is the caller's work, so neither is counted or traced.
+    calibration: bool,
     _borrows: PhantomData<&'a Buffer>,
 }
 
@@ -189,6 +192,7 @@ impl<'a> Recorder<'a> {
                 host_reads: false,
                 readbacks: Vec::new(),
                 span_start: None,
+                calibration: false,
                 _borrows: PhantomData,
             })
         }
@@ -325,6 +329,12 @@ impl<'a> Recorder<'a> {
         Some(block as u32 * QUERIES_PER_POOL + idx)
     }
 
+    /// Marks this batch as a profiler clock calibration (see
+    /// `Context::calibrate_host_clock`).
+    pub(crate) fn for_calibration(&mut self) {
+        self.calibration = true;
+    }
+
     /// Times this batch on the GPU: a timestamp is written now and one when
     /// the batch ends, read by [`Submission::wait_span`]. Call it first,
     /// before recording the work to be timed. No effect on queues without
@@ -367,7 +377,9 @@ impl<'a> Recorder<'a> {
         }
         // SAFETY: ending our own command buffer.
         unsafe { self.dev.raw.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
-        self.dev.calls.submitted();
+        if !self.calibration {
+            self.dev.calls.submitted();
+        }
 
         let dev = self.dev.clone();
         let transfer = self.transfer;
@@ -436,7 +448,7 @@ impl<'a> Recorder<'a> {
             queries: std::mem::take(&mut self.queries),
             labels: std::mem::take(&mut self.labels),
             span,
-            calibration: false,
+            calibration: self.calibration,
         })
     }
 }

@@ -23,8 +23,8 @@ pub struct Submission {
     pub(super) queries: Vec<QueryBlock>,
     pub(super) labels: Vec<(&'static str, u32, u32)>,
     pub(super) span: Option<(u32, u32)>,
-    /// A clock calibration's own submission: its wait is no work of the
-    /// caller's and triggers no further calibration.
+    /// A clock calibration's own submission: its wait is not counted or
+    /// traced and triggers no further calibration.
     pub(super) calibration: bool,
 }
 
@@ -79,13 +79,6 @@ impl Submission {
     /// to the profiler.
     pub fn wait(self) -> Result<()> {
         self.wait_span().map(|_| ())
-    }
-
-    /// Marks this submission as a clock calibration's.
-    pub(crate) fn for_calibration(mut self) -> Self {
-        self.dev.calls.calibration_submitted();
-        self.calibration = true;
-        self
     }
 
     /// [`Submission::wait`], returning when the batch ran if it was timed
