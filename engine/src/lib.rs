@@ -42,7 +42,8 @@ pub use latentam_core::mapper::{
 /// folders.
 pub mod frames {
     pub use latentam_io::{
-        AssemblyConfig, BadInputPolicy, CameraPose, ColorImage, DepthData, DepthImage, Embeddings,
-        Frame, IngestReport, Intrinsics, LabelImage, McapFrames, PixelFormat, Topics, Vocabulary,
+        read_vocabulary, AssemblyConfig, BadInputPolicy, CameraPose, ColorImage, DepthData,
+        DepthImage, Embeddings, Frame, IngestReport, Intrinsics, LabelImage, McapFrames,
+        PixelFormat, Topics, Vocabulary,
     };
 }
