@@ -5,38 +5,52 @@
 //! stream of RGB-D frames, poses and vision-language embeddings, and decodes
 //! rendered queries back into full embeddings through a learned dictionary.
 //!
-//! This crate is what a robot program depends on: [`Mapper`] maps frames
-//! and answers queries, [`LogRun`] maps a whole recorded log into a run
-//! folder, and [`frames`] holds what a frame is made of and how logs are
-//! read. The engine behind it is split into crates along its layers, each
-//! seeing only those below it:
+//! This crate is what a robot program depends on. [`LiveMapper`] maps on
+//! a worker thread: the robot's loop only enqueues frames, and any thread
+//! reads immutable snapshots of the map and asks relevance queries while
+//! it grows. [`Mapper`] is the same engine driven synchronously (offline
+//! use, tests), [`LogRun`] maps a whole recorded log into a run folder,
+//! and [`frames`] holds what a frame is made of and how logs are read. The
+//! engine behind it is split into crates along its layers, each seeing
+//! only those below it:
 //!
 //! | crate | what |
 //! |---|---|
 //! | `latentam-base` | errors, whole-or-nothing files, settings, the camera and host-side Gaussians |
 //! | `latentam-gpu` | Vulkan: device, memory, the one way to dispatch a kernel, the profiler, GPU primitives |
 //! | `latentam-io` | MCAP logs and rosbag2 folders in, checked frames out |
-//! | `latentam-core` | the rasterizer, the objective, Adam, the latent head, the map, the per-keyframe loop |
+//! | `latentam-core` | the rasterizer, the objective, Adam, the latent head, the map, the per-keyframe loop, the live handle |
 //! | `latentam-reference` | the CPU statement of every kernel's math; tests and `selfcheck` only |
 //!
 //! ```no_run
-//! use latentam::frames::{AssemblyConfig, McapFrames};
+//! use latentam::frames::Frame;
+//! use latentam::{LiveMapper, LiveOptions, TextQuery};
 //!
-//! let mut mapper = latentam::Mapper::new(latentam::Config::default())?;
-//! for frame in McapFrames::open("run.mcap".as_ref(), AssemblyConfig::default())? {
-//!     mapper.integrate(&frame?)?; // keyframes are mapped, other frames skipped
+//! # fn camera_frames() -> Vec<Frame> { Vec::new() }
+//! # let chair_embedding = vec![0.0f32; 512];
+//! // Every kernel is compiled before `new` returns: the first frame does not wait.
+//! let live = LiveMapper::new(latentam::Config::default(), LiveOptions::default())?;
+//! for frame in camera_frames() {
+//!     live.submit(frame)?; // returns at once; a full queue drops frames by policy
 //! }
+//! // From any thread, while mapping goes on: which Gaussians are the chair?
+//! let answer = live.relevance(&TextQuery::embedding(chair_embedding))?;
+//! println!("{} Gaussians, keyframe {}", answer.scores.len(), answer.snapshot.keyframes);
+//! println!("{:?}", live.status().dropped); // frames given up, by reason
+//! let mut mapper = live.finish()?; // maps what is queued
 //! mapper.save("out/")?; // out/state.latentam: resume or query later
-//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! # Ok::<(), latentam::Error>(())
 //! ```
 
 #![warn(missing_docs)]
 
 pub use latentam_base::{Camera, Error, HostGaussians, InputError, Result};
 pub use latentam_core::latent::TextQuery;
-pub use latentam_core::mapper::{
-    LogRun, LogRunOptions, Mapper, MapperConfig as Config, RunObserver, RunReport,
+pub use latentam_core::live::{
+    DropCounts, LiveMapper, LiveOptions, LiveStatus, LogRun, LogRunOptions, MapSnapshot, Relevance,
+    RunObserver,
 };
+pub use latentam_core::mapper::{Mapper, MapperConfig as Config, RunReport};
 
 /// What a frame is made of, and reading frames from MCAP logs and rosbag2
 /// folders.

@@ -18,7 +18,8 @@ use crate::render_cmd::{nth_frame, render_pictures, ViewSource};
 use latentam_core::mapper::RunFolder;
 
 use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam_core::mapper::{Ending, Written};
+use latentam_core::live::Written;
+use latentam_core::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

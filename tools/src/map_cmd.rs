@@ -9,7 +9,8 @@ use crate::input_args::InputArgs;
 use latentam_core::mapper::{RunFolder, STATE_FILE};
 
 use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam_core::mapper::{Ending, Kept, Written};
+use latentam_core::live::{Kept, Written};
+use latentam_core::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

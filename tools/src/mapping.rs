@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
+use latentam_core::live::{LogRun, LogRunOptions, RunObserver, Written};
 use latentam_core::mapper::{
-    KeyframeReport, LogRun, LogRunOptions, Mapper, MapperConfig, RunFolder, RunObserver, RunReport,
-    Written, DECODER_FILE, STATE_FILE,
+    KeyframeReport, Mapper, MapperConfig, MapperStats, RunFolder, RunReport, DECODER_FILE,
+    STATE_FILE,
 };
 use latentam_gpu::{Context, ContextOptions};
 use latentam_io::{AssemblyConfig, McapFrames};
@@ -53,12 +54,11 @@ impl MapProgress {
         }
     }
 
-    fn update(&mut self, frames: u64, mapper: &Mapper, last_report: Option<&KeyframeReport>) {
+    fn update(&mut self, frames: u64, stats: &MapperStats, last_report: Option<&KeyframeReport>) {
         if !self.line.due() {
             return;
         }
         let elapsed = self.start.elapsed().as_secs_f64().max(1e-9);
-        let stats = mapper.stats();
         let of = self.total.map_or(String::new(), |t| format!("/{t}"));
         // A bar and the time left, when the number of frames is known.
         let bar = match self.total {
@@ -173,9 +173,9 @@ impl RunObserver for CliObserver {
         self.progress = Some(MapProgress::new(total));
     }
 
-    fn frame_done(&mut self, frames: u64, mapper: &Mapper, last: Option<&KeyframeReport>) {
+    fn frame_done(&mut self, frames: u64, stats: &MapperStats, last: Option<&KeyframeReport>) {
         if let Some(progress) = &mut self.progress {
-            progress.update(frames, mapper, last);
+            progress.update(frames, stats, last);
         }
     }
 
@@ -253,6 +253,18 @@ pub fn summary(r: &RunReport) -> String {
         "{} frames, {} keyframes in {:.1} s ({:.2} frames/s, {:.3} keyframes/s) on {}\n",
         r.frames, r.keyframes, r.wall_s, r.fps, r.keyframes_per_s, r.device
     );
+    if let Some(ready) = r.time_to_ready_ms {
+        let cache = match r.pipeline_cache_loaded_bytes {
+            0 => "no compiled pipelines cached".to_string(),
+            n => format!(
+                "{:.1} MB of compiled pipelines from the cache",
+                n as f64 / 1e6
+            ),
+        };
+        s += &format!(
+            "ready for the first frame after {ready:.0} ms ({cache}; not counted below)\n"
+        );
+    }
     s += &format!(
         "Gaussians: {} in the map, {} on the GPU (window of {}); evicted {}, fetched {}\n",
         r.gaussians, r.resident, r.window_capacity, r.evicted, r.fetched

@@ -727,7 +727,11 @@ fn query_render_and_export_misuse_are_clear_errors() {
             1,
             "`sofa` is not in the vocabulary",
         ),
-        (by_name("ball", 16, &[]), 1, "holds 16-d embeddings"),
+        (
+            by_name("ball", 16, &[]),
+            1,
+            "16-d embeddings (the vocabulary's",
+        ),
         (
             by_name("ball", 22, &["--vocabulary-topic", "/nope"]),
             1,
@@ -827,7 +831,11 @@ fn query_render_and_export_misuse_are_clear_errors() {
             "--words needs a vocabulary: the map was mapped without embeddings",
         ),
         (refs(&unknown_word), 1, "`sofa` is not in the vocabulary"),
-        (refs(&other_vocabulary), 1, "holds 16-d embeddings"),
+        (
+            refs(&other_vocabulary),
+            1,
+            "16-d embeddings (the vocabulary's",
+        ),
         (
             refs(&export(&run, &["--temperature", "0"])),
             1,

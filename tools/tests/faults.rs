@@ -89,7 +89,7 @@ fn faults_give_clear_errors_and_keep_what_was_mapped() {
     // found by trying): the error names it and the folder holds the last
     // autosave, whole.
     for (fault, words) in [
-        ("device_lost_after", &["device has been lost"][..]),
+        ("device_lost_after", &["GPU device was lost"][..]),
         ("alloc_fail_after", &["GPU memory", "Out of memory"][..]),
     ] {
         let run = dir.join(fault);

@@ -34,6 +34,14 @@ pub enum Error {
         /// Its result code.
         result: vk::Result,
     },
+    /// The GPU device was lost (a driver reset, a hung or faulted
+    /// kernel, a removed GPU): nothing on it can be used again. A map
+    /// loses at most what it did since its last save.
+    #[error("the GPU device was lost in {call}; reload the last save on a new context")]
+    DeviceLost {
+        /// The Vulkan entry point that reported it.
+        call: &'static str,
+    },
     /// GPU memory could not be allocated (device memory exhausted or the
     /// configured budget reached).
     #[error("GPU memory: {0}")]
@@ -41,6 +49,49 @@ pub enum Error {
     /// An argument is outside what the operation supports.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// The map has no embeddings yet (no keyframe with region embeddings
+    /// has been mapped), so there is nothing to score a query against.
+    #[error("the map has no embeddings yet: nothing to query")]
+    NoEmbeddings,
+    /// Embeddings of another dimension than the map's.
+    #[error("{given}-d embeddings{}, the map's are {map}-d", context.as_deref().map_or(String::new(), |c| format!(" ({c})")))]
+    EmbeddingDimension {
+        /// The map's embedding dimension d_f.
+        map: u32,
+        /// The dimension given.
+        given: u32,
+        /// What carried them (a frame, a vocabulary, a query), if known.
+        context: Option<String>,
+    },
+    /// Embeddings from another model than the map's: their spaces differ,
+    /// so mixing them would mean nothing.
+    #[error("embeddings of model `{given}`{}, the map's are of `{map}`", context.as_deref().map_or(String::new(), |c| format!(" ({c})")))]
+    EmbeddingModel {
+        /// The model of the map's region embeddings.
+        map: String,
+        /// The model given.
+        given: String,
+        /// What carried them (a frame, a vocabulary), if known.
+        context: Option<String>,
+    },
+    /// A frame the map cannot take (a pose that is no rigid transform,
+    /// intrinsics that are no pinhole camera); the map is unchanged.
+    #[error("frame at {stamp_ns} ns: {reason}")]
+    BadFrame {
+        /// The frame's stamp.
+        stamp_ns: i64,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A live mapper's worker stopped on this error: the map is kept as
+    /// it was before the failed keyframe began only if the error says so
+    /// (see `LiveMapper`); the handle refuses further frames.
+    #[error("the mapper stopped: {0}")]
+    Stopped(std::sync::Arc<Error>),
+    /// The mapping worker panicked (a bug in the engine: please report it
+    /// with the message).
+    #[error("the mapping worker panicked: {0}")]
+    Panicked(String),
     /// The device lacks a feature or limit the engine needs.
     #[error("unsupported device: {0}")]
     Unsupported(String),
@@ -183,6 +234,7 @@ impl<T> VkContext<T> for std::result::Result<T, vk::Result> {
             vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
                 Error::OutOfMemory(format!("{call}: {result}"))
             }
+            vk::Result::ERROR_DEVICE_LOST => Error::DeviceLost { call },
             _ => Error::Vulkan { call, result },
         })
     }

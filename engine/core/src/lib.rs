@@ -24,6 +24,7 @@
 #![warn(missing_docs)]
 
 pub mod latent;
+pub mod live;
 pub mod loss;
 pub mod map;
 pub mod mapper;

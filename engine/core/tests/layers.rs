@@ -18,6 +18,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("latent", 3),
     ("map", 4),
     ("mapper", 5),
+    ("live", 6),
 ];
 
 /// Names at the crate root that are no module of it: the error type,

@@ -103,7 +103,24 @@ impl Context {
                 .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
             n += 1;
         }
+        *self
+            .dev
+            .ready_after
+            .lock()
+            .unwrap_or_else(|e| e.into_inner()) = Some(self.dev.opened.elapsed());
         Ok(n)
+    }
+
+    /// How long after the device was opened the last warm-up
+    /// ([`Context::warm_up_only`]) had every kernel ready, ms; `None`
+    /// before one. With a warm pipeline cache this is mostly the
+    /// driver's start.
+    pub fn time_to_ready_ms(&self) -> Option<f64> {
+        self.dev
+            .ready_after
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .map(|d| d.as_secs_f64() * 1e3)
     }
 
     /// Whether timestamps are being recorded.

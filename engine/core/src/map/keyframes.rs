@@ -60,6 +60,26 @@ settings! {
     }
 }
 
+impl KeyframeConfig {
+    /// Whether the camera at `pose` moved far enough from `last` (the
+    /// last keyframe's pose) for a proposal to be kept: `min_translation`
+    /// metres or `min_rotation_deg` degrees, either one.
+    ///
+    /// ```
+    /// use latentam_core::map::KeyframeConfig;
+    /// use latentam_io::CameraPose;
+    ///
+    /// let config = KeyframeConfig { min_translation: 0.1, min_rotation_deg: 10.0, ..Default::default() };
+    /// let at = |x| CameraPose { rotation: glam::DQuat::IDENTITY, translation: glam::DVec3::new(x, 0.0, 0.0) };
+    /// assert!(!config.moved(&at(0.0), &at(0.05)));
+    /// assert!(config.moved(&at(0.0), &at(0.2)));
+    /// ```
+    pub fn moved(&self, last: &CameraPose, pose: &CameraPose) -> bool {
+        (pose.translation - last.translation).length() >= self.min_translation
+            || pose.rotation.angle_between(last.rotation).to_degrees() >= self.min_rotation_deg
+    }
+}
+
 /// Documented and checked by hand: the variants are the keys below it.
 impl Setting for KeyframePolicy {
     fn nested_docs(prefix: &str, out: &mut Vec<KeyDoc>) {
@@ -213,15 +233,7 @@ impl KeyframeSelector {
                 (o < min_overlap, Some(o))
             }
         };
-        let moved = (frame.pose.translation - last.translation).length()
-            >= self.config.min_translation
-            || frame
-                .pose
-                .rotation
-                .angle_between(last.rotation)
-                .to_degrees()
-                >= self.config.min_rotation_deg;
-        let keyframe = proposed && moved;
+        let keyframe = proposed && self.config.moved(&last, &frame.pose);
         if keyframe {
             self.accept(frame);
         }
@@ -232,6 +244,15 @@ impl KeyframeSelector {
     /// a saved map keeps).
     pub fn state(&self) -> (Option<CameraPose>, u32) {
         (self.last, self.since_last)
+    }
+
+    /// Counts `n` frames offered elsewhere that were not keyframes (a live
+    /// handle's dropped frames), so an interval policy still proposes
+    /// every N-th frame of the stream rather than of what reached it.
+    pub fn count_unseen(&mut self, n: u32) {
+        if self.last.is_some() {
+            self.since_last = self.since_last.saturating_add(n);
+        }
     }
 
     /// Restores [`KeyframeSelector::state`].

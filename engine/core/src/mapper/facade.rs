@@ -140,15 +140,14 @@ impl Mapper {
     /// # }
     /// ```
     pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
-        let head = self.inner.head().ok_or_else(|| {
-            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
-        })?;
+        let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
         let dim = head.config().dim as usize;
         if embeddings.is_empty() || embeddings.len() % dim != 0 {
-            return Err(Error::InvalidArgument(format!(
-                "query of {} values; the map's embeddings are {dim}-d",
-                embeddings.len()
-            )));
+            return Err(Error::EmbeddingDimension {
+                map: dim as u32,
+                given: embeddings.len() as u32,
+                context: Some("a query, or several back to back".into()),
+            });
         }
         let count = (embeddings.len() / dim) as u32;
         self.inner.flush()?;
@@ -187,9 +186,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
-        let head = self.inner.head().ok_or_else(|| {
-            Error::InvalidArgument("the map has no embeddings yet: nothing to query".into())
-        })?;
+        let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
         let ctx = self.inner.context().clone();
         let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, query.texts as u32)?;
         Ok(query.relevance_of(&scorer.score(&ctx, head, &view.query, &query.embeddings)?))
@@ -592,6 +589,29 @@ impl Mapper {
     /// ```
     pub fn decoder(&self) -> Result<Option<DecoderFile>> {
         self.inner.decoder_file()
+    }
+
+    /// Every Gaussian as it stands, changing nothing (see
+    /// [`OnlineMapper::gaussians_now`]).
+    pub(crate) fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {
+        self.inner.gaussians_now()
+    }
+
+    /// Counts frames dropped before reaching the mapper (see
+    /// [`KeyframeSelector::count_unseen`](crate::map::KeyframeSelector::count_unseen)).
+    pub(crate) fn count_unseen_frames(&mut self, n: u32) {
+        self.inner.selector.count_unseen(n);
+    }
+
+    /// The keyframe rule's state: the last keyframe's pose and the frames
+    /// offered since.
+    pub(crate) fn keyframe_rule_state(&self) -> (Option<CameraPose>, u32) {
+        self.inner.selector.state()
+    }
+
+    /// The mapper's own hurry flag (see [`OnlineMapper::stop_flag`]).
+    pub(crate) fn stop_flag(&self) -> std::sync::Arc<AtomicBool> {
+        self.inner.stop_flag()
     }
 
     /// The view renderer (made on first use) beside the mapper it renders.

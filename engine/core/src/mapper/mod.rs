@@ -15,7 +15,6 @@ mod export;
 mod facade;
 mod history;
 mod keyframe_report;
-mod log_run;
 mod online;
 mod persist;
 pub mod pixel_metrics;
@@ -33,7 +32,6 @@ pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
 };
-pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;

@@ -1,5 +1,5 @@
 //! `report.json`: what a run of a log did, written into its run folder
-//! (see [`LogRun`](super::LogRun)).
+//! (see [`LogRun`](crate::live::LogRun)).
 
 use std::collections::BTreeMap;
 
@@ -14,7 +14,7 @@ use latentam_io::IngestReport;
 ///
 /// ```
 /// use latentam_core::mapper::Ending;
-/// # fn f(run: &latentam_core::mapper::LogRun) {
+/// # fn f(run: &latentam_core::live::LogRun) {
 /// match &run.ending {
 ///     Ending::Complete | Ending::FrameLimit => println!("mapped {} frames", run.frames),
 ///     Ending::Interrupted => println!("stopped on request after {} frames", run.frames),
@@ -28,11 +28,11 @@ use latentam_io::IngestReport;
 pub enum Ending {
     /// The log ended.
     Complete,
-    /// [`LogRunOptions::max_frames`](super::LogRunOptions::max_frames) was
+    /// [`LogRunOptions::max_frames`](crate::live::LogRunOptions::max_frames) was
     /// reached.
     FrameLimit,
     /// The caller asked it to stop
-    /// ([`RunObserver::stop_requested`](super::RunObserver::stop_requested)).
+    /// ([`RunObserver::stop_requested`](crate::live::RunObserver::stop_requested)).
     Interrupted,
     /// The run was still going when this folder was written (an
     /// autosave); a later write replaces it.
@@ -44,7 +44,7 @@ pub enum Ending {
 /// `report.json` of a run folder.
 ///
 /// ```no_run
-/// # fn f(run: &latentam_core::mapper::LogRun) -> Result<(), Box<dyn std::error::Error>> {
+/// # fn f(run: &latentam_core::live::LogRun) -> Result<(), Box<dyn std::error::Error>> {
 /// let report = run.report(&latentam_core::mapper::new_run_id());
 /// println!("{} keyframes at {:.1} fps, peak GPU {} MiB", report.keyframes, report.fps, report.peak_gpu_bytes >> 20);
 /// std::fs::write("report.json", serde_json::to_string_pretty(&report)?)?;
@@ -59,6 +59,13 @@ pub struct RunReport {
     pub log: String,
     /// The Vulkan device it ran on.
     pub device: String,
+    /// Time from opening the device to every kernel compiled (the mapper
+    /// was ready for its first frame), ms: kept out of every per-keyframe
+    /// figure and the kernel table.
+    pub time_to_ready_ms: Option<f64>,
+    /// Bytes of compiled pipelines the persistent pipeline cache gave at
+    /// start (0: a cold start).
+    pub pipeline_cache_loaded_bytes: usize,
     /// How the run ended.
     pub ending: Ending,
     /// Frames offered to the mapper in this run.

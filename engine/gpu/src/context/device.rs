@@ -50,6 +50,10 @@ pub(crate) struct Device {
     pub host_query_reset: bool,
     /// Submissions, host waits and dispatches so far.
     pub(crate) calls: CallCounters,
+    /// When the device was opened, and how long after that every kernel
+    /// a caller warmed up was ready (see `Context::warm_up_only`).
+    pub(crate) opened: std::time::Instant,
+    pub(crate) ready_after: Mutex<Option<std::time::Duration>>,
 }
 
 impl Device {

@@ -215,6 +215,8 @@ pub(super) fn open_device(
         profiler,
         host_query_reset: features.host_query_reset,
         calls: CallCounters::default(),
+        opened: std::time::Instant::now(),
+        ready_after: Mutex::new(None),
     })
 }
 

@@ -420,9 +420,8 @@ impl<'a> Recorder<'a> {
                 .signal_semaphores(&signal)
                 .push_next(&mut ti);
             if latentam_base::faults::device_lost() {
-                return Err(Error::Vulkan {
+                return Err(Error::DeviceLost {
                     call: "vkQueueSubmit",
-                    result: vk::Result::ERROR_DEVICE_LOST,
                 });
             }
             // SAFETY: the command buffer is complete; the queue is externally

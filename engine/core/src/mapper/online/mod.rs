@@ -3,6 +3,7 @@
 
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -91,11 +92,9 @@ pub struct OnlineMapper {
     /// Set by the caller to have the keyframe in progress skip its
     /// remaining optimisation steps (see [`OnlineMapper::set_hurry_flag`]).
     pub(super) hurry: Option<&'static AtomicBool>,
-}
-
-/// Whether a caller's flag ([`OnlineMapper::set_hurry_flag`]) is set.
-fn is_set(flag: Option<&AtomicBool>) -> bool {
-    flag.is_some_and(|f| f.load(Ordering::SeqCst))
+    /// The same, set by a live handle's `abort` (see
+    /// [`OnlineMapper::stop_flag`]).
+    pub(super) stop: Arc<AtomicBool>,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -132,6 +131,7 @@ impl OnlineMapper {
             run_id: None,
             broken: None,
             hurry: None,
+            stop: Arc::default(),
             cfg,
         })
     }
@@ -152,6 +152,18 @@ impl OnlineMapper {
     /// ```
     pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
         self.hurry = Some(flag);
+    }
+
+    /// A second hurry flag, owned by the mapper, for a handle that lives
+    /// no longer than the program (the live handle's `abort`): set, it
+    /// has the same effect as the flag of [`OnlineMapper::set_hurry_flag`].
+    pub(crate) fn stop_flag(&self) -> Arc<AtomicBool> {
+        self.stop.clone()
+    }
+
+    /// Whether either hurry flag is set.
+    pub(super) fn hurried(&self) -> bool {
+        self.hurry.is_some_and(|f| f.load(Ordering::SeqCst)) || self.stop.load(Ordering::SeqCst)
     }
 
     /// The id of the run folder version this state was loaded from (see
@@ -183,23 +195,23 @@ impl OnlineMapper {
     /// An `oracle:` prefix on either side does not count as a difference.
     pub fn check_vocabulary(&self, v: &latentam_io::Vocabulary) -> Result<()> {
         let Some(head) = &self.head else {
-            return Err(Error::InvalidArgument(
-                "the map has no embeddings: there is nothing to score a vocabulary against".into(),
-            ));
+            return Err(Error::NoEmbeddings);
         };
         let dim = head.config().dim;
         if v.dim != dim {
-            return Err(Error::InvalidArgument(format!(
-                "the vocabulary holds {}-d embeddings of `{}`; the map's are {dim}-d",
-                v.dim, v.model
-            )));
+            return Err(Error::EmbeddingDimension {
+                map: dim,
+                given: v.dim,
+                context: Some(format!("the vocabulary's, of `{}`", v.model)),
+            });
         }
         if let Some(m) = &self.model {
             if embedding_space(m) != embedding_space(&v.model) {
-                return Err(Error::InvalidArgument(format!(
-                    "the vocabulary's embeddings are of model `{}`, the map's of `{m}`",
-                    v.model
-                )));
+                return Err(Error::EmbeddingModel {
+                    map: m.clone(),
+                    given: v.model.clone(),
+                    context: Some("the vocabulary's".into()),
+                });
             }
         }
         Ok(())
@@ -209,11 +221,11 @@ impl OnlineMapper {
     /// non-finite pose or intrinsics, embeddings of another model or
     /// dimension than the map's.
     fn check_frame(&self, frame: &Frame) -> Result<()> {
-        let bad = |why: String| {
-            Err(Error::InvalidArgument(format!(
-                "frame at {} ns: {why}",
-                frame.stamp_ns
-            )))
+        let bad = |reason: String| {
+            Err(Error::BadFrame {
+                stamp_ns: frame.stamp_ns,
+                reason,
+            })
         };
         let p = &frame.pose;
         if !(p.translation.is_finite() && p.rotation.is_finite() && p.rotation.length() > 1e-6) {
@@ -224,21 +236,24 @@ impl OnlineMapper {
             return bad(format!("intrinsics {k:?} are not a pinhole camera"));
         }
         if let Some(e) = &frame.embeddings {
+            // The caller knows which frame it offered.
+            let context = || None;
             if let Some(m) = &self.model {
                 if embedding_space(m) != embedding_space(&e.model) {
-                    return bad(format!(
-                        "embeddings of model `{}`, the map's are of `{m}`",
-                        e.model
-                    ));
+                    return Err(Error::EmbeddingModel {
+                        map: m.clone(),
+                        given: e.model.clone(),
+                        context: context(),
+                    });
                 }
             }
             if let Some(head) = &self.head {
                 if head.config().dim != e.dim {
-                    return bad(format!(
-                        "{}-d embeddings, the map's are {}-d",
-                        e.dim,
-                        head.config().dim
-                    ));
+                    return Err(Error::EmbeddingDimension {
+                        map: head.config().dim,
+                        given: e.dim,
+                        context: context(),
+                    });
                 }
             }
         }

@@ -86,6 +86,37 @@ impl OnlineMapper {
         Ok(())
     }
 
+    /// Every Gaussian of the map as it stands, changing nothing: the
+    /// window's rows as the GPU holds them (when training changed them
+    /// since the last write-back), then the global map's others. Unlike
+    /// [`OnlineMapper::flush`] it writes nothing back, so taking it
+    /// between keyframes leaves mapping exactly as without it.
+    pub fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {
+        let mut resident = HashSet::new();
+        let mut out = latentam_base::HostGaussians::default();
+        if let Some(window) = self
+            .window
+            .as_ref()
+            .filter(|w| self.window_dirty && !w.is_empty())
+        {
+            out = window.params().download(&self.ctx, window.len() as u64)?;
+            resident.extend(window.keys().iter().copied());
+        }
+        let more = self.global.len().saturating_sub(resident.len());
+        out.means.reserve(more);
+        out.log_scales.reserve(more);
+        out.quats.reserve(more);
+        out.colors.reserve(more);
+        out.opacity_logits.reserve(more);
+        out.queries.reserve(more);
+        for (key, g) in self.global.iter() {
+            if !resident.contains(&key) {
+                crate::map::push_gaussian(&mut out, g);
+            }
+        }
+        Ok(out)
+    }
+
     /// Removes the resident Gaussians that are nearly transparent or too
     /// large ([`MapperConfig::prune_min_opacity`], `prune_max_scale`) from
     /// the window and the global map, after writing the window back.

@@ -2,11 +2,12 @@
 //! chains (the paper's Algorithm 1): new Gaussians into the window,
 //! Stage I, and Stage II with the window's paging beside it.
 
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use glam::DVec3;
 
-use super::{is_set, ms_since, OnlineMapper};
+use super::{ms_since, OnlineMapper};
 use crate::mapper::history::KeyframeRecord;
 use crate::mapper::keyframe_report::{KeyframeGpuCalls, KeyframeTimings, PagingReport};
 use crate::mapper::StageOneReport;
@@ -62,11 +63,14 @@ impl OnlineMapper {
         );
         let mut batch: Vec<&KeyframeRecord> = vec![record];
         batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
+        let hurried = || {
+            self.hurry.is_some_and(|f| f.load(Ordering::SeqCst)) || self.stop.load(Ordering::SeqCst)
+        };
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.window.as_ref().expect("ensured");
         let stage_one = trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
         for _ in 1..self.cfg.stage_one_iterations {
-            if is_set(self.hurry) {
+            if hurried() {
                 break;
             }
             trainer.stage_one(&self.ctx, window, self.head.as_ref(), &batch)?;
@@ -105,7 +109,7 @@ impl OnlineMapper {
         } else {
             None
         };
-        let stage_two_iterations = if is_set(self.hurry) {
+        let stage_two_iterations = if self.hurried() {
             0
         } else {
             self.cfg.stage_two_iterations

@@ -2,7 +2,7 @@
 //! loop a recording or a robot's log goes through, shared by every client
 //! (the `latentam map` command is one).
 //!
-//! The run folder is replaced whole (see [`RunFolder`]): every autosave and
+//! The run folder is replaced whole (see [`RunFolder`](crate::mapper::RunFolder)): every autosave and
 //! the final write put a complete, consistent version in place, or leave
 //! the previous one. A run that stops early (a stop request, a frame
 //! limit, an unreadable frame, a frame refused for its content) still
@@ -11,16 +11,18 @@
 //! folder as it was.
 //!
 //! A resumed run skips the frames its saved state mapped already, by
-//! timestamp ([`Mapper::already_mapped`]), so a log with a frame more or
+//! timestamp ([`Mapper::already_mapped`](crate::mapper::Mapper::already_mapped)), so a log with a frame more or
 //! less than the first time resumes where the map ends.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
-use super::facade::Mapper;
-use super::keyframe_report::{Integrated, KeyframeReport};
-use super::run_folder::RunFolder;
-use super::run_report::{Ending, HostWaits, RunReport};
+use super::handle::LiveMapper;
+use super::options::LiveOptions;
+use super::shared::Outcome;
+use crate::mapper::{
+    Ending, HostWaits, Integrated, KeyframeReport, Mapper, MapperStats, RunFolder, RunReport,
+};
 use latentam_base::files::write_bytes_atomically;
 use latentam_base::{Error, Result};
 use latentam_io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog};
@@ -29,7 +31,7 @@ use latentam_io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrame
 ///
 /// ```no_run
 /// # fn f() -> latentam_core::Result<()> {
-/// use latentam_core::mapper::LogRunOptions;
+/// use latentam_core::live::LogRunOptions;
 /// // The first 500 frames, saving every 10 keyframes.
 /// let options = LogRunOptions { max_frames: Some(500), autosave_every: 10 };
 /// # Ok(())
@@ -51,10 +53,11 @@ pub struct LogRunOptions {
 ///
 /// ```no_run
 /// # fn f() -> latentam_core::Result<()> {
-/// use latentam_core::mapper::{KeyframeReport, Mapper, RunObserver};
+/// use latentam_core::live::RunObserver;
+/// use latentam_core::mapper::{KeyframeReport, MapperStats};
 /// struct Printer;
 /// impl RunObserver for Printer {
-///     fn frame_done(&mut self, frames: u64, _: &Mapper, last: Option<&KeyframeReport>) {
+///     fn frame_done(&mut self, frames: u64, _: &MapperStats, last: Option<&KeyframeReport>) {
 ///         if let Some(k) = last {
 ///             eprintln!("frame {frames}: keyframe {} took {:.0} ms", k.index, k.timings.total_ms);
 ///         }
@@ -70,12 +73,13 @@ pub trait RunObserver {
     fn started(&mut self, _frames: &McapFrames, _total: Option<usize>) {}
 
     /// After each frame of the log, mapped or skipped: how many were gone
-    /// through, and the last keyframe's report.
-    fn frame_done(&mut self, _frames: u64, _mapper: &Mapper, _last: Option<&KeyframeReport>) {}
+    /// through, the mapper's statistics after it, and the last keyframe's
+    /// report.
+    fn frame_done(&mut self, _frames: u64, _stats: &MapperStats, _last: Option<&KeyframeReport>) {}
 
     /// Asked before each frame: whether to stop here ([`Ending::Interrupted`]).
     /// A keyframe in progress can be cut short too, through
-    /// [`Mapper::set_hurry_flag`].
+    /// [`Mapper::set_hurry_flag`](crate::mapper::Mapper::set_hurry_flag).
     fn stop_requested(&mut self) -> bool {
         false
     }
@@ -91,7 +95,7 @@ pub trait RunObserver {
 
     /// Writes the client's own files into the staged version of the run
     /// folder `dir`, beside the report, before it is swapped in. Each must
-    /// be one of [`RUN_FOLDER_FILES`](super::RUN_FOLDER_FILES).
+    /// be one of [`RUN_FOLDER_FILES`](crate::mapper::RUN_FOLDER_FILES).
     fn write_extra_files(&mut self, _dir: &Path, _report: &RunReport) -> Result<()> {
         Ok(())
     }
@@ -102,8 +106,8 @@ impl RunObserver for () {}
 /// What [`LogRun::write_folder`] did.
 ///
 /// ```no_run
-/// # fn f(run: &mut latentam_core::mapper::LogRun, folder: &latentam_core::mapper::RunFolder) -> latentam_core::Result<()> {
-/// use latentam_core::mapper::Written;
+/// # fn f(run: &mut latentam_core::live::LogRun, folder: &latentam_core::mapper::RunFolder) -> latentam_core::Result<()> {
+/// use latentam_core::live::Written;
 /// match run.write_folder(folder, &mut ())? {
 ///     Written::Saved(report) => println!("saved {} keyframes", report.keyframes),
 ///     Written::Kept(why) => eprintln!("folder unchanged: {why}"),
@@ -122,8 +126,8 @@ pub enum Written {
 /// Why [`LogRun::write_folder`] left the folder as it was.
 ///
 /// ```no_run
-/// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
-/// use latentam_core::mapper::Kept;
+/// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
+/// use latentam_core::live::Kept;
 /// if let Some(Kept::NothingMapped(why)) = run.not_to_save() {
 ///     eprintln!("the log gave no map: {why}");
 /// }
@@ -158,7 +162,8 @@ impl std::fmt::Display for Kept {
 ///
 /// ```no_run
 /// use latentam_io::AssemblyConfig;
-/// use latentam_core::mapper::{LogRun, LogRunOptions, Mapper, RunFolder, Written, STATE_FILE};
+/// use latentam_core::live::{LogRun, LogRunOptions, Written};
+/// use latentam_core::mapper::{Mapper, RunFolder, STATE_FILE};
 ///
 /// let ctx = latentam_gpu::Context::new(Default::default())?;
 /// let folder = RunFolder::lock("out/run")?;
@@ -208,6 +213,142 @@ pub struct LogRun {
     pub not_keyframes: u64,
 }
 
+/// What a run counts while its mapper is on the live handle's worker:
+/// everything of a [`LogRun`] but the mapper.
+struct Tally {
+    log: PathBuf,
+    /// Frames handed to the live handle.
+    submitted: u64,
+    frames: u64,
+    skipped: u64,
+    keyframes: Vec<KeyframeReport>,
+    autosaved_at: Option<u64>,
+    autosave_failures: Vec<String>,
+    not_keyframes: u64,
+    /// The mapper's statistics after the last frame counted.
+    stats: MapperStats,
+    /// Outcomes left to count once the worker has stopped.
+    pending: Vec<Outcome>,
+}
+
+impl Tally {
+    fn new(log: &Path) -> Self {
+        Tally {
+            log: log.to_path_buf(),
+            submitted: 0,
+            frames: 0,
+            skipped: 0,
+            keyframes: Vec::new(),
+            autosaved_at: None,
+            autosave_failures: Vec::new(),
+            not_keyframes: 0,
+            stats: MapperStats::default(),
+            pending: Vec::new(),
+        }
+    }
+
+    /// Counts what the worker did since the last call, autosaving when a
+    /// keyframe makes one due. Returns the ending when a frame failed.
+    fn take_outcomes(
+        &mut self,
+        live: &LiveMapper,
+        options: &LogRunOptions,
+        folder: Option<&RunFolder>,
+        observer: &mut dyn RunObserver,
+        frames: &mut McapFrames,
+    ) -> Option<Ending> {
+        let mut due = false;
+        for outcome in live.take_outcomes() {
+            let before = self.stats.keyframes;
+            if let Some(failed) = self.count(outcome, frames, observer) {
+                self.pending.extend(live.take_outcomes());
+                return Some(failed);
+            }
+            let every = options.autosave_every;
+            due |= every > 0 && self.stats.keyframes != before && self.stats.keyframes % every == 0;
+        }
+        let folder = folder.filter(|_| due)?;
+        // Between frames, with the mapper: what the worker did meanwhile
+        // is counted first, so the folder's report and state agree.
+        let mut failed = None;
+        let submitted = self.submitted;
+        let saved = live.lend_owned(|mapper| {
+            for outcome in live.take_outcomes() {
+                if let Some(f) = self.count(outcome, frames, observer) {
+                    failed.get_or_insert(f);
+                }
+            }
+            let n = mapper.stats().keyframes;
+            let mut run = std::mem::replace(self, Tally::new(&self.log)).into_run(mapper);
+            run.ingest = frames.report().clone();
+            let written = run.write_folder(folder, observer);
+            let (mapper, tally) = run.into_parts();
+            *self = Tally { submitted, ..tally };
+            match written {
+                Ok(Written::Saved(_)) => self.autosaved_at = Some(n),
+                Ok(Written::Kept(_)) => {}
+                Err(e) => {
+                    observer.autosave_failed(n, &e);
+                    self.autosave_failures.push(format!("keyframe {n}: {e}"));
+                }
+            }
+            (mapper, ())
+        });
+        if saved.is_err() {
+            // The worker is gone; its outcomes are counted at the end.
+            self.pending.extend(live.take_outcomes());
+        }
+        failed
+    }
+
+    /// Counts one frame's outcome; the ending when it failed.
+    fn count(
+        &mut self,
+        outcome: Outcome,
+        frames: &mut McapFrames,
+        observer: &mut dyn RunObserver,
+    ) -> Option<Ending> {
+        let stamp = outcome.frame.stamp_ns;
+        frames.recycle(outcome.frame);
+        self.stats = outcome.stats;
+        let failed = match outcome.result {
+            Ok(Integrated::Keyframe(k)) => {
+                self.frames += 1;
+                self.keyframes.push(*k);
+                None
+            }
+            Ok(Integrated::Skipped) => {
+                self.frames += 1;
+                self.not_keyframes += 1;
+                None
+            }
+            Err(e) => Some(Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))),
+        };
+        observer.frame_done(
+            self.skipped + self.frames,
+            &self.stats,
+            self.keyframes.last(),
+        );
+        failed
+    }
+
+    fn into_run(self, mapper: Mapper) -> LogRun {
+        LogRun {
+            mapper,
+            log: self.log,
+            frames: self.frames,
+            skipped: self.skipped,
+            keyframes: self.keyframes,
+            wall_s: 0.0,
+            ending: Ending::Running,
+            ingest: IngestReport::default(),
+            autosaved_at: self.autosaved_at,
+            autosave_failures: self.autosave_failures,
+            not_keyframes: self.not_keyframes,
+        }
+    }
+}
+
 impl LogRun {
     /// Maps the log at `log` with `mapper` (new, or loaded to be
     /// continued), writing the run folder `folder` at every autosave when
@@ -219,7 +360,7 @@ impl LogRun {
     /// ```no_run
     /// # fn f(mapper: latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
     /// use latentam_io::AssemblyConfig;
-    /// use latentam_core::mapper::{LogRun, LogRunOptions};
+    /// use latentam_core::live::{LogRun, LogRunOptions};
     /// // No run folder: map only, in memory.
     /// let run = LogRun::map(mapper, "log.mcap".as_ref(), AssemblyConfig::default(),
     ///                       &LogRunOptions::default(), None, &mut ())?;
@@ -247,35 +388,40 @@ impl LogRun {
         };
         observer.started(&frames, total);
         // A state from before stamps were saved resumes by count.
-        let skip_by_count = match mapper.stats().last_frame_stamp_ns {
+        let stats = mapper.stats();
+        let skip_by_count = match stats.last_frame_stamp_ns {
             Some(_) => 0,
-            None => mapper.stats().frames,
+            None => stats.frames,
         };
+        let mut mapped_up_to = stats.last_frame_stamp_ns;
         let limit = options.max_frames.unwrap_or(usize::MAX);
-        let mut run = LogRun {
-            mapper,
-            log: log.to_path_buf(),
-            frames: 0,
-            skipped: 0,
-            keyframes: Vec::new(),
-            wall_s: 0.0,
-            ending: Ending::Running,
-            ingest: IngestReport::default(),
-            autosaved_at: None,
-            autosave_failures: Vec::new(),
-            not_keyframes: 0,
-        };
+        let mut run = Tally::new(log);
         let start = Instant::now();
+        // The log goes through the live handle, as a robot's frames would,
+        // but nothing is dropped: the reader waits for room, and reads the
+        // next frames while the worker maps.
+        let live = LiveMapper::start(
+            mapper,
+            LiveOptions {
+                queue_frames: 3,
+                stop_on_rejected: true,
+                ..LiveOptions::default()
+            },
+        )?;
+        live.record_outcomes();
         let mut warned = 0;
-        let ending = loop {
+        let mut ending = 'reading: loop {
             for w in &frames.report().warnings[warned..] {
                 observer.input_warning(w);
             }
             warned = frames.report().warnings.len();
+            if let Some(failed) = run.take_outcomes(&live, options, folder, observer, &mut frames) {
+                break failed;
+            }
             if observer.stop_requested() {
                 break Ending::Interrupted;
             }
-            if (run.skipped + run.frames) as usize >= limit {
+            if (run.skipped + run.submitted) as usize >= limit {
                 break Ending::FrameLimit;
             }
             let Some(frame) = frames.next() else {
@@ -285,53 +431,99 @@ impl LogRun {
                 Ok(f) => f,
                 Err(e) => break Ending::Failed(format!("reading {}: {e}", log.display())),
             };
-            if run.mapper.already_mapped(&frame) || run.skipped < skip_by_count {
+            let mapped = mapped_up_to.is_some_and(|last| frame.stamp_ns <= last);
+            if mapped || run.skipped < skip_by_count {
                 run.skipped += 1;
                 frames.recycle(frame);
-                observer.frame_done(run.skipped + run.frames, &run.mapper, None);
+                observer.frame_done(run.skipped + run.frames, &run.stats, None);
                 continue;
             }
-            match run.mapper.integrate(&frame) {
-                Ok(Integrated::Keyframe(k)) => {
-                    run.frames += 1;
-                    run.keyframes.push(*k);
-                    let n = run.mapper.stats().keyframes;
-                    let due = options.autosave_every > 0 && n % options.autosave_every == 0;
-                    if let Some(folder) = folder.filter(|_| due) {
-                        run.wall_s = start.elapsed().as_secs_f64();
-                        run.ingest = frames.report().clone();
-                        match run.write_folder(folder, observer) {
-                            Ok(Written::Saved(_)) => run.autosaved_at = Some(n),
-                            Ok(Written::Kept(_)) => {}
-                            Err(e) => {
-                                observer.autosave_failed(n, &e);
-                                run.autosave_failures.push(format!("keyframe {n}: {e}"));
-                            }
-                        }
-                    }
+            mapped_up_to = Some(frame.stamp_ns);
+            run.submitted += 1;
+            let mut waiting = frame;
+            loop {
+                match live.submit_waiting(waiting, Duration::from_millis(50)) {
+                    Ok(None) => break,
+                    Ok(Some(back)) => waiting = back,
+                    // The worker stopped: its outcome says why.
+                    Err(_) => break,
                 }
-                Ok(Integrated::Skipped) => {
-                    run.frames += 1;
-                    run.not_keyframes += 1;
+                if let Some(failed) =
+                    run.take_outcomes(&live, options, folder, observer, &mut frames)
+                {
+                    break 'reading failed;
                 }
-                Err(e) => {
-                    break Ending::Failed(format!("mapping frame at {} ns: {e}", frame.stamp_ns));
+                if observer.stop_requested() {
+                    break 'reading Ending::Interrupted;
                 }
             }
-            frames.recycle(frame);
-            observer.frame_done(run.skipped + run.frames, &run.mapper, run.keyframes.last());
         };
+        // A run that read its last frame maps what is queued, counting (and
+        // autosaving) as it goes.
+        if matches!(ending, Ending::Complete | Ending::FrameLimit) {
+            while !live.wait_idle(Duration::from_millis(50)) {
+                if observer.stop_requested() {
+                    ending = Ending::Interrupted;
+                    break;
+                }
+                if let Some(failed) =
+                    run.take_outcomes(&live, options, folder, observer, &mut frames)
+                {
+                    ending = failed;
+                    break;
+                }
+            }
+            if let Some(failed) = run.take_outcomes(&live, options, folder, observer, &mut frames) {
+                ending = failed;
+            }
+        }
+        // An interrupted run stops at once (the keyframe in progress hurries
+        // through the mapper's hurry flag), dropping what is queued.
+        let interrupted = ending == Ending::Interrupted;
+        let (mapper, stopped, last) = live.close_keeping_failures(interrupted);
+        let mapper = mapper.ok_or_else(|| {
+            let why = stopped.map_or("the worker ended".into(), |e| e.to_string());
+            Error::Panicked(format!("the mapper was lost: {why}"))
+        })?;
+        let mut rest = std::mem::take(&mut run.pending);
+        rest.extend(last);
+        for outcome in rest {
+            if let Some(failed) = run.count(outcome, &mut frames, observer) {
+                if !matches!(ending, Ending::Failed(_)) {
+                    ending = failed;
+                }
+            }
+        }
+        let mut run = run.into_run(mapper);
         run.ending = ending;
         run.wall_s = start.elapsed().as_secs_f64();
         run.ingest = frames.report().clone();
         Ok(run)
     }
 
+    /// The mapper and the counts apart (for an autosave while mapping).
+    fn into_parts(self) -> (Mapper, Tally) {
+        let stats = self.mapper.stats();
+        let tally = Tally {
+            log: self.log,
+            submitted: self.frames,
+            frames: self.frames,
+            skipped: self.skipped,
+            keyframes: self.keyframes,
+            autosaved_at: self.autosaved_at,
+            autosave_failures: self.autosave_failures,
+            not_keyframes: self.not_keyframes,
+            stats,
+            pending: Vec::new(),
+        };
+        (self.mapper, tally)
+    }
+
     /// The report of this run, with the profiler's per-kernel statistics,
     /// for the run folder version `run_id`.
     ///
     /// ```no_run
-    /// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
+    /// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
     /// let report = run.report("example-run");
     /// println!("{}", serde_json::to_string_pretty(&report).unwrap());
     /// # Ok(())
@@ -355,6 +547,8 @@ impl LogRun {
             run_id: run_id.to_string(),
             log: self.log.display().to_string(),
             device: ctx.info().name.clone(),
+            time_to_ready_ms: ctx.time_to_ready_ms(),
+            pipeline_cache_loaded_bytes: ctx.info().pipeline_cache_loaded_bytes,
             ending: self.ending.clone(),
             frames: self.frames,
             frames_skipped_as_already_mapped: self.skipped,
@@ -391,7 +585,7 @@ impl LogRun {
     /// included), camera-to-world.
     ///
     /// ```no_run
-    /// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
+    /// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
     /// for (stamp_ns, pose) in run.trajectory() {
     ///     println!("{stamp_ns} {:?}", pose.translation);
     /// }
@@ -409,7 +603,7 @@ impl LogRun {
     /// Why the run folder must not be replaced by this run, if so.
     ///
     /// ```no_run
-    /// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
+    /// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
     /// match run.not_to_save() {
     ///     Some(why) => eprintln!("not saving: {why}"),
     ///     None => println!("ready to save"),
@@ -433,7 +627,7 @@ impl LogRun {
     /// What the folder holds when this run did not replace it.
     ///
     /// ```no_run
-    /// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
+    /// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
     /// if run.not_to_save().is_some() {
     ///     eprintln!("{}", run.kept_description());
     /// }
@@ -450,7 +644,7 @@ impl LogRun {
     /// Why no keyframe (or no Gaussian) came of the log, with counts.
     ///
     /// ```no_run
-    /// # fn f(run: &latentam_core::mapper::LogRun) -> latentam_core::Result<()> {
+    /// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
     /// if run.keyframes.is_empty() {
     ///     eprintln!("no keyframe: {}", run.why_nothing());
     /// }
@@ -491,7 +685,7 @@ impl LogRun {
     /// error for a file that could not be written.
     ///
     /// ```no_run
-    /// # fn f(run: &mut latentam_core::mapper::LogRun, folder: &latentam_core::mapper::RunFolder) -> latentam_core::Result<()> {
+    /// # fn f(run: &mut latentam_core::live::LogRun, folder: &latentam_core::mapper::RunFolder) -> latentam_core::Result<()> {
     /// let written = run.write_folder(folder, &mut ())?;
     /// # Ok(())
     /// # }

@@ -1,0 +1,523 @@
+//! The live handle: what a robot program holds.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::{mpsc, Arc, Condvar, Mutex, RwLock};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use latentam_base::{Error, Result};
+use latentam_io::Frame;
+
+use super::options::LiveOptions;
+use super::queue::{frame_bytes, DropCounts, FrameQueue};
+use super::shared::{Close, Outcome, Shared, State};
+use super::snapshot::MapSnapshot;
+use super::worker;
+use crate::latent::TextQuery;
+use crate::mapper::{Mapper, MapperConfig};
+use crate::splat::{Camera, RenderedView};
+
+/// Where a [`LiveMapper`] stands.
+///
+/// ```no_run
+/// # fn f(live: &latentam_core::live::LiveMapper) {
+/// let s = live.status();
+/// println!(
+///     "{} queued, {} dropped, last keyframe {:?} ms after submission, {:?} keyframes/s",
+///     s.queued_frames, s.dropped.total(), s.last_keyframe_latency_ms, s.keyframes_per_s
+/// );
+/// if let Some(e) = &s.last_error {
+///     eprintln!("last error: {e}");
+/// }
+/// # }
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct LiveStatus {
+    /// Frames waiting for the worker.
+    pub queued_frames: usize,
+    /// Their bytes.
+    pub queued_bytes: u64,
+    /// Frames submitted to this handle.
+    pub submitted: u64,
+    /// Frames the mapper went through (keyframes, skipped and refused).
+    pub integrated: u64,
+    /// Keyframes mapped through this handle.
+    pub keyframes: u64,
+    /// Frames given up, by reason.
+    pub dropped: DropCounts,
+    /// Whether a frame is being mapped now.
+    pub mapping: bool,
+    /// The last keyframe's time from `submit` to its snapshot, ms.
+    pub last_keyframe_latency_ms: Option<f64>,
+    /// The same from the frame's stamp, when the stamp is wall-clock time
+    /// (a live camera's; not a log's), ms.
+    pub last_keyframe_stamp_latency_ms: Option<f64>,
+    /// The last keyframe's mapping time, ms.
+    pub last_keyframe_ms: Option<f64>,
+    /// Keyframes per second over the last ten.
+    pub keyframes_per_s: Option<f64>,
+    /// The last error: a refused frame, or what stopped the worker.
+    pub last_error: Option<Arc<Error>>,
+    /// What stopped the worker, if it stopped: no frame is taken since.
+    pub stopped: Option<Arc<Error>>,
+    /// Time from the start of [`LiveMapper::new`] to a mapper with every
+    /// kernel compiled, ms (absent for [`LiveMapper::start`]).
+    pub ready_ms: Option<f64>,
+}
+
+/// An answer to a relevance query, with the snapshot it was computed on
+/// (so positions and scores are of the same map).
+///
+/// ```no_run
+/// # fn f(live: &latentam_core::live::LiveMapper, q: &latentam_core::latent::TextQuery) -> latentam_core::Result<()> {
+/// let answer = live.relevance(q)?;
+/// assert_eq!(answer.scores.len(), answer.snapshot.gaussians.means.len());
+/// # Ok(())
+/// # }
+/// ```
+pub struct Relevance {
+    /// One relevance per Gaussian of `snapshot`, in its order.
+    pub scores: Vec<f32>,
+    /// The snapshot scored.
+    pub snapshot: Arc<MapSnapshot>,
+}
+
+/// A map built on a worker thread, fed without waiting and read while it
+/// grows. It is `Send + Sync`: share it (`Arc`) between the camera
+/// callback, the planner and a viewer.
+///
+/// ```no_run
+/// use latentam_core::live::{LiveMapper, LiveOptions};
+/// use latentam_core::latent::TextQuery;
+/// use latentam_core::mapper::MapperConfig;
+///
+/// # fn frames() -> Vec<latentam_io::Frame> { vec![] }
+/// let live = LiveMapper::new(MapperConfig::default(), LiveOptions::default())?;
+/// for frame in frames() {
+///     live.submit(frame)?; // returns at once; the worker maps
+///     let status = live.status();
+///     if status.dropped.total() > 0 {
+///         eprintln!("mapper behind: {:?}", status.dropped);
+///     }
+/// }
+/// // Meanwhile, from any thread: "where is the chair?"
+/// let chair_embedding = vec![0.0f32; 512]; // from your vision-language model
+/// let answer = live.relevance(&TextQuery::embedding(chair_embedding))?;
+/// println!("{} Gaussians scored", answer.scores.len());
+/// let mapper = live.finish()?; // maps what is queued, returns the map
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+pub struct LiveMapper {
+    shared: Arc<Shared>,
+    worker: Option<JoinHandle<Option<Mapper>>>,
+    indexer: Option<JoinHandle<()>>,
+}
+
+const _: () = {
+    const fn send_sync<T: Send + Sync>() {}
+    send_sync::<LiveMapper>();
+    send_sync::<MapSnapshot>();
+};
+
+impl LiveMapper {
+    /// A live mapper on the first suitable Vulkan device, with every
+    /// kernel its configuration uses compiled before it returns (see
+    /// [`Mapper::new`]); the time that took is [`LiveStatus::ready_ms`].
+    pub fn new(config: MapperConfig, options: LiveOptions) -> Result<Self> {
+        let start = Instant::now();
+        let mapper = Mapper::new(config)?;
+        let ready = start.elapsed().as_secs_f64() * 1e3;
+        Self::spawn(mapper, options, Some(ready))
+    }
+
+    /// A live mapper around a mapper of your making (on a context of your
+    /// choosing, or loaded from a save to go on).
+    ///
+    /// ```no_run
+    /// use latentam_core::live::{LiveMapper, LiveOptions};
+    /// let ctx = latentam_gpu::Context::new(Default::default())?;
+    /// latentam_core::mapper::warm_up(&ctx)?;
+    /// let mapper = latentam_core::mapper::Mapper::load(&ctx, "runs/kitchen")?;
+    /// let live = LiveMapper::start(mapper, LiveOptions::default())?;
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn start(mapper: Mapper, options: LiveOptions) -> Result<Self> {
+        Self::spawn(mapper, options, None)
+    }
+
+    fn spawn(mapper: Mapper, options: LiveOptions, ready_ms: Option<f64>) -> Result<Self> {
+        let mut queue = FrameQueue::new(
+            options.queue_frames,
+            options.queue_bytes,
+            mapper.config().keyframes,
+        );
+        let (last, since) = mapper.keyframe_rule_state();
+        queue.start_after(last, since);
+        let first = MapSnapshot::new(
+            mapper.gaussians_now()?,
+            mapper.decoder()?,
+            mapper.trajectory().to_vec(),
+            mapper.stats(),
+            options.index,
+        );
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State {
+                queue,
+                lends: VecDeque::new(),
+                close: None,
+                busy: false,
+                exited: false,
+                submitted: 0,
+                integrated: 0,
+                keyframes: 0,
+                dropped: DropCounts::default(),
+                last_latency_ms: None,
+                last_stamp_latency_ms: None,
+                last_keyframe_ms: None,
+                recent: VecDeque::new(),
+                last_error: None,
+                stopped: None,
+                fatal: false,
+                wants_index: false,
+                outcomes: None,
+            }),
+            work: Condvar::new(),
+            room: Condvar::new(),
+            index_wake: Condvar::new(),
+            snapshot: RwLock::new(Arc::new(first)),
+            indexed: RwLock::new(None),
+            stop: mapper.stop_flag(),
+            options,
+            ready_ms,
+        });
+        let spawn_err = |e: std::io::Error| Error::Io {
+            path: PathBuf::from("(thread)"),
+            source: e,
+        };
+        let s = shared.clone();
+        let worker = std::thread::Builder::new()
+            .name("latentam-mapper".into())
+            .spawn(move || worker::run(mapper, s))
+            .map_err(spawn_err)?;
+        let s = shared.clone();
+        let indexer = std::thread::Builder::new()
+            .name("latentam-index".into())
+            .spawn(move || worker::index_snapshots(s))
+            .map_err(spawn_err)?;
+        Ok(LiveMapper {
+            shared,
+            worker: Some(worker),
+            indexer: Some(indexer),
+        })
+    }
+
+    /// Queues a frame for the worker and returns at once: it never waits
+    /// for GPU work. When the queue is full, frames are dropped by the
+    /// policy of [`DropCounts`] (those that cannot become keyframes
+    /// first, then the oldest candidates) and counted in
+    /// [`LiveStatus::dropped`]. Errors once the worker has stopped
+    /// ([`Error::Stopped`], with the cause).
+    pub fn submit(&self, frame: Frame) -> Result<()> {
+        let mut st = self.shared.lock();
+        if let Some(e) = &st.stopped {
+            return Err(Error::Stopped(e.clone()));
+        }
+        st.submitted += 1;
+        let State { queue, dropped, .. } = &mut *st;
+        queue.admit(frame, dropped);
+        drop(st);
+        self.shared.work.notify_one();
+        Ok(())
+    }
+
+    /// Queues a frame, waiting up to `max_wait` for room instead of
+    /// dropping anything: what mapping a recorded log wants. Gives the
+    /// frame back if there was still no room.
+    pub fn submit_waiting(&self, frame: Frame, max_wait: Duration) -> Result<Option<Frame>> {
+        let bytes = frame_bytes(&frame);
+        let deadline = Instant::now() + max_wait;
+        let mut st = self.shared.lock();
+        loop {
+            if let Some(e) = &st.stopped {
+                return Err(Error::Stopped(e.clone()));
+            }
+            if st.queue.has_room(bytes) {
+                break;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(Some(frame));
+            }
+            st = self
+                .shared
+                .room
+                .wait_timeout(st, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+        st.submitted += 1;
+        let State { queue, dropped, .. } = &mut *st;
+        queue.admit(frame, dropped);
+        drop(st);
+        self.shared.work.notify_one();
+        Ok(None)
+    }
+
+    /// Where mapping stands: the queue, drops, latencies, errors.
+    pub fn status(&self) -> LiveStatus {
+        let st = self.shared.lock();
+        let keyframes_per_s = match (st.recent.front(), st.recent.back()) {
+            (Some(a), Some(b)) if st.recent.len() > 1 => {
+                Some((st.recent.len() - 1) as f64 / (*b - *a).as_secs_f64().max(1e-9))
+            }
+            _ => None,
+        };
+        LiveStatus {
+            queued_frames: st.queue.len(),
+            queued_bytes: st.queue.bytes(),
+            submitted: st.submitted,
+            integrated: st.integrated,
+            keyframes: st.keyframes,
+            dropped: st.dropped,
+            mapping: st.busy,
+            last_keyframe_latency_ms: st.last_latency_ms,
+            last_keyframe_stamp_latency_ms: st.last_stamp_latency_ms,
+            last_keyframe_ms: st.last_keyframe_ms,
+            keyframes_per_s,
+            last_error: st.last_error.clone(),
+            stopped: st.stopped.clone(),
+            ready_ms: self.shared.ready_ms,
+        }
+    }
+
+    /// The latest snapshot of the map (after the last keyframe, or the
+    /// map it started with). Never waits for mapping.
+    pub fn snapshot(&self) -> Arc<MapSnapshot> {
+        self.shared.latest()
+    }
+
+    /// Relevance of every Gaussian to `query`, from the newest snapshot
+    /// whose relevance index is built. From the first query on, an
+    /// indexer thread indexes each new snapshot, so later queries do not
+    /// pay for it; the first one builds it on the calling thread.
+    pub fn relevance(&self, query: &TextQuery) -> Result<Relevance> {
+        {
+            let mut st = self.shared.lock();
+            if !st.wants_index {
+                st.wants_index = true;
+                self.shared.index_wake.notify_all();
+            }
+        }
+        let indexed = self
+            .shared
+            .indexed
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        let snapshot = match indexed {
+            Some(s) => s,
+            None => self.snapshot(),
+        };
+        let scores = snapshot.relevance(query)?;
+        Ok(Relevance { scores, snapshot })
+    }
+
+    /// Renders colour, depth and queries of the map from `camera` (see
+    /// [`Mapper::render`]). The worker serves it between frames: while a
+    /// keyframe runs, it waits for the rest of that keyframe.
+    pub fn render(&self, camera: &Camera) -> Result<RenderedView> {
+        self.lend(|m| m.render(camera).map(|(view, _)| view))?
+    }
+
+    /// Saves the map into the run folder `dir` (see [`Mapper::save`]),
+    /// between frames as [`LiveMapper::render`]. Returns the state file.
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<PathBuf> {
+        let dir = dir.as_ref();
+        self.lend(|m| m.save(dir))?
+    }
+
+    /// Runs `f` on the calling thread with the mapper, once the worker is
+    /// between frames; mapping waits until `f` returns.
+    pub(crate) fn lend<R>(&self, f: impl FnOnce(&mut Mapper) -> R) -> Result<R> {
+        self.lend_slot(|slot| f(slot.as_mut().expect("a loan holds the mapper")))
+    }
+
+    /// Runs `f` on the calling thread with the mapper itself, once the
+    /// worker is between frames; `f` gives it back. Mapping waits.
+    pub(crate) fn lend_owned<R>(&self, f: impl FnOnce(Mapper) -> (Mapper, R)) -> Result<R> {
+        self.lend_slot(|slot| {
+            let mapper = slot.take().expect("a loan holds the mapper");
+            let (mapper, r) = f(mapper);
+            *slot = Some(mapper);
+            r
+        })
+    }
+
+    fn lend_slot<R>(&self, f: impl FnOnce(&mut Option<Mapper>) -> R) -> Result<R> {
+        let (to, from) = mpsc::channel();
+        {
+            let mut st = self.shared.lock();
+            if st.exited {
+                return Err(self.shared_stopped(&st));
+            }
+            st.lends.push_back(to);
+        }
+        self.shared.work.notify_one();
+        let mut lent = from.recv().map_err(|_| self.shared.stopped_error())?;
+        Ok(f(&mut lent.mapper))
+    }
+
+    fn shared_stopped(&self, st: &State) -> Error {
+        match &st.stopped {
+            Some(e) => Error::Stopped(e.clone()),
+            None => Error::Stopped(Arc::new(Error::InvalidArgument(
+                "the live mapper's worker has ended".into(),
+            ))),
+        }
+    }
+
+    /// Keeps what became of each frame from now on, for
+    /// [`LiveMapper::take_outcomes`].
+    pub(crate) fn record_outcomes(&self) {
+        self.shared.lock().outcomes.get_or_insert_with(Vec::new);
+    }
+
+    /// What became of each frame since the last call.
+    pub(crate) fn take_outcomes(&self) -> Vec<Outcome> {
+        self.shared
+            .lock()
+            .outcomes
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
+    /// Waits until every queued frame is mapped (or the worker stopped),
+    /// up to `max_wait`; whether it is.
+    pub fn wait_idle(&self, max_wait: Duration) -> bool {
+        let deadline = Instant::now() + max_wait;
+        let mut st = self.shared.lock();
+        loop {
+            if (st.queue.len() == 0 && !st.busy) || st.stopped.is_some() || st.exited {
+                return true;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            st = self
+                .shared
+                .room
+                .wait_timeout(st, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+
+    /// Maps every queued frame, stops the worker and returns the mapper.
+    /// Errors when the worker stopped on a failure that left no usable
+    /// map (a keyframe that failed part-way, a lost device, a panic).
+    pub fn finish(mut self) -> Result<Mapper> {
+        let (mapper, stopped, fatal) = self.close(Close::Finish);
+        match (mapper, stopped) {
+            (Some(m), None) => Ok(m),
+            (Some(m), Some(_)) if !fatal => Ok(m),
+            (_, Some(e)) => Err(Error::Stopped(e)),
+            (None, None) => Err(self.shared.stopped_error()),
+        }
+    }
+
+    /// Stops as soon as it can: the keyframe in progress skips its
+    /// remaining optimisation steps (within about one Stage I step), the
+    /// queued frames are dropped (counted as `aborted`), and the mapper
+    /// is returned with what it mapped.
+    pub fn abort(mut self) -> Result<Mapper> {
+        let (mapper, stopped, _) = self.close(Close::Abort);
+        mapper.ok_or_else(|| match stopped {
+            Some(e) => Error::Stopped(e),
+            None => self.shared.stopped_error(),
+        })
+    }
+
+    /// [`LiveMapper::finish`] (or [`LiveMapper::abort`]) for [`LogRun`](super::LogRun),
+    /// which keeps a broken map to report on it: the mapper (if any), what
+    /// stopped the worker, and the outcomes not taken yet.
+    pub(crate) fn close_keeping_failures(
+        mut self,
+        abort: bool,
+    ) -> (Option<Mapper>, Option<Arc<Error>>, Vec<Outcome>) {
+        let how = if abort { Close::Abort } else { Close::Finish };
+        let (mapper, stopped, _) = self.close(how);
+        (mapper, stopped, self.take_outcomes())
+    }
+
+    /// Asks the worker to stop, hurrying the keyframe in progress
+    /// (`abort`) or not.
+    pub(crate) fn hurry(&self) {
+        self.shared
+            .stop
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    fn close(&mut self, how: Close) -> (Option<Mapper>, Option<Arc<Error>>, bool) {
+        {
+            let mut st = self.shared.lock();
+            st.close = Some(
+                st.close
+                    .map_or(how, |c| if c == Close::Abort { c } else { how }),
+            );
+        }
+        if how == Close::Abort {
+            self.hurry();
+        }
+        self.shared.work.notify_all();
+        self.shared.index_wake.notify_all();
+        let mapper = self.worker.take().and_then(|w| w.join().ok().flatten());
+        if let Some(i) = self.indexer.take() {
+            let _ = i.join();
+        }
+        let st = self.shared.lock();
+        (mapper, st.stopped.clone(), st.fatal)
+    }
+}
+
+impl Drop for LiveMapper {
+    /// Aborts and waits for the worker up to
+    /// [`LiveOptions::drop_timeout`]; a worker stuck longer (a GPU that
+    /// stopped answering) is left to end on its own.
+    fn drop(&mut self) {
+        if self.worker.is_none() {
+            return;
+        }
+        {
+            let mut st = self.shared.lock();
+            st.close = Some(Close::Abort);
+        }
+        self.hurry();
+        self.shared.work.notify_all();
+        self.shared.index_wake.notify_all();
+        let deadline = Instant::now() + self.shared.options.drop_timeout;
+        let mut st = self.shared.lock();
+        while !st.exited {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                log::warn!("the mapping worker did not end in time; leaving it to end on its own");
+                return;
+            }
+            st = self
+                .shared
+                .room
+                .wait_timeout(st, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+        drop(st);
+        if let Some(w) = self.worker.take() {
+            let _ = w.join();
+        }
+        if let Some(i) = self.indexer.take() {
+            let _ = i.join();
+        }
+    }
+}

@@ -1,0 +1,26 @@
+//! Mapping live, beside a robot's loop: [`LiveMapper`] owns the mapper on
+//! a worker thread. The caller only enqueues frames, which never waits
+//! for the GPU, reads immutable snapshots published after each keyframe,
+//! and asks for renders and saves, which the worker serves between
+//! keyframes.
+//!
+//! ```text
+//!  submit ──► bounded queue ──► worker: integrate ─► snapshot (Arc) ──► relevance, readers
+//!   (drops by policy, counted)      ▲     between keyframes: render, save (loans)
+//! ```
+
+mod handle;
+mod index;
+mod log_run;
+mod options;
+mod queue;
+mod shared;
+mod snapshot;
+mod worker;
+
+pub use handle::{LiveMapper, LiveStatus, Relevance};
+pub use index::{IndexSettings, RelevanceIndex};
+pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
+pub use options::LiveOptions;
+pub use queue::{frame_bytes, DropCounts};
+pub use snapshot::MapSnapshot;

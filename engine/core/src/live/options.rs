@@ -1,0 +1,49 @@
+//! How a live handle queues frames and serves readers.
+
+use std::time::Duration;
+
+use super::index::IndexSettings;
+
+/// How a [`LiveMapper`](super::LiveMapper) queues frames and serves readers.
+///
+/// ```
+/// use latentam_core::live::LiveOptions;
+/// // A deeper queue for a 60 Hz camera; at most 1 GiB of frames waiting.
+/// let options = LiveOptions { queue_frames: 16, queue_bytes: 1 << 30, ..Default::default() };
+/// assert!(!options.stop_on_rejected);
+/// ```
+#[derive(Clone, Debug)]
+pub struct LiveOptions {
+    /// Frames that may wait for the worker (at least 1); beyond, the
+    /// drop policy applies (see [`DropCounts`](super::DropCounts) and the `queue` module).
+    pub queue_frames: usize,
+    /// Bytes of frames that may wait (images and embeddings, see
+    /// [`frame_bytes`](super::frame_bytes)); one frame always fits, however large.
+    pub queue_bytes: u64,
+    /// What the relevance index keeps of each Gaussian's attention.
+    pub index: IndexSettings,
+    /// Publish a snapshot every this many keyframes (1: after each). A
+    /// snapshot copies the map to the host, which costs time at millions
+    /// of Gaussians.
+    pub snapshot_every: u64,
+    /// Stop taking frames after one the map refuses for its content
+    /// (what mapping a log wants); by default it is counted and dropped
+    /// and mapping goes on (what a robot wants).
+    pub stop_on_rejected: bool,
+    /// How long dropping the handle waits for the worker to end before
+    /// leaving it to end on its own.
+    pub drop_timeout: Duration,
+}
+
+impl Default for LiveOptions {
+    fn default() -> Self {
+        LiveOptions {
+            queue_frames: 8,
+            queue_bytes: 512 << 20,
+            index: IndexSettings::default(),
+            snapshot_every: 1,
+            stop_on_rejected: false,
+            drop_timeout: Duration::from_secs(10),
+        }
+    }
+}

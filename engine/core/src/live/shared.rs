@@ -1,0 +1,120 @@
+//! What the handle, the worker and the indexer share: the queue, the
+//! loans of the mapper, the counters, and the snapshots.
+
+use std::collections::VecDeque;
+use std::sync::atomic::AtomicBool;
+use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard, RwLock};
+use std::time::Instant;
+
+use latentam_base::Error;
+use latentam_io::Frame;
+
+use super::options::LiveOptions;
+use super::queue::{DropCounts, FrameQueue};
+use super::snapshot::MapSnapshot;
+use crate::mapper::{Integrated, Mapper};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Close {
+    Finish,
+    Abort,
+}
+
+/// A loan of the mapper; dropping it gives the mapper back.
+pub(super) struct Lent {
+    pub mapper: Option<Mapper>,
+    pub back: mpsc::Sender<Mapper>,
+}
+
+impl Drop for Lent {
+    fn drop(&mut self) {
+        if let Some(m) = self.mapper.take() {
+            let _ = self.back.send(m);
+        }
+    }
+}
+
+/// What became of one frame (for [`LogRun`](super::LogRun)).
+pub(crate) struct Outcome {
+    pub frame: Frame,
+    pub result: std::result::Result<Integrated, Arc<Error>>,
+    /// The mapper's statistics after it.
+    pub stats: crate::mapper::MapperStats,
+}
+
+pub(super) struct State {
+    pub queue: FrameQueue,
+    pub lends: VecDeque<mpsc::Sender<Lent>>,
+    pub close: Option<Close>,
+    pub busy: bool,
+    pub exited: bool,
+    pub submitted: u64,
+    pub integrated: u64,
+    pub keyframes: u64,
+    pub dropped: DropCounts,
+    pub last_latency_ms: Option<f64>,
+    pub last_stamp_latency_ms: Option<f64>,
+    pub last_keyframe_ms: Option<f64>,
+    pub recent: VecDeque<Instant>,
+    pub last_error: Option<Arc<Error>>,
+    pub stopped: Option<Arc<Error>>,
+    /// The worker stopped on a failure that left no usable map.
+    pub fatal: bool,
+    pub wants_index: bool,
+    pub outcomes: Option<Vec<Outcome>>,
+}
+
+pub(super) struct Shared {
+    pub state: Mutex<State>,
+    /// Wakes the worker: a frame, a loan, a close.
+    pub work: Condvar,
+    /// Wakes callers: room in the queue, a frame done, the worker gone.
+    pub room: Condvar,
+    /// Wakes the indexer: a snapshot, a first query, a close.
+    pub index_wake: Condvar,
+    pub snapshot: RwLock<Arc<MapSnapshot>>,
+    /// The newest snapshot whose relevance index is built.
+    pub indexed: RwLock<Option<Arc<MapSnapshot>>>,
+    pub stop: Arc<AtomicBool>,
+    pub options: LiveOptions,
+    pub ready_ms: Option<f64>,
+}
+
+impl Shared {
+    pub fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn latest(&self) -> Arc<MapSnapshot> {
+        self.snapshot
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    pub fn fail(&self, e: Error, fatal: bool) {
+        self.fail_shared(Arc::new(e), fatal)
+    }
+
+    pub fn fail_shared(&self, e: Arc<Error>, fatal: bool) {
+        let mut st = self.lock();
+        st.fatal |= fatal;
+        st.last_error = Some(e.clone());
+        st.stopped.get_or_insert(e);
+    }
+
+    pub fn exit(&self) {
+        self.lock().exited = true;
+        self.room.notify_all();
+        self.index_wake.notify_all();
+    }
+
+    pub fn stopped_error(&self) -> Error {
+        match &self.lock().stopped {
+            Some(e) => Error::Stopped(e.clone()),
+            None => Error::Stopped(Arc::new(Error::InvalidArgument(
+                "the live mapper's worker has ended".into(),
+            ))),
+        }
+    }
+}

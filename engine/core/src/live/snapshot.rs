@@ -1,0 +1,120 @@
+//! What a reader sees of a live map: an immutable copy taken between
+//! keyframes, shared behind an `Arc`, so reading it never waits for
+//! mapping.
+
+use std::sync::OnceLock;
+
+use latentam_base::{Error, HostGaussians, Result};
+use latentam_io::CameraPose;
+
+use super::index::{DecoderView, IndexSettings, RelevanceIndex};
+use crate::latent::TextQuery;
+use crate::mapper::{DecoderFile, MapperStats};
+
+/// The map as it stood after a keyframe: every Gaussian (positions,
+/// colours, opacities, scales, rotations, latent queries), the decoder
+/// that turns queries into embeddings, the keyframe trajectory and the
+/// mapper's statistics, all of the same moment. Relevance queries on it
+/// use an index built on first use and kept with it (see
+/// [`RelevanceIndex`]).
+///
+/// ```no_run
+/// # fn f(live: &latentam_core::live::LiveMapper, text_embedding: Vec<f32>) -> latentam_core::Result<()> {
+/// use latentam_core::latent::TextQuery;
+/// let snapshot = live.snapshot(); // never waits for the keyframe in progress
+/// let scores = snapshot.relevance(&TextQuery::embedding(text_embedding))?;
+/// let best = (0..scores.len()).max_by(|&a, &b| scores[a].total_cmp(&scores[b]));
+/// if let Some(i) = best {
+///     println!("best match at {:?}", snapshot.gaussians.means[i]);
+/// }
+/// # Ok(())
+/// # }
+/// ```
+pub struct MapSnapshot {
+    /// Keyframes mapped when it was taken.
+    pub keyframes: u64,
+    /// Every Gaussian of the map; `stats.gaussians` of them.
+    pub gaussians: HostGaussians,
+    /// The decoder (W, the dictionary, the temperature), once a keyframe
+    /// with embeddings has been mapped.
+    pub decoder: Option<DecoderFile>,
+    /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
+    pub trajectory: Vec<(i64, CameraPose)>,
+    /// The mapper's counts, memory and timings at that moment.
+    pub stats: MapperStats,
+    settings: IndexSettings,
+    index: OnceLock<std::result::Result<RelevanceIndex, String>>,
+}
+
+impl MapSnapshot {
+    /// A snapshot of parts (the live handle takes its own; this is for
+    /// programs that assemble one from a saved map, and for benchmarks).
+    pub fn new(
+        gaussians: HostGaussians,
+        decoder: Option<DecoderFile>,
+        trajectory: Vec<(i64, CameraPose)>,
+        stats: MapperStats,
+        settings: IndexSettings,
+    ) -> Self {
+        MapSnapshot {
+            keyframes: stats.keyframes,
+            gaussians,
+            decoder,
+            trajectory,
+            stats,
+            settings,
+            index: OnceLock::new(),
+        }
+    }
+
+    /// Gaussians in it.
+    pub fn len(&self) -> usize {
+        self.gaussians.opacity_logits.len()
+    }
+
+    /// Whether it holds no Gaussian (before the first keyframe).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The relevance index, built on the first call (on the calling
+    /// thread; concurrent callers wait for that one build).
+    pub fn relevance_index(&self) -> Result<&RelevanceIndex> {
+        let Some(decoder) = &self.decoder else {
+            return Err(Error::NoEmbeddings);
+        };
+        let built = self.index.get_or_init(|| {
+            let view = DecoderView {
+                w: &decoder.w,
+                atoms: &decoder.atoms,
+                dim: decoder.dim as usize,
+                temperature: decoder.temperature,
+                eps: decoder.eps,
+            };
+            RelevanceIndex::build(&self.gaussians.queries, &view, self.settings)
+                .map_err(|e| e.to_string())
+        });
+        built
+            .as_ref()
+            .map_err(|e| Error::InvalidArgument(format!("relevance index: {e}")))
+    }
+
+    /// Whether the relevance index has been built.
+    pub fn is_indexed(&self) -> bool {
+        self.index.get().is_some()
+    }
+
+    /// Cosine similarity of every Gaussian's decoded embedding with each
+    /// embedding of `texts` (m × d_f back to back): Gaussians × m,
+    /// row-major, in the order of [`MapSnapshot::gaussians`].
+    pub fn cosines(&self, texts: &[f32]) -> Result<Vec<f32>> {
+        self.relevance_index()?.cosines(texts)
+    }
+
+    /// Relevance of every Gaussian to `query` (the cosine with one
+    /// embedding, or the softmax over a vocabulary at one word; see
+    /// [`TextQuery`]), in the order of [`MapSnapshot::gaussians`].
+    pub fn relevance(&self, query: &TextQuery) -> Result<Vec<f32>> {
+        Ok(query.relevance_of(&self.cosines(&query.embeddings)?))
+    }
+}

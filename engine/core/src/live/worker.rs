@@ -1,0 +1,221 @@
+//! The worker thread: it owns the mapper, maps queued frames one after
+//! another, serves loans of the mapper between them, and publishes a
+//! snapshot after each keyframe.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::Ordering;
+use std::sync::{mpsc, Arc};
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use latentam_base::{Error, Result};
+
+use super::queue::Queued;
+use super::shared::{Close, Lent, Outcome, Shared};
+use super::snapshot::MapSnapshot;
+use crate::mapper::{Integrated, Mapper};
+
+/// What the worker does next.
+enum Job {
+    Lend(mpsc::Sender<Lent>),
+    Frame(Box<Queued>),
+    Exit,
+}
+
+/// Runs until the handle closes; gives the mapper back (none if a loan
+/// never returned it).
+pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
+    loop {
+        match next_job(&shared) {
+            Job::Exit => break,
+            Job::Lend(to) => match lend(mapper, to) {
+                Some(m) => mapper = m,
+                None => {
+                    shared.fail(
+                        Error::Panicked("a loan of the mapper never gave it back".into()),
+                        true,
+                    );
+                    shared.exit();
+                    return None;
+                }
+            },
+            Job::Frame(q) => map_one(&mut mapper, *q, &shared),
+        }
+    }
+    // Whatever asked to hurry is answered: the mapper maps normally again.
+    mapper.stop_flag().store(false, Ordering::SeqCst);
+    shared.exit();
+    Some(mapper)
+}
+
+fn next_job(shared: &Shared) -> Job {
+    let mut st = shared.lock();
+    let job = loop {
+        if let Some(to) = st.lends.pop_front() {
+            break Job::Lend(to);
+        }
+        if st.close == Some(Close::Abort) {
+            let n = st.queue.clear();
+            st.dropped.aborted += n;
+            break Job::Exit;
+        }
+        if st.stopped.is_none() {
+            if let Some(q) = st.queue.pop() {
+                st.busy = true;
+                break Job::Frame(Box::new(q));
+            }
+        } else {
+            let n = st.queue.clear();
+            st.dropped.aborted += n;
+        }
+        if st.close == Some(Close::Finish) {
+            break Job::Exit;
+        }
+        st = shared.work.wait(st).unwrap_or_else(|e| e.into_inner());
+    };
+    drop(st);
+    // A frame left the queue: there is room for a waiting submitter.
+    shared.room.notify_all();
+    job
+}
+
+/// Hands the mapper to the caller that asked, and takes it back.
+fn lend(mapper: Mapper, to: mpsc::Sender<Lent>) -> Option<Mapper> {
+    let (back, returned) = mpsc::channel();
+    // A caller that gave up drops the loan unopened, which sends the
+    // mapper straight back.
+    let _ = to.send(Lent {
+        mapper: Some(mapper),
+        back,
+    });
+    returned.recv().ok()
+}
+
+fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
+    if q.dropped_before > 0 {
+        mapper.count_unseen_frames(q.dropped_before);
+    }
+    let started = Instant::now();
+    let result = catch_unwind(AssertUnwindSafe(|| mapper.integrate(&q.frame)));
+    let mut keyframe = false;
+    let outcome = match result {
+        Ok(Ok(integrated)) => {
+            if let Integrated::Keyframe(report) = &integrated {
+                keyframe = true;
+                let due = report.index % shared.options.snapshot_every.max(1) == 0;
+                if due {
+                    if let Err(e) = publish(mapper, shared) {
+                        shared.fail(e, true);
+                    }
+                }
+            }
+            Ok(integrated)
+        }
+        Ok(Err(e)) => {
+            let fatal = mapper.is_broken();
+            let e = Arc::new(e);
+            if fatal || shared.options.stop_on_rejected {
+                shared.fail_shared(e.clone(), fatal);
+            }
+            Err(e)
+        }
+        Err(panic) => {
+            let message = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "(no message)".into());
+            let e = Arc::new(Error::Panicked(message));
+            shared.fail_shared(e.clone(), true);
+            Err(e)
+        }
+    };
+    let mut st = shared.lock();
+    st.busy = false;
+    st.integrated += 1;
+    match &outcome {
+        Err(e) => {
+            if !matches!(**e, Error::Panicked(_)) && !mapper.is_broken() {
+                st.dropped.rejected += 1;
+            }
+            st.last_error = Some(e.clone());
+        }
+        Ok(_) if keyframe => {
+            let now = Instant::now();
+            st.keyframes += 1;
+            st.last_latency_ms = Some((now - q.submitted).as_secs_f64() * 1e3);
+            st.last_stamp_latency_ms = stamp_latency_ms(q.frame.stamp_ns);
+            st.last_keyframe_ms = Some((now - started).as_secs_f64() * 1e3);
+            st.recent.push_back(now);
+            if st.recent.len() > 11 {
+                st.recent.pop_front();
+            }
+        }
+        Ok(_) => {}
+    }
+    if let Some(outcomes) = &mut st.outcomes {
+        outcomes.push(Outcome {
+            frame: q.frame,
+            result: outcome,
+            stats: mapper.stats(),
+        });
+    }
+    drop(st);
+    shared.room.notify_all();
+}
+
+/// The time from a frame's stamp to now, when the stamp is wall-clock
+/// time (within a day of now): a live camera's, not a log's.
+fn stamp_latency_ms(stamp_ns: i64) -> Option<f64> {
+    let now = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .ok()?
+        .as_nanos() as i64;
+    let ms = (now - stamp_ns) as f64 / 1e6;
+    (ms.abs() < 86_400e3).then_some(ms)
+}
+
+/// Takes a snapshot of the map and makes it the one readers see.
+fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
+    let snapshot = MapSnapshot::new(
+        mapper.gaussians_now()?,
+        mapper.decoder()?,
+        mapper.trajectory().to_vec(),
+        mapper.stats(),
+        shared.options.index,
+    );
+    *shared.snapshot.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(snapshot);
+    shared.index_wake.notify_all();
+    Ok(())
+}
+
+/// The relevance indexer: while queries are being asked, it indexes each
+/// new snapshot off the query path, so a query finds its index built.
+pub(super) fn index_snapshots(shared: Arc<Shared>) {
+    loop {
+        let snapshot = {
+            let mut st = shared.lock();
+            loop {
+                if st.exited || st.close.is_some() {
+                    return;
+                }
+                let latest = shared.latest();
+                if st.wants_index && latest.decoder.is_some() && !latest.is_indexed() {
+                    break latest;
+                }
+                st = shared
+                    .index_wake
+                    .wait(st)
+                    .unwrap_or_else(|e| e.into_inner());
+            }
+        };
+        if snapshot.relevance_index().is_ok() {
+            let mut indexed = shared.indexed.write().unwrap_or_else(|e| e.into_inner());
+            if indexed
+                .as_ref()
+                .is_none_or(|i| i.keyframes <= snapshot.keyframes)
+            {
+                *indexed = Some(snapshot);
+            }
+        }
+    }
+}
