@@ -56,8 +56,8 @@ pub use latentam_core::mapper::{Mapper, MapperConfig as Config, RunReport};
 /// folders.
 pub mod frames {
     pub use latentam_io::{
-        read_vocabulary, AssemblyConfig, BadInputPolicy, CameraPose, ColorImage, DepthData,
-        DepthImage, Embeddings, Frame, IngestReport, Intrinsics, LabelImage, McapFrames,
-        PixelFormat, Topics, Vocabulary,
+        encode_floats, read_vocabulary, AssemblyConfig, BadInputPolicy, CameraPose, ColorImage,
+        DepthData, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame, IngestReport, Intrinsics,
+        LabelImage, McapFrames, PixelFormat, Topics, Vocabulary,
     };
 }

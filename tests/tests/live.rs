@@ -102,6 +102,7 @@ fn queries_while_mapping_see_consistent_snapshots_and_the_map_matches_a_synchron
     let pipelines = ctx.live_objects().pipelines;
     let options = LiveOptions {
         queue_frames: FRAMES,
+        keep_candidates: FRAMES,
         ..LiveOptions::default()
     };
     let live = Arc::new(LiveMapper::start(mapper, options).unwrap());

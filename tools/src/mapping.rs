@@ -24,7 +24,7 @@ pub struct RunOptions {
     /// How its messages become frames.
     pub assembly: AssemblyConfig,
     /// The effective configuration (ignored when resuming: the saved
-    /// state's shape-defining settings win, see `OnlineMapper::load`).
+    /// state's shape-defining settings win, see `Mapper::load_with`).
     pub config: MapperConfig,
     /// Stop after this many frames of the log.
     pub max_frames: Option<usize>,

@@ -35,6 +35,7 @@ pub mod cdr;
 mod class_names;
 pub mod codec;
 mod frame;
+mod frame_check;
 mod frames;
 mod input;
 mod log;

@@ -6,6 +6,7 @@
 mod common;
 mod ingest;
 mod latent;
+mod live;
 mod map;
 mod primitives;
 mod raster;
@@ -145,6 +146,14 @@ pub enum Which {
     /// Gaussians, kept keyframes and live Vulkan objects per keyframe, and
     /// per lap.
     Soak(soak::Args),
+    /// The live handle under a camera's rate: a generated 640×480 scene
+    /// submitted at 30 Hz, alone and with relevance queries at 2 Hz (on the
+    /// live map and on a 100 000-Gaussian snapshot with K = 2000, d_f =
+    /// 768) and renders: submit, query and render latencies, mapping
+    /// throughput with and without queries, drops, time to ready with a
+    /// cold and a warm pipeline cache, the first keyframe against the
+    /// later ones, and abort latency.
+    Live(live::Args),
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -183,6 +192,7 @@ pub fn run(which: Which) -> Result<()> {
             json,
         }),
         Which::Soak(args) => soak::run_bench(args),
+        Which::Live(args) => live::run(args),
         Which::Map {
             frames,
             width,

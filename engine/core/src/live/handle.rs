@@ -2,6 +2,7 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, RwLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -131,6 +132,25 @@ impl LiveMapper {
         Self::spawn(mapper, options, Some(ready))
     }
 
+    /// A live mapper that goes on with the map saved in the run folder
+    /// `dir` (see [`Mapper::load`]), on the first suitable Vulkan device,
+    /// every kernel compiled before it returns.
+    ///
+    /// ```no_run
+    /// use latentam_core::live::{LiveMapper, LiveOptions};
+    /// let live = LiveMapper::load("runs/kitchen", LiveOptions::default())?;
+    /// println!("{} keyframes so far", live.snapshot().keyframes);
+    /// # Ok::<(), latentam_core::Error>(())
+    /// ```
+    pub fn load(dir: impl AsRef<Path>, options: LiveOptions) -> Result<Self> {
+        let start = Instant::now();
+        let ctx = latentam_gpu::Context::new(latentam_gpu::ContextOptions::default())?;
+        crate::mapper::warm_up(&ctx)?;
+        let mapper = Mapper::load(&ctx, dir)?;
+        let ready = start.elapsed().as_secs_f64() * 1e3;
+        Self::spawn(mapper, options, Some(ready))
+    }
+
     /// A live mapper around a mapper of your making (on a context of your
     /// choosing, or loaded from a save to go on).
     ///
@@ -150,6 +170,7 @@ impl LiveMapper {
         let mut queue = FrameQueue::new(
             options.queue_frames,
             options.queue_bytes,
+            options.keep_candidates,
             mapper.config().keyframes,
         );
         let (last, since) = mapper.keyframe_rule_state();
@@ -188,6 +209,7 @@ impl LiveMapper {
             snapshot: RwLock::new(Arc::new(first)),
             indexed: RwLock::new(None),
             stop: mapper.stop_flag(),
+            closing: AtomicBool::new(false),
             options,
             ready_ms,
         });
@@ -216,9 +238,13 @@ impl LiveMapper {
     /// for GPU work. When the queue is full, frames are dropped by the
     /// policy of [`DropCounts`] (those that cannot become keyframes
     /// first, then the oldest candidates) and counted in
-    /// [`LiveStatus::dropped`]. Errors once the worker has stopped
-    /// ([`Error::Stopped`], with the cause).
+    /// [`LiveStatus::dropped`]. Errors for a frame that does not hold
+    /// together ([`Error::BadFrame`], see `Frame::check`: image sizes,
+    /// a rigid pose, a pinhole camera, embeddings that fit their layout)
+    /// and once the worker has stopped ([`Error::Stopped`], with the
+    /// cause).
     pub fn submit(&self, frame: Frame) -> Result<()> {
+        frame.check()?;
         let mut st = self.shared.lock();
         if let Some(e) = &st.stopped {
             return Err(Error::Stopped(e.clone()));
@@ -235,6 +261,7 @@ impl LiveMapper {
     /// dropping anything: what mapping a recorded log wants. Gives the
     /// frame back if there was still no room.
     pub fn submit_waiting(&self, frame: Frame, max_wait: Duration) -> Result<Option<Frame>> {
+        frame.check()?;
         let bytes = frame_bytes(&frame);
         let deadline = Instant::now() + max_wait;
         let mut st = self.shared.lock();
@@ -242,7 +269,7 @@ impl LiveMapper {
             if let Some(e) = &st.stopped {
                 return Err(Error::Stopped(e.clone()));
             }
-            if st.queue.has_room(bytes) {
+            if st.queue.takes_without_dropping(bytes) {
                 break;
             }
             let left = deadline.saturating_duration_since(Instant::now());
@@ -471,6 +498,7 @@ impl LiveMapper {
         if how == Close::Abort {
             self.hurry();
         }
+        self.shared.closing.store(true, Ordering::SeqCst);
         self.shared.work.notify_all();
         self.shared.index_wake.notify_all();
         let mapper = self.worker.take().and_then(|w| w.join().ok().flatten());
@@ -495,6 +523,7 @@ impl Drop for LiveMapper {
             st.close = Some(Close::Abort);
         }
         self.hurry();
+        self.shared.closing.store(true, Ordering::SeqCst);
         self.shared.work.notify_all();
         self.shared.index_wake.notify_all();
         let deadline = Instant::now() + self.shared.options.drop_timeout;

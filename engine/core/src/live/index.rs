@@ -21,6 +21,8 @@
 //! reference: `latentam_reference::decoder::forward` and a cosine (the
 //! tests compare the two).
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use latentam_base::{Error, Result};
 
 use crate::splat::QUERY_DIM;
@@ -81,11 +83,13 @@ pub struct RelevanceIndex {
 }
 
 impl RelevanceIndex {
-    /// Indexes `queries` against the decoder, on all CPU cores.
+    /// Indexes `queries` against the decoder, on all CPU cores; gives up
+    /// (an error) soon after `cancel` is set.
     pub(crate) fn build(
         queries: &[[f32; QUERY_DIM]],
         decoder: &DecoderView<'_>,
         settings: IndexSettings,
+        cancel: Option<&AtomicBool>,
     ) -> Result<Self> {
         let start = std::time::Instant::now();
         let d = decoder.dim;
@@ -101,14 +105,15 @@ impl RelevanceIndex {
                 .chunks(chunk)
                 .map(|qs| {
                     let shared = &shared;
-                    scope.spawn(move || shared.index(qs, decoder, settings))
+                    scope.spawn(move || shared.index(qs, decoder, settings, cancel))
                 })
                 .collect();
             handles
                 .into_iter()
                 .map(|h| h.join().expect("index worker"))
-                .collect()
-        });
+                .collect::<Option<Vec<Part>>>()
+        })
+        .ok_or_else(|| Error::InvalidArgument("the relevance index build was cancelled".into()))?;
         let mut index = RelevanceIndex {
             dim: d,
             atoms: decoder.atoms.to_vec(),
@@ -243,7 +248,13 @@ impl Shared {
         Shared { m, gram, k }
     }
 
-    fn index(&self, queries: &[[f32; QUERY_DIM]], dec: &DecoderView<'_>, s: IndexSettings) -> Part {
+    fn index(
+        &self,
+        queries: &[[f32; QUERY_DIM]],
+        dec: &DecoderView<'_>,
+        s: IndexSettings,
+        cancel: Option<&AtomicBool>,
+    ) -> Option<Part> {
         let (k, d) = (self.k, dec.dim);
         let mut part = Part {
             offsets: vec![0],
@@ -257,7 +268,10 @@ impl Shared {
         // Atoms whose weight is below dropped_mass / K are left out before
         // the softmax: together they hold less than dropped_mass.
         let floor = (s.dropped_mass.max(1e-30) / k as f32).ln();
-        for q in queries {
+        for (i, q) in queries.iter().enumerate() {
+            if i % 1024 == 0 && cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                return None;
+            }
             logits.iter_mut().for_each(|l| *l = 0.0);
             for (j, &qj) in q.iter().enumerate() {
                 let row = &self.m[j * k..(j + 1) * k];
@@ -284,6 +298,13 @@ impl Shared {
                 }
             }
             let sum: f32 = kept.iter().map(|e| e.1).sum();
+            // Only the largest max_atoms can be kept: select them in
+            // linear time, then sort those few.
+            let cap = s.max_atoms.max(1);
+            if kept.len() > cap {
+                kept.select_nth_unstable_by(cap - 1, |a, b| b.1.total_cmp(&a.1));
+                kept.truncate(cap);
+            }
             kept.sort_unstable_by(|a, b| b.1.total_cmp(&a.1));
             let mut covered = 0f32;
             let mut n = 0;
@@ -306,7 +327,7 @@ impl Shared {
             part.entries.extend_from_slice(&kept);
             part.offsets.push(part.entries.len() as u32);
         }
-        part
+        Some(part)
     }
 }
 
@@ -390,7 +411,7 @@ mod tests {
                 dropped_mass: 1e-7,
                 max_atoms: atoms,
             };
-            let index = RelevanceIndex::build(&queries, &dec, tight).unwrap();
+            let index = RelevanceIndex::build(&queries, &dec, tight, None).unwrap();
             assert_eq!(index.len(), 700);
             let got = index.cosines(&texts).unwrap();
             for (g, w) in got.iter().zip(&want) {
@@ -402,7 +423,7 @@ mod tests {
                 max_atoms: atoms,
                 ..IndexSettings::default()
             };
-            let index = RelevanceIndex::build(&queries, &dec, loose).unwrap();
+            let index = RelevanceIndex::build(&queries, &dec, loose, None).unwrap();
             assert!(index.max_dropped_mass() <= 1e-3 + 1e-5);
             let got = index.cosines(&texts).unwrap();
             let worst = got
@@ -415,6 +436,21 @@ mod tests {
     }
 
     #[test]
+    fn a_cancelled_build_gives_up() {
+        let (w, d) = (vec![0.5f32; QUERY_DIM * 4], vec![1.0f32; 8]);
+        let dec = DecoderView {
+            w: &w,
+            atoms: &d,
+            dim: 4,
+            temperature: 0.1,
+            eps: 1e-6,
+        };
+        let cancel = AtomicBool::new(true);
+        let queries = vec![[0.1; QUERY_DIM]; 5000];
+        assert!(RelevanceIndex::build(&queries, &dec, Default::default(), Some(&cancel)).is_err());
+    }
+
+    #[test]
     fn bad_queries_are_refused() {
         let (w, d) = (vec![0.5f32; QUERY_DIM * 4], vec![1.0f32; 8]);
         let dec = DecoderView {
@@ -424,7 +460,8 @@ mod tests {
             temperature: 0.1,
             eps: 1e-6,
         };
-        let index = RelevanceIndex::build(&[[0.1; QUERY_DIM]], &dec, Default::default()).unwrap();
+        let index =
+            RelevanceIndex::build(&[[0.1; QUERY_DIM]], &dec, Default::default(), None).unwrap();
         assert!(matches!(
             index.cosines(&[1.0; 3]),
             Err(Error::EmbeddingDimension {
@@ -436,7 +473,7 @@ mod tests {
         assert!(index.cosines(&[f32::NAN, 0.0, 0.0, 0.0]).is_err());
         let none = DecoderView { atoms: &[], ..dec };
         assert!(matches!(
-            RelevanceIndex::build(&[], &none, Default::default()),
+            RelevanceIndex::build(&[], &none, Default::default(), None),
             Err(Error::NoEmbeddings)
         ));
     }

@@ -440,13 +440,17 @@ impl LogRun {
             }
             mapped_up_to = Some(frame.stamp_ns);
             run.submitted += 1;
+            let stamp = frame.stamp_ns;
             let mut waiting = frame;
             loop {
                 match live.submit_waiting(waiting, Duration::from_millis(50)) {
                     Ok(None) => break,
                     Ok(Some(back)) => waiting = back,
                     // The worker stopped: its outcome says why.
-                    Err(_) => break,
+                    Err(Error::Stopped(_)) => break,
+                    Err(e) => {
+                        break 'reading Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))
+                    }
                 }
                 if let Some(failed) =
                     run.take_outcomes(&live, options, folder, observer, &mut frames)

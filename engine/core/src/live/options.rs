@@ -17,6 +17,10 @@ pub struct LiveOptions {
     /// Frames that may wait for the worker (at least 1); beyond, the
     /// drop policy applies (see [`DropCounts`](super::DropCounts) and the `queue` module).
     pub queue_frames: usize,
+    /// Keyframe candidates that may wait (at least 1): a newer one
+    /// replaces the oldest beyond this. Each one waiting puts the map one
+    /// keyframe's time further behind the camera.
+    pub keep_candidates: usize,
     /// Bytes of frames that may wait (images and embeddings, see
     /// [`frame_bytes`](super::frame_bytes)); one frame always fits, however large.
     pub queue_bytes: u64,
@@ -40,6 +44,7 @@ impl Default for LiveOptions {
         LiveOptions {
             queue_frames: 8,
             queue_bytes: 512 << 20,
+            keep_candidates: 1,
             index: IndexSettings::default(),
             snapshot_every: 1,
             stop_on_rejected: false,

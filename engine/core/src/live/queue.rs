@@ -6,14 +6,18 @@
 //! candidate, under `overlap` any frame, and in both cases only if the
 //! camera moved `min_translation` / `min_rotation_deg` since the last
 //! candidate ([`KeyframeConfig::moved`]). Other frames would be skipped by
-//! the mapper anyway. When a frame does not fit (too many frames or bytes
-//! queued), the queue drops, one at a time until it fits:
+//! the mapper anyway.
+//!
+//! At most `keep_candidates` candidates wait (1 by default): a newer one
+//! replaces the oldest, counted as [`DropCounts::superseded`], since a
+//! robot wants the map of where it is now, and each waiting candidate
+//! holds the map one keyframe further behind. When a frame does not fit
+//! (too many frames or bytes queued), the queue drops, one at a time
+//! until it fits:
 //!
 //! 1. the oldest frame that is no candidate (the incoming one included),
 //!    counted as [`DropCounts::not_keyframe`];
-//! 2. else the oldest candidate, counted as [`DropCounts::superseded`]:
-//!    of several candidates the newest is kept, since a robot wants the
-//!    map of where it is now.
+//! 2. else the oldest candidate, counted as [`DropCounts::superseded`].
 //!
 //! A queue always admits one frame, however large. Every frame given up
 //! is still counted by the mapper's keyframe rule
@@ -99,6 +103,8 @@ pub(crate) struct FrameQueue {
     bytes: u64,
     max_frames: usize,
     max_bytes: u64,
+    /// Keyframe candidates that may wait; older ones beyond go.
+    max_candidates: usize,
     rule: KeyframeConfig,
     /// The last candidate's pose, and frames submitted since.
     last_candidate: Option<CameraPose>,
@@ -108,12 +114,18 @@ pub(crate) struct FrameQueue {
 }
 
 impl FrameQueue {
-    pub fn new(max_frames: usize, max_bytes: u64, rule: KeyframeConfig) -> Self {
+    pub fn new(
+        max_frames: usize,
+        max_bytes: u64,
+        max_candidates: usize,
+        rule: KeyframeConfig,
+    ) -> Self {
         FrameQueue {
             items: VecDeque::new(),
             bytes: 0,
             max_frames: max_frames.max(1),
             max_bytes,
+            max_candidates: max_candidates.max(1),
             rule,
             last_candidate: None,
             since_candidate: 0,
@@ -142,6 +154,13 @@ impl FrameQueue {
             || (self.items.len() < self.max_frames && self.bytes + bytes <= self.max_bytes)
     }
 
+    /// Whether any frame of `bytes` is admitted without dropping one:
+    /// room, and room for one more keyframe candidate.
+    pub fn takes_without_dropping(&self, bytes: u64) -> bool {
+        self.has_room(bytes)
+            && self.items.iter().filter(|q| q.candidate).count() < self.max_candidates
+    }
+
     /// Whether the candidate rule makes `frame` a keyframe candidate
     /// (and moves the rule on as if it were submitted).
     fn classify(&mut self, frame: &Frame) -> bool {
@@ -167,6 +186,17 @@ impl FrameQueue {
     pub fn admit(&mut self, frame: Frame, drops: &mut DropCounts) {
         let bytes = frame_bytes(&frame);
         let candidate = self.classify(&frame);
+        if candidate {
+            while self.items.iter().filter(|q| q.candidate).count() >= self.max_candidates {
+                let oldest = self
+                    .items
+                    .iter()
+                    .position(|q| q.candidate)
+                    .expect("counted");
+                drops.superseded += 1;
+                self.remove(oldest);
+            }
+        }
         while !self.has_room(bytes) {
             if !candidate && !self.items.iter().any(|q| !q.candidate) {
                 // The incoming frame is the oldest non-candidate there is.
@@ -273,7 +303,7 @@ mod tests {
             policy: KeyframePolicy::Interval(2),
             ..Default::default()
         };
-        let mut q = FrameQueue::new(3, u64::MAX, rule);
+        let mut q = FrameQueue::new(3, u64::MAX, 3, rule);
         let mut drops = DropCounts::default();
         // 0 is a candidate (the first frame), then every second one.
         for s in 0..3 {
@@ -305,7 +335,7 @@ mod tests {
 
     #[test]
     fn the_byte_bound_holds_but_one_frame_always_fits() {
-        let mut q = FrameQueue::new(100, 100, KeyframeConfig::default());
+        let mut q = FrameQueue::new(100, 100, 100, KeyframeConfig::default());
         let mut drops = DropCounts::default();
         let f = frame(0, 0.0);
         let size = frame_bytes(&f);
@@ -316,9 +346,27 @@ mod tests {
         }
         assert_eq!(q.len(), 3);
         assert_eq!(drops.total(), 7);
-        let mut tiny = FrameQueue::new(100, 1, KeyframeConfig::default());
+        let mut tiny = FrameQueue::new(100, 1, 1, KeyframeConfig::default());
         tiny.admit(frame(0, 0.0), &mut drops);
         assert_eq!(tiny.len(), 1);
+    }
+
+    #[test]
+    fn a_newer_candidate_replaces_the_oldest_beyond_the_limit() {
+        let rule = KeyframeConfig {
+            policy: KeyframePolicy::Interval(2),
+            ..Default::default()
+        };
+        let mut q = FrameQueue::new(10, u64::MAX, 1, rule);
+        let mut drops = DropCounts::default();
+        for s in 0..5 {
+            q.admit(frame(s, 0.0), &mut drops);
+        }
+        // Candidates 0, 2, 4: only the newest waits, with the frames after
+        // the one it replaced.
+        assert_eq!(stamps(&q), [(1, false, 1), (3, false, 1), (4, true, 0)]);
+        assert_eq!(drops.superseded, 2);
+        assert_eq!(drops.not_keyframe, 0);
     }
 
     #[test]
@@ -328,7 +376,7 @@ mod tests {
             min_translation: 0.5,
             min_rotation_deg: 90.0,
         };
-        let mut q = FrameQueue::new(10, u64::MAX, rule);
+        let mut q = FrameQueue::new(10, u64::MAX, 10, rule);
         let mut drops = DropCounts::default();
         for (s, x) in [(0, 0.0), (1, 0.1), (2, 0.6), (3, 0.7), (4, 1.2)] {
             q.admit(frame(s, x), &mut drops);

@@ -76,6 +76,8 @@ pub(super) struct Shared {
     /// The newest snapshot whose relevance index is built.
     pub indexed: RwLock<Option<Arc<MapSnapshot>>>,
     pub stop: Arc<AtomicBool>,
+    /// Set when the handle closes: the indexer gives up its build.
+    pub closing: AtomicBool,
     pub options: LiveOptions,
     pub ready_ms: Option<f64>,
 }

@@ -2,7 +2,8 @@
 //! keyframes, shared behind an `Arc`, so reading it never waits for
 //! mapping.
 
-use std::sync::OnceLock;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Mutex, OnceLock};
 
 use latentam_base::{Error, HostGaussians, Result};
 use latentam_io::CameraPose;
@@ -43,7 +44,9 @@ pub struct MapSnapshot {
     /// The mapper's counts, memory and timings at that moment.
     pub stats: MapperStats,
     settings: IndexSettings,
-    index: OnceLock<std::result::Result<RelevanceIndex, String>>,
+    index: OnceLock<RelevanceIndex>,
+    /// Held while the index is built, so it is built once.
+    building: Mutex<()>,
 }
 
 impl MapSnapshot {
@@ -64,6 +67,7 @@ impl MapSnapshot {
             stats,
             settings,
             index: OnceLock::new(),
+            building: Mutex::new(()),
         }
     }
 
@@ -80,23 +84,31 @@ impl MapSnapshot {
     /// The relevance index, built on the first call (on the calling
     /// thread; concurrent callers wait for that one build).
     pub fn relevance_index(&self) -> Result<&RelevanceIndex> {
+        self.index_cancellable(None)
+    }
+
+    /// [`MapSnapshot::relevance_index`], giving up soon after `cancel` is
+    /// set (a closing handle's indexer).
+    pub(crate) fn index_cancellable(&self, cancel: Option<&AtomicBool>) -> Result<&RelevanceIndex> {
+        if let Some(index) = self.index.get() {
+            return Ok(index);
+        }
         let Some(decoder) = &self.decoder else {
             return Err(Error::NoEmbeddings);
         };
-        let built = self.index.get_or_init(|| {
-            let view = DecoderView {
-                w: &decoder.w,
-                atoms: &decoder.atoms,
-                dim: decoder.dim as usize,
-                temperature: decoder.temperature,
-                eps: decoder.eps,
-            };
-            RelevanceIndex::build(&self.gaussians.queries, &view, self.settings)
-                .map_err(|e| e.to_string())
-        });
-        built
-            .as_ref()
-            .map_err(|e| Error::InvalidArgument(format!("relevance index: {e}")))
+        let _one_build = self.building.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(index) = self.index.get() {
+            return Ok(index);
+        }
+        let view = DecoderView {
+            w: &decoder.w,
+            atoms: &decoder.atoms,
+            dim: decoder.dim as usize,
+            temperature: decoder.temperature,
+            eps: decoder.eps,
+        };
+        let built = RelevanceIndex::build(&self.gaussians.queries, &view, self.settings, cancel)?;
+        Ok(self.index.get_or_init(|| built))
     }
 
     /// Whether the relevance index has been built.

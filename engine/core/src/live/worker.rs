@@ -101,7 +101,9 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
         Ok(Ok(integrated)) => {
             if let Integrated::Keyframe(report) = &integrated {
                 keyframe = true;
-                let due = report.index % shared.options.snapshot_every.max(1) == 0;
+                // An aborting handle has no reader left to take one for.
+                let due = report.index % shared.options.snapshot_every.max(1) == 0
+                    && !shared.stop.load(Ordering::SeqCst);
                 if due {
                     if let Err(e) = publish(mapper, shared) {
                         shared.fail(e, true);
@@ -174,6 +176,21 @@ fn stamp_latency_ms(stamp_ns: i64) -> Option<f64> {
     (ms.abs() < 86_400e3).then_some(ms)
 }
 
+/// Puts the calling thread (and the threads it starts, which inherit it)
+/// at the lowest CPU priority: indexing takes the time mapping leaves,
+/// which on a CPU driver is the same cores. Best effort: elsewhere than
+/// Linux, or refused, it runs at normal priority.
+fn lowest_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain system calls on this thread's id; failure is ignored.
+        unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, 19);
+        }
+    }
+}
+
 /// Takes a snapshot of the map and makes it the one readers see.
 fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
     let snapshot = MapSnapshot::new(
@@ -191,6 +208,7 @@ fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
 /// The relevance indexer: while queries are being asked, it indexes each
 /// new snapshot off the query path, so a query finds its index built.
 pub(super) fn index_snapshots(shared: Arc<Shared>) {
+    lowest_priority();
     loop {
         let snapshot = {
             let mut st = shared.lock();
@@ -208,7 +226,7 @@ pub(super) fn index_snapshots(shared: Arc<Shared>) {
                     .unwrap_or_else(|e| e.into_inner());
             }
         };
-        if snapshot.relevance_index().is_ok() {
+        if snapshot.index_cancellable(Some(&shared.closing)).is_ok() {
             let mut indexed = shared.indexed.write().unwrap_or_else(|e| e.into_inner());
             if indexed
                 .as_ref()

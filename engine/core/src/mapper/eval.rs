@@ -99,24 +99,13 @@ pub struct RegionPooled {
     pub class_iou: BTreeMap<u16, ClassCounts>,
 }
 
-/// Renders and scores views of a map.
+/// Renders and scores views of a map: what [`Mapper::render`],
+/// [`Mapper::render_frame`] and [`Mapper::evaluate`] run on.
 ///
-/// ```no_run
-/// use latentam_gpu::{Context, ContextOptions};
-/// use latentam_core::mapper::{eval::Evaluator, MapperConfig, OnlineMapper};
-/// # fn f(frames: &[latentam_io::Frame]) -> latentam_core::Result<()> {
-/// let ctx = Context::new(ContextOptions::default())?;
-/// let mut mapper = OnlineMapper::new(&ctx, MapperConfig::default())?;
-/// frames.iter().try_for_each(|f| mapper.integrate(f).map(drop))?;
-/// let mut evaluator = Evaluator::new(&ctx);
-/// evaluator.pixel_stride = 4; // a quick look: every 4th pixel and row
-/// for frame in frames.iter().step_by(10) {
-///     println!("{} ns: PSNR {:.2} dB", frame.stamp_ns, evaluator.evaluate(&mut mapper, frame, None)?.psnr);
-/// }
-/// # Ok(())
-/// # }
-/// ```
-pub struct Evaluator {
+/// [`Mapper::render`]: super::Mapper::render
+/// [`Mapper::render_frame`]: super::Mapper::render_frame
+/// [`Mapper::evaluate`]: super::Mapper::evaluate
+pub(crate) struct Evaluator {
     ctx: Context,
     raster: Rasterizer,
     /// The rendered Gaussians (grown as views need).

@@ -95,8 +95,12 @@ impl Mapper {
         self.inner.context()
     }
 
-    /// Offers one frame; keyframes are mapped (see
-    /// [`OnlineMapper::integrate`]).
+    /// Offers one frame: keyframe selection, then for a keyframe the
+    /// dictionary update, Gaussian seeding, Stage I over the keyframe and
+    /// past ones, Stage II with the window's paging beside it, and at its
+    /// interval pruning (the paper's Algorithm 1). A frame refused for its
+    /// content leaves the map as it was; a failure part-way through a
+    /// keyframe leaves it unusable ([`Mapper::is_broken`]).
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: latentam_io::Frame) -> latentam_core::Result<()> {
@@ -591,8 +595,8 @@ impl Mapper {
         self.inner.decoder_file()
     }
 
-    /// Every Gaussian as it stands, changing nothing (see
-    /// [`OnlineMapper::gaussians_now`]).
+    /// Every Gaussian as it stands, changing nothing (the window's rows
+    /// are read, not written back).
     pub(crate) fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {
         self.inner.gaussians_now()
     }
@@ -609,7 +613,7 @@ impl Mapper {
         self.inner.selector.state()
     }
 
-    /// The mapper's own hurry flag (see [`OnlineMapper::stop_flag`]).
+    /// The mapper's own hurry flag, which a live handle's `abort` sets.
     pub(crate) fn stop_flag(&self) -> std::sync::Arc<AtomicBool> {
         self.inner.stop_flag()
     }
@@ -626,12 +630,14 @@ impl Mapper {
     /// that check its internals (the GPU window against the global map);
     /// everything a program needs is on `Mapper` itself, and neither the
     /// CLI nor the benchmarks call this.
+    #[cfg(feature = "testing")]
     #[doc(hidden)]
     pub fn online(&mut self) -> &mut OnlineMapper {
         &mut self.inner
     }
 
     /// The mapper underneath, read-only. Unstable, as [`Mapper::online`].
+    #[cfg(feature = "testing")]
     #[doc(hidden)]
     pub fn online_ref(&self) -> &OnlineMapper {
         &self.inner

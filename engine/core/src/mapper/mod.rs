@@ -1,7 +1,7 @@
 //! The online mapper (paper §III, Algorithm 1): the keyframe history
 //! replayed in each Stage I batch, the Stage I / II trainer, the
 //! per-keyframe loop with window paging and a GPU memory budget
-//! ([`OnlineMapper`]), saving and loading its state ([`SavedState`]), the library
+//! (`OnlineMapper`), saving and loading its state ([`SavedState`]), the library
 //! façade [`Mapper`], and the configuration written out for users
 //! ([`documented_defaults`], [`apply_overrides`]).
 
@@ -32,6 +32,9 @@ pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
 };
+/// The per-keyframe loop under [`Mapper`], for the workspace's tests only.
+#[cfg(feature = "testing")]
+#[doc(hidden)]
 pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;

@@ -221,20 +221,7 @@ impl OnlineMapper {
     /// non-finite pose or intrinsics, embeddings of another model or
     /// dimension than the map's.
     fn check_frame(&self, frame: &Frame) -> Result<()> {
-        let bad = |reason: String| {
-            Err(Error::BadFrame {
-                stamp_ns: frame.stamp_ns,
-                reason,
-            })
-        };
-        let p = &frame.pose;
-        if !(p.translation.is_finite() && p.rotation.is_finite() && p.rotation.length() > 1e-6) {
-            return bad(format!("pose {p:?} is not a rigid transform"));
-        }
-        let k = &frame.intrinsics;
-        if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
-            return bad(format!("intrinsics {k:?} are not a pinhole camera"));
-        }
+        frame.check()?;
         if let Some(e) = &frame.embeddings {
             // The caller knows which frame it offered.
             let context = || None;
@@ -282,7 +269,9 @@ impl OnlineMapper {
         &self.global
     }
 
-    /// The GPU window, once the first keyframe sized it.
+    /// The GPU window, once the first keyframe sized it (for the tests
+    /// that check it against the global map).
+    #[cfg(any(test, feature = "testing"))]
     pub fn window(&self) -> Option<&LocalWindow> {
         self.window.as_ref()
     }

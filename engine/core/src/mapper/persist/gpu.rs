@@ -13,11 +13,12 @@ fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
 impl OnlineMapper {
     /// Saves the whole state to `path` (one file, replaced atomically).
     /// The window is written back to the global map first.
+    #[cfg(any(test, feature = "testing"))]
     pub fn save(&mut self, path: &Path) -> Result<()> {
         self.save_as(path, None)
     }
 
-    /// [`OnlineMapper::save`], recording `run_id`: the id of the run folder
+    /// `OnlineMapper::save`, recording `run_id`: the id of the run folder
     /// version the file belongs to (see [`RunStaging::run_id`](crate::mapper::RunStaging::run_id)).
     pub fn save_as(&mut self, path: &Path, run_id: Option<&str>) -> Result<()> {
         self.check_consistent()?;
@@ -125,7 +126,7 @@ impl OnlineMapper {
         })
     }
 
-    /// Loads a state saved by [`OnlineMapper::save`] onto `ctx`, ready to
+    /// Loads a state saved by `OnlineMapper::save` onto `ctx`, ready to
     /// integrate more frames or to be queried. `overrides` replaces the
     /// saved configuration's run-time settings (budget, learning rates...)
     /// when given; the settings that shape the saved state (voxel size,
@@ -133,14 +134,15 @@ impl OnlineMapper {
     ///
     /// The file is read and checked on the CPU first
     /// ([`SavedState::read`]), then put on the GPU
-    /// ([`OnlineMapper::from_saved`]).
+    /// (`OnlineMapper::from_saved`).
+    #[cfg(any(test, feature = "testing"))]
     pub fn load(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
         let state = SavedState::read(path)?;
         Self::from_saved(ctx, state, overrides)
     }
 
     /// A mapper on `ctx` with the state `saved` (see
-    /// [`OnlineMapper::load`] for `overrides`): creates the GPU buffers and
+    /// `OnlineMapper::load` for `overrides`): creates the GPU buffers and
     /// uploads the window, the latent head and their optimiser state.
     pub fn from_saved(
         ctx: &Context,

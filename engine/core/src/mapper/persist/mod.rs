@@ -6,7 +6,7 @@
 //!
 //! Loading is two steps: [`SavedState::parse`] reads and checks the whole
 //! file on the CPU (any file: it returns an error for anything malformed
-//! and never panics), then [`OnlineMapper::from_saved`] creates the GPU
+//! and never panics), then `OnlineMapper::from_saved` creates the GPU
 //! buffers and uploads.
 
 use std::borrow::Cow;
@@ -189,7 +189,7 @@ pub(super) struct SavedWindow {
 }
 
 /// A saved mapper state, read from a file and checked on the CPU: what
-/// [`OnlineMapper::load`] then puts on the GPU. [`SavedState::parse`]
+/// `OnlineMapper::load` then puts on the GPU. [`SavedState::parse`]
 /// accepts any bytes: whatever is malformed or inconsistent (metadata,
 /// tensor types and shapes, counts, duplicate or unknown voxel keys,
 /// non-finite cameras and poses, sizes too large to allocate) is an
@@ -227,7 +227,7 @@ pub struct SavedState {
 }
 
 /// What one archive holds, borrowed: written by both
-/// [`OnlineMapper::save`] and [`SavedState::to_bytes`].
+/// `OnlineMapper::save` and [`SavedState::to_bytes`].
 struct StateRef<'a> {
     run_id: Option<&'a str>,
     config: &'a MapperConfig,
@@ -388,7 +388,7 @@ fn write_trajectory(w: &mut ArchiveWriter, trajectory: &[(i64, CameraPose)], exp
 }
 
 impl SavedState {
-    /// Reads and checks a state saved by [`OnlineMapper::save`] from
+    /// Reads and checks a state saved by `OnlineMapper::save` from
     /// `bytes`, the contents of `origin` (which only names it in errors).
     /// Nothing touches the GPU; see the type's documentation for what is
     /// checked.
@@ -402,7 +402,7 @@ impl SavedState {
         Self::from_archive(&Archive::open(path)?)
     }
 
-    /// The file as [`OnlineMapper::save`] writes it.
+    /// The file as `OnlineMapper::save` writes it.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         StateRef {
             run_id: self.run_id.as_deref(),
