@@ -1,9 +1,11 @@
-//! `latentam bench live`: the live handle under a camera's rate. A
-//! generated scene (640×480 by default) is submitted at its frame rate
-//! three times: alone; with a thread asking relevance queries at 2 Hz,
-//! every other one on the live map and on a large synthetic snapshot of
-//! the sizes a long run reaches (100 000 Gaussians, K = 2000 atoms, d_f =
-//! 768); and with a thread rendering a view every 3 s. Measured: `submit`
+//! `latentam bench live`: the live handle under load. A generated scene
+//! (640×480 by default) goes through it three times: its first 48 frames
+//! twice with nothing dropped (`submit_waiting`), alone and with a thread
+//! asking relevance queries at 2 Hz (every other one on the live map and
+//! on a large synthetic snapshot of the sizes a long run reaches: 100 000
+//! Gaussians, K = 2000 atoms, d_f = 768), so both map the same keyframes;
+//! then all of it at the scene's frame rate with `submit`, a thread
+//! rendering a view every 3 s, and an abort at the end. Measured: `submit`
 //! latency, query and render latency while keyframes run, mapping time per
 //! keyframe with and without queries, frames dropped, time to ready with a
 //! cold and a warm pipeline cache, the first keyframe's Stage I time
@@ -57,6 +59,10 @@ pub struct Args {
     /// Embedding dimension of the large snapshot.
     #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u64).range(1..=8192))]
     query_dim: u64,
+    /// Frames of the scene mapped without drops, alone and with queries,
+    /// for the throughput comparison (the same keyframes both times).
+    #[arg(long, default_value_t = 48, value_parser = clap::value_parser!(u64).range(8..=100_000))]
+    lossless_frames: u64,
     /// Frames the live queue holds.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=10_000))]
     queue: u64,
@@ -110,6 +116,8 @@ struct FirstKeyframe {
 /// One pass of the scene through the live handle.
 #[derive(Serialize)]
 struct Pass {
+    /// How the frames were submitted.
+    fed: &'static str,
     /// What a second thread asked while the scene was submitted.
     probing: &'static str,
     submitted: u64,
@@ -225,11 +233,23 @@ fn bench(args: &Args, scratch: &Path) -> Result<()> {
         vocabulary,
         camera_frame: frames[frames.len() / 2].clone(),
     });
-    let (alone, _) = pass(args, &ctx, frames.clone(), Probe::Nothing, &probes, false)?;
+    // Throughput with and without queries on the same keyframes; then the
+    // camera's rate, with renders.
+    let same = frames[..frames.len().min(args.lossless_frames as usize)].to_vec();
+    let lossless = |probe| (Feed::Lossless, probe);
+    let (alone, _) = pass(
+        args,
+        &ctx,
+        same.clone(),
+        lossless(Probe::Nothing),
+        &probes,
+        false,
+    )?;
     print_pass(&alone);
-    let (with, _) = pass(args, &ctx, frames.clone(), Probe::Queries, &probes, false)?;
+    let (with, _) = pass(args, &ctx, same, lossless(Probe::Queries), &probes, false)?;
     print_pass(&with);
-    let (rendering, abort_ms) = pass(args, &ctx, frames, Probe::Renders, &probes, true)?;
+    let camera = (Feed::CameraRate, Probe::Renders);
+    let (rendering, abort_ms) = pass(args, &ctx, frames, camera, &probes, true)?;
     print_pass(&rendering);
     let abort_ms = abort_ms.unwrap_or(f64::NAN);
     println!("abort while a keyframe ran: {abort_ms:.0} ms");
@@ -373,6 +393,16 @@ fn submit_at_rate(live: &LiveMapper, frames: Vec<Frame>, rate: f64) -> Result<Ve
     Ok(submit_ms)
 }
 
+/// Submits every frame, waiting for room; no latencies.
+fn submit_all(live: &LiveMapper, frames: Vec<Frame>) -> Result<Vec<f64>> {
+    for f in frames {
+        if live.submit_waiting(f, Duration::from_secs(3600))?.is_some() {
+            bail!("the queue stayed full for an hour");
+        }
+    }
+    Ok(Vec::new())
+}
+
 fn start_live(args: &Args, ctx: &Context) -> Result<LiveMapper> {
     let mapper = Mapper::with_context(ctx, MapperConfig::default())?;
     Ok(LiveMapper::start(
@@ -384,13 +414,23 @@ fn start_live(args: &Args, ctx: &Context) -> Result<LiveMapper> {
     )?)
 }
 
-/// One pass of the scene at its rate with `probe` asking beside it; the
-/// abort latency, measured at its end, when `measure_abort`.
+/// How a pass feeds the handle.
+#[derive(Clone, Copy, PartialEq)]
+enum Feed {
+    /// At the scene's frame rate with `submit`: frames drop by policy.
+    CameraRate,
+    /// As fast as the handle takes them with `submit_waiting`: every frame
+    /// is mapped, so two passes map the same keyframes.
+    Lossless,
+}
+
+/// One pass of `frames` fed as `feed` says with `probe` asking beside
+/// it; the abort latency, measured at its end, when `measure_abort`.
 fn pass(
     args: &Args,
     ctx: &Context,
     frames: Vec<Frame>,
-    probe: Probe,
+    (feed, probe): (Feed, Probe),
     probes: &Arc<Probes>,
     measure_abort: bool,
 ) -> Result<(Pass, Option<f64>)> {
@@ -406,7 +446,10 @@ fn pass(
         std::thread::spawn(move || ask(&live, &done, &probes, probe, period))
     };
     let start = Instant::now();
-    let submitted = submit_at_rate(&live, frames, args.rate);
+    let submitted = match feed {
+        Feed::CameraRate => submit_at_rate(&live, frames, args.rate),
+        Feed::Lossless => submit_all(&live, frames),
+    };
     live.wait_idle(Duration::from_secs(24 * 3600));
     let wall_s = start.elapsed().as_secs_f64();
     done.store(true, Ordering::SeqCst);
@@ -421,7 +464,14 @@ fn pass(
         Latencies::of(&large_ms),
         Latencies::of(&render_ms),
     ];
-    let summary = summarise(probe, wall_s, &status, &stats, &submit_ms, latencies);
+    let summary = summarise(
+        (feed, probe),
+        wall_s,
+        &status,
+        &stats,
+        &submit_ms,
+        latencies,
+    );
     if !measure_abort {
         live.finish()?;
         return Ok((summary, None));
@@ -489,7 +539,7 @@ fn ask(
 }
 
 fn summarise(
-    probe: Probe,
+    (feed, probe): (Feed, Probe),
     wall_s: f64,
     status: &latentam_core::live::LiveStatus,
     stats: &MapperStats,
@@ -499,6 +549,10 @@ fn summarise(
     let keyframes = stats.keyframes.max(1);
     let ms = stats.timings.total_ms / keyframes as f64;
     Pass {
+        fed: match feed {
+            Feed::CameraRate => "at the camera's rate",
+            Feed::Lossless => "every frame, waiting for room",
+        },
         probing: match probe {
             Probe::Nothing => "nothing",
             Probe::Queries => "relevance queries",
@@ -529,8 +583,9 @@ fn print_pass(p: &Pass) {
         }
     };
     println!(
-        "probing {}: {} frames submitted, {} keyframes, {} dropped ({} not keyframes, {} superseded), \
+        "{}, probing {}: {} frames submitted, {} keyframes, {} dropped ({} not keyframes, {} superseded), \
          {:.0} ms mapping per keyframe, {} Gaussians",
+        p.fed,
         p.probing,
         p.submitted,
         p.keyframes,
