@@ -153,3 +153,58 @@ fn labels_fit(l: &LabelImage, w: u32, h: u32, what: &str) -> std::result::Result
     }
     Ok(())
 }
+
+impl crate::frame::CameraPose {
+    /// The pose of a row-major 4×4 camera-to-world matrix, refused (with
+    /// the reason) unless it is rigid: finite, the last row `[0, 0, 0, 1]`,
+    /// a rotation orthonormal to 10⁻³ with determinant +1.
+    ///
+    /// ```
+    /// use latentam_io::CameraPose;
+    /// let mut m = [1.0, 0.0, 0.0, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 0.0, 0.0, 0.0, 1.0];
+    /// assert_eq!(CameraPose::from_matrix(&m).unwrap().translation.z, 2.0);
+    /// m[0] = 2.0; // a scale is no rotation
+    /// assert!(CameraPose::from_matrix(&m).unwrap_err().contains("not a rigid transform"));
+    /// ```
+    pub fn from_matrix(m: &[f64; 16]) -> std::result::Result<Self, String> {
+        use glam::{DMat3, DQuat, DVec3};
+        if m.iter().any(|v| !v.is_finite()) {
+            return Err("the camera-to-world matrix has values that are not finite".into());
+        }
+        if m[12..] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!(
+                "the camera-to-world matrix's last row must be [0, 0, 0, 1], not {:?}",
+                &m[12..]
+            ));
+        }
+        let col = |j: usize| DVec3::new(m[j], m[4 + j], m[8 + j]);
+        let r = DMat3::from_cols(col(0), col(1), col(2));
+        let off = (r.transpose() * r - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        if off > 1e-3 || r.determinant() <= 0.0 {
+            return Err(format!(
+                "the camera-to-world matrix is not a rigid transform: its rotation part is off \
+                 orthonormal by {off:.2e}, with determinant {:.4}",
+                r.determinant()
+            ));
+        }
+        Ok(crate::frame::CameraPose {
+            rotation: DQuat::from_mat3(&r).normalize(),
+            translation: col(3),
+        })
+    }
+
+    /// The pose as a row-major 4×4 camera-to-world matrix.
+    pub fn to_matrix(&self) -> [f64; 16] {
+        let r = glam::DMat3::from_quat(self.rotation);
+        let t = self.translation;
+        [
+            r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x, //
+            r.x_axis.y, r.y_axis.y, r.z_axis.y, t.y, //
+            r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z, //
+            0.0, 0.0, 0.0, 1.0,
+        ]
+    }
+}

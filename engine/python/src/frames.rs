@@ -2,7 +2,7 @@
 //! (a `ValueError` that names the argument, what it must be and what it
 //! is), with one copy of each image.
 
-use glam::{DAffine3, DMat3, DQuat, DVec3};
+use glam::DAffine3;
 use half::f16;
 use latentam::frames::{
     CameraPose, ColorImage, DepthData, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame,
@@ -93,29 +93,8 @@ fn intrinsics(k: &Bound<'_, PyAny>, width: u32, height: u32) -> PyResult<Intrins
 
 fn pose(t: &Bound<'_, PyAny>) -> PyResult<CameraPose> {
     let m = matrix(t, "T_world_camera", 4, 4)?;
-    if m[3] != [0.0, 0.0, 0.0, 1.0] {
-        return Err(bad(format!(
-            "T_world_camera's last row must be [0, 0, 0, 1], not {:?}",
-            m[3]
-        )));
-    }
-    let col = |j: usize| DVec3::new(m[0][j], m[1][j], m[2][j]);
-    let r = DMat3::from_cols(col(0), col(1), col(2));
-    let off = (r.transpose() * r - DMat3::IDENTITY)
-        .to_cols_array()
-        .iter()
-        .fold(0.0f64, |a, v| a.max(v.abs()));
-    if off > 1e-3 || r.determinant() <= 0.0 {
-        return Err(bad(format!(
-            "T_world_camera is not a rigid transform: its rotation part is off orthonormal by {off:.2e} \
-             with determinant {:.4}",
-            r.determinant()
-        )));
-    }
-    Ok(CameraPose {
-        rotation: DQuat::from_mat3(&r).normalize(),
-        translation: col(3),
-    })
+    let flat: [f64; 16] = std::array::from_fn(|i| m[i / 4][i % 4]);
+    CameraPose::from_matrix(&flat).map_err(|why| bad(format!("T_world_camera: {why}")))
 }
 
 /// A frame of numpy arrays (see `Mapper.submit`).
@@ -293,12 +272,7 @@ pub fn camera_from(
 
 /// A pose as a row-major 4×4 camera-to-world matrix.
 pub fn matrix_of(p: &CameraPose) -> [f64; 16] {
-    let r = DMat3::from_quat(p.rotation);
-    let t = p.translation;
-    [
-        r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x, r.x_axis.y, r.y_axis.y, r.z_axis.y, t.y,
-        r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z, 0.0, 0.0, 0.0, 1.0,
-    ]
+    p.to_matrix()
 }
 
 /// A frame as the keyword arguments of `Mapper.submit`.

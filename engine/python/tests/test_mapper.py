@@ -185,7 +185,7 @@ def misuse_cases(f):
         ("K with a negative focal length", with_(f, K=bad_k), ValueError, "pinhole camera"),
         ("K with NaN", with_(f, K=nan_k), ValueError, "not finite"),
         ("a scaled pose", with_(f, T_world_camera=scaled), ValueError, "not a rigid transform"),
-        ("a pose with a bad last row", with_(f, T_world_camera=bad_last), ValueError, "last row"),
+        ("a pose with a bad last row", with_(f, T_world_camera=bad_last), ValueError, "last row must be [0, 0, 0, 1]"),
         ("a pose with NaN", with_(f, T_world_camera=nan_t), ValueError, "not finite"),
         ("a pose of 3×4", with_(f, T_world_camera=f["T_world_camera"][:3]), ValueError, "T_world_camera must be 4×4"),
         ("regions without embeddings", with_(f, embeddings=None), ValueError, "come together"),
