@@ -39,8 +39,12 @@ fn values<T: Element + Copy>(
         .downcast::<PyArrayDyn<T>>()
         .map_err(|_| bad(format!("{name} must be {what}, not {}", describe(obj))))?;
     let read = array.readonly();
-    let view = read.as_array();
-    Ok((view.iter().copied().collect(), read.shape().to_vec()))
+    // One copy: a memcpy for a C-contiguous array, else element by element.
+    let values = match read.as_slice() {
+        Ok(contiguous) => contiguous.to_vec(),
+        Err(_) => read.as_array().iter().copied().collect(),
+    };
+    Ok((values, read.shape().to_vec()))
 }
 
 /// A small matrix (any numeric array or nested sequence), `rows × cols`.
@@ -170,7 +174,8 @@ pub fn frame_from_arrays(
         embeddings,
         semantic: None,
     };
-    frame.check().map_err(crate::errors::to_py)?;
+    // `Mapper::submit` checks that the frame holds together (sizes, a
+    // region without an embedding), raising ValueError.
     Ok(frame)
 }
 
@@ -192,21 +197,13 @@ fn region_embeddings(
         if v.iter().any(|x| !x.is_finite()) {
             return Err(bad("embeddings have values that are not finite".into()));
         }
-        (
-            v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>(),
-            Dtype::F16,
-            s,
-        )
+        (le_bytes(&v), Dtype::F16, s)
     } else {
         let (v, s) = values::<f32>(embeddings, "embeddings", what)?;
         if v.iter().any(|x| !x.is_finite()) {
             return Err(bad("embeddings have values that are not finite".into()));
         }
-        (
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-            Dtype::F32,
-            s,
-        )
+        (le_bytes(&v), Dtype::F32, s)
     };
     let [n, d] = shape[..] else {
         return Err(bad(format!(
@@ -225,6 +222,22 @@ fn region_embeddings(
         data,
         model: model.to_string(),
     })
+}
+
+/// Values as the little-endian bytes of an engine buffer.
+fn le_bytes<T: bytemuck::Pod>(values: &[T]) -> Vec<u8> {
+    #[cfg(target_endian = "little")]
+    {
+        bytemuck::cast_slice(values).to_vec()
+    }
+    #[cfg(not(target_endian = "little"))]
+    {
+        let size = std::mem::size_of::<T>();
+        bytemuck::cast_slice::<T, u8>(values)
+            .chunks_exact(size)
+            .flat_map(|c| c.iter().rev().copied())
+            .collect()
+    }
 }
 
 /// Text embeddings as rows: float32 [D] (one) or [M, D] (several).

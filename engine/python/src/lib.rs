@@ -108,7 +108,9 @@ impl Mapper {
     /// camera axes: x right, y down, z forward); stamp_ns: the frame's
     /// time. regions: uint16 [H, W] region ids (65535: none) with
     /// embeddings: float16 or float32 [N, D], one row per region id.
-    #[pyo3(signature = (rgb, depth, K, T_world_camera, stamp_ns, regions=None, embeddings=None, model="unknown"))]
+    /// wait: block until the queue has room instead of dropping (for
+    /// recorded data, whose every frame counts).
+    #[pyo3(signature = (rgb, depth, K, T_world_camera, stamp_ns, regions=None, embeddings=None, model="unknown", wait=false))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn submit(
         &self,
@@ -121,6 +123,7 @@ impl Mapper {
         regions: Option<&Bound<'_, PyAny>>,
         embeddings: Option<&Bound<'_, PyAny>>,
         model: &str,
+        wait: bool,
     ) -> PyResult<()> {
         let frame = frames::frame_from_arrays(
             rgb,
@@ -132,7 +135,17 @@ impl Mapper {
             embeddings,
             model,
         )?;
-        self.with_live(py, |live| live.submit(frame))
+        if !wait {
+            return self.with_live(py, |live| live.submit(frame));
+        }
+        let mut waiting = Some(frame);
+        while let Some(frame) = waiting.take() {
+            // A second at a time, so Ctrl-C reaches Python between waits.
+            let second = std::time::Duration::from_secs(1);
+            waiting = self.with_live(py, |live| live.submit_waiting(frame, second))?;
+            py.check_signals()?;
+        }
+        Ok(())
     }
 
     /// Where mapping stands: queue depth, frames dropped by reason,

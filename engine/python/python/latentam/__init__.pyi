@@ -100,8 +100,10 @@ class Mapper:
         regions: Optional[npt.NDArray[np.uint16]] = None,
         embeddings: Optional[Union[npt.NDArray[np.float16], npt.NDArray[np.float32]]] = None,
         model: str = "unknown",
+        wait: bool = False,
     ) -> None:
-        """Queues one RGB-D frame and returns at once.
+        """Queues one RGB-D frame and returns at once (with ``wait``: once
+        the queue has room, dropping nothing, for recorded data).
 
         rgb [H, W, 3] uint8; depth [H, W] uint16 millimetres or float32
         metres (0 or NaN: no measurement); K 3×3 pinhole intrinsics;
