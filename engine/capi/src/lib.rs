@@ -390,41 +390,8 @@ unsafe fn frame_of(f: &LatentamFrame) -> Result<Frame, LatentamStatus> {
         Ok(p) => p,
         Err(why) => return bad(why),
     };
-    let model = if f.model.is_null() {
-        "unknown".to_string()
-    } else {
-        // SAFETY: the caller's string.
-        match unsafe { text(f.model, "model") } {
-            Ok(m) => m.to_string(),
-            Err(s) => return Err(s),
-        }
-    };
-    let embeddings = match (f.regions.is_null(), f.embeddings.is_null()) {
-        (true, true) => None,
-        (false, false) => {
-            let (n, d) = (f.embedding_count as usize, f.embedding_dim as usize);
-            if n == 0 || d == 0 {
-                return bad(format!("{n} embeddings of {d} values"));
-            }
-            // SAFETY: as above.
-            let labels = unsafe { rows(f.regions, w, h, f.regions_stride) };
-            // SAFETY: `n × d` floats.
-            let values = unsafe { std::slice::from_raw_parts(f.embeddings, n * d) };
-            Some(Embeddings {
-                layout: EmbeddingLayout::Regions(LabelImage {
-                    width: f.width,
-                    height: f.height,
-                    labels,
-                }),
-                count: n as u32,
-                dim: d as u32,
-                dtype: Dtype::F32,
-                data: values.iter().flat_map(|x| x.to_le_bytes()).collect(),
-                model,
-            })
-        }
-        _ => return bad("regions and embeddings come together, or not at all".into()),
-    };
+    // SAFETY: the caller's buffers, as above.
+    let embeddings = unsafe { embeddings_of(f)? };
     Ok(Frame {
         stamp_ns: f.stamp_ns,
         pose,
@@ -450,6 +417,46 @@ unsafe fn frame_of(f: &LatentamFrame) -> Result<Frame, LatentamStatus> {
         embeddings,
         semantic: None,
     })
+}
+
+/// The frame's region embeddings, if it has them.
+///
+/// # Safety
+/// As [`frame_of`].
+unsafe fn embeddings_of(f: &LatentamFrame) -> Result<Option<Embeddings>, LatentamStatus> {
+    let bad = |m: String| Err(fail(LatentamStatus::BadFrame, m));
+    match (f.regions.is_null(), f.embeddings.is_null()) {
+        (true, true) => return Ok(None),
+        (false, false) => {}
+        _ => return bad("regions and embeddings come together, or not at all".into()),
+    }
+    let model = if f.model.is_null() {
+        "unknown".to_string()
+    } else {
+        // SAFETY: the caller's string.
+        unsafe { text(f.model, "model") }?.to_string()
+    };
+    let (n, d) = (f.embedding_count as usize, f.embedding_dim as usize);
+    if n == 0 || d == 0 {
+        return bad(format!("{n} embeddings of {d} values"));
+    }
+    let (w, h) = (f.width as usize, f.height as usize);
+    // SAFETY: the caller's `height` rows of region ids.
+    let labels = unsafe { rows(f.regions, w, h, f.regions_stride) };
+    // SAFETY: the caller's `n × d` floats.
+    let values = unsafe { std::slice::from_raw_parts(f.embeddings, n * d) };
+    Ok(Some(Embeddings {
+        layout: EmbeddingLayout::Regions(LabelImage {
+            width: f.width,
+            height: f.height,
+            labels,
+        }),
+        count: n as u32,
+        dim: d as u32,
+        dtype: Dtype::F32,
+        data: values.iter().flat_map(|x| x.to_le_bytes()).collect(),
+        model,
+    }))
 }
 
 /// Queues a copy of `frame` and returns at once (frames are dropped by

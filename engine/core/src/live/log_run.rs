@@ -301,6 +301,57 @@ impl Tally {
         failed
     }
 
+    /// Hands `frame` to the live handle, waiting for room and counting
+    /// what the worker did meanwhile; the ending when the run must stop.
+    fn submit(
+        &mut self,
+        live: &LiveMapper,
+        frame: latentam_io::Frame,
+        options: &LogRunOptions,
+        folder: Option<&RunFolder>,
+        observer: &mut dyn RunObserver,
+        frames: &mut McapFrames,
+    ) -> Option<Ending> {
+        let stamp = frame.stamp_ns;
+        let mut waiting = frame;
+        loop {
+            match live.submit_waiting(waiting, Duration::from_millis(50)) {
+                Ok(None) => return None,
+                Ok(Some(back)) => waiting = back,
+                // The worker stopped: its outcome says why.
+                Err(Error::Stopped(_)) => return None,
+                Err(e) => return Some(Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))),
+            }
+            if let Some(failed) = self.take_outcomes(live, options, folder, observer, frames) {
+                return Some(failed);
+            }
+            if observer.stop_requested() {
+                return Some(Ending::Interrupted);
+            }
+        }
+    }
+
+    /// Waits for the worker to map what is queued, counting (and
+    /// autosaving) as it goes; the ending when the run must stop early.
+    fn drain(
+        &mut self,
+        live: &LiveMapper,
+        options: &LogRunOptions,
+        folder: Option<&RunFolder>,
+        observer: &mut dyn RunObserver,
+        frames: &mut McapFrames,
+    ) -> Option<Ending> {
+        while !live.wait_idle(Duration::from_millis(50)) {
+            if observer.stop_requested() {
+                return Some(Ending::Interrupted);
+            }
+            if let Some(failed) = self.take_outcomes(live, options, folder, observer, frames) {
+                return Some(failed);
+            }
+        }
+        self.take_outcomes(live, options, folder, observer, frames)
+    }
+
     /// Counts one frame's outcome; the ending when it failed.
     fn count(
         &mut self,
@@ -410,7 +461,7 @@ impl LogRun {
         )?;
         live.record_outcomes();
         let mut warned = 0;
-        let mut ending = 'reading: loop {
+        let mut ending = loop {
             for w in &frames.report().warnings[warned..] {
                 observer.input_warning(w);
             }
@@ -440,45 +491,15 @@ impl LogRun {
             }
             mapped_up_to = Some(frame.stamp_ns);
             run.submitted += 1;
-            let stamp = frame.stamp_ns;
-            let mut waiting = frame;
-            loop {
-                match live.submit_waiting(waiting, Duration::from_millis(50)) {
-                    Ok(None) => break,
-                    Ok(Some(back)) => waiting = back,
-                    // The worker stopped: its outcome says why.
-                    Err(Error::Stopped(_)) => break,
-                    Err(e) => {
-                        break 'reading Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))
-                    }
-                }
-                if let Some(failed) =
-                    run.take_outcomes(&live, options, folder, observer, &mut frames)
-                {
-                    break 'reading failed;
-                }
-                if observer.stop_requested() {
-                    break 'reading Ending::Interrupted;
-                }
+            if let Some(ended) = run.submit(&live, frame, options, folder, observer, &mut frames) {
+                break ended;
             }
         };
         // A run that read its last frame maps what is queued, counting (and
         // autosaving) as it goes.
         if matches!(ending, Ending::Complete | Ending::FrameLimit) {
-            while !live.wait_idle(Duration::from_millis(50)) {
-                if observer.stop_requested() {
-                    ending = Ending::Interrupted;
-                    break;
-                }
-                if let Some(failed) =
-                    run.take_outcomes(&live, options, folder, observer, &mut frames)
-                {
-                    ending = failed;
-                    break;
-                }
-            }
-            if let Some(failed) = run.take_outcomes(&live, options, folder, observer, &mut frames) {
-                ending = failed;
+            if let Some(ended) = run.drain(&live, options, folder, observer, &mut frames) {
+                ending = ended;
             }
         }
         // An interrupted run stops at once (the keyframe in progress hurries

@@ -33,7 +33,7 @@ pub use keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
 };
 /// The per-keyframe loop under [`Mapper`], for the workspace's tests only.
-#[cfg(feature = "testing")]
+#[cfg(any(test, feature = "testing"))]
 #[doc(hidden)]
 pub use online::OnlineMapper;
 pub use persist::SavedState;
