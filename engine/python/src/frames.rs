@@ -283,11 +283,6 @@ pub fn camera_from(
     Ok(cam)
 }
 
-/// A pose as a row-major 4×4 camera-to-world matrix.
-pub fn matrix_of(p: &CameraPose) -> [f64; 16] {
-    p.to_matrix()
-}
-
 /// A frame as the keyword arguments of `Mapper.submit`.
 pub fn arrays_from_frame<'py>(py: Python<'py>, f: &Frame) -> PyResult<Bound<'py, PyDict>> {
     let (h, w) = (f.color.height as usize, f.color.width as usize);
@@ -305,7 +300,7 @@ pub fn arrays_from_frame<'py>(py: Python<'py>, f: &Frame) -> PyResult<Bound<'py,
     d.set_item("K", PyArray1::from_vec(py, km).reshape(vec![3, 3])?)?;
     d.set_item(
         "T_world_camera",
-        PyArray1::from_vec(py, matrix_of(&f.pose).to_vec()).reshape(vec![4, 4])?,
+        PyArray1::from_vec(py, f.pose.to_matrix().to_vec()).reshape(vec![4, 4])?,
     )?;
     d.set_item("stamp_ns", f.stamp_ns)?;
     if let Some(e) = &f.embeddings {

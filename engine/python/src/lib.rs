@@ -355,14 +355,23 @@ impl Mapper {
         columns: usize,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let answer = self.with_live(py, |live| live.relevance(query))?;
-        let n = answer.scores.len() / columns.max(1);
-        let array = PyArray1::from_vec(py, answer.scores);
-        if columns == 1 {
-            Ok(array.reshape(vec![n])?)
-        } else {
-            Ok(array.reshape(vec![n, columns])?)
-        }
+        scores_array(py, answer.scores, columns)
     }
+}
+
+/// Gaussians × `columns` scores as [N] (one column) or [N, columns].
+fn scores_array(
+    py: Python<'_>,
+    scores: Vec<f32>,
+    columns: usize,
+) -> PyResult<Bound<'_, PyArrayDyn<f32>>> {
+    let n = scores.len() / columns.max(1);
+    let shape = if columns == 1 {
+        vec![n]
+    } else {
+        vec![n, columns]
+    };
+    PyArray1::from_vec(py, scores).reshape(shape)
 }
 
 fn gone() -> PyErr {
@@ -468,7 +477,7 @@ impl Snapshot {
     fn keyframe_poses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let mut flat = Vec::with_capacity(self.inner.trajectory.len() * 16);
         for (_, pose) in &self.inner.trajectory {
-            flat.extend(frames::matrix_of(pose));
+            flat.extend(pose.to_matrix());
         }
         let k = self.inner.trajectory.len();
         PyArray1::from_vec(py, flat).reshape(vec![k, 4, 4])
@@ -484,13 +493,7 @@ impl Snapshot {
         let (values, texts) = frames::embedding_rows(text_embedding)?;
         let inner = self.inner.clone();
         let scores = py.allow_threads(|| inner.cosines(&values)).map_err(to_py)?;
-        let n = scores.len() / texts.max(1);
-        let array = PyArray1::from_vec(py, scores);
-        if texts == 1 {
-            Ok(array.reshape(vec![n])?)
-        } else {
-            Ok(array.reshape(vec![n, texts])?)
-        }
+        scores_array(py, scores, texts)
     }
 
     fn __repr__(&self) -> String {

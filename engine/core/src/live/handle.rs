@@ -2,7 +2,7 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::{mpsc, Arc, Condvar, Mutex, RwLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -264,24 +264,14 @@ impl LiveMapper {
         frame.check()?;
         let bytes = frame_bytes(&frame);
         let deadline = Instant::now() + max_wait;
-        let mut st = self.shared.lock();
-        loop {
-            if let Some(e) = &st.stopped {
-                return Err(Error::Stopped(e.clone()));
-            }
-            if st.queue.takes_without_dropping(bytes) {
-                break;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(Some(frame));
-            }
-            st = self
-                .shared
-                .room
-                .wait_timeout(st, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+        let (mut st, room) = self.shared.wait_until(deadline, |st| {
+            st.stopped.is_some() || st.queue.takes_without_dropping(bytes)
+        });
+        if st.stopped.is_some() {
+            return Err(st.stopped_error());
+        }
+        if !room {
+            return Ok(Some(frame));
         }
         st.submitted += 1;
         let State { queue, dropped, .. } = &mut *st;
@@ -386,22 +376,13 @@ impl LiveMapper {
         {
             let mut st = self.shared.lock();
             if st.exited {
-                return Err(self.shared_stopped(&st));
+                return Err(st.stopped_error());
             }
             st.lends.push_back(to);
         }
         self.shared.work.notify_one();
         let mut lent = from.recv().map_err(|_| self.shared.stopped_error())?;
         Ok(f(&mut lent.mapper))
-    }
-
-    fn shared_stopped(&self, st: &State) -> Error {
-        match &st.stopped {
-            Some(e) => Error::Stopped(e.clone()),
-            None => Error::Stopped(Arc::new(Error::InvalidArgument(
-                "the live mapper's worker has ended".into(),
-            ))),
-        }
     }
 
     /// Keeps what became of each frame from now on, for
@@ -424,22 +405,11 @@ impl LiveMapper {
     /// up to `max_wait`; whether it is.
     pub fn wait_idle(&self, max_wait: Duration) -> bool {
         let deadline = Instant::now() + max_wait;
-        let mut st = self.shared.lock();
-        loop {
-            if (st.queue.len() == 0 && !st.busy) || st.stopped.is_some() || st.exited {
-                return true;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return false;
-            }
-            st = self
-                .shared
-                .room
-                .wait_timeout(st, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
-        }
+        self.shared
+            .wait_until(deadline, |st| {
+                (st.queue.len() == 0 && !st.busy) || st.stopped.is_some() || st.exited
+            })
+            .1
     }
 
     /// Maps every queued frame, stops the worker and returns the mapper.
@@ -479,28 +449,8 @@ impl LiveMapper {
         (mapper, stopped, self.take_outcomes())
     }
 
-    /// Asks the worker to stop, hurrying the keyframe in progress
-    /// (`abort`) or not.
-    pub(crate) fn hurry(&self) {
-        self.shared
-            .stop
-            .store(true, std::sync::atomic::Ordering::SeqCst);
-    }
-
     fn close(&mut self, how: Close) -> (Option<Mapper>, Option<Arc<Error>>, bool) {
-        {
-            let mut st = self.shared.lock();
-            st.close = Some(
-                st.close
-                    .map_or(how, |c| if c == Close::Abort { c } else { how }),
-            );
-        }
-        if how == Close::Abort {
-            self.hurry();
-        }
-        self.shared.closing.store(true, Ordering::SeqCst);
-        self.shared.work.notify_all();
-        self.shared.index_wake.notify_all();
+        self.shared.ask_to_close(how);
         let mapper = self.worker.take().and_then(|w| w.join().ok().flatten());
         if let Some(i) = self.indexer.take() {
             let _ = i.join();
@@ -518,30 +468,12 @@ impl Drop for LiveMapper {
         if self.worker.is_none() {
             return;
         }
-        {
-            let mut st = self.shared.lock();
-            st.close = Some(Close::Abort);
-        }
-        self.hurry();
-        self.shared.closing.store(true, Ordering::SeqCst);
-        self.shared.work.notify_all();
-        self.shared.index_wake.notify_all();
+        self.shared.ask_to_close(Close::Abort);
         let deadline = Instant::now() + self.shared.options.drop_timeout;
-        let mut st = self.shared.lock();
-        while !st.exited {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                log::warn!("the mapping worker did not end in time; leaving it to end on its own");
-                return;
-            }
-            st = self
-                .shared
-                .room
-                .wait_timeout(st, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+        if !self.shared.wait_until(deadline, |st| st.exited).1 {
+            log::warn!("the mapping worker did not end in time; leaving it to end on its own");
+            return;
         }
-        drop(st);
         if let Some(w) = self.worker.take() {
             let _ = w.join();
         }

@@ -2,7 +2,7 @@
 //! loans of the mapper, the counters, and the snapshots.
 
 use std::collections::VecDeque;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard, RwLock};
 use std::time::Instant;
 
@@ -112,11 +112,59 @@ impl Shared {
     }
 
     pub fn stopped_error(&self) -> Error {
-        match &self.lock().stopped {
-            Some(e) => Error::Stopped(e.clone()),
-            None => Error::Stopped(Arc::new(Error::InvalidArgument(
-                "the live mapper's worker has ended".into(),
-            ))),
+        self.lock().stopped_error()
+    }
+
+    /// Asks the worker and the indexer to end; an abort (which wins over
+    /// a finish) also hurries the keyframe in progress.
+    pub fn ask_to_close(&self, how: Close) {
+        {
+            let mut st = self.lock();
+            if st.close != Some(Close::Abort) {
+                st.close = Some(how);
+            }
         }
+        if how == Close::Abort {
+            self.stop.store(true, Ordering::SeqCst);
+        }
+        self.closing.store(true, Ordering::SeqCst);
+        self.work.notify_all();
+        self.index_wake.notify_all();
+    }
+
+    /// Waits (on `room`) until `done` holds or `deadline` passes: the
+    /// guard, and whether `done` holds.
+    pub fn wait_until(
+        &self,
+        deadline: Instant,
+        done: impl Fn(&State) -> bool,
+    ) -> (MutexGuard<'_, State>, bool) {
+        let mut st = self.lock();
+        loop {
+            if done(&st) {
+                return (st, true);
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return (st, false);
+            }
+            st = self
+                .room
+                .wait_timeout(st, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+}
+
+impl State {
+    /// What a call on a handle whose worker stopped returns.
+    pub fn stopped_error(&self) -> Error {
+        let cause = self.stopped.clone().unwrap_or_else(|| {
+            Arc::new(Error::InvalidArgument(
+                "the live mapper's worker has ended".into(),
+            ))
+        });
+        Error::Stopped(cause)
     }
 }

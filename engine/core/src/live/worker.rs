@@ -95,7 +95,8 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
         mapper.count_unseen_frames(q.dropped_before);
     }
     let started = Instant::now();
-    let result = catch_unwind(AssertUnwindSafe(|| mapper.integrate(&q.frame)));
+    // `submit` checked the frame.
+    let result = catch_unwind(AssertUnwindSafe(|| mapper.integrate_checked(&q.frame)));
     let mut keyframe = false;
     let outcome = match result {
         Ok(Ok(integrated)) => {

@@ -595,6 +595,11 @@ impl Mapper {
         self.inner.decoder_file()
     }
 
+    /// [`Mapper::integrate`] for a frame that passed `Frame::check`.
+    pub(crate) fn integrate_checked(&mut self, frame: &Frame) -> Result<Integrated> {
+        self.inner.integrate_checked(frame)
+    }
+
     /// Every Gaussian as it stands, changing nothing (the window's rows
     /// are read, not written back).
     pub(crate) fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {

@@ -217,11 +217,9 @@ impl OnlineMapper {
         Ok(())
     }
 
-    /// Refuses a frame the map cannot take, before anything changes:
-    /// non-finite pose or intrinsics, embeddings of another model or
-    /// dimension than the map's.
+    /// Refuses a frame whose embeddings do not suit the map (model or
+    /// dimension), before anything changes.
     fn check_frame(&self, frame: &Frame) -> Result<()> {
-        frame.check()?;
         if let Some(e) = &frame.embeddings {
             // The caller knows which frame it offered.
             let context = || None;
@@ -345,6 +343,14 @@ impl OnlineMapper {
     /// a failure part-way through a keyframe (a lost device, GPU memory)
     /// leaves it unusable ([`OnlineMapper::is_broken`]).
     pub fn integrate(&mut self, frame: &Frame) -> Result<Integrated> {
+        frame.check()?;
+        self.integrate_checked(frame)
+    }
+
+    /// [`OnlineMapper::integrate`] for a frame that passed `Frame::check`
+    /// already (the live handle checks at `submit`, on the caller's
+    /// thread).
+    pub(crate) fn integrate_checked(&mut self, frame: &Frame) -> Result<Integrated> {
         self.check_consistent()?;
         self.check_frame(frame)?;
         let selector = self.selector.state();
