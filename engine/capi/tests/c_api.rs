@@ -11,10 +11,13 @@ fn crate_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Where cargo put `liblatentam_c.so`: beside this test's `deps` folder.
+/// Where `cargo test` put `liblatentam_c.so`: the `deps` folder holding
+/// this test (the crate also builds as an rlib so that cargo builds the
+/// shared library for its integration tests; `cargo build` alone would copy
+/// it one folder up, which `cargo test` does not do).
 fn library_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
-    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+    let dir = exe.parent().unwrap().to_path_buf();
     assert!(
         dir.join("liblatentam_c.so").exists(),
         "{} has no liblatentam_c.so",
