@@ -62,7 +62,7 @@ pub(crate) fn shared_sources() -> Result<SharedSources, String> {
                 FieldType::F32 => ("float", "f32", "f32", 4),
                 FieldType::U32 => ("uint", "u32", "u32", 4),
             };
-            if offset % size != 0 {
+            if !offset.is_multiple_of(size) {
                 return Err(format!(
                     "{}.{} sits at byte {offset}, not a multiple of its size {size}: \
                      Rust and std430 would disagree; pad before it",
@@ -85,7 +85,7 @@ pub(crate) fn shared_sources() -> Result<SharedSources, String> {
         } else {
             4
         };
-        if offset % align != 0 {
+        if !offset.is_multiple_of(align) {
             return Err(format!(
                 "{} is {offset} bytes, not a multiple of {align}: pad it so arrays of it agree",
                 st.name

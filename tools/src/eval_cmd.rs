@@ -176,7 +176,7 @@ pub fn run(args: Args) -> Result<()> {
         if rows.len() >= limit {
             break;
         }
-        if i < args.offset || (i - args.offset) % args.every != 0 {
+        if i < args.offset || !(i - args.offset).is_multiple_of(args.every) {
             continue;
         }
         let frame = frame.with_context(|| format!("reading {}", args.log.display()))?;

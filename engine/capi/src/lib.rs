@@ -336,7 +336,8 @@ unsafe fn rows<T: Copy>(p: *const T, width: usize, height: usize, stride: usize)
 
 fn stride_ok<T>(stride: usize, width: usize) -> bool {
     stride == 0
-        || (stride >= width * std::mem::size_of::<T>() && stride % std::mem::align_of::<T>() == 0)
+        || (stride >= width * std::mem::size_of::<T>()
+            && stride.is_multiple_of(std::mem::align_of::<T>()))
 }
 
 /// # Safety

@@ -515,7 +515,7 @@ fn ask(
     while !done.load(Ordering::SeqCst) && probe != Probe::Nothing {
         let next = Instant::now() + period;
         tick += 1;
-        if probe == Probe::Queries && tick % 2 == 0 {
+        if probe == Probe::Queries && tick.is_multiple_of(2) {
             let t = Instant::now();
             match live.relevance(&query) {
                 Ok(_) => live_ms.push(t.elapsed().as_secs_f64() * 1e3),

@@ -243,7 +243,7 @@ impl LatentHead {
         rows: &[f32],
     ) -> Result<KMeansStep> {
         let d = self.cfg.dim as usize;
-        if rows.len() % d != 0 {
+        if !rows.len().is_multiple_of(d) {
             return Err(Error::InvalidArgument(format!(
                 "{} values are not whole {d}-d embeddings",
                 rows.len()

@@ -64,7 +64,11 @@ impl FactorisedDecoder {
     /// From W (`QUERY_DIM` × d_f, row-major), the atoms D (K × d_f), the
     /// softmax temperature τ and the norm's ε.
     pub fn new(w: &[f32], atoms: &[f32], dim: usize, temperature: f32, eps: f32) -> Result<Self> {
-        if dim == 0 || w.len() != QUERY_DIM * dim || atoms.is_empty() || atoms.len() % dim != 0 {
+        if dim == 0
+            || w.len() != QUERY_DIM * dim
+            || atoms.is_empty()
+            || !atoms.len().is_multiple_of(dim)
+        {
             return Err(Error::InvalidArgument(format!(
                 "decoder of {} W values and {} atom values for {dim}-d embeddings",
                 w.len(),

@@ -206,7 +206,7 @@ impl RelevanceScorer {
                 "relevance scorer built for another latent head".into(),
             ));
         }
-        if texts.is_empty() || texts.len() % d != 0 {
+        if texts.is_empty() || !texts.len().is_multiple_of(d) {
             return Err(Error::InvalidArgument(format!(
                 "{} text values are not whole {d}-d embeddings",
                 texts.len()

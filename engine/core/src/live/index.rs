@@ -175,7 +175,7 @@ impl RelevanceIndex {
     /// text scores 0): Gaussians × m, row-major.
     pub fn cosines(&self, texts: &[f32]) -> Result<Vec<f32>> {
         let d = self.dim;
-        if texts.is_empty() || texts.len() % d != 0 {
+        if texts.is_empty() || !texts.len().is_multiple_of(d) {
             return Err(Error::EmbeddingDimension {
                 map: d as u32,
                 given: texts.len() as u32,

@@ -146,7 +146,7 @@ impl Mapper {
     pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
         let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
         let dim = head.config().dim as usize;
-        if embeddings.is_empty() || embeddings.len() % dim != 0 {
+        if embeddings.is_empty() || !embeddings.len().is_multiple_of(dim) {
             return Err(Error::EmbeddingDimension {
                 map: dim as u32,
                 given: embeddings.len() as u32,

@@ -199,7 +199,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
                     shape[i] =
                         [0, 1, 2, u32::MAX as u64, u64::MAX, 1 << 62][rng.random_range(0..6)];
                 }
-                4 if shape.len() >= 2 && shape[0] % 2 == 0 => {
+                4 if shape.len() >= 2 && shape[0].is_multiple_of(2) => {
                     // Same element count, other rows.
                     shape[0] /= 2;
                     shape[1] = shape[1].saturating_mul(2);

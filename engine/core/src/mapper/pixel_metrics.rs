@@ -125,7 +125,7 @@ pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMe
     if v.queries.len() != n
         || v.region.len() != n
         || v.truth.len() != n
-        || v.targets.len() % dim != 0
+        || !v.targets.len().is_multiple_of(dim)
         || !vocab_ok
     {
         return Err(Error::InvalidArgument(format!(

@@ -118,7 +118,7 @@ impl Gemm {
     /// and along N for B (transposed: along K), which must be multiples of
     /// 4.
     pub fn vector_loads_fit(&self) -> bool {
-        let four = |x: u32| x % 4 == 0;
+        let four = |x: u32| x.is_multiple_of(4);
         match self.transpose {
             Transpose::None => four(self.k) && four(self.n),
             Transpose::A => four(self.m) && four(self.n),

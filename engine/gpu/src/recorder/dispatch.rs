@@ -78,7 +78,7 @@ impl<'a> Recorder<'a> {
         push: &P,
     ) -> Result<()> {
         let buffers = S::in_order(&buffers);
-        if offset % 4 != 0 {
+        if !offset.is_multiple_of(4) {
             return Err(Error::InvalidArgument(format!(
                 "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
                 kernel.kernel.name

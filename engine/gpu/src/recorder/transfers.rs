@@ -128,7 +128,7 @@ impl<'a> Recorder<'a> {
         bytes: u64,
         value: u32,
     ) -> Result<()> {
-        if offset % 4 != 0 || bytes % 4 != 0 || offset + bytes > buf.bytes() {
+        if !offset.is_multiple_of(4) || !bytes.is_multiple_of(4) || offset + bytes > buf.bytes() {
             return Err(Error::InvalidArgument(format!(
                 "fill of {bytes} bytes at {offset} in a {}-byte buffer (multiples of 4 within it)",
                 buf.bytes()

@@ -449,7 +449,7 @@ impl OnlineMapper {
         let t = Instant::now();
         let span = ctx.host_span("pruning");
         let interval = self.cfg.prune_interval as u64;
-        let pruned = if interval > 0 && self.stats.keyframes % interval == 0 {
+        let pruned = if interval > 0 && self.stats.keyframes.is_multiple_of(interval) {
             self.prune()?
         } else {
             0
