@@ -21,6 +21,7 @@
 //! | `latentam-io` | MCAP logs and rosbag2 folders in, checked frames out |
 //! | `latentam-core` | the rasterizer, the objective, Adam, the latent head, the map, the per-keyframe loop, the live handle |
 //! | `latentam-reference` | the CPU statement of every kernel's math; tests and `selfcheck` only |
+//! | `latentam-view` | the map in Foxglove: MCAP files and a live WebSocket view (feature `view`) |
 //!
 //! ```no_run
 //! use latentam::frames::Frame;
@@ -47,8 +48,8 @@
 pub use latentam_base::{Camera, Error, HostGaussians, InputError, Result};
 pub use latentam_core::latent::TextQuery;
 pub use latentam_core::live::{
-    DropCounts, LiveMapper, LiveOptions, LiveStatus, LogRun, LogRunOptions, MapSnapshot, Relevance,
-    RunObserver,
+    DropCounts, KeyframeImage, LiveMapper, LiveOptions, LiveReader, LiveStatus, LogRun,
+    LogRunOptions, MapSnapshot, Relevance, RunObserver,
 };
 pub use latentam_core::mapper::{Mapper, MapperConfig as Config, RunReport};
 
@@ -60,4 +61,19 @@ pub mod frames {
         DepthData, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame, IngestReport, Intrinsics,
         LabelImage, McapFrames, PixelFormat, Topics, Vocabulary,
     };
+}
+
+/// A live view of the map in Foxglove (feature `view`): a WebSocket
+/// server publishing the map, trajectory, keyframe images and relevance
+/// clouds while mapping goes on.
+///
+/// ```no_run
+/// use latentam::view::{LiveView, ViewOptions};
+/// let live = latentam::LiveMapper::new(Default::default(), Default::default())?;
+/// let view = LiveView::serve(live.reader(), ViewOptions::default())?; // ws://127.0.0.1:8765
+/// # Ok::<(), latentam::Error>(())
+/// ```
+#[cfg(feature = "view")]
+pub mod view {
+    pub use latentam_view::{LiveView, ViewOptions, ViewStats, ViewWord};
 }

@@ -73,7 +73,30 @@ def poses_in_frame(m):
     return fm.PosesInFrame(**{k: convert[k](v) for k, v in m.items()})
 
 
-BUILDERS = {"foxglove.PointCloud": point_cloud, "foxglove.PosesInFrame": poses_in_frame}
+def pose_in_frame(m):
+    convert = {"timestamp": timestamp, "frame_id": str, "pose": pose}
+    return fm.PoseInFrame(**{k: convert[k](v) for k, v in m.items()})
+
+
+def raw_image(m):
+    convert = {
+        "timestamp": timestamp,
+        "frame_id": str,
+        "width": int,
+        "height": int,
+        "encoding": str,
+        "step": int,
+        "data": base64.b64decode,
+    }
+    return fm.RawImage(**{k: convert[k](v) for k, v in m.items()})
+
+
+BUILDERS = {
+    "foxglove.PointCloud": point_cloud,
+    "foxglove.PosesInFrame": poses_in_frame,
+    "foxglove.PoseInFrame": pose_in_frame,
+    "foxglove.RawImage": raw_image,
+}
 
 
 def unpack(m):

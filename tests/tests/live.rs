@@ -307,3 +307,66 @@ fn a_full_queue_drops_by_policy_and_abort_and_drop_return_promptly() {
     );
     assert_no_validation_errors(ctx);
 }
+
+#[test]
+fn a_reader_follows_keyframes_and_outlives_the_handle() {
+    let (frames, _) = scene();
+    let ctx = context();
+    latentam_core::mapper::warm_up(&ctx).unwrap();
+    let mapper = Mapper::with_context(&ctx, config()).unwrap();
+    let live = LiveMapper::start(mapper, LiveOptions::default()).unwrap();
+    let reader = live.reader();
+    assert!(reader.last_keyframe().is_none());
+    // Nothing mapped yet: the wait ends at its deadline with no keyframe.
+    assert_eq!(reader.wait_for_keyframe(0, Duration::from_millis(50)), 0);
+    let watcher = {
+        let reader = reader.clone();
+        std::thread::spawn(move || {
+            let seen = reader.wait_for_keyframe(0, Duration::from_secs(600));
+            // The snapshot of that keyframe is published before it counts.
+            (seen, reader.snapshot().keyframes, reader.last_keyframe())
+        })
+    };
+    for f in frames.iter().take(6) {
+        live.submit_waiting(f.clone(), Duration::from_secs(600))
+            .unwrap();
+    }
+    let (seen, snapshot_keyframes, image) = watcher.join().unwrap();
+    assert!(
+        seen >= 1 && snapshot_keyframes >= 1,
+        "{seen} {snapshot_keyframes}"
+    );
+    let image = image.expect("a keyframe's image once a keyframe was counted");
+    let source = frames
+        .iter()
+        .find(|f| f.stamp_ns == image.stamp_ns)
+        .unwrap();
+    assert_eq!(image.color.data, source.color.data);
+    assert_eq!(image.camera.cam_to_world, camera_of(source).cam_to_world);
+    assert!(live.wait_idle(Duration::from_secs(600)));
+    let rendered = reader.render(&camera_of(source)).unwrap();
+    assert_eq!(rendered.width, source.intrinsics.width);
+    assert_eq!(reader.status().keyframes, live.status().keyframes);
+
+    // After the handle is gone the reader still reads, and its loans
+    // answer `Stopped` instead of waiting for a worker that is gone.
+    let mapper = live.finish().unwrap();
+    assert!(!reader.is_running());
+    assert_eq!(reader.snapshot().keyframes, mapper.stats().keyframes);
+    let t = Instant::now();
+    assert!(matches!(
+        reader.render(&camera_of(source)),
+        Err(latentam_core::Error::Stopped(_))
+    ));
+    assert!(matches!(
+        reader.save(temp_dir("reader-save")),
+        Err(latentam_core::Error::Stopped(_))
+    ));
+    assert!(t.elapsed() < Duration::from_secs(5));
+    // And waiting on it returns at once.
+    let t = Instant::now();
+    reader.wait_for_keyframe(u64::MAX, Duration::from_secs(60));
+    assert!(t.elapsed() < Duration::from_secs(5));
+    drop(mapper);
+    assert_no_validation_errors(ctx);
+}

@@ -39,10 +39,13 @@ pub struct Args {
     height: u32,
     #[command(flatten)]
     config: ConfigArgs,
+    #[command(flatten)]
+    live: crate::live_args::LiveViewArgs,
 }
 
 pub fn run(args: Args) -> Result<()> {
     let config = args.config.load()?;
+    args.live.check()?;
     std::fs::create_dir_all(&args.out)?;
     let log = args.out.join("scene.mcap");
     let run_dir = args.out.join("run");
@@ -71,6 +74,7 @@ pub fn run(args: Args) -> Result<()> {
             resume: None,
             profile: true,
             autosave_every: 0,
+            live: Some(args.live.clone()).filter(|l| l.live.is_some()),
         },
         Some(&folder),
     )?;

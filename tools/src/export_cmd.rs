@@ -4,13 +4,13 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::foxglove::{write_foxglove_file, Cloud};
 use anyhow::{bail, Context as _, Result};
 use latentam_cli::progress::Stages;
 use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
-use crate::pictures::{heat, to_bytes};
+use crate::pictures::to_bytes;
 use latentam_core::latent::softmax_rows;
+use latentam_view::{heat_rgba, topic_word, write_foxglove_file, Cloud};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -74,33 +74,6 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
         .ok()
         .flatten()
         .map(|v| (v, log)))
-}
-
-/// A topic-safe form of a vocabulary word: lowercase letters, digits and
-/// `_`, unique among `taken`.
-fn topic_word(word: &str, taken: &mut Vec<String>) -> String {
-    let mut w: String = word
-        .trim()
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() {
-                c.to_ascii_lowercase()
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if w.is_empty() {
-        w.push_str("word");
-    }
-    let mut unique = w.clone();
-    let mut n = 2;
-    while taken.contains(&unique) {
-        unique = format!("{w}_{n}");
-        n += 1;
-    }
-    taken.push(unique.clone());
-    unique
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -182,8 +155,8 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     stages.start(format_args!("writing {}", args.foxglove.display()));
-    write_foxglove_file(&args.foxglove, &args.frame_id, |out| {
-        out.cloud(
+    write_foxglove_file(&args.foxglove, &args.frame_id, |topics| {
+        topics.cloud(
             "/latentam/map",
             stamp,
             &Cloud {
@@ -193,14 +166,8 @@ pub fn run(args: Args) -> Result<()> {
             },
         )?;
         for (_, word, rel) in &relevance {
-            let heat_colours: Vec<[u8; 4]> = rel
-                .iter()
-                .map(|&r| {
-                    let [red, g, b] = to_bytes(heat(r));
-                    [red, g, b, 255]
-                })
-                .collect();
-            out.cloud(
+            let heat_colours: Vec<[u8; 4]> = rel.iter().map(|&r| heat_rgba(r)).collect();
+            topics.cloud(
                 &format!("/latentam/relevance/{word}"),
                 stamp,
                 &Cloud {
@@ -211,7 +178,8 @@ pub fn run(args: Args) -> Result<()> {
             )?;
         }
         let poses: Vec<CameraPose> = trajectory.iter().map(|&(_, p)| p).collect();
-        out.poses("/latentam/trajectory", stamp, &poses)
+        topics.poses("/latentam/trajectory", stamp, &poses)?;
+        Ok(())
     })?;
     print_summary(
         &args.foxglove,

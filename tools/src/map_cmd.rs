@@ -42,6 +42,8 @@ pub struct Args {
     /// `--resume` continues from the last save.
     #[arg(long, value_name = "N", default_value_t = 25)]
     autosave_every: u64,
+    #[command(flatten)]
+    live: crate::live_args::LiveViewArgs,
 }
 
 /// Exit status of a run stopped by Ctrl-C after writing its folder.
@@ -51,6 +53,7 @@ pub const INTERRUPTED: u8 = 130;
 pub fn run(args: Args) -> Result<bool> {
     let config = args.config.load()?;
     let assembly = args.input.assembly()?;
+    args.live.check()?;
     // Taken before anything is read: no other process writes the folder
     // while this run reads its state or replaces it.
     let folder = RunFolder::lock(&args.out)?;
@@ -69,6 +72,7 @@ pub fn run(args: Args) -> Result<bool> {
             resume: args.resume.then(|| args.config.clone()),
             profile: !args.no_trace,
             autosave_every: args.autosave_every,
+            live: Some(args.live.clone()).filter(|l| l.live.is_some()),
         },
         Some(&folder),
     )?;

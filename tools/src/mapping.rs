@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
-use latentam_core::live::{LogRun, LogRunOptions, RunObserver, Written};
+use latentam_core::live::{LiveReader, LogRun, LogRunOptions, RunObserver, Written};
 use latentam_core::mapper::{
     KeyframeReport, Mapper, MapperConfig, MapperStats, RunFolder, RunReport, DECODER_FILE,
     STATE_FILE,
@@ -36,6 +36,8 @@ pub struct RunOptions {
     /// Write the run folder every this many keyframes while mapping (0:
     /// only at the end).
     pub autosave_every: u64,
+    /// Serve a live view while mapping.
+    pub live: Option<crate::live_args::LiveViewArgs>,
 }
 
 /// Status line of a running map.
@@ -133,7 +135,11 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
     ctx.profiler_reset();
     interrupt::install();
     mapper.set_hurry_flag(interrupt::flag());
-    let mut observer = CliObserver::default();
+    let mut observer = CliObserver {
+        live: opts.live.clone(),
+        log: opts.log.clone(),
+        ..CliObserver::default()
+    };
     let run = LogRun::map(
         mapper,
         &opts.log,
@@ -149,6 +155,19 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
     if let Some(progress) = &observer.progress {
         progress.finish();
     }
+    if let Some(view) = observer.view.take() {
+        let port = view.port();
+        let stats = view.close();
+        eprintln!(
+            "live view (port {port}): {} publications, {} messages, {:.1} MB sent",
+            stats.publications,
+            stats.messages,
+            stats.bytes as f64 / 1e6
+        );
+    }
+    if let Some(e) = observer.error.take() {
+        return Err(e);
+    }
     run
 }
 
@@ -163,6 +182,14 @@ pub fn write_folder(run: &mut LogRun, folder: &RunFolder) -> Result<Written> {
 #[derive(Default)]
 struct CliObserver {
     progress: Option<MapProgress>,
+    /// The live view asked for, its options once the log's vocabulary is
+    /// known, and the view once mapping started.
+    live: Option<crate::live_args::LiveViewArgs>,
+    log: PathBuf,
+    view_options: Option<latentam_view::ViewOptions>,
+    view: Option<latentam_view::LiveView>,
+    /// What stopped the run before its first frame.
+    error: Option<anyhow::Error>,
 }
 
 impl RunObserver for CliObserver {
@@ -170,7 +197,38 @@ impl RunObserver for CliObserver {
         for line in frames.topic_plan() {
             eprintln!("input: {line}");
         }
+        if let Some(live) = &self.live {
+            // The log's vocabulary is read before its first frame when the
+            // log has one (its message may come later in the log).
+            let vocabulary = frames.vocabulary().cloned().or_else(|| {
+                latentam_io::read_vocabulary(&self.log, &frames.topics().vocabulary)
+                    .ok()
+                    .flatten()
+            });
+            match live.options(vocabulary.as_ref()) {
+                Ok(options) => self.view_options = options,
+                Err(e) => self.error = Some(e),
+            }
+        }
         self.progress = Some(MapProgress::new(total));
+    }
+
+    fn live_started(&mut self, reader: &LiveReader) {
+        let Some(options) = self.view_options.take() else {
+            return;
+        };
+        let listen = options.listen;
+        match latentam_view::LiveView::serve(reader.clone(), options) {
+            Ok(view) => {
+                eprintln!(
+                    "live view: ws://{}:{} (Foxglove: Open connection)",
+                    listen.ip(),
+                    view.port()
+                );
+                self.view = Some(view);
+            }
+            Err(e) => self.error = Some(e.into()),
+        }
     }
 
     fn frame_done(&mut self, frames: u64, stats: &MapperStats, last: Option<&KeyframeReport>) {
@@ -180,7 +238,7 @@ impl RunObserver for CliObserver {
     }
 
     fn stop_requested(&mut self) -> bool {
-        interrupt::requested()
+        self.error.is_some() || interrupt::requested()
     }
 
     fn input_warning(&mut self, warning: &str) {

@@ -54,21 +54,7 @@ impl Picture {
     }
 }
 
-/// Colour of a value in 0..1: a ramp dark blue → cyan → green → yellow →
-/// red, so low and high read apart at a glance.
-pub fn heat(t: f32) -> [f32; 3] {
-    const STOPS: [[f32; 3]; 5] = [
-        [0.05, 0.05, 0.45],
-        [0.0, 0.75, 0.9],
-        [0.1, 0.8, 0.2],
-        [0.95, 0.85, 0.1],
-        [0.85, 0.1, 0.05],
-    ];
-    let x = t.clamp(0.0, 1.0) * (STOPS.len() - 1) as f32;
-    let i = (x.floor() as usize).min(STOPS.len() - 2);
-    let f = x - i as f32;
-    std::array::from_fn(|c| STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f)
-}
+pub use latentam_view::heat;
 
 /// The smallest and largest of `values` where `keep` holds; `None` when
 /// none is kept.

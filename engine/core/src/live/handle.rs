@@ -3,7 +3,7 @@
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use std::sync::{mpsc, Arc, Condvar, Mutex, RwLock};
+use std::sync::{Arc, Condvar, Mutex, RwLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -12,77 +12,13 @@ use latentam_io::Frame;
 
 use super::options::LiveOptions;
 use super::queue::{frame_bytes, DropCounts, FrameQueue};
+use super::reader::{LiveReader, LiveStatus, Relevance};
 use super::shared::{Close, Outcome, Shared, State};
 use super::snapshot::MapSnapshot;
 use super::worker;
 use crate::latent::TextQuery;
 use crate::mapper::{Mapper, MapperConfig};
 use crate::splat::{Camera, RenderedView};
-
-/// Where a [`LiveMapper`] stands.
-///
-/// ```no_run
-/// # fn f(live: &latentam_core::live::LiveMapper) {
-/// let s = live.status();
-/// println!(
-///     "{} queued, {} dropped, last keyframe {:?} ms after submission, {:?} keyframes/s",
-///     s.queued_frames, s.dropped.total(), s.last_keyframe_latency_ms, s.keyframes_per_s
-/// );
-/// if let Some(e) = &s.last_error {
-///     eprintln!("last error: {e}");
-/// }
-/// # }
-/// ```
-#[derive(Clone, Debug, Default)]
-pub struct LiveStatus {
-    /// Frames waiting for the worker.
-    pub queued_frames: usize,
-    /// Their bytes.
-    pub queued_bytes: u64,
-    /// Frames submitted to this handle.
-    pub submitted: u64,
-    /// Frames the mapper went through (keyframes, skipped and refused).
-    pub integrated: u64,
-    /// Keyframes mapped through this handle.
-    pub keyframes: u64,
-    /// Frames given up, by reason.
-    pub dropped: DropCounts,
-    /// Whether a frame is being mapped now.
-    pub mapping: bool,
-    /// The last keyframe's time from `submit` to its snapshot, ms.
-    pub last_keyframe_latency_ms: Option<f64>,
-    /// The same from the frame's stamp, when the stamp is wall-clock time
-    /// (a live camera's; not a log's), ms.
-    pub last_keyframe_stamp_latency_ms: Option<f64>,
-    /// The last keyframe's mapping time, ms.
-    pub last_keyframe_ms: Option<f64>,
-    /// Keyframes per second over the last ten.
-    pub keyframes_per_s: Option<f64>,
-    /// The last error: a refused frame, or what stopped the worker.
-    pub last_error: Option<Arc<Error>>,
-    /// What stopped the worker, if it stopped: no frame is taken since.
-    pub stopped: Option<Arc<Error>>,
-    /// Time from the start of [`LiveMapper::new`] to a mapper with every
-    /// kernel compiled, ms (absent for [`LiveMapper::start`]).
-    pub ready_ms: Option<f64>,
-}
-
-/// An answer to a relevance query, with the snapshot it was computed on
-/// (so positions and scores are of the same map).
-///
-/// ```no_run
-/// # fn f(live: &latentam_core::live::LiveMapper, q: &latentam_core::latent::TextQuery) -> latentam_core::Result<()> {
-/// let answer = live.relevance(q)?;
-/// assert_eq!(answer.scores.len(), answer.snapshot.gaussians.means.len());
-/// # Ok(())
-/// # }
-/// ```
-pub struct Relevance {
-    /// One relevance per Gaussian of `snapshot`, in its order.
-    pub scores: Vec<f32>,
-    /// The snapshot scored.
-    pub snapshot: Arc<MapSnapshot>,
-}
 
 /// A map built on a worker thread, fed without waiting and read while it
 /// grows. It is `Send + Sync`: share it (`Arc`) between the camera
@@ -110,7 +46,7 @@ pub struct Relevance {
 /// # Ok::<(), latentam_core::Error>(())
 /// ```
 pub struct LiveMapper {
-    shared: Arc<Shared>,
+    reader: LiveReader,
     worker: Option<JoinHandle<Option<Mapper>>>,
     indexer: Option<JoinHandle<()>>,
 }
@@ -119,6 +55,7 @@ const _: () = {
     const fn send_sync<T: Send + Sync>() {}
     send_sync::<LiveMapper>();
     send_sync::<MapSnapshot>();
+    send_sync::<LiveReader>();
 };
 
 impl LiveMapper {
@@ -207,6 +144,7 @@ impl LiveMapper {
             room: Condvar::new(),
             index_wake: Condvar::new(),
             snapshot: RwLock::new(Arc::new(first)),
+            last_keyframe: RwLock::new(None),
             indexed: RwLock::new(None),
             stop: mapper.stop_flag(),
             closing: AtomicBool::new(false),
@@ -228,7 +166,7 @@ impl LiveMapper {
             .spawn(move || worker::index_snapshots(s))
             .map_err(spawn_err)?;
         Ok(LiveMapper {
-            shared,
+            reader: LiveReader { shared },
             worker: Some(worker),
             indexer: Some(indexer),
         })
@@ -245,7 +183,7 @@ impl LiveMapper {
     /// cause).
     pub fn submit(&self, frame: Frame) -> Result<()> {
         frame.check()?;
-        let mut st = self.shared.lock();
+        let mut st = self.shared().lock();
         if let Some(e) = &st.stopped {
             return Err(Error::Stopped(e.clone()));
         }
@@ -253,7 +191,7 @@ impl LiveMapper {
         let State { queue, dropped, .. } = &mut *st;
         queue.admit(frame, dropped);
         drop(st);
-        self.shared.work.notify_one();
+        self.shared().work.notify_one();
         Ok(())
     }
 
@@ -264,7 +202,7 @@ impl LiveMapper {
         frame.check()?;
         let bytes = frame_bytes(&frame);
         let deadline = Instant::now() + max_wait;
-        let (mut st, room) = self.shared.wait_until(deadline, |st| {
+        let (mut st, room) = self.shared().wait_until(deadline, |st| {
             st.stopped.is_some() || st.queue.takes_without_dropping(bytes)
         });
         if st.stopped.is_some() {
@@ -277,123 +215,64 @@ impl LiveMapper {
         let State { queue, dropped, .. } = &mut *st;
         queue.admit(frame, dropped);
         drop(st);
-        self.shared.work.notify_one();
+        self.shared().work.notify_one();
         Ok(None)
     }
 
     /// Where mapping stands: the queue, drops, latencies, errors.
     pub fn status(&self) -> LiveStatus {
-        let st = self.shared.lock();
-        let keyframes_per_s = match (st.recent.front(), st.recent.back()) {
-            (Some(a), Some(b)) if st.recent.len() > 1 => {
-                Some((st.recent.len() - 1) as f64 / (*b - *a).as_secs_f64().max(1e-9))
-            }
-            _ => None,
-        };
-        LiveStatus {
-            queued_frames: st.queue.len(),
-            queued_bytes: st.queue.bytes(),
-            submitted: st.submitted,
-            integrated: st.integrated,
-            keyframes: st.keyframes,
-            dropped: st.dropped,
-            mapping: st.busy,
-            last_keyframe_latency_ms: st.last_latency_ms,
-            last_keyframe_stamp_latency_ms: st.last_stamp_latency_ms,
-            last_keyframe_ms: st.last_keyframe_ms,
-            keyframes_per_s,
-            last_error: st.last_error.clone(),
-            stopped: st.stopped.clone(),
-            ready_ms: self.shared.ready_ms,
-        }
+        self.reader.status()
     }
 
     /// The latest snapshot of the map (after the last keyframe, or the
     /// map it started with). Never waits for mapping.
     pub fn snapshot(&self) -> Arc<MapSnapshot> {
-        self.shared.latest()
+        self.reader.snapshot()
     }
 
-    /// Relevance of every Gaussian to `query`, from the newest snapshot
-    /// whose relevance index is built. From the first query on, an
-    /// indexer thread indexes each new snapshot, so later queries do not
-    /// pay for it; the first one builds it on the calling thread.
+    /// Relevance of every Gaussian to `query` (see [`LiveReader::relevance`]).
     pub fn relevance(&self, query: &TextQuery) -> Result<Relevance> {
-        {
-            let mut st = self.shared.lock();
-            if !st.wants_index {
-                st.wants_index = true;
-                self.shared.index_wake.notify_all();
-            }
-        }
-        let indexed = self
-            .shared
-            .indexed
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
-        let snapshot = match indexed {
-            Some(s) => s,
-            None => self.snapshot(),
-        };
-        let scores = snapshot.relevance(query)?;
-        Ok(Relevance { scores, snapshot })
+        self.reader.relevance(query)
     }
 
     /// Renders colour, depth and queries of the map from `camera` (see
-    /// [`Mapper::render`]). The worker serves it between frames: while a
-    /// keyframe runs, it waits for the rest of that keyframe.
+    /// [`LiveReader::render`]).
     pub fn render(&self, camera: &Camera) -> Result<RenderedView> {
-        self.lend(|m| m.render(camera).map(|(view, _)| view))?
+        self.reader.render(camera)
     }
 
-    /// Saves the map into the run folder `dir` (see [`Mapper::save`]),
-    /// between frames as [`LiveMapper::render`]. Returns the state file.
+    /// Saves the map into the run folder `dir` (see [`LiveReader::save`]).
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<PathBuf> {
-        let dir = dir.as_ref();
-        self.lend(|m| m.save(dir))?
+        self.reader.save(dir)
     }
 
-    /// Runs `f` on the calling thread with the mapper, once the worker is
-    /// between frames; mapping waits until `f` returns.
-    pub(crate) fn lend<R>(&self, f: impl FnOnce(&mut Mapper) -> R) -> Result<R> {
-        self.lend_slot(|slot| f(slot.as_mut().expect("a loan holds the mapper")))
+    /// A reader of this map for another thread or a viewer: status,
+    /// snapshots, queries, renders and saves, without the right to
+    /// submit or close. It stays usable after the handle closes (its
+    /// loans then answer [`Error::Stopped`]).
+    pub fn reader(&self) -> LiveReader {
+        self.reader.clone()
     }
 
-    /// Runs `f` on the calling thread with the mapper itself, once the
-    /// worker is between frames; `f` gives it back. Mapping waits.
+    /// Runs `f` with the mapper itself between frames (see
+    /// [`LiveReader::lend_owned`]).
     pub(crate) fn lend_owned<R>(&self, f: impl FnOnce(Mapper) -> (Mapper, R)) -> Result<R> {
-        self.lend_slot(|slot| {
-            let mapper = slot.take().expect("a loan holds the mapper");
-            let (mapper, r) = f(mapper);
-            *slot = Some(mapper);
-            r
-        })
+        self.reader.lend_owned(f)
     }
 
-    fn lend_slot<R>(&self, f: impl FnOnce(&mut Option<Mapper>) -> R) -> Result<R> {
-        let (to, from) = mpsc::channel();
-        {
-            let mut st = self.shared.lock();
-            if st.exited {
-                return Err(st.stopped_error());
-            }
-            st.lends.push_back(to);
-        }
-        self.shared.work.notify_one();
-        let mut lent = from.recv().map_err(|_| self.shared.stopped_error())?;
-        Ok(f(&mut lent.mapper))
+    fn shared(&self) -> &Shared {
+        &self.reader.shared
     }
 
     /// Keeps what became of each frame from now on, for
     /// [`LiveMapper::take_outcomes`].
     pub(crate) fn record_outcomes(&self) {
-        self.shared.lock().outcomes.get_or_insert_with(Vec::new);
+        self.shared().lock().outcomes.get_or_insert_with(Vec::new);
     }
 
     /// What became of each frame since the last call.
     pub(crate) fn take_outcomes(&self) -> Vec<Outcome> {
-        self.shared
+        self.shared()
             .lock()
             .outcomes
             .as_mut()
@@ -405,7 +284,7 @@ impl LiveMapper {
     /// up to `max_wait`; whether it is.
     pub fn wait_idle(&self, max_wait: Duration) -> bool {
         let deadline = Instant::now() + max_wait;
-        self.shared
+        self.shared()
             .wait_until(deadline, |st| {
                 (st.queue.len() == 0 && !st.busy) || st.stopped.is_some() || st.exited
             })
@@ -421,7 +300,7 @@ impl LiveMapper {
             (Some(m), None) => Ok(m),
             (Some(m), Some(_)) if !fatal => Ok(m),
             (_, Some(e)) => Err(Error::Stopped(e)),
-            (None, None) => Err(self.shared.stopped_error()),
+            (None, None) => Err(self.shared().stopped_error()),
         }
     }
 
@@ -433,7 +312,7 @@ impl LiveMapper {
         let (mapper, stopped, _) = self.close(Close::Abort);
         mapper.ok_or_else(|| match stopped {
             Some(e) => Error::Stopped(e),
-            None => self.shared.stopped_error(),
+            None => self.shared().stopped_error(),
         })
     }
 
@@ -450,12 +329,12 @@ impl LiveMapper {
     }
 
     fn close(&mut self, how: Close) -> (Option<Mapper>, Option<Arc<Error>>, bool) {
-        self.shared.ask_to_close(how);
+        self.shared().ask_to_close(how);
         let mapper = self.worker.take().and_then(|w| w.join().ok().flatten());
         if let Some(i) = self.indexer.take() {
             let _ = i.join();
         }
-        let st = self.shared.lock();
+        let st = self.shared().lock();
         (mapper, st.stopped.clone(), st.fatal)
     }
 }
@@ -468,9 +347,9 @@ impl Drop for LiveMapper {
         if self.worker.is_none() {
             return;
         }
-        self.shared.ask_to_close(Close::Abort);
-        let deadline = Instant::now() + self.shared.options.drop_timeout;
-        if !self.shared.wait_until(deadline, |st| st.exited).1 {
+        self.shared().ask_to_close(Close::Abort);
+        let deadline = Instant::now() + self.shared().options.drop_timeout;
+        if !self.shared().wait_until(deadline, |st| st.exited).1 {
             log::warn!("the mapping worker did not end in time; leaving it to end on its own");
             return;
         }

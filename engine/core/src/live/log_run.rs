@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 
 use super::handle::LiveMapper;
 use super::options::LiveOptions;
+use super::reader::LiveReader;
 use super::shared::Outcome;
 use crate::mapper::{
     Ending, HostWaits, Integrated, KeyframeReport, Mapper, MapperStats, RunFolder, RunReport,
@@ -83,6 +84,10 @@ pub trait RunObserver {
     fn stop_requested(&mut self) -> bool {
         false
     }
+
+    /// Once mapping starts: a reader of the live map (for a viewer, see
+    /// `latentam_view::LiveView`), valid until the run ends.
+    fn live_started(&mut self, _reader: &LiveReader) {}
 
     /// The input looks wrong in a way that does not stop mapping (e.g.
     /// depth in another camera frame than colour): said once per warning,
@@ -265,7 +270,9 @@ impl Tally {
                 return Some(failed);
             }
             let every = options.autosave_every;
-            due |= every > 0 && self.stats.keyframes != before && self.stats.keyframes % every == 0;
+            due |= every > 0
+                && self.stats.keyframes != before
+                && self.stats.keyframes.is_multiple_of(every);
         }
         let folder = folder.filter(|_| due)?;
         // Between frames, with the mapper: what the worker did meanwhile
@@ -460,6 +467,7 @@ impl LogRun {
             },
         )?;
         live.record_outcomes();
+        observer.live_started(&live.reader());
         let mut warned = 0;
         let mut ending = loop {
             for w in &frames.report().warnings[warned..] {

@@ -14,13 +14,15 @@ mod index;
 mod log_run;
 mod options;
 mod queue;
+mod reader;
 mod shared;
 mod snapshot;
 mod worker;
 
-pub use handle::{LiveMapper, LiveStatus, Relevance};
+pub use handle::LiveMapper;
 pub use index::{IndexSettings, RelevanceIndex};
 pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use options::LiveOptions;
 pub use queue::{frame_bytes, DropCounts};
-pub use snapshot::MapSnapshot;
+pub use reader::{LiveReader, LiveStatus, Relevance};
+pub use snapshot::{KeyframeImage, MapSnapshot};

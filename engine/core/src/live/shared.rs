@@ -11,7 +11,7 @@ use latentam_io::Frame;
 
 use super::options::LiveOptions;
 use super::queue::{DropCounts, FrameQueue};
-use super::snapshot::MapSnapshot;
+use super::snapshot::{KeyframeImage, MapSnapshot};
 use crate::mapper::{Integrated, Mapper};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,6 +73,8 @@ pub(super) struct Shared {
     /// Wakes the indexer: a snapshot, a first query, a close.
     pub index_wake: Condvar,
     pub snapshot: RwLock<Arc<MapSnapshot>>,
+    /// The last keyframe's image and camera.
+    pub last_keyframe: RwLock<Option<Arc<KeyframeImage>>>,
     /// The newest snapshot whose relevance index is built.
     pub indexed: RwLock<Option<Arc<MapSnapshot>>>,
     pub stop: Arc<AtomicBool>,
@@ -106,7 +108,12 @@ impl Shared {
     }
 
     pub fn exit(&self) {
-        self.lock().exited = true;
+        let mut st = self.lock();
+        st.exited = true;
+        // A reader that asked for a loan after the worker's last look at
+        // the queue gets `Stopped` rather than waiting forever.
+        st.lends.clear();
+        drop(st);
         self.room.notify_all();
         self.index_wake.notify_all();
     }

@@ -6,11 +6,12 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
 
 use latentam_base::{Error, HostGaussians, Result};
-use latentam_io::CameraPose;
+use latentam_io::{CameraPose, ColorImage};
 
 use super::index::{DecoderView, IndexSettings, RelevanceIndex};
 use crate::latent::TextQuery;
 use crate::mapper::{DecoderFile, MapperStats};
+use crate::splat::Camera;
 
 /// The map as it stood after a keyframe: every Gaussian (positions,
 /// colours, opacities, scales, rotations, latent queries), the decoder
@@ -129,4 +130,19 @@ impl MapSnapshot {
     pub fn relevance(&self, query: &TextQuery) -> Result<Vec<f32>> {
         Ok(query.relevance_of(&self.cosines(&query.embeddings)?))
     }
+}
+
+/// The last keyframe as the camera saw it: its colour image, camera and
+/// stamp, for a viewer to show beside the map rendered from the same
+/// camera.
+#[derive(Clone, Debug)]
+pub struct KeyframeImage {
+    /// The keyframe's index in the map (0 for its first).
+    pub keyframe: u64,
+    /// The frame's stamp, ns.
+    pub stamp_ns: i64,
+    /// Its camera: pose and intrinsics.
+    pub camera: Camera,
+    /// Its colour image, as submitted.
+    pub color: ColorImage,
 }

@@ -11,8 +11,8 @@ use latentam_base::{Error, Result};
 
 use super::queue::Queued;
 use super::shared::{Close, Lent, Outcome, Shared};
-use super::snapshot::MapSnapshot;
-use crate::mapper::{Integrated, Mapper};
+use super::snapshot::{KeyframeImage, MapSnapshot};
+use crate::mapper::{camera_of, Integrated, Mapper};
 
 /// What the worker does next.
 enum Job {
@@ -110,6 +110,7 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
                         shared.fail(e, true);
                     }
                 }
+                keep_image(&q.frame, report.index, shared);
             }
             Ok(integrated)
         }
@@ -190,6 +191,21 @@ fn lowest_priority() {
             libc::setpriority(libc::PRIO_PROCESS, tid, 19);
         }
     }
+}
+
+/// Keeps the keyframe's image and camera for viewers (one copy of the
+/// colour image per keyframe: small beside the keyframe's work).
+fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
+    let image = KeyframeImage {
+        keyframe,
+        stamp_ns: frame.stamp_ns,
+        camera: camera_of(frame),
+        color: frame.color.clone(),
+    };
+    *shared
+        .last_keyframe
+        .write()
+        .unwrap_or_else(|e| e.into_inner()) = Some(Arc::new(image));
 }
 
 /// Takes a snapshot of the map and makes it the one readers see.
