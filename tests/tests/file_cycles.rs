@@ -29,6 +29,7 @@ const ROOTS: &[&str] = &[
     "tools/src/lib.rs",
     "tools/src/main.rs",
     "tools/scene/src/lib.rs",
+    "tools/ros/src/main.rs",
 ];
 
 fn is_cfg_test(attrs: &[syn::Attribute]) -> bool {

@@ -11,7 +11,7 @@ use latentam_gpu::{Context, ContextOptions};
 use latentam_io::{read_vocabulary, AssemblyConfig, McapFrames};
 use latentam_scene::{generate, SceneConfig};
 
-use crate::config_cmd::ConfigArgs;
+use crate::config_args::ConfigArgs;
 use crate::pictures::Picture;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{nth_frame, render_pictures, ViewSource};

@@ -23,10 +23,15 @@ pub struct LiveViewArgs {
     /// Least seconds between two publications of the live map.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0, requires = "live")]
     pub live_every: f64,
-    /// Width of the map rendered from each keyframe's camera for the live
-    /// view, pixels (0: none). A render pauses mapping for its time.
+    /// Width of the map rendered from the last keyframe's camera for the
+    /// live view, pixels (0: none).
     #[arg(long, value_name = "PIXELS", default_value_t = 320, requires = "live")]
     pub live_render_width: u32,
+    /// Least seconds between two renders: a render pauses mapping for its
+    /// time (about a millisecond on a discrete GPU, a few hundred on a
+    /// CPU driver).
+    #[arg(long, value_name = "SECONDS", default_value_t = 5.0, requires = "live")]
+    pub live_render_every: f64,
     /// Vocabulary words (of the log's vocabulary) whose relevance clouds
     /// the live view publishes, comma-separated.
     #[arg(
@@ -45,8 +50,13 @@ impl LiveViewArgs {
         let Some(addr) = self.live else {
             return Ok(None);
         };
-        if !(self.live_every >= 0.0 && self.live_every.is_finite()) {
-            bail!("--live-every must be a number of seconds, 0 or more");
+        for (flag, seconds) in [
+            ("--live-every", self.live_every),
+            ("--live-render-every", self.live_render_every),
+        ] {
+            if !(seconds >= 0.0 && seconds.is_finite()) {
+                bail!("{flag} must be a number of seconds, 0 or more");
+            }
         }
         if self.live_points == 0 {
             bail!("--live-points must be at least 1");
@@ -74,6 +84,7 @@ impl LiveViewArgs {
             point_budget: self.live_points,
             min_interval: Duration::from_secs_f64(self.live_every),
             render_width: self.live_render_width,
+            render_interval: Duration::from_secs_f64(self.live_render_every),
             words,
             ..ViewOptions::default()
         }))

@@ -4,6 +4,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+use latentam_cli::{config_args, input_args, interrupt, live_args};
+
 mod bench;
 mod config_cmd;
 mod convert_cmd;
@@ -11,10 +13,7 @@ mod demo_cmd;
 mod eval_cmd;
 mod export_cmd;
 mod gen_scene;
-mod input_args;
 mod inspect;
-mod interrupt;
-mod live_args;
 mod loaded_map;
 mod logging;
 mod map_cmd;

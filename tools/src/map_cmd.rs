@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
-use crate::config_cmd::ConfigArgs;
+use crate::config_args::ConfigArgs;
 use crate::input_args::InputArgs;
 use latentam_core::mapper::{RunFolder, STATE_FILE};
 

@@ -30,7 +30,7 @@ pub struct RunOptions {
     pub max_frames: Option<usize>,
     /// Continue the state saved in the run folder, with these settings
     /// applied over its own.
-    pub resume: Option<crate::config_cmd::ConfigArgs>,
+    pub resume: Option<crate::config_args::ConfigArgs>,
     /// Time every kernel (for `trace.json` and the profile table).
     pub profile: bool,
     /// Write the run folder every this many keyframes while mapping (0:

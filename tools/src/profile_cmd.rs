@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 
-use crate::config_cmd::ConfigArgs;
+use crate::config_args::ConfigArgs;
 use crate::input_args::InputArgs;
 use crate::mapping::{map_log, RunOptions};
 use latentam_core::mapper::Ending;

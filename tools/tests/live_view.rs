@@ -56,7 +56,7 @@ fn a_foxglove_client_watches_the_map_grow() {
     let script = format!(
         "\"$PY\" \"$CHECK\" ws://127.0.0.1:8765 {} > \"$DIR/summary.json\" 2> \"$DIR/client.err\" & \
          client=$!; \
-         \"$BIN\" map \"$LOG\" --out \"$RUN\" --live --live-points 300 --live-every 0 \
+         \"$BIN\" map \"$LOG\" --out \"$RUN\" --live --live-points 300 --live-every 0 --live-render-every 0 \
            --live-render-width 64 --live-words '{}' > \"$DIR/map.out\" 2> \"$DIR/map.err\"; \
          mapped=$?; wait $client; echo \"$mapped $?\"",
         topics.join(" "),

@@ -19,6 +19,7 @@
 
 #![warn(missing_docs)]
 
+pub mod background;
 mod camera;
 mod error;
 #[doc(hidden)]

@@ -62,10 +62,11 @@ pub use latentam_base::{Error, InputError, Rejection, Result};
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,
 };
-pub use mcap_frames::McapFrames;
+pub use mcap_frames::{McapFrames, PlannedInput};
 pub use messages::{
-    CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Odometry, Pose,
-    PoseStamped, RosMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
+    CameraInfo, CompressedImage, DiagnosticArray, DiagnosticStatus, FeatureGrid, Header, Image,
+    MaskFeatures, Odometry, Path, PointCloud2, PointField, Pose, PoseStamped, RosMessage,
+    StringMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
 pub use parts::MAX_EMBEDDING_DIM;
 pub use report::{IngestReport, ReasonCount};

@@ -39,60 +39,28 @@ impl McapFrames {
     }
 
     /// Frames from an already opened log.
-    pub fn from_log(log: McapLog, mut config: AssemblyConfig) -> Result<Self, InputError> {
+    pub fn from_log(log: McapLog, config: AssemblyConfig) -> Result<Self, InputError> {
         let channels = log.channels();
-        let (topics, plan) = super::plan_topics(&channels, &config)?;
-        config.topics = topics;
-        let probe = FrameAssembler::new(config.clone(), false, false);
-        let find = |topic: &str| channels.iter().find(|c| c.topic == topic);
-        let mut required = vec![config.topics.color.as_str(), config.topics.depth.as_str()];
-        if config.intrinsics.is_none() {
-            required.push(&config.topics.camera_info);
-        }
-        match &config.topics.pose {
-            PoseSource::Topic(p) => required.push(p),
-            PoseSource::Tf { .. } => {
-                if find("/tf").is_none() && find("/tf_static").is_none() {
-                    required.push("/tf");
-                }
-            }
-        }
-        let missing: Vec<&str> = required
-            .iter()
-            .copied()
-            .filter(|t| find(t).is_none())
-            .collect();
-        if !missing.is_empty() {
-            // Damage read before the topic's first message is the cause.
-            if let Some(e) = log.scan_problem() {
+        let planned = match (
+            PlannedInput::new(&channels, config, "the log"),
+            log.scan_problem(),
+        ) {
+            // Damage read before a missing topic's first message is the cause.
+            (Err(InputError::Topic { topic, reason }), Some(e))
+                if reason.starts_with("not in ") =>
+            {
                 return Err(InputError::Topic {
-                    topic: missing.join(", "),
+                    topic,
                     reason: format!("not found before the log became unreadable: {e}"),
                 });
             }
-            return Err(InputError::Topic {
-                topic: missing.join(", "),
-                reason: format!(
-                    "not in the log; it has: {}",
-                    channels
-                        .iter()
-                        .map(|c| format!("{} ({})", c.topic, c.schema_name))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            });
-        }
-        for c in &channels {
-            if let Some(role) = probe.role(&c.topic) {
-                check_channel(c, role)?;
-            }
-        }
-        let topics = probe.topics();
-        let assembler = FrameAssembler::new(
-            config.clone(),
-            find(&config.topics.embeddings).is_some(),
-            find(&config.topics.semantic).is_some(),
-        );
+            (planned, _) => planned?,
+        };
+        let PlannedInput {
+            assembler,
+            topics,
+            plan,
+        } = planned;
         Ok(McapFrames {
             reader: log.reader(ReadFilter {
                 topics: Some(topics),
@@ -129,6 +97,81 @@ impl McapFrames {
     /// The log's vocabulary, once its message has been read.
     pub fn vocabulary(&self) -> Option<&Vocabulary> {
         self.assembler.vocabulary()
+    }
+}
+
+/// What reading a source of messages takes: the topics chosen by the
+/// rules of [`plan_topics`](super::plan_topics) from the channels it has
+/// (a log's, or a live ROS graph's), checked, and the assembler that
+/// turns their messages into frames.
+pub struct PlannedInput {
+    /// Turns the messages of `topics` into frames.
+    pub assembler: FrameAssembler,
+    /// The topics to read.
+    pub topics: Vec<String>,
+    /// One line per stream whose topic was chosen (for the user).
+    pub plan: Vec<String>,
+}
+
+impl PlannedInput {
+    /// Plans reading `channels` (found in `source`, named in errors: "the
+    /// log", "the ROS graph"): errors for a stream with no topic, a topic
+    /// of the wrong type, or a choice that is not unique.
+    pub fn new(
+        channels: &[Channel],
+        mut config: AssemblyConfig,
+        source: &str,
+    ) -> Result<Self, InputError> {
+        let (topics, plan) = super::plan_topics(channels, &config)?;
+        config.topics = topics;
+        let probe = FrameAssembler::new(config.clone(), false, false);
+        let find = |topic: &str| channels.iter().find(|c| c.topic == topic);
+        let mut required = vec![config.topics.color.as_str(), config.topics.depth.as_str()];
+        if config.intrinsics.is_none() {
+            required.push(&config.topics.camera_info);
+        }
+        match &config.topics.pose {
+            PoseSource::Topic(p) => required.push(p),
+            PoseSource::Tf { .. } => {
+                if find("/tf").is_none() && find("/tf_static").is_none() {
+                    required.push("/tf");
+                }
+            }
+        }
+        let missing: Vec<&str> = required
+            .iter()
+            .copied()
+            .filter(|t| find(t).is_none())
+            .collect();
+        if !missing.is_empty() {
+            return Err(InputError::Topic {
+                topic: missing.join(", "),
+                reason: format!(
+                    "not in {source}; it has: {}",
+                    channels
+                        .iter()
+                        .map(|c| format!("{} ({})", c.topic, c.schema_name))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
+        }
+        for c in channels {
+            if let Some(role) = probe.role(&c.topic) {
+                check_channel(c, role)?;
+            }
+        }
+        let topics = probe.topics();
+        let assembler = FrameAssembler::new(
+            config.clone(),
+            find(&config.topics.embeddings).is_some(),
+            find(&config.topics.semantic).is_some(),
+        );
+        Ok(PlannedInput {
+            assembler,
+            topics,
+            plan,
+        })
     }
 }
 

@@ -72,6 +72,24 @@ pub fn read_vocabulary(path: &Path, topic: &str) -> Result<Option<Vocabulary>, I
     Ok(Some(next??))
 }
 
+impl Vocabulary {
+    /// The vocabulary in a serialized `latentam_msgs/TextEmbeddings`
+    /// message (a live query, a vocabulary topic).
+    ///
+    /// ```no_run
+    /// # fn f(bytes: &[u8]) -> Result<(), latentam_io::Rejection> {
+    /// let words = latentam_io::Vocabulary::decode(bytes)?;
+    /// println!("{} words of {} dimensions", words.names.len(), words.dim);
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn decode(bytes: &[u8]) -> Result<Vocabulary, Rejection> {
+        let msg = TextEmbeddings::decode(bytes)
+            .map_err(|e| Rejection::new("vocabulary: undecodable message", e.to_string()))?;
+        vocabulary_of(&msg)
+    }
+}
+
 pub(super) fn vocabulary_of(m: &TextEmbeddings<'_>) -> Result<Vocabulary, Rejection> {
     if m.names.len() != m.ids.len() {
         return Err(Rejection::new(

@@ -67,9 +67,12 @@ pub struct ViewOptions {
     /// Least time between two publications of the map.
     pub min_interval: Duration,
     /// Width of the map rendered from the keyframe's camera, pixels (its
-    /// height follows the camera's aspect); 0: no render. A render
-    /// borrows the mapper between keyframes, so it costs mapping time.
+    /// height follows the camera's aspect); 0: no render.
     pub render_width: u32,
+    /// Least time between two renders. A render borrows the mapper
+    /// between keyframes, so mapping waits for it: about a millisecond on
+    /// a discrete GPU, a few hundred on a CPU driver.
+    pub render_interval: Duration,
     /// Words whose relevance clouds are published.
     pub words: Vec<ViewWord>,
 }
@@ -82,6 +85,7 @@ impl Default for ViewOptions {
             point_budget: 100_000,
             min_interval: Duration::from_secs(1),
             render_width: 320,
+            render_interval: Duration::from_secs(5),
             words: Vec::new(),
         }
     }
@@ -241,6 +245,7 @@ impl LiveView {
             subscriptions,
             stop: stop.clone(),
             stats: stats.clone(),
+            last_render: None,
         };
         let thread = std::thread::Builder::new()
             .name("latentam-view".into())
@@ -317,6 +322,7 @@ struct Publisher {
     subscriptions: Arc<Subscriptions>,
     stop: Arc<AtomicBool>,
     stats: Arc<Mutex<ViewStats>>,
+    last_render: Option<Instant>,
 }
 
 /// How long a closing view waits for its last messages to reach clients.
@@ -326,7 +332,8 @@ const LINGER: Duration = Duration::from_millis(500);
 const TICK: Duration = Duration::from_millis(100);
 
 impl Publisher {
-    fn run(self) {
+    fn run(mut self) {
+        latentam_base::background::lowest_priority();
         let mut published: Option<u64> = None;
         let mut last = Instant::now() - self.options.min_interval;
         loop {
@@ -372,7 +379,7 @@ impl Publisher {
 
     /// Publishes the newest state on every subscribed topic (or only on
     /// `only`'s).
-    fn publish(&self, only: Option<&HashSet<String>>) -> Sent {
+    fn publish(&mut self, only: Option<&HashSet<String>>) -> Sent {
         let wanted =
             |topic: &str| self.topics.subscribed(topic) && only.is_none_or(|o| o.contains(topic));
         let snapshot = self.reader.snapshot();
@@ -400,7 +407,18 @@ impl Publisher {
                 };
                 sent.add(self.topics.image(IMAGE_TOPIC, CAMERA_FRAME, stamp, &image));
             }
-            if self.options.render_width > 0 && wanted(RENDER_TOPIC) {
+            // A render borrows the mapper: not once its worker has ended,
+            // and at most once per interval, unless a client just asked.
+            let render_due = self
+                .last_render
+                .is_none_or(|t| t.elapsed() >= self.options.render_interval)
+                || only.is_some_and(|o| o.contains(RENDER_TOPIC));
+            if self.options.render_width > 0
+                && wanted(RENDER_TOPIC)
+                && render_due
+                && self.reader.is_running()
+            {
+                self.last_render = Some(Instant::now());
                 sent.add(self.render(k, stamp));
             }
         }

@@ -11,7 +11,7 @@ use latentam_cli::soak::{lap_table, run, SoakOptions};
 use latentam_gpu::{Context, ContextOptions, Validation};
 use latentam_scene::SceneConfig;
 
-use crate::config_cmd::ConfigArgs;
+use crate::config_args::ConfigArgs;
 
 /// Settings of the soak's mapper unless --config is given: small enough
 /// for thousands of frames on a CPU driver.

@@ -178,21 +178,6 @@ fn stamp_latency_ms(stamp_ns: i64) -> Option<f64> {
     (ms.abs() < 86_400e3).then_some(ms)
 }
 
-/// Puts the calling thread (and the threads it starts, which inherit it)
-/// at the lowest CPU priority: indexing takes the time mapping leaves,
-/// which on a CPU driver is the same cores. Best effort: elsewhere than
-/// Linux, or refused, it runs at normal priority.
-fn lowest_priority() {
-    #[cfg(target_os = "linux")]
-    {
-        // SAFETY: plain system calls on this thread's id; failure is ignored.
-        unsafe {
-            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-            libc::setpriority(libc::PRIO_PROCESS, tid, 19);
-        }
-    }
-}
-
 /// Keeps the keyframe's image and camera for viewers (one copy of the
 /// colour image per keyframe: small beside the keyframe's work).
 fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
@@ -225,7 +210,7 @@ fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
 /// The relevance indexer: while queries are being asked, it indexes each
 /// new snapshot off the query path, so a query finds its index built.
 pub(super) fn index_snapshots(shared: Arc<Shared>) {
-    lowest_priority();
+    latentam_base::background::lowest_priority();
     loop {
         let snapshot = {
             let mut st = shared.lock();

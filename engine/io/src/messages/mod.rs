@@ -11,10 +11,14 @@ mod message;
 mod common;
 mod geometry;
 mod latentam;
+mod published;
 mod sensor;
 
 pub use common::{Header, Pose, Time};
 pub use geometry::{Odometry, PoseStamped, TfMessage, TransformStamped};
 pub use latentam::{FeatureGrid, MaskFeatures, TextEmbeddings};
 pub use message::RosMessage;
+pub use published::{
+    DiagnosticArray, DiagnosticStatus, Path, PointCloud2, PointField, StringMessage,
+};
 pub use sensor::{CameraInfo, CompressedImage, Image};

@@ -1,0 +1,330 @@
+"""Drives `latentam-ros` from an independent DDS implementation (Eclipse
+Cyclone DDS, the `cyclonedds` package): publishes a log's messages as a
+robot would (ROS 2 topic and type names, CDR, at the recorded rate),
+waits until the node has mapped them, asks a relevance query, and prints
+a JSON summary of what the node published: the map cloud, the keyframe
+trajectory, the status, and the query's relevance cloud.
+
+usage: ros_node_check.py LOG  (in a network namespace holding only loopback)
+"""
+
+import json
+import struct
+import sys
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint16, uint32
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from mcap.reader import make_reader
+
+
+def typename(ros_type):
+    pkg, _, name = ros_type.split("/")
+    return f"{pkg}::msg::dds_::{name}_"
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time
+    frame_id: str
+
+
+@dataclass
+class Image(IdlStruct, typename=typename("sensor_msgs/msg/Image")):
+    header: Header
+    height: uint32
+    width: uint32
+    encoding: str
+    is_bigendian: uint8
+    step: uint32
+    data: sequence[uint8]
+
+
+@dataclass
+class RegionOfInterest(IdlStruct, typename="sensor_msgs::msg::dds_::RegionOfInterest_"):
+    x_offset: uint32
+    y_offset: uint32
+    height: uint32
+    width: uint32
+    do_rectify: bool
+
+
+@dataclass
+class CameraInfo(IdlStruct, typename=typename("sensor_msgs/msg/CameraInfo")):
+    header: Header
+    height: uint32
+    width: uint32
+    distortion_model: str
+    d: sequence[float64]
+    k: array[float64, 9]
+    r: array[float64, 9]
+    p: array[float64, 12]
+    binning_x: uint32
+    binning_y: uint32
+    roi: RegionOfInterest
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point
+    orientation: Quaternion
+
+
+@dataclass
+class PoseStamped(IdlStruct, typename=typename("geometry_msgs/msg/PoseStamped")):
+    header: Header
+    pose: Pose
+
+
+@dataclass
+class MaskFeatures(IdlStruct, typename=typename("latentam_msgs/msg/MaskFeatures")):
+    header: Header
+    height: uint32
+    width: uint32
+    labels: sequence[uint16]
+    count: uint32
+    dim: uint32
+    dtype: str
+    data: sequence[uint8]
+    model: str
+
+
+@dataclass
+class TextEmbeddings(IdlStruct, typename=typename("latentam_msgs/msg/TextEmbeddings")):
+    header: Header
+    names: sequence[str]
+    ids: sequence[uint16]
+    dim: uint32
+    dtype: str
+    data: sequence[uint8]
+    model: str
+
+
+@dataclass
+class PointField(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
+    name: str
+    offset: uint32
+    datatype: uint8
+    count: uint32
+
+
+@dataclass
+class PointCloud2(IdlStruct, typename=typename("sensor_msgs/msg/PointCloud2")):
+    header: Header
+    height: uint32
+    width: uint32
+    fields: sequence[PointField]
+    is_bigendian: bool
+    point_step: uint32
+    row_step: uint32
+    data: sequence[uint8]
+    is_dense: bool
+
+
+@dataclass
+class Path(IdlStruct, typename=typename("nav_msgs/msg/Path")):
+    header: Header
+    poses: sequence[PoseStamped]
+
+
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: uint8
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue]
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename=typename("diagnostic_msgs/msg/DiagnosticArray")):
+    header: Header
+    status: sequence[DiagnosticStatus]
+
+
+TYPES = {
+    "sensor_msgs/msg/Image": Image,
+    "sensor_msgs/msg/CameraInfo": CameraInfo,
+    "geometry_msgs/msg/PoseStamped": PoseStamped,
+    "latentam_msgs/msg/MaskFeatures": MaskFeatures,
+    "latentam_msgs/msg/TextEmbeddings": TextEmbeddings,
+}
+
+RELIABLE = Policy.Reliability.Reliable(duration(seconds=1))
+SENSOR = Qos(RELIABLE, Policy.Durability.Volatile, Policy.History.KeepLast(8))
+LATCHED = Qos(RELIABLE, Policy.Durability.TransientLocal, Policy.History.KeepLast(1))
+DEFAULT = Qos(RELIABLE, Policy.Durability.Volatile, Policy.History.KeepLast(10))
+
+
+def dds(topic):
+    return "rt/" + topic.lstrip("/")
+
+
+def cloud_points(c):
+    offsets = {f.name: f.offset for f in c.fields}
+    data = bytes(c.data)
+    out = []
+    for start in range(0, len(data), c.point_step):
+        p = {}
+        for name, off in offsets.items():
+            fmt = "<I" if name == "rgb" else "<f"
+            (p[name],) = struct.unpack_from(fmt, data, start + off)
+        out.append(p)
+    return out
+
+
+def main(log):
+    dp = DomainParticipant(0)
+    with open(log, "rb") as f:
+        messages = [
+            (channel.topic, schema.name, m.log_time, m.data)
+            for schema, channel, m in make_reader(f).iter_messages()
+            if schema.name in TYPES and channel.topic not in ("/camera/semantic", "/camera/instances")
+        ]
+    writers = {}
+    for topic, ty, _, _ in messages:
+        if topic not in writers:
+            qos = LATCHED if topic == "/vocabulary" else SENSOR
+            writers[topic] = DataWriter(dp, Topic(dp, dds(topic), TYPES[ty], qos=qos), qos=qos)
+    read = lambda name, ty, qos: DataReader(dp, Topic(dp, dds("/latentam/" + name), ty, qos=qos), qos=qos)
+    map_reader = read("map", PointCloud2, LATCHED)
+    path_reader = read("trajectory", Path, LATCHED)
+    status_reader = read("status", DiagnosticArray, DEFAULT)
+    relevance_reader = read("query/relevance", PointCloud2, DEFAULT)
+    query_writer = DataWriter(
+        dp, Topic(dp, dds("/latentam/query"), TextEmbeddings, qos=DEFAULT), qos=DEFAULT
+    )
+
+    # The node subscribes once it has planned its inputs from the graph.
+    colour = writers["/camera/color/image_raw"]
+    deadline = time.monotonic() + 120
+    while not colour.get_matched_subscriptions():
+        if time.monotonic() > deadline:
+            raise SystemExit("the node never subscribed to the colour images")
+        time.sleep(0.1)
+    time.sleep(0.5)
+
+    # Played at the recorded rate.
+    start_wall, start_log = time.monotonic(), messages[0][2]
+    vocabulary = None
+    for topic, ty, log_time, data in messages:
+        wait = (log_time - start_log) / 1e9 - (time.monotonic() - start_wall)
+        if wait > 0:
+            time.sleep(wait)
+        msg = TYPES[ty].deserialize(data)
+        if topic == "/vocabulary":
+            vocabulary = msg
+        writers[topic].write(msg)
+    published_frames = sum(1 for t, *_ in messages if t == "/camera/color/image_raw")
+
+    # Until the node has received every message (or nothing more came for
+    # 15 s) and mapped every frame it queued.
+    status = {}
+    received, since = -1, time.monotonic()
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        for s in status_reader.take(N=16):
+            status = {kv.key: kv.value for kv in s.status[0].values}
+            status["level"] = s.status[0].level
+            status["message"] = s.status[0].message
+        if not status:
+            time.sleep(0.2)
+            continue
+        if int(status["messages_received"]) != received:
+            received, since = int(status["messages_received"]), time.monotonic()
+        all_in = received >= len(messages) or time.monotonic() - since > 15
+        drained = (
+            status["queued_frames"] == "0"
+            and status["frames_integrated"] == status["frames_submitted"]
+            and status["frames_assembled"] == status["frames_submitted"]
+        )
+        if all_in and drained:
+            break
+        time.sleep(0.2)
+    time.sleep(2.5)  # the map is published at most once a second
+
+    # A query: the first vocabulary word's embedding alone (cosine).
+    dim = vocabulary.dim
+    size = 2 if vocabulary.dtype == "f16" else 4
+    query = TextEmbeddings(
+        header=Header(stamp=Time(0, 0), frame_id=""),
+        names=[vocabulary.names[0]],
+        ids=[vocabulary.ids[0]],
+        dim=dim,
+        dtype=vocabulary.dtype,
+        data=vocabulary.data[: dim * size],
+        model=vocabulary.model,
+    )
+    while not query_writer.get_matched_subscriptions():
+        time.sleep(0.1)
+    query_writer.write(query)
+    relevance = None
+    deadline = time.monotonic() + 120
+    while relevance is None and time.monotonic() < deadline:
+        got = relevance_reader.take(N=1)
+        relevance = got[0] if got else None
+        time.sleep(0.1)
+    if relevance is None:
+        raise SystemExit("no reply to the query")
+
+    maps = map_reader.read(N=16)
+    paths = path_reader.read(N=16)
+    summary = {
+        "published_frames": published_frames,
+        "published_messages": len(messages),
+        "status": status,
+        "map": {
+            "frame_id": maps[-1].header.frame_id,
+            "fields": [f.name for f in maps[-1].fields],
+            "points": cloud_points(maps[-1]),
+        },
+        "trajectory": [
+            [p.pose.position.x, p.pose.position.y, p.pose.position.z,
+             p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w]
+            for p in paths[-1].poses
+        ],
+        "relevance": {
+            "fields": [f.name for f in relevance.fields],
+            "points": cloud_points(relevance),
+        },
+        "word": vocabulary.names[0],
+    }
+    json.dump(summary, sys.stdout)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

@@ -1,0 +1,334 @@
+//! The node's life: join DDS, plan the inputs, map, publish, answer, and
+//! save on Ctrl-C.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context as _, Result};
+use latentam::{LiveMapper, LiveOptions, TextQuery};
+use latentam_cli::interrupt;
+use latentam_core::latent::{softmax_rows, Relevance};
+use latentam_io::{RosMessage, StringMessage, Vocabulary};
+use latentam_view::MapPoints;
+
+use crate::args::Args;
+use crate::dds::{Dds, Profile, RawMessage, RawReader, RawWriter};
+use crate::inputs::{self, Inputs};
+use crate::outputs;
+
+/// The node's own topics under its namespace.
+struct Own {
+    map: RawWriter,
+    trajectory: RawWriter,
+    status: RawWriter,
+    relevance: RawWriter,
+    saved: RawWriter,
+    query: RawReader,
+    save: RawReader,
+}
+
+fn join(ns: &str, name: &str) -> String {
+    format!("{}/{name}", ns.trim_end_matches('/'))
+}
+
+impl Own {
+    fn new(dds: &Dds, ns: &str) -> Result<Self> {
+        let cloud = "sensor_msgs/msg/PointCloud2";
+        Ok(Own {
+            map: dds.writer(&join(ns, "map"), cloud, Profile::Latched)?,
+            trajectory: dds.writer(
+                &join(ns, "trajectory"),
+                "nav_msgs/msg/Path",
+                Profile::Latched,
+            )?,
+            status: dds.writer(
+                &join(ns, "status"),
+                "diagnostic_msgs/msg/DiagnosticArray",
+                Profile::Default,
+            )?,
+            relevance: dds.writer(&join(ns, "query/relevance"), cloud, Profile::Default)?,
+            saved: dds.writer(&join(ns, "saved"), "std_msgs/msg/String", Profile::Default)?,
+            query: dds.reader(
+                &join(ns, "query"),
+                "latentam_msgs/msg/TextEmbeddings",
+                Profile::Default,
+            )?,
+            save: dds.reader(&join(ns, "save"), "std_msgs/msg/String", Profile::Default)?,
+        })
+    }
+}
+
+fn write(w: &RawWriter, bytes: Vec<u8>, what: &str) {
+    if let Err(e) = w.write(RawMessage(bytes), None) {
+        log::warn!("publishing {what}: {e:?}");
+    }
+}
+
+fn take(r: &mut RawReader) -> Option<Vec<u8>> {
+    match r.take_next_sample() {
+        Ok(Some(s)) => Some(s.into_value().0),
+        _ => None,
+    }
+}
+
+fn p99(v: &[u32]) -> Option<u32> {
+    if v.is_empty() {
+        return None;
+    }
+    let mut s = v.to_vec();
+    s.sort_unstable();
+    Some(s[((s.len() - 1) as f64 * 0.99).round() as usize])
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if !(args.map_every >= 0.0 && args.map_every.is_finite()) {
+        bail!("--map-every must be a number of seconds, 0 or more");
+    }
+    if args.map_points == 0 {
+        bail!("--map-points must be at least 1");
+    }
+    if !(args.temperature > 0.0 && args.temperature.is_finite()) {
+        bail!("--temperature must be positive");
+    }
+    let config = args.config.load()?;
+    let assembly = args.input.assembly()?;
+    args.live.check()?;
+    let domain = match args.domain {
+        Some(d) => d,
+        None => match std::env::var("ROS_DOMAIN_ID") {
+            Ok(v) if !v.trim().is_empty() => v
+                .trim()
+                .parse()
+                .with_context(|| format!("ROS_DOMAIN_ID={v} is not a domain id"))?,
+            _ => 0,
+        },
+    };
+    interrupt::install();
+    let dds = Dds::join(domain)?;
+    let own = Own::new(&dds, &args.namespace)?;
+    eprintln!(
+        "latentam-ros: DDS domain {domain}, topics under {}",
+        args.namespace
+    );
+    let live = Arc::new(LiveMapper::new(config, LiveOptions::default())?);
+    eprintln!(
+        "mapper ready in {:.0} ms; waiting for the input topics",
+        live.status().ready_ms.unwrap_or(0.0)
+    );
+    let (planned, channels) = inputs::plan(&dds, &assembly, interrupt::flag())?;
+    for line in &planned.plan {
+        eprintln!("input: {line}");
+    }
+    let mut inputs = Inputs::start(&dds, planned, channels, &assembly, live.clone())?;
+    for c in &inputs.topics {
+        eprintln!("reading {} ({})", c.topic, c.schema_name);
+    }
+    let view = match args.live.options(None)? {
+        Some(options) => Some(latentam_view::LiveView::serve(live.reader(), options)?),
+        None => None,
+    };
+    let result = serve(&args, &live, &mut inputs, own);
+    inputs.stop();
+    if let Some(view) = view {
+        view.close();
+    }
+    let live = Arc::try_unwrap(live).map_err(|_| anyhow::anyhow!("the mapper is still in use"))?;
+    let mut mapper = live.finish()?;
+    if let Some(out) = &args.out {
+        let state = mapper.save(out)?;
+        eprintln!("saved {}", state.display());
+    }
+    result
+}
+
+/// Publishes and answers until Ctrl-C (or the inputs fail).
+fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> Result<()> {
+    let map_every = Duration::from_secs_f64(args.map_every);
+    let mut published: Option<u64> = None;
+    let mut last_map = Instant::now() - map_every;
+    let mut last_status = Instant::now() - Duration::from_secs(1);
+    while !interrupt::requested() {
+        let status = live.status();
+        let stats = inputs
+            .stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        if let Some(e) = &stats.error {
+            bail!("reading the input topics: {e}");
+        }
+        if published != Some(status.keyframes) && last_map.elapsed() >= map_every {
+            publish_map(args, live, stats.vocabulary.as_ref(), &own)?;
+            published = Some(status.keyframes);
+            last_map = Instant::now();
+        }
+        if last_status.elapsed() >= Duration::from_secs(1) {
+            let snapshot = live.snapshot();
+            let report = outputs::Report {
+                status: &status,
+                gaussians: snapshot.len(),
+                gpu_bytes: snapshot.stats.gpu_bytes,
+                messages: stats.messages,
+                frames: stats.frames,
+                refused: stats.refused,
+                queue_latency_p99_us: p99(&stats.queue_latency_us),
+                pairing_wait_p99_us: p99(&stats.pairing_wait_us),
+                stamp_ns: snapshot.trajectory.last().map_or(0, |&(s, _)| s),
+            };
+            write(&own.status, outputs::status(&report), "the status");
+            last_status = Instant::now();
+        }
+        while let Some(bytes) = take(&mut own.query) {
+            match answer(args, live, &bytes) {
+                Ok(cloud) => write(&own.relevance, cloud, "a query's relevance"),
+                Err(e) => log::warn!("a query on {}/query: {e:#}", args.namespace),
+            }
+        }
+        while let Some(bytes) = take(&mut own.save) {
+            let reply = match save(args, live, &bytes) {
+                Ok(path) => format!("saved {path}"),
+                Err(e) => format!("error: {e:#}"),
+            };
+            eprintln!("{reply}");
+            write(
+                &own.saved,
+                StringMessage { data: &reply }.encode(),
+                "a save reply",
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    eprintln!("stopping: {}", summary(live, inputs));
+    Ok(())
+}
+
+fn summary(live: &LiveMapper, inputs: &Inputs) -> String {
+    let s = live.status();
+    let stats = inputs
+        .stats
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    format!(
+        "{} messages, {} frames, {} keyframes, {} frames dropped ({:?}); p99 from the message \
+         completing a frame to the queue {} µs, from its colour image {} µs",
+        stats.messages,
+        stats.frames,
+        s.keyframes,
+        s.dropped.total(),
+        s.dropped,
+        p99(&stats.queue_latency_us).map_or("-".into(), |v| v.to_string()),
+        p99(&stats.pairing_wait_us).map_or("-".into(), |v| v.to_string())
+    )
+}
+
+/// The map cloud (with a relevance field per `--words` word once the
+/// vocabulary is known) and the trajectory.
+fn publish_map(
+    args: &Args,
+    live: &LiveMapper,
+    vocabulary: Option<&Vocabulary>,
+    own: &Own,
+) -> Result<()> {
+    let mut extra = Vec::new();
+    let (snapshot, scores) = match (vocabulary, args.words.is_empty()) {
+        (Some(v), false) if live.snapshot().decoder.is_some() => {
+            let query = TextQuery {
+                embeddings: v.vectors.clone(),
+                texts: v.names.len(),
+                relevance: Relevance::Cosine,
+            };
+            let answer = live.relevance(&query)?;
+            (answer.snapshot, Some((v, answer.scores)))
+        }
+        _ => (live.snapshot(), None),
+    };
+    let points = MapPoints::of(&snapshot.gaussians, args.map_points);
+    if let Some((v, cosines)) = scores {
+        let n = v.names.len();
+        let picked: Vec<f32> = points
+            .indices
+            .iter()
+            .flat_map(|&i| cosines[i * n..(i + 1) * n].iter().copied())
+            .collect();
+        let probabilities = softmax_rows(&picked, n, args.temperature);
+        for w in &args.words {
+            let Some(k) = v.names.iter().position(|n| n == w) else {
+                bail!(
+                    "--words: `{w}` is not in the vocabulary; it has: {}",
+                    v.names.join(", ")
+                );
+            };
+            let values = probabilities.chunks_exact(n).map(|row| row[k]).collect();
+            extra.push((
+                format!(
+                    "relevance_{}",
+                    latentam_view::topic_word(w, &mut Vec::new())
+                ),
+                values,
+            ));
+        }
+    }
+    let stamp = snapshot.trajectory.last().map_or(0, |&(s, _)| s);
+    write(
+        &own.map,
+        outputs::map_cloud(&args.frame_id, stamp, &points, &extra),
+        "the map",
+    );
+    write(
+        &own.trajectory,
+        outputs::trajectory(&args.frame_id, &snapshot),
+        "the trajectory",
+    );
+    Ok(())
+}
+
+/// A query: one text embedding scores by cosine; several by a softmax
+/// over them; one `relevance_<name>` field each, on the map's points.
+fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Vec<u8>> {
+    let texts = Vocabulary::decode(bytes).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let n = texts.names.len();
+    if n == 0 {
+        bail!("the query holds no embedding");
+    }
+    let query = TextQuery {
+        embeddings: texts.vectors.clone(),
+        texts: n,
+        relevance: Relevance::Cosine,
+    };
+    let answer = live.relevance(&query)?;
+    let points = MapPoints::of(&answer.snapshot.gaussians, args.map_points);
+    let picked: Vec<f32> = points
+        .indices
+        .iter()
+        .flat_map(|&i| answer.scores[i * n..(i + 1) * n].iter().copied())
+        .collect();
+    let values = if n == 1 {
+        picked
+    } else {
+        softmax_rows(&picked, n, args.temperature)
+    };
+    let mut taken = Vec::new();
+    let extra: Vec<(String, Vec<f32>)> = texts
+        .names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let field = format!("relevance_{}", latentam_view::topic_word(name, &mut taken));
+            (field, values.chunks_exact(n).map(|row| row[k]).collect())
+        })
+        .collect();
+    let stamp = answer.snapshot.trajectory.last().map_or(0, |&(s, _)| s);
+    Ok(outputs::map_cloud(&args.frame_id, stamp, &points, &extra))
+}
+
+/// A save request: the folder named in the message, else `--out`.
+fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
+    let msg = StringMessage::decode(bytes).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let dir = match (msg.data.trim(), &args.out) {
+        ("", Some(out)) => out.clone(),
+        ("", None) => bail!("a save request names no folder and the node has no --out"),
+        (d, _) => d.into(),
+    };
+    Ok(live.save(&dir)?.display().to_string())
+}

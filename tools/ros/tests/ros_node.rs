@@ -1,0 +1,141 @@
+//! `latentam-ros` against an independent DDS implementation: a Cyclone
+//! DDS publisher (Python `cyclonedds`) plays a generated log as ROS 2
+//! topics at its recorded rate; the node maps it, publishes the map, the
+//! trajectory and its status, answers a relevance query, and saves its
+//! run folder on SIGINT. What Cyclone received is checked against that
+//! saved map. Everything runs in a network namespace of its own holding
+//! only loopback (multicast routed on it for discovery), so no packet
+//! leaves the test.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use latentam_core::mapper::Mapper;
+use latentam_gpu::{Context, ContextOptions};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+const SCRIPT: &str = r#"
+ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
+export CYCLONEDDS_URI='<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo" multicast="true"/></Interfaces></General></Domain></CycloneDDS>'
+"$NODE" --out "$DIR/run" --map-points 1000000 > "$DIR/node.out" 2> "$DIR/node.err" &
+node=$!
+timeout 600 "$PY" "$CHECK" "$LOG" > "$DIR/summary.json" 2> "$DIR/client.err"
+client=$?
+kill -INT $node
+wait $node
+echo "$client $?"
+"#;
+
+#[test]
+fn a_cyclone_dds_robot_is_mapped_and_answered() {
+    let dir = scratch("ros-node");
+    let log = dir.join("scene.mcap");
+    let scene = latentam_scene::SceneConfig {
+        frames: 24,
+        width: 120,
+        height: 90,
+        dim: 64,
+        ..latentam_scene::SceneConfig::default()
+    };
+    latentam_scene::generate(&scene, &log, |_| {}).unwrap();
+    let python = std::env::var("LATENTAM_PYTHON").unwrap_or_else(|_| "python3".into());
+    let check = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros_node_check.py");
+    let out = Command::new("unshare")
+        .args(["--net", "sh", "-c", SCRIPT])
+        .env("NODE", env!("CARGO_BIN_EXE_latentam-ros"))
+        .env("PY", &python)
+        .env("CHECK", &check)
+        .env("LOG", &log)
+        .env("DIR", &dir)
+        .output()
+        .expect("unshare (the test runs as root, with util-linux and iproute2)");
+    let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        "0 0",
+        "client / node exit status; node:\n{}\nclient:\n{}\n{}",
+        read("node.err"),
+        read("client.err"),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_str(&read("summary.json")).unwrap();
+    let status = &summary["status"];
+    let num = |k: &str| status[k].as_str().unwrap().parse::<u64>().unwrap();
+
+    // Every message arrived, every frame was taken or dropped by policy.
+    assert_eq!(
+        num("messages_received"),
+        summary["published_messages"].as_u64().unwrap()
+    );
+    assert!(num("frames_assembled") + 2 >= summary["published_frames"].as_u64().unwrap());
+    assert_eq!(num("frames_submitted"), num("frames_integrated"));
+    assert!(num("keyframes") >= 3, "{status}");
+    assert_eq!(status["level"], 0, "{status}");
+
+    // The saved map is the one published: the same Gaussians (the budget
+    // exceeds the map), the same keyframe poses.
+    let ctx = Context::new(ContextOptions::default()).unwrap();
+    let mut mapper = Mapper::load(&ctx, dir.join("run")).unwrap();
+    let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
+    let key = |p: [f32; 3]| p.map(f32::to_bits);
+    let by_position: HashMap<[u32; 3], usize> = gaussians
+        .iter()
+        .enumerate()
+        .map(|(i, g)| (key(g.mean), i))
+        .collect();
+    let cloud = summary["map"]["points"].as_array().unwrap();
+    assert_eq!(cloud.len(), gaussians.len());
+    assert_eq!(summary["map"]["frame_id"], "map");
+    let point = |p: &serde_json::Value| ["x", "y", "z"].map(|a| p[a].as_f64().unwrap() as f32);
+    for p in cloud {
+        let i = by_position[&key(point(p))];
+        let opacity = 1.0 / (1.0 + (-gaussians[i].opacity_logit as f64).exp());
+        assert!((p["opacity"].as_f64().unwrap() - opacity).abs() < 1e-6);
+    }
+    let trajectory = summary["trajectory"].as_array().unwrap();
+    assert_eq!(trajectory.len(), mapper.trajectory().len());
+    for (p, (_, t)) in trajectory.iter().zip(mapper.trajectory()) {
+        assert!((p[0].as_f64().unwrap() - t.translation.x).abs() < 1e-9);
+        assert!((p[6].as_f64().unwrap() - t.rotation.w).abs() < 1e-9);
+    }
+
+    // The query's cosines are the map's (the live index drops attention
+    // below 1e-3 of a Gaussian's mass, so a small difference is allowed).
+    let vocab = latentam_io::read_vocabulary(&log, "/vocabulary")
+        .unwrap()
+        .unwrap();
+    let word = summary["word"].as_str().unwrap();
+    let k = vocab.names.iter().position(|n| n == word).unwrap();
+    let d = vocab.dim as usize;
+    let cosines = mapper.query(&vocab.vectors[k * d..(k + 1) * d]).unwrap();
+    let field = format!(
+        "relevance_{}",
+        word.to_lowercase()
+            .replace(|c: char| !c.is_ascii_alphanumeric(), "_")
+    );
+    assert!(summary["relevance"]["fields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|f| f == field.as_str()));
+    let relevance = summary["relevance"]["points"].as_array().unwrap();
+    assert_eq!(relevance.len(), gaussians.len());
+    let mut worst = 0f64;
+    for p in relevance {
+        let i = by_position[&key(point(p))];
+        worst = worst.max((p[field.as_str()].as_f64().unwrap() - cosines[i] as f64).abs());
+    }
+    assert!(
+        worst < 2e-2,
+        "largest difference to the map's cosines {worst}"
+    );
+    assert!(read("node.err").contains("saved"), "{}", read("node.err"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
