@@ -34,7 +34,7 @@ pub struct InputStats {
     /// embeddings it pairs with (a pose after the image, to interpolate).
     pub pairing_wait_us: Vec<u32>,
     /// The vocabulary, once its topic delivered one.
-    pub vocabulary: Option<Vocabulary>,
+    pub vocabulary: Option<Arc<Vocabulary>>,
     /// The first error that stopped the inputs.
     pub error: Option<String>,
 }
@@ -176,7 +176,7 @@ impl Inputs {
                         return;
                     }
                     if stats.vocabulary.is_none() {
-                        stats.vocabulary = assembler.vocabulary().cloned();
+                        stats.vocabulary = assembler.vocabulary().cloned().map(Arc::new);
                     }
                     stats.refused = assembler.report().total_skipped();
                     drop(stats);

@@ -149,20 +149,26 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
     let mut last_status = Instant::now() - Duration::from_secs(1);
     while !interrupt::requested() {
         let status = live.status();
-        let stats = inputs
-            .stats
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
-        if let Some(e) = &stats.error {
+        // Only what this turn needs, so the frames thread never waits long
+        // on the lock.
+        let (error, vocabulary) = {
+            let s = inputs.stats.lock().unwrap_or_else(|e| e.into_inner());
+            (s.error.clone(), s.vocabulary.clone())
+        };
+        if let Some(e) = error {
             bail!("reading the input topics: {e}");
         }
         if published != Some(status.keyframes) && last_map.elapsed() >= map_every {
-            publish_map(args, live, stats.vocabulary.as_ref(), &own)?;
+            publish_map(args, live, vocabulary.as_deref(), &own)?;
             published = Some(status.keyframes);
             last_map = Instant::now();
         }
         if last_status.elapsed() >= Duration::from_secs(1) {
+            let stats = inputs
+                .stats
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone();
             let snapshot = live.snapshot();
             let report = outputs::Report {
                 status: &status,

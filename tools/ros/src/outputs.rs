@@ -112,6 +112,7 @@ pub fn status(r: &Report<'_>) -> Vec<u8> {
         ("frames_submitted", s.submitted.to_string()),
         ("frames_integrated", s.integrated.to_string()),
         ("queued_frames", s.queued_frames.to_string()),
+        ("mapping_now", (s.mapping as u8).to_string()),
         ("dropped", s.dropped.total().to_string()),
         ("dropped_not_keyframe", s.dropped.not_keyframe.to_string()),
         ("dropped_superseded", s.dropped.superseded.to_string()),
