@@ -600,3 +600,35 @@ fn auto_exposure_is_measured_and_undone() {
     );
     assert_no_validation_errors(ctx);
 }
+
+/// The blending layout a GPU takes (`Pixels`: one pixel per invocation,
+/// subgroup reductions, float atomics) maps the scene as the CPU driver's
+/// default (`Columns`) does, up to f32 summation order: forced here on
+/// lavapipe, so the path of a discrete GPU maps a log end to end.
+#[test]
+fn the_gpu_blend_layout_maps_the_scene_as_the_cpu_layout_does() {
+    let ctx = context();
+    let mut mapper = Mapper::with_context(
+        &ctx,
+        MapperConfig {
+            blend_layout: latentam_core::splat::BlendLayout::Pixels,
+            ..config()
+        },
+    )
+    .unwrap();
+    assert_eq!(map_frames(&mut mapper, 0..FRAMES), FRAMES / 4);
+    let q = quality(&mut mapper);
+    let r = reference();
+    eprintln!("pixels layout: {q:?}\ncolumns (reference): {r:?}");
+    assert!((q.psnr - r.psnr).abs() < 0.5, "{q:?} vs {r:?}");
+    assert!((q.depth_l1 - r.depth_l1).abs() < 0.02, "{q:?} vs {r:?}");
+    assert!(
+        (q.cosine_loss - r.cosine_loss).abs() < 0.05,
+        "{q:?} vs {r:?}"
+    );
+    assert!((q.miou - r.miou).abs() < 0.1, "{q:?} vs {r:?}");
+    let ratio = q.gaussians as f64 / r.gaussians as f64;
+    assert!((0.95..1.05).contains(&ratio), "{q:?} vs {r:?}");
+    drop(mapper);
+    assert_no_validation_errors(ctx);
+}

@@ -6,7 +6,7 @@
 
 use std::collections::HashSet;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -160,7 +160,6 @@ pub struct ViewStats {
 #[derive(Default)]
 struct Subscriptions {
     fresh: Mutex<HashSet<String>>,
-    changed: AtomicU64,
 }
 
 impl ServerListener for Subscriptions {
@@ -169,7 +168,6 @@ impl ServerListener for Subscriptions {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .insert(channel.topic().to_string());
-        self.changed.fetch_add(1, Ordering::SeqCst);
     }
 }
 

@@ -90,6 +90,12 @@ pub fn run(args: Args) -> Result<()> {
     if !(args.temperature > 0.0 && args.temperature.is_finite()) {
         bail!("--temperature must be positive");
     }
+    if !args.live.live_words.is_empty() {
+        // The vocabulary arrives on a topic after the view starts.
+        bail!(
+            "--live-words is for logs; on the node, --words adds relevance fields to the map cloud"
+        );
+    }
     let config = args.config.load()?;
     let assembly = args.input.assembly()?;
     args.live.check()?;

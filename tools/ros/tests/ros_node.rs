@@ -142,3 +142,39 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     assert!(read("node.err").contains("saved"), "{}", read("node.err"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn bad_arguments_are_clear_errors_before_anything_starts() {
+    let node = env!("CARGO_BIN_EXE_latentam-ros");
+    let cases: [(&[&str], &str, Option<&str>); 5] = [
+        (
+            &["--map-points", "0"],
+            "--map-points must be at least 1",
+            None,
+        ),
+        (
+            &["--temperature=-1"],
+            "--temperature must be positive",
+            None,
+        ),
+        (&["--map-every", "nan"], "--map-every must be", None),
+        (
+            &["--live", "--live-words", "chair"],
+            "--live-words is for logs",
+            None,
+        ),
+        (&[], "ROS_DOMAIN_ID=seven is not a domain id", Some("seven")),
+    ];
+    for (args, says, domain) in cases {
+        let mut c = Command::new(node);
+        c.args(args);
+        if let Some(d) = domain {
+            c.env("ROS_DOMAIN_ID", d);
+        }
+        let out = c.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+}

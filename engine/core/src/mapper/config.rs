@@ -6,6 +6,7 @@ use crate::latent::MAX_KMEANS_ATOMS;
 use crate::loss::LossWeights;
 use crate::map::{KeyframeConfig, SeedingConfig};
 use crate::optim::GaussianLearningRates;
+use crate::splat::BlendLayout;
 use latentam_base::settings;
 use latentam_base::settings::{Setting, MAX_DISTANCE};
 use latentam_base::{Error, Result};
@@ -84,6 +85,14 @@ settings! {
         /// renders a 32-channel query image per view: 128 more bytes of GPU
         /// memory per pixel of a chunk, and slower backward passes.
         pub attach_feature_gradients: bool = false => value(),
+        /// How the blending kernels spread a tile's pixels over
+        /// invocations: "auto" (columns on a CPU driver, pixels on a GPU),
+        /// "pixels" (one pixel per invocation, with subgroup reductions and
+        /// float atomics: the GPU path) or "columns" (16 pixels per
+        /// invocation: faster on CPU drivers). Both give the same maps up
+        /// to f32 summation order; forcing "pixels" on a CPU driver runs
+        /// the path a GPU takes.
+        pub blend_layout: BlendLayout = BlendLayout::Auto => value(),
         /// Compensate the camera's auto-exposure (true/false). Each
         /// keyframe's brightness gain over the map is measured on the
         /// surfaces the map already renders, and its colours are divided by

@@ -124,14 +124,16 @@ pub(crate) struct Evaluator {
 }
 
 impl Evaluator {
-    /// An evaluator on `ctx`.
-    pub fn new(ctx: &Context) -> Self {
+    /// An evaluator on `ctx` whose renders use the blending `layout`
+    /// (the mapper's `blend_layout`).
+    pub fn with_layout(ctx: &Context, layout: crate::splat::BlendLayout) -> Self {
         Evaluator {
             ctx: ctx.clone(),
             raster: {
                 // Renders only: no gradient images.
                 let mut r = Rasterizer::new(ctx);
                 r.settings.query_gradient_image = false;
+                r.settings.layout = layout;
                 r
             },
             gaussians: None,

@@ -625,9 +625,10 @@ impl Mapper {
 
     /// The view renderer (made on first use) beside the mapper it renders.
     fn evaluator(&mut self) -> (&mut Evaluator, &mut OnlineMapper) {
+        let layout = self.config().blend_layout;
         let ev = self
             .evaluator
-            .get_or_insert_with(|| Evaluator::new(self.inner.context()));
+            .get_or_insert_with(|| Evaluator::with_layout(self.inner.context(), layout));
         (ev, &mut self.inner)
     }
 

@@ -115,6 +115,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
                     ..GaussianLearningRates::default()
                 },
                 attach_feature_gradients: false,
+                blend_layout: crate::splat::BlendLayout::Auto,
             },
             DIM as u32,
         )
@@ -384,6 +385,7 @@ fn streamed_stage_one_equals_the_batched_step() {
                     weights: LossWeights::default(),
                     learning_rates: GaussianLearningRates::default(),
                     attach_feature_gradients: attach,
+                    blend_layout: crate::splat::BlendLayout::Auto,
                 },
                 DIM as u32,
             )

@@ -29,12 +29,13 @@ pub const DEFAULT_CHUNK_PIXELS: u64 = 1 << 20;
 /// use latentam_core::loss::LossWeights;
 /// use latentam_core::mapper::{TrainerConfig, DEFAULT_CHUNK_PIXELS};
 /// use latentam_core::optim::GaussianLearningRates;
+/// use latentam_core::splat::BlendLayout;
 ///
 /// let cfg = TrainerConfig {
 ///     capacity: 200_000, max_view_pixels: 640 * 480, max_views: 8,
 ///     chunk_pixels: DEFAULT_CHUNK_PIXELS, max_regions: 2048, min_region_pixels: 16,
 ///     weights: LossWeights::default(), learning_rates: GaussianLearningRates::default(),
-///     attach_feature_gradients: false,
+///     attach_feature_gradients: false, blend_layout: BlendLayout::Auto,
 /// };
 /// assert_eq!(cfg.views_per_chunk(), 3); // 2^20 pixels hold three 640×480 views
 /// ```
@@ -60,6 +61,8 @@ pub struct TrainerConfig {
     /// The feature loss reaches opacity and geometry, not only the
     /// queries (Stage I renders query images).
     pub attach_feature_gradients: bool,
+    /// The blending kernels' layout (see [`BlendLayout`](crate::splat::BlendLayout)).
+    pub blend_layout: crate::splat::BlendLayout,
 }
 
 impl TrainerConfig {
@@ -167,6 +170,7 @@ impl Trainer {
                 let mut r = Rasterizer::new(ctx);
                 r.settings.query_gradient_image = false;
                 r.settings.detach_query_gradients = !cfg.attach_feature_gradients;
+                r.settings.layout = cfg.blend_layout;
                 r
             },
             image_loss: ImageLoss::new(ctx, cfg.max_view_pixels, chunk_views, cfg.weights)?,

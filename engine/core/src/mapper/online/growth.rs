@@ -122,6 +122,7 @@ impl OnlineMapper {
                 weights: self.cfg.weights,
                 learning_rates: self.cfg.learning_rates,
                 attach_feature_gradients: self.cfg.attach_feature_gradients,
+                blend_layout: self.cfg.blend_layout,
             },
             dim.unwrap_or(1),
         )?;

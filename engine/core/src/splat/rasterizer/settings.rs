@@ -15,7 +15,8 @@ use latentam_gpu::Buffer;
 /// assert_eq!(auto.resolve(PhysicalDeviceType::CPU), BlendLayout::Columns);
 /// assert_eq!(auto.resolve(PhysicalDeviceType::DISCRETE_GPU), BlendLayout::Pixels);
 /// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum BlendLayout {
     /// [`BlendLayout::Columns`] on CPU devices, [`BlendLayout::Pixels`] on
     /// GPUs.
@@ -28,6 +29,8 @@ pub enum BlendLayout {
     /// loads are emulated lane by lane and branches do not skip work.
     Columns,
 }
+
+impl latentam_base::settings::Setting for BlendLayout {}
 
 impl BlendLayout {
     /// The layout used on a device of type `device_type`.
