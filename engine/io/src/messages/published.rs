@@ -37,7 +37,8 @@ impl PointField<'_> {
 /// let fields = [PointField { name: "x", offset: 0, datatype: PointField::FLOAT32, count: 1 }];
 /// let data = 1.5f32.to_le_bytes();
 /// let cloud = PointCloud2::unordered(Header::at(7, "map"), &fields, 4, &data);
-/// let back = PointCloud2::decode(&cloud.encode())?;
+/// let bytes = cloud.encode();
+/// let back = PointCloud2::decode(&bytes)?;
 /// assert_eq!((back.width, back.fields[0].name, back.data), (1, "x", &data[..]));
 /// # Ok::<(), latentam_io::cdr::CdrError>(())
 /// ```
@@ -142,7 +143,8 @@ impl<'a> RosMessage<'a> for PointCloud2<'a> {
 /// use latentam_io::{Header, Path, Pose, RosMessage};
 ///
 /// let path = Path { header: Header::at(9, "map"), poses: vec![(Header::at(1, "map"), Pose::IDENTITY)] };
-/// let back = Path::decode(&path.encode())?;
+/// let bytes = path.encode();
+/// let back = Path::decode(&bytes)?;
 /// assert_eq!(back.poses.len(), 1);
 /// # Ok::<(), latentam_io::cdr::CdrError>(())
 /// ```
@@ -262,7 +264,8 @@ impl<'a> RosMessage<'a> for DiagnosticArray<'a> {
 /// ```
 /// use latentam_io::{RosMessage, StringMessage};
 ///
-/// let back = StringMessage::decode(&StringMessage { data: "runs/today" }.encode())?;
+/// let bytes = StringMessage { data: "runs/today" }.encode();
+/// let back = StringMessage::decode(&bytes)?;
 /// assert_eq!(back.data, "runs/today");
 /// # Ok::<(), latentam_io::cdr::CdrError>(())
 /// ```
