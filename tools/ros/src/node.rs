@@ -141,8 +141,7 @@ pub fn run(args: Args) -> Result<()> {
     let live = Arc::try_unwrap(live).map_err(|_| anyhow::anyhow!("the mapper is still in use"))?;
     let mut mapper = live.finish()?;
     if let Some(out) = &args.out {
-        let state = mapper.save(out)?;
-        eprintln!("saved {}", state.display());
+        save_run_folder(&mut mapper, out)?;
     }
     result
 }
@@ -343,4 +342,28 @@ fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
         (d, _) => d.into(),
     };
     Ok(live.save(&dir)?.display().to_string())
+}
+
+/// The run folder of a stopped node: the resumable state and the decoder
+/// (written whole, see `Mapper::save`), then the map as a PLY, the
+/// keyframe trajectory and the effective configuration, as `latentam map`
+/// leaves them (it adds the report of a log's run, which a node has not).
+fn save_run_folder(mapper: &mut latentam::Mapper, out: &std::path::Path) -> Result<()> {
+    let state = mapper.save(out)?;
+    mapper.export_ply(&out.join("map.ply"))?;
+    let poses: Vec<(u64, latentam_io::CameraPose)> = mapper
+        .trajectory()
+        .iter()
+        .map(|&(s, p)| (s.max(0) as u64, p))
+        .collect();
+    latentam_io::write_tum(&out.join("trajectory.txt"), &poses)?;
+    latentam_base::files::write_bytes_atomically(
+        &out.join("config.toml"),
+        mapper.config().to_toml().as_bytes(),
+    )?;
+    eprintln!(
+        "saved {} (and map.ply, trajectory.txt, config.toml beside it)",
+        state.display()
+    );
+    Ok(())
 }

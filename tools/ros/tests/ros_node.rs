@@ -140,6 +140,12 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
         "largest difference to the map's cosines {worst}"
     );
     assert!(read("node.err").contains("saved"), "{}", read("node.err"));
+    // The folder holds what `latentam map` leaves beside the state.
+    let ply = latentam_core::map::read_ply(&dir.join("run/map.ply")).unwrap();
+    assert_eq!(ply.gaussians.len(), gaussians.len());
+    let tum = latentam_io::read_tum(&dir.join("run/trajectory.txt")).unwrap();
+    assert_eq!(tum.len(), trajectory.len());
+    assert!(dir.join("run/config.toml").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
