@@ -1,7 +1,11 @@
 //! Files that appear whole or not at all: written to `<name>.partial`
 //! beside the target, synced, then renamed over it (and the directory
 //! synced), so a crash or a full disk leaves the previous file intact.
-//! A `.partial` left by a killed process is simply overwritten next time.
+//! A `.partial` left by a killed process is replaced next time. The
+//! partial file is always created anew, never opened through a link: a
+//! symbolic link planted under its name is removed (the link, not what
+//! it points to), and the file is created exclusively, so a write never
+//! lands outside the target's folder.
 //!
 //! [`write_atomically`] when the content is written through a `Write`;
 //! [`PartialFile`] when a library writes to a path of its own (an MCAP
@@ -82,7 +86,7 @@ fn write_through(
         source,
     };
     let written = (|| {
-        let file = File::create(partial)?;
+        let file = create_fresh(partial)?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         body(&mut out)?;
         if let Some(e) = crate::faults::write_error() {
@@ -116,6 +120,29 @@ fn write_through(
     Ok(())
 }
 
+/// Creates `path` as a new regular file of this process's own: whatever
+/// is there (a stale partial file, or a link planted to redirect the
+/// write) is removed first, and the file is created exclusively, so a
+/// link planted in between makes the creation fail instead of being
+/// followed. A directory in the way is an error.
+pub fn create_fresh(path: &Path) -> std::io::Result<File> {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.is_dir() => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "a directory has the partial file's name",
+            ))
+        }
+        Ok(_) => std::fs::remove_file(path)?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e),
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)
+}
+
 /// [`write_atomically`] for bytes already in memory.
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |w| w.write_all(bytes))
@@ -141,11 +168,17 @@ pub struct PartialFile {
 }
 
 impl PartialFile {
-    /// Reserves `path`; write to [`PartialFile::path`] (errors when `path`
-    /// names no file).
+    /// Reserves `path`: creates [`PartialFile::path`] anew as an empty
+    /// regular file of its own (see [`create_fresh`]), to be written
+    /// (errors when `path` names no file, or the partial file cannot be
+    /// created).
     pub fn new(path: &Path) -> Result<Self> {
         let partial = partial_path(path).ok_or_else(|| {
             Error::InvalidArgument(format!("{}: not a file path", path.display()))
+        })?;
+        create_fresh(&partial).map_err(|source| Error::Io {
+            path: partial.clone(),
+            source,
         })?;
         Ok(PartialFile {
             partial,
@@ -207,5 +240,47 @@ pub mod testing {
         fn drop(&mut self) {
             let _ = std::fs::remove_dir_all(&self.0);
         }
+    }
+}
+
+#[cfg(all(test, unix))]
+mod link_tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("latentam-files-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn a_link_planted_as_the_partial_file_is_not_written_through() {
+        let dir = scratch("link");
+        let victim = dir.join("victim.txt");
+        std::fs::write(&victim, "keep me").unwrap();
+        let out = dir.join("out.txt");
+        std::os::unix::fs::symlink(&victim, partial_path(&out).unwrap()).unwrap();
+        write_bytes_atomically(&out, b"written").unwrap();
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "written");
+        assert!(!partial_path(&out).unwrap().exists());
+
+        // The same for a file a library writes by path.
+        let ply = dir.join("map.ply");
+        std::os::unix::fs::symlink(&victim, partial_path(&ply).unwrap()).unwrap();
+        let p = PartialFile::new(&ply).unwrap();
+        std::fs::write(p.path(), "ply").unwrap();
+        p.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+        assert_eq!(std::fs::read_to_string(&ply).unwrap(), "ply");
+
+        // A directory under the partial name is an error, and stays.
+        let blocked = dir.join("blocked.txt");
+        std::fs::create_dir(partial_path(&blocked).unwrap()).unwrap();
+        assert!(write_bytes_atomically(&blocked, b"x").is_err());
+        assert!(partial_path(&blocked).unwrap().is_dir());
+        assert!(!blocked.exists());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -241,13 +241,23 @@ impl Drop for RunFolder {
 /// between our open and our lock.
 fn acquire(lock_path: &Path, dir: &Path) -> Result<File> {
     for _ in 0..100 {
-        let mut file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(lock_path)
-            .map_err(|e| io_error(lock_path, e))?;
+        let mut options = OpenOptions::new();
+        options.read(true).write(true).create(true).truncate(false);
+        // A link planted under the lock's name would have the pid written
+        // through it: refused instead.
+        #[cfg(unix)]
+        std::os::unix::fs::OpenOptionsExt::custom_flags(&mut options, libc::O_NOFOLLOW);
+        let mut file = options.open(lock_path).map_err(|e| {
+            #[cfg(unix)]
+            if e.raw_os_error() == Some(libc::ELOOP) {
+                return Error::InvalidArgument(format!(
+                    "{} is a symbolic link; the run folder's lock is not taken through one \
+                     (remove it if it is not yours)",
+                    lock_path.display()
+                ));
+            }
+            io_error(lock_path, e)
+        })?;
         match try_lock(&file) {
             Ok(true) => {}
             Ok(false) => {
@@ -460,6 +470,22 @@ mod tests {
             std::fs::write(s.path().join(name), text).unwrap();
         }
         s.commit().unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_link_planted_as_the_lock_file_is_refused_and_its_target_kept() {
+        let root = scratch("lock-link");
+        let victim = root.join("victim.txt");
+        std::fs::write(&victim, "keep me").unwrap();
+        std::os::unix::fs::symlink(&victim, root.join(".run.lock")).unwrap();
+        let err = match RunFolder::lock(root.join("run")) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("a lock through a link was taken"),
+        };
+        assert!(err.contains("is a symbolic link"), "{err}");
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     #[test]
