@@ -468,8 +468,16 @@ fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
     assert_eq!(run.ending, Ending::FrameLimit);
     // Keyframes every 4 frames: 0, 4 and 8.
     assert_eq!(run.keyframes.len(), 3);
-    assert_eq!(run.autosaved_at, Some(3));
-    assert_eq!(observer.extra_files, 3);
+    assert_eq!(run.autosaved_at, Some(3), "{:?}", run.autosave_failures);
+    // One save per keyframe seen: keyframes that finish while the reader
+    // waits for room in the queue are seen, and saved, together (a busy
+    // machine makes that happen).
+    assert!(
+        (1..=3).contains(&observer.extra_files),
+        "{} saves; {:?}",
+        observer.extra_files,
+        run.autosave_failures
+    );
     let autosaved = report_in(folder.dir());
     assert_eq!(autosaved["ending"], "running");
     assert_eq!(
