@@ -473,11 +473,7 @@ impl Publisher {
         };
         let answer = self.reader.relevance(&query)?;
         let points = MapPoints::of(&answer.snapshot.gaussians, self.options.point_budget);
-        let cosines: Vec<f32> = points
-            .indices
-            .iter()
-            .flat_map(|&i| answer.scores[i * count..(i + 1) * count].iter().copied())
-            .collect();
+        let cosines = points.pick_rows(&answer.scores, *count);
         let stamp = stamp_of(&answer.snapshot, None);
         let mut bytes = Vec::new();
         for w in words {

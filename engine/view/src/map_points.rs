@@ -15,6 +15,8 @@ use crate::messages::Cloud;
 /// let points = MapPoints::of(&g, 4);
 /// assert_eq!(points.indices, vec![0, 3, 6, 9]); // evenly through the map
 /// assert_eq!(points.opacity[0], 0.5); // a logit of 0
+/// let scores: Vec<f32> = (0..20).map(|i| i as f32).collect(); // two per Gaussian
+/// assert_eq!(points.pick_rows(&scores, 2)[2..4], [6.0, 7.0]); // Gaussian 3's
 /// ```
 #[derive(Clone, Debug, Default)]
 pub struct MapPoints {
@@ -75,9 +77,13 @@ impl MapPoints {
         }
     }
 
-    /// `values` (one per Gaussian of the map) at these points.
-    pub fn pick(&self, values: &[f32]) -> Vec<f32> {
-        self.indices.iter().map(|&i| values[i]).collect()
+    /// The rows of `values` (`per_point` values per Gaussian of the map,
+    /// e.g. one cosine per text) at these points, back to back.
+    pub fn pick_rows(&self, values: &[f32], per_point: usize) -> Vec<f32> {
+        self.indices
+            .iter()
+            .flat_map(|&i| values[i * per_point..(i + 1) * per_point].iter().copied())
+            .collect()
     }
 }
 

@@ -4,6 +4,7 @@
 //! Submitting never waits: a frame the mapper has no room for is dropped
 //! by the live handle's policy and counted.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
@@ -28,11 +29,11 @@ pub struct InputStats {
     /// Microseconds from the arrival of the message that completed a
     /// frame to the frame being queued (the node's own delay), for the
     /// last frames (at most 10 000).
-    pub queue_latency_us: Vec<u32>,
+    pub queue_latency_us: VecDeque<u32>,
     /// Microseconds from a colour image's arrival to its frame being
     /// queued: the node's delay plus the wait for the depth, pose and
     /// embeddings it pairs with (a pose after the image, to interpolate).
-    pub pairing_wait_us: Vec<u32>,
+    pub pairing_wait_us: VecDeque<u32>,
     /// The vocabulary, once its topic delivered one.
     pub vocabulary: Option<Arc<Vocabulary>>,
     /// The first error that stopped the inputs.
@@ -217,9 +218,9 @@ impl Inputs {
 }
 
 /// Keeps the time since `since` in `v`, the last 10 000 of them.
-fn keep(v: &mut Vec<u32>, since: Instant) {
+fn keep(v: &mut VecDeque<u32>, since: Instant) {
     if v.len() >= 10_000 {
-        v.remove(0);
+        v.pop_front();
     }
-    v.push(since.elapsed().as_micros() as u32);
+    v.push_back(since.elapsed().as_micros() as u32);
 }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::{LiveMapper, LiveOptions, TextQuery};
+use latentam::{LiveMapper, LiveOptions, MapSnapshot, TextQuery};
 use latentam_cli::interrupt;
 use latentam_core::latent::{softmax_rows, Relevance};
 use latentam_io::{RosMessage, StringMessage, Vocabulary};
@@ -71,11 +71,11 @@ fn take(r: &mut RawReader) -> Option<Vec<u8>> {
     }
 }
 
-fn p99(v: &[u32]) -> Option<u32> {
+fn p99(v: &std::collections::VecDeque<u32>) -> Option<u32> {
     if v.is_empty() {
         return None;
     }
-    let mut s = v.to_vec();
+    let mut s: Vec<u32> = v.iter().copied().collect();
     s.sort_unstable();
     Some(s[((s.len() - 1) as f64 * 0.99).round() as usize])
 }
@@ -233,6 +233,31 @@ fn summary(live: &LiveMapper, inputs: &Inputs) -> String {
     )
 }
 
+/// The map's points (within `--map-points`) and their cosines to the
+/// `n` embeddings back to back in `embeddings` (`points × n`), from the
+/// newest snapshot whose relevance index is built.
+fn scored_points(
+    args: &Args,
+    live: &LiveMapper,
+    embeddings: &[f32],
+    n: usize,
+) -> Result<(Arc<MapSnapshot>, MapPoints, Vec<f32>)> {
+    let query = TextQuery {
+        embeddings: embeddings.to_vec(),
+        texts: n,
+        relevance: Relevance::Cosine,
+    };
+    let answer = live.relevance(&query)?;
+    let points = MapPoints::of(&answer.snapshot.gaussians, args.map_points);
+    let cosines = points.pick_rows(&answer.scores, n);
+    Ok((answer.snapshot, points, cosines))
+}
+
+/// Column `k` of `rows` (`n` values a row).
+fn column(rows: &[f32], n: usize, k: usize) -> Vec<f32> {
+    rows.chunks_exact(n).map(|row| row[k]).collect()
+}
+
 /// The map cloud (with a relevance field per `--words` word once the
 /// vocabulary is known) and the trajectory.
 fn publish_map(
@@ -242,44 +267,32 @@ fn publish_map(
     own: &Own,
 ) -> Result<()> {
     let mut extra = Vec::new();
-    let (snapshot, scores) = match (vocabulary, args.words.is_empty()) {
-        (Some(v), false) if live.snapshot().decoder.is_some() => {
-            let query = TextQuery {
-                embeddings: v.vectors.clone(),
-                texts: v.names.len(),
-                relevance: Relevance::Cosine,
-            };
-            let answer = live.relevance(&query)?;
-            (answer.snapshot, Some((v, answer.scores)))
-        }
-        _ => (live.snapshot(), None),
-    };
-    let points = MapPoints::of(&snapshot.gaussians, args.map_points);
-    if let Some((v, cosines)) = scores {
-        let n = v.names.len();
-        let picked: Vec<f32> = points
-            .indices
-            .iter()
-            .flat_map(|&i| cosines[i * n..(i + 1) * n].iter().copied())
-            .collect();
-        let probabilities = softmax_rows(&picked, n, args.temperature);
-        for w in &args.words {
-            let Some(k) = v.names.iter().position(|n| n == w) else {
-                bail!(
-                    "--words: `{w}` is not in the vocabulary; it has: {}",
-                    v.names.join(", ")
-                );
-            };
-            let values = probabilities.chunks_exact(n).map(|row| row[k]).collect();
-            extra.push((
-                format!(
+    let (snapshot, points) = match vocabulary {
+        Some(v) if !args.words.is_empty() && live.snapshot().decoder.is_some() => {
+            let n = v.names.len();
+            let (snapshot, points, cosines) = scored_points(args, live, &v.vectors, n)?;
+            let probabilities = softmax_rows(&cosines, n, args.temperature);
+            for w in &args.words {
+                let Some(k) = v.names.iter().position(|name| name == w) else {
+                    bail!(
+                        "--words: `{w}` is not in the vocabulary; it has: {}",
+                        v.names.join(", ")
+                    );
+                };
+                let field = format!(
                     "relevance_{}",
                     latentam_view::topic_word(w, &mut Vec::new())
-                ),
-                values,
-            ));
+                );
+                extra.push((field, column(&probabilities, n, k)));
+            }
+            (snapshot, points)
         }
-    }
+        _ => {
+            let snapshot = live.snapshot();
+            let points = MapPoints::of(&snapshot.gaussians, args.map_points);
+            (snapshot, points)
+        }
+    };
     let stamp = snapshot.trajectory.last().map_or(0, |&(s, _)| s);
     write(
         &own.map,
@@ -302,22 +315,11 @@ fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Vec<u8>> {
     if n == 0 {
         bail!("the query holds no embedding");
     }
-    let query = TextQuery {
-        embeddings: texts.vectors.clone(),
-        texts: n,
-        relevance: Relevance::Cosine,
-    };
-    let answer = live.relevance(&query)?;
-    let points = MapPoints::of(&answer.snapshot.gaussians, args.map_points);
-    let picked: Vec<f32> = points
-        .indices
-        .iter()
-        .flat_map(|&i| answer.scores[i * n..(i + 1) * n].iter().copied())
-        .collect();
+    let (snapshot, points, cosines) = scored_points(args, live, &texts.vectors, n)?;
     let values = if n == 1 {
-        picked
+        cosines
     } else {
-        softmax_rows(&picked, n, args.temperature)
+        softmax_rows(&cosines, n, args.temperature)
     };
     let mut taken = Vec::new();
     let extra: Vec<(String, Vec<f32>)> = texts
@@ -326,10 +328,10 @@ fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Vec<u8>> {
         .enumerate()
         .map(|(k, name)| {
             let field = format!("relevance_{}", latentam_view::topic_word(name, &mut taken));
-            (field, values.chunks_exact(n).map(|row| row[k]).collect())
+            (field, column(&values, n, k))
         })
         .collect();
-    let stamp = answer.snapshot.trajectory.last().map_or(0, |&(s, _)| s);
+    let stamp = snapshot.trajectory.last().map_or(0, |&(s, _)| s);
     Ok(outputs::map_cloud(&args.frame_id, stamp, &points, &extra))
 }
 
