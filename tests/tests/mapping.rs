@@ -609,13 +609,21 @@ fn auto_exposure_is_measured_and_undone() {
     assert_no_validation_errors(ctx);
 }
 
-/// The blending layout a GPU takes (`Pixels`: one pixel per invocation,
-/// subgroup reductions, float atomics) maps the scene as the CPU driver's
-/// default (`Columns`) does, up to f32 summation order: forced here on
-/// lavapipe, so the path of a discrete GPU maps a log end to end.
+/// The path a discrete GPU takes maps the scene as the CPU driver's does,
+/// up to f32 summation order: the `Pixels` blending layout (one pixel per
+/// invocation, subgroup reductions, float atomics) instead of `Columns`,
+/// and paging on a transfer queue of its own beside Stage II, here
+/// rehearsed on the compute family (`TransferQueue::SameFamily`), so that
+/// both run end to end under validation on lavapipe.
 #[test]
-fn the_gpu_blend_layout_maps_the_scene_as_the_cpu_layout_does() {
-    let ctx = context();
+fn the_discrete_gpu_path_maps_the_scene_as_the_cpu_path_does() {
+    let ctx = Context::new(ContextOptions {
+        validation: Validation::Required,
+        transfer_queue: latentam_gpu::TransferQueue::SameFamily,
+        ..ContextOptions::default()
+    })
+    .unwrap();
+    assert!(ctx.info().transfer_rehearsal || ctx.info().dedicated_transfer_queue);
     let mut mapper = Mapper::with_context(
         &ctx,
         MapperConfig {

@@ -253,6 +253,68 @@ fn transfer_work_waits_on_compute_through_the_timeline() {
     });
 }
 
+/// The dedicated-transfer-queue path rehearsed on the compute family
+/// (lavapipe has no transfer family): transfer-only recording (its
+/// barriers are checked by the validation layer), the implicit waits
+/// between the two timelines in both directions, a batch that opts out of
+/// them, and a timed transfer batch.
+#[test]
+fn the_transfer_path_rehearsed_on_the_compute_family_orders_both_ways() {
+    let options = ContextOptions {
+        transfer_queue: TransferQueue::SameFamily,
+        profiling: true,
+        ..ContextOptions::default()
+    };
+    with_options(options, |ctx| {
+        assert!(ctx.info().transfer_rehearsal && !ctx.info().dedicated_transfer_queue);
+        let n = 200_000u64;
+        let buf = ctx
+            .upload_new("rehearse/data", &vec![1u32; n as usize])
+            .unwrap();
+        let copy_of = Buffer::device(ctx, "rehearse/copy", n * 4).unwrap();
+        let back = Buffer::device(ctx, "rehearse/back", n * 4).unwrap();
+        let scan = PrefixScan::new(ctx, n).unwrap();
+        // Compute writes; the transfer batch submitted after it waits for
+        // it without being told, copies (a hazard inside the batch: the
+        // recorder's transfer-only barrier) and copies the copy back.
+        let mut rec = ctx.recorder().unwrap();
+        scan.record(&mut rec, &buf, n).unwrap();
+        let first = rec.submit().unwrap();
+        let mut t = ctx.transfer_recorder().unwrap();
+        t.start_span();
+        t.copy(&buf, 0, &copy_of, 0, n * 4).unwrap();
+        t.copy(&copy_of, 0, &back, 0, n * 4).unwrap();
+        let paging = t.submit().unwrap();
+        // A batch that overlaps the transfer queue does not wait for it...
+        let other = Buffer::device(ctx, "rehearse/other", 64).unwrap();
+        let mut beside = ctx.recorder().unwrap();
+        beside.overlap_other_queue();
+        beside.fill_u32(&other, 7);
+        beside.submit().unwrap().wait().unwrap();
+        // ...while an ordinary compute batch does: it reads the copy back.
+        let mut after = ctx.recorder().unwrap();
+        scan.record(&mut after, &back, n).unwrap();
+        after.submit().unwrap().wait().unwrap();
+        let span = paging.wait_span().unwrap();
+        assert_eq!(span.is_some(), ctx.info().transfer_timestamps);
+        assert!(first.is_done());
+        // The copy holds the first scan; the copied-back buffer, scanned
+        // again after the transfer batch, its exclusive prefix sums.
+        let first: Vec<u32> = (0..n as u32).collect();
+        let second: Vec<u32> = first
+            .iter()
+            .scan(0u32, |acc, &i| {
+                let v = *acc;
+                *acc = acc.wrapping_add(i);
+                Some(v)
+            })
+            .collect();
+        assert_eq!(ctx.download::<u32>(&copy_of).unwrap(), first);
+        assert_eq!(ctx.download::<u32>(&back).unwrap(), second);
+        assert_eq!(ctx.download::<u32>(&other).unwrap(), vec![7u32; 16]);
+    });
+}
+
 #[test]
 fn dispatch_checks_its_arguments() {
     with_context(|ctx| {
@@ -299,7 +361,7 @@ fn dispatch_checks_its_arguments() {
         assert!(rec.download(&a, 0, 65).is_err());
         assert!(rec.copy(&a, 0, &a, 32, 64).is_err());
         let mut t = ctx.transfer_recorder().unwrap();
-        if ctx.info().dedicated_transfer_queue {
+        if ctx.info().dedicated_transfer_queue || ctx.info().transfer_rehearsal {
             assert!(t
                 .dispatch(
                     &SCAN_BLOCKS,

@@ -288,8 +288,8 @@ mod window {
     use rand::Rng;
 
     use crate::map::{gaussian_at, Companion, Gaussian, GlobalMap, LocalWindow, VoxelKey};
-    use latentam_gpu::testing::{rng, with_context};
-    use latentam_gpu::Buffer;
+    use latentam_gpu::testing::{rng, with_context, with_options};
+    use latentam_gpu::{Buffer, ContextOptions, TransferQueue};
 
     /// Gaussians along a 20 m corridor, one every ~2 cm, each with a
     /// recognisable opacity and query.
@@ -308,9 +308,22 @@ mod window {
         map
     }
 
+    /// On the device's own queues, and on the transfer path rehearsed on
+    /// the compute family (see `TransferQueue::SameFamily`), so that its
+    /// recording and synchronisation run under validation on any device.
     #[test]
     fn paging_follows_the_camera_keeps_state_and_writes_back_by_key() {
-        with_context(|ctx| {
+        for transfer_queue in [TransferQueue::Auto, TransferQueue::SameFamily] {
+            let options = ContextOptions {
+                transfer_queue,
+                ..ContextOptions::default()
+            };
+            with_options(options, paging_follows_the_camera);
+        }
+    }
+
+    fn paging_follows_the_camera(ctx: &latentam_gpu::Context) {
+        {
             let mut rng = rng("paging_follows_the_camera");
             let mut global = corridor(&mut rng);
             let total = global.len();
@@ -419,7 +432,7 @@ mod window {
                 let frac = (g.opacity_logit * 2.0).fract();
                 assert_eq!(frac, 0.0, "{}", g.opacity_logit);
             }
-        });
+        }
     }
 
     #[test]

@@ -527,6 +527,10 @@ impl Trainer {
         }
         let region_targets = &self.region_targets;
         let mut rec = ctx.recorder()?;
+        // Stage II reads and writes the latent head and the pooled
+        // features only, never the window that a paging batch submitted
+        // just before it moves: it runs beside that batch.
+        rec.overlap_other_queue();
         rec.start_span();
         let mut last = None;
         for i in 0..iterations {

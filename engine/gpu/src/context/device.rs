@@ -17,7 +17,11 @@ use crate::retire::{RetireQueue, Retired};
 /// One queue and the timeline semaphore its submissions signal.
 pub(crate) struct Queue {
     pub family: u32,
-    pub queue: Mutex<vk::Queue>,
+    /// Shared by the two `Queue`s when the transfer path rehearses on the
+    /// compute queue itself (`TransferQueue::SameFamily` with one queue in
+    /// the family): one lock, since Vulkan queues are externally
+    /// synchronised.
+    pub queue: Arc<Mutex<vk::Queue>>,
     pub timeline: vk::Semaphore,
     /// Last value handed to a submission.
     pub submitted: AtomicU64,
@@ -60,7 +64,11 @@ impl Device {
     /// Families that buffers must be shareable between.
     pub fn queue_families(&self) -> Vec<u32> {
         let mut f = vec![self.compute.family];
-        if let Some(t) = &self.transfer {
+        if let Some(t) = self
+            .transfer
+            .as_ref()
+            .filter(|t| t.family != self.compute.family)
+        {
             f.push(t.family);
         }
         f

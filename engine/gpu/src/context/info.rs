@@ -41,8 +41,11 @@ pub struct DeviceInfo {
     pub max_workgroup_count: [u32; 3],
     /// Shared memory per workgroup, in bytes.
     pub max_shared_memory: u32,
-    /// Whether a dedicated transfer queue is in use.
+    /// Whether a dedicated transfer queue (a transfer-only family) is in use.
     pub dedicated_transfer_queue: bool,
+    /// Whether the transfer path runs on the compute family as a rehearsal
+    /// of a dedicated queue ([`TransferQueue::SameFamily`](crate::TransferQueue::SameFamily)).
+    pub transfer_rehearsal: bool,
     /// Whether copies on the transfer queue can be timed (timestamps on
     /// its family and host query reset, since transfer queues cannot reset
     /// query pools themselves).
@@ -59,6 +62,12 @@ pub struct DeviceInfo {
 }
 
 impl DeviceInfo {
+    /// Whether this is a CPU implementation of Vulkan (lavapipe,
+    /// SwiftShader) rather than a GPU.
+    pub fn is_cpu(&self) -> bool {
+        self.device_type == ash::vk::PhysicalDeviceType::CPU
+    }
+
     /// Whether this device (as configured: `LATENTAM_FLOAT_ATOMICS=cas` and
     /// `LATENTAM_SUBGROUPS=off` withdraw features) can run `kernel`, from
     /// the features the build read in its code.

@@ -18,7 +18,7 @@ mod validation;
 pub(crate) use device::{Device, Queue};
 pub use info::DeviceInfo;
 use open::*;
-pub use options::{ContextOptions, FloatAtomics, Validation};
+pub use options::{ContextOptions, FloatAtomics, TransferQueue, Validation};
 pub use validation::ValidationLog;
 use validation::{debug_callback, VALIDATION_LAYER};
 

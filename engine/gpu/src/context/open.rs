@@ -7,7 +7,9 @@ use std::sync::{Arc, Mutex};
 
 use ash::vk;
 
-use super::{ContextOptions, Device, DeviceInfo, FloatAtomics, Queue, ValidationLog};
+use super::{
+    ContextOptions, Device, DeviceInfo, FloatAtomics, Queue, TransferQueue, ValidationLog,
+};
 use crate::counters::CallCounters;
 use crate::memory::MemoryAccounting;
 use crate::objects::ObjectCounts;
@@ -146,7 +148,7 @@ pub(super) fn open_device(
     options: &ContextOptions,
 ) -> Result<Device> {
     let p = c.physical;
-    let families = QueueFamilies::of(&instance, p, &c.name)?;
+    let families = QueueFamilies::of(&instance, p, &c.name, options.transfer_queue)?;
     let features = Features::of(&instance, p, &c.name, options)?;
     let raw = create_device(&instance, p, &families, &features)?;
     let (compute, transfer) = match create_queues(&raw, &families) {
@@ -210,7 +212,7 @@ pub(super) fn open_device(
         memory: MemoryAccounting::new(options.memory_budget),
         retired: RetireQueue::default(),
         objects: ObjectCounts::default(),
-        pipelines: PipelineCache::default(),
+        pipelines: PipelineCache::rejecting(options.rejected_kernels.clone()),
         pipeline_cache,
         profiler,
         host_query_reset: features.host_query_reset,
@@ -225,11 +227,17 @@ pub(super) fn open_device(
 struct QueueFamilies {
     all: Vec<vk::QueueFamilyProperties>,
     compute: u32,
-    transfer: Option<u32>,
+    /// The transfer path's family and queue index in it.
+    transfer: Option<(u32, u32)>,
 }
 
 impl QueueFamilies {
-    fn of(instance: &ash::Instance, p: vk::PhysicalDevice, name: &str) -> Result<Self> {
+    fn of(
+        instance: &ash::Instance,
+        p: vk::PhysicalDevice,
+        name: &str,
+        choice: TransferQueue,
+    ) -> Result<Self> {
         // SAFETY: queries on a valid physical device.
         let all = unsafe { instance.get_physical_device_queue_family_properties(p) };
         let compute = all
@@ -237,14 +245,25 @@ impl QueueFamilies {
             .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
             .ok_or_else(|| Error::Unsupported(format!("{name} has no compute queue")))?
             as u32;
-        let transfer = all
-            .iter()
-            .position(|f| {
-                f.queue_flags.contains(vk::QueueFlags::TRANSFER)
-                    && !f.queue_flags.contains(vk::QueueFlags::COMPUTE)
-                    && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS)
-            })
-            .map(|i| i as u32);
+        let dedicated = || {
+            all.iter()
+                .position(|f| {
+                    f.queue_flags.contains(vk::QueueFlags::TRANSFER)
+                        && !f.queue_flags.contains(vk::QueueFlags::COMPUTE)
+                        && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS)
+                })
+                .map(|i| (i as u32, 0))
+        };
+        let transfer = match choice {
+            TransferQueue::Auto => dedicated(),
+            TransferQueue::Off => None,
+            // A second queue of the compute family where it has one, else
+            // the compute queue itself (index 0, shared).
+            TransferQueue::SameFamily => {
+                let count = all[compute as usize].queue_count;
+                Some((compute, u32::from(count > 1)))
+            }
+        };
         Ok(QueueFamilies {
             all,
             compute,
@@ -333,15 +352,21 @@ fn create_device(
     families: &QueueFamilies,
     features: &Features,
 ) -> Result<ash::Device> {
-    let priorities = [1.0f32];
+    let priorities = [1.0f32, 1.0];
+    // One create info per family: the compute family asks for a second
+    // queue when the transfer path uses one of its own there.
+    let compute_queues = match families.transfer {
+        Some((f, 1)) if f == families.compute => 2,
+        _ => 1,
+    };
     let mut queue_infos = vec![vk::DeviceQueueCreateInfo::default()
         .queue_family_index(families.compute)
-        .queue_priorities(&priorities)];
-    if let Some(t) = families.transfer {
+        .queue_priorities(&priorities[..compute_queues])];
+    if let Some((t, _)) = families.transfer.filter(|t| t.0 != families.compute) {
         queue_infos.push(
             vk::DeviceQueueCreateInfo::default()
                 .queue_family_index(t)
-                .queue_priorities(&priorities),
+                .queue_priorities(&priorities[..1]),
         );
     }
     let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
@@ -366,7 +391,7 @@ fn create_device(
 /// each with its timeline semaphore. On failure what was created is
 /// destroyed (the device is the caller's).
 fn create_queues(raw: &ash::Device, families: &QueueFamilies) -> Result<(Queue, Option<Queue>)> {
-    let make_queue = |family: u32| -> Result<Queue> {
+    let make_queue = |family: u32, handle: Arc<Mutex<vk::Queue>>| -> Result<Queue> {
         let mut ti = vk::SemaphoreTypeCreateInfo::default()
             .semaphore_type(vk::SemaphoreType::TIMELINE)
             .initial_value(0);
@@ -375,15 +400,25 @@ fn create_queues(raw: &ash::Device, families: &QueueFamilies) -> Result<(Queue, 
         let timeline = unsafe { raw.create_semaphore(&ci, None) }.vk("vkCreateSemaphore")?;
         Ok(Queue {
             family,
-            // SAFETY: queue index 0 was requested for this family.
-            queue: Mutex::new(unsafe { raw.get_device_queue(family, 0) }),
+            queue: handle,
             timeline,
             submitted: AtomicU64::new(0),
             timestamp_bits: families.timestamp_bits(family),
         })
     };
-    let compute = make_queue(families.compute)?;
-    match families.transfer.map(make_queue).transpose() {
+    // SAFETY: each (family, index) below was requested at device creation.
+    let get = |family: u32, index: u32| unsafe { raw.get_device_queue(family, index) };
+    let compute_handle = Arc::new(Mutex::new(get(families.compute, 0)));
+    let compute = make_queue(families.compute, compute_handle.clone())?;
+    let transfer = families.transfer.map(|(family, index)| {
+        let handle = if family == families.compute && index == 0 {
+            compute_handle.clone()
+        } else {
+            Arc::new(Mutex::new(get(family, index)))
+        };
+        make_queue(family, handle)
+    });
+    match transfer.transpose() {
         Ok(transfer) => Ok((compute, transfer)),
         Err(e) => {
             // SAFETY: only the compute semaphore exists.
@@ -439,7 +474,8 @@ fn device_info(
             .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
         max_workgroup_count: limits.max_compute_work_group_count,
         max_shared_memory: limits.max_compute_shared_memory_size,
-        dedicated_transfer_queue: transfer.is_some(),
+        dedicated_transfer_queue: transfer.is_some_and(|t| t.family != families.compute),
+        transfer_rehearsal: transfer.is_some_and(|t| t.family == families.compute),
         transfer_timestamps: match transfer {
             Some(t) => {
                 t.timestamp_bits > 0 && features.host_query_reset && timestamp_valid_bits > 0

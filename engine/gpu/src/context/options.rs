@@ -41,12 +41,43 @@ pub enum FloatAtomics {
     CompareAndSwap,
 }
 
+/// Which queue the paging copies (`Context::transfer_recorder`) run on.
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions, TransferQueue};
+///
+/// // Rehearse the dedicated-transfer-queue path on a device without one.
+/// let options = ContextOptions { transfer_queue: TransferQueue::SameFamily, ..Default::default() };
+/// let ctx = Context::new(options)?;
+/// assert!(ctx.info().dedicated_transfer_queue || ctx.info().transfer_rehearsal);
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum TransferQueue {
+    /// A transfer-only queue family when the device has one (discrete
+    /// GPUs' copy engines), so paging overlaps compute; else the compute
+    /// queue.
+    #[default]
+    Auto,
+    /// Everything on the compute queue.
+    Off,
+    /// The transfer path on the compute family: a second queue of it when
+    /// it offers one, else a second timeline on the compute queue itself.
+    /// Paging is recorded and synchronised exactly as for a dedicated
+    /// queue (transfer-stage barriers, queries reset from the host,
+    /// semaphore waits between the two timelines), so a device without a
+    /// transfer family (lavapipe) rehearses that path under validation.
+    SameFamily,
+}
+
 /// Options for [`Context::new`](crate::Context::new). `Default` reads the environment:
 /// `LATENTAM_DEVICE` (index or case-insensitive name substring),
 /// `LATENTAM_VALIDATION=1` (require the validation layer),
 /// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
 /// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic),
-/// `LATENTAM_MAX_BUFFER_BYTES=N` (cap the largest buffer below the device's).
+/// `LATENTAM_TRANSFER_QUEUE=off|same-family` (see [`TransferQueue`]),
+/// `LATENTAM_MAX_BUFFER_BYTES=N` (cap the largest buffer below the device's),
+/// `LATENTAM_REJECT_KERNELS=a,b` (see [`ContextOptions::rejected_kernels`]).
 ///
 /// ```no_run
 /// use latentam_gpu::{Context, ContextOptions};
@@ -70,6 +101,8 @@ pub struct ContextOptions {
     pub profiling: bool,
     /// Float-atomic strategy.
     pub float_atomics: FloatAtomics,
+    /// Which queue paging copies run on.
+    pub transfer_queue: TransferQueue,
     /// GPU memory budget in bytes for this context (`None` = device limits).
     pub memory_budget: Option<u64>,
     /// Use subgroup operations (`subgroupAdd`, shuffles) where the device
@@ -81,6 +114,13 @@ pub struct ContextOptions {
     /// device's own: to leave headroom, or to rehearse a device with small
     /// limits (`LATENTAM_MAX_BUFFER_BYTES`). `None`: the device's limits.
     pub max_buffer_bytes: Option<u64>,
+    /// Kernels to treat as rejected by the driver's compiler (their
+    /// pipeline creation fails with [`Error::KernelBuild`](crate::Error::KernelBuild)
+    /// without asking the driver): rehearses a driver that cannot build a
+    /// variant, as NVIDIA's cannot build the largest column-layout blending
+    /// kernels (`LATENTAM_REJECT_KERNELS`, comma-separated names). Empty:
+    /// none.
+    pub rejected_kernels: Vec<String>,
     /// Where compiled pipelines are kept between processes, one file per
     /// device, driver and build (`None`: not kept). Default:
     /// `LATENTAM_PIPELINE_CACHE` (`off` for none), else
@@ -103,9 +143,23 @@ impl Default for ContextOptions {
                 Some("cas") => FloatAtomics::CompareAndSwap,
                 _ => FloatAtomics::Auto,
             },
+            transfer_queue: match env("LATENTAM_TRANSFER_QUEUE").as_deref() {
+                Some("off") => TransferQueue::Off,
+                Some("same-family") => TransferQueue::SameFamily,
+                _ => TransferQueue::Auto,
+            },
             memory_budget: None,
             subgroup_arithmetic: env("LATENTAM_SUBGROUPS").as_deref() != Some("off"),
             max_buffer_bytes: env("LATENTAM_MAX_BUFFER_BYTES").and_then(|v| v.parse().ok()),
+            rejected_kernels: env("LATENTAM_REJECT_KERNELS")
+                .map(|v| {
+                    v.split(',')
+                        .map(str::trim)
+                        .filter(|k| !k.is_empty())
+                        .map(String::from)
+                        .collect()
+                })
+                .unwrap_or_default(),
             pipeline_cache_dir: crate::pipeline_cache_file::default_dir(),
         }
     }

@@ -92,6 +92,11 @@ pub struct Recorder<'a> {
     /// A clock calibration's own batch: neither its submission nor its
     /// wait is the caller's work, so neither is counted or traced.
     calibration: bool,
+    /// Set by [`Recorder::overlap_other_queue`]: the batch does not wait for
+    /// the other queue's earlier submissions.
+    overlaps_other_queue: bool,
+    /// Whether a command touching a buffer has been recorded yet.
+    touched: bool,
     _borrows: PhantomData<&'a Buffer>,
 }
 
@@ -193,14 +198,31 @@ impl<'a> Recorder<'a> {
                 readbacks: Vec::new(),
                 span_start: None,
                 calibration: false,
+                overlaps_other_queue: false,
+                touched: false,
                 _borrows: PhantomData,
             })
         }
     }
 
+    /// [`Context::kernel_builds`] from a recorder.
+    pub fn kernel_builds(&self, kernel: &'static Kernel) -> Result<bool> {
+        let dev = &self.dev;
+        dev.pipelines.builds(&dev.raw, dev.pipeline_cache, kernel)
+    }
+
     /// The device this recorder records for.
     pub fn info(&self) -> &super::DeviceInfo {
         &self.dev.info
+    }
+
+    /// Lets this batch run beside what was submitted to the other queue
+    /// before it, instead of after it (the default, see
+    /// [`Recorder::submit`]). Only for a batch that touches no buffer that
+    /// work reads or writes: Stage II beside the window's paging, say.
+    /// Later batches of either queue still wait for both.
+    pub fn overlap_other_queue(&mut self) {
+        self.overlaps_other_queue = true;
     }
 
     /// Makes this batch wait (on the GPU) for `point` before it starts.
@@ -210,7 +232,17 @@ impl<'a> Recorder<'a> {
 
     /// Inserts a barrier if the next command touches a buffer in a
     /// conflicting way with commands since the last barrier.
+    ///
+    /// The first such command also gets a barrier: it orders this batch
+    /// after every batch submitted before it to the same queue, whose
+    /// writes it may read (separate submissions to one queue may overlap
+    /// and need not see each other's writes without one, even when the
+    /// host waited for the earlier batch).
     fn track(&mut self, reads: &[vk::Buffer], writes: &[vk::Buffer]) {
+        if !self.touched {
+            self.touched = true;
+            self.barrier();
+        }
         let hazard = reads.iter().any(|b| self.written.contains(b))
             || writes
                 .iter()
@@ -226,29 +258,33 @@ impl<'a> Recorder<'a> {
     /// before and after it. The recorder inserts these itself; call it only
     /// around work it cannot see.
     pub fn barrier(&mut self) {
-        let mb = [vk::MemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
-            .dst_access_mask(
-                vk::AccessFlags::SHADER_READ
-                    | vk::AccessFlags::SHADER_WRITE
-                    | vk::AccessFlags::TRANSFER_READ
-                    | vk::AccessFlags::TRANSFER_WRITE
-                    | if self.transfer {
-                        vk::AccessFlags::empty()
-                    } else {
-                        vk::AccessFlags::INDIRECT_COMMAND_READ
-                    },
-            )];
-        let (src, dst) = if self.transfer {
+        // A transfer-only queue has no shader stages: its barriers name the
+        // transfer stage and transfer accesses alone (naming shader accesses
+        // there is invalid, and drivers may ignore the whole barrier).
+        let (src_access, dst_access, src, dst) = if self.transfer {
             (
+                vk::AccessFlags::TRANSFER_WRITE,
+                vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE,
                 vk::PipelineStageFlags::TRANSFER,
                 vk::PipelineStageFlags::TRANSFER,
             )
         } else {
             let work = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
-            // Indirect dispatches read their counts at DRAW_INDIRECT.
-            (work, work | vk::PipelineStageFlags::DRAW_INDIRECT)
+            (
+                vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE,
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_READ
+                    | vk::AccessFlags::TRANSFER_WRITE
+                    | vk::AccessFlags::INDIRECT_COMMAND_READ,
+                work,
+                // Indirect dispatches read their counts at DRAW_INDIRECT.
+                work | vk::PipelineStageFlags::DRAW_INDIRECT,
+            )
         };
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(src_access)
+            .dst_access_mask(dst_access)];
         // SAFETY: recording into our own command buffer.
         unsafe {
             self.dev.raw.cmd_pipeline_barrier(
@@ -387,7 +423,7 @@ impl<'a> Recorder<'a> {
         // to the other queue: submission order is dependency order across
         // queues (and the semaphore makes the other queue's writes visible).
         // To overlap two batches, submit the one that must not wait first.
-        if dev.transfer.is_some() {
+        if dev.transfer.is_some() && !self.overlaps_other_queue {
             let other = dev.queue(!transfer).submitted.load(Ordering::SeqCst);
             if other > 0 {
                 self.waits.push(SyncPoint {
