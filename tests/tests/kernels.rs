@@ -12,9 +12,34 @@ fn every_kernel_builds_a_valid_pipeline() {
     })
     .unwrap_or_else(|e| panic!("cannot open a Vulkan device: {e}"));
     let log = ctx.validation_log();
-    let n = ctx.warm_up().expect("pipeline creation");
+    let (mut built, mut rejected) = (0, Vec::new());
+    for k in latentam_shaders::ALL {
+        if !ctx.info().can_run(k) {
+            continue;
+        }
+        match ctx.kernel_builds(k) {
+            Ok(true) => built += 1,
+            Ok(false) => rejected.push(k.name),
+            Err(e) => panic!("{}: {e}", k.name),
+        }
+    }
     let expected = latentam_shaders::ALL.len() - usize::from(!ctx.info().native_float_atomics);
-    assert_eq!(n, expected);
+    assert_eq!(built + rejected.len(), expected);
+    // A GPU's compiler may reject the largest column-layout blending
+    // kernels (NVIDIA's 580 driver rejects two); the rasterizer then takes
+    // the pixel ones. A CPU driver, whose layout they are, builds them all,
+    // and every other kernel builds everywhere.
+    assert!(
+        rejected
+            .iter()
+            .all(|k| k.starts_with("raster_") && k.contains("_columns"))
+            && (rejected.is_empty() || !ctx.info().is_cpu()),
+        "{} rejects {rejected:?}",
+        ctx.info().name
+    );
+    if !rejected.is_empty() {
+        eprintln!("{} rejects {rejected:?}", ctx.info().name);
+    }
     drop(ctx);
     let errors = log.errors();
     assert!(

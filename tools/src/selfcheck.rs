@@ -69,8 +69,10 @@ pub fn run(validation: bool) -> Result<()> {
     let ctx = Context::new(opts)?;
     let log = ctx.validation_log();
     println!("device: {}", ctx.info().name);
+    let kernels = check_kernels(&ctx);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let checks = vec![
+        kernels,
         check_scan(&ctx, &mut rng).context("scan")?,
         check_reduce(&ctx, &mut rng).context("reduce")?,
         check_gemm(&ctx, &mut rng).context("gemm")?,
@@ -98,10 +100,67 @@ pub fn run(validation: bool) -> Result<()> {
         );
     }
     if failed > 0 {
-        bail!("{failed} primitive(s) disagree with their CPU reference");
+        bail!("{failed} check(s) failed");
     }
-    println!("all {} primitives match their CPU references", checks.len());
+    println!(
+        "the kernels build, and all {} primitives match their CPU references",
+        checks.len() - 1
+    );
     Ok(())
+}
+
+/// Builds the pipeline of every kernel the device can run, one at a time
+/// and timed (a driver's compiler can reject or take long over one), and
+/// goes on past a failure to name every kernel that fails. A GPU's
+/// compiler may reject the largest column-layout blending kernels: the
+/// rasterizer then takes the pixel ones, so those are noted, not failed.
+fn check_kernels(ctx: &Context) -> Check {
+    let mut built: Vec<(&str, f64)> = Vec::new();
+    let (mut failed, mut fall_back) = (Vec::new(), Vec::new());
+    for k in latentam_shaders::ALL {
+        if !ctx.info().can_run(k) {
+            continue;
+        }
+        let start = std::time::Instant::now();
+        let seconds = || start.elapsed().as_secs_f64();
+        match ctx.kernel_builds(k) {
+            Ok(true) => built.push((k.name, seconds())),
+            Ok(false) if !ctx.info().is_cpu() && k.name.contains("_columns") => {
+                fall_back.push(format!("{} ({:.1} s)", k.name, seconds()))
+            }
+            Ok(false) => failed.push(format!(
+                "{} ({:.1} s): the driver cannot build it",
+                k.name,
+                seconds()
+            )),
+            Err(e) => failed.push(format!("{} ({:.1} s): {e}", k.name, seconds())),
+        }
+    }
+    built.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let total: f64 = built.iter().map(|b| b.1).sum();
+    let slowest: Vec<String> = built
+        .iter()
+        .take(3)
+        .map(|(n, s)| format!("{n} {s:.2} s"))
+        .collect();
+    let mut detail = format!(
+        "{} built in {total:.1} s (slowest: {})",
+        built.len(),
+        slowest.join(", ")
+    );
+    for f in &fall_back {
+        detail.push_str(&format!(
+            "\n               rejected, the pixel layout stands in: {f}"
+        ));
+    }
+    for f in &failed {
+        detail.push_str(&format!("\n               failed: {f}"));
+    }
+    Check {
+        name: "kernels",
+        ok: failed.is_empty(),
+        detail,
+    }
 }
 
 fn check_scan(ctx: &Context, r: &mut impl Rng) -> Result<Check> {

@@ -35,19 +35,20 @@ fn the_gpu_check_runs_every_step_and_writes_its_files() {
         [
             "devices",
             "selfcheck",
-            "primitives",
-            "raster",
             "map-auto",
+            "raster",
+            "latent",
             "map-pixels",
             "map-columns",
-            "live"
+            "live",
+            "primitives"
         ]
     );
     assert!(steps.iter().all(|s| s["status"] == 0), "{steps:?}");
     let json = |name: &str| -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(out.join(name)).unwrap()).unwrap()
     };
-    for f in ["primitives.json", "raster.json", "live.json"] {
+    for f in ["primitives.json", "raster.json", "latent.json", "live.json"] {
         json(f);
     }
     // Both blending layouts map the same keyframes of the same scene.

@@ -34,6 +34,17 @@ pub enum Error {
         /// Its result code.
         result: vk::Result,
     },
+    /// The driver could not build one of the engine's kernels (its
+    /// compiler rejected or failed on the SPIR-V). Names the kernel, so a
+    /// report says which one; the same error on every device of a vendor
+    /// is a bug in the engine or the driver, worth reporting either way.
+    #[error("the driver could not build kernel `{kernel}`: {result}")]
+    KernelBuild {
+        /// The kernel (the generated table's name, e.g. `raster_backward_cas`).
+        kernel: &'static str,
+        /// The result of vkCreateComputePipelines or vkCreateShaderModule.
+        result: vk::Result,
+    },
     /// The GPU device was lost (a driver reset, a hung or faulted
     /// kernel, a removed GPU): nothing on it can be used again. A map
     /// loses at most what it did since its last save.

@@ -87,9 +87,11 @@ fn engine_error(e: latentam::Error) -> LatentamStatus {
             LatentamStatus::EmbeddingMismatch
         }
         E::OutOfMemory(_) => LatentamStatus::GpuMemory,
-        E::NoVulkan(_) | E::Vulkan { .. } | E::DeviceLost { .. } | E::Unsupported(_) => {
-            LatentamStatus::Device
-        }
+        E::NoVulkan(_)
+        | E::Vulkan { .. }
+        | E::KernelBuild { .. }
+        | E::DeviceLost { .. }
+        | E::Unsupported(_) => LatentamStatus::Device,
         E::Stopped(_) => LatentamStatus::Stopped,
         E::Input(_) | E::Io { .. } | E::Locked { .. } => LatentamStatus::Io,
         _ => LatentamStatus::Internal,

@@ -30,7 +30,9 @@ pub mod testing;
 mod tests;
 
 pub use buffer::{Buffer, Readback};
-pub use context::{Context, ContextOptions, DeviceInfo, FloatAtomics, Validation, ValidationLog};
+pub use context::{
+    Context, ContextOptions, DeviceInfo, FloatAtomics, TransferQueue, Validation, ValidationLog,
+};
 pub use counters::GpuCalls;
 pub use host_spans::HostSpan;
 pub use host_time::{ClockSync, HostSample, HOST_WAIT};
@@ -83,6 +85,22 @@ impl Context {
     /// Returns the number of pipelines ready.
     pub fn warm_up(&self) -> crate::Result<usize> {
         self.warm_up_only(|_| true)
+    }
+
+    /// Whether the driver builds `kernel`'s pipeline (building it now if it
+    /// was not yet): `Ok(false)` when its compiler rejects it
+    /// ([`Error::KernelBuild`]), remembered so that asking again costs
+    /// nothing. For a caller with an alternative variant to fall back on;
+    /// other errors (a lost device, exhausted memory) are returned.
+    pub fn kernel_builds(&self, kernel: &'static latentam_shaders::Kernel) -> crate::Result<bool> {
+        let dev = &self.dev;
+        dev.pipelines.builds(&dev.raw, dev.pipeline_cache, kernel)
+    }
+
+    /// The kernels the driver failed to build so far, with its results
+    /// (see [`Context::kernel_builds`]).
+    pub fn kernel_build_failures(&self) -> Vec<(&'static str, ash::vk::Result)> {
+        self.dev.pipelines.failures()
     }
 
     /// [`Context::warm_up`] for the kernels `keep` accepts: a client that

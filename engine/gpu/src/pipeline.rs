@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use ash::vk;
 use latentam_shaders::Kernel;
 
-use latentam_base::{Result, VkContext};
+use latentam_base::{Error, Result, VkContext};
 
 /// A kernel's pipeline and layouts. Owned by the context's cache and destroyed
 /// with the device.
@@ -22,9 +22,24 @@ pub(crate) struct Pipeline {
 #[derive(Default)]
 pub(crate) struct PipelineCache {
     map: Mutex<HashMap<&'static str, Arc<Pipeline>>>,
+    /// Kernels the driver failed to build, with its result: asked again,
+    /// they fail at once instead of compiling again (a driver can take
+    /// many seconds before it gives up on one).
+    failed: Mutex<HashMap<&'static str, vk::Result>>,
+    /// Kernels treated as rejected (`ContextOptions::rejected_kernels`).
+    rejected: Vec<String>,
 }
 
 impl PipelineCache {
+    /// A cache whose `rejected` kernels fail to build as if the driver
+    /// rejected them.
+    pub fn rejecting(rejected: Vec<String>) -> Self {
+        Self {
+            rejected,
+            ..Self::default()
+        }
+    }
+
     pub fn get(
         &self,
         dev: &ash::Device,
@@ -35,9 +50,56 @@ impl PipelineCache {
         if let Some(p) = map.get(k.name) {
             return Ok(p.clone());
         }
-        let p = Arc::new(create(dev, cache, k)?);
-        map.insert(k.name, p.clone());
-        Ok(p)
+        let mut failed = self.failed.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(&result) = failed.get(k.name) {
+            return Err(Error::KernelBuild {
+                kernel: k.name,
+                result,
+            });
+        }
+        let created = if self.rejected.iter().any(|r| r == k.name) {
+            Err(Error::KernelBuild {
+                kernel: k.name,
+                result: vk::Result::ERROR_UNKNOWN,
+            })
+        } else {
+            create(dev, cache, k)
+        };
+        match created {
+            Ok(p) => {
+                let p = Arc::new(p);
+                map.insert(k.name, p.clone());
+                Ok(p)
+            }
+            Err(e) => {
+                if let Error::KernelBuild { result, .. } = e {
+                    failed.insert(k.name, result);
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// Whether the driver builds `k` (see `Context::kernel_builds`).
+    pub fn builds(
+        &self,
+        dev: &ash::Device,
+        cache: vk::PipelineCache,
+        k: &'static Kernel,
+    ) -> Result<bool> {
+        match self.get(dev, cache, k) {
+            Ok(_) => Ok(true),
+            Err(Error::KernelBuild { .. }) => Ok(false),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// The kernels the driver failed to build so far, with its results.
+    pub fn failures(&self) -> Vec<(&'static str, vk::Result)> {
+        let failed = self.failed.lock().unwrap_or_else(|p| p.into_inner());
+        let mut v: Vec<_> = failed.iter().map(|(k, r)| (*k, *r)).collect();
+        v.sort();
+        v
     }
 
     /// Pipelines created so far.
@@ -106,7 +168,7 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
             Err(e) => {
                 dev.destroy_pipeline_layout(layout, None);
                 dev.destroy_descriptor_set_layout(set_layout, None);
-                return Err(e).vk("vkCreateShaderModule");
+                return Err(kernel_build(k, e));
             }
         };
         let entry = std::ffi::CString::new(k.entry_point()).expect("kernel names have no NUL");
@@ -123,7 +185,7 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
                 dev.destroy_shader_module(module, None);
                 dev.destroy_pipeline_layout(layout, None);
                 dev.destroy_descriptor_set_layout(set_layout, None);
-                return Err(e).vk("vkCreateComputePipelines");
+                return Err(kernel_build(k, e));
             }
         };
         Ok(Pipeline {
@@ -132,5 +194,22 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
             set_layout,
             module,
         })
+    }
+}
+
+/// A failed module or pipeline creation names its kernel; a lost device
+/// and exhausted memory keep their own errors, which callers act on.
+fn kernel_build(k: &Kernel, result: vk::Result) -> Error {
+    match result {
+        vk::Result::ERROR_DEVICE_LOST => Error::DeviceLost {
+            call: "vkCreateComputePipelines",
+        },
+        vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
+            Error::OutOfMemory(format!("building kernel `{}`: {result}", k.name))
+        }
+        _ => Error::KernelBuild {
+            kernel: k.name,
+            result,
+        },
     }
 }

@@ -60,9 +60,11 @@ pub fn to_py(e: latentam::Error) -> PyErr {
             EmbeddingMismatchError::new_err(message)
         }
         E::OutOfMemory(_) => GpuMemoryError::new_err(message),
-        E::NoVulkan(_) | E::Vulkan { .. } | E::DeviceLost { .. } | E::Unsupported(_) => {
-            DeviceError::new_err(message)
-        }
+        E::NoVulkan(_)
+        | E::Vulkan { .. }
+        | E::KernelBuild { .. }
+        | E::DeviceLost { .. }
+        | E::Unsupported(_) => DeviceError::new_err(message),
         E::Stopped(_) => StoppedError::new_err(message),
         E::Input(_) | E::Io { .. } | E::Locked { .. } => InputError::new_err(message),
         _ => Error::new_err(message),

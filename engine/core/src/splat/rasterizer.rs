@@ -31,7 +31,7 @@ use grow::Grow;
 use images::QUERY_BYTES;
 pub use images::{PixelBuffers, RenderedView};
 pub use settings::{BlendLayout, Channels, QueryGradients, RenderSettings};
-use variants::{backward_kernel, forward_kernel, pool_kernel};
+use variants::{backward_kernel, buildable, forward_kernel, pool_kernel};
 
 use latentam_shaders::shared::TileRange;
 use latentam_shaders::{bind, push, PROJECT_BACKWARD};
@@ -259,7 +259,9 @@ impl Rasterizer {
             query_first: query_first as u32,
             query_count: query_count as u32,
         };
-        let kernel = forward_kernel(rec.info(), &self.settings, batch.channels);
+        let kernel = buildable(rec, &self.settings, |s| {
+            forward_kernel(rec.info(), s, batch.channels)
+        })?;
         rec.dispatch_linear(kernel, layout.tiles, bufs, &p)
     }
 

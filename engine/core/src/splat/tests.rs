@@ -732,6 +732,31 @@ fn backward_matches_reference_with_cas_atomics() {
     });
 }
 
+/// A driver that cannot build the column-layout blending kernels (NVIDIA's
+/// 580 driver cannot build the largest) gets the pixel ones: the `Columns`
+/// layout still renders and differentiates as the reference does, and the
+/// context lists what it could not build.
+#[test]
+fn column_kernels_a_driver_rejects_fall_back_to_the_pixel_layout() {
+    let rejected: Vec<String> = latentam_shaders::ALL
+        .iter()
+        .filter(|k| k.name.starts_with("raster_") && k.name.contains("_columns"))
+        .map(|k| k.name.to_string())
+        .collect();
+    let o = ContextOptions {
+        rejected_kernels: rejected,
+        ..ContextOptions::default()
+    };
+    with_options(o, |ctx| {
+        check_backward_vs_reference(ctx, "column_kernels_rejected", false);
+        let failed = ctx.kernel_build_failures();
+        assert!(
+            failed.len() >= 2 && failed.iter().all(|(k, _)| k.contains("_columns")),
+            "{failed:?}"
+        );
+    });
+}
+
 #[test]
 fn backward_matches_reference_without_subgroups() {
     for cas in [false, true] {

@@ -110,12 +110,16 @@ mod tests {
         with_cas_atomics(|ctx| {
             // Warming up compiles only what the device runs: no pipeline of
             // a native-atomic variant on a device without the extension.
+            // (Column-layout blending kernels are left out: a GPU's
+            // compiler may reject the largest, and the rasterizer then
+            // takes the pixel ones.)
+            let pixel_layout = |k: &latentam_shaders::Kernel| !k.name.contains("_columns");
             let runnable = latentam_shaders::ALL
                 .iter()
-                .filter(|k| !k.requires.float_atomics && ctx.info().can_run(k))
+                .filter(|k| pixel_layout(k) && !k.requires.float_atomics && ctx.info().can_run(k))
                 .count();
             assert!(runnable < latentam_shaders::ALL.len());
-            assert_eq!(ctx.warm_up().unwrap(), runnable);
+            assert_eq!(ctx.warm_up_only(pixel_layout).unwrap(), runnable);
             let values = ctx.upload_new("test/values", &[1.0f32]).unwrap();
             let targets = ctx.upload_new("test/targets", &[0u32]).unwrap();
             let acc = Buffer::device(ctx, "test/acc", 4).unwrap();

@@ -106,7 +106,7 @@ impl Rasterizer {
             grad_splats: self.grad_splats.get(),
             pixel_region: labels,
         };
-        let kernel = backward_kernel(rec.info(), &self.settings);
+        let kernel = buildable(rec, &self.settings, |s| backward_kernel(rec.info(), s))?;
         rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
         self.record_projection_backward(rec, gaussians, grads, count, n_views, accumulate)
     }
@@ -191,7 +191,7 @@ impl Rasterizer {
             labels,
             pooled,
         };
-        let kernel = pool_kernel(rec.info(), &self.settings);
+        let kernel = buildable(rec, &self.settings, |s| pool_kernel(rec.info(), s))?;
         rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
         Ok(())
     }

@@ -3,7 +3,11 @@
 //! `@select` lines generate the selectors, so every combination of flags
 //! names a kernel that exists.
 
-use latentam_gpu::DeviceInfo;
+use std::collections::HashSet;
+use std::sync::Mutex;
+
+use latentam_base::Result;
+use latentam_gpu::{DeviceInfo, Recorder};
 use latentam_shaders::{
     bind, push, KernelDef, RasterBackwardVariant, RasterForwardVariant, RasterPoolVariant,
 };
@@ -62,4 +66,41 @@ pub(super) fn pool_kernel(
         cas: !info.native_float_atomics,
     }
     .kernel()
+}
+
+/// The variant `pick` chooses for `settings`, unless it is a column
+/// variant the driver cannot build: then the pixel one, with a warning
+/// (once per kernel). Column variants keep a tile column's pixels in
+/// registers, and the largest of them can exceed what a GPU's compiler
+/// accepts (NVIDIA's 580 driver rejects the attached ones without
+/// subgroups); every device builds the pixel variants, and the two
+/// layouts read and write the same per-pixel buffers, so they mix.
+pub(super) fn buildable<P, B>(
+    rec: &Recorder<'_>,
+    settings: &RenderSettings,
+    pick: impl Fn(&RenderSettings) -> &'static KernelDef<P, B>,
+) -> Result<&'static KernelDef<P, B>> {
+    let chosen = pick(settings);
+    if !columns(rec.info(), settings) || rec.kernel_builds(&chosen.kernel)? {
+        return Ok(chosen);
+    }
+    let pixels = RenderSettings {
+        layout: BlendLayout::Pixels,
+        ..*settings
+    };
+    let fallback = pick(&pixels);
+    static WARNED: Mutex<Option<HashSet<&'static str>>> = Mutex::new(None);
+    let mut warned = WARNED.lock().unwrap_or_else(|p| p.into_inner());
+    if warned
+        .get_or_insert_with(HashSet::new)
+        .insert(chosen.kernel.name)
+    {
+        log::warn!(
+            "{}: the driver cannot build kernel {}; using {} (the pixel layout) instead",
+            rec.info().name,
+            chosen.kernel.name,
+            fallback.kernel.name
+        );
+    }
+    Ok(fallback)
 }
