@@ -287,6 +287,17 @@ impl Readback {
     /// Copies the data out as `T`s. Fails if the GPU has not finished the
     /// submission yet.
     pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        let bytes = self.bytes()?;
+        let n = bytes.len() / std::mem::size_of::<T>();
+        Ok(bytemuck::pod_collect_to_vec(
+            &bytes[..n * std::mem::size_of::<T>()],
+        ))
+    }
+
+    /// The downloaded bytes in place, in the mapped staging memory (no
+    /// copy: for large readbacks consumed once). Errors like
+    /// [`Readback::read`] before the submission completed.
+    pub fn bytes(&self) -> Result<&[u8]> {
         let done = self.staging.dev.completed();
         let done = if self.transfer { done.1 } else { done.0 };
         if done < self.after.load(std::sync::atomic::Ordering::SeqCst) {
@@ -294,11 +305,6 @@ impl Readback {
                 "readback used before its submission completed; wait on it first".into(),
             ));
         }
-        let bytes = self.staging.mapped();
-        let n = bytes.len() / std::mem::size_of::<T>();
-        let mut out = vec![T::zeroed(); n];
-        bytemuck::cast_slice_mut::<T, u8>(&mut out)
-            .copy_from_slice(&bytes[..n * std::mem::size_of::<T>()]);
-        Ok(out)
+        Ok(self.staging.mapped())
     }
 }

@@ -1,10 +1,8 @@
 //! The global map: every Gaussian, on the CPU, keyed by its voxel.
 
-use std::collections::HashMap;
-
 use glam::DVec3;
 
-use super::voxel::VoxelKey;
+use super::voxel::{KeyMap, VoxelKey};
 use crate::splat::QUERY_DIM;
 
 /// One Gaussian's parameters, as the optimiser sees them (see
@@ -74,14 +72,14 @@ const OCCUPANCY_LEVELS: [i32; 4] = [2, OCCUPANCY_VOXELS, 8, 16];
 #[derive(Clone, Debug)]
 pub struct GlobalMap {
     voxel_size: f64,
-    slot_of: HashMap<VoxelKey, u32>,
+    slot_of: KeyMap<u32>,
     keys: Vec<VoxelKey>,
     gaussians: Vec<Gaussian>,
-    cells: HashMap<VoxelKey, Vec<u32>>,
+    cells: KeyMap<Vec<u32>>,
     /// Position of each slot in its cell's list, for O(1) removal.
     in_cell: Vec<u32>,
     /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`.
-    occupancy: [HashMap<VoxelKey, u32>; 4],
+    occupancy: [KeyMap<u32>; 4],
 }
 
 impl GlobalMap {
@@ -93,10 +91,10 @@ impl GlobalMap {
         );
         GlobalMap {
             voxel_size,
-            slot_of: HashMap::new(),
+            slot_of: KeyMap::default(),
             keys: Vec::new(),
             gaussians: Vec::new(),
-            cells: HashMap::new(),
+            cells: KeyMap::default(),
             in_cell: Vec::new(),
             occupancy: Default::default(),
         }
@@ -245,19 +243,38 @@ impl GlobalMap {
     /// Keys of the Gaussians whose mean is within `radius` of `centre`, in
     /// key order.
     pub fn within(&self, centre: DVec3, radius: f64) -> Vec<VoxelKey> {
+        let mut out = Vec::new();
+        self.visit_within(centre, radius, |key, _| out.push(key));
+        out.sort_unstable();
+        out
+    }
+
+    /// The Gaussians within `radius` of `centre` with their squared
+    /// distance to it, nearest first (ties by key): what a window sync
+    /// plans from, without a lookup per key.
+    pub fn within_by_distance(&self, centre: DVec3, radius: f64) -> Vec<(f64, VoxelKey)> {
+        let mut out = Vec::new();
+        self.visit_within(centre, radius, |key, d2| out.push((d2, key)));
+        out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        out
+    }
+
+    /// Calls `take(key, squared distance)` for every Gaussian within
+    /// `radius` of `centre`, in no particular order.
+    fn visit_within(&self, centre: DVec3, radius: f64, mut take: impl FnMut(VoxelKey, f64)) {
         let cell_edge = self.voxel_size * CELL_VOXELS as f64;
         let lo = ((centre - radius) / cell_edge).floor();
         let hi = ((centre + radius) / cell_edge).floor();
         if !lo.is_finite() || !hi.is_finite() {
-            return Vec::new();
+            return;
         }
         let r2 = radius * radius;
-        let mut out = Vec::new();
-        let mut take = |cell: &Vec<u32>| {
+        let mut take_cell = |cell: &Vec<u32>| {
             for &s in cell {
                 let m = DVec3::from(self.gaussians[s as usize].mean.map(f64::from));
-                if (m - centre).length_squared() <= r2 {
-                    out.push(self.keys[s as usize]);
+                let d2 = (m - centre).length_squared();
+                if d2 <= r2 {
+                    take(self.keys[s as usize], d2);
                 }
             }
         };
@@ -272,7 +289,7 @@ impl GlobalMap {
                     && (lo.y..=hi.y).contains(&k.y)
                     && (lo.z..=hi.z).contains(&k.z)
                 {
-                    take(cell);
+                    take_cell(cell);
                 }
             }
         } else {
@@ -280,14 +297,12 @@ impl GlobalMap {
                 for y in lo.y as i32..=hi.y as i32 {
                     for z in lo.z as i32..=hi.z as i32 {
                         if let Some(cell) = self.cells.get(&VoxelKey { x, y, z }) {
-                            take(cell);
+                            take_cell(cell);
                         }
                     }
                 }
             }
         }
-        out.sort_unstable();
-        out
     }
 
     /// Every key and Gaussian, in no particular order.
@@ -299,7 +314,7 @@ impl GlobalMap {
     pub fn bytes(&self) -> u64 {
         let per = size_of::<Gaussian>() + size_of::<VoxelKey>() * 2 + 4 * 3 + 16;
         (self.keys.capacity() * per
-            + (self.cells.len() + self.occupancy.iter().map(HashMap::len).sum::<usize>()) * 64)
+            + (self.cells.len() + self.occupancy.iter().map(KeyMap::len).sum::<usize>()) * 64)
             as u64
     }
 }

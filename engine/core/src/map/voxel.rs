@@ -2,6 +2,15 @@
 
 use glam::DVec3;
 
+/// A hash map keyed by voxel: every window sync plans, gathers and writes
+/// back hundreds of thousands of keys, and SipHash (the standard default,
+/// hardened against adversarial keys, which map coordinates are not)
+/// spent more time hashing them than the GPU spent moving the Gaussians.
+pub type KeyMap<V> = rustc_hash::FxHashMap<VoxelKey, V>;
+
+/// A set of voxels (see [`KeyMap`]).
+pub type KeySet = rustc_hash::FxHashSet<VoxelKey>;
+
 /// Integer coordinates of a voxel of edge `s_v`: `floor(p / s_v)`.
 ///
 /// ```

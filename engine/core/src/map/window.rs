@@ -15,12 +15,10 @@
 //! counts) is moved the same way through [`Companion`] buffers, and zeroed
 //! for fetched rows.
 
-use std::collections::HashSet;
-
 use glam::DVec3;
 
 use super::global::{Gaussian, GlobalMap};
-use super::voxel::VoxelKey;
+use super::voxel::{KeySet, VoxelKey};
 use crate::splat::{GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS};
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Recorder};
@@ -202,23 +200,12 @@ impl LocalWindow {
     /// radius leave; when the Gaussians within it exceed the capacity, the
     /// farthest are left out (residents among them evicted).
     pub fn plan(&self, global: &GlobalMap, centre: DVec3, radius: f64) -> SyncPlan {
-        let mut wanted: Vec<(f64, VoxelKey)> = global
-            .within(centre, radius)
-            .into_iter()
-            .map(|k| {
-                let g = global.get(k).expect("within() returns present keys");
-                (
-                    DVec3::from(g.mean.map(f64::from)).distance_squared(centre),
-                    k,
-                )
-            })
-            .collect();
-        wanted.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut wanted = global.within_by_distance(centre, radius);
         let cap = self.capacity() as usize;
         let over_capacity = wanted.len().saturating_sub(cap);
         wanted.truncate(cap);
-        let wanted_set: HashSet<VoxelKey> = wanted.iter().map(|w| w.1).collect();
-        let resident: HashSet<VoxelKey> = self.keys.iter().copied().collect();
+        let wanted_set: KeySet = wanted.iter().map(|w| w.1).collect();
+        let resident: KeySet = self.keys.iter().copied().collect();
         let evict: Vec<u32> = (0..self.keys.len() as u32)
             .filter(|&r| !wanted_set.contains(&self.keys[r as usize]))
             .collect();
@@ -283,14 +270,14 @@ impl LocalWindow {
         // 2. Compaction: live rows from the tail fill the holes below `keep`,
         // through the scratch buffer (a copy within one buffer makes
         // validation layers compare every pair of regions for overlap).
-        let evicted: HashSet<u32> = plan
-            .evict
-            .iter()
-            .copied()
-            .filter(|&r| (r as usize) < n)
-            .collect();
+        let mut evicted = vec![false; n];
+        for &r in &plan.evict {
+            if let Some(e) = evicted.get_mut(r as usize) {
+                *e = true;
+            }
+        }
         let holes = plan.evict.iter().copied().filter(|&r| (r as usize) < keep);
-        let movers = (keep as u32..n as u32).filter(|r| !evicted.contains(r));
+        let movers = (keep as u32..n as u32).filter(|&r| !evicted[r as usize]);
         let moves: Vec<(u32, u32)> = holes.zip(movers).collect();
         let gather: Vec<(u64, u64, u64)> = runs(
             moves

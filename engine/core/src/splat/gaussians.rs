@@ -178,14 +178,14 @@ impl GaussianReadback {
         if self.reads.is_empty() {
             return Ok(HostGaussians::default());
         }
-        let f = |i: usize| self.reads[i].read::<f32>();
+        // One copy per field, straight out of the mapped staging memory.
         Ok(HostGaussians {
-            means: bytemuck::cast_slice(&f(0)?).to_vec(),
-            log_scales: bytemuck::cast_slice(&f(1)?).to_vec(),
-            quats: bytemuck::cast_slice(&f(2)?).to_vec(),
-            colors: bytemuck::cast_slice(&f(3)?).to_vec(),
-            opacity_logits: f(4)?,
-            queries: bytemuck::cast_slice(&f(5)?).to_vec(),
+            means: self.reads[0].read()?,
+            log_scales: self.reads[1].read()?,
+            quats: self.reads[2].read()?,
+            colors: self.reads[3].read()?,
+            opacity_logits: self.reads[4].read()?,
+            queries: self.reads[5].read()?,
         })
     }
 }

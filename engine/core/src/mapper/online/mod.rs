@@ -1,7 +1,6 @@
 //! The per-keyframe loop (paper Alg. 1) over the pieces in `map`,
 //! `latent` and the [`Trainer`].
 
-use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -16,8 +15,9 @@ use super::history::{History, KeyframeRecord};
 use super::trainer::{views_per_chunk, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 use crate::latent::{projected_queries, LatentHead, LatentHeadConfig};
 use crate::map::{
-    relative_exposure, seed_from_frame, Companion, ExposureTrack, GlobalMap, KeyframeSelector,
-    LocalWindow, PendingSync, QueryInit, RegionQueries, SyncPlan, ViewCoverage, VoxelKey,
+    relative_exposure, seed_from_frame, Companion, ExposureTrack, GlobalMap, KeySet,
+    KeyframeSelector, LocalWindow, PendingSync, QueryInit, RegionQueries, SyncPlan, ViewCoverage,
+    VoxelKey,
 };
 use crate::splat::{Channels, QUERY_DIM};
 use latentam_base::{Error, Result};
@@ -79,10 +79,10 @@ pub struct OnlineMapper {
     /// Gaussians seeded where their keyframe measured no depth (holes
     /// filled from their neighbours), until a later keyframe measures
     /// their surface.
-    pub(super) guesses: HashSet<VoxelKey>,
+    pub(super) guesses: KeySet,
     /// Guesses a later keyframe saw in front of the surface it measured:
     /// removed at the next pruning.
-    pub(super) superseded: HashSet<VoxelKey>,
+    pub(super) superseded: KeySet,
     /// The run folder version the state was loaded from.
     pub(super) run_id: Option<String>,
     /// A keyframe step failed after it had changed the map: the state is
@@ -117,8 +117,8 @@ impl OnlineMapper {
             history: History::with_cell(cfg.history_cell),
             trajectory: Vec::new(),
             exposure: ExposureTrack::default(),
-            guesses: HashSet::new(),
-            superseded: HashSet::new(),
+            guesses: KeySet::default(),
+            superseded: KeySet::default(),
             head: None,
             trainer: None,
             last_sync: None,

@@ -92,7 +92,7 @@ impl OnlineMapper {
     /// [`OnlineMapper::flush`] it writes nothing back, so taking it
     /// between keyframes leaves mapping exactly as without it.
     pub fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {
-        let mut resident = HashSet::new();
+        let mut resident = KeySet::default();
         let mut out = latentam_base::HostGaussians::default();
         if let Some(window) = self
             .window
@@ -128,7 +128,7 @@ impl OnlineMapper {
         // Superseded guesses outside the window go at once.
         let mut superseded = std::mem::take(&mut self.superseded);
         let mut removed = 0;
-        let resident: HashSet<VoxelKey> = window.keys().iter().copied().collect();
+        let resident: KeySet = window.keys().iter().copied().collect();
         superseded.retain(|key| {
             if resident.contains(key) {
                 return true;
