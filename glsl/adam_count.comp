@@ -18,8 +18,15 @@ layout(push_constant) uniform Params {
 
 void main() {
     uint row = linear_group() * THREADS + gl_LocalInvocationID.x;
-    if (row >= pc.rows || (pc.use_mask != 0u && mask[row] == 0u)) {
+    // Nested ifs: naga evaluates both operands of `||` and `&&`, and
+    // mask[row] is out of bounds past the rows (or without a mask).
+    if (row >= pc.rows) {
         return;
+    }
+    if (pc.use_mask != 0u) {
+        if (mask[row] == 0u) {
+            return;
+        }
     }
     steps[row] += 1u;
 }

@@ -37,8 +37,12 @@ void main() {
         return;
     }
     uint row = i / pc.width;
-    if (pc.use_mask != 0u && mask[row] == 0u) {
-        return;
+    // Nested: naga evaluates both operands of `&&`, and without a mask the
+    // bound buffer may be shorter than the rows.
+    if (pc.use_mask != 0u) {
+        if (mask[row] == 0u) {
+            return;
+        }
     }
     float g = grad[i];
     if (isnan(g) || isinf(g)) {

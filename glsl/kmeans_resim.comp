@@ -55,7 +55,15 @@ void main() {
     }
     uint t = gl_LocalInvocationID.x;
     uint best = best_index[r];
-    bool whole = row_complete[r] == 0u && (best == NONE || stale[best] != 0u);
+    // Spelled out: naga evaluates both operands of `&&` and `||`, and
+    // stale[NONE] is out of bounds.
+    bool whole = false;
+    if (row_complete[r] == 0u) {
+        whole = best == NONE;
+        if (!whole) {
+            whole = stale[best] != 0u;
+        }
+    }
     if (whole) {
         for (uint c = t; c < pc.centres_count; c += THREADS) {
             sims[r * pc.centres_count + c] = cosine(r, c);
@@ -107,7 +115,11 @@ void main() {
     float bv = uintBitsToFloat(0xff800000u);
     uint bi = NONE;
     uint base = row * pc.centres_count;
-    if (old == NONE || stale[old] != 0u) {
+    bool rescan = old == NONE;
+    if (!rescan) {
+        rescan = stale[old] != 0u;
+    }
+    if (rescan) {
         for (uint c = t; c < pc.centres_count; c += THREADS) {
             float v = sims[base + c];
             if (better(v, c, bv, bi)) {
@@ -134,9 +146,13 @@ void main() {
     sidx[t] = bi;
     barrier();
     for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
-        if (t < h && better(sval[t + h], sidx[t + h], sval[t], sidx[t])) {
-            sval[t] = sval[t + h];
-            sidx[t] = sidx[t + h];
+        // Nested: naga evaluates both operands of `&&`, and sval[t + h]
+        // is past the array for t >= h.
+        if (t < h) {
+            if (better(sval[t + h], sidx[t + h], sval[t], sidx[t])) {
+                sval[t] = sval[t + h];
+                sidx[t] = sidx[t + h];
+            }
         }
         barrier();
     }

@@ -39,9 +39,13 @@ void pick(float v, uint i) {
     sidx[t] = i;
     barrier();
     for (uint h = THREADS / 2u; h > 0u; h /= 2u) {
-        if (t < h && better(sval[t + h], sidx[t + h], sval[t], sidx[t])) {
-            sval[t] = sval[t + h];
-            sidx[t] = sidx[t + h];
+        // Nested: naga evaluates both operands of `&&`, and sval[t + h]
+        // is past the array for t >= h.
+        if (t < h) {
+            if (better(sval[t + h], sidx[t + h], sval[t], sidx[t])) {
+                sval[t] = sval[t + h];
+                sidx[t] = sidx[t + h];
+            }
         }
         barrier();
     }

@@ -59,7 +59,13 @@ void main() {
         return;
     }
     uint t = gl_LocalInvocationID.x;
-    if (pc.all_dirty == 0u && dirty[j] == 0u) {
+    // Spelled out: naga evaluates both operands of `&&`, and with
+    // all_dirty the bound `dirty` buffer may be shorter.
+    bool clean = false;
+    if (pc.all_dirty == 0u) {
+        clean = dirty[j] == 0u;
+    }
+    if (clean) {
         if (t == 0u) {
             stale[j] = 0u;
         }

@@ -72,10 +72,22 @@ void main() {
     }
 #else
     uint tile = keys[i];
-    if (i == 0u || keys[i - 1u] != tile) {
+    // Nested ifs, not `||`: naga's GLSL front end evaluates both operands
+    // of a logical operator, and keys[i - 1] at i = 0 (or keys[n] at the
+    // end) is an out-of-bounds read, which a GPU without robust buffer
+    // access may fault on (GPU-assisted validation caught it).
+    bool first = i == 0u;
+    if (!first) {
+        first = keys[i - 1u] != tile;
+    }
+    if (first) {
         ranges[tile].start = i;
     }
-    if (i + 1u == pc.n || keys[i + 1u] != tile) {
+    bool last = i + 1u == pc.n;
+    if (!last) {
+        last = keys[i + 1u] != tile;
+    }
+    if (last) {
         ranges[tile].end = i + 1u;
     }
 #endif

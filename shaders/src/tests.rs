@@ -213,3 +213,48 @@ fn shared_structs_have_the_std430_size() {
     assert_eq!(std::mem::size_of::<shared::View>(), 128);
     assert_eq!(std::mem::align_of::<shared::View>(), 4);
 }
+
+/// naga's GLSL front end evaluates both operands of `&&` and `||` (it
+/// lowers them to SPIR-V's OpLogicalAnd/Or, not to branches), so a guard
+/// such as `i > 0u && keys[i - 1u] != k` still reads `keys[-1]`: an
+/// out-of-bounds access a GPU without robust buffer access may fault on.
+/// GPU-assisted validation found one; this keeps new ones out of the
+/// GLSL kernels. An index after a logical operator is allowed only where
+/// it is in bounds whatever the left operand says (listed here).
+#[test]
+fn no_glsl_condition_guards_an_index_with_a_logical_operator() {
+    const IN_BOUNDS_ANYWAY: &[&str] = &[
+        // j < micro_count: in bounds on every iteration.
+        "novel = novel || best_value[pc.atoms + j] < pc.threshold",
+        "own = own && replaced[j] != r",
+        // A constant index into a 9-word buffer.
+        "row_complete[r] = (r >= pc.atoms || gate[8] != 0u) ? 1u : 0u",
+    ];
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl");
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(&root).unwrap() {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let code: String = text
+            .lines()
+            .map(|l| l.split("//").next().unwrap_or(""))
+            .collect::<Vec<_>>()
+            .join(" ");
+        for statement in code.split([';', '{', '}']) {
+            let statement = statement.split_whitespace().collect::<Vec<_>>().join(" ");
+            let Some(at) = statement.find("&&").or_else(|| statement.find("||")) else {
+                continue;
+            };
+            if statement[at..].contains('[')
+                && !IN_BOUNDS_ANYWAY.iter().any(|ok| statement.contains(ok))
+            {
+                found.push(format!("{}: {statement}", path.display()));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "split these into nested ifs (naga evaluates both operands):\n{}",
+        found.join("\n")
+    );
+}
