@@ -31,7 +31,8 @@ mod tests;
 
 pub use buffer::{Buffer, Readback};
 pub use context::{
-    Context, ContextOptions, DeviceInfo, FloatAtomics, TransferQueue, Validation, ValidationLog,
+    Context, ContextOptions, DeviceInfo, FloatAtomics, TransferQueue, Validation, ValidationChecks,
+    ValidationLog,
 };
 pub use counters::GpuCalls;
 pub use host_spans::HostSpan;

@@ -315,6 +315,65 @@ fn the_transfer_path_rehearsed_on_the_compute_family_orders_both_ways() {
     });
 }
 
+/// Synchronization validation is on when asked for, and sees a hazard the
+/// recorder would have barred: the suite runs under it
+/// (`LATENTAM_VALIDATION_CHECKS=sync`), so a missing barrier fails a test
+/// even on a driver that runs one command after another.
+#[test]
+fn synchronization_validation_reports_a_planted_hazard() {
+    let ctx = Context::new(ContextOptions {
+        validation: Validation::Required,
+        validation_checks: ValidationChecks {
+            synchronization: true,
+            ..ValidationChecks::default()
+        },
+        ..ContextOptions::default()
+    })
+    .unwrap();
+    let log = ctx.validation_log();
+    let n = 4096u32;
+    let data = ctx
+        .upload_new("hazard/data", &vec![1u32; n as usize])
+        .unwrap();
+    let sums = Buffer::device(&ctx, "hazard/sums", 64 * 4).unwrap();
+    let targets = ctx
+        .upload_new("hazard/targets", &vec![0u32; n as usize])
+        .unwrap();
+    let acc = Buffer::device(&ctx, "hazard/acc", 4).unwrap();
+    let mut rec = ctx.recorder().unwrap();
+    // The scan writes `data`; the scatter-add then reads it, with the
+    // barrier between them forgotten: a read after write.
+    rec.dispatch(
+        &SCAN_BLOCKS,
+        [1, 1, 1],
+        bind::ScanBuffers {
+            data: &data,
+            sums: &sums,
+        },
+        &push::Scan { n },
+    )
+    .unwrap();
+    rec.forget_hazards();
+    rec.dispatch_linear(
+        &latentam_shaders::ATOMIC_ADD_F32_CAS,
+        n,
+        bind::ScatterAddBuffers {
+            values: &data,
+            targets: &targets,
+            acc: &acc,
+        },
+        &push::ScatterAdd { n },
+    )
+    .unwrap();
+    rec.submit().unwrap().wait().unwrap();
+    drop(ctx);
+    let errors = log.errors();
+    assert!(
+        errors.iter().any(|e| e.contains("SYNC-HAZARD")),
+        "no hazard reported: {errors:?}"
+    );
+}
+
 #[test]
 fn dispatch_checks_its_arguments() {
     with_context(|ctx| {
@@ -460,4 +519,42 @@ fn every_host_wait_is_counted() {
             (3, 4, 0)
         );
     });
+}
+
+/// GPU-assisted validation is on when asked for, and sees a kernel read
+/// and write past the end of its buffer (a scan told the array is 64
+/// times longer than it is): the kernel tests run under it
+/// (`LATENTAM_VALIDATION_CHECKS=gpu-assisted`, `tools/run gpu-av`).
+#[test]
+fn gpu_assisted_validation_reports_a_planted_out_of_bounds_access() {
+    let ctx = Context::new(ContextOptions {
+        validation: Validation::Required,
+        validation_checks: ValidationChecks {
+            gpu_assisted: true,
+            ..ValidationChecks::default()
+        },
+        ..ContextOptions::default()
+    })
+    .unwrap();
+    let log = ctx.validation_log();
+    let data = ctx.upload_new("oob/data", &vec![1u32; 64]).unwrap();
+    let sums = Buffer::device(&ctx, "oob/sums", 64 * 4).unwrap();
+    let mut rec = ctx.recorder().unwrap();
+    rec.dispatch(
+        &SCAN_BLOCKS,
+        [4, 1, 1],
+        bind::ScanBuffers {
+            data: &data,
+            sums: &sums,
+        },
+        &push::Scan { n: 4096 },
+    )
+    .unwrap();
+    rec.submit().unwrap().wait().unwrap();
+    drop(ctx);
+    let errors = log.errors();
+    assert!(
+        errors.iter().any(|e| e.contains("out of bounds")),
+        "no out-of-bounds access reported: {errors:?}"
+    );
 }

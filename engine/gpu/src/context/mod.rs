@@ -18,7 +18,7 @@ mod validation;
 pub(crate) use device::{Device, Queue};
 pub use info::DeviceInfo;
 use open::*;
-pub use options::{ContextOptions, FloatAtomics, TransferQueue, Validation};
+pub use options::{ContextOptions, FloatAtomics, TransferQueue, Validation, ValidationChecks};
 pub use validation::ValidationLog;
 use validation::{debug_callback, VALIDATION_LAYER};
 
@@ -108,9 +108,23 @@ impl Context {
             .application_info(&app)
             .enabled_layer_names(&layer_ptrs)
             .enabled_extension_names(&ext_ptrs);
+        let mut enabled_checks = Vec::new();
+        if options.validation_checks.synchronization {
+            enabled_checks.push(vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION);
+        }
+        if options.validation_checks.gpu_assisted {
+            enabled_checks.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED);
+            // The instrumentation needs a descriptor set slot of its own.
+            enabled_checks.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED_RESERVE_BINDING_SLOT);
+        }
+        let mut features =
+            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enabled_checks);
         if use_validation {
             // Also catches errors in instance creation and destruction.
             create = create.push_next(&mut messenger_info);
+            if !enabled_checks.is_empty() {
+                create = create.push_next(&mut features);
+            }
         }
         // SAFETY: valid create info; the instance is destroyed by `Device`.
         let instance = match unsafe { entry.create_instance(&create, None) } {

@@ -21,6 +21,34 @@ pub enum Validation {
     Required,
 }
 
+/// Checks of the validation layer beyond its default ones, when it is on
+/// ([`Validation`]); both slow the work down several times, so they are for
+/// test runs.
+///
+/// ```no_run
+/// use latentam_gpu::{Context, ContextOptions, Validation, ValidationChecks};
+///
+/// let options = ContextOptions {
+///     validation: Validation::Required,
+///     validation_checks: ValidationChecks { synchronization: true, ..Default::default() },
+///     ..Default::default()
+/// };
+/// let ctx = Context::new(options)?;
+/// # Ok::<(), latentam_gpu::Error>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ValidationChecks {
+    /// Synchronization validation: read/write hazards between commands,
+    /// batches and queues that a missing or too narrow barrier or
+    /// semaphore leaves (a CPU driver, running one command after another,
+    /// never shows their effects).
+    pub synchronization: bool,
+    /// GPU-assisted validation: kernels are instrumented to report
+    /// out-of-bounds buffer accesses, which real GPUs punish with garbage
+    /// or a lost device.
+    pub gpu_assisted: bool,
+}
+
 /// How kernels add floats atomically.
 ///
 /// ```no_run
@@ -73,6 +101,7 @@ pub enum TransferQueue {
 /// Options for [`Context::new`](crate::Context::new). `Default` reads the environment:
 /// `LATENTAM_DEVICE` (index or case-insensitive name substring),
 /// `LATENTAM_VALIDATION=1` (require the validation layer),
+/// `LATENTAM_VALIDATION_CHECKS=sync,gpu-assisted` (see [`ValidationChecks`]),
 /// `LATENTAM_FLOAT_ATOMICS=cas` (force the CAS fallback),
 /// `LATENTAM_SUBGROUPS=off` (do not use subgroup arithmetic),
 /// `LATENTAM_TRANSFER_QUEUE=off|same-family` (see [`TransferQueue`]),
@@ -97,6 +126,8 @@ pub struct ContextOptions {
     pub device: Option<String>,
     /// Validation layer policy.
     pub validation: Validation,
+    /// The layer's optional checks, when it is on.
+    pub validation_checks: ValidationChecks,
     /// Record GPU timestamps around every dispatch.
     pub profiling: bool,
     /// Float-atomic strategy.
@@ -137,6 +168,14 @@ impl Default for ContextOptions {
                 Some("1") | Some("required") => Validation::Required,
                 Some("auto") => Validation::IfAvailable,
                 _ => Validation::Off,
+            },
+            validation_checks: {
+                let checks = env("LATENTAM_VALIDATION_CHECKS").unwrap_or_default();
+                let has = |name: &str| checks.split(',').any(|c| c.trim() == name);
+                ValidationChecks {
+                    synchronization: has("sync"),
+                    gpu_assisted: has("gpu-assisted"),
+                }
             },
             profiling: false,
             float_atomics: match env("LATENTAM_FLOAT_ATOMICS").as_deref() {

@@ -254,6 +254,15 @@ impl<'a> Recorder<'a> {
         self.written.extend(writes.iter().copied());
     }
 
+    /// Forgets what the batch touched since its last barrier, so that the
+    /// next command gets none: plants a hazard for the test that checks
+    /// synchronization validation sees one.
+    #[cfg(test)]
+    pub(crate) fn forget_hazards(&mut self) {
+        self.written.clear();
+        self.read.clear();
+    }
+
     /// A full memory barrier between all compute and transfer work recorded
     /// before and after it. The recorder inserts these itself; call it only
     /// around work it cannot see.
