@@ -60,7 +60,20 @@ pub struct Requires {
     pub subgroup_shuffle: bool,
 }
 
+/// Whether the kernel named `name` is a column-layout blending variant
+/// (`raster_*_columns*`, see `BlendLayout::Columns`): the variants a GPU's
+/// compiler may reject, for which the rasterizer has pixel-layout ones to
+/// fall back on.
+pub fn is_column_layout(name: &str) -> bool {
+    name.starts_with("raster_") && name.contains("_columns")
+}
+
 impl Kernel {
+    /// Whether this is a column-layout blending variant ([`is_column_layout`]).
+    pub fn is_column_layout(&self) -> bool {
+        is_column_layout(self.name)
+    }
+
     /// Name of the SPIR-V entry point.
     pub fn entry_point(&self) -> &'static str {
         if self.source.ends_with(".wgsl") {

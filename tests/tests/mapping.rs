@@ -51,9 +51,14 @@ fn scene() -> &'static Scene {
 }
 
 fn context() -> Context {
+    context_with(ContextOptions::default())
+}
+
+/// A context under validation with `options`.
+fn context_with(options: ContextOptions) -> Context {
     Context::new(ContextOptions {
         validation: Validation::Required,
-        ..ContextOptions::default()
+        ..options
     })
     .expect("a Vulkan device (lavapipe: apt install mesa-vulkan-drivers)")
 }
@@ -617,12 +622,10 @@ fn auto_exposure_is_measured_and_undone() {
 /// both run end to end under validation on lavapipe.
 #[test]
 fn the_discrete_gpu_path_maps_the_scene_as_the_cpu_path_does() {
-    let ctx = Context::new(ContextOptions {
-        validation: Validation::Required,
+    let ctx = context_with(ContextOptions {
         transfer_queue: latentam_gpu::TransferQueue::SameFamily,
         ..ContextOptions::default()
-    })
-    .unwrap();
+    });
     assert!(ctx.info().transfer_rehearsal || ctx.info().dedicated_transfer_queue);
     let mut mapper = Mapper::with_context(
         &ctx,

@@ -125,7 +125,7 @@ fn check_kernels(ctx: &Context) -> Check {
         let seconds = || start.elapsed().as_secs_f64();
         match ctx.kernel_builds(k) {
             Ok(true) => built.push((k.name, seconds())),
-            Ok(false) if !ctx.info().is_cpu() && k.name.contains("_columns") => {
+            Ok(false) if !ctx.info().is_cpu() && k.is_column_layout() => {
                 fall_back.push(format!("{} ({:.1} s)", k.name, seconds()))
             }
             Ok(false) => failed.push(format!(

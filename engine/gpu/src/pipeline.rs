@@ -73,6 +73,11 @@ impl PipelineCache {
             }
             Err(e) => {
                 if let Error::KernelBuild { result, .. } = e {
+                    log::warn!(
+                        "the driver cannot build kernel {} ({result}); where it has another \
+                         variant (a column-layout blending kernel) the engine uses that",
+                        k.name
+                    );
                     failed.insert(k.name, result);
                 }
                 Err(e)
@@ -168,7 +173,7 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
             Err(e) => {
                 dev.destroy_pipeline_layout(layout, None);
                 dev.destroy_descriptor_set_layout(set_layout, None);
-                return Err(kernel_build(k, e));
+                return Err(kernel_build(k, e, "vkCreateShaderModule"));
             }
         };
         let entry = std::ffi::CString::new(k.entry_point()).expect("kernel names have no NUL");
@@ -185,7 +190,7 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
                 dev.destroy_shader_module(module, None);
                 dev.destroy_pipeline_layout(layout, None);
                 dev.destroy_descriptor_set_layout(set_layout, None);
-                return Err(kernel_build(k, e));
+                return Err(kernel_build(k, e, "vkCreateComputePipelines"));
             }
         };
         Ok(Pipeline {
@@ -198,18 +203,15 @@ fn create(dev: &ash::Device, cache: vk::PipelineCache, k: &'static Kernel) -> Re
 }
 
 /// A failed module or pipeline creation names its kernel; a lost device
-/// and exhausted memory keep their own errors, which callers act on.
-fn kernel_build(k: &Kernel, result: vk::Result) -> Error {
-    match result {
-        vk::Result::ERROR_DEVICE_LOST => Error::DeviceLost {
-            call: "vkCreateComputePipelines",
-        },
-        vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
-            Error::OutOfMemory(format!("building kernel `{}`: {result}", k.name))
-        }
-        _ => Error::KernelBuild {
+/// and exhausted memory keep the errors every Vulkan call maps them to
+/// ([`VkContext`]), which callers act on.
+fn kernel_build(k: &Kernel, result: vk::Result, call: &'static str) -> Error {
+    match Err::<(), _>(result).vk(call) {
+        Err(Error::Vulkan { result, .. }) => Error::KernelBuild {
             kernel: k.name,
             result,
         },
+        Err(other) => other,
+        Ok(()) => unreachable!("an error stays an error"),
     }
 }

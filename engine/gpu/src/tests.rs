@@ -315,21 +315,27 @@ fn the_transfer_path_rehearsed_on_the_compute_family_orders_both_ways() {
     });
 }
 
+/// A context under validation with `checks`, for the tests that expect its
+/// errors (`testing::with_options` fails on any).
+fn checked_context(checks: ValidationChecks) -> Context {
+    Context::new(ContextOptions {
+        validation: Validation::Required,
+        validation_checks: checks,
+        ..ContextOptions::default()
+    })
+    .unwrap()
+}
+
 /// Synchronization validation is on when asked for, and sees a hazard the
 /// recorder would have barred: the suite runs under it
 /// (`LATENTAM_VALIDATION_CHECKS=sync`), so a missing barrier fails a test
 /// even on a driver that runs one command after another.
 #[test]
 fn synchronization_validation_reports_a_planted_hazard() {
-    let ctx = Context::new(ContextOptions {
-        validation: Validation::Required,
-        validation_checks: ValidationChecks {
-            synchronization: true,
-            ..ValidationChecks::default()
-        },
-        ..ContextOptions::default()
-    })
-    .unwrap();
+    let ctx = checked_context(ValidationChecks {
+        synchronization: true,
+        ..ValidationChecks::default()
+    });
     let log = ctx.validation_log();
     let n = 4096u32;
     let data = ctx
@@ -524,18 +530,13 @@ fn every_host_wait_is_counted() {
 /// GPU-assisted validation is on when asked for, and sees a kernel read
 /// and write past the end of its buffer (a scan told the array is 64
 /// times longer than it is): the kernel tests run under it
-/// (`LATENTAM_VALIDATION_CHECKS=gpu-assisted`, `tools/run gpu-av`).
+/// (`LATENTAM_VALIDATION_CHECKS=gpu-assisted`, in `tools/run test`).
 #[test]
 fn gpu_assisted_validation_reports_a_planted_out_of_bounds_access() {
-    let ctx = Context::new(ContextOptions {
-        validation: Validation::Required,
-        validation_checks: ValidationChecks {
-            gpu_assisted: true,
-            ..ValidationChecks::default()
-        },
-        ..ContextOptions::default()
-    })
-    .unwrap();
+    let ctx = checked_context(ValidationChecks {
+        gpu_assisted: true,
+        ..ValidationChecks::default()
+    });
     let log = ctx.validation_log();
     let data = ctx.upload_new("oob/data", &vec![1u32; 64]).unwrap();
     let sums = Buffer::device(&ctx, "oob/sums", 64 * 4).unwrap();

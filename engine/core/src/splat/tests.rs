@@ -740,7 +740,7 @@ fn backward_matches_reference_with_cas_atomics() {
 fn column_kernels_a_driver_rejects_fall_back_to_the_pixel_layout() {
     let rejected: Vec<String> = latentam_shaders::ALL
         .iter()
-        .filter(|k| k.name.starts_with("raster_") && k.name.contains("_columns"))
+        .filter(|k| k.is_column_layout())
         .map(|k| k.name.to_string())
         .collect();
     let o = ContextOptions {
@@ -751,7 +751,10 @@ fn column_kernels_a_driver_rejects_fall_back_to_the_pixel_layout() {
         check_backward_vs_reference(ctx, "column_kernels_rejected", false);
         let failed = ctx.kernel_build_failures();
         assert!(
-            failed.len() >= 2 && failed.iter().all(|(k, _)| k.contains("_columns")),
+            failed.len() >= 2
+                && failed
+                    .iter()
+                    .all(|(k, _)| latentam_shaders::is_column_layout(k)),
             "{failed:?}"
         );
     });

@@ -113,7 +113,7 @@ mod tests {
             // (Column-layout blending kernels are left out: a GPU's
             // compiler may reject the largest, and the rasterizer then
             // takes the pixel ones.)
-            let pixel_layout = |k: &latentam_shaders::Kernel| !k.name.contains("_columns");
+            let pixel_layout = |k: &latentam_shaders::Kernel| !k.is_column_layout();
             let runnable = latentam_shaders::ALL
                 .iter()
                 .filter(|k| pixel_layout(k) && !k.requires.float_atomics && ctx.info().can_run(k))

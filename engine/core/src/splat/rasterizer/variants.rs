@@ -3,9 +3,6 @@
 //! `@select` lines generate the selectors, so every combination of flags
 //! names a kernel that exists.
 
-use std::collections::HashSet;
-use std::sync::Mutex;
-
 use latentam_base::Result;
 use latentam_gpu::{DeviceInfo, Recorder};
 use latentam_shaders::{
@@ -69,8 +66,8 @@ pub(super) fn pool_kernel(
 }
 
 /// The variant `pick` chooses for `settings`, unless it is a column
-/// variant the driver cannot build: then the pixel one, with a warning
-/// (once per kernel). Column variants keep a tile column's pixels in
+/// variant the driver cannot build: then the pixel one (the pipeline cache
+/// warns once, when the build fails). Column variants keep a tile column's pixels in
 /// registers, and the largest of them can exceed what a GPU's compiler
 /// accepts (NVIDIA's 580 driver rejects the attached ones without
 /// subgroups); every device builds the pixel variants, and the two
@@ -84,23 +81,8 @@ pub(super) fn buildable<P, B>(
     if !columns(rec.info(), settings) || rec.kernel_builds(&chosen.kernel)? {
         return Ok(chosen);
     }
-    let pixels = RenderSettings {
+    Ok(pick(&RenderSettings {
         layout: BlendLayout::Pixels,
         ..*settings
-    };
-    let fallback = pick(&pixels);
-    static WARNED: Mutex<Option<HashSet<&'static str>>> = Mutex::new(None);
-    let mut warned = WARNED.lock().unwrap_or_else(|p| p.into_inner());
-    if warned
-        .get_or_insert_with(HashSet::new)
-        .insert(chosen.kernel.name)
-    {
-        log::warn!(
-            "{}: the driver cannot build kernel {}; using {} (the pixel layout) instead",
-            rec.info().name,
-            chosen.kernel.name,
-            fallback.kernel.name
-        );
-    }
-    Ok(fallback)
+    }))
 }
