@@ -5,6 +5,7 @@
 //! `latentam_reference`.
 
 mod decoder;
+mod device_pixel_decoder;
 mod head;
 mod host_decoder;
 mod kmeans;
@@ -14,6 +15,7 @@ mod query_init;
 mod relevance;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
+pub use device_pixel_decoder::{DecodedPixels, DevicePixelDecoder, PixelsToDecode, TextOutput};
 pub use head::{LatentHead, LatentHeadConfig};
 pub use host_decoder::HostDecoder;
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};

@@ -1,7 +1,8 @@
 //! Quality of a map on a view (paper Sec. IV-A, Performance Metrics): the view is rendered
 //! from the global map's Gaussians near the camera and compared with the
 //! frame's colour (PSNR over all pixels), depth (L1 over valid pixels) and,
-//! per pixel (the paper's protocol, [`super::pixel_metrics`]), with the
+//! per pixel (the paper's protocol, [`super::pixel_metrics`], decoded on
+//! the device), with the
 //! region embeddings (cosine loss of each pixel's decoded query against its
 //! region's target) and, with a vocabulary, the true classes (each pixel
 //! classified among the vocabulary; mIoU over its classes). Without
@@ -18,8 +19,8 @@ use std::collections::BTreeMap;
 pub use super::class_iou::{add_iou, count_pixel, mean_iou, ClassCounts};
 use super::history::{camera_of, KeyframeRecord};
 use super::online::OnlineMapper;
-use super::pixel_metrics::{pixel_metrics, PixelInputs};
-use crate::latent::{FactorisedDecoder, RelevanceScorer, NO_REGION};
+use super::pixel_metrics::{pixel_metrics_on_device, PixelInputs};
+use crate::latent::{DevicePixelDecoder, RelevanceScorer, NO_REGION};
 use crate::map::push_gaussian;
 use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
 use latentam_base::{Error, Result};
@@ -111,9 +112,8 @@ pub(crate) struct Evaluator {
     /// The rendered Gaussians (grown as views need).
     gaussians: Option<GaussianBuffers>,
     scorer: Option<RelevanceScorer>,
-    /// The factorised decoder of the head last seen, with the W and atoms
-    /// it was built from.
-    decoder: Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
+    /// The per-pixel decoder, updated to the head at every view.
+    decoder: Option<DevicePixelDecoder>,
     /// Gaussians within this distance of the camera are rendered (metres);
     /// [`Evaluator::evaluate`] reaches further when the frame measures
     /// depth further away, so that every surface in view is rendered.
@@ -280,16 +280,39 @@ impl Evaluator {
         if used.is_empty() {
             return Ok(m);
         }
-        // Per pixel, the paper's protocol; pooled below.
-        let stride = self.pixel_stride;
-        let decoder = decoder_for(&self.ctx, &mut self.decoder, head)?;
         let targets_of_pixels: Vec<u32> = regions
             .iter()
             .map(|&l| if l < sums.len() { l as u32 } else { NO_REGION })
             .collect();
         let vocab = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty());
-        let no_truth = vec![0u16; w * h];
-        let pixels = pixel_metrics(
+        let pooled: Vec<[f32; QUERY_DIM]> = used
+            .iter()
+            .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
+            .collect();
+        let mut pooled_m =
+            pooled_target_metrics(scorer, &self.ctx, head, &pooled, &used, &r.vectors, dim)?;
+        // Each pixel's true class: its label, or without labels its
+        // region's teacher class (targets are unit-norm, so the cosine
+        // ranking is the dot product with the normalised class vectors).
+        let truth_of_pixels = match vocab {
+            Some(vocab) => {
+                let teacher = match frame.semantic {
+                    Some(_) => None,
+                    None => Some(teacher_classes(vocab, &r.vectors, dim, sums.len())),
+                };
+                m.segmentation = Some(if teacher.is_some() {
+                    "teacher"
+                } else {
+                    "labels"
+                });
+                pixel_truth(frame, teacher.as_deref(), &regions, vocab, w, h)
+            }
+            None => vec![0u16; w * h],
+        };
+        // Per pixel, the paper's protocol, decoded on the device.
+        let decoder = DevicePixelDecoder::ensure(&mut self.decoder, &self.ctx, head)?;
+        let pixels = pixel_metrics_on_device(
+            &self.ctx,
             decoder,
             &PixelInputs {
                 width: w,
@@ -297,64 +320,31 @@ impl Evaluator {
                 queries: &view.query,
                 region: &targets_of_pixels,
                 targets: &r.vectors,
-                truth: &no_truth,
-                vocabulary: None,
-                stride,
+                truth: &truth_of_pixels,
+                vocabulary: vocab.map(|v| (&v.ids[..], &v.vectors[..])),
+                stride: self.pixel_stride,
             },
         )?;
         m.cosine_loss = pixels.cosine_loss();
         m.l2 = pixels.l2();
         m.cosine_pixels = pixels.cosine_pixels;
-        let pooled: Vec<[f32; QUERY_DIM]> = used
-            .iter()
-            .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
-            .collect();
-        let mut pooled_m =
-            pooled_target_metrics(scorer, &self.ctx, head, &pooled, &used, &r.vectors, dim)?;
-        let Some(vocab) = vocab else {
-            m.region_pooled = Some(pooled_m);
-            return Ok(m);
-        };
-        let c = vocab.names.len();
-        let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
-        let mut predicted = vec![None; sums.len()];
-        for (j, &i) in used.iter().enumerate() {
-            predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
-        }
-        // The true class of a pixel: its label, or without labels its
-        // region's teacher class (targets are unit-norm, so the cosine
-        // ranking is the dot product with the normalised class vectors).
-        let teacher = match frame.semantic {
-            Some(_) => None,
-            None => Some(teacher_classes(vocab, &r.vectors, dim, sums.len())),
-        };
-        m.segmentation = Some(if teacher.is_some() {
-            "teacher"
-        } else {
-            "labels"
-        });
-        let truth_of_pixels = pixel_truth(frame, teacher.as_deref(), &regions, vocab, w, h);
-        for (&truth, &region) in truth_of_pixels.iter().zip(&regions) {
-            if truth != 0 {
-                let pred = predicted.get(region).copied().flatten();
-                count_pixel(&mut pooled_m.class_iou, truth, pred);
+        m.class_iou = pixels.class_iou;
+        // Pooled: each region's mean query classified once for its pixels.
+        if let Some(vocab) = vocab {
+            let c = vocab.names.len();
+            let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
+            let mut predicted = vec![None; sums.len()];
+            for (j, &i) in used.iter().enumerate() {
+                predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
+            }
+            for (&truth, &region) in truth_of_pixels.iter().zip(&regions) {
+                if truth != 0 {
+                    let pred = predicted.get(region).copied().flatten();
+                    count_pixel(&mut pooled_m.class_iou, truth, pred);
+                }
             }
         }
         m.region_pooled = Some(pooled_m);
-        let classes = pixel_metrics(
-            decoder,
-            &PixelInputs {
-                width: w,
-                height: h,
-                queries: &view.query,
-                region: &vec![NO_REGION; w * h],
-                targets: &[],
-                truth: &truth_of_pixels,
-                vocabulary: Some((&vocab.ids, &vocab.vectors)),
-                stride,
-            },
-        )?;
-        m.class_iou = classes.class_iou;
         Ok(m)
     }
 }
@@ -517,31 +507,6 @@ fn argmax(row: &[f32]) -> usize {
     (0..row.len())
         .max_by(|&a, &b| row[a].total_cmp(&row[b]))
         .expect("a non-empty row")
-}
-
-/// The factorised decoder of `head`'s current parameters, kept in `cache`
-/// and rebuilt only when they changed since the last view.
-fn decoder_for<'c>(
-    ctx: &Context,
-    cache: &'c mut Option<(Vec<f32>, Vec<f32>, FactorisedDecoder)>,
-    head: &crate::latent::LatentHead,
-) -> Result<&'c FactorisedDecoder> {
-    let k = head.atom_count() as usize;
-    let dim = head.config().dim as usize;
-    let w = ctx.download::<f32>(head.w())?;
-    let mut atoms = ctx.download::<f32>(head.atoms())?;
-    atoms.truncate(k * dim);
-    let stale = cache
-        .as_ref()
-        .is_none_or(|(w0, d0, _)| *w0 != w || *d0 != atoms);
-    if stale {
-        let dec = FactorisedDecoder::from_head(ctx, head)?;
-        *cache = Some((w, atoms, dec));
-    }
-    match cache {
-        Some((_, _, dec)) => Ok(dec),
-        None => Err(Error::InvalidArgument("no decoder".into())),
-    }
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@ use std::sync::atomic::AtomicBool;
 use super::eval::{Evaluator, ViewMetrics};
 use super::history::History;
 use crate::latent::LatentHead;
-use crate::latent::{RelevanceScorer, TextQuery};
+use crate::latent::{DevicePixelDecoder, TextQuery};
 use crate::map::{write_ply, write_ply_without_latents, ExposureTrack, GlobalMap};
 use crate::splat::{Camera, RenderedView};
 use latentam_io::{CameraPose, Frame, Vocabulary};
@@ -39,7 +39,8 @@ use latentam_io::{CameraPose, Frame, Vocabulary};
 /// ```
 pub struct Mapper {
     inner: OnlineMapper,
-    scorer: Option<RelevanceScorer>,
+    /// Decodes Gaussians' and pixels' queries for relevance (made on first use).
+    decoder: Option<DevicePixelDecoder>,
     /// Renders views for `render*` and `evaluate` (made on first use).
     evaluator: Option<Evaluator>,
 }
@@ -77,7 +78,7 @@ impl Mapper {
     pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
         Ok(Mapper {
             inner: OnlineMapper::new(ctx, config)?,
-            scorer: None,
+            decoder: None,
             evaluator: None,
         })
     }
@@ -153,13 +154,12 @@ impl Mapper {
                 context: Some("a query, or several back to back".into()),
             });
         }
-        let count = (embeddings.len() / dim) as u32;
         self.inner.flush()?;
         let ctx = self.inner.context().clone();
         let head = self.inner.head().expect("checked above");
-        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, count)?;
+        let decoder = DevicePixelDecoder::ensure(&mut self.decoder, &ctx, head)?;
         let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
-        scorer.score(&ctx, head, &queries, embeddings)
+        decoder.cosines(&ctx, &queries, embeddings)
     }
 
     /// Relevance of every Gaussian to `query` (cosine, or the softmax over
@@ -192,8 +192,8 @@ impl Mapper {
     pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
         let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
         let ctx = self.inner.context().clone();
-        let scorer = RelevanceScorer::ensure(&mut self.scorer, &ctx, head, query.texts as u32)?;
-        Ok(query.relevance_of(&scorer.score(&ctx, head, &view.query, &query.embeddings)?))
+        let decoder = DevicePixelDecoder::ensure(&mut self.decoder, &ctx, head)?;
+        Ok(query.relevance_of(&decoder.cosines(&ctx, &view.query, &query.embeddings)?))
     }
 
     /// Saves the whole state into the run folder `dir` (created if
@@ -309,7 +309,7 @@ impl Mapper {
         }
         Ok(Mapper {
             inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
-            scorer: None,
+            decoder: None,
             evaluator: None,
         })
     }

@@ -13,9 +13,10 @@
 use std::collections::BTreeMap;
 
 use super::class_iou::{add_iou, count_pixel, ClassCounts};
-use crate::latent::{FactorisedDecoder, NO_REGION};
+use crate::latent::{DevicePixelDecoder, FactorisedDecoder, PixelsToDecode, TextOutput, NO_REGION};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
+use latentam_gpu::Context;
 
 /// What one view contributes to the per-pixel metrics (sums, so views add).
 ///
@@ -118,27 +119,7 @@ pub struct PixelInputs<'a> {
 /// The per-pixel metrics of one view, computed on all CPU cores.
 pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMetrics> {
     let dim = dec.dim();
-    let n = v.width * v.height;
-    let vocab_ok = v
-        .vocabulary
-        .is_none_or(|(ids, t)| t.len() == ids.len() * dim);
-    if v.queries.len() != n
-        || v.region.len() != n
-        || v.truth.len() != n
-        || !v.targets.len().is_multiple_of(dim)
-        || !vocab_ok
-    {
-        return Err(Error::InvalidArgument(format!(
-            "per-pixel metrics of a {}x{} view with {} queries, {} regions, {} labels, \
-             {} target values and a vocabulary of another size for {dim}-d embeddings",
-            v.width,
-            v.height,
-            v.queries.len(),
-            v.region.len(),
-            v.truth.len(),
-            v.targets.len()
-        )));
-    }
+    check_inputs(v, dim)?;
     let (targets, has_target) = unit_rows(v.targets, dim);
     let (ids, texts) = match v.vocabulary {
         Some((ids, texts)) => (ids, dec.project(&unit_rows(texts, dim).0)),
@@ -174,6 +155,33 @@ pub fn pixel_metrics(dec: &FactorisedDecoder, v: &PixelInputs) -> Result<PixelMe
         total.add(p);
     }
     Ok(total)
+}
+
+/// Errors unless `v`'s per-pixel inputs cover its pixels and hold whole
+/// `dim`-d embeddings.
+fn check_inputs(v: &PixelInputs, dim: usize) -> Result<()> {
+    let n = v.width * v.height;
+    let vocab_ok = v
+        .vocabulary
+        .is_none_or(|(ids, t)| t.len() == ids.len() * dim);
+    if v.queries.len() != n
+        || v.region.len() != n
+        || v.truth.len() != n
+        || !v.targets.len().is_multiple_of(dim)
+        || !vocab_ok
+    {
+        return Err(Error::InvalidArgument(format!(
+            "per-pixel metrics of a {}x{} view with {} queries, {} regions, {} labels, \
+             {} target values and a vocabulary of another size for {dim}-d embeddings",
+            v.width,
+            v.height,
+            v.queries.len(),
+            v.region.len(),
+            v.truth.len(),
+            v.targets.len()
+        )));
+    }
+    Ok(())
 }
 
 /// Rows of `dim` scaled to unit length, and which had a length to scale.
@@ -227,29 +235,100 @@ fn metrics_of_rows(
                 continue;
             }
             dec.attention(&v.queries[p], &mut a);
-            if let Some(r) = target {
+            let cosine = target.map(|r| {
                 let norm = dec.norm(&a, &mut used) as f64;
                 let dot = FactorisedDecoder::dot(&a, &scored.targets[r * k..(r + 1) * k]);
-                let cos = if norm > 0.0 {
-                    (dot as f64 / norm).clamp(-1.0, 1.0)
-                } else {
-                    0.0
-                };
-                m.cosine_loss_sum += 1.0 - cos;
-                m.l2_sum += (2.0 - 2.0 * cos).max(0.0).sqrt();
-                m.cosine_pixels += 1;
-            }
-            if classify {
+                cosine_of(dot as f64, norm)
+            });
+            let class = classify.then(|| {
                 let best = (0..scored.ids.len())
                     .map(|c| FactorisedDecoder::dot(&a, &scored.texts[c * k..(c + 1) * k]))
                     .enumerate()
                     .max_by(|x, y| x.1.total_cmp(&y.1))
                     .map(|(c, _)| scored.ids[c]);
-                count_pixel(&mut m.class_iou, truth, best);
-            }
+                (truth, best)
+            });
+            add_pixel(&mut m, cosine, class);
         }
     }
     m
+}
+
+/// ⟨e, t̂⟩ / ‖e‖ (0 for a zero embedding).
+fn cosine_of(dot: f64, norm: f64) -> f64 {
+    if norm > 0.0 {
+        (dot / norm).clamp(-1.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// Adds one pixel: its cosine to its region's target, if it has one, and
+/// its true and predicted class, if it is classified.
+fn add_pixel(m: &mut PixelMetrics, cosine: Option<f64>, class: Option<(u16, Option<u16>)>) {
+    if let Some(cos) = cosine {
+        m.cosine_loss_sum += 1.0 - cos;
+        m.l2_sum += (2.0 - 2.0 * cos).max(0.0).sqrt();
+        m.cosine_pixels += 1;
+    }
+    if let Some((truth, best)) = class {
+        count_pixel(&mut m.class_iou, truth, best);
+    }
+}
+
+/// The per-pixel metrics of one view as [`pixel_metrics`] computes them,
+/// decoded on the device ([`DevicePixelDecoder`]): the same pixels, the
+/// same rules, within the decoders' rounding.
+pub fn pixel_metrics_on_device(
+    ctx: &Context,
+    dec: &mut DevicePixelDecoder,
+    v: &PixelInputs,
+) -> Result<PixelMetrics> {
+    let dim = dec.dim() as usize;
+    check_inputs(v, dim)?;
+    let has_target: Vec<bool> = v
+        .targets
+        .chunks_exact(dim)
+        .map(|t| t.iter().any(|&x| x != 0.0))
+        .collect();
+    let (ids, texts) = v.vocabulary.unwrap_or((&[], &[]));
+    // The evaluated pixels, as pixel_metrics picks them.
+    let stride = v.stride.max(1);
+    let mut picked = Vec::new();
+    let mut region = Vec::new();
+    for y in (0..v.height).step_by(stride) {
+        for x in (0..v.width).step_by(stride) {
+            let p = y * v.width + x;
+            let r = v.region[p];
+            let target = r != NO_REGION && has_target.get(r as usize) == Some(&true);
+            let truth = v.truth[p];
+            if target || (truth != 0 && ids.contains(&truth)) {
+                picked.push(p);
+                region.push(if target { r } else { NO_REGION });
+            }
+        }
+    }
+    let queries: Vec<[f32; QUERY_DIM]> = picked.iter().map(|&p| v.queries[p]).collect();
+    let decoded = dec.decode(
+        ctx,
+        &PixelsToDecode {
+            queries: &queries,
+            region: &region,
+            targets: v.targets,
+            texts,
+            text_output: TextOutput::Best,
+        },
+    )?;
+    let mut m = PixelMetrics::default();
+    for (i, &p) in picked.iter().enumerate() {
+        let cosine = (region[i] != NO_REGION)
+            .then(|| cosine_of(decoded.target_dot[i] as f64, decoded.norm[i] as f64));
+        let truth = v.truth[p];
+        let class = (truth != 0 && ids.contains(&truth))
+            .then(|| (truth, decoded.best_text.get(i).map(|&c| ids[c as usize])));
+        add_pixel(&mut m, cosine, class);
+    }
+    Ok(m)
 }
 
 #[cfg(test)]
@@ -356,6 +435,16 @@ mod tests {
 
     type Atoms = Vec<f32>;
 
+    /// The exact scene's W: query channel c decodes to atom c (8-d).
+    fn exact_w() -> Vec<f32> {
+        let dim = 8;
+        let mut w = vec![0.0f32; QUERY_DIM * dim];
+        for c in 0..4 {
+            w[c * dim + c] = 5.0;
+        }
+        w
+    }
+
     /// A 4-class scene the map reproduces exactly: class c's pixels render
     /// a query that decodes to atom c, which is also the class's target
     /// and text embedding.
@@ -371,11 +460,7 @@ mod tests {
         for c in 0..k {
             d[c * dim + c] = 1.0;
         }
-        let mut w = vec![0.0f32; QUERY_DIM * dim];
-        for c in 0..k {
-            w[c * dim + c] = 5.0;
-        }
-        let dec = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
+        let dec = FactorisedDecoder::new(&exact_w(), &d, dim, 0.05, 1e-6).unwrap();
         // 4 × 3 pixels: column c is class c + 1 (region c), the last row
         // class 9, which no query word names.
         let (width, height) = (4usize, 3usize);
@@ -437,6 +522,91 @@ mod tests {
         let s = run(&swapped, &truth);
         let iou = |c: u16| s.class_iou[&c].iou();
         assert_eq!((iou(1), iou(2), iou(3), iou(4)), (1.0, 0.0, 0.0, 1.0));
+    }
+
+    #[test]
+    fn device_decoding_gives_the_host_metrics() {
+        let mut r = rng("device_pixel_metrics");
+        let (w_px, h_px, dim, k) = (40usize, 30usize, 48usize, 37usize);
+        let n = w_px * h_px;
+        let w: Vec<f32> = (0..QUERY_DIM * dim)
+            .map(|_| r.random_range(-0.5..0.5))
+            .collect();
+        let d: Vec<f32> = (0..k * dim).map(|_| r.random_range(-1.0..1.0)).collect();
+        let queries: Vec<[f32; QUERY_DIM]> = (0..n)
+            .map(|_| std::array::from_fn(|_| r.random_range(-1.0..1.0)))
+            .collect();
+        let mut targets: Vec<f32> = (0..5 * dim).map(|_| r.random_range(-1.0..1.0)).collect();
+        targets[4 * dim..].fill(0.0);
+        let region: Vec<u32> = (0..n)
+            .map(|_| match r.random_range(0..7u32) {
+                6 => NO_REGION,
+                x => x, // 5: past the targets, no target
+            })
+            .collect();
+        let truth: Vec<u16> = (0..n).map(|_| r.random_range(0..7)).collect();
+        let ids = [1u16, 2, 3, 4];
+        let texts: Vec<f32> = (0..ids.len() * dim)
+            .map(|_| r.random_range(-1.0..1.0))
+            .collect();
+        let host = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
+        latentam_gpu::testing::with_context(|ctx| {
+            let wb = ctx.upload_new("w", &w).unwrap();
+            let db = ctx.upload_new("d", &d).unwrap();
+            let mut device =
+                DevicePixelDecoder::new(ctx, &wb, &db, k as u32, dim as u32, 0.05, 1e-6).unwrap();
+            for stride in [1, 3] {
+                let inputs = PixelInputs {
+                    width: w_px,
+                    height: h_px,
+                    queries: &queries,
+                    region: &region,
+                    targets: &targets,
+                    truth: &truth,
+                    vocabulary: Some((&ids, &texts)),
+                    stride,
+                };
+                let want = pixel_metrics(&host, &inputs).unwrap();
+                let got = pixel_metrics_on_device(ctx, &mut device, &inputs).unwrap();
+                assert_eq!(got.cosine_pixels, want.cosine_pixels);
+                let tol = 1e-4 * want.cosine_pixels as f64;
+                assert!((got.cosine_loss_sum - want.cosine_loss_sum).abs() < tol);
+                assert!((got.l2_sum - want.l2_sum).abs() < tol);
+                // Classes: the same pixels counted; a near-tie may fall
+                // the other way in one decoder's rounding.
+                let truths =
+                    |m: &PixelMetrics| -> u64 { m.class_iou.values().map(|c| c.truth).sum() };
+                assert_eq!(truths(&got), truths(&want));
+                let moved: u64 = want
+                    .class_iou
+                    .iter()
+                    .map(|(c, x)| x.intersection.abs_diff(got.class_iou[c].intersection))
+                    .sum();
+                assert!(moved * 200 <= truths(&want), "{moved} pixels changed class");
+            }
+            // The exact scene scores exactly on the device too.
+            let (dec, q, reg, tr, atoms) = exact_scene();
+            let wb = ctx.upload_new("w", &exact_w()).unwrap();
+            let db = ctx.upload_new("d", &atoms).unwrap();
+            let mut device = DevicePixelDecoder::new(ctx, &wb, &db, 4, 8, 0.05, 1e-6).unwrap();
+            let inputs = PixelInputs {
+                width: 4,
+                height: 3,
+                queries: &q,
+                region: &reg,
+                targets: &atoms,
+                truth: &tr,
+                vocabulary: Some((&ids, &atoms)),
+                stride: 1,
+            };
+            let got = pixel_metrics_on_device(ctx, &mut device, &inputs).unwrap();
+            assert_eq!(
+                got.class_iou,
+                pixel_metrics(&dec, &inputs).unwrap().class_iou
+            );
+            assert_eq!(mean_iou(&got.class_iou), Some(1.0));
+            assert!(got.cosine_loss().unwrap() < 1e-6);
+        });
     }
 
     #[test]

@@ -1,0 +1,562 @@
+//! Per-pixel decoding on the device: what evaluation and relevance images
+//! need of every pixel's decoded embedding (paper Eq. 5), in batches of
+//! pixels sized to the device's buffer limits.
+//!
+//! Per batch of n pixels (kernels in `glsl/pixel_decode.comp`):
+//! 1. logits L = Q M, a GEMM of n × QUERY_DIM by QUERY_DIM × K, with
+//!    M = W D̂ᵀ computed once per map (D̂: the atoms scaled to unit length,
+//!    with the decoder's ε);
+//! 2. `pixel_attention`: a = softmax(L / (τ (‖qW‖ + ε))), ‖qW‖² = q G qᵀ
+//!    with G = W Wᵀ, and the atoms weighing at least [`NORM_CUTOFF`] of
+//!    the pixel's largest weight;
+//! 3. `pixel_embed`: e = Σ a_k D_k over those atoms (|S| d_f multiply-adds
+//!    instead of K d_f; the attention at τ = 0.05 is sharp), with ‖e‖ and
+//!    ⟨e, t̂⟩ for the pixel's region target;
+//! 4. with texts, ⟨e, t̂_c⟩ for every text as a GEMM (n × d_f by d_f × m),
+//!    and, when only the best text is wanted, its index (`argmax_rows`).
+//!
+//! A pixel costs QUERY_DIM·K + |S|·d_f + m·d_f multiply-adds, against
+//! QUERY_DIM·d_f + 2·K·d_f for decoding it explicitly.
+//!
+//! References: [`super::FactorisedDecoder`] (the same factorisation on
+//! the CPU) and `latentam_reference::decoder::forward` (explicit, f64).
+
+use crate::latent::{LatentHead, NORM_CUTOFF, NO_REGION};
+use crate::splat::QUERY_DIM;
+use latentam_base::{Error, Result};
+use latentam_gpu::ops::{normalize_rows, Gemm, Transpose};
+use latentam_gpu::{Buffer, Context, Recorder};
+use latentam_shaders::{bind, push, ARGMAX_ROWS, PIXEL_ATTENTION, PIXEL_EMBED};
+
+/// Device memory one batch of pixels may take (bytes); the binding limit
+/// can make batches smaller.
+const BATCH_BYTES: u64 = 64 << 20;
+
+/// What [`DevicePixelDecoder::decode`] reports about the texts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextOutput {
+    /// Each pixel's ⟨e, t̂_c⟩ for every text c (pixels × texts).
+    All,
+    /// Only the index of the text with the largest ⟨e, t̂_c⟩ (the largest
+    /// cosine: ‖e‖ is the same for every text).
+    Best,
+}
+
+/// The pixels to decode and what to compare them with.
+///
+/// ```
+/// use latentam_core::latent::{PixelsToDecode, TextOutput, NO_REGION};
+///
+/// let queries = vec![[0.0f32; 32]; 2];
+/// let pixels = PixelsToDecode {
+///     queries: &queries,
+///     region: &[0, NO_REGION],    // pixel 1 lies in no region
+///     targets: &[1.0, 0.0, 0.0],  // region 0's target (3-d embeddings)
+///     texts: &[],                 // no texts: no text output
+///     text_output: TextOutput::Best,
+/// };
+/// assert_eq!(pixels.queries.len(), pixels.region.len());
+/// ```
+#[derive(Clone, Copy, Debug)]
+pub struct PixelsToDecode<'a> {
+    /// Each pixel's rendered query.
+    pub queries: &'a [[f32; QUERY_DIM]],
+    /// Each pixel's region, a row of `targets` ([`NO_REGION`]: none);
+    /// empty when no pixel has a target.
+    pub region: &'a [u32],
+    /// Each region's target embedding (regions × d_f, any length; scaled
+    /// to unit length here).
+    pub targets: &'a [f32],
+    /// Text embeddings (texts × d_f, any length; scaled to unit length
+    /// here); empty for none.
+    pub texts: &'a [f32],
+    /// What to report about the texts.
+    pub text_output: TextOutput,
+}
+
+/// What each pixel decodes to (one entry per pixel unless stated).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodedPixels {
+    /// ‖e‖.
+    pub norm: Vec<f32>,
+    /// ⟨e, t̂⟩ with the unit target of the pixel's region (0 without one).
+    pub target_dot: Vec<f32>,
+    /// With [`TextOutput::All`]: ⟨e, t̂_c⟩, pixels × texts, row-major.
+    pub text_dots: Vec<f32>,
+    /// With [`TextOutput::Best`]: the index of the best text.
+    pub best_text: Vec<u32>,
+    /// Atoms the pixel's embedding was summed over (|S|).
+    pub used_atoms: Vec<u32>,
+}
+
+/// The device buffers of one batch of pixels.
+struct Batch {
+    rows: u32,
+    queries: Buffer,
+    region: Buffer,
+    weights: Buffer,
+    used: Buffer,
+    used_count: Buffer,
+    embeddings: Buffer,
+    norm: Buffer,
+    target_dot: Buffer,
+}
+
+/// Decodes rendered queries per pixel on the device, factorised as
+/// [`super::FactorisedDecoder`] does on the CPU.
+///
+/// ```
+/// # let ctx = latentam_gpu::Context::new(Default::default())?;
+/// use latentam_core::latent::{DevicePixelDecoder, PixelsToDecode, TextOutput};
+///
+/// // 2 atoms in 3 dimensions; W maps query channel 0 to atom 0.
+/// let mut w = vec![0.0f32; 32 * 3];
+/// w[0] = 1.0;
+/// let w = ctx.upload_new("w", &w)?;
+/// let atoms = ctx.upload_new("atoms", &[1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0])?;
+/// let mut dec = DevicePixelDecoder::new(&ctx, &w, &atoms, 2, 3, 0.05, 1e-6)?;
+/// let mut q = [0.0f32; 32];
+/// q[0] = 2.0;
+/// let out = dec.decode(&ctx, &PixelsToDecode {
+///     queries: &[q],
+///     region: &[0],
+///     targets: &[2.0, 0.0, 0.0],
+///     texts: &[0.0, 1.0, 0.0, 1.0, 0.0, 0.0],
+///     text_output: TextOutput::Best,
+/// })?;
+/// assert!((out.target_dot[0] / out.norm[0] - 1.0).abs() < 1e-3); // e ≈ atom 0
+/// assert_eq!(out.best_text, vec![1]);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+pub struct DevicePixelDecoder {
+    atoms: u32,
+    dim: u32,
+    inv_tau: f32,
+    eps: f32,
+    /// W D̂ᵀ, QUERY_DIM × K.
+    m: Buffer,
+    /// W Wᵀ, QUERY_DIM × QUERY_DIM.
+    g: Buffer,
+    /// D, K × d_f.
+    d: Buffer,
+    batch: Batch,
+}
+
+impl DevicePixelDecoder {
+    /// From W (`QUERY_DIM` × d_f, row-major) and the first `atom_count`
+    /// rows of `atoms` (K × d_f) on the device, the softmax temperature τ
+    /// and the norm's ε.
+    pub fn new(
+        ctx: &Context,
+        w: &Buffer,
+        atoms: &Buffer,
+        atom_count: u32,
+        dim: u32,
+        temperature: f32,
+        eps: f32,
+    ) -> Result<Self> {
+        if atom_count == 0 || dim == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "a pixel decoder of {atom_count} atoms in {dim} dimensions"
+            )));
+        }
+        let finite = temperature.is_finite() && eps.is_finite();
+        if !(finite && temperature > 0.0 && eps >= 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "decoder temperature {temperature} and eps {eps}"
+            )));
+        }
+        let (k, d64) = (atom_count as u64, dim as u64);
+        let buf =
+            |name: &str, bytes: u64| Buffer::device(ctx, &format!("pixel_decoder/{name}"), bytes);
+        let batch = Batch::new(
+            ctx,
+            Self::batch_rows(ctx, atom_count, dim)?,
+            atom_count,
+            dim,
+        )?;
+        let mut dec = DevicePixelDecoder {
+            atoms: atom_count,
+            dim,
+            inv_tau: 1.0 / temperature,
+            eps,
+            m: buf("m", QUERY_DIM as u64 * k * 4)?,
+            g: buf("g", (QUERY_DIM * QUERY_DIM) as u64 * 4)?,
+            d: buf("atoms", k * d64 * 4)?,
+            batch,
+        };
+        dec.load(ctx, w, atoms)?;
+        Ok(dec)
+    }
+
+    /// Computes M, G and the copy of D from W and the first K atoms.
+    fn load(&mut self, ctx: &Context, w: &Buffer, atoms: &Buffer) -> Result<()> {
+        let (k, d64) = (self.atoms as u64, self.dim as u64);
+        w.ensure_bytes(QUERY_DIM as u64 * d64 * 4, "pixel decoder W")?;
+        atoms.ensure_bytes(k * d64 * 4, "pixel decoder atoms")?;
+        let d_hat = Buffer::device(ctx, "pixel_decoder/unit_atoms", k * d64 * 4)?;
+        let atom_norms = Buffer::device(ctx, "pixel_decoder/atom_norms", k * 4)?;
+        let mut rec = ctx.recorder()?;
+        rec.copy(atoms, 0, &self.d, 0, k * d64 * 4)?;
+        normalize_rows(
+            &mut rec,
+            &self.d,
+            &d_hat,
+            &atom_norms,
+            self.atoms,
+            self.dim,
+            self.eps,
+        )?;
+        Gemm {
+            transpose: Transpose::B,
+            m: QUERY_DIM as u32,
+            n: self.atoms,
+            k: self.dim,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(&mut rec, w, &d_hat, &self.m)?;
+        Gemm {
+            transpose: Transpose::B,
+            m: QUERY_DIM as u32,
+            n: QUERY_DIM as u32,
+            k: self.dim,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(&mut rec, w, w, &self.g)?;
+        rec.submit()?.wait()
+    }
+
+    /// The decoder in `slot` updated to `head`'s current W and atoms:
+    /// rebuilt when the head's sizes or settings changed, otherwise its
+    /// buffers are reused.
+    pub fn ensure<'s>(
+        slot: &'s mut Option<Self>,
+        ctx: &Context,
+        head: &LatentHead,
+    ) -> Result<&'s mut Self> {
+        let cfg = head.config();
+        let same = slot.as_ref().is_some_and(|d| {
+            d.atoms == head.atom_count()
+                && d.dim == cfg.dim
+                && d.inv_tau == 1.0 / cfg.temperature
+                && d.eps == head.decoder().config().eps
+        });
+        match slot {
+            Some(dec) if same => dec.load(ctx, head.w(), head.atoms())?,
+            _ => {
+                *slot = None;
+                *slot = Some(Self::from_head(ctx, head)?);
+            }
+        }
+        Ok(slot.as_mut().expect("set above"))
+    }
+
+    /// The head's current W and atoms.
+    pub fn from_head(ctx: &Context, head: &LatentHead) -> Result<Self> {
+        if head.atom_count() == 0 {
+            return Err(Error::InvalidArgument(
+                "the dictionary is empty: no embeddings have been mapped yet".into(),
+            ));
+        }
+        let cfg = head.config();
+        Self::new(
+            ctx,
+            head.w(),
+            head.atoms(),
+            head.atom_count(),
+            cfg.dim,
+            cfg.temperature,
+            head.decoder().config().eps,
+        )
+    }
+
+    /// Atoms K.
+    pub fn atoms(&self) -> u32 {
+        self.atoms
+    }
+
+    /// Embedding dimension d_f.
+    pub fn dim(&self) -> u32 {
+        self.dim
+    }
+
+    /// Pixels decoded per batch: as many as [`BATCH_BYTES`] holds, with
+    /// no buffer past the device's binding limit.
+    pub fn batch_pixels(&self) -> u32 {
+        self.batch.rows
+    }
+
+    fn batch_rows(ctx: &Context, atoms: u32, dim: u32) -> Result<u32> {
+        let limit = ctx.info().max_buffer_bytes();
+        let widest = 4 * (atoms.max(dim) as u64).max(QUERY_DIM as u64);
+        // Weights, atom list, embedding, query and a few scalars a row.
+        let per_row = 4 * (2 * atoms as u64 + dim as u64 + QUERY_DIM as u64 + 8);
+        let rows = (limit / widest)
+            .min(BATCH_BYTES / per_row)
+            .min(u32::MAX as u64);
+        if rows == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "one pixel's {atoms} attention weights do not fit the device's \
+                 {limit}-byte buffers"
+            )));
+        }
+        Ok(rows as u32)
+    }
+
+    /// Decodes `pixels` (see [`PixelsToDecode`]) in batches.
+    pub fn decode(&mut self, ctx: &Context, pixels: &PixelsToDecode) -> Result<DecodedPixels> {
+        let n = pixels.queries.len();
+        let dim = self.dim as usize;
+        if !pixels.region.is_empty() && pixels.region.len() != n {
+            return Err(Error::InvalidArgument(format!(
+                "{n} pixels with {} region indices",
+                pixels.region.len()
+            )));
+        }
+        if !pixels.targets.len().is_multiple_of(dim) || !pixels.texts.len().is_multiple_of(dim) {
+            return Err(Error::InvalidArgument(format!(
+                "{} target and {} text values are not whole {dim}-d embeddings",
+                pixels.targets.len(),
+                pixels.texts.len()
+            )));
+        }
+        let regions = pixels.targets.len() / dim;
+        if let Some(r) = pixels
+            .region
+            .iter()
+            .find(|&&r| r != NO_REGION && r as usize >= regions)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "a pixel of region {r}; {regions} targets were given"
+            )));
+        }
+        if pixels
+            .queries
+            .iter()
+            .flatten()
+            .chain(pixels.targets)
+            .chain(pixels.texts)
+            .any(|x| !x.is_finite())
+        {
+            return Err(Error::InvalidArgument(
+                "pixel queries, targets and texts must be finite".into(),
+            ));
+        }
+        // A table of one zero row stands for "no targets" (never read).
+        let mut unit_targets = unit_rows(pixels.targets, dim);
+        if unit_targets.is_empty() {
+            unit_targets = vec![0.0; dim];
+        }
+        let targets = ctx.upload_new("pixel_decoder/targets", &unit_targets)?;
+        let texts = pixels.texts.len() / dim;
+        // The texts' scores of a batch must fit one buffer too.
+        let limit = ctx.info().max_buffer_bytes();
+        let batch = (self.batch.rows as u64).min(limit / (4 * texts.max(1) as u64)) as usize;
+        if batch == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "one pixel's scores against {texts} texts do not fit the device's \
+                 {limit}-byte buffers"
+            )));
+        }
+        let text_buffers = if texts > 0 {
+            let rows = batch as u64;
+            Some((
+                ctx.upload_new("pixel_decoder/texts", &unit_rows(pixels.texts, dim))?,
+                Buffer::device(ctx, "pixel_decoder/text_dots", rows * texts as u64 * 4)?,
+                Buffer::device(ctx, "pixel_decoder/best_value", rows * 4)?,
+                Buffer::device(ctx, "pixel_decoder/best_text", rows * 4)?,
+            ))
+        } else {
+            None
+        };
+        let mut out = DecodedPixels::default();
+        let no_regions = vec![NO_REGION; batch];
+        for (i, queries) in pixels.queries.chunks(batch).enumerate() {
+            let rows = queries.len() as u32;
+            let region = match pixels.region {
+                [] => &no_regions[..queries.len()],
+                all => &all[i * batch..i * batch + queries.len()],
+            };
+            let mut rec = ctx.recorder()?;
+            self.record_batch(&mut rec, queries, region, &targets, regions as u32)?;
+            let b = &self.batch;
+            let norm = rec.download(&b.norm, 0, rows as u64 * 4)?;
+            let dot = rec.download(&b.target_dot, 0, rows as u64 * 4)?;
+            let used = rec.download(&b.used_count, 0, rows as u64 * 4)?;
+            let text_read = match &text_buffers {
+                Some((unit_texts, dots, best_value, best_index)) => {
+                    Gemm {
+                        transpose: Transpose::B,
+                        m: rows,
+                        n: texts as u32,
+                        k: self.dim,
+                        alpha: 1.0,
+                        beta: 0.0,
+                    }
+                    .record(&mut rec, &b.embeddings, unit_texts, dots)?;
+                    Some(match pixels.text_output {
+                        TextOutput::All => rec.download(dots, 0, rows as u64 * texts as u64 * 4)?,
+                        TextOutput::Best => {
+                            rec.dispatch_linear(
+                                &ARGMAX_ROWS,
+                                rows,
+                                bind::ArgmaxRowsBuffers {
+                                    m: dots,
+                                    best_value,
+                                    best_index,
+                                },
+                                &push::ArgmaxRows {
+                                    rows,
+                                    cols: texts as u32,
+                                    exclude_diagonal: 0,
+                                },
+                            )?;
+                            rec.download(best_index, 0, rows as u64 * 4)?
+                        }
+                    })
+                }
+                None => None,
+            };
+            rec.submit()?.wait()?;
+            out.norm.extend(norm.read::<f32>()?);
+            out.target_dot.extend(dot.read::<f32>()?);
+            out.used_atoms.extend(used.read::<u32>()?);
+            match (text_read, pixels.text_output) {
+                (Some(r), TextOutput::All) => out.text_dots.extend(r.read::<f32>()?),
+                (Some(r), TextOutput::Best) => out.best_text.extend(r.read::<u32>()?),
+                (None, _) => {}
+            }
+        }
+        Ok(out)
+    }
+
+    /// The cosine between each decoded query and each of `texts` (m ×
+    /// d_f, any length; zero rows score 0): `queries.len()` × m, row-major.
+    /// What relevance images and heat maps are made of.
+    pub fn cosines(
+        &mut self,
+        ctx: &Context,
+        queries: &[[f32; QUERY_DIM]],
+        texts: &[f32],
+    ) -> Result<Vec<f32>> {
+        if texts.is_empty() {
+            return Err(Error::InvalidArgument("no text to score against".into()));
+        }
+        let out = self.decode(
+            ctx,
+            &PixelsToDecode {
+                queries,
+                region: &[],
+                targets: &[],
+                texts,
+                text_output: TextOutput::All,
+            },
+        )?;
+        let m = texts.len() / self.dim as usize;
+        let mut cos = out.text_dots;
+        for (row, &norm) in cos.chunks_exact_mut(m).zip(&out.norm) {
+            let inv = if norm > 0.0 { 1.0 / norm } else { 0.0 };
+            row.iter_mut().for_each(|c| *c = (*c * inv).clamp(-1.0, 1.0));
+        }
+        Ok(cos)
+    }
+
+    /// Records steps 1–3 of the module doc for one batch.
+    fn record_batch<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        queries: &[[f32; QUERY_DIM]],
+        region: &[u32],
+        targets: &'a Buffer,
+        regions: u32,
+    ) -> Result<()> {
+        let b = &self.batch;
+        let rows = queries.len() as u32;
+        rec.upload(&b.queries, 0, queries)?;
+        rec.upload(&b.region, 0, region)?;
+        Gemm {
+            transpose: Transpose::None,
+            m: rows,
+            n: self.atoms,
+            k: QUERY_DIM as u32,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(rec, &b.queries, &self.m, &b.weights)?;
+        rec.dispatch_linear(
+            &PIXEL_ATTENTION,
+            rows,
+            bind::PixelAttentionBuffers {
+                weights: &b.weights,
+                queries: &b.queries,
+                query_gram: &self.g,
+                used: &b.used,
+                used_count: &b.used_count,
+            },
+            &push::PixelAttention {
+                rows,
+                atoms: self.atoms,
+                inv_tau: self.inv_tau,
+                eps: self.eps,
+                cutoff: NORM_CUTOFF,
+            },
+        )?;
+        rec.dispatch_linear(
+            &PIXEL_EMBED,
+            rows,
+            bind::PixelEmbedBuffers {
+                weights: &b.weights,
+                used: &b.used,
+                used_count: &b.used_count,
+                atoms: &self.d,
+                region: &b.region,
+                targets,
+                embeddings: &b.embeddings,
+                norm: &b.norm,
+                target_dot: &b.target_dot,
+            },
+            &push::PixelEmbed {
+                rows,
+                atoms: self.atoms,
+                dim: self.dim,
+                regions,
+            },
+        )
+    }
+}
+
+impl Batch {
+    fn new(ctx: &Context, rows: u32, atoms: u32, dim: u32) -> Result<Self> {
+        let r = rows as u64;
+        let buf = |name: &str, per_row: u64| {
+            Buffer::device(ctx, &format!("pixel_decoder/{name}"), r * per_row * 4)
+        };
+        Ok(Batch {
+            rows,
+            queries: buf("queries", QUERY_DIM as u64)?,
+            region: buf("region", 1)?,
+            weights: buf("weights", atoms as u64)?,
+            used: buf("used", atoms as u64)?,
+            used_count: buf("used_count", 1)?,
+            embeddings: buf("embeddings", dim as u64)?,
+            norm: buf("norm", 1)?,
+            target_dot: buf("target_dot", 1)?,
+        })
+    }
+}
+
+/// Rows of `dim` values scaled to unit length (zero rows stay zero).
+fn unit_rows(rows: &[f32], dim: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(rows.len());
+    for r in rows.chunks_exact(dim) {
+        let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
+        let s = if n > 0.0 { 1.0 / n } else { 0.0 };
+        out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests;
