@@ -1,24 +1,21 @@
 // Per-pixel decoding of rendered queries (paper Eq. 5) for evaluation and
-// relevance images, one workgroup per pixel, in two steps around the GEMM
-// of the logits L = Q M (M = W D̂ᵀ, QUERY_DIM x K, computed once per map):
+// relevance images, one workgroup per pixel, around two GEMMs:
+// L = Q M (M = W D̂ᵀ, QUERY_DIM x K, computed once per map) before
+// pixel_attention, and E = A D between it and pixel_norms.
 //
 // pixel_attention: the attention a = softmax_k(L_k / (τ (‖qW‖ + ε))), with
-//   ‖qW‖² = q G qᵀ (G = W Wᵀ), written over the logits; and the atoms the
-//   pixel's embedding needs, those weighing at least `cutoff` of the
-//   largest weight (1/Σ, since the largest exponent is 0), listed with
-//   their count. Leaving the others out changes e by less than
-//   K x cutoff of its largest term: sharp attention (τ = 0.05) uses few
-//   atoms, so the embedding costs |S| d_f instead of K d_f.
-// pixel_embed: e = Σ_{k in S} a_k D_k written as the pixel's row of
-//   `embeddings`, with ‖e‖ and ⟨e, t_r⟩ for the unit target t_r of the
-//   pixel's region r (0 for NO_REGION).
+//   ‖qW‖² = q G qᵀ (G = W Wᵀ), written over the logits. Rows are `stride`
+//   long (K rounded up to 4, so the GEMMs load 16 bytes at a time); the
+//   columns past K are set to 0.
+// pixel_norms: ‖e‖ and ⟨e, t_r⟩ for the unit target t_r of the pixel's
+//   region r (0 for NO_REGION) from the pixel's row e of E.
 //
 // CPU references: FactorisedDecoder in engine/core/src/latent/pixel_decoder.rs
-// (the same factorisation) and the explicit f64 decoder of
+// (the same quantities, factorised) and the explicit f64 decoder of
 // engine/reference/src/decoder.rs.
 //
 // @kernel pixel_attention STEP=0
-// @kernel pixel_embed STEP=1
+// @kernel pixel_norms STEP=1
 #version 450
 #include "common.glsl"
 #include "shared.glsl"
@@ -32,20 +29,17 @@ layout(local_size_x = THREADS) in;
 layout(std430, set = 0, binding = 0) buffer Weights { float weights[]; };
 layout(std430, set = 0, binding = 1) readonly buffer Queries { float queries[]; };
 layout(std430, set = 0, binding = 2) readonly buffer QueryGram { float query_gram[]; };
-layout(std430, set = 0, binding = 3) buffer Used { uint used[]; };
-layout(std430, set = 0, binding = 4) buffer UsedCount { uint used_count[]; };
 
 layout(push_constant) uniform Params {
     uint rows;
     uint atoms;
+    uint stride;
     float inv_tau;
     float eps;
-    float cutoff;
 } pc;
 
 shared float smax[THREADS];
 shared float ssum[THREADS];
-shared uint sfirst[THREADS];
 
 void main() {
     uint row = linear_group();
@@ -75,7 +69,7 @@ void main() {
     barrier();
 
     // Online softmax over the row (see softmax.comp).
-    uint base = row * pc.atoms;
+    uint base = row * pc.stride;
     float m = uintBitsToFloat(0xff800000u);
     float s = 0.0;
     for (uint j = t; j < pc.atoms; j += THREADS) {
@@ -104,53 +98,23 @@ void main() {
     }
     float rmax = smax[0];
     float inv = 1.0 / ssum[0];
-    // The largest weight is exp(0) / Σ.
-    float cut = pc.cutoff * inv;
-
-    // Count this thread's kept atoms, then place them after those of the
-    // threads before it.
-    uint count = 0u;
-    for (uint j = t; j < pc.atoms; j += THREADS) {
-        if (exp(scale * weights[base + j] - rmax) * inv >= cut) {
-            count += 1u;
+    for (uint j = t; j < pc.stride; j += THREADS) {
+        float a = 0.0;
+        if (j < pc.atoms) {
+            a = exp(scale * weights[base + j] - rmax) * inv;
         }
-    }
-    sfirst[t] = count;
-    barrier();
-    if (t == 0u) {
-        uint total = 0u;
-        for (uint i = 0u; i < THREADS; i++) {
-            uint c = sfirst[i];
-            sfirst[i] = total;
-            total += c;
-        }
-        used_count[row] = total;
-    }
-    barrier();
-    uint next = base + sfirst[t];
-    for (uint j = t; j < pc.atoms; j += THREADS) {
-        float a = exp(scale * weights[base + j] - rmax) * inv;
         weights[base + j] = a;
-        if (a >= cut) {
-            used[next] = j;
-            next += 1u;
-        }
     }
 }
 #else
-layout(std430, set = 0, binding = 0) readonly buffer Weights { float weights[]; };
-layout(std430, set = 0, binding = 1) readonly buffer Used { uint used[]; };
-layout(std430, set = 0, binding = 2) readonly buffer UsedCount { uint used_count[]; };
-layout(std430, set = 0, binding = 3) readonly buffer Atoms { float atoms_d[]; };
-layout(std430, set = 0, binding = 4) readonly buffer Region { uint region[]; };
-layout(std430, set = 0, binding = 5) readonly buffer Targets { float targets[]; };
-layout(std430, set = 0, binding = 6) buffer Embeddings { float embeddings[]; };
-layout(std430, set = 0, binding = 7) buffer Norm { float norm[]; };
-layout(std430, set = 0, binding = 8) buffer TargetDot { float target_dot[]; };
+layout(std430, set = 0, binding = 0) readonly buffer Embeddings { float embeddings[]; };
+layout(std430, set = 0, binding = 1) readonly buffer Region { uint region[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Targets { float targets[]; };
+layout(std430, set = 0, binding = 3) buffer Norm { float norm[]; };
+layout(std430, set = 0, binding = 4) buffer TargetDot { float target_dot[]; };
 
 layout(push_constant) uniform Params {
     uint rows;
-    uint atoms;
     uint dim;
     uint regions;
 } pc;
@@ -164,19 +128,12 @@ void main() {
         return;
     }
     uint t = gl_LocalInvocationID.x;
-    uint base = row * pc.atoms;
-    uint n = used_count[row];
     uint r = region[row];
     bool has_target = r != NO_REGION && r < pc.regions;
     float n2 = 0.0;
     float dot_t = 0.0;
     for (uint d = t; d < pc.dim; d += THREADS) {
-        float e = 0.0;
-        for (uint u = 0u; u < n; u++) {
-            uint k = used[base + u];
-            e += weights[base + k] * atoms_d[k * pc.dim + d];
-        }
-        embeddings[row * pc.dim + d] = e;
+        float e = embeddings[row * pc.dim + d];
         n2 += e * e;
         if (has_target) {
             dot_t += e * targets[r * pc.dim + d];

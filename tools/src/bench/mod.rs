@@ -4,6 +4,7 @@
 //! compiles a pipeline on its first dispatch).
 
 mod common;
+mod decode;
 mod ingest;
 mod latent;
 mod live;
@@ -154,6 +155,12 @@ pub enum Which {
     /// cold and a warm pipeline cache, the first keyframe against the
     /// later ones, and abort latency.
     Live(live::Args),
+    /// The per-pixel evaluation of one view (every pixel's query decoded,
+    /// its cosine to its region's target and its class among a
+    /// vocabulary) on the device and on the CPU, on the same generated
+    /// inputs: time per view, atoms a pixel's embedding needs, per-kernel
+    /// breakdown.
+    Decode(decode::Args),
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -193,6 +200,7 @@ pub fn run(which: Which) -> Result<()> {
         }),
         Which::Soak(args) => soak::run_bench(args),
         Which::Live(args) => live::run(args),
+        Which::Decode(args) => decode::run(args),
         Which::Map {
             frames,
             width,

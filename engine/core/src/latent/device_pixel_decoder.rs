@@ -7,26 +7,29 @@
 //!    M = W D̂ᵀ computed once per map (D̂: the atoms scaled to unit length,
 //!    with the decoder's ε);
 //! 2. `pixel_attention`: a = softmax(L / (τ (‖qW‖ + ε))), ‖qW‖² = q G qᵀ
-//!    with G = W Wᵀ, and the atoms weighing at least [`NORM_CUTOFF`] of
-//!    the pixel's largest weight;
-//! 3. `pixel_embed`: e = Σ a_k D_k over those atoms (|S| d_f multiply-adds
-//!    instead of K d_f; the attention at τ = 0.05 is sharp), with ‖e‖ and
-//!    ⟨e, t̂⟩ for the pixel's region target;
-//! 4. with texts, ⟨e, t̂_c⟩ for every text as a GEMM (n × d_f by d_f × m),
+//!    with G = W Wᵀ;
+//! 3. the embeddings E = A D, a GEMM of n × K by K × d_f;
+//! 4. `pixel_norms`: ‖e‖ and ⟨e, t̂⟩ for the pixel's region target;
+//! 5. with texts, ⟨e, t̂_c⟩ for every text, a GEMM of n × d_f by d_f × m,
 //!    and, when only the best text is wanted, its index (`argmax_rows`).
 //!
-//! A pixel costs QUERY_DIM·K + |S|·d_f + m·d_f multiply-adds, against
-//! QUERY_DIM·d_f + 2·K·d_f for decoding it explicitly.
+//! A pixel costs QUERY_DIM·K + K·d_f + (m + 2)·d_f multiply-adds, against
+//! QUERY_DIM·d_f + 2·K·d_f for decoding it as training does (Ê = qW
+//! normalised, then its logits against D̂ in d_f dimensions). The K·d_f
+//! of E is what the norm needs: the attention over real region embeddings
+//! is not sparse enough at τ = 0.05 to leave atoms out (atoms are alike,
+//! so a pixel's weights spread over most of them).
 //!
-//! References: [`super::FactorisedDecoder`] (the same factorisation on
-//! the CPU) and `latentam_reference::decoder::forward` (explicit, f64).
+//! References: [`super::FactorisedDecoder`] (the same quantities,
+//! factorised, on the CPU) and `latentam_reference::decoder::forward`
+//! (explicit, f64).
 
-use crate::latent::{LatentHead, NORM_CUTOFF, NO_REGION};
+use crate::latent::{LatentHead, NO_REGION};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
 use latentam_gpu::ops::{normalize_rows, Gemm, Transpose};
 use latentam_gpu::{Buffer, Context, Recorder};
-use latentam_shaders::{bind, push, ARGMAX_ROWS, PIXEL_ATTENTION, PIXEL_EMBED};
+use latentam_shaders::{bind, push, ARGMAX_ROWS, PIXEL_ATTENTION, PIXEL_NORMS};
 
 /// Device memory one batch of pixels may take (bytes); the binding limit
 /// can make batches smaller.
@@ -85,8 +88,6 @@ pub struct DecodedPixels {
     pub text_dots: Vec<f32>,
     /// With [`TextOutput::Best`]: the index of the best text.
     pub best_text: Vec<u32>,
-    /// Atoms the pixel's embedding was summed over (|S|).
-    pub used_atoms: Vec<u32>,
 }
 
 /// The device buffers of one batch of pixels.
@@ -95,8 +96,6 @@ struct Batch {
     queries: Buffer,
     region: Buffer,
     weights: Buffer,
-    used: Buffer,
-    used_count: Buffer,
     embeddings: Buffer,
     norm: Buffer,
     target_dot: Buffer,
@@ -130,14 +129,17 @@ struct Batch {
 /// ```
 pub struct DevicePixelDecoder {
     atoms: u32,
+    /// K rounded up to a multiple of 4: the row length of M and A and the
+    /// rows of D, zero past K.
+    stride: u32,
     dim: u32,
     inv_tau: f32,
     eps: f32,
-    /// W D̂ᵀ, QUERY_DIM × K.
+    /// W D̂ᵀ, QUERY_DIM × stride.
     m: Buffer,
     /// W Wᵀ, QUERY_DIM × QUERY_DIM.
     g: Buffer,
-    /// D, K × d_f.
+    /// D, stride × d_f.
     d: Buffer,
     batch: Batch,
 }
@@ -166,17 +168,14 @@ impl DevicePixelDecoder {
                 "decoder temperature {temperature} and eps {eps}"
             )));
         }
-        let (k, d64) = (atom_count as u64, dim as u64);
+        let stride = atom_count.next_multiple_of(4);
+        let (k, d64) = (stride as u64, dim as u64);
         let buf =
             |name: &str, bytes: u64| Buffer::device(ctx, &format!("pixel_decoder/{name}"), bytes);
-        let batch = Batch::new(
-            ctx,
-            Self::batch_rows(ctx, atom_count, dim)?,
-            atom_count,
-            dim,
-        )?;
+        let batch = Batch::new(ctx, Self::batch_rows(ctx, stride, dim)?, stride, dim)?;
         let mut dec = DevicePixelDecoder {
             atoms: atom_count,
+            stride,
             dim,
             inv_tau: 1.0 / temperature,
             eps,
@@ -194,23 +193,27 @@ impl DevicePixelDecoder {
         let (k, d64) = (self.atoms as u64, self.dim as u64);
         w.ensure_bytes(QUERY_DIM as u64 * d64 * 4, "pixel decoder W")?;
         atoms.ensure_bytes(k * d64 * 4, "pixel decoder atoms")?;
-        let d_hat = Buffer::device(ctx, "pixel_decoder/unit_atoms", k * d64 * 4)?;
-        let atom_norms = Buffer::device(ctx, "pixel_decoder/atom_norms", k * 4)?;
+        let padded = self.stride as u64 * d64 * 4;
+        let d_hat = Buffer::device(ctx, "pixel_decoder/unit_atoms", padded)?;
+        let atom_norms = Buffer::device(ctx, "pixel_decoder/atom_norms", self.stride as u64 * 4)?;
         let mut rec = ctx.recorder()?;
+        // The rows past K stay zero: their logits are never read, and 0 × D
+        // must not be 0 × NaN in E = A D.
+        rec.fill_u32(&self.d, 0);
         rec.copy(atoms, 0, &self.d, 0, k * d64 * 4)?;
         normalize_rows(
             &mut rec,
             &self.d,
             &d_hat,
             &atom_norms,
-            self.atoms,
+            self.stride,
             self.dim,
             self.eps,
         )?;
         Gemm {
             transpose: Transpose::B,
             m: QUERY_DIM as u32,
-            n: self.atoms,
+            n: self.stride,
             k: self.dim,
             alpha: 1.0,
             beta: 0.0,
@@ -291,8 +294,8 @@ impl DevicePixelDecoder {
     fn batch_rows(ctx: &Context, atoms: u32, dim: u32) -> Result<u32> {
         let limit = ctx.info().max_buffer_bytes();
         let widest = 4 * (atoms.max(dim) as u64).max(QUERY_DIM as u64);
-        // Weights, atom list, embedding, query and a few scalars a row.
-        let per_row = 4 * (2 * atoms as u64 + dim as u64 + QUERY_DIM as u64 + 8);
+        // Weights, embedding, query and a few scalars a row.
+        let per_row = 4 * (atoms as u64 + dim as u64 + QUERY_DIM as u64 + 8);
         let rows = (limit / widest)
             .min(BATCH_BYTES / per_row)
             .min(u32::MAX as u64);
@@ -384,7 +387,6 @@ impl DevicePixelDecoder {
             let b = &self.batch;
             let norm = rec.download(&b.norm, 0, rows as u64 * 4)?;
             let dot = rec.download(&b.target_dot, 0, rows as u64 * 4)?;
-            let used = rec.download(&b.used_count, 0, rows as u64 * 4)?;
             let text_read = match &text_buffers {
                 Some((unit_texts, dots, best_value, best_index)) => {
                     Gemm {
@@ -422,7 +424,6 @@ impl DevicePixelDecoder {
             rec.submit()?.wait()?;
             out.norm.extend(norm.read::<f32>()?);
             out.target_dot.extend(dot.read::<f32>()?);
-            out.used_atoms.extend(used.read::<u32>()?);
             match (text_read, pixels.text_output) {
                 (Some(r), TextOutput::All) => out.text_dots.extend(r.read::<f32>()?),
                 (Some(r), TextOutput::Best) => out.best_text.extend(r.read::<u32>()?),
@@ -458,12 +459,13 @@ impl DevicePixelDecoder {
         let mut cos = out.text_dots;
         for (row, &norm) in cos.chunks_exact_mut(m).zip(&out.norm) {
             let inv = if norm > 0.0 { 1.0 / norm } else { 0.0 };
-            row.iter_mut().for_each(|c| *c = (*c * inv).clamp(-1.0, 1.0));
+            row.iter_mut()
+                .for_each(|c| *c = (*c * inv).clamp(-1.0, 1.0));
         }
         Ok(cos)
     }
 
-    /// Records steps 1–3 of the module doc for one batch.
+    /// Records steps 1–4 of the module doc for one batch.
     fn record_batch<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
@@ -479,7 +481,7 @@ impl DevicePixelDecoder {
         Gemm {
             transpose: Transpose::None,
             m: rows,
-            n: self.atoms,
+            n: self.stride,
             k: QUERY_DIM as u32,
             alpha: 1.0,
             beta: 0.0,
@@ -492,34 +494,36 @@ impl DevicePixelDecoder {
                 weights: &b.weights,
                 queries: &b.queries,
                 query_gram: &self.g,
-                used: &b.used,
-                used_count: &b.used_count,
             },
             &push::PixelAttention {
                 rows,
                 atoms: self.atoms,
+                stride: self.stride,
                 inv_tau: self.inv_tau,
                 eps: self.eps,
-                cutoff: NORM_CUTOFF,
             },
         )?;
+        Gemm {
+            transpose: Transpose::None,
+            m: rows,
+            n: self.dim,
+            k: self.stride,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(rec, &b.weights, &self.d, &b.embeddings)?;
         rec.dispatch_linear(
-            &PIXEL_EMBED,
+            &PIXEL_NORMS,
             rows,
-            bind::PixelEmbedBuffers {
-                weights: &b.weights,
-                used: &b.used,
-                used_count: &b.used_count,
-                atoms: &self.d,
+            bind::PixelNormsBuffers {
+                embeddings: &b.embeddings,
                 region: &b.region,
                 targets,
-                embeddings: &b.embeddings,
                 norm: &b.norm,
                 target_dot: &b.target_dot,
             },
-            &push::PixelEmbed {
+            &push::PixelNorms {
                 rows,
-                atoms: self.atoms,
                 dim: self.dim,
                 regions,
             },
@@ -538,8 +542,6 @@ impl Batch {
             queries: buf("queries", QUERY_DIM as u64)?,
             region: buf("region", 1)?,
             weights: buf("weights", atoms as u64)?,
-            used: buf("used", atoms as u64)?,
-            used_count: buf("used_count", 1)?,
             embeddings: buf("embeddings", dim as u64)?,
             norm: buf("norm", 1)?,
             target_dot: buf("target_dot", 1)?,

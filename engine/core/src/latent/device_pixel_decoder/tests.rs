@@ -8,8 +8,7 @@ use latentam_reference::decoder::{forward, DecoderShape};
 
 /// A random decoder whose atoms lie near directions W can reach, and
 /// queries of which some point at one atom (sharp attention, as in a
-/// trained map) and the others anywhere (diffuse attention, the most
-/// atoms a norm can need).
+/// trained map) and the others anywhere (diffuse attention).
 struct Case {
     k: usize,
     dim: usize,
@@ -130,7 +129,6 @@ fn device_decoding_equals_the_explicit_and_the_factorised_decoder() {
             );
             let texts: Vec<Vec<f64>> = c.texts.chunks(dim).map(unit).collect();
             let (mut a, mut used) = (vec![0.0f32; k], Vec::new());
-            let mut sharp = 0;
             for p in 0..n {
                 let e = &want.output[p * dim..(p + 1) * dim];
                 let norm = e.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -189,13 +187,6 @@ fn device_decoding_equals_the_explicit_and_the_factorised_decoder() {
                         "K = {k}, pixel {p}: CPU ⟨e, t⟩"
                     );
                 }
-                let s = all.used_atoms[p] as usize;
-                assert!((1..=k).contains(&s), "K = {k}, pixel {p}: {s} atoms used");
-                assert_eq!(s, used.len(), "K = {k}, pixel {p}: the CPU decoder's atoms");
-                sharp += usize::from(s < k);
-            }
-            if k > 5 {
-                assert!(sharp > 0, "K = {k}: some pixels use fewer atoms than all");
             }
         }
     });
@@ -224,7 +215,6 @@ fn batches_split_at_the_binding_limit_give_the_same_pixels() {
         );
         let split = dec.decode(ctx, &pixels(&c, TextOutput::All)).unwrap();
         let whole = whole.take().unwrap();
-        assert_eq!(split.used_atoms, whole.used_atoms);
         for (name, a, b) in [
             ("norm", &split.norm, &whole.norm),
             ("target_dot", &split.target_dot, &whole.target_dot),
