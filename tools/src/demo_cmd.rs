@@ -1,6 +1,6 @@
 //! `latentam demo`: the built-in scene end to end — generate, map,
-//! evaluate on views that were not keyframes, query one class, and print
-//! a summary with where everything went.
+//! evaluate on keyframes and on views that were not keyframes, query one
+//! class, and print a summary with where everything went.
 
 use std::path::{Path, PathBuf};
 
@@ -91,13 +91,15 @@ pub fn run(args: Args) -> Result<()> {
     let profile = run.mapper.context().profiler_snapshot();
     drop(run);
 
-    println!("3/4 evaluating on views that were not keyframes (frames 2, 10, 18, …)");
+    // Every 6th frame from 2: views that were never keyframes (2, 14, …)
+    // alternate with keyframes (8, 20, …; every 4th frame is one).
+    println!("3/4 evaluating on keyframes and on views that were not (frames 2, 8, 14, …)");
     let eval_json = args.out.join("eval.json");
     crate::eval_cmd::run(crate::eval_cmd::Args {
         dir: run_dir.clone(),
         log: log.clone(),
         json: Some(eval_json.clone()),
-        every: 8,
+        every: 6,
         offset: 2,
         frames: None,
         pixel_stride: 1,
@@ -165,7 +167,7 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     println!(
-        "  latentam eval {} {} --every 8 --offset 2",
+        "  latentam eval {} {} --every 2",
         run_dir.display(),
         log.display()
     );

@@ -4,7 +4,8 @@
 //! decoded embedding against its region's embedding and mIoU over the
 //! vocabulary's classes (against the semantic labels when the log has
 //! them, else the teacher/student variant). The region-pooled figures
-//! follow on a line of their own.
+//! follow on a line of their own. Frames the run mapped as keyframes and
+//! views it never trained on are also reported apart.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -54,6 +55,9 @@ pub struct Args {
 struct FrameRow {
     frame: u64,
     stamp_ns: i64,
+    /// Whether the run mapped this frame as a keyframe (its stamp is on
+    /// the run's trajectory); the others are views the map never trained on.
+    keyframe: bool,
     #[serde(flatten)]
     metrics: ViewMetrics,
 }
@@ -89,12 +93,28 @@ struct PooledMeans {
     miou: Option<f64>,
 }
 
+/// The figures of one group of frames.
+#[derive(Serialize)]
+struct Group {
+    frames: usize,
+    mean: Means,
+    /// Per vocabulary class of the group's ground truth.
+    classes: Vec<ClassRow>,
+}
+
 #[derive(Serialize)]
 struct EvalReport {
     run: String,
     log: String,
     frames_evaluated: usize,
+    /// Over every evaluated frame.
     mean: Means,
+    /// Over the frames the run mapped as keyframes (absent when none was
+    /// evaluated).
+    keyframes: Option<Group>,
+    /// Over the frames that were never keyframes: views the map did not
+    /// train on (absent when none was evaluated).
+    novel_views: Option<Group>,
     /// `labels` or `teacher` (see `ViewMetrics::segmentation`).
     segmentation: Option<&'static str>,
     classes: Vec<ClassRow>,
@@ -164,6 +184,11 @@ pub fn run(args: Args) -> Result<()> {
     // meant for it.
     ctx.set_memory_budget(None);
     let limit = args.frames.unwrap_or(usize::MAX);
+    let keyframes: std::collections::HashSet<i64> = mapper
+        .trajectory()
+        .iter()
+        .map(|&(stamp, _)| stamp)
+        .collect();
     let mut rows = Vec::new();
     if !args.quiet {
         println!(
@@ -202,6 +227,7 @@ pub fn run(args: Args) -> Result<()> {
         rows.push(FrameRow {
             frame: i,
             stamp_ns: frame.stamp_ns,
+            keyframe: keyframes.contains(&frame.stamp_ns),
             metrics: m,
         });
     }
@@ -209,9 +235,52 @@ pub fn run(args: Args) -> Result<()> {
         bail!("no frame of {} could be evaluated", args.log.display());
     }
     let eval_ms_per_frame = started.elapsed().as_secs_f64() * 1e3 / rows.len() as f64;
+    let all: Vec<&FrameRow> = rows.iter().collect();
+    let (means, classes) = figures(&all, vocabulary.as_ref(), &class_table);
+    let group = |keyframe: bool| {
+        let rows: Vec<&FrameRow> = rows.iter().filter(|r| r.keyframe == keyframe).collect();
+        (!rows.is_empty()).then(|| {
+            let (mean, classes) = figures(&rows, vocabulary.as_ref(), &class_table);
+            Group {
+                frames: rows.len(),
+                mean,
+                classes,
+            }
+        })
+    };
+    let report = EvalReport {
+        run: args.dir.display().to_string(),
+        log: args.log.display().to_string(),
+        frames_evaluated: rows.len(),
+        segmentation: rows.iter().find_map(|r| r.metrics.segmentation),
+        mean: means,
+        keyframes: group(true),
+        novel_views: group(false),
+        classes,
+        run_fps: run_report.as_ref().and_then(|r| r["fps"].as_f64()),
+        run_peak_gpu_bytes: run_report
+            .as_ref()
+            .and_then(|r| r["peak_gpu_bytes"].as_u64()),
+        eval_ms_per_frame,
+        pixel_stride: args.pixel_stride,
+        per_frame: rows,
+    };
+    print_summary(&report);
+    if let Some(p) = &args.json {
+        crate::mapping::write_text(p, &serde_json::to_string_pretty(&report)?)?;
+    }
+    Ok(())
+}
+
+/// The mean figures of `rows` and their per-class IoU.
+fn figures(
+    rows: &[&FrameRow],
+    vocabulary: Option<&latentam_io::Vocabulary>,
+    class_table: &BTreeMap<u16, String>,
+) -> (Means, Vec<ClassRow>) {
     let mut counts = BTreeMap::new();
     let mut pooled_counts = BTreeMap::new();
-    for r in &rows {
+    for r in rows {
         add_iou(&mut counts, &r.metrics.class_iou);
         if let Some(p) = &r.metrics.region_pooled {
             add_iou(&mut pooled_counts, &p.class_iou);
@@ -249,7 +318,6 @@ pub fn run(args: Args) -> Result<()> {
     };
     let name_of = |id: u16| {
         vocabulary
-            .as_ref()
             .and_then(|v| {
                 v.ids
                     .iter()
@@ -269,26 +337,7 @@ pub fn run(args: Args) -> Result<()> {
             pixels: c.truth,
         })
         .collect();
-    let report = EvalReport {
-        run: args.dir.display().to_string(),
-        log: args.log.display().to_string(),
-        frames_evaluated: rows.len(),
-        segmentation: rows.iter().find_map(|r| r.metrics.segmentation),
-        mean: means,
-        classes,
-        run_fps: run_report.as_ref().and_then(|r| r["fps"].as_f64()),
-        run_peak_gpu_bytes: run_report
-            .as_ref()
-            .and_then(|r| r["peak_gpu_bytes"].as_u64()),
-        eval_ms_per_frame,
-        pixel_stride: args.pixel_stride,
-        per_frame: rows,
-    };
-    print_summary(&report);
-    if let Some(p) = &args.json {
-        crate::mapping::write_text(p, &serde_json::to_string_pretty(&report)?)?;
-    }
-    Ok(())
+    (means, classes)
 }
 
 fn print_summary(r: &EvalReport) {
@@ -306,6 +355,9 @@ fn print_summary(r: &EvalReport) {
     }
     for c in &r.classes {
         println!("    {:<16} {:.3}  ({} pixels)", c.name, c.iou, c.pixels);
+    }
+    if let (Some(k), Some(n)) = (&r.keyframes, &r.novel_views) {
+        print_split(k, n);
     }
     let p = &m.region_pooled;
     println!(
@@ -327,5 +379,27 @@ fn print_summary(r: &EvalReport) {
             "mapping run: {fps:.2} frames/s end to end, peak GPU {:.1} MB",
             gpu as f64 / 1e6
         );
+    }
+}
+
+/// The figures of keyframes beside those of views the map never trained on.
+fn print_split(k: &Group, n: &Group) {
+    let opt = |x: Option<f64>| x.map_or("n/a".into(), |v| format!("{v:.4}"));
+    println!("  {:<14} {:>12} {:>12}", "", "keyframes", "novel views");
+    println!("  {:<14} {:>12} {:>12}", "frames", k.frames, n.frames);
+    println!(
+        "  {:<14} {:>12.2} {:>12.2}",
+        "PSNR dB", k.mean.psnr, n.mean.psnr
+    );
+    println!(
+        "  {:<14} {:>12.4} {:>12.4}",
+        "depth L1 m", k.mean.depth_l1, n.mean.depth_l1
+    );
+    for (name, a, b) in [
+        ("cosine loss", k.mean.cosine_loss, n.mean.cosine_loss),
+        ("L2", k.mean.l2, n.mean.l2),
+        ("mIoU", k.mean.miou, n.mean.miou),
+    ] {
+        println!("  {name:<14} {:>12} {:>12}", opt(a), opt(b));
     }
 }

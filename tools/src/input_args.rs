@@ -23,6 +23,14 @@ pub struct InputArgs {
     /// images.
     #[arg(long, value_name = "TOPIC", help_heading = "Input")]
     pub camera_info_topic: Option<String>,
+    /// The depth camera's own calibration (sensor_msgs/CameraInfo), for a
+    /// raw depth stream stamped in another optical frame than colour: with
+    /// the /tf_static transform between the lenses, each depth image is
+    /// re-projected into the colour camera. Default
+    /// /camera/depth/camera_info; when absent, the one beside the depth
+    /// images (none for the driver's registered depth).
+    #[arg(long, value_name = "TOPIC", help_heading = "Input")]
+    pub depth_camera_info_topic: Option<String>,
     /// Pose topic (PoseStamped or Odometry of the camera optical frame in
     /// the world); ignored with --tf-world. Default /camera/pose; when
     /// absent, the one pose or odometry topic, else /tf + /tf_static from
@@ -112,6 +120,7 @@ impl InputArgs {
                 color: or(&self.color_topic, d.color),
                 depth: or(&self.depth_topic, d.depth),
                 camera_info: or(&self.camera_info_topic, d.camera_info),
+                depth_camera_info: or(&self.depth_camera_info_topic, d.depth_camera_info),
                 pose,
                 embeddings: or(&self.embeddings_topic, d.embeddings),
                 semantic: self.semantic_topic.clone(),
@@ -122,6 +131,7 @@ impl InputArgs {
                 color: self.color_topic.is_none(),
                 depth: self.depth_topic.is_none(),
                 camera_info: self.camera_info_topic.is_none(),
+                depth_camera_info: self.depth_camera_info_topic.is_none(),
                 pose: self.pose_topic.is_none() && self.tf_world.is_none(),
                 embeddings: self.embeddings_topic.is_none(),
                 vocabulary: self.vocabulary_topic.is_none(),

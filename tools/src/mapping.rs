@@ -344,6 +344,9 @@ pub fn summary(r: &RunReport) -> String {
     if skipped > 0 {
         s += &format!("input: {skipped} messages or frames skipped (see report.json `ingest`)\n");
     }
+    for n in &r.ingest.notes {
+        s += &format!("input: {n}\n");
+    }
     for w in &r.ingest.warnings {
         s += &format!("input warning: {w}\n");
     }

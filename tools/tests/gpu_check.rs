@@ -38,6 +38,7 @@ fn the_gpu_check_runs_every_step_and_writes_its_files() {
             "map-auto",
             "raster",
             "latent",
+            "decode",
             "map-pixels",
             "map-columns",
             "live",
@@ -51,6 +52,13 @@ fn the_gpu_check_runs_every_step_and_writes_its_files() {
     for f in ["primitives.json", "raster.json", "latent.json", "live.json"] {
         json(f);
     }
+    // The per-pixel evaluation on the device agrees with the CPU's.
+    let decode = json("decode.json");
+    assert!(decode["device_ms_median"].as_f64().unwrap() > 0.0);
+    assert!(
+        decode["cosine_loss_difference"].as_f64().unwrap() < 1e-4,
+        "{decode}"
+    );
     // Both blending layouts map the same keyframes of the same scene.
     let (pixels, columns) = (json("map-pixels.json"), json("map-columns.json"));
     assert_eq!(pixels["keyframes"], columns["keyframes"]);

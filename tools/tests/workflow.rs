@@ -316,21 +316,53 @@ fn map_query_eval_profile_on_a_generated_log() {
     }
     drop(again);
 
-    // eval on views that were not keyframes.
+    // eval on every other frame: keyframes and views that never were,
+    // reported apart.
     let eval = dir.join("eval.json");
-    ok(latentam()
+    let stdout = ok(latentam()
         .arg("eval")
         .arg(&run)
         .arg(&log)
         .arg("--json")
         .arg(&eval)
-        .args(["--every", "4", "--offset", "2"])
+        .args(["--every", "2", "--offset", "2"])
         .output()
         .unwrap());
+    assert!(stdout.contains("novel views"), "{stdout}");
     let e = json(&eval);
-    assert_eq!(e["frames_evaluated"], 8);
-    assert_eq!(e["per_frame"].as_array().unwrap().len(), 8);
-    assert_eq!(e["per_frame"][1]["frame"], 6);
+    assert_eq!(e["frames_evaluated"], 15);
+    let per_frame = e["per_frame"].as_array().unwrap();
+    assert_eq!(per_frame.len(), 15);
+    assert_eq!(per_frame[1]["frame"], 4);
+    let keyframe_stamps: Vec<i64> = mapper.trajectory().iter().map(|t| t.0).collect();
+    let mut novel = 0;
+    for f in per_frame {
+        let stamp = f["stamp_ns"].as_i64().unwrap();
+        assert_eq!(f["keyframe"], keyframe_stamps.contains(&stamp), "{f}");
+        novel += usize::from(f["keyframe"] == false);
+    }
+    assert_eq!(novel, 8, "frames 2, 6, …, 30 were never keyframes");
+    assert_eq!(e["novel_views"]["frames"], 8);
+    assert_eq!(e["keyframes"]["frames"], 7);
+    for group in ["keyframes", "novel_views"] {
+        let g = &e[group]["mean"];
+        assert!(g["psnr"].as_f64().unwrap() > 12.0, "{group}: {g}");
+        assert!(g["cosine_loss"].as_f64().unwrap() > 0.0, "{group}: {g}");
+    }
+    // The group means are those of their frames.
+    let psnr_of = |keyframe: bool| {
+        let v: Vec<f64> = per_frame
+            .iter()
+            .filter(|f| f["keyframe"] == keyframe)
+            .map(|f| f["psnr"].as_f64().unwrap())
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    for (group, keyframe) in [("keyframes", true), ("novel_views", false)] {
+        let want = psnr_of(keyframe);
+        let got = e[group]["mean"]["psnr"].as_f64().unwrap();
+        assert!((got - want).abs() < 1e-9, "{group}: {got} vs {want}");
+    }
     let psnr = e["mean"]["psnr"].as_f64().unwrap();
     assert!(psnr > 12.0, "PSNR {psnr}");
     let cos = e["mean"]["cosine_loss"].as_f64().unwrap();

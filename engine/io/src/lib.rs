@@ -43,6 +43,7 @@ mod mcap_frames;
 pub mod messages;
 mod parts;
 mod pool;
+mod registration;
 mod report;
 pub mod schema;
 mod tf;
@@ -69,6 +70,7 @@ pub use messages::{
     StringMessage, TextEmbeddings, TfMessage, Time, TransformStamped,
 };
 pub use parts::MAX_EMBEDDING_DIM;
+pub use registration::DepthRegistration;
 pub use report::{IngestReport, ReasonCount};
 pub use tf::{PoseTrack, TfBuffer, QUATERNION_NORM_TOLERANCE};
 pub use topic_plan::plan_topics;

@@ -52,6 +52,9 @@ pub struct IngestReport {
     /// What was used but looks wrong (each said once), e.g. depth images
     /// in another camera frame than the colour images.
     pub warnings: Vec<String>,
+    /// What was done to the input that changes it (each said once), e.g.
+    /// depth registered to the colour camera.
+    pub notes: Vec<String>,
 }
 
 impl IngestReport {
@@ -69,6 +72,12 @@ impl IngestReport {
     pub fn warn(&mut self, warning: String) {
         if !self.warnings.contains(&warning) {
             self.warnings.push(warning);
+        }
+    }
+    /// Records a note, once.
+    pub fn note(&mut self, note: String) {
+        if !self.notes.contains(&note) {
+            self.notes.push(note);
         }
     }
     /// Total of all skips.
@@ -93,6 +102,9 @@ impl fmt::Display for IngestReport {
         )?;
         for (kind, c) in &self.skipped {
             writeln!(f, "  {:>6} × {kind} (first: {})", c.count, c.first)?;
+        }
+        for n in &self.notes {
+            writeln!(f, "  note: {n}")?;
         }
         for w in &self.warnings {
             writeln!(f, "  warning: {w}")?;

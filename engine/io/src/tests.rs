@@ -979,3 +979,107 @@ fn depth_in_another_camera_frame_is_a_warning() {
     let (_, report) = read_all(&path, AssemblyConfig::default());
     assert!(report.warnings.is_empty(), "{report}");
 }
+
+/// Raw depth from a second lens, with that lens's camera info and the
+/// static transform between the lenses in the log, is registered to the
+/// colour camera while reading: each frame's depth is what
+/// `DepthRegistration` makes of the raw image, and the report says so.
+#[test]
+fn depth_from_another_lens_is_registered_from_the_log_itself() {
+    let dir = TempDir::new("depth-registered");
+    let path = dir.path().join("raw.mcap");
+    let (depth_lens, offset) = ([6.5, 6.0, 3.0, 2.0], DVec3::new(-0.3, 0.05, 0.0));
+    let mount = Pose {
+        translation: offset,
+        rotation: DQuat::from_rotation_y(0.05),
+    };
+    write_log(
+        &path,
+        &Spec {
+            depth_frame: "depth_optical",
+            ..Spec::default()
+        },
+        &|log, i, t| {
+            if i == 0 {
+                let info = CameraInfo::pinhole(Header::at(t, "depth_optical"), W, H, depth_lens);
+                log.write("/camera/depth/camera_info", t as u64, &info)
+                    .unwrap();
+                let s = TfMessage {
+                    transforms: vec![TransformStamped {
+                        header: Header::at(0, "cam"),
+                        child_frame_id: "depth_optical",
+                        transform: mount,
+                    }],
+                };
+                log.write("/tf_static", t as u64, &s).unwrap();
+            }
+        },
+    );
+    let (registered, report) = read_all(&path, AssemblyConfig::default());
+    assert_eq!(registered.len(), 6, "{report}");
+    assert!(report.warnings.is_empty(), "{report}");
+    assert_eq!(report.notes.len(), 1, "{report}");
+    assert!(
+        report
+            .to_string()
+            .contains("note: depth images in frame `depth_optical` registered"),
+        "{report}"
+    );
+    // The same log read as recorded (no depth camera info: a warning).
+    let unregistered = AssemblyConfig {
+        topics: Topics {
+            depth_camera_info: String::new(),
+            ..Topics::default()
+        },
+        ..AssemblyConfig::default()
+    };
+    let (raw, report) = read_all(&path, unregistered);
+    assert_eq!(report.warnings.len(), 1, "{report}");
+    assert!(
+        report.warnings[0].contains("cannot be registered"),
+        "{report}"
+    );
+    let reg = DepthRegistration {
+        depth: depth_lens,
+        colour: [5.0, 5.0, 3.5, 2.5],
+        rotation: mount.rotation,
+        translation: offset,
+    };
+    let mut moved = 0;
+    for (r, f) in raw.iter().zip(&registered) {
+        let DepthData::Units { values, .. } = &r.depth.data else {
+            panic!("16-bit depth")
+        };
+        let want = reg.register(
+            W as usize, H as usize, values, 1000.0, W as usize, H as usize,
+        );
+        let DepthData::Units { values: got, .. } = &f.depth.data else {
+            panic!("16-bit depth")
+        };
+        assert_eq!(got, &want, "frame at {} ns", f.stamp_ns);
+        moved += got.iter().zip(values).filter(|(a, b)| a != b).count();
+    }
+    assert!(moved > 0, "registration moved no depth sample");
+    // Without the transform, the warning names what is missing.
+    let path = dir.path().join("no-tf.mcap");
+    write_log(
+        &path,
+        &Spec {
+            depth_frame: "depth_optical",
+            ..Spec::default()
+        },
+        &|log, i, t| {
+            if i == 0 {
+                let info = CameraInfo::pinhole(Header::at(t, "depth_optical"), W, H, depth_lens);
+                log.write("/camera/depth/camera_info", t as u64, &info)
+                    .unwrap();
+            }
+        },
+    );
+    let (_, report) = read_all(&path, AssemblyConfig::default());
+    assert!(report.notes.is_empty(), "{report}");
+    assert!(
+        report.warnings[0].contains("/tf_static does not place it"),
+        "{report}"
+    );
+}

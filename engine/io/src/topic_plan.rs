@@ -105,6 +105,9 @@ pub fn plan_topics(
     if choose.camera_info && config.intrinsics.is_none() && !present(&topics.camera_info) {
         choose_camera_info(channels, &mut topics, &mut plan)?;
     }
+    if choose.depth_camera_info && !present(&topics.depth_camera_info) {
+        choose_depth_camera_info(channels, &mut topics, &mut plan)?;
+    }
     if let (true, PoseSource::Topic(p)) = (choose.pose, &topics.pose) {
         if !present(p) {
             choose_pose(channels, &mut topics, &mut plan)?;
@@ -221,6 +224,38 @@ fn choose_camera_info(
     let candidates = prefer(of_type(channels, &[CameraInfo::TYPE_NAME]), &[&beside]);
     let chosen = one("camera info", "--camera-info-topic", candidates)?;
     take(plan, "camera info", &mut topics.camera_info, chosen);
+    Ok(())
+}
+
+/// The depth camera's own calibration, beside raw (unregistered) depth
+/// images: its parent path is a prefix of theirs, and it is not the
+/// colour camera's.
+fn choose_depth_camera_info(
+    channels: &[Channel],
+    topics: &mut Topics,
+    plan: &mut Vec<String>,
+) -> Result<(), InputError> {
+    if registered_depth(&topics.depth) {
+        return Ok(());
+    }
+    let (depth, colour) = (topics.depth.clone(), topics.camera_info.clone());
+    let candidates: Vec<&Channel> = of_type(channels, &[CameraInfo::TYPE_NAME])
+        .into_iter()
+        .filter(|c| {
+            c.topic != colour
+                && c.topic
+                    .rsplit_once('/')
+                    .is_some_and(|(parent, _)| !parent.is_empty() && depth.starts_with(parent))
+        })
+        .collect();
+    if let Some(c) = one("depth camera info", "--depth-camera-info-topic", candidates)? {
+        plan.push(format!(
+            "depth camera info: {} (registers depth to colour, with /tf_static, if their \
+             frames differ)",
+            c.topic
+        ));
+        topics.depth_camera_info = c.topic.clone();
+    }
     Ok(())
 }
 

@@ -202,3 +202,39 @@ fn registered_depth_is_preferred_over_the_raw_default() {
     assert_eq!(topics.depth, "/camera/depth/image_raw");
     assert!(plan.iter().all(|l| !l.starts_with("depth")), "{plan:?}");
 }
+
+/// Raw depth read by name: the camera info beside it is the depth
+/// camera's, chosen to register it; registered depth needs none.
+#[test]
+fn raw_depth_gets_the_camera_info_beside_it() {
+    let info = CameraInfo::TYPE_NAME;
+    let channels = [
+        Channel::ros2(COLOR, Image::TYPE_NAME),
+        Channel::ros2("/camera/camera/color/camera_info", info),
+        Channel::ros2("/camera/camera/depth/image_rect_raw", Image::TYPE_NAME),
+        Channel::ros2("/camera/camera/depth/camera_info", info),
+        Channel::ros2(DEPTH, Image::TYPE_NAME),
+        Channel::ros2("/camera/camera/aligned_depth_to_color/camera_info", info),
+        Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
+    ];
+    let mut raw = choosing();
+    raw.topics.depth = "/camera/camera/depth/image_rect_raw".into();
+    raw.choose.depth = false;
+    let (topics, plan) = plan_topics(&channels, &raw).unwrap();
+    assert_eq!(topics.depth_camera_info, "/camera/camera/depth/camera_info");
+    assert!(
+        plan.iter()
+            .any(|l| l.starts_with("depth camera info: /camera/camera/depth/camera_info")),
+        "{plan:?}"
+    );
+    let (topics, plan) = plan_topics(&channels, &choosing()).unwrap();
+    assert_eq!(topics.depth, DEPTH);
+    assert_eq!(
+        topics.depth_camera_info,
+        Topics::default().depth_camera_info
+    );
+    assert!(
+        !plan.iter().any(|l| l.contains("depth camera info")),
+        "{plan:?}"
+    );
+}

@@ -9,7 +9,6 @@
 pub mod datasets;
 pub mod features;
 pub mod npy;
-mod registration;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -22,7 +21,7 @@ use latentam_io::{
 
 pub use datasets::{Dataset, DepthCamera};
 use features::{FeatureDir, FrameFeatures, LoadedFeatures, Oracle};
-pub use registration::DepthRegistration;
+pub use latentam_io::DepthRegistration;
 
 /// Where a log's embeddings come from.
 pub enum EmbeddingSource {

@@ -50,6 +50,12 @@ pub struct Topics {
     /// Colour camera calibration (ignored when intrinsics are given in
     /// [`AssemblyConfig::intrinsics`]).
     pub camera_info: String,
+    /// The depth camera's own calibration, used when the depth images are
+    /// stamped in another optical frame than the colour images (a raw
+    /// depth stream): with the `/tf_static` transform between the two
+    /// frames, each depth image is re-projected into the colour camera
+    /// ([`crate::DepthRegistration`]). Empty: never.
+    pub depth_camera_info: String,
     /// Camera poses.
     pub pose: PoseSource,
     /// Region embeddings (`MaskFeatures` or `FeatureGrid`); used when the
@@ -67,6 +73,7 @@ impl Default for Topics {
             color: "/camera/color/image_raw".into(),
             depth: "/camera/depth/image_raw".into(),
             camera_info: "/camera/color/camera_info".into(),
+            depth_camera_info: "/camera/depth/camera_info".into(),
             pose: PoseSource::Topic("/camera/pose".into()),
             embeddings: "/camera/embeddings".into(),
             semantic: "/camera/semantic".into(),
@@ -183,6 +190,8 @@ pub struct TopicChoice {
     pub depth: bool,
     /// Camera info.
     pub camera_info: bool,
+    /// The depth camera's calibration (beside the depth images).
+    pub depth_camera_info: bool,
     /// Poses: a `PoseStamped`/`Odometry` topic, else the TF tree from its
     /// root to the colour image's frame.
     pub pose: bool,
@@ -199,6 +208,7 @@ impl TopicChoice {
             color: true,
             depth: true,
             camera_info: true,
+            depth_camera_info: true,
             pose: true,
             embeddings: true,
             vocabulary: true,

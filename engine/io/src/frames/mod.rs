@@ -22,6 +22,7 @@ use super::parts::{
     check_intrinsics, drop_bad_regions, grid_embeddings, intrinsics_of, mask_embeddings,
 };
 use super::pool::BufferPool;
+use super::registration::DepthRegistration;
 use super::report::IngestReport;
 use super::schema::normalize_type_name;
 use super::tf::{PoseTrack, TfBuffer};
@@ -41,6 +42,7 @@ pub(super) enum Role {
     Color,
     Depth,
     CameraInfo,
+    DepthCameraInfo,
     Pose,
     Tf,
     TfStatic,
@@ -53,7 +55,7 @@ impl Role {
     pub(super) fn accepted_types(self) -> &'static [&'static str] {
         match self {
             Role::Color | Role::Depth => &[Image::TYPE_NAME, CompressedImage::TYPE_NAME],
-            Role::CameraInfo => &[CameraInfo::TYPE_NAME],
+            Role::CameraInfo | Role::DepthCameraInfo => &[CameraInfo::TYPE_NAME],
             Role::Pose => &[PoseStamped::TYPE_NAME, Odometry::TYPE_NAME],
             Role::Tf | Role::TfStatic => &[TfMessage::TYPE_NAME],
             Role::Embeddings => &[MaskFeatures::TYPE_NAME, FeatureGrid::TYPE_NAME],
@@ -66,6 +68,7 @@ impl Role {
             Role::Color => "colour",
             Role::Depth => "depth",
             Role::CameraInfo => "camera info",
+            Role::DepthCameraInfo => "depth camera info",
             Role::Pose => "pose",
             Role::Tf | Role::TfStatic => "tf",
             Role::Embeddings => "embeddings",
@@ -146,6 +149,11 @@ pub struct FrameAssembler {
     color_frame_id: Option<String>,
     /// The depth images' `header.frame_id`, to tell unregistered depth.
     depth_frame_id: Option<String>,
+    /// The latest depth camera info (see [`Topics::depth_camera_info`]).
+    depth_camera: Option<Result<Intrinsics, Rejection>>,
+    /// The registration of depth to colour, once the depth camera info and
+    /// the transform between the lenses were seen (both static).
+    registration: Option<DepthRegistration>,
     has_embeddings: bool,
     has_semantic: bool,
     embedding_signature: Option<(u32, String)>,
@@ -175,6 +183,8 @@ impl FrameAssembler {
             resolved_stamps: std::collections::HashSet::new(),
             color_frame_id: None,
             depth_frame_id: None,
+            depth_camera: None,
+            registration: None,
             has_embeddings,
             has_semantic,
             embedding_signature: None,
@@ -216,11 +226,14 @@ impl FrameAssembler {
             Some(Role::Depth)
         } else if topic == t.camera_info && self.config.intrinsics.is_none() {
             Some(Role::CameraInfo)
+        } else if topic == t.depth_camera_info && topic != t.camera_info {
+            Some(Role::DepthCameraInfo)
         } else if matches!(&t.pose, PoseSource::Topic(p) if p == topic) {
             Some(Role::Pose)
         } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf" {
             Some(Role::Tf)
-        } else if matches!(t.pose, PoseSource::Tf { .. }) && topic == "/tf_static" {
+        } else if topic == "/tf_static" {
+            // Read with poses from a topic too: it places the depth lens.
             Some(Role::TfStatic)
         } else if topic == t.embeddings {
             Some(Role::Embeddings)
@@ -240,10 +253,14 @@ impl FrameAssembler {
         if self.config.intrinsics.is_none() {
             v.push(t.camera_info.clone());
         }
+        if !t.depth_camera_info.is_empty() {
+            v.push(t.depth_camera_info.clone());
+        }
         match &t.pose {
             PoseSource::Topic(p) => v.push(p.clone()),
-            PoseSource::Tf { .. } => v.extend(["/tf".to_string(), "/tf_static".to_string()]),
+            PoseSource::Tf { .. } => v.push("/tf".to_string()),
         }
+        v.push("/tf_static".to_string());
         v.extend([
             t.embeddings.clone(),
             t.semantic.clone(),
@@ -293,6 +310,10 @@ impl FrameAssembler {
             Role::CameraInfo => {
                 let m = CameraInfo::decode(data).map_err(undecodable)?;
                 self.camera_info = Some(intrinsics_of(&m));
+            }
+            Role::DepthCameraInfo => {
+                let m = CameraInfo::decode(data).map_err(undecodable)?;
+                self.depth_camera = Some(intrinsics_of(&m));
             }
             Role::Pose => self.decode_pose(&ty, data, &undecodable)?,
             Role::Tf | Role::TfStatic => {
@@ -486,34 +507,78 @@ impl FrameAssembler {
 
     fn note_color_frame(&mut self, frame_id: &str) {
         if note_frame(&mut self.color_frame_id, frame_id) {
-            self.check_registration();
+            self.registration = None;
         }
     }
 
     fn note_depth_frame(&mut self, frame_id: &str) {
         if note_frame(&mut self.depth_frame_id, frame_id) {
-            self.check_registration();
+            self.registration = None;
         }
     }
 
-    /// The mapper reads depth through the colour camera: depth stamped in
-    /// another optical frame (a raw Kinect or RealSense depth stream, not
-    /// its registered twin) puts every surface a few pixels off its
-    /// colour, and more at silhouettes. The map is still built, so this is
-    /// a warning, said once per pair of frames.
-    fn check_registration(&mut self) {
+    /// Whether the depth images are stamped in another optical frame than
+    /// the colour images (a raw depth stream, not its registered twin).
+    fn depth_in_another_frame(&self) -> Option<(&str, &str)> {
         let (Some(colour), Some(depth)) = (&self.color_frame_id, &self.depth_frame_id) else {
-            return;
+            return None;
         };
-        if colour.is_empty() || depth.is_empty() || colour == depth {
-            return;
+        (!colour.is_empty() && !depth.is_empty() && colour != depth)
+            .then_some((colour.as_str(), depth.as_str()))
+    }
+
+    /// The registration of depth to colour when depth comes from another
+    /// lens: built once from the depth camera info, the colour intrinsics
+    /// and the static transform between the lenses. `None` when depth is
+    /// in the colour frame, or, with a warning said once, when what the
+    /// registration needs is missing: the mapper reads both images through
+    /// one camera, so such depth puts every surface a few pixels off its
+    /// colour (more at silhouettes); the map is still built.
+    pub(super) fn registration(
+        &mut self,
+        t: i64,
+        colour: &Intrinsics,
+    ) -> Option<DepthRegistration> {
+        let (colour_frame, depth_frame) = self
+            .depth_in_another_frame()
+            .map(|(c, d)| (c.to_string(), d.to_string()))?;
+        if self.registration.is_some() {
+            return self.registration;
         }
-        self.report.warn(format!(
-            "depth images are in frame `{depth}`, colour images in `{colour}`: depth from another \
-             lens must be registered to colour first (record the driver's registered stream, e.g. \
-             `aligned_depth_to_color` or `depth_registered`, and name it with --depth-topic if \
-             the log has it); mapping goes on as if they were one camera"
-        ));
+        let info = &self.config.topics.depth_camera_info;
+        let lens = self.tf.lookup(&colour_frame, &depth_frame, t, 0);
+        let missing = match (&self.depth_camera, lens) {
+            (Some(Ok(d)), Ok(lens)) => {
+                let reg = DepthRegistration {
+                    depth: [d.fx, d.fy, d.cx, d.cy],
+                    colour: [colour.fx, colour.fy, colour.cx, colour.cy],
+                    rotation: lens.rotation,
+                    translation: lens.translation,
+                };
+                self.report.note(format!(
+                    "depth images in frame `{depth_frame}` registered to the colour camera                      (`{colour_frame}`) with {info} and /tf_static: depth lens f {:.1} c ({:.1},                      {:.1}), {:.2} cm from the colour lens",
+                    d.fx,
+                    d.cx,
+                    d.cy,
+                    lens.translation.length() * 100.0
+                ));
+                self.registration = Some(reg);
+                return self.registration;
+            }
+            (None, _) if info.is_empty() => "no depth camera info topic is set".to_string(),
+            (None, _) => format!("the log has no camera info on {info}"),
+            (Some(Err(r)), _) => format!("the depth camera info is unusable ({r})"),
+            (Some(Ok(_)), Err(why)) => format!("/tf_static does not place it: {why}"),
+        };
+        let warning = format!(
+            "depth images are in frame `{depth_frame}`, colour images in `{colour_frame}`, and \
+             depth cannot be registered to colour ({missing}); record the driver's registered \
+             stream (e.g. `aligned_depth_to_color` or `depth_registered`, named with \
+             --depth-topic if the log has it) or the depth camera info and static transform; \
+             mapping goes on as if they were one camera"
+        );
+        self.report.warn(warning);
+        None
     }
 
     fn check_signature(&mut self, e: &Embeddings) -> Result<(), Rejection> {
@@ -580,6 +645,7 @@ fn undecodable(role: Role) -> impl Fn(super::cdr::CdrError) -> Rejection {
         Role::Color => "colour: undecodable message",
         Role::Depth => "depth: undecodable message",
         Role::CameraInfo => "camera info: undecodable message",
+        Role::DepthCameraInfo => "depth camera info: undecodable message",
         Role::Pose => "pose: undecodable message",
         Role::Tf | Role::TfStatic => "tf: undecodable message",
         Role::Embeddings => "embeddings: undecodable message",

@@ -3,6 +3,7 @@
 //! nearest parts within the tolerance.
 
 use super::*;
+use crate::DepthData;
 
 impl FrameAssembler {
     /// Whether everything a colour image at `t` waits for has arrived: each
@@ -159,6 +160,18 @@ impl FrameAssembler {
             }
         };
         let pose = self.pose_at(t)?;
+        // Depth from another lens is re-projected into the colour camera,
+        // whose image size it then takes.
+        let registration = self.registration(t, &intrinsics);
+        let expected = match registration {
+            None => Some(codec::ExpectedSize {
+                width: depth.width,
+                height: depth.height,
+                kind: "frame: depth size differs from colour",
+                from: "the depth image",
+            }),
+            Some(_) => None,
+        };
         let color = match pending {
             PendingColor::Raw(c) => c?,
             PendingColor::Compressed { format, data } => codec::color_from_compressed(
@@ -167,13 +180,12 @@ impl FrameAssembler {
                     format: &format,
                     data: &data,
                 },
-                Some(codec::ExpectedSize {
-                    width: depth.width,
-                    height: depth.height,
-                    kind: "frame: depth size differs from colour",
-                    from: "the depth image",
-                }),
+                expected,
             )?,
+        };
+        let depth = match registration {
+            Some(reg) => self.register(&reg, depth, color.width, color.height)?,
+            None => depth,
         };
         if (depth.width, depth.height) != (color.width, color.height) {
             return Err(Rejection::new(
@@ -232,6 +244,63 @@ impl FrameAssembler {
             depth,
             embeddings: embeddings.map(|e| e.value),
             semantic: semantic.map(|s| s.value),
+        })
+    }
+
+    /// `depth` re-projected by `reg` into a `width × height` colour image
+    /// (16-bit units as they were; 32-bit metres become millimetres).
+    fn register(
+        &self,
+        reg: &DepthRegistration,
+        depth: DepthImage,
+        width: u32,
+        height: u32,
+    ) -> Result<DepthImage, Rejection> {
+        if let Some(Ok(k)) = &self.depth_camera {
+            let stated = (k.width, k.height);
+            if stated != (0, 0) && stated != (depth.width, depth.height) {
+                return Err(Rejection::new(
+                    "depth: size mismatch",
+                    format!(
+                        "the depth camera info is for {}×{}, the depth image is {}×{}",
+                        k.width, k.height, depth.width, depth.height
+                    ),
+                ));
+            }
+        }
+        let (values, metres_per_unit) = match depth.data {
+            DepthData::Units {
+                values,
+                metres_per_unit,
+            } => (values, metres_per_unit),
+            DepthData::Metres(m) => (
+                m.iter()
+                    .map(|&z| {
+                        if z.is_finite() && z > 0.0 {
+                            (z * 1000.0).round().clamp(1.0, u16::MAX as f32) as u16
+                        } else {
+                            0
+                        }
+                    })
+                    .collect(),
+                0.001,
+            ),
+        };
+        let registered = reg.register(
+            depth.width as usize,
+            depth.height as usize,
+            &values,
+            1.0 / metres_per_unit as f64,
+            width as usize,
+            height as usize,
+        );
+        Ok(DepthImage {
+            width,
+            height,
+            data: DepthData::Units {
+                values: registered,
+                metres_per_unit,
+            },
         })
     }
 

@@ -4,11 +4,12 @@
 //! the depth pixel of the same coordinates that look at different
 //! surfaces, a few pixels apart and more at silhouettes. The mapper reads
 //! both images through one camera, so such depth must first be re-projected
-//! into the colour camera.
+//! into the colour camera: while a log is read (from its own camera infos
+//! and `/tf_static`, see `FrameAssembler`) or by `latentam convert`.
 
 use glam::{DMat3, DQuat, DVec3};
 
-use latentam_io::Pose;
+use crate::Pose;
 
 /// The depth camera as seen from the colour camera, and both lenses.
 ///
@@ -18,7 +19,7 @@ use latentam_io::Pose;
 ///
 /// ```
 /// use glam::{DQuat, DVec3};
-/// use latentam_cli::convert::DepthRegistration;
+/// use latentam_io::DepthRegistration;
 ///
 /// // Colour lens 10 % shorter, 2.5 cm to the right of the depth lens.
 /// let reg = DepthRegistration {
