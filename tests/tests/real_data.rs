@@ -19,6 +19,7 @@ fn seven_scenes(n: usize) -> Vec<Frame> {
         embeddings: EmbeddingSource::None,
         intrinsics: None,
         registration: Registration::Dataset,
+        raw_depth: false,
         depth_units_per_metre: None,
         dtype: Dtype::F16,
         compression: Compression::Zstd,

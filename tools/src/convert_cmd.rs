@@ -84,6 +84,12 @@ pub struct Args {
     /// datasets registered by default, 7-Scenes).
     #[arg(long)]
     no_registration: bool,
+    /// Write depth from a second lens as a driver records a raw stream: in
+    /// its own optical frame, with its camera info on
+    /// /camera/depth/camera_info and the transform between the lenses on
+    /// /tf_static; `latentam map` registers it while reading.
+    #[arg(long, conflicts_with = "no_registration")]
+    raw_depth: bool,
     /// Depth units per metre of the dataset's PNGs, instead of the layout's
     /// default (7-Scenes 1000, TUM 5000, Replica 6553.5).
     #[arg(long)]
@@ -134,6 +140,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (None, true) => Registration::Off,
             (None, false) => Registration::Dataset,
         },
+        raw_depth: args.raw_depth,
         depth_units_per_metre: args.depth_units_per_metre,
         dtype: args.dtype.into(),
         compression: args.compression.into(),

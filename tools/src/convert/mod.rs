@@ -16,7 +16,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use latentam_io::{
     cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
-    Header, Image, LogWriter, MaskFeatures, PoseStamped, TextEmbeddings, MAX_RECORD_BYTES,
+    Header, Image, LogWriter, MaskFeatures, Pose, PoseStamped, TextEmbeddings, TfMessage,
+    TransformStamped, MAX_RECORD_BYTES,
 };
 
 pub use datasets::{Dataset, DepthCamera};
@@ -54,6 +55,13 @@ pub struct ConvertOptions {
     pub intrinsics: Option<[f64; 4]>,
     /// Depth registration.
     pub registration: Registration,
+    /// With a depth lens apart from the colour one: write its depth as
+    /// recorded, in its own optical frame ([`DEPTH_FRAME`]) with its
+    /// calibration on `/camera/depth/camera_info` and the transform between
+    /// the lenses on `/tf_static`, as a driver records a raw depth stream,
+    /// and leave the registration to the reader (the poses are still the
+    /// colour lens's).
+    pub raw_depth: bool,
     /// Depth units per metre instead of the dataset's.
     pub depth_units_per_metre: Option<f64>,
     /// Element type of written embeddings.
@@ -88,6 +96,9 @@ pub struct ConvertSummary {
 }
 
 const FRAME: &str = "camera_color_optical_frame";
+
+/// The depth lens's optical frame, with [`ConvertOptions::raw_depth`].
+pub const DEPTH_FRAME: &str = "camera_depth_optical_frame";
 
 fn u16_bytes(v: &[u16]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
@@ -129,6 +140,7 @@ fn register_to_colour(
     dataset: &mut Dataset,
     camera: &DepthCamera,
     colour: [f64; 4],
+    raw: bool,
 ) -> anyhow::Result<(DepthRegistration, usize, usize)> {
     let reg = DepthRegistration {
         depth: camera.intrinsics,
@@ -147,6 +159,14 @@ fn register_to_colour(
         }
     }
     let [fx, _, cx, cy] = reg.depth;
+    if raw {
+        if camera.poses_are_depth {
+            dataset
+                .notes
+                .push("poses moved from the depth lens to the colour lens".into());
+        }
+        return Ok((reg, w as usize, h as usize));
+    }
     dataset.notes.push(format!(
         "depth registered to the colour camera (depth lens f {fx:.1} c ({cx:.1}, {cy:.1}), \
          {:.1} cm away){}; --no-registration keeps it as recorded",
@@ -213,7 +233,12 @@ pub fn convert(
         bail!("no frames to convert");
     }
     let registration = match depth_camera {
-        Some(c) => Some(register_to_colour(&mut dataset, &c, intrinsics)?),
+        Some(c) => Some(register_to_colour(
+            &mut dataset,
+            &c,
+            intrinsics,
+            options.raw_depth,
+        )?),
         None => {
             if dataset.depth_camera.is_some() {
                 dataset.notes.push(
@@ -275,6 +300,29 @@ pub fn convert(
             },
         )?;
     }
+    // Raw depth: the depth lens placed in the colour lens's frame.
+    let raw = registration.as_ref().filter(|_| options.raw_depth);
+    if let Some((reg, _, _)) = raw {
+        let t = dataset.color[0].stamp_ns + offset;
+        log.write(
+            "/tf_static",
+            t as u64,
+            &TfMessage {
+                transforms: vec![TransformStamped {
+                    header: Header::at(t, FRAME),
+                    child_frame_id: DEPTH_FRAME,
+                    transform: Pose {
+                        translation: reg.translation,
+                        rotation: reg.rotation,
+                    },
+                }],
+            },
+        )?;
+        summary.notes.push(format!(
+            "depth written as recorded in `{DEPTH_FRAME}`, with its camera info and /tf_static, \
+             for the reader to register"
+        ));
+    }
     let total = dataset.color.len();
     let mut first_dim: Option<(usize, String)> = None;
     let mut first_layout: Option<bool> = None;
@@ -305,12 +353,21 @@ pub fn convert(
                         *v = (*v as f64 * k).round().min(u16::MAX as f64) as u16;
                     }
                 }
-                let (w, h) = match &registration {
-                    Some((reg, cw, ch)) => {
-                        values = reg.register(w as usize, h as usize, &values, 1000.0, *cw, *ch);
-                        (*cw as u32, *ch as u32)
+                let (w, h, header) = match (&registration, raw) {
+                    (Some((reg, _, _)), Some(_)) => {
+                        let header = Header::at(t, DEPTH_FRAME);
+                        log.write(
+                            "/camera/depth/camera_info",
+                            lt,
+                            &CameraInfo::pinhole(header, w, h, reg.depth),
+                        )?;
+                        (w, h, header)
                     }
-                    None => (w, h),
+                    (Some((reg, cw, ch)), None) => {
+                        values = reg.register(w as usize, h as usize, &values, 1000.0, *cw, *ch);
+                        (*cw as u32, *ch as u32, header)
+                    }
+                    (None, _) => (w, h, header),
                 };
                 // `values` holds the w × h samples `decode_png_u16` returned
                 // (at most codec::MAX_IMAGE_PIXELS of them), as the encoder requires.
@@ -516,6 +573,7 @@ mod tests {
             embeddings: EmbeddingSource::None,
             intrinsics: None,
             registration: Registration::Dataset,
+            raw_depth: false,
             depth_units_per_metre: None,
             dtype: Dtype::F16,
             compression: Compression::None,
@@ -564,6 +622,7 @@ mod tests {
             std::process::id()
         ));
         let given = |intrinsics, translation: [f64; 3]| ConvertOptions {
+            raw_depth: false,
             registration: Registration::Given(DepthCamera {
                 intrinsics,
                 translation: translation.into(),

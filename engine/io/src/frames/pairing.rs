@@ -290,7 +290,7 @@ impl FrameAssembler {
             depth.width as usize,
             depth.height as usize,
             &values,
-            1.0 / metres_per_unit as f64,
+            units_per_metre(metres_per_unit),
             width as usize,
             height as usize,
         );
@@ -329,4 +329,13 @@ impl FrameAssembler {
             translation: pose.translation,
         })
     }
+}
+
+/// Units per metre of a unit given in metres as an f32, to the 7
+/// significant digits an f32 carries: 1 / 0.001f32 is 999.99995 in f64,
+/// and the unit meant is the millimetre (1000).
+fn units_per_metre(metres_per_unit: f32) -> f64 {
+    let u = 1.0 / metres_per_unit as f64;
+    let scale = 10f64.powi(6 - u.log10().ceil() as i32);
+    (u * scale).round() / scale
 }
