@@ -39,8 +39,6 @@ use latentam_io::{CameraPose, Frame, Vocabulary};
 /// ```
 pub struct Mapper {
     inner: OnlineMapper,
-    /// Decodes Gaussians' and pixels' queries for relevance (made on first use).
-    decoder: Option<DevicePixelDecoder>,
     /// Renders views for `render*` and `evaluate` (made on first use).
     evaluator: Option<Evaluator>,
 }
@@ -78,7 +76,6 @@ impl Mapper {
     pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
         Ok(Mapper {
             inner: OnlineMapper::new(ctx, config)?,
-            decoder: None,
             evaluator: None,
         })
     }
@@ -157,7 +154,9 @@ impl Mapper {
         self.inner.flush()?;
         let ctx = self.inner.context().clone();
         let head = self.inner.head().expect("checked above");
-        let decoder = DevicePixelDecoder::ensure(&mut self.decoder, &ctx, head)?;
+        // Made per call, not kept: its batch buffers would otherwise hold
+        // tens of MB of the mapping budget between queries.
+        let mut decoder = DevicePixelDecoder::from_head(&ctx, head)?;
         let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
         decoder.cosines(&ctx, &queries, embeddings)
     }
@@ -192,7 +191,7 @@ impl Mapper {
     pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
         let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
         let ctx = self.inner.context().clone();
-        let decoder = DevicePixelDecoder::ensure(&mut self.decoder, &ctx, head)?;
+        let mut decoder = DevicePixelDecoder::from_head(&ctx, head)?;
         Ok(query.relevance_of(&decoder.cosines(&ctx, &view.query, &query.embeddings)?))
     }
 
@@ -309,7 +308,6 @@ impl Mapper {
         }
         Ok(Mapper {
             inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
-            decoder: None,
             evaluator: None,
         })
     }

@@ -556,7 +556,9 @@ impl FrameAssembler {
                     translation: lens.translation,
                 };
                 self.report.note(format!(
-                    "depth images in frame `{depth_frame}` registered to the colour camera                      (`{colour_frame}`) with {info} and /tf_static: depth lens f {:.1} c ({:.1},                      {:.1}), {:.2} cm from the colour lens",
+                    "depth images in frame `{depth_frame}` registered to the colour camera \
+                     (`{colour_frame}`) with {info} and /tf_static: depth lens f {:.1} c \
+                     ({:.1}, {:.1}), {:.2} cm from the colour lens",
                     d.fx,
                     d.cx,
                     d.cy,
