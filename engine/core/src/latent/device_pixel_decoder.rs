@@ -285,7 +285,7 @@ impl DevicePixelDecoder {
         self.dim
     }
 
-    /// Pixels decoded per batch: as many as [`BATCH_BYTES`] holds, with
+    /// Pixels decoded per batch: as many as 64 MiB of batch buffers hold, with
     /// no buffer past the device's binding limit.
     pub fn batch_pixels(&self) -> u32 {
         self.batch.rows
