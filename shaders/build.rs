@@ -103,6 +103,8 @@ struct KernelOut {
     source: String,
     spirv: Vec<u32>,
     workgroup: [u32; 3],
+    /// Bytes of workgroup (shared) memory the entry point uses.
+    shared_bytes: u32,
     bindings: Vec<(String, bool)>,
     push: Option<PushStruct>,
     /// The push-constant type named by a `// @push NAME` directive.
@@ -483,6 +485,7 @@ fn finish(
     // One binding convention: set 0, binding i = storage buffer i.
     let mut bindings: BTreeMap<u32, (String, bool)> = BTreeMap::new();
     let mut push = None;
+    let mut shared_bytes = 0u32;
     let mut layouter = naga::proc::Layouter::default();
     layouter
         .update(module.to_ctx())
@@ -530,9 +533,8 @@ fn finish(
             naga::AddressSpace::Immediate => {
                 push = Some(push_struct(&module, &layouter, var.ty, what)?);
             }
-            naga::AddressSpace::WorkGroup
-            | naga::AddressSpace::Private
-            | naga::AddressSpace::Function => {}
+            naga::AddressSpace::WorkGroup => shared_bytes += layouter[var.ty].size,
+            naga::AddressSpace::Private | naga::AddressSpace::Function => {}
             other => {
                 return Err(format!(
                     "{what}: resource in address space {other:?}; kernels use storage buffers \
@@ -573,6 +575,7 @@ fn finish(
         source,
         spirv,
         workgroup: ep.workgroup_size,
+        shared_bytes,
         bindings: bindings.into_values().collect(),
         push,
         push_group: None,

@@ -149,9 +149,9 @@ pub(crate) fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
         let set = &sets[i];
         let _ = writeln!(
             s,
-            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}, bind::{set}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
+            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}, bind::{set}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    shared_bytes: {},\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
             k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2],
-            r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
+            k.shared_bytes, r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
         );
     }
     // FNV-1a over every kernel's name and SPIR-V: a cache of compiled

@@ -39,6 +39,9 @@ pub struct Kernel {
     pub spirv: &'static [u32],
     /// Workgroup size declared in the source.
     pub workgroup: [u32; 3],
+    /// Bytes of workgroup (shared) memory it uses: at most the device's
+    /// `maxComputeSharedMemorySize` (16 KiB is all Vulkan guarantees).
+    pub shared_bytes: u32,
     /// Storage buffers, binding 0..n of set 0.
     pub bindings: &'static [Binding],
     /// Size in bytes of the push-constant block (0 when it has none).

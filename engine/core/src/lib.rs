@@ -31,4 +31,7 @@ pub mod mapper;
 pub mod optim;
 pub mod splat;
 
+#[cfg(test)]
+mod device_limits_tests;
+
 pub use latentam_base::{Error, Result};

@@ -13,6 +13,8 @@
 mod buffer;
 mod context;
 mod counters;
+#[cfg(test)]
+mod device_limits_tests;
 mod host_spans;
 mod host_time;
 mod memory;

@@ -4,6 +4,8 @@
 
 use super::{Context, ContextOptions, FloatAtomics, Validation};
 
+pub mod devices;
+
 /// Runs `f` on a fresh validated context; fails the test on any validation
 /// error. A missing driver or layer fails too, with install instructions.
 pub fn with_context(f: impl FnOnce(&Context)) {

@@ -292,7 +292,12 @@ impl DevicePixelDecoder {
     }
 
     fn batch_rows(ctx: &Context, atoms: u32, dim: u32) -> Result<u32> {
-        let limit = ctx.info().max_buffer_bytes();
+        Self::batch_rows_within(ctx.info().max_buffer_bytes(), atoms, dim)
+    }
+
+    /// Pixels a batch holds with buffers of at most `limit` bytes, for
+    /// `atoms` (K rounded up to 4) and `dim`.
+    pub(crate) fn batch_rows_within(limit: u64, atoms: u32, dim: u32) -> Result<u32> {
         let widest = 4 * (atoms.max(dim) as u64).max(QUERY_DIM as u64);
         // Weights, embedding, query and a few scalars a row.
         let per_row = 4 * (atoms as u64 + dim as u64 + QUERY_DIM as u64 + 8);

@@ -41,6 +41,8 @@ pub struct DeviceInfo {
     pub max_workgroup_count: [u32; 3],
     /// Shared memory per workgroup, in bytes.
     pub max_shared_memory: u32,
+    /// Invocations per workgroup.
+    pub max_workgroup_invocations: u32,
     /// Whether a dedicated transfer queue (a transfer-only family) is in use.
     pub dedicated_transfer_queue: bool,
     /// Whether the transfer path runs on the compute family as a rehearsal
@@ -78,7 +80,12 @@ impl DeviceInfo {
     /// The first feature `kernel` needs that this device lacks.
     pub(crate) fn missing_for(&self, kernel: &latentam_shaders::Kernel) -> Option<&'static str> {
         let r = kernel.requires;
-        if r.float_atomics && !self.native_float_atomics {
+        let invocations = kernel.workgroup.iter().product::<u32>();
+        if kernel.shared_bytes > self.max_shared_memory {
+            Some("more shared memory per workgroup than the device has")
+        } else if invocations > self.max_workgroup_invocations {
+            Some("a larger workgroup than the device runs")
+        } else if r.float_atomics && !self.native_float_atomics {
             Some("float atomic add (VK_EXT_shader_atomic_float)")
         } else if r.subgroup_arithmetic && !self.subgroup_arithmetic {
             Some("subgroup arithmetic in compute")
@@ -93,12 +100,27 @@ impl DeviceInfo {
     /// ([`DeviceInfo::max_storage_buffer_range`]) in one allocation
     /// ([`DeviceInfo::max_memory_allocation_size`]). Arrays that grow with
     /// the map or the images are sized or chunked against it.
+    /// Rounded down to whole 16-byte elements: NVIDIA reports a binding
+    /// range of 2³² − 1 bytes, and a buffer padded up to whole elements
+    /// must still fit it.
     pub fn max_buffer_bytes(&self) -> u64 {
         let alloc = if self.max_memory_allocation_size == 0 {
             u64::MAX
         } else {
             self.max_memory_allocation_size
         };
-        self.max_storage_buffer_range.min(alloc)
+        self.max_storage_buffer_range.min(alloc) / 16 * 16
+    }
+
+    /// How `groups` workgroups along one logical dimension are split over
+    /// x and y within the device's workgroup counts (x at most 65535, what
+    /// every device allows); kernels recover the index with
+    /// `linear_group()`.
+    pub fn linear_groups(&self, groups: u32) -> [u32; 3] {
+        let max_x = self.max_workgroup_count[0].min(65535);
+        let x = groups.min(max_x);
+        // `dispatch` records nothing for zero groups.
+        let y = groups.div_ceil(x.max(1));
+        [x, y, 1]
     }
 }

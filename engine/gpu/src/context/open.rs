@@ -224,11 +224,11 @@ pub(super) fn open_device(
 
 /// The queue families the engine uses: one with compute, and a transfer
 /// family without compute or graphics (a DMA engine) where there is one.
-struct QueueFamilies {
+pub(crate) struct QueueFamilies {
     all: Vec<vk::QueueFamilyProperties>,
-    compute: u32,
+    pub(crate) compute: u32,
     /// The transfer path's family and queue index in it.
-    transfer: Option<(u32, u32)>,
+    pub(crate) transfer: Option<(u32, u32)>,
 }
 
 impl QueueFamilies {
@@ -240,6 +240,15 @@ impl QueueFamilies {
     ) -> Result<Self> {
         // SAFETY: queries on a valid physical device.
         let all = unsafe { instance.get_physical_device_queue_family_properties(p) };
+        Self::choose(all, name, choice)
+    }
+
+    /// The families of a device with queue families `all`.
+    pub(crate) fn choose(
+        all: Vec<vk::QueueFamilyProperties>,
+        name: &str,
+        choice: TransferQueue,
+    ) -> Result<Self> {
         let compute = all
             .iter()
             .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
@@ -272,7 +281,7 @@ impl QueueFamilies {
     }
 
     /// Valid bits of a family's timestamps (0: none).
-    fn timestamp_bits(&self, family: u32) -> u32 {
+    pub(crate) fn timestamp_bits(&self, family: u32) -> u32 {
         self.all[family as usize].timestamp_valid_bits
     }
 }
@@ -474,6 +483,7 @@ fn device_info(
             .min(options.max_buffer_bytes.unwrap_or(u64::MAX)),
         max_workgroup_count: limits.max_compute_work_group_count,
         max_shared_memory: limits.max_compute_shared_memory_size,
+        max_workgroup_invocations: limits.max_compute_work_group_invocations,
         dedicated_transfer_queue: transfer.is_some_and(|t| t.family != families.compute),
         transfer_rehearsal: transfer.is_some_and(|t| t.family == families.compute),
         transfer_timestamps: match transfer {

@@ -295,10 +295,6 @@ impl<'a> Recorder<'a> {
     /// How [`Self::dispatch_linear`] splits `groups` workgroups over x and
     /// y: the counts an indirect dispatch of such a kernel needs.
     pub fn linear_groups(&self, groups: u32) -> [u32; 3] {
-        let max_x = self.dev.info.max_workgroup_count[0].min(65535);
-        let x = groups.min(max_x);
-        // `dispatch` records nothing for zero groups.
-        let y = groups.div_ceil(x.max(1));
-        [x, y, 1]
+        self.dev.info.linear_groups(groups)
     }
 }

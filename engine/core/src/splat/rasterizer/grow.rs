@@ -19,7 +19,7 @@ impl Grow {
         if self.buf.as_ref().is_some_and(|b| b.bytes() >= bytes) {
             return Ok(());
         }
-        let limit = ctx.info().max_storage_buffer_range;
+        let limit = ctx.info().max_buffer_bytes();
         if bytes > limit {
             return Err(Error::Unsupported(format!(
                 "`{}` needs {bytes} bytes, over the device's largest storage buffer ({limit}); \
@@ -28,6 +28,7 @@ impl Grow {
             )));
         }
         self.buf = None;
+        // `limit` is a multiple of 16, so padding to whole words stays within it.
         let padded = (bytes + bytes / 4).min(limit).div_ceil(4) * 4;
         self.buf = Some(Buffer::device(ctx, self.name, padded)?);
         Ok(())

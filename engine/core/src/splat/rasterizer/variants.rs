@@ -86,3 +86,65 @@ pub(super) fn buildable<P, B>(
         ..*settings
     }))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use latentam_gpu::testing::devices::recorded_devices;
+
+    /// On the GPUs robots carry, every blending kernel the rasterizer picks
+    /// is one the device runs: pixels by default, subgroups where the
+    /// device offers them in compute, compare-and-swap where it has no
+    /// float atomic add (the RX 6600), in either layout and with query
+    /// gradients attached or not.
+    #[test]
+    fn every_recorded_device_runs_the_blending_kernels_chosen_for_it() {
+        for d in recorded_devices() {
+            let info = &d.info;
+            assert_eq!(
+                BlendLayout::Auto.resolve(info.device_type),
+                BlendLayout::Pixels,
+                "{}",
+                d.label
+            );
+            for layout in [BlendLayout::Auto, BlendLayout::Pixels, BlendLayout::Columns] {
+                for detach_query_gradients in [true, false] {
+                    let s = RenderSettings {
+                        layout,
+                        detach_query_gradients,
+                        ..RenderSettings::default()
+                    };
+                    let kernels = [
+                        &forward_kernel(info, &s, Channels::All).kernel,
+                        &forward_kernel(info, &s, Channels::Colour).kernel,
+                        &backward_kernel(info, &s).kernel,
+                        &pool_kernel(info, &s).kernel,
+                    ];
+                    for k in kernels {
+                        assert!(
+                            info.can_run(k),
+                            "{}: {layout:?} picks `{}`",
+                            d.label,
+                            k.name
+                        );
+                    }
+                }
+            }
+            let pixel = backward_kernel(info, &RenderSettings::default())
+                .kernel
+                .name;
+            assert_eq!(
+                pixel.contains("cas"),
+                !info.native_float_atomics,
+                "{}: `{pixel}`",
+                d.label
+            );
+            assert_eq!(
+                !pixel.contains("plain"),
+                info.subgroup_arithmetic,
+                "{}: `{pixel}`",
+                d.label
+            );
+        }
+    }
+}
