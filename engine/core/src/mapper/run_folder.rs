@@ -53,6 +53,13 @@ fn io_error(path: &Path, e: std::io::Error) -> Error {
 
 /// A fresh id for one version of a run folder: the time in nanoseconds and
 /// the process id, in hexadecimal.
+/// The file every version of a run folder holds from the moment it is
+/// staged: the run id of that version. Hidden siblings of a run folder
+/// (`.NAME.staging-ID`, `.NAME.old-ID`) are removed or moved back only when
+/// they hold it, so a user's folder that merely has such a name is never
+/// touched.
+pub const RUN_MARKER: &str = ".latentam-run";
+
 pub fn new_run_id() -> String {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -151,10 +158,10 @@ impl RunFolder {
     }
 
     fn recover(&self) -> Result<()> {
-        for stale in self.siblings("staging")? {
+        for stale in self.ours("staging")? {
             remove_tree(&stale)?;
         }
-        let mut old = self.siblings("old")?;
+        let mut old = self.ours("old")?;
         if !self.dir.exists() {
             // Cut between moving the run aside and moving its successor in:
             // the run moved aside is the last complete one.
@@ -167,6 +174,31 @@ impl RunFolder {
             remove_tree(&stale)?;
         }
         Ok(())
+    }
+
+    /// The siblings of `kind` this tool made (see [`RUN_MARKER`]); the
+    /// others are left alone, with a warning.
+    fn ours(&self, kind: &str) -> Result<Vec<PathBuf>> {
+        let mut found = Vec::new();
+        for path in self.siblings(kind)? {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            let id = name.as_deref().and_then(|n| {
+                n.rsplit_once(&format!(".{kind}-"))
+                    .map(|(_, id)| id.to_string())
+            });
+            // A staging folder holds its own id; a folder moved aside holds
+            // the id of the version it was.
+            let expected = (kind == "staging").then_some(id).flatten();
+            if holds_marker(&path, expected.as_deref()) {
+                found.push(path);
+            } else {
+                log::warn!(
+                    "{}: not a folder this tool made (no {RUN_MARKER}); left alone",
+                    path.display()
+                );
+            }
+        }
+        Ok(found)
     }
 
     fn check_replaceable(&self) -> Result<()> {
@@ -185,9 +217,10 @@ impl RunFolder {
         for entry in std::fs::read_dir(&self.dir).map_err(|e| io_error(&self.dir, e))? {
             let entry = entry.map_err(|e| io_error(&self.dir, e))?;
             let name = entry.file_name().to_string_lossy().into_owned();
-            let ours = RUN_FOLDER_FILES
-                .iter()
-                .any(|f| name == *f || name == format!("{f}.partial"));
+            let ours = name == RUN_MARKER
+                || RUN_FOLDER_FILES
+                    .iter()
+                    .any(|f| name == *f || name == format!("{f}.partial"));
             if !ours {
                 foreign.push(name);
             }
@@ -219,12 +252,21 @@ impl RunFolder {
         let id = new_run_id();
         let path = self.parent().join(format!(".{}.staging-{id}", self.name()));
         std::fs::create_dir(&path).map_err(|e| io_error(&path, e))?;
-        Ok(RunStaging {
+        let staging = RunStaging {
             folder: self,
             path,
             id,
             done: false,
-        })
+        };
+        let marker = staging.path.join(RUN_MARKER);
+        let mut file = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&marker)
+            .map_err(|e| io_error(&marker, e))?;
+        file.write_all(staging.id.as_bytes())
+            .map_err(|e| io_error(&marker, e))?;
+        Ok(staging)
     }
 }
 
@@ -317,6 +359,22 @@ fn same_file(file: &File, path: &Path) -> bool {
 #[cfg(not(unix))]
 fn same_file(_: &File, path: &Path) -> bool {
     path.exists()
+}
+
+/// Whether `dir` is a directory (not a link to one) holding a regular
+/// [`RUN_MARKER`] with a run id (`expected`, when given).
+fn holds_marker(dir: &Path, expected: Option<&str>) -> bool {
+    let is_dir = std::fs::symlink_metadata(dir).is_ok_and(|m| m.is_dir());
+    let marker = dir.join(RUN_MARKER);
+    let is_file = std::fs::symlink_metadata(&marker).is_ok_and(|m| m.is_file() && m.len() <= 64);
+    if !(is_dir && is_file) {
+        return false;
+    }
+    let Ok(id) = std::fs::read_to_string(&marker) else {
+        return false;
+    };
+    let well_formed = !id.is_empty() && id.bytes().all(|b| b.is_ascii_hexdigit());
+    well_formed && expected.is_none_or(|e| e == id)
 }
 
 fn remove_tree(path: &Path) -> Result<()> {
@@ -494,10 +552,10 @@ mod tests {
         let dir = root.join("run");
         let folder = RunFolder::lock(&dir).unwrap();
         commit(&folder, &[("report.json", "1"), ("trace.json", "1")]);
-        assert_eq!(names(&dir), ["report.json", "trace.json"]);
+        assert_eq!(names(&dir), [RUN_MARKER, "report.json", "trace.json"]);
         // The second version has no trace: the first's must not linger.
         commit(&folder, &[("report.json", "2")]);
-        assert_eq!(names(&dir), ["report.json"]);
+        assert_eq!(names(&dir), [RUN_MARKER, "report.json"]);
         assert_eq!(
             std::fs::read_to_string(dir.join("report.json")).unwrap(),
             "2"
@@ -567,6 +625,7 @@ mod tests {
         std::fs::rename(&dir, root.join(".run.old-00ff")).unwrap();
         std::fs::create_dir(root.join(".run.staging-0100")).unwrap();
         std::fs::write(root.join(".run.staging-0100/report.json"), "new").unwrap();
+        std::fs::write(root.join(".run.staging-0100").join(RUN_MARKER), "0100").unwrap();
         // A sibling run whose name shares the prefix is not touched.
         std::fs::create_dir(root.join(".run.x.staging-1")).unwrap();
         let folder = RunFolder::lock(&dir).unwrap();
@@ -576,6 +635,55 @@ mod tests {
         );
         assert_eq!(names(&root), [".run.lock", ".run.x.staging-1", "run"]);
         drop(folder);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// Folders that only look like the tool's own (a user's backup named
+    /// like a moved-aside run, a staging name with another id in its
+    /// marker, a link to a folder) are neither removed nor moved into
+    /// place.
+    #[test]
+    fn only_folders_the_tool_made_are_removed_or_moved_back() {
+        let root = scratch("marker");
+        let dir = root.join("run");
+        let user = |name: &str| {
+            let p = root.join(name);
+            std::fs::create_dir(&p).unwrap();
+            std::fs::write(p.join("thesis.tex"), "precious").unwrap();
+            p
+        };
+        // With the run absent, a user's `.run.old-2024` is not renamed to it.
+        user(".run.old-2024");
+        user(".run.staging-mine");
+        let wrong_id = user(".run.staging-00aa");
+        std::fs::write(wrong_id.join(RUN_MARKER), "00bb").unwrap();
+        let target = user("elsewhere");
+        std::fs::write(target.join(RUN_MARKER), "00cc").unwrap();
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(&target, root.join(".run.old-00cc")).unwrap();
+        commit(&RunFolder::lock(&dir).unwrap(), &[("report.json", "new")]);
+        commit(&RunFolder::lock(&dir).unwrap(), &[("report.json", "newer")]);
+        assert_eq!(
+            std::fs::read_to_string(dir.join("report.json")).unwrap(),
+            "newer"
+        );
+        for name in [
+            ".run.old-2024",
+            ".run.staging-mine",
+            ".run.staging-00aa",
+            "elsewhere",
+        ] {
+            let p = root.join(name).join("thesis.tex");
+            assert_eq!(std::fs::read_to_string(&p).unwrap(), "precious", "{name}");
+        }
+        #[cfg(unix)]
+        assert!(root.join(".run.old-00cc").exists(), "the link is left too");
+        // The run's own versions carry the marker.
+        let id = std::fs::read_to_string(dir.join(RUN_MARKER)).unwrap();
+        assert!(
+            !id.is_empty() && id.bytes().all(|b| b.is_ascii_hexdigit()),
+            "{id}"
+        );
         std::fs::remove_dir_all(&root).unwrap();
     }
 
@@ -591,13 +699,13 @@ mod tests {
         std::fs::write(s.path().join("report.json"), "2").unwrap();
         let old = root.join(format!(".run.old-{}", s.run_id()));
         replace_by_renames(s.path(), &dir, &old).unwrap();
-        assert_eq!(names(&dir), ["report.json"]);
+        assert_eq!(names(&dir), [RUN_MARKER, "report.json"]);
         assert!(!old.exists() && !s.path().exists());
         drop(s);
         // A second rename that fails puts the run back.
         let missing = root.join("missing-staging");
         assert!(replace_by_renames(&missing, &dir, &old).is_err());
-        assert_eq!(names(&dir), ["report.json"]);
+        assert_eq!(names(&dir), [RUN_MARKER, "report.json"]);
         drop(folder);
         assert!(exchange(&root.join("nope-a"), &root.join("nope-b")).is_err());
         std::fs::remove_dir_all(&root).unwrap();
