@@ -51,8 +51,6 @@ fn io_error(path: &Path, e: std::io::Error) -> Error {
     }
 }
 
-/// A fresh id for one version of a run folder: the time in nanoseconds and
-/// the process id, in hexadecimal.
 /// The file every version of a run folder holds from the moment it is
 /// staged: the run id of that version. Hidden siblings of a run folder
 /// (`.NAME.staging-ID`, `.NAME.old-ID`) are removed or moved back only when
@@ -60,6 +58,8 @@ fn io_error(path: &Path, e: std::io::Error) -> Error {
 /// touched.
 pub const RUN_MARKER: &str = ".latentam-run";
 
+/// A fresh id for one version of a run folder: the time in nanoseconds and
+/// the process id, in hexadecimal.
 pub fn new_run_id() -> String {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
