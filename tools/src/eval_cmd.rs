@@ -156,6 +156,14 @@ fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let outputs: Vec<(&str, &Path)> = args.json.iter().map(|p| ("--json", p.as_path())).collect();
+    crate::own_inputs::refuse_overwriting_inputs(
+        &[
+            crate::own_inputs::Input::RunFolder(&args.dir),
+            crate::own_inputs::Input::File(&args.log),
+        ],
+        &outputs,
+    )?;
     if !args.quiet {
         Stages::new("eval").start(format_args!("loading the map in {}", args.dir.display()));
     }

@@ -4,6 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::own_inputs::{refuse_overwriting_inputs, Input};
+
 use anyhow::{bail, Context as _, Result};
 use latentam_cli::progress::Stages;
 use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
@@ -83,6 +85,15 @@ pub fn run(args: Args) -> Result<()> {
     if args.frame_id.trim().is_empty() {
         bail!("--frame-id must name a frame");
     }
+    // The mapped log named in the run's report is read for its vocabulary.
+    let mapped_log = latentam_io::read_input_to_string(&args.dir.join("report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|r| r["log"].as_str().map(PathBuf::from));
+    let mut inputs = vec![Input::RunFolder(&args.dir)];
+    inputs.extend(args.vocabulary.as_deref().map(Input::File));
+    inputs.extend(mapped_log.as_deref().map(Input::File));
+    refuse_overwriting_inputs(&inputs, &[("--foxglove", &args.foxglove)])?;
     let stages = Stages::new("export");
     let (_ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "export")?;
     let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();

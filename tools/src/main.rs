@@ -18,6 +18,7 @@ mod loaded_map;
 mod logging;
 mod map_cmd;
 mod mapping;
+mod own_inputs;
 mod pictures;
 mod png_out;
 mod profile_cmd;

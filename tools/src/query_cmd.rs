@@ -10,6 +10,7 @@ use latentam_core::map::write_ply;
 use latentam_core::mapper::Mapper;
 use latentam_gpu::{Context, ContextOptions};
 
+use crate::own_inputs::{refuse_overwriting_inputs, Input};
 use crate::pictures::heat;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{camera_at, parse_pose, relevance_picture};
@@ -45,6 +46,13 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let pose = args.view.as_deref().map(parse_pose).transpose()?;
+    let mut inputs = vec![Input::RunFolder(&args.dir)];
+    inputs.extend(args.query.embedding.as_deref().map(Input::File));
+    inputs.extend(args.query.vocabulary.as_deref().map(Input::File));
+    let mut outputs = Vec::new();
+    outputs.extend(args.out.as_deref().map(|p| ("--out", p)));
+    outputs.extend(args.png.as_deref().map(|p| ("--png", p)));
+    refuse_overwriting_inputs(&inputs, &outputs)?;
     let stages = Stages::new("query");
     stages.start(format_args!("loading the map in {}", args.dir.display()));
     let ctx = Context::new(ContextOptions::default())?;

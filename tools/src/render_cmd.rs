@@ -197,6 +197,26 @@ pub fn run(args: Args) -> Result<()> {
             args.out.display()
         );
     }
+    let mut inputs = vec![crate::own_inputs::Input::RunFolder(&args.dir)];
+    inputs.extend(args.log.as_deref().map(crate::own_inputs::Input::File));
+    inputs.extend(
+        args.query
+            .embedding
+            .as_deref()
+            .map(crate::own_inputs::Input::File),
+    );
+    inputs.extend(
+        args.query
+            .vocabulary
+            .as_deref()
+            .map(crate::own_inputs::Input::File),
+    );
+    let pictures: Vec<PathBuf> = ["color", "depth", "relevance", "input", "input-depth"]
+        .iter()
+        .map(|s| path_of(&args.out, s))
+        .collect();
+    let outputs: Vec<(&str, &Path)> = pictures.iter().map(|p| ("--out", p.as_path())).collect();
+    crate::own_inputs::refuse_overwriting_inputs(&inputs, &outputs)?;
     let stages = Stages::new("render");
     let (ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "render")?;
     // Rendered views of any size; the mapping budget is not meant for it.

@@ -297,3 +297,80 @@ fn states_with_nan_and_vocabularies_of_another_space_are_refused() {
     failed_with(&query, &["non-finite"]);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Outputs that resolve to an input of the same command are refused before
+/// any work, and the input is left byte for byte.
+#[test]
+fn outputs_over_the_commands_own_inputs_are_refused() {
+    let dir = scratch("own-inputs");
+    let log = gen_scene(&dir, 8);
+    let run = dir.join("run");
+    ok(&map(&log, &run, &[]));
+    let state = run.join(STATE_FILE);
+    let before = (std::fs::read(&state).unwrap(), std::fs::read(&log).unwrap());
+    let log_alias = dir.join("sub/../").join(log.file_name().unwrap());
+    std::fs::create_dir_all(dir.join("sub")).unwrap();
+    let cases: Vec<(Vec<&std::ffi::OsStr>, &str)> = vec![
+        (
+            vec![
+                "query".as_ref(),
+                run.as_os_str(),
+                "--name".as_ref(),
+                "wall".as_ref(),
+                "--vocabulary".as_ref(),
+                log.as_os_str(),
+                "--out".as_ref(),
+                state.as_os_str(),
+            ],
+            "--out",
+        ),
+        (
+            vec![
+                "eval".as_ref(),
+                run.as_os_str(),
+                log.as_os_str(),
+                "--json".as_ref(),
+                log_alias.as_os_str(),
+            ],
+            "--json",
+        ),
+        (
+            vec![
+                "export".as_ref(),
+                run.as_os_str(),
+                "--foxglove".as_ref(),
+                state.as_os_str(),
+            ],
+            "--foxglove",
+        ),
+        (
+            vec![
+                "export".as_ref(),
+                run.as_os_str(),
+                "--foxglove".as_ref(),
+                log.as_os_str(),
+                "--vocabulary".as_ref(),
+                log.as_os_str(),
+            ],
+            "--foxglove",
+        ),
+        (
+            // The mapped log, named only in the run's report.
+            vec![
+                "export".as_ref(),
+                run.as_os_str(),
+                "--foxglove".as_ref(),
+                log.as_os_str(),
+            ],
+            "--foxglove",
+        ),
+    ];
+    for (args, flag) in cases {
+        let out = latentam().args(&args).output().unwrap();
+        let e = failed_with(&out, &[flag, "would write over", "choose another path"]);
+        assert_eq!(out.status.code(), Some(1), "{e}");
+        let now = (std::fs::read(&state).unwrap(), std::fs::read(&log).unwrap());
+        assert!(now == before, "{args:?} changed an input");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

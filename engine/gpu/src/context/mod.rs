@@ -17,6 +17,7 @@ mod validation;
 
 pub(crate) use device::{Device, Queue};
 pub use info::DeviceInfo;
+#[cfg(any(test, feature = "testing"))]
 pub(crate) use open::QueueFamilies;
 use open::*;
 pub use options::{ContextOptions, FloatAtomics, TransferQueue, Validation, ValidationChecks};

@@ -1,0 +1,107 @@
+//! A command never writes over what it reads: every output path is
+//! resolved (links followed, `..` and relative parts removed, whether or
+//! not the file exists yet) and compared with the command's inputs before
+//! any work, so `eval DIR LOG --json LOG` or `query DIR --out
+//! DIR/state.latentam` fail at once instead of destroying the log or the map.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use latentam_core::mapper::RUN_FOLDER_FILES;
+
+/// Something a command reads.
+#[derive(Clone, Copy, Debug)]
+pub enum Input<'a> {
+    /// A file (a log, an embedding, a vocabulary log).
+    File(&'a Path),
+    /// A run folder: its files are read (the heat map `query` writes into
+    /// it by default is the one a command may replace).
+    RunFolder(&'a Path),
+}
+
+/// `path` made absolute with links resolved: the file itself when it
+/// exists, else its resolved parent joined with its name.
+fn resolved(path: &Path) -> Option<PathBuf> {
+    if let Ok(p) = std::fs::canonicalize(path) {
+        return Some(p);
+    }
+    let absolute = std::path::absolute(path).ok()?;
+    let name = absolute.file_name()?;
+    let parent = std::fs::canonicalize(absolute.parent()?).ok()?;
+    Some(parent.join(name))
+}
+
+/// Errors when any of `outputs` (flag name, path) would write over one of
+/// `inputs`.
+pub fn refuse_overwriting_inputs(inputs: &[Input], outputs: &[(&str, &Path)]) -> Result<()> {
+    for &(flag, output) in outputs {
+        let Some(out) = resolved(output) else {
+            continue;
+        };
+        for input in inputs {
+            let clash = match *input {
+                Input::File(file) => resolved(file).is_some_and(|f| f == out),
+                Input::RunFolder(dir) => resolved(dir).is_some_and(|d| {
+                    out == d
+                        || RUN_FOLDER_FILES
+                            .iter()
+                            .filter(|f| **f != "heatmap.ply")
+                            .any(|f| out == d.join(f))
+                }),
+            };
+            if clash {
+                let what = match input {
+                    Input::File(f) => format!("{}, an input of this command", f.display()),
+                    Input::RunFolder(d) => {
+                        format!(
+                            "a file of the run folder {} this command reads",
+                            d.display()
+                        )
+                    }
+                };
+                bail!(
+                    "{flag} {} would write over {what}; choose another path",
+                    output.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_that_resolve_to_an_input_are_refused() {
+        let dir = std::env::temp_dir().join(format!("latentam-own-inputs-{}", std::process::id()));
+        let run = dir.join("run");
+        std::fs::create_dir_all(&run).unwrap();
+        let log = dir.join("scene.mcap");
+        std::fs::write(&log, b"log").unwrap();
+        std::fs::write(run.join("state.latentam"), b"state").unwrap();
+        let inputs = [Input::RunFolder(&run), Input::File(&log)];
+        let check = |p: &Path| refuse_overwriting_inputs(&inputs, &[("--out", p)]);
+        // The log by another spelling, and through a link.
+        assert!(check(&dir.join("run/../scene.mcap")).is_err());
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(&log, dir.join("alias.mcap")).unwrap();
+            assert!(check(&dir.join("alias.mcap")).is_err());
+        }
+        // The run's own files, existing or not, and the folder itself.
+        assert!(check(&run.join("state.latentam")).is_err());
+        assert!(check(&run.join("decoder.safetensors")).is_err());
+        let e = check(&run).unwrap_err().to_string();
+        assert!(
+            e.contains("run folder") && e.contains("choose another path"),
+            "{e}"
+        );
+        // The heat map beside them, and anything elsewhere, are fine.
+        assert!(check(&run.join("heatmap.ply")).is_ok());
+        assert!(check(&dir.join("eval.json")).is_ok());
+        assert!(check(&dir.join("missing/eval.json")).is_ok());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
