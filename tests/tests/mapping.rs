@@ -465,6 +465,7 @@ fn a_log_run_autosaves_stops_and_resumes_where_its_map_ends() {
     let options = LogRunOptions {
         max_frames: Some(10),
         autosave_every: 1,
+        ..LogRunOptions::default()
     };
     let mapper = Mapper::with_context(&ctx, config()).unwrap();
     let mut run = map(mapper, &options, &mut observer);

@@ -74,6 +74,7 @@ pub fn run(args: Args) -> Result<()> {
             resume: None,
             profile: true,
             autosave_every: 0,
+            continue_after_failed_autosave: false,
             live: Some(args.live.clone()).filter(|l| l.live.is_some()),
         },
         Some(&folder),

@@ -42,6 +42,12 @@ pub struct Args {
     /// `--resume` continues from the last save.
     #[arg(long, value_name = "N", default_value_t = 25)]
     autosave_every: u64,
+    /// Keep mapping when an autosave fails (each failure is printed and
+    /// listed in report.json); by default a failed autosave stops the run
+    /// with exit status 1, since the folder would not be written at the
+    /// end either.
+    #[arg(long)]
+    continue_after_failed_autosave: bool,
     #[command(flatten)]
     live: crate::live_args::LiveViewArgs,
 }
@@ -72,6 +78,7 @@ pub fn run(args: Args) -> Result<bool> {
             resume: args.resume.then(|| args.config.clone()),
             profile: !args.no_trace,
             autosave_every: args.autosave_every,
+            continue_after_failed_autosave: args.continue_after_failed_autosave,
             live: Some(args.live.clone()).filter(|l| l.live.is_some()),
         },
         Some(&folder),
@@ -96,11 +103,16 @@ pub fn run(args: Args) -> Result<bool> {
             Err(why)
         }
         Err(e) => {
+            // Why the run stopped, when it did, comes first.
+            let why = match &run.ending {
+                Ending::Failed(reason) => format!("{reason}; "),
+                _ => String::new(),
+            };
             return Err(e.context(format!(
-                "{} not replaced; it keeps {}",
+                "{why}{} not replaced; it keeps {}",
                 args.out.display(),
                 run.kept_description()
-            )))
+            )));
         }
     };
     match (&run.ending, report) {

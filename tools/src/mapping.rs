@@ -36,6 +36,8 @@ pub struct RunOptions {
     /// Write the run folder every this many keyframes while mapping (0:
     /// only at the end).
     pub autosave_every: u64,
+    /// See `LogRunOptions::continue_after_failed_autosave`.
+    pub continue_after_failed_autosave: bool,
     /// Serve a live view while mapping.
     pub live: Option<crate::live_args::LiveViewArgs>,
 }
@@ -147,6 +149,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         &LogRunOptions {
             max_frames: opts.max_frames,
             autosave_every: opts.autosave_every,
+            continue_after_failed_autosave: opts.continue_after_failed_autosave,
         },
         folder,
         &mut observer,

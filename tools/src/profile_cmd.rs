@@ -37,6 +37,7 @@ pub fn run(args: Args) -> Result<()> {
             resume: None,
             profile: true,
             autosave_every: 0,
+            continue_after_failed_autosave: false,
             live: None,
         },
         None,

@@ -83,6 +83,42 @@ fn faults_give_clear_errors_and_keep_what_was_mapped() {
     assert_eq!(std::fs::read(run.join(STATE_FILE)).unwrap(), before);
     assert_eq!(consistent_run(&ctx, &run), 3);
     assert!(beside(&run).is_empty(), "{:?}", beside(&run));
+    // The first failed autosave stops the run (the log has 8 keyframes
+    // left), unless asked to go on.
+    let stopped = failed_with(&out, &["autosave at keyframe", "failed, so the run stops"]);
+    assert_eq!(
+        stopped.matches("warning: autosave at keyframe").count(),
+        1,
+        "{stopped}"
+    );
+    let out = map(
+        &log,
+        &run,
+        "disk_full",
+        &[
+            "--resume",
+            "--autosave-every",
+            "1",
+            "--continue-after-failed-autosave",
+        ],
+    );
+    let went_on = failed_with(&out, &["no space left on device", "not replaced"]);
+    assert!(!went_on.contains("run stops"), "{went_on}");
+    assert!(
+        went_on.matches("warning: autosave at keyframe").count() > 1,
+        "{went_on}"
+    );
+
+    // A destination that renames cannot replace is refused before any
+    // frame is mapped.
+    let started = Instant::now();
+    let out = map(&log, &run, "mount_point", &[]);
+    failed_with(
+        &out,
+        &["is a mount point", "write the run to a folder inside it"],
+    );
+    assert!(started.elapsed() < Duration::from_secs(20));
+    assert_eq!(std::fs::read(run.join(STATE_FILE)).unwrap(), before);
 
     // A lost device and a failed allocation part-way (after some keyframes:
     // the first submission or allocation counts that get that far are

@@ -7,6 +7,7 @@
 //! | `device_lost_after=N` | the queue submissions after the first N fail with `VK_ERROR_DEVICE_LOST` |
 //! | `disk_full` | every file the engine writes fails with "no space left on device" |
 //! | `save_delay_ms=N` | a file write waits N ms before it is renamed into place (widens the window a crash can hit) |
+//! | `mount_point` | every existing run folder is taken for a mount point (which renames cannot replace) |
 //!
 //! Without the variable nothing is injected and each hook is one atomic
 //! load.
@@ -20,6 +21,7 @@ struct Faults {
     device_lost_after: Option<u64>,
     disk_full: bool,
     save_delay_ms: u64,
+    mount_point: bool,
 }
 
 static FAULTS: OnceLock<Faults> = OnceLock::new();
@@ -40,12 +42,18 @@ fn faults() -> &'static Faults {
                 ("device_lost_after", Some(n)) => f.device_lost_after = Some(n),
                 ("disk_full", _) => f.disk_full = true,
                 ("save_delay_ms", Some(n)) => f.save_delay_ms = n,
+                ("mount_point", _) => f.mount_point = true,
                 _ => log::warn!("LATENTAM_FAULTS: ignoring `{entry}`"),
             }
         }
         log::warn!("fault injection on: {f:?}");
         f
     })
+}
+
+/// Whether an existing run folder is to be taken for a mount point.
+pub fn mount_point() -> bool {
+    faults().mount_point
 }
 
 /// Whether the next buffer allocation is to fail.

@@ -34,7 +34,7 @@ use latentam_io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrame
 /// # fn f() -> latentam_core::Result<()> {
 /// use latentam_core::live::LogRunOptions;
 /// // The first 500 frames, saving every 10 keyframes.
-/// let options = LogRunOptions { max_frames: Some(500), autosave_every: 10 };
+/// let options = LogRunOptions { max_frames: Some(500), autosave_every: 10, ..Default::default() };
 /// # Ok(())
 /// # }
 /// ```
@@ -47,6 +47,11 @@ pub struct LogRunOptions {
     /// only at the end, by [`LogRun::write_folder`]), so a crash or a lost
     /// device loses at most this many keyframes.
     pub autosave_every: u64,
+    /// Keep mapping when an autosave fails (listed in the report's
+    /// `autosave_failures`). By default a failed autosave stops the run:
+    /// a folder that cannot be written now will not be written at the
+    /// end either, and hours of mapping would be lost without a word.
+    pub continue_after_failed_autosave: bool,
 }
 
 /// What a client sees of a run of a log, and what it adds to it. Every
@@ -297,6 +302,12 @@ impl Tally {
                 Err(e) => {
                     observer.autosave_failed(n, &e);
                     self.autosave_failures.push(format!("keyframe {n}: {e}"));
+                    if !options.continue_after_failed_autosave {
+                        failed.get_or_insert(Ending::Failed(format!(
+                            "the autosave at keyframe {n} failed, so the run stops \
+                             (--continue-after-failed-autosave maps on): {e}"
+                        )));
+                    }
                 }
             }
             (mapper, ())

@@ -112,6 +112,7 @@ impl RunFolder {
             )));
         };
         let name = name.to_string_lossy().into_owned();
+        check_committable(&dir, parent, &name)?;
         std::fs::create_dir_all(parent).map_err(|e| io_error(parent, e))?;
         let lock_path = parent.join(format!(".{name}.lock"));
         let lock = acquire(&lock_path, &dir)?;
@@ -122,6 +123,9 @@ impl RunFolder {
         };
         folder.recover()?;
         folder.check_replaceable()?;
+        // A destination that cannot take a version fails now, not after
+        // hours of mapping: a staging folder is made and removed.
+        drop(folder.stage()?);
         Ok(folder)
     }
 
@@ -359,6 +363,43 @@ fn same_file(file: &File, path: &Path) -> bool {
 #[cfg(not(unix))]
 fn same_file(_: &File, path: &Path) -> bool {
     path.exists()
+}
+
+/// Bytes a folder name may have: the staging folder beside it adds
+/// `.`, `.staging-` and a 24-digit id to it, within the usual 255-byte
+/// limit of a file name.
+const MAX_NAME_BYTES: usize = 255 - 34;
+
+/// Errors unless a run folder `name` in `parent` can be replaced by
+/// renames: a name that leaves room for the staging folder's, and a folder
+/// that is not a mount point (renaming one fails with "busy").
+fn check_committable(dir: &Path, parent: &Path, name: &str) -> Result<()> {
+    if name.len() > MAX_NAME_BYTES {
+        return Err(Error::InvalidArgument(format!(
+            "{}: a run folder's name may have at most {MAX_NAME_BYTES} bytes (this one has {}): \
+             the staging folder beside it adds 34",
+            dir.display(),
+            name.len()
+        )));
+    }
+    #[cfg(unix)]
+    let mount = {
+        use std::os::unix::fs::MetadataExt;
+        match (std::fs::metadata(dir), std::fs::metadata(parent)) {
+            (Ok(d), Ok(p)) => d.dev() != p.dev(),
+            _ => false,
+        }
+    };
+    #[cfg(not(unix))]
+    let mount = false;
+    if dir.exists() && (mount || latentam_base::faults::mount_point()) {
+        return Err(Error::InvalidArgument(format!(
+            "{} is a mount point: a run folder is replaced whole by renaming, which a mount \
+             point does not allow; write the run to a folder inside it",
+            dir.display()
+        )));
+    }
+    Ok(())
 }
 
 /// Whether `dir` is a directory (not a link to one) holding a regular
@@ -642,6 +683,45 @@ mod tests {
     /// like a moved-aside run, a staging name with another id in its
     /// marker, a link to a folder) are neither removed nor moved into
     /// place.
+    /// Destinations that could never be committed are refused when the
+    /// folder is locked, before any mapping: a name without room for the
+    /// staging folder's, a mount point (by fault injection), a parent
+    /// without write permission.
+    #[test]
+    fn destinations_that_cannot_be_committed_fail_at_once() {
+        let root = scratch("uncommittable");
+        let long = root.join("r".repeat(MAX_NAME_BYTES + 1));
+        let e = RunFolder::lock(&long).unwrap_err().to_string();
+        assert!(e.contains("at most 221 bytes"), "{e}");
+        assert!(RunFolder::lock(root.join("r".repeat(MAX_NAME_BYTES))).is_ok());
+        let dir = root.join("run");
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(check_committable(&dir, &root, "run").is_ok());
+        // The file system's root is on another device than /proc.
+        #[cfg(target_os = "linux")]
+        {
+            let e = check_committable(Path::new("/proc"), Path::new("/"), "proc")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("is a mount point"), "{e}");
+        }
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let locked = root.join("read-only");
+            std::fs::create_dir_all(&locked).unwrap();
+            std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o555)).unwrap();
+            // Root may write anyway; everyone else is refused at once.
+            let writable = std::fs::write(locked.join("probe"), b"").is_ok();
+            let _ = std::fs::remove_file(locked.join("probe"));
+            if !writable {
+                assert!(RunFolder::lock(locked.join("run")).is_err());
+            }
+            std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o755)).unwrap();
+        }
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
     #[test]
     fn only_folders_the_tool_made_are_removed_or_moved_back() {
         let root = scratch("marker");
