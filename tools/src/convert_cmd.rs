@@ -31,7 +31,8 @@ pub struct Args {
     kind: Kind,
     /// The dataset folder.
     dir: PathBuf,
-    /// Output MCAP file (written to OUT.mcap.partial, then renamed).
+    /// Output MCAP file (written beside it under a partial name of its own,
+    /// then renamed).
     #[arg(short, long)]
     out: PathBuf,
     /// Folder of per-frame feature files (`S.safetensors`, or `.npy`; see

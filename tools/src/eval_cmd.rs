@@ -168,9 +168,15 @@ pub fn run(args: Args) -> Result<()> {
         Stages::new("eval").start(format_args!("loading the map in {}", args.dir.display()));
     }
     let ctx = Context::new(ContextOptions::default())?;
-    let mut mapper = Mapper::load(&ctx, &args.dir)
-        .with_context(|| format!("loading the map in {}", args.dir.display()))?;
-    let run_report = run_report_of(&args.dir, mapper.run_id())?;
+    // The map and its report of one version, even while a writer swaps
+    // the folder.
+    let (mut mapper, run_report) = latentam_core::mapper::read_one_version(&args.dir, || {
+        let mapper = Mapper::load(&ctx, &args.dir)?;
+        let report = run_report_of(&args.dir, mapper.run_id())
+            .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))?;
+        Ok((mapper, report))
+    })
+    .with_context(|| format!("loading the map in {}", args.dir.display()))?;
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
     if let Some(v) = &vocabulary {

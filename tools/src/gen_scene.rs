@@ -48,7 +48,8 @@ impl From<DtypeArg> for Dtype {
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Output MCAP file (written to OUT.mcap.partial, then renamed).
+    /// Output MCAP file (written beside it under a partial name of its own,
+    /// then renamed).
     #[arg(short, long)]
     out: PathBuf,
     /// Number of frames along the trajectory (the path is the same length

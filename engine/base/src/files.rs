@@ -1,7 +1,10 @@
-//! Files that appear whole or not at all: written to `<name>.partial`
-//! beside the target, synced, then renamed over it (and the directory
-//! synced), so a crash or a full disk leaves the previous file intact.
-//! A `.partial` left by a killed process is replaced next time. The
+//! Files that appear whole or not at all: written to a partial file of
+//! the writer's own beside the target (`<name>.<pid>-<n>.partial`, so two
+//! processes writing the same output never share one), synced, then
+//! renamed over it (and the directory synced), so a crash or a full disk
+//! leaves the previous file intact. Partial files of the same target left
+//! by processes that are gone are removed the next time it is written
+//! (regular files of this user only). The
 //! partial file is always created anew, never opened through a link: a
 //! symbolic link planted under its name is removed (the link, not what
 //! it points to), and the file is created exclusively, so a write never
@@ -17,15 +20,76 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
-/// The sibling `<path>.partial` that [`write_atomically`] writes through.
+/// `<path>.partial`: every partial file of `path` is named after it
+/// (`<path>.<pid>-<n>.partial`, see [`write_atomically`]).
 pub fn partial_path(path: &Path) -> Option<PathBuf> {
     let mut name = path.file_name()?.to_os_string();
     name.push(".partial");
     Some(path.with_file_name(name))
 }
 
-/// Writes `path` through `<path>.partial` with `body`; on any error the
-/// partial file is removed and `path` is left as it was.
+/// A partial file of this writer's own for `path`:
+/// `<path>.<pid>-<n>.partial`. Partial files of `path` left by processes
+/// that are gone are removed first.
+fn own_partial_path(path: &Path) -> Option<PathBuf> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let shared = partial_path(path)?;
+    remove_stale_partials(path);
+    Some(shared.with_extension(format!(
+        "{}-{}.partial",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    )))
+}
+
+/// Removes `<path>.<pid>-<n>.partial` files whose process is gone: regular
+/// files of this user only, never links or others' files.
+fn remove_stale_partials(path: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+            return;
+        };
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        let prefix = format!("{}.", name.to_string_lossy());
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        // SAFETY: getuid has no preconditions.
+        let me = unsafe { libc::getuid() };
+        for entry in entries.flatten() {
+            let file = entry.file_name().to_string_lossy().into_owned();
+            let Some(pid) = file
+                .strip_prefix(&prefix)
+                .and_then(|rest| rest.strip_suffix(".partial"))
+                .and_then(|rest| rest.split_once('-'))
+                .and_then(|(pid, n)| n.parse::<u64>().ok().and(pid.parse::<i32>().ok()))
+            else {
+                continue;
+            };
+            let ours =
+                std::fs::symlink_metadata(entry.path()).is_ok_and(|m| m.is_file() && m.uid() == me);
+            // SAFETY: signal 0 only asks whether the process exists.
+            let gone = pid > 0
+                && unsafe { libc::kill(pid, 0) } != 0
+                && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+            if ours && gone {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = path;
+}
+
+/// Writes `path` through a partial file of this writer's own with `body`;
+/// on any error the partial file is removed and `path` is left as it was.
 ///
 /// ```no_run
 /// use std::io::Write;
@@ -36,7 +100,7 @@ pub fn write_atomically(
     path: &Path,
     body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<()> {
-    let Some(partial) = partial_path(path) else {
+    let Some(partial) = own_partial_path(path) else {
         return Err(Error::InvalidArgument(format!(
             "{}: not a file path",
             path.display()
@@ -45,10 +109,9 @@ pub fn write_atomically(
     write_through(&partial, path, body)
 }
 
-/// [`write_atomically`] through a partial file of this writer's own
-/// (`<path>.<pid>-<n>.partial`), for files that several processes or
-/// threads may write at once (a cache): each renames a whole file of its
-/// own into place, and the last one wins.
+/// [`write_atomically`], for files that several processes or threads
+/// may write at once (a cache): every writer has a partial file of its
+/// own and renames it whole into place, and the last one wins.
 ///
 /// ```no_run
 /// use std::io::Write;
@@ -59,20 +122,7 @@ pub fn write_atomically_shared(
     path: &Path,
     body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<()> {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static N: AtomicU64 = AtomicU64::new(0);
-    let Some(partial) = partial_path(path) else {
-        return Err(Error::InvalidArgument(format!(
-            "{}: not a file path",
-            path.display()
-        )));
-    };
-    let partial = partial.with_extension(format!(
-        "{}-{}.partial",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    write_through(&partial, path, body)
+    write_atomically(path, body)
 }
 
 /// Writes `partial` with `body`, syncs it and renames it to `path`.
@@ -148,7 +198,8 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |w| w.write_all(bytes))
 }
 
-/// A file written under `<path>.partial` by whatever writes to a path:
+/// A file written under a partial name of its own beside `path`
+/// (`<path>.<pid>-<n>.partial`) by whatever writes to a path:
 /// [`PartialFile::commit`] renames it to its final name, and dropping it
 /// uncommitted (an error on the way) removes it, so a failed write leaves
 /// no half-written output behind.
@@ -173,7 +224,7 @@ impl PartialFile {
     /// (errors when `path` names no file, or the partial file cannot be
     /// created).
     pub fn new(path: &Path) -> Result<Self> {
-        let partial = partial_path(path).ok_or_else(|| {
+        let partial = own_partial_path(path).ok_or_else(|| {
             Error::InvalidArgument(format!("{}: not a file path", path.display()))
         })?;
         create_fresh(&partial).map_err(|source| Error::Io {
@@ -254,33 +305,81 @@ mod link_tests {
         d
     }
 
+    /// Links planted under every partial name a writer of `path` could
+    /// take (the shared one and this process's next 64) are removed, not
+    /// followed; the victim keeps its content.
+    fn plant_links(path: &Path, victim: &Path) -> Vec<PathBuf> {
+        let mut names = vec![partial_path(path).unwrap()];
+        for n in 0..64 {
+            names.push(
+                partial_path(path)
+                    .unwrap()
+                    .with_extension(format!("{}-{n}.partial", std::process::id())),
+            );
+        }
+        for name in &names {
+            let _ = std::fs::remove_file(name);
+            std::os::unix::fs::symlink(victim, name).unwrap();
+        }
+        names
+    }
+
     #[test]
     fn a_link_planted_as_the_partial_file_is_not_written_through() {
         let dir = scratch("link");
         let victim = dir.join("victim.txt");
         std::fs::write(&victim, "keep me").unwrap();
         let out = dir.join("out.txt");
-        std::os::unix::fs::symlink(&victim, partial_path(&out).unwrap()).unwrap();
+        plant_links(&out, &victim);
         write_bytes_atomically(&out, b"written").unwrap();
         assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
         assert_eq!(std::fs::read_to_string(&out).unwrap(), "written");
-        assert!(!partial_path(&out).unwrap().exists());
 
         // The same for a file a library writes by path.
         let ply = dir.join("map.ply");
-        std::os::unix::fs::symlink(&victim, partial_path(&ply).unwrap()).unwrap();
+        plant_links(&ply, &victim);
         let p = PartialFile::new(&ply).unwrap();
         std::fs::write(p.path(), "ply").unwrap();
         p.commit().unwrap();
         assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
         assert_eq!(std::fs::read_to_string(&ply).unwrap(), "ply");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
 
-        // A directory under the partial name is an error, and stays.
-        let blocked = dir.join("blocked.txt");
-        std::fs::create_dir(partial_path(&blocked).unwrap()).unwrap();
-        assert!(write_bytes_atomically(&blocked, b"x").is_err());
-        assert!(partial_path(&blocked).unwrap().is_dir());
-        assert!(!blocked.exists());
+#[cfg(all(test, unix))]
+mod partial_tests {
+    use super::*;
+
+    /// Two writers of one output never share a partial file, and partial
+    /// files left by processes that are gone are removed (this user's
+    /// regular files only).
+    #[test]
+    fn each_writer_has_its_partial_file_and_the_dead_ones_are_cleared() {
+        let dir = std::env::temp_dir().join(format!("latentam-partials-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("heatmap.ply");
+        let a = PartialFile::new(&out).unwrap();
+        let b = PartialFile::new(&out).unwrap();
+        assert_ne!(a.path(), b.path());
+        std::fs::write(a.path(), "a").unwrap();
+        std::fs::write(b.path(), "b").unwrap();
+        b.commit().unwrap();
+        a.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "a");
+        // A dead process's partial file (pid beyond any the kernel gives)
+        // goes; a live one's, a link and a directory stay.
+        let stale = dir.join("heatmap.ply.2147483646-3.partial");
+        std::fs::write(&stale, "stale").unwrap();
+        let live = dir.join(format!("heatmap.ply.{}-999.partial", std::process::id()));
+        std::fs::write(&live, "live").unwrap();
+        let dead_link = dir.join("heatmap.ply.2147483645-1.partial");
+        std::os::unix::fs::symlink(&out, &dead_link).unwrap();
+        write_bytes_atomically(&out, b"new").unwrap();
+        assert!(!stale.exists());
+        assert!(live.exists() && std::fs::symlink_metadata(&dead_link).is_ok());
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "new");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

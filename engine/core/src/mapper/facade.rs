@@ -9,7 +9,7 @@ use super::export::{DecoderFile, DECODER_FILE};
 use super::keyframe_report::{Integrated, MapperStats};
 use super::online::OnlineMapper;
 use super::persist::SavedState;
-use super::run_folder::{RunFolder, RunStaging, STATE_FILE};
+use super::run_folder::{read_one_version, RunFolder, RunStaging, STATE_FILE};
 use latentam_base::{Error, Result};
 use latentam_gpu::{Context, ContextOptions};
 use std::sync::atomic::AtomicBool;
@@ -280,20 +280,24 @@ impl Mapper {
         settings: &dyn Fn(&MapperConfig) -> Result<MapperConfig>,
     ) -> Result<Self> {
         let dir = dir.as_ref();
-        let path = dir.join(STATE_FILE);
-        let state = SavedState::read(&path)?;
-        let decoder = dir.join(DECODER_FILE);
-        if let (Some(id), true) = (state.run_id(), decoder.exists()) {
-            let theirs = DecoderFile::read(&decoder)?.run_id;
-            if theirs.as_deref() != Some(id) {
-                return Err(Error::InvalidArgument(format!(
-                    "{}: {DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
-                     ({id}); the folder mixes two runs",
-                    dir.display(),
-                    theirs.as_deref().unwrap_or("no run id")
-                )));
+        // The state and the decoder of one version, even while a writer
+        // swaps the folder.
+        let state = read_one_version(dir, || {
+            let state = SavedState::read(&dir.join(STATE_FILE))?;
+            let decoder = dir.join(DECODER_FILE);
+            if let (Some(id), true) = (state.run_id(), decoder.exists()) {
+                let theirs = DecoderFile::read(&decoder)?.run_id;
+                if theirs.as_deref() != Some(id) {
+                    return Err(Error::InvalidArgument(format!(
+                        "{}: {DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
+                         ({id}); the folder mixes two runs",
+                        dir.display(),
+                        theirs.as_deref().unwrap_or("no run id")
+                    )));
+                }
             }
-        }
+            Ok(state)
+        })?;
         let overrides = settings(state.config())?;
         // The settings that shape the saved state stay as saved: a change
         // asked for would be silently ignored, so it is refused.

@@ -38,7 +38,10 @@ pub use keyframe_report::{
 pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;
-pub use run_folder::{new_run_id, RunFolder, RunStaging, RUN_FOLDER_FILES, STATE_FILE};
+pub use run_folder::{
+    folder_version, new_run_id, read_one_version, RunFolder, RunStaging, RUN_FOLDER_FILES,
+    RUN_MARKER, STATE_FILE,
+};
 pub use run_report::{Ending, HostWaits, RunReport};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 pub use warm_up::warm_up;

@@ -221,10 +221,11 @@ impl RunFolder {
         for entry in std::fs::read_dir(&self.dir).map_err(|e| io_error(&self.dir, e))? {
             let entry = entry.map_err(|e| io_error(&self.dir, e))?;
             let name = entry.file_name().to_string_lossy().into_owned();
+            // A file of a run, or a partial one of a writer (`X.<pid>-<n>.partial`).
             let ours = name == RUN_MARKER
-                || RUN_FOLDER_FILES
-                    .iter()
-                    .any(|f| name == *f || name == format!("{f}.partial"));
+                || RUN_FOLDER_FILES.iter().any(|f| {
+                    name == *f || (name.starts_with(&format!("{f}.")) && name.ends_with(".partial"))
+                });
             if !ours {
                 foreign.push(name);
             }
@@ -363,6 +364,38 @@ fn same_file(file: &File, path: &Path) -> bool {
 #[cfg(not(unix))]
 fn same_file(_: &File, path: &Path) -> bool {
     path.exists()
+}
+
+/// The version a run folder holds now (its [`RUN_MARKER`]), if it has one.
+pub fn folder_version(dir: &Path) -> Option<String> {
+    let marker = dir.join(RUN_MARKER);
+    std::fs::symlink_metadata(&marker)
+        .is_ok_and(|m| m.is_file() && m.len() <= 64)
+        .then(|| std::fs::read_to_string(&marker).ok())
+        .flatten()
+}
+
+/// Reads one version of the run folder `dir` with `read`: when a writer
+/// swapped the folder while `read` ran (its version changed), what it read
+/// may mix two versions or miss a file, so it reads again (up to 50
+/// times). Readers need no lock: a swap replaces the whole folder at once.
+///
+/// ```no_run
+/// use latentam_core::mapper::read_one_version;
+/// let report = read_one_version("runs/kitchen".as_ref(), || {
+///     Ok(std::fs::read_to_string("runs/kitchen/report.json")?)
+/// })?;
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+pub fn read_one_version<T>(dir: &Path, mut read: impl FnMut() -> Result<T>) -> Result<T> {
+    for _ in 0..50 {
+        let before = folder_version(dir);
+        let result = read();
+        if before.is_none() || folder_version(dir) == before {
+            return result;
+        }
+    }
+    read()
 }
 
 /// Bytes a folder name may have: the staging folder beside it adds
@@ -687,6 +720,49 @@ mod tests {
     /// folder is locked, before any mapping: a name without room for the
     /// staging folder's, a mount point (by fault injection), a parent
     /// without write permission.
+    /// A reader of a folder that a writer swaps again and again always
+    /// gets the two files of one version.
+    #[test]
+    fn readers_get_one_version_while_a_writer_swaps() {
+        let root = scratch("readers");
+        let dir = root.join("run");
+        commit(
+            &RunFolder::lock(&dir).unwrap(),
+            &[("report.json", "0"), ("trace.json", "0")],
+        );
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                let folder = RunFolder::lock(&dir).unwrap();
+                let mut n = 0u32;
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    n += 1;
+                    let v = n.to_string();
+                    commit(&folder, &[("report.json", &v), ("trace.json", &v)]);
+                }
+            });
+            let read = || -> Result<(String, String)> {
+                let a = std::fs::read_to_string(dir.join("report.json"))
+                    .map_err(|e| io_error(&dir, e))?;
+                std::thread::yield_now();
+                let b = std::fs::read_to_string(dir.join("trace.json"))
+                    .map_err(|e| io_error(&dir, e))?;
+                Ok((a, b))
+            };
+            let mut mixed_unguarded = 0;
+            for _ in 0..300 {
+                let (a, b) = read_one_version(&dir, read).expect("one whole version");
+                assert_eq!(a, b, "a read mixed two versions");
+                mixed_unguarded += usize::from(read().map_or(true, |(a, b)| a != b));
+            }
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            eprintln!(
+                "unguarded reads that mixed versions or missed a file: {mixed_unguarded}/300"
+            );
+        });
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
     #[test]
     fn destinations_that_cannot_be_committed_fail_at_once() {
         let root = scratch("uncommittable");
