@@ -84,6 +84,16 @@ impl ArchiveWriter {
         let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
         self.meta.insert("format".into(), format.into());
         self.meta.insert("version".into(), version.to_string());
+        // A CRC-32 of every tensor's bytes, in name order (the order
+        // safetensors lays them out in is its own), checked at load.
+        self.tensors.sort_by(|a, b| a.0.cmp(&b.0));
+        let mut crc = crc32fast::Hasher::new();
+        for (name, _, _, data) in &self.tensors {
+            crc.update(name.as_bytes());
+            crc.update(data);
+        }
+        self.meta
+            .insert(CHECKSUM_KEY.into(), format!("{:08x}", crc.finalize()));
         let views = self
             .tensors
             .iter()
@@ -105,8 +115,14 @@ fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
     }
 }
 
-/// Largest JSON header read (the `safetensors` crate's limit).
-const MAX_HEADER_BYTES: u64 = 100_000_000;
+/// Largest JSON header read: a map's lists a few dozen tensors and its
+/// settings (kilobytes), so a hostile file costs at most this to refuse.
+const MAX_HEADER_BYTES: u64 = 16 << 20;
+
+/// Metadata key of the archive's checksum (a CRC-32 over every tensor's
+/// name and bytes, in name order). Archives written before it was added
+/// have none and load unchecked.
+const CHECKSUM_KEY: &str = "crc32";
 
 /// Where a tensor lies in the archive's bytes.
 struct Entry {
@@ -114,6 +130,33 @@ struct Entry {
     shape: Vec<usize>,
     /// Byte range within the whole file (header included).
     range: std::ops::Range<usize>,
+}
+
+/// Reads only the header of the archive at `path` and checks that its
+/// tensors tile the rest of the file exactly.
+fn check_extent(path: &Path, what: &str) -> Result<()> {
+    use std::io::Read;
+    let mut file = latentam_io::open_input(path).map_err(|e| io_error(path, "opening", e))?;
+    let len = file
+        .metadata()
+        .map_err(|e| io_error(path, "reading", e))?
+        .len();
+    let mut size = [0u8; 8];
+    let mut head = Vec::new();
+    if file.read_exact(&mut size).is_ok() {
+        let n = u64::from_le_bytes(size).min(MAX_HEADER_BYTES + 1);
+        head.extend_from_slice(&size);
+        (&mut file)
+            .take(n)
+            .read_to_end(&mut head)
+            .map_err(|e| io_error(path, "reading", e))?;
+    }
+    read_header_of(&head, len).map(|_| ()).map_err(|why| {
+        Error::InvalidArgument(format!(
+            "{} is not a latentam {what}: {why}",
+            path.display()
+        ))
+    })
 }
 
 /// Reads a safetensors header and checks every tensor's extent: element
@@ -125,8 +168,18 @@ struct Entry {
 fn read_header(
     bytes: &[u8],
 ) -> std::result::Result<(HashMap<String, String>, HashMap<String, Entry>), String> {
+    read_header_of(bytes, bytes.len() as u64)
+}
+
+/// [`read_header`] of a file of `file_len` bytes whose first bytes (the
+/// header at least) are `bytes`.
+#[allow(clippy::type_complexity)]
+fn read_header_of(
+    bytes: &[u8],
+    file_len: u64,
+) -> std::result::Result<(HashMap<String, String>, HashMap<String, Entry>), String> {
     let Some(n) = bytes.get(..8) else {
-        return Err(format!("{} bytes, shorter than a header", bytes.len()));
+        return Err(format!("{file_len} bytes, shorter than a header"));
     };
     let mut len = [0u8; 8];
     len.copy_from_slice(n);
@@ -136,17 +189,17 @@ fn read_header(
     }
     let data_start = 8 + n as usize;
     let Some(header) = bytes.get(8..data_start) else {
-        return Err(format!(
-            "header of {n} bytes in a file of {} bytes",
-            bytes.len()
-        ));
+        return Err(format!("header of {n} bytes in a file of {file_len} bytes"));
+    };
+    let Ok(file_len) = usize::try_from(file_len) else {
+        return Err(format!("{file_len} bytes do not fit this machine's memory"));
     };
     let header = std::str::from_utf8(header).map_err(|e| format!("header: {e}"))?;
     let fields: HashMap<String, serde_json::Value> =
         serde_json::from_str(header).map_err(|e| format!("header: {e}"))?;
     let mut meta = HashMap::new();
     let mut tensors = HashMap::with_capacity(fields.len());
-    let data_len = bytes.len() - data_start;
+    let data_len = file_len - data_start;
     for (name, value) in fields {
         if name == "__metadata__" {
             meta = serde_json::from_value(value).map_err(|e| format!("metadata: {e}"))?;
@@ -196,10 +249,10 @@ fn read_header(
         }
         at = r.end;
     }
-    if at != bytes.len() {
+    if at != file_len {
         return Err(format!(
             "{} bytes after the last tensor",
-            bytes.len().saturating_sub(at)
+            file_len.saturating_sub(at)
         ));
     }
     Ok((meta, tensors))
@@ -224,6 +277,10 @@ impl Archive<'static> {
     /// Reads and checks `path` as an archive of format `format`, version
     /// `version`; `what` names it in errors.
     pub fn open_as(path: &Path, format: &str, version: u32, what: &str) -> Result<Self> {
+        // The header first: a file whose tensors do not tile it exactly (a
+        // huge sparse file behind a small header, say) is refused before
+        // its bulk is read.
+        check_extent(path, what)?;
         let bytes = latentam_io::read_input(path).map_err(|e| io_error(path, "reading", e))?;
         Archive::parse_as(Cow::Owned(bytes), path, format, version, what)
     }
@@ -258,6 +315,24 @@ impl<'a> Archive<'a> {
                 "{} is a version {found} {what}; this build reads version {version}",
                 origin.display()
             )));
+        }
+        if let Some(want) = meta.get(CHECKSUM_KEY) {
+            let mut names: Vec<&String> = tensors.keys().collect();
+            names.sort();
+            let mut crc = crc32fast::Hasher::new();
+            for name in names {
+                crc.update(name.as_bytes());
+                crc.update(&bytes[tensors[name].range.clone()]);
+            }
+            let got = format!("{:08x}", crc.finalize());
+            if *want != got {
+                let want: String = want.chars().take(16).collect();
+                return Err(Error::InvalidArgument(format!(
+                    "{} is damaged: its checksum is {want:?}, its contents give {got} (a byte \
+                     changed on disk or in a copy); use another copy or the run's last save",
+                    origin.display()
+                )));
+            }
         }
         Ok(Archive {
             bytes,

@@ -59,8 +59,41 @@ fn random_tensor(header: &Map<String, Value>, rng: &mut impl Rng) -> String {
     names[rng.random_range(0..names.len())].clone()
 }
 
+/// The file of `header` and `data`, its checksum made to match what the
+/// mutations did (when the offsets still allow it), so that they reach the
+/// checks behind the checksum; [`bit_flips_in_tensor_data_are_all_detected`]
+/// covers the checksum itself.
 fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
-    let h = serde_json::to_vec(header).unwrap();
+    let mut header = header.clone();
+    let mut names: Vec<String> = header
+        .keys()
+        .filter(|k| *k != "__metadata__")
+        .cloned()
+        .collect();
+    names.sort();
+    let mut crc = crc32fast::Hasher::new();
+    let mut whole = true;
+    for name in &names {
+        let range = header[name]["data_offsets"]
+            .as_array()
+            .and_then(|o| Some(o.first()?.as_u64()? as usize..o.get(1)?.as_u64()? as usize));
+        match range.and_then(|r| data.get(r)) {
+            Some(bytes) => {
+                crc.update(name.as_bytes());
+                crc.update(bytes);
+            }
+            None => whole = false,
+        }
+    }
+    if let (true, Some(Value::Object(meta))) = (whole, header.get_mut("__metadata__")) {
+        if meta.contains_key("crc32") {
+            meta.insert(
+                "crc32".into(),
+                Value::String(format!("{:08x}", crc.finalize())),
+            );
+        }
+    }
+    let h = serde_json::to_vec(&header).unwrap();
     let mut out = (h.len() as u64).to_le_bytes().to_vec();
     out.extend(h);
     out.extend_from_slice(data);
@@ -611,4 +644,73 @@ fn a_diverged_map_is_not_saved() {
         assert_eq!(std::fs::read(&path).unwrap(), good);
         std::fs::remove_dir_all(&dir).ok();
     });
+}
+
+/// A byte changed anywhere in a saved state's tensors (a bit flip on disk,
+/// a bad copy) is caught by its checksum, however plausible the changed
+/// value: none of the flips loads.
+#[test]
+fn bit_flips_in_tensor_data_are_all_detected() {
+    let bytes = SavedState::example().to_bytes().unwrap();
+    let (header, data) = split(&bytes).expect("a well-formed example");
+    let start = bytes.len() - data.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed());
+    for _ in 0..64 {
+        let mut flipped = bytes.clone();
+        let at = rng.random_range(start..bytes.len());
+        flipped[at] ^= 1 << rng.random_range(0..8);
+        let e = SavedState::parse(&flipped, Path::new(ORIGIN)).err();
+        assert!(
+            e.as_ref()
+                .is_some_and(|e| e.to_string().contains("is damaged")),
+            "a flip at byte {at} of {} loaded or failed otherwise: {e:?}",
+            bytes.len()
+        );
+    }
+    // The untouched file, rejoined, still loads.
+    assert!(SavedState::parse(&join(&header, &data), Path::new(ORIGIN)).is_ok());
+}
+
+/// A header whose tensors do not tile the file (a huge file behind a small
+/// header) is refused from the header alone, before the rest is read.
+#[test]
+fn a_file_larger_than_its_tensors_is_refused_from_its_header() {
+    let dir = std::env::temp_dir().join(format!("latentam-sparse-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("state.latentam");
+    let bytes = SavedState::example().to_bytes().unwrap();
+    let file = std::fs::File::create(&path).unwrap();
+    use std::io::Write;
+    (&file).write_all(&bytes).unwrap();
+    // 3 GiB more, sparse: reading it would cost gigabytes and seconds.
+    file.set_len(bytes.len() as u64 + (3u64 << 30)).unwrap();
+    drop(file);
+    let started = std::time::Instant::now();
+    let e = SavedState::read(&path).unwrap_err().to_string();
+    assert!(e.contains("bytes after the last tensor"), "{e}");
+    assert!(started.elapsed() < std::time::Duration::from_secs(2));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Gaussians no map holds (a zero rotation, a log-scale whose exponential
+/// overflows) are refused with the voxel they are in.
+#[test]
+fn implausible_gaussians_are_refused() {
+    for (field, value) in [("quat", 0.0f32), ("log_scale", 88.0)] {
+        let mut state = SavedState::example();
+        let g = &mut state.map[0].1;
+        match field {
+            "quat" => g.quat = [value; 4],
+            _ => g.log_scale[1] = value,
+        }
+        let bytes = state.to_bytes().unwrap();
+        let e = SavedState::parse(&bytes, Path::new(ORIGIN))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("the Gaussian of voxel")
+                && e.contains(field.split('_').next_back().unwrap()),
+            "{e}"
+        );
+    }
 }

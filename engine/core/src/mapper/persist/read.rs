@@ -151,6 +151,9 @@ impl SavedState {
                 )));
             }
             let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
+            if let Some(why) = implausible(&g) {
+                return Err(bad(format!("the Gaussian of voxel {key:?} {why}")));
+            }
             map.push((key, g));
         }
 
@@ -508,3 +511,26 @@ fn parse_regions(
         _ => bad(format!("region record {r:?} is malformed")),
     }
 }
+
+/// Why a saved Gaussian cannot be one the mapper made, if it cannot: a
+/// rotation of (near) zero length, or a scale beyond what any map holds (a
+/// log-scale outside [`LOG_SCALE_RANGE`]; e⁸⁸ overflows f32). Any finite
+/// opacity logit is an opacity.
+fn implausible(g: &Gaussian) -> Option<String> {
+    let q = g.quat.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if !(1e-6..=1e6).contains(&q) {
+        return Some(format!(
+            "has a rotation of length {q} (a unit quaternion is expected)"
+        ));
+    }
+    if let Some(s) = g.log_scale.iter().find(|s| !LOG_SCALE_RANGE.contains(*s)) {
+        return Some(format!(
+            "has a log-scale of {s}, outside {LOG_SCALE_RANGE:?} (e^{s} metres)"
+        ));
+    }
+    None
+}
+
+/// Log-scales a saved Gaussian may have: 10⁻²² m to 5·10⁸ m, far beyond
+/// any surface, short of overflow when squared in the covariance.
+const LOG_SCALE_RANGE: std::ops::RangeInclusive<f32> = -50.0..=20.0;
