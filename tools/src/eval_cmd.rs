@@ -368,7 +368,8 @@ fn print_summary(r: &EvalReport) {
         None => println!("  mIoU          n/a (no vocabulary in the log)"),
     }
     for c in &r.classes {
-        println!("    {:<16} {:.3}  ({} pixels)", c.name, c.iou, c.pixels);
+        let name = latentam_base::text::shown(&c.name);
+        println!("    {name:<16} {:.3}  ({} pixels)", c.iou, c.pixels);
     }
     if let (Some(k), Some(n)) = (&r.keyframes, &r.novel_views) {
         print_split(k, n);

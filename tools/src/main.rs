@@ -121,7 +121,11 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", mapping::describe(&e));
+            // Errors quote file contents and arguments: shown defused.
+            eprintln!(
+                "error: {}",
+                latentam_base::text::shown(&mapping::describe(&e))
+            );
             ExitCode::FAILURE
         }
     }

@@ -89,7 +89,7 @@ impl QueryArgs {
                 }
                 Ok(Some(Query {
                     text: TextQuery::embedding(v),
-                    what: path.display().to_string(),
+                    what: latentam_base::text::shown(&path.display().to_string()),
                 }))
             }
             (None, Some(name)) => {
@@ -111,7 +111,7 @@ impl QueryArgs {
                 };
                 Ok(Some(Query {
                     text,
-                    what: format!("`{name}`"),
+                    what: format!("`{}`", latentam_base::text::shown(name)),
                 }))
             }
             (None, None) => Ok(None),

@@ -983,3 +983,33 @@ fn fifos_given_as_inputs_are_refused_without_blocking() {
     assert!(!out.exists() && !converted.exists());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Text from the command line or a file is printed defused: an escape
+/// sequence in a value is shown escaped, never sent to the terminal, and a
+/// huge value is cut.
+#[test]
+fn errors_show_escape_sequences_escaped_and_huge_values_cut() {
+    let dir = std::env::temp_dir().join(format!("latentam-hygiene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("missing.mcap");
+    for value in ["\u{1b}[2J\rerror: forged".to_string(), "9".repeat(100_000)] {
+        let out = latentam()
+            .arg("map")
+            .arg(&missing)
+            .arg("--out")
+            .arg(dir.join("run"))
+            .arg("--set")
+            .arg(format!("seeding.stride={value}"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !stderr.contains('\u{1b}') && !stderr.contains('\r'),
+            "{stderr:?}"
+        );
+        assert!(stderr.len() < 10_000, "{} bytes of stderr", stderr.len());
+        assert!(stderr.starts_with("error: "), "{stderr:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -29,6 +29,7 @@ mod gaussians;
 #[doc(hidden)]
 pub mod random;
 pub mod settings;
+pub mod text;
 
 pub use camera::{Camera, GUARD_BAND};
 pub use error::{Error, InputError, Rejection, Result, VkContext};
