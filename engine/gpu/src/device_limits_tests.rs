@@ -8,7 +8,7 @@
 use ash::vk;
 
 use crate::context::QueueFamilies;
-use crate::testing::devices::recorded_devices;
+use crate::testing::devices::{family_properties, recorded_devices};
 use crate::TransferQueue;
 
 #[test]
@@ -144,16 +144,7 @@ fn linear_dispatches_stay_within_the_workgroup_counts() {
 #[test]
 fn the_transfer_queue_is_a_dma_engine_where_the_device_has_one() {
     for d in recorded_devices() {
-        let props: Vec<vk::QueueFamilyProperties> = d
-            .families
-            .iter()
-            .map(|f| vk::QueueFamilyProperties {
-                queue_flags: f.flags,
-                queue_count: f.count,
-                timestamp_valid_bits: f.timestamp_bits,
-                ..Default::default()
-            })
-            .collect();
+        let props = family_properties(&d.families);
         let auto = QueueFamilies::choose(props.clone(), d.label, TransferQueue::Auto).unwrap();
         let compute = &d.families[auto.compute as usize];
         assert!(

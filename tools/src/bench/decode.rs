@@ -99,22 +99,11 @@ struct Scene {
 fn scene(a: &Args, rng: &mut impl Rng) -> Scene {
     let (width, height) = (a.width as usize, a.height as usize);
     let dim = a.dim as usize;
-    let centres: Vec<Vec<f32>> = (0..32)
-        .map(|_| (0..dim).map(|_| rng.random_range(-1.0..1.0)).collect())
-        .collect();
-    let mut around = |rows: usize| -> Vec<f32> {
-        let mut out = Vec::with_capacity(rows * dim);
-        for _ in 0..rows {
-            let c = &centres[rng.random_range(0..centres.len())];
-            let v: Vec<f32> = c.iter().map(|x| x + rng.random_range(-0.5..0.5)).collect();
-            let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
-            out.extend(v.iter().map(|x| x / n));
-        }
-        out
-    };
-    let atoms = around(a.atoms as usize);
-    let targets = around(a.regions as usize);
-    let texts = around(a.texts as usize);
+    // Clustered like real region embeddings, as `bench latent` makes them.
+    let centres = super::latent::directions(dim, rng);
+    let atoms = super::latent::rows_around(&centres, a.atoms as usize, rng);
+    let targets = super::latent::rows_around(&centres, a.regions as usize, rng);
+    let texts = super::latent::rows_around(&centres, a.texts as usize, rng);
     let w: Vec<f32> = (0..QUERY_DIM * dim)
         .map(|_| rng.random_range(-0.5..0.5))
         .collect();

@@ -77,14 +77,14 @@ fn unit_rows(rows: usize, dim: usize, rng: &mut impl Rng) -> Vec<f32> {
 }
 
 /// 32 random directions in `dim` dimensions (nearly orthogonal).
-fn directions(dim: usize, rng: &mut impl Rng) -> Vec<Vec<f32>> {
+pub(super) fn directions(dim: usize, rng: &mut impl Rng) -> Vec<Vec<f32>> {
     (0..32)
         .map(|_| (0..dim).map(|_| rng.random_range(-1.0..1.0)).collect())
         .collect()
 }
 
 /// Unit rows each near one of `centres` (cosine about 0.8 to it).
-fn rows_around(centres: &[Vec<f32>], rows: usize, rng: &mut impl Rng) -> Vec<f32> {
+pub(super) fn rows_around(centres: &[Vec<f32>], rows: usize, rng: &mut impl Rng) -> Vec<f32> {
     let dim = centres[0].len();
     let mut out = Vec::with_capacity(rows * dim);
     for _ in 0..rows {

@@ -55,6 +55,19 @@ fn family(flags: vk::QueueFlags, count: u32, timestamp_bits: u32) -> Family {
     }
 }
 
+/// `families` as `vkGetPhysicalDeviceQueueFamilyProperties` returns them.
+pub fn family_properties(families: &[Family]) -> Vec<vk::QueueFamilyProperties> {
+    families
+        .iter()
+        .map(|f| vk::QueueFamilyProperties {
+            queue_flags: f.flags,
+            queue_count: f.count,
+            timestamp_valid_bits: f.timestamp_bits,
+            ..Default::default()
+        })
+        .collect()
+}
+
 /// The fields every record states; the rest follow from them.
 struct Report {
     label: &'static str,
@@ -78,16 +91,7 @@ struct Report {
 impl Report {
     fn record(self) -> RecordedDevice {
         let (major, minor, patch) = self.api;
-        let all: Vec<vk::QueueFamilyProperties> = self
-            .families
-            .iter()
-            .map(|f| vk::QueueFamilyProperties {
-                queue_flags: f.flags,
-                queue_count: f.count,
-                timestamp_valid_bits: f.timestamp_bits,
-                ..Default::default()
-            })
-            .collect();
+        let all = family_properties(&self.families);
         let chosen =
             crate::context::QueueFamilies::choose(all, self.label, crate::TransferQueue::Auto)
                 .expect("every recorded device has a compute family");
