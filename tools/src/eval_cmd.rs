@@ -383,7 +383,7 @@ fn print_summary(r: &EvalReport) {
     );
     let stride = match r.pixel_stride {
         1 => "every pixel".to_string(),
-        n => format!("every {n}th pixel and row"),
+        n => format!("every {n}-th pixel and row"),
     };
     println!(
         "protocol: per pixel ({stride}); {:.0} ms per frame",
