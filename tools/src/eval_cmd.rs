@@ -383,7 +383,7 @@ fn print_summary(r: &EvalReport) {
     );
     let stride = match r.pixel_stride {
         1 => "every pixel".to_string(),
-        n => format!("every {n}-th pixel and row"),
+        n => format!("every {} pixel and row", ordinal(n)),
     };
     println!(
         "protocol: per pixel ({stride}); {:.0} ms per frame",
@@ -418,3 +418,16 @@ fn print_split(k: &Group, n: &Group) {
         println!("  {name:<14} {:>12} {:>12}", opt(a), opt(b));
     }
 }
+
+/// `n` as an English ordinal: 2nd, 3rd, 4th, 11th, 21st.
+fn ordinal(n: u64) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (_, 11..=13) => "th",
+        (1, _) => "st",
+        (2, _) => "nd",
+        (3, _) => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
+}
+
