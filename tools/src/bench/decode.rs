@@ -223,7 +223,7 @@ pub fn run(a: Args) -> Result<()> {
         report.device_ms_median, report.device_gpu_ms_median, report.device_multiply_adds_per_pixel
     );
     println!(
-        "  CPU:    {:.0} ms (measured on {measured} pixels, every {stride} pixels in each of every {stride} rows)",
+        "  CPU:    {:.0} ms (measured on {measured} pixels, one pixel in each {stride}×{stride} block)",
         report.host_ms_estimated
     );
     println!("  mean cosine loss, device - CPU: {difference:.2e}");
