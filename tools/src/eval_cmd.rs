@@ -430,4 +430,3 @@ fn ordinal(n: u64) -> String {
     };
     format!("{n}{suffix}")
 }
-
