@@ -382,8 +382,10 @@ pub fn folder_version(dir: &Path) -> Option<String> {
 ///
 /// ```no_run
 /// use latentam_core::mapper::read_one_version;
-/// let report = read_one_version("runs/kitchen".as_ref(), || {
-///     Ok(std::fs::read_to_string("runs/kitchen/report.json")?)
+/// let dir = std::path::Path::new("runs/kitchen");
+/// let report = read_one_version(dir, || {
+///     let path = dir.join("report.json");
+///     std::fs::read_to_string(&path).map_err(|source| latentam_core::Error::Io { path, source })
 /// })?;
 /// # Ok::<(), latentam_core::Error>(())
 /// ```
