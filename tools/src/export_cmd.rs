@@ -80,7 +80,7 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
 
 pub fn run(args: Args) -> Result<()> {
     if !(args.temperature > 0.0 && args.temperature.is_finite()) {
-        bail!("--temperature must be positive");
+        bail!("--temperature must be positive and finite, got {} (a value past f32's range reads as inf)", args.temperature);
     }
     if args.frame_id.trim().is_empty() {
         bail!("--frame-id must name a frame");

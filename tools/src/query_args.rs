@@ -102,7 +102,7 @@ impl QueryArgs {
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
                 if !(self.temperature > 0.0 && self.temperature.is_finite()) {
-                    bail!("--temperature must be positive");
+                    bail!("--temperature must be positive and finite, got {} (a value past f32's range reads as inf)", self.temperature);
                 }
                 let text = match TextQuery::vocabulary_word(&vocab, name, self.temperature) {
                     Ok(t) => t,

@@ -743,6 +743,12 @@ fn query_render_and_export_misuse_are_clear_errors() {
             "--temperature must be positive",
         ),
         (
+            // Past f32's range: infinite, and said so.
+            by_name("ball", 22, &["--temperature", "1e308"]),
+            1,
+            "must be positive and finite, got inf",
+        ),
+        (
             vec![
                 os("query"),
                 plain.as_os_str(),

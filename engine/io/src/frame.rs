@@ -134,9 +134,15 @@ pub enum DepthData {
         /// Metres per unit (0.001 for millimetres).
         metres_per_unit: f32,
     },
-    /// Metres (`32FC1`); 0, NaN, ±∞ and negatives are invalid.
+    /// Metres (`32FC1`); 0, NaN, ±∞, negatives and values below
+    /// [`MIN_DEPTH_M`] (denormals) are invalid.
     Metres(Vec<f32>),
 }
+
+/// Smallest depth in metres a `32FC1` sample may hold and count: a tenth
+/// of a millimetre, far below what any RGB-D sensor measures (denormal
+/// floats and −0.0 are not measurements).
+pub const MIN_DEPTH_M: f32 = 1e-4;
 
 /// A depth image.
 ///
@@ -177,7 +183,7 @@ impl DepthImage {
             }
             DepthData::Metres(values) => values[i],
         };
-        (z.is_finite() && z > 0.0).then_some(z)
+        (z.is_finite() && z >= MIN_DEPTH_M).then_some(z)
     }
     /// All samples in metres, invalid ones as 0 (the engine's convention).
     pub fn to_metres(&self) -> Vec<f32> {
@@ -219,7 +225,7 @@ impl DepthImage {
     pub fn has_valid_sample(&self) -> bool {
         match &self.data {
             DepthData::Units { values, .. } => values.iter().any(|&v| v != 0),
-            DepthData::Metres(values) => values.iter().any(|z| z.is_finite() && *z > 0.0),
+            DepthData::Metres(values) => values.iter().any(|z| z.is_finite() && *z >= MIN_DEPTH_M),
         }
     }
 }
@@ -476,4 +482,30 @@ pub struct Frame {
     pub embeddings: Option<Embeddings>,
     /// Semantic class ids for evaluation, when the log has them.
     pub semantic: Option<LabelImage>,
+}
+
+#[cfg(test)]
+mod depth_tests {
+    use super::*;
+
+    /// Denormal floats and −0.0 in a `32FC1` image are not depth: a frame
+    /// of them has no valid sample (and is refused as such), not points at
+    /// the camera centre.
+    #[test]
+    fn denormal_and_negative_zero_depth_is_invalid() {
+        let tiny = f32::from_bits(1); // the smallest denormal
+        let depth = DepthImage {
+            width: 4,
+            height: 1,
+            data: DepthData::Metres(vec![tiny, -0.0, 1e-39, f32::MIN_POSITIVE]),
+        };
+        assert!(!depth.has_valid_sample());
+        assert_eq!(depth.to_metres(), vec![0.0; 4]);
+        let near = DepthImage {
+            width: 1,
+            height: 1,
+            data: DepthData::Metres(vec![0.25]),
+        };
+        assert_eq!(near.metres(0), Some(0.25));
+    }
 }

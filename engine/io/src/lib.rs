@@ -55,7 +55,7 @@ mod writer;
 pub use class_names::{parse_class_names, read_class_names, CLASS_NAMES_METADATA};
 pub use frame::{
     decode_floats, embedding_space, encode_floats, CameraPose, ColorImage, DepthData, DepthImage,
-    Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
+    Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat, MIN_DEPTH_M,
 };
 pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, TopicChoice, Topics};
 pub use input::{check_input_file, open_input, read_input, read_input_to_string};

@@ -88,7 +88,10 @@ pub fn run(args: Args) -> Result<()> {
         bail!("--map-points must be at least 1");
     }
     if !(args.temperature > 0.0 && args.temperature.is_finite()) {
-        bail!("--temperature must be positive");
+        bail!(
+            "--temperature must be positive and finite, got {} (a value past f32's range reads as inf)",
+            args.temperature
+        );
     }
     if !args.live.live_words.is_empty() {
         // The vocabulary arrives on a topic after the view starts.

@@ -276,7 +276,7 @@ impl FrameAssembler {
             DepthData::Metres(m) => (
                 m.iter()
                     .map(|&z| {
-                        if z.is_finite() && z > 0.0 {
+                        if z.is_finite() && z >= crate::MIN_DEPTH_M {
                             (z * 1000.0).round().clamp(1.0, u16::MAX as f32) as u16
                         } else {
                             0
