@@ -138,8 +138,18 @@ fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_
     };
     let report: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
-    if let (Some(ours), Some(theirs)) = (state_run_id, report["run_id"].as_str()) {
-        if ours != theirs {
+    // A state with a run id was written with its report: a report without
+    // one (or with one that is not a string) is not that run's either.
+    if let Some(ours) = state_run_id {
+        let theirs = match &report["run_id"] {
+            serde_json::Value::String(s) => latentam_base::text::shown(s),
+            serde_json::Value::Null => "no run id".to_string(),
+            other => format!(
+                "a run id that is not text, {}",
+                latentam_base::text::shown(&other.to_string())
+            ),
+        };
+        if report["run_id"].as_str() != Some(ours) {
             bail!(
                 "{}: report.json was written by another run ({theirs}) than the state ({ours}); \
                  the folder mixes two runs",
