@@ -55,6 +55,21 @@ fn options(kind: &str, embeddings: EmbeddingSource, max_frames: Option<usize>) -
     }
 }
 
+/// The shared 7-Scenes frames converted into `out` with `options`.
+fn convert_seven_scenes(
+    out: &Path,
+    options: ConvertOptions,
+) -> latentam_cli::convert::ConvertSummary {
+    let src = shared_data("7scenes-redkitchen");
+    convert(
+        datasets::seven_scenes(&src, 30.0).unwrap(),
+        &options,
+        out,
+        |_, _| {},
+    )
+    .unwrap()
+}
+
 fn frames_of(path: &Path) -> (Vec<Frame>, latentam_io::IngestReport) {
     let mut it = McapFrames::open(path, AssemblyConfig::default()).unwrap();
     let frames: Vec<Frame> = (&mut it).map(|f| f.unwrap()).collect();
@@ -176,20 +191,16 @@ fn cross_view_psnr(a: &Frame, b: &Frame) -> f64 {
 /// unregistered (measured: 2.5-4.5 dB better, docs/quality.md "Map fidelity").
 #[test]
 fn seven_scenes_depth_is_registered_to_colour() {
-    let src = shared_data("7scenes-redkitchen");
     let dir = TempDir::new("7s-registered");
     let frames = |registration, name: &str| {
         let out = dir.join(name);
-        let summary = convert(
-            datasets::seven_scenes(&src, 30.0).unwrap(),
-            &ConvertOptions {
+        let summary = convert_seven_scenes(
+            &out,
+            ConvertOptions {
                 registration,
                 ..options("7scenes", EmbeddingSource::None, Some(41))
             },
-            &out,
-            |_, _| {},
-        )
-        .unwrap();
+        );
         assert!(
             summary.notes.iter().any(|n| n.contains("registered")),
             "{:?}",
@@ -233,20 +244,16 @@ fn seven_scenes_depth_is_registered_to_colour() {
 /// itself, sample for sample, so the two map alike.
 #[test]
 fn seven_scenes_as_a_raw_depth_bag_reads_as_the_registered_log() {
-    let src = shared_data("7scenes-redkitchen");
     let dir = TempDir::new("7s-raw-bag");
     let write = |raw_depth, name: &str| {
         let out = dir.join(name);
-        convert(
-            datasets::seven_scenes(&src, 30.0).unwrap(),
-            &ConvertOptions {
+        convert_seven_scenes(
+            &out,
+            ConvertOptions {
                 raw_depth,
                 ..options("7scenes", EmbeddingSource::None, Some(12))
             },
-            &out,
-            |_, _| {},
-        )
-        .unwrap();
+        );
         out
     };
     let (registered, _) = frames_of(&write(false, "registered.mcap"));

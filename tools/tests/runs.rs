@@ -243,14 +243,16 @@ fn a_second_writer_is_refused_and_mixed_folders_do_not_load() {
         "{stderr}"
     );
     std::fs::copy(b.join("report.json"), mixed.join("report.json")).unwrap();
-    let eval = latentam()
-        .arg("eval")
-        .arg(&mixed)
-        .arg(&log)
-        .args(["--frames", "2"])
-        .output()
-        .unwrap();
-    failed_with(&eval, &["mixes two runs", "report.json"]);
+    let eval = || {
+        latentam()
+            .arg("eval")
+            .arg(&mixed)
+            .arg(&log)
+            .args(["--frames", "2"])
+            .output()
+            .unwrap()
+    };
+    failed_with(&eval(), &["mixes two runs", "report.json"]);
     // A report whose run id was removed, or made a number, is no better.
     let mut report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(b.join("report.json")).unwrap()).unwrap();
@@ -260,14 +262,7 @@ fn a_second_writer_is_refused_and_mixed_folders_do_not_load() {
     ] {
         report["run_id"] = id;
         std::fs::write(mixed.join("report.json"), report.to_string()).unwrap();
-        let eval = latentam()
-            .arg("eval")
-            .arg(&mixed)
-            .arg(&log)
-            .args(["--frames", "2"])
-            .output()
-            .unwrap();
-        failed_with(&eval, &["mixes two runs", says]);
+        failed_with(&eval(), &["mixes two runs", says]);
     }
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -993,28 +993,36 @@ fn depth_from_another_lens_is_registered_from_the_log_itself() {
         translation: offset,
         rotation: DQuat::from_rotation_y(0.05),
     };
-    write_log(
-        &path,
-        &Spec {
-            depth_frame: "depth_optical",
-            ..Spec::default()
-        },
-        &|log, i, t| {
-            if i == 0 {
+    // A log whose depth lens has its camera info, and with `tf` the
+    // static transform that places it.
+    let raw_log = |path: &Path, tf: bool| {
+        write_log(
+            path,
+            &Spec {
+                depth_frame: "depth_optical",
+                ..Spec::default()
+            },
+            &|log, i, t| {
+                if i > 0 {
+                    return;
+                }
                 let info = CameraInfo::pinhole(Header::at(t, "depth_optical"), W, H, depth_lens);
                 log.write("/camera/depth/camera_info", t as u64, &info)
                     .unwrap();
-                let s = TfMessage {
-                    transforms: vec![TransformStamped {
-                        header: Header::at(0, "cam"),
-                        child_frame_id: "depth_optical",
-                        transform: mount,
-                    }],
-                };
-                log.write("/tf_static", t as u64, &s).unwrap();
-            }
-        },
-    );
+                if tf {
+                    let s = TfMessage {
+                        transforms: vec![TransformStamped {
+                            header: Header::at(0, "cam"),
+                            child_frame_id: "depth_optical",
+                            transform: mount,
+                        }],
+                    };
+                    log.write("/tf_static", t as u64, &s).unwrap();
+                }
+            },
+        )
+    };
+    raw_log(&path, true);
     let (registered, report) = read_all(&path, AssemblyConfig::default());
     assert_eq!(registered.len(), 6, "{report}");
     assert!(report.warnings.is_empty(), "{report}");
@@ -1062,20 +1070,7 @@ fn depth_from_another_lens_is_registered_from_the_log_itself() {
     assert!(moved > 0, "registration moved no depth sample");
     // Without the transform, the warning names what is missing.
     let path = dir.path().join("no-tf.mcap");
-    write_log(
-        &path,
-        &Spec {
-            depth_frame: "depth_optical",
-            ..Spec::default()
-        },
-        &|log, i, t| {
-            if i == 0 {
-                let info = CameraInfo::pinhole(Header::at(t, "depth_optical"), W, H, depth_lens);
-                log.write("/camera/depth/camera_info", t as u64, &info)
-                    .unwrap();
-            }
-        },
-    );
+    raw_log(&path, false);
     let (_, report) = read_all(&path, AssemblyConfig::default());
     assert!(report.notes.is_empty(), "{report}");
     assert!(

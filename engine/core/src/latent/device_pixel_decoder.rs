@@ -353,7 +353,7 @@ impl DevicePixelDecoder {
             ));
         }
         // A table of one zero row stands for "no targets" (never read).
-        let mut unit_targets = unit_rows(pixels.targets, dim);
+        let (mut unit_targets, _) = unit_rows(pixels.targets, dim);
         if unit_targets.is_empty() {
             unit_targets = vec![0.0; dim];
         }
@@ -371,7 +371,7 @@ impl DevicePixelDecoder {
         let text_buffers = if texts > 0 {
             let rows = batch as u64;
             Some((
-                ctx.upload_new("pixel_decoder/texts", &unit_rows(pixels.texts, dim))?,
+                ctx.upload_new("pixel_decoder/texts", &unit_rows(pixels.texts, dim).0)?,
                 Buffer::device(ctx, "pixel_decoder/text_dots", rows * texts as u64 * 4)?,
                 Buffer::device(ctx, "pixel_decoder/best_value", rows * 4)?,
                 Buffer::device(ctx, "pixel_decoder/best_text", rows * 4)?,
@@ -554,15 +554,18 @@ impl Batch {
     }
 }
 
-/// Rows of `dim` values scaled to unit length (zero rows stay zero).
-fn unit_rows(rows: &[f32], dim: usize) -> Vec<f32> {
+/// Rows of `dim` values scaled to unit length (in f64), and which had a
+/// length to scale (a zero or non-finite row stays as zeros and is not).
+pub(crate) fn unit_rows(rows: &[f32], dim: usize) -> (Vec<f32>, Vec<bool>) {
     let mut out = Vec::with_capacity(rows.len());
+    let mut valid = Vec::with_capacity(rows.len() / dim.max(1));
     for r in rows.chunks_exact(dim) {
         let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
+        valid.push(n > 0.0 && n.is_finite());
         let s = if n > 0.0 { 1.0 / n } else { 0.0 };
         out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
     }
-    out
+    (out, valid)
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@ mod query_init;
 mod relevance;
 
 pub use decoder::{AttentionDecoder, DecoderConfig, DecoderGrads, DecoderParams};
+pub(crate) use device_pixel_decoder::unit_rows;
 pub use device_pixel_decoder::{DecodedPixels, DevicePixelDecoder, PixelsToDecode, TextOutput};
 pub use head::{LatentHead, LatentHeadConfig};
 pub use host_decoder::HostDecoder;

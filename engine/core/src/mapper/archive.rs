@@ -86,14 +86,8 @@ impl ArchiveWriter {
         self.meta.insert("version".into(), version.to_string());
         // A CRC-32 of every tensor's bytes, in name order (the order
         // safetensors lays them out in is its own), checked at load.
-        self.tensors.sort_by(|a, b| a.0.cmp(&b.0));
-        let mut crc = crc32fast::Hasher::new();
-        for (name, _, _, data) in &self.tensors {
-            crc.update(name.as_bytes());
-            crc.update(data);
-        }
-        self.meta
-            .insert(CHECKSUM_KEY.into(), format!("{:08x}", crc.finalize()));
+        let sum = checksum(self.tensors.iter().map(|(n, _, _, d)| (n.as_str(), &d[..])));
+        self.meta.insert(CHECKSUM_KEY.into(), sum);
         let views = self
             .tensors
             .iter()
@@ -130,6 +124,20 @@ struct Entry {
     shape: Vec<usize>,
     /// Byte range within the whole file (header included).
     range: std::ops::Range<usize>,
+}
+
+/// The archive checksum of `tensors` (name, bytes): a CRC-32 over every
+/// name and its bytes in name order (the order safetensors lays them out
+/// in is its own), as 8 hexadecimal digits.
+pub(crate) fn checksum<'b>(tensors: impl Iterator<Item = (&'b str, &'b [u8])>) -> String {
+    let mut sorted: Vec<_> = tensors.collect();
+    sorted.sort_by_key(|(name, _)| *name);
+    let mut crc = crc32fast::Hasher::new();
+    for (name, data) in sorted {
+        crc.update(name.as_bytes());
+        crc.update(data);
+    }
+    format!("{:08x}", crc.finalize())
 }
 
 /// Reads only the header of the archive at `path` and checks that its
@@ -317,14 +325,11 @@ impl<'a> Archive<'a> {
             )));
         }
         if let Some(want) = meta.get(CHECKSUM_KEY) {
-            let mut names: Vec<&String> = tensors.keys().collect();
-            names.sort();
-            let mut crc = crc32fast::Hasher::new();
-            for name in names {
-                crc.update(name.as_bytes());
-                crc.update(&bytes[tensors[name].range.clone()]);
-            }
-            let got = format!("{:08x}", crc.finalize());
+            let got = checksum(
+                tensors
+                    .iter()
+                    .map(|(n, t)| (n.as_str(), &bytes[t.range.clone()])),
+            );
             if *want != got {
                 let want: String = want.chars().take(16).collect();
                 return Err(Error::InvalidArgument(format!(

@@ -65,32 +65,20 @@ fn random_tensor(header: &Map<String, Value>, rng: &mut impl Rng) -> String {
 /// covers the checksum itself.
 fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
     let mut header = header.clone();
-    let mut names: Vec<String> = header
-        .keys()
-        .filter(|k| *k != "__metadata__")
-        .cloned()
+    let tensors: Option<Vec<(&str, &[u8])>> = header
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .map(|(name, t)| {
+            let o = t["data_offsets"].as_array()?;
+            let range = o.first()?.as_u64()? as usize..o.get(1)?.as_u64()? as usize;
+            Some((name.as_str(), data.get(range)?))
+        })
         .collect();
-    names.sort();
-    let mut crc = crc32fast::Hasher::new();
-    let mut whole = true;
-    for name in &names {
-        let range = header[name]["data_offsets"]
-            .as_array()
-            .and_then(|o| Some(o.first()?.as_u64()? as usize..o.get(1)?.as_u64()? as usize));
-        match range.and_then(|r| data.get(r)) {
-            Some(bytes) => {
-                crc.update(name.as_bytes());
-                crc.update(bytes);
+    if let Some(sum) = tensors.map(|t| crate::mapper::archive::checksum(t.into_iter())) {
+        if let Some(Value::Object(meta)) = header.get_mut("__metadata__") {
+            if meta.contains_key("crc32") {
+                meta.insert("crc32".into(), Value::String(sum));
             }
-            None => whole = false,
-        }
-    }
-    if let (true, Some(Value::Object(meta))) = (whole, header.get_mut("__metadata__")) {
-        if meta.contains_key("crc32") {
-            meta.insert(
-                "crc32".into(),
-                Value::String(format!("{:08x}", crc.finalize())),
-            );
         }
     }
     let h = serde_json::to_vec(&header).unwrap();

@@ -13,7 +13,9 @@
 use std::collections::BTreeMap;
 
 use super::class_iou::{add_iou, count_pixel, ClassCounts};
-use crate::latent::{DevicePixelDecoder, FactorisedDecoder, PixelsToDecode, TextOutput, NO_REGION};
+use crate::latent::{
+    unit_rows, DevicePixelDecoder, FactorisedDecoder, PixelsToDecode, TextOutput, NO_REGION,
+};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
 use latentam_gpu::Context;
@@ -184,19 +186,6 @@ fn check_inputs(v: &PixelInputs, dim: usize) -> Result<()> {
     Ok(())
 }
 
-/// Rows of `dim` scaled to unit length, and which had a length to scale.
-fn unit_rows(rows: &[f32], dim: usize) -> (Vec<f32>, Vec<bool>) {
-    let mut out = Vec::with_capacity(rows.len());
-    let mut valid = Vec::new();
-    for r in rows.chunks_exact(dim) {
-        let n = r.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
-        valid.push(n > 0.0 && n.is_finite());
-        let s = if n > 0.0 { 1.0 / n } else { 0.0 };
-        out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
-    }
-    (out, valid)
-}
-
 /// What a view's pixels are scored against, projected onto the atoms once.
 struct Scored<'a> {
     /// Each region's unit target, projected (`atoms` values per region).
@@ -226,11 +215,8 @@ fn metrics_of_rows(
     for &y in rows {
         for x in (0..v.width).step_by(stride) {
             let p = y * v.width + x;
-            let r = v.region[p];
-            let target = (r != NO_REGION && scored.has_target.get(r as usize) == Some(&true))
-                .then_some(r as usize);
+            let (target, classify) = pixel_role(v, p, &scored.has_target, scored.ids);
             let truth = v.truth[p];
-            let classify = truth != 0 && scored.ids.contains(&truth);
             if target.is_none() && !classify {
                 continue;
             }
@@ -252,6 +238,22 @@ fn metrics_of_rows(
         }
     }
     m
+}
+
+/// What pixel `p` of `v` is evaluated for: the row of its region's target
+/// (a region with a target), and whether it is classified (a true class
+/// the vocabulary `ids` names). Neither: the pixel is left out.
+fn pixel_role(
+    v: &PixelInputs,
+    p: usize,
+    has_target: &[bool],
+    ids: &[u16],
+) -> (Option<usize>, bool) {
+    let r = v.region[p];
+    let target =
+        (r != NO_REGION && has_target.get(r as usize) == Some(&true)).then_some(r as usize);
+    let truth = v.truth[p];
+    (target, truth != 0 && ids.contains(&truth))
 }
 
 /// ⟨e, t̂⟩ / ‖e‖ (0 for a zero embedding).
@@ -286,11 +288,7 @@ pub fn pixel_metrics_on_device(
 ) -> Result<PixelMetrics> {
     let dim = dec.dim() as usize;
     check_inputs(v, dim)?;
-    let has_target: Vec<bool> = v
-        .targets
-        .chunks_exact(dim)
-        .map(|t| t.iter().any(|&x| x != 0.0))
-        .collect();
+    let (_, has_target) = unit_rows(v.targets, dim);
     let (ids, texts) = v.vocabulary.unwrap_or((&[], &[]));
     // The evaluated pixels, as pixel_metrics picks them.
     let stride = v.stride.max(1);
@@ -299,16 +297,14 @@ pub fn pixel_metrics_on_device(
     for y in (0..v.height).step_by(stride) {
         for x in (0..v.width).step_by(stride) {
             let p = y * v.width + x;
-            let r = v.region[p];
-            let target = r != NO_REGION && has_target.get(r as usize) == Some(&true);
-            let truth = v.truth[p];
-            if target || (truth != 0 && ids.contains(&truth)) {
-                picked.push(p);
-                region.push(if target { r } else { NO_REGION });
+            let (target, classify) = pixel_role(v, p, &has_target, ids);
+            if target.is_some() || classify {
+                picked.push((p, classify));
+                region.push(target.map_or(NO_REGION, |r| r as u32));
             }
         }
     }
-    let queries: Vec<[f32; QUERY_DIM]> = picked.iter().map(|&p| v.queries[p]).collect();
+    let queries: Vec<[f32; QUERY_DIM]> = picked.iter().map(|&(p, _)| v.queries[p]).collect();
     let decoded = dec.decode(
         ctx,
         &PixelsToDecode {
@@ -320,12 +316,15 @@ pub fn pixel_metrics_on_device(
         },
     )?;
     let mut m = PixelMetrics::default();
-    for (i, &p) in picked.iter().enumerate() {
+    for (i, &(p, classify)) in picked.iter().enumerate() {
         let cosine = (region[i] != NO_REGION)
             .then(|| cosine_of(decoded.target_dot[i] as f64, decoded.norm[i] as f64));
-        let truth = v.truth[p];
-        let class = (truth != 0 && ids.contains(&truth))
-            .then(|| (truth, decoded.best_text.get(i).map(|&c| ids[c as usize])));
+        let class = classify.then(|| {
+            (
+                v.truth[p],
+                decoded.best_text.get(i).map(|&c| ids[c as usize]),
+            )
+        });
         add_pixel(&mut m, cosine, class);
     }
     Ok(m)
@@ -341,22 +340,34 @@ mod tests {
     use latentam_reference::decoder::DecoderShape;
     use latentam_reference::metrics as reference;
 
-    #[test]
-    fn per_pixel_metrics_match_the_explicit_reference() {
-        let mut r = rng("per_pixel_metrics");
-        let (w_px, h_px, dim, k) = (11usize, 7usize, 24usize, 9usize);
-        let n = w_px * h_px;
-        let w: Vec<f32> = (0..QUERY_DIM * dim)
-            .map(|_| r.random_range(-0.5..0.5))
-            .collect();
-        let d: Vec<f32> = (0..k * dim).map(|_| r.random_range(-1.0..1.0)).collect();
-        let queries: Vec<[f32; QUERY_DIM]> = (0..n)
+    /// A random decoder and view of `n` pixels: 5 regions, the last
+    /// without a target, a fifth of the pixels in none; true classes 1..=6,
+    /// of which the vocabulary names 1..=4.
+    struct RandomView {
+        w: Vec<f32>,
+        d: Vec<f32>,
+        queries: Vec<[f32; QUERY_DIM]>,
+        targets: Vec<f32>,
+        region: Vec<u32>,
+        truth: Vec<u16>,
+        ids: [u16; 4],
+        texts: Vec<f32>,
+    }
+
+    fn random_view(r: &mut impl Rng, n: usize, dim: usize, k: usize) -> RandomView {
+        let mut values = |count: usize, half: f32| -> Vec<f32> {
+            (0..count).map(|_| r.random_range(-half..half)).collect()
+        };
+        let w = values(QUERY_DIM * dim, 0.5);
+        let d = values(k * dim, 1.0);
+        let mut targets = values(5 * dim, 1.0);
+        targets[4 * dim..].fill(0.0);
+        let ids = [1u16, 2, 3, 4];
+        let texts = values(ids.len() * dim, 1.0);
+        let queries = (0..n)
             .map(|_| std::array::from_fn(|_| r.random_range(-1.0..1.0)))
             .collect();
-        // 5 regions, the last without a target; some pixels in none.
-        let mut targets: Vec<f32> = (0..5 * dim).map(|_| r.random_range(-1.0..1.0)).collect();
-        targets[4 * dim..].fill(0.0);
-        let region: Vec<u32> = (0..n)
+        let region = (0..n)
             .map(|_| {
                 if r.random_bool(0.2) {
                     NO_REGION
@@ -365,12 +376,34 @@ mod tests {
                 }
             })
             .collect();
-        // Classes 1..=6; the vocabulary names 1..=4.
-        let truth: Vec<u16> = (0..n).map(|_| r.random_range(0..7)).collect();
-        let ids = [1u16, 2, 3, 4];
-        let texts: Vec<f32> = (0..ids.len() * dim)
-            .map(|_| r.random_range(-1.0..1.0))
-            .collect();
+        let truth = (0..n).map(|_| r.random_range(0..7)).collect();
+        RandomView {
+            w,
+            d,
+            queries,
+            targets,
+            region,
+            truth,
+            ids,
+            texts,
+        }
+    }
+
+    #[test]
+    fn per_pixel_metrics_match_the_explicit_reference() {
+        let mut r = rng("per_pixel_metrics");
+        let (w_px, h_px, dim, k) = (11usize, 7usize, 24usize, 9usize);
+        let n = w_px * h_px;
+        let RandomView {
+            w,
+            d,
+            queries,
+            targets,
+            region,
+            truth,
+            ids,
+            texts,
+        } = random_view(&mut r, n, dim, k);
         let dec = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
         let inputs = PixelInputs {
             width: w_px,
@@ -528,27 +561,18 @@ mod tests {
     fn device_decoding_gives_the_host_metrics() {
         let mut r = rng("device_pixel_metrics");
         let (w_px, h_px, dim, k) = (40usize, 30usize, 48usize, 37usize);
-        let n = w_px * h_px;
-        let w: Vec<f32> = (0..QUERY_DIM * dim)
-            .map(|_| r.random_range(-0.5..0.5))
-            .collect();
-        let d: Vec<f32> = (0..k * dim).map(|_| r.random_range(-1.0..1.0)).collect();
-        let queries: Vec<[f32; QUERY_DIM]> = (0..n)
-            .map(|_| std::array::from_fn(|_| r.random_range(-1.0..1.0)))
-            .collect();
-        let mut targets: Vec<f32> = (0..5 * dim).map(|_| r.random_range(-1.0..1.0)).collect();
-        targets[4 * dim..].fill(0.0);
-        let region: Vec<u32> = (0..n)
-            .map(|_| match r.random_range(0..7u32) {
-                6 => NO_REGION,
-                x => x, // 5: past the targets, no target
-            })
-            .collect();
-        let truth: Vec<u16> = (0..n).map(|_| r.random_range(0..7)).collect();
-        let ids = [1u16, 2, 3, 4];
-        let texts: Vec<f32> = (0..ids.len() * dim)
-            .map(|_| r.random_range(-1.0..1.0))
-            .collect();
+        let RandomView {
+            w,
+            d,
+            queries,
+            targets,
+            mut region,
+            truth,
+            ids,
+            texts,
+        } = random_view(&mut r, w_px * h_px, dim, k);
+        // Some pixels in region 5, past the targets: no target.
+        region.iter_mut().step_by(7).for_each(|g| *g = 5);
         let host = FactorisedDecoder::new(&w, &d, dim, 0.05, 1e-6).unwrap();
         latentam_gpu::testing::with_context(|ctx| {
             let wb = ctx.upload_new("w", &w).unwrap();

@@ -441,12 +441,7 @@ fn check_committable(dir: &Path, parent: &Path, name: &str) -> Result<()> {
 /// [`RUN_MARKER`] with a run id (`expected`, when given).
 fn holds_marker(dir: &Path, expected: Option<&str>) -> bool {
     let is_dir = std::fs::symlink_metadata(dir).is_ok_and(|m| m.is_dir());
-    let marker = dir.join(RUN_MARKER);
-    let is_file = std::fs::symlink_metadata(&marker).is_ok_and(|m| m.is_file() && m.len() <= 64);
-    if !(is_dir && is_file) {
-        return false;
-    }
-    let Ok(id) = std::fs::read_to_string(&marker) else {
+    let Some(id) = folder_version(dir).filter(|_| is_dir) else {
         return false;
     };
     let well_formed = !id.is_empty() && id.bytes().all(|b| b.is_ascii_hexdigit());

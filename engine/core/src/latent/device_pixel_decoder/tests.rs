@@ -239,44 +239,29 @@ fn bad_pixels_are_errors() {
         let mut dec = decoder(ctx, &c);
         let good = pixels(&c, TextOutput::Best);
         let far = vec![6u32; 10]; // 6 targets: rows 0..=5
-        assert!(dec
-            .decode(
-                ctx,
-                &PixelsToDecode {
-                    region: &far,
-                    ..good
-                }
-            )
-            .is_err());
-        assert!(dec
-            .decode(
-                ctx,
-                &PixelsToDecode {
-                    region: &far[..3],
-                    ..good
-                }
-            )
-            .is_err());
-        assert!(dec
-            .decode(
-                ctx,
-                &PixelsToDecode {
-                    texts: &c.texts[..5],
-                    ..good
-                }
-            )
-            .is_err());
         let mut nan = c.queries.clone();
         nan[3][7] = f32::NAN;
-        assert!(dec
-            .decode(
-                ctx,
-                &PixelsToDecode {
-                    queries: &nan,
-                    ..good
-                }
-            )
-            .is_err());
+        let bad = [
+            PixelsToDecode {
+                region: &far,
+                ..good
+            },
+            PixelsToDecode {
+                region: &far[..3],
+                ..good
+            },
+            PixelsToDecode {
+                texts: &c.texts[..5],
+                ..good
+            },
+            PixelsToDecode {
+                queries: &nan,
+                ..good
+            },
+        ];
+        for pixels in &bad {
+            assert!(dec.decode(ctx, pixels).is_err(), "{pixels:?}");
+        }
         assert!(dec.decode(ctx, &good).is_ok());
         let w = ctx.upload_new("w", &c.w).unwrap();
         let d = ctx.upload_new("d", &c.d).unwrap();
