@@ -108,25 +108,7 @@ pub fn run(args: Args) -> Result<()> {
         quiet: true,
     })?;
 
-    let vocab = read_vocabulary(&log, "/vocabulary")?;
-    let class = vocab.as_ref().and_then(|v| v.names.first().cloned());
-    if let Some(name) = &class {
-        println!("4/4 querying the map for `{name}` and drawing a held-out view");
-        crate::query_cmd::run(crate::query_cmd::Args {
-            dir: run_dir.clone(),
-            query: crate::query_args::QueryArgs {
-                embedding: None,
-                name: Some(name.clone()),
-                vocabulary: Some(log.clone()),
-                temperature: 0.1,
-            },
-            vocabulary_topic: "/vocabulary".into(),
-            out: None,
-            top: 5,
-            view: None,
-            png: None,
-        })?;
-    }
+    let class = query_first_class(&log, &run_dir)?;
 
     // One held-out view (frame 2 was not a keyframe) as pictures.
     let preview = args.out.join("preview.png");
@@ -142,6 +124,44 @@ pub fn run(args: Args) -> Result<()> {
     for line in table.lines().take(9) {
         println!("  {line}");
     }
+    print_outputs(&log, &run_dir, &eval_json, &preview, class.as_deref());
+    print_next_steps(&log, &run_dir, class.as_deref());
+    Ok(())
+}
+
+/// Step 4: queries the map for the vocabulary's first class, which it
+/// returns (`None` for a log without a vocabulary).
+fn query_first_class(log: &Path, run_dir: &Path) -> Result<Option<String>> {
+    let vocab = read_vocabulary(log, "/vocabulary")?;
+    let class = vocab.as_ref().and_then(|v| v.names.first().cloned());
+    if let Some(name) = &class {
+        println!("4/4 querying the map for `{name}` and drawing a held-out view");
+        crate::query_cmd::run(crate::query_cmd::Args {
+            dir: run_dir.to_path_buf(),
+            query: crate::query_args::QueryArgs {
+                embedding: None,
+                name: Some(name.clone()),
+                vocabulary: Some(log.to_path_buf()),
+                temperature: 0.1,
+            },
+            vocabulary_topic: "/vocabulary".into(),
+            out: None,
+            top: 5,
+            view: None,
+            png: None,
+        })?;
+    }
+    Ok(class)
+}
+
+/// The files the demo wrote, each with what it is.
+fn print_outputs(
+    log: &Path,
+    run_dir: &Path,
+    eval_json: &Path,
+    preview: &Path,
+    class: Option<&str>,
+) {
     println!("outputs:");
     println!("  {}  (the scene log)", log.display());
     for f in RUN_FILES.iter().chain(&["heatmap.ply"]) {
@@ -154,13 +174,17 @@ pub fn run(args: Args) -> Result<()> {
     println!(
         "  {}  (held-out frame {PREVIEW_FRAME}: input, rendered map, {})",
         preview.display(),
-        class.as_ref().map_or_else(
+        class.map_or_else(
             || "rendered depth".to_string(),
             |c| format!("relevance of `{c}`")
         )
     );
+}
+
+/// Commands to go on with, on the demo's own files.
+fn print_next_steps(log: &Path, run_dir: &Path, class: Option<&str>) {
     println!("next:");
-    if let Some(name) = &class {
+    if let Some(name) = class {
         println!(
             "  latentam query {} --name {name} --vocabulary {}",
             run_dir.display(),
@@ -182,7 +206,6 @@ pub fn run(args: Args) -> Result<()> {
         "  open {} in a 3DGS viewer (e.g. SuperSplat)",
         run_dir.join("map.ply").display()
     );
-    Ok(())
 }
 
 /// The frame the preview shows: not a keyframe (every 4th frame is).

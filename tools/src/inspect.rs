@@ -1,8 +1,8 @@
 //! `latentam inspect`: what a log holds and what the engine makes of it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use latentam_io::{McapFrames, McapLog};
+use latentam_io::{McapFrames, McapLog, Metadata};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -74,51 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     if args.json {
-        let topics: Vec<_> = channels
-            .iter()
-            .map(|c| {
-                serde_json::json!({
-                    "topic": c.topic,
-                    "type": c.schema_name,
-                    "count": log.message_count(&c.topic),
-                })
-            })
-            .collect();
-        let meta: serde_json::Map<String, serde_json::Value> = metadata
-            .iter()
-            .flat_map(|(name, values)| {
-                values
-                    .iter()
-                    .map(move |(k, v)| (format!("{name}.{k}"), shown(v).into()))
-            })
-            .collect();
-        let t = frames.topics();
-        let pose = match &t.pose {
-            latentam_io::PoseSource::Topic(p) => p.clone(),
-            latentam_io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
-                "/tf (from the root of the tree)".into()
-            }
-            latentam_io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
-        };
-        let doc = serde_json::json!({
-            "log": args.log.display().to_string(),
-            "files_without_summary": log.unindexed_files().len(),
-            "duration_s": range.map(|(a, b)| b.saturating_sub(a) as f64 * 1e-9),
-            "topics": topics,
-            "metadata": meta,
-            "streams": {
-                "color": t.color,
-                "depth": t.depth,
-                "camera_info": t.camera_info,
-                "pose": pose,
-                "embeddings": t.embeddings,
-                "semantic": t.semantic,
-                "vocabulary": t.vocabulary,
-            },
-            "chosen_by_type": frames.topic_plan(),
-            "frame_size": sizes.map(|(w, h)| [w, h]),
-            "ingest": frames.report(),
-        });
+        let doc = json_document(&args.log, &log, &metadata, &frames, sizes);
         println!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
         print!("{}", frames.report());
@@ -138,6 +94,64 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(e) => anyhow::bail!("the log is damaged: {e}"),
         None => Ok(()),
     }
+}
+
+/// What `inspect --json` prints: topics, metadata, the streams chosen,
+/// the frame size and the ingest report.
+fn json_document(
+    path: &Path,
+    log: &McapLog,
+    metadata: &[(String, Metadata)],
+    frames: &McapFrames,
+    sizes: Option<(u32, u32)>,
+) -> serde_json::Value {
+    let channels = log.channels();
+    let range = log.time_range();
+    let topics: Vec<_> = channels
+        .iter()
+        .map(|c| {
+            serde_json::json!({
+                "topic": c.topic,
+                "type": c.schema_name,
+                "count": log.message_count(&c.topic),
+            })
+        })
+        .collect();
+    let meta: serde_json::Map<String, serde_json::Value> = metadata
+        .iter()
+        .flat_map(|(name, values)| {
+            values
+                .iter()
+                .map(move |(k, v)| (format!("{name}.{k}"), shown(v).into()))
+        })
+        .collect();
+    let t = frames.topics();
+    let pose = match &t.pose {
+        latentam_io::PoseSource::Topic(p) => p.clone(),
+        latentam_io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
+            "/tf (from the root of the tree)".into()
+        }
+        latentam_io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
+    };
+    serde_json::json!({
+        "log": path.display().to_string(),
+        "files_without_summary": log.unindexed_files().len(),
+        "duration_s": range.map(|(a, b)| b.saturating_sub(a) as f64 * 1e-9),
+        "topics": topics,
+        "metadata": meta,
+        "streams": {
+            "color": t.color,
+            "depth": t.depth,
+            "camera_info": t.camera_info,
+            "pose": pose,
+            "embeddings": t.embeddings,
+            "semantic": t.semantic,
+            "vocabulary": t.vocabulary,
+        },
+        "chosen_by_type": frames.topic_plan(),
+        "frame_size": sizes.map(|(w, h)| [w, h]),
+        "ingest": frames.report(),
+    })
 }
 
 #[cfg(test)]

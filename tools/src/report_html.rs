@@ -157,27 +157,9 @@ fn escape(text: &str) -> String {
 
 const MIB: f64 = 1024.0 * 1024.0;
 
-/// The whole page for `report`.
-pub fn report_html(report: &RunReport) -> Result<String> {
-    let kfs = &report.keyframe_reports;
-    let mut html = String::new();
-    let ending = serde_json::to_value(&report.ending)?;
-    let ending = ending
-        .as_str()
-        .map_or_else(|| ending.to_string(), str::to_string);
-    write!(
-        html,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
-         <title>latentam run {id}</title><style>\
-         body{{font-family:sans-serif;max-width:940px;margin:2em auto;color:#222}}\
-         table{{border-collapse:collapse;margin:1em 0}}\
-         td,th{{padding:2px 10px;border-bottom:1px solid #ddd;text-align:right}}\
-         td:first-child,th:first-child{{text-align:left}}\
-         figure{{margin:1.5em 0}}</style></head><body>\n\
-         <h1>latentam run</h1>\n<table>\n",
-        id = escape(&report.run_id)
-    )?;
-    let rows: [(&str, String); 11] = [
+/// The summary table's rows: what ran, how it ended, time and memory.
+fn summary_rows(report: &RunReport, ending: String) -> [(&'static str, String); 11] {
+    [
         ("run id", report.run_id.clone()),
         ("log", report.log.clone()),
         ("device", report.device.clone()),
@@ -220,17 +202,11 @@ pub fn report_html(report: &RunReport) -> Result<String> {
                 report.host_waits_per_keyframe.stage_one_and_two_max
             ),
         ),
-    ];
-    for (k, v) in rows {
-        writeln!(
-            html,
-            "<tr><th>{}</th><td>{}</td></tr>",
-            escape(k),
-            escape(&v)
-        )?;
-    }
-    html.push_str("</table>\n");
+    ]
+}
 
+/// Time by stage, memory and Gaussians after each keyframe, as SVG plots.
+fn write_plots(html: &mut String, kfs: &[KeyframeReport]) -> Result<()> {
     if kfs.is_empty() {
         html.push_str("<p>No keyframe was mapped: there is nothing to plot.</p>\n");
     } else {
@@ -282,7 +258,11 @@ pub fn report_html(report: &RunReport) -> Result<String> {
             )?;
         }
     }
+    Ok(())
+}
 
+/// The slowest kernels with their share of the run's wall time.
+fn write_kernel_table(html: &mut String, report: &RunReport) -> Result<()> {
     let mut kernels: Vec<_> = report.kernels.iter().collect();
     kernels.sort_by(|a, b| b.1.total_ms.total_cmp(&a.1.total_ms));
     if kernels.is_empty() {
@@ -307,6 +287,42 @@ pub fn report_html(report: &RunReport) -> Result<String> {
         }
         html.push_str("</table>\n");
     }
+    Ok(())
+}
+
+/// The whole page for `report`.
+pub fn report_html(report: &RunReport) -> Result<String> {
+    let mut html = String::new();
+    let ending = serde_json::to_value(&report.ending)?;
+    let ending = ending
+        .as_str()
+        .map_or_else(|| ending.to_string(), str::to_string);
+    write!(
+        html,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
+         <title>latentam run {id}</title><style>\
+         body{{font-family:sans-serif;max-width:940px;margin:2em auto;color:#222}}\
+         table{{border-collapse:collapse;margin:1em 0}}\
+         td,th{{padding:2px 10px;border-bottom:1px solid #ddd;text-align:right}}\
+         td:first-child,th:first-child{{text-align:left}}\
+         figure{{margin:1.5em 0}}</style></head><body>\n\
+         <h1>latentam run</h1>\n<table>\n",
+        id = escape(&report.run_id)
+    )?;
+    let rows = summary_rows(report, ending);
+    for (k, v) in rows {
+        writeln!(
+            html,
+            "<tr><th>{}</th><td>{}</td></tr>",
+            escape(k),
+            escape(&v)
+        )?;
+    }
+    html.push_str("</table>\n");
+
+    write_plots(&mut html, &report.keyframe_reports)?;
+
+    write_kernel_table(&mut html, report)?;
     html.push_str("</body></html>\n");
     Ok(html)
 }

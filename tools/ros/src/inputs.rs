@@ -103,6 +103,40 @@ fn now_ns() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
+/// A thread that sends every sample of `channel` (read with its topic's
+/// QoS profile) to the assembler's queue as `(index, bytes, arrival)`,
+/// until the queue is gone.
+fn spawn_reader(
+    dds: &Dds,
+    channel: &Channel,
+    index: usize,
+    config: &AssemblyConfig,
+    to: mpsc::Sender<(usize, Vec<u8>, Instant)>,
+) -> anyhow::Result<()> {
+    let reader: RawReader = dds.reader(
+        &channel.topic,
+        &channel.schema_name,
+        profile_of(&channel.topic, config),
+    )?;
+    std::thread::Builder::new()
+        .name(format!("latentam-ros-in-{index}"))
+        .spawn(move || {
+            let mut stream = reader.async_sample_stream();
+            futures::executor::block_on(async {
+                while let Some(sample) = stream.next().await {
+                    let Ok(sample) = sample else { continue };
+                    if to
+                        .send((index, sample.into_value().0, Instant::now()))
+                        .is_err()
+                    {
+                        return;
+                    }
+                }
+            });
+        })?;
+    Ok(())
+}
+
 impl Inputs {
     /// Starts reading the planned topics into `live`.
     pub fn start(
@@ -123,22 +157,7 @@ impl Inputs {
             .collect();
         let (to_assembler, messages) = mpsc::channel::<(usize, Vec<u8>, Instant)>();
         for (i, c) in read.iter().enumerate() {
-            let reader: RawReader =
-                dds.reader(&c.topic, &c.schema_name, profile_of(&c.topic, config))?;
-            let to = to_assembler.clone();
-            std::thread::Builder::new()
-                .name(format!("latentam-ros-in-{i}"))
-                .spawn(move || {
-                    let mut stream = reader.async_sample_stream();
-                    futures::executor::block_on(async {
-                        while let Some(sample) = stream.next().await {
-                            let Ok(sample) = sample else { continue };
-                            if to.send((i, sample.into_value().0, Instant::now())).is_err() {
-                                return;
-                            }
-                        }
-                    });
-                })?;
+            spawn_reader(dds, c, i, config, to_assembler.clone())?;
         }
         drop(to_assembler);
         let stats = Arc::new(Mutex::new(InputStats::default()));

@@ -262,6 +262,9 @@ impl Scene {
 
     /// The demo world. It has no random parts: seeds only change the
     /// trajectory noise and the embeddings.
+    //
+    // Long because it is data: every surface and object of the demo world
+    // in one place, to be read as a floor plan.
     pub fn two_rooms() -> Scene {
         let mut s = Scene {
             surfaces: Vec::new(),

@@ -270,24 +270,14 @@ fn bytes_u16(v: &[u16]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
-/// Writes the scene to `out`, calling `progress(frames_done)` after each
-/// frame.
-pub fn generate(
-    config: &SceneConfig,
-    out: &Path,
-    mut progress: impl FnMut(usize),
-) -> anyhow::Result<SceneSummary> {
-    check(config)?;
-    let scene = Scene::two_rooms();
-    let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
-    let partial = latentam_base::files::PartialFile::new(out)?;
-    let mut log = LogWriter::create(partial.path(), config.compression)
-        .with_context(|| format!("creating {}", partial.path().display()))?;
-    let (w, h) = (config.width, config.height);
-    let k = intrinsics(w, h);
-    let frame_id = "camera_color_optical_frame";
+type SceneLog = LogWriter<std::io::BufWriter<std::fs::File>>;
 
-    // Vocabulary: every class but "unlabelled".
+/// The vocabulary: every class but "unlabelled".
+fn write_vocabulary(
+    log: &mut SceneLog,
+    config: &SceneConfig,
+    class_vecs: &[Vec<f32>],
+) -> anyhow::Result<()> {
     let names: Vec<&str> = CLASSES[1..].to_vec();
     let ids: Vec<u16> = (1..CLASSES.len() as u16).collect();
     let vocab_data = encode_floats(&class_vecs[1..].concat(), config.dtype);
@@ -305,6 +295,67 @@ pub fn generate(
             model: MODEL,
         },
     )?;
+    Ok(())
+}
+
+/// Frame `i`'s region embeddings: its instances' masks made imperfect,
+/// one vector each, perturbed per view. Returns the number of regions.
+fn write_embeddings(
+    log: &mut SceneLog,
+    config: &SceneConfig,
+    view: &View,
+    instance_vecs: &[Vec<f32>],
+    i: usize,
+    header: Header<'_>,
+) -> anyhow::Result<usize> {
+    let (w, h) = (config.width, config.height);
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        config.seed ^ (0x5851_f42d_4c95_7f2d_u64.wrapping_mul(i as u64 + 1)),
+    );
+    let masks = imperfect_masks(&view.instance, w, h, config.mask_noise, &mut rng);
+    let (labels, order) = regions(&masks, config.min_region_pixels);
+    let vectors: Vec<f32> = order
+        .iter()
+        .flat_map(|&inst| perturbed(&instance_vecs[inst as usize], config.view_spread, &mut rng))
+        .collect();
+    let data = encode_floats(&vectors, config.dtype);
+    let label_bytes = bytes_u16(&labels);
+    log.write(
+        "/camera/embeddings",
+        header.stamp.as_nanos() as u64,
+        &MaskFeatures {
+            header,
+            height: h,
+            width: w,
+            labels: cdr::Seq::new(&label_bytes, cdr::Endian::Little),
+            count: order.len() as u32,
+            dim: config.dim as u32,
+            dtype: config.dtype.name(),
+            data: &data,
+            model: MODEL,
+        },
+    )?;
+    Ok(order.len())
+}
+
+/// Writes the scene to `out`, calling `progress(frames_done)` after each
+/// frame.
+pub fn generate(
+    config: &SceneConfig,
+    out: &Path,
+    mut progress: impl FnMut(usize),
+) -> anyhow::Result<SceneSummary> {
+    check(config)?;
+    let scene = Scene::two_rooms();
+    let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
+    let partial = latentam_base::files::PartialFile::new(out)?;
+    let mut log = LogWriter::create(partial.path(), config.compression)
+        .with_context(|| format!("creating {}", partial.path().display()))?;
+    let (w, h) = (config.width, config.height);
+    let k = intrinsics(w, h);
+    let frame_id = "camera_color_optical_frame";
+
+    write_vocabulary(&mut log, config, &class_vecs)?;
 
     let mut regions_total = 0;
     for i in 0..config.frames {
@@ -345,35 +396,7 @@ pub fn generate(
         let instance = bytes_u16(&view.instance);
         log.write("/camera/instances", t, &image("16UC1", &instance))?;
 
-        let mut rng = ChaCha8Rng::seed_from_u64(
-            config.seed ^ (0x5851_f42d_4c95_7f2d_u64.wrapping_mul(i as u64 + 1)),
-        );
-        let masks = imperfect_masks(&view.instance, w, h, config.mask_noise, &mut rng);
-        let (labels, order) = regions(&masks, config.min_region_pixels);
-        let vectors: Vec<f32> = order
-            .iter()
-            .flat_map(|&inst| {
-                perturbed(&instance_vecs[inst as usize], config.view_spread, &mut rng)
-            })
-            .collect();
-        let data = encode_floats(&vectors, config.dtype);
-        let label_bytes = bytes_u16(&labels);
-        log.write(
-            "/camera/embeddings",
-            t,
-            &MaskFeatures {
-                header,
-                height: h,
-                width: w,
-                labels: cdr::Seq::new(&label_bytes, cdr::Endian::Little),
-                count: order.len() as u32,
-                dim: config.dim as u32,
-                dtype: config.dtype.name(),
-                data: &data,
-                model: MODEL,
-            },
-        )?;
-        regions_total += order.len();
+        regions_total += write_embeddings(&mut log, config, &view, &instance_vecs, i, header)?;
         progress(i + 1);
     }
     let meta = BTreeMap::from([

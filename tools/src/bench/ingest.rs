@@ -95,7 +95,7 @@ struct Topics {
 }
 
 /// One frame set's serialized messages, in publication order.
-fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
+fn frame_set(b: &IngestBench, i: usize) -> FrameSet {
     let (w, h) = (b.width, b.height);
     let t = 1_700_000_000_000_000_000 + i as i64 * 33_333_333;
     let header = Header::at(t, "camera");
@@ -152,32 +152,13 @@ fn frame_set(b: &IngestBench, i: usize) -> Vec<(u8, i64, Vec<u8>)> {
     ]
 }
 
-pub fn run(b: IngestBench) -> Result<()> {
-    anyhow::ensure!(b.frames >= 4, "--frames must be at least 4");
-    let topics = Topics {
-        color: Channel::ros2("/camera/color/image_raw", Image::TYPE_NAME),
-        depth: Channel::ros2("/camera/depth/image_raw", Image::TYPE_NAME),
-        info: Channel::ros2("/camera/color/camera_info", CameraInfo::TYPE_NAME),
-        pose: Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
-        embeddings: Channel::ros2("/camera/embeddings", MaskFeatures::TYPE_NAME),
-    };
-    let by_role = [
-        &topics.color,
-        &topics.depth,
-        &topics.info,
-        &topics.pose,
-        &topics.embeddings,
-    ];
-    eprintln!(
-        "building {} frame sets of {}×{} …",
-        b.frames, b.width, b.height
-    );
-    let sets: Vec<_> = (0..b.frames).map(|i| frame_set(&b, i)).collect();
-    let set_bytes: usize = sets[0].iter().map(|m| m.2.len()).sum();
+/// A frame set: (role, stamp, serialized message) in publication order.
+type FrameSet = Vec<(u8, i64, Vec<u8>)>;
 
-    // Decode only.
+/// CPU time decoding each set's images and embeddings (zero-copy), µs.
+fn decode_times(sets: &[FrameSet]) -> Result<Vec<f64>> {
     let mut decode_us = Vec::new();
-    for set in &sets {
+    for set in sets {
         let t0 = thread_cpu_seconds();
         for (role, _, data) in set {
             match role {
@@ -192,49 +173,49 @@ pub fn run(b: IngestBench) -> Result<()> {
         }
         decode_us.push((thread_cpu_seconds() - t0) * 1e6);
     }
+    Ok(decode_us)
+}
 
-    // Assembly from serialized messages in memory, with frames recycled
-    // (steady state of a mapper that hands frames back) and without.
-    let assemble = |recycle: bool| -> Result<Vec<f64>> {
-        let mut assembler = FrameAssembler::new(AssemblyConfig::default(), true, false);
-        let mut times = Vec::new();
-        let mut frames_out = 0;
-        for set in &sets {
-            let t0 = thread_cpu_seconds();
-            for (role, t, data) in set {
-                assembler.push(RawMessage {
-                    channel: by_role[*role as usize],
-                    log_time: *t as u64,
-                    data,
-                })?;
-            }
-            while let Some(f) = assembler.pop() {
-                std::hint::black_box(&f);
-                frames_out += 1;
-                if recycle {
-                    assembler.recycle(f);
-                }
-            }
-            times.push((thread_cpu_seconds() - t0) * 1e3);
+/// CPU time assembling each set from its serialized messages, ms, frames
+/// handed back to the pool (`recycle`) or not; the first two sets, which
+/// only fill the pipeline and the pool, left out.
+fn assemble_times(sets: &[FrameSet], by_role: &[&Channel; 5], recycle: bool) -> Result<Vec<f64>> {
+    let mut assembler = FrameAssembler::new(AssemblyConfig::default(), true, false);
+    let mut times = Vec::new();
+    let mut frames_out = 0;
+    for set in sets {
+        let t0 = thread_cpu_seconds();
+        for (role, t, data) in set {
+            assembler.push(RawMessage {
+                channel: by_role[*role as usize],
+                log_time: *t as u64,
+                data,
+            })?;
         }
-        assembler.finish()?;
-        frames_out += std::iter::from_fn(|| assembler.pop()).count();
-        anyhow::ensure!(
-            frames_out == b.frames,
-            "assembled {frames_out} of {} frames: {}",
-            b.frames,
-            assembler.report()
-        );
-        // The first sets only fill the pipeline and the pool.
-        Ok(times[2..].to_vec())
-    };
-    let fresh = assemble(false)?;
-    let steady = assemble(true)?;
-    let mut sorted = steady.clone();
-    sorted.sort_by(f64::total_cmp);
-    let p90 = sorted[(sorted.len() * 9 / 10).min(sorted.len() - 1)];
+        while let Some(f) = assembler.pop() {
+            std::hint::black_box(&f);
+            frames_out += 1;
+            if recycle {
+                assembler.recycle(f);
+            }
+        }
+        times.push((thread_cpu_seconds() - t0) * 1e3);
+    }
+    assembler.finish()?;
+    frames_out += std::iter::from_fn(|| assembler.pop()).count();
+    anyhow::ensure!(
+        frames_out == sets.len(),
+        "assembled {frames_out} of {} frames: {}",
+        sets.len(),
+        assembler.report()
+    );
+    // The first sets only fill the pipeline and the pool.
+    Ok(times[2..].to_vec())
+}
 
-    // The whole path from a log.
+/// The whole path from a log, per chunk compression: the sets written to
+/// an MCAP file, then read back into frames (page cache warm).
+fn from_mcap_rows(sets: &[FrameSet], by_role: &[&Channel; 5]) -> Result<Vec<McapRow>> {
     let dir = std::env::temp_dir().join(format!("latentam-bench-ingest-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let mut from_mcap = Vec::new();
@@ -245,7 +226,7 @@ pub fn run(b: IngestBench) -> Result<()> {
     ] {
         let path = dir.join(format!("{name}.mcap"));
         let mut log = LogWriter::create(&path, compression)?;
-        for set in &sets {
+        for set in sets {
             for (role, t, data) in set {
                 let topic = &by_role[*role as usize].topic;
                 match role {
@@ -272,7 +253,11 @@ pub fn run(b: IngestBench) -> Result<()> {
         }
         let cpu = thread_cpu_seconds() - t0;
         let wall = wall.elapsed().as_secs_f64();
-        anyhow::ensure!(n == b.frames, "read {n} of {} frames from {name}", b.frames);
+        anyhow::ensure!(
+            n == sets.len(),
+            "read {n} of {} frames from {name}",
+            sets.len()
+        );
         from_mcap.push(McapRow {
             compression: name,
             file_mb,
@@ -282,23 +267,10 @@ pub fn run(b: IngestBench) -> Result<()> {
         let _ = std::fs::remove_file(&path);
     }
     let _ = std::fs::remove_dir(&dir);
+    Ok(from_mcap)
+}
 
-    let assemble = median(&steady);
-    let report = Report {
-        cpu: cpu_name(),
-        width: b.width,
-        height: b.height,
-        regions: b.regions,
-        dim: b.dim,
-        frames: b.frames,
-        frame_set_mb: set_bytes as f64 / 1e6,
-        decode_us_median: median(&decode_us),
-        assemble_ms_median: assemble,
-        assemble_ms_p90: p90,
-        assemble_fresh_buffers_ms_median: median(&fresh),
-        assemble_gbps: set_bytes as f64 / (assemble * 1e-3) / 1e9,
-        from_mcap,
-    };
+fn print_report(report: &Report) {
     println!(
         "ingest of {}×{} colour + 16UC1 depth + {} regions × {} f16 ({:.2} MB per frame set), {} frames, CPU: {}",
         report.width, report.height, report.regions, report.dim, report.frame_set_mb, report.frames, report.cpu
@@ -321,5 +293,59 @@ pub fn run(b: IngestBench) -> Result<()> {
             r.compression, r.cpu_ms_per_frame, r.wall_ms_per_frame, r.file_mb
         );
     }
+}
+
+pub fn run(b: IngestBench) -> Result<()> {
+    anyhow::ensure!(b.frames >= 4, "--frames must be at least 4");
+    let topics = Topics {
+        color: Channel::ros2("/camera/color/image_raw", Image::TYPE_NAME),
+        depth: Channel::ros2("/camera/depth/image_raw", Image::TYPE_NAME),
+        info: Channel::ros2("/camera/color/camera_info", CameraInfo::TYPE_NAME),
+        pose: Channel::ros2("/camera/pose", PoseStamped::TYPE_NAME),
+        embeddings: Channel::ros2("/camera/embeddings", MaskFeatures::TYPE_NAME),
+    };
+    let by_role = [
+        &topics.color,
+        &topics.depth,
+        &topics.info,
+        &topics.pose,
+        &topics.embeddings,
+    ];
+    eprintln!(
+        "building {} frame sets of {}×{} …",
+        b.frames, b.width, b.height
+    );
+    let sets: Vec<_> = (0..b.frames).map(|i| frame_set(&b, i)).collect();
+    let set_bytes: usize = sets[0].iter().map(|m| m.2.len()).sum();
+
+    let decode_us = decode_times(&sets)?;
+
+    // Assembly from serialized messages in memory, with frames recycled
+    // (steady state of a mapper that hands frames back) and without.
+    let fresh = assemble_times(&sets, &by_role, false)?;
+    let steady = assemble_times(&sets, &by_role, true)?;
+    let mut sorted = steady.clone();
+    sorted.sort_by(f64::total_cmp);
+    let p90 = sorted[(sorted.len() * 9 / 10).min(sorted.len() - 1)];
+
+    let from_mcap = from_mcap_rows(&sets, &by_role)?;
+
+    let assemble = median(&steady);
+    let report = Report {
+        cpu: cpu_name(),
+        width: b.width,
+        height: b.height,
+        regions: b.regions,
+        dim: b.dim,
+        frames: b.frames,
+        frame_set_mb: set_bytes as f64 / 1e6,
+        decode_us_median: median(&decode_us),
+        assemble_ms_median: assemble,
+        assemble_ms_p90: p90,
+        assemble_fresh_buffers_ms_median: median(&fresh),
+        assemble_gbps: set_bytes as f64 / (assemble * 1e-3) / 1e9,
+        from_mcap,
+    };
+    print_report(&report);
     write_json(b.json.as_deref(), &report)
 }

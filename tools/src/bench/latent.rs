@@ -18,6 +18,7 @@ use latentam_core::optim::{AdamGroup, AdamHyper};
 use latentam_core::splat::{BatchLayout, Camera, QUERY_DIM};
 use latentam_gpu::{Buffer, Context, Sample};
 use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::common::{
@@ -137,21 +138,151 @@ fn time_after(
     Ok(median(&times))
 }
 
+/// Streaming k-means on a full dictionary (the expensive regime), for
+/// regions of new concepts and of familiar ones: the medians in ms.
+fn kmeans_times(
+    ctx: &Context,
+    b: &LatentBench,
+    rng: &mut ChaCha8Rng,
+    per_kernel: &mut BTreeMap<&'static str, Vec<f64>>,
+) -> Result<(f64, f64)> {
+    let (n, k, d) = (b.regions as usize, b.atoms as usize, b.dim as usize);
+    let kcfg = KMeansConfig {
+        atoms: b.atoms,
+        dim: b.dim,
+        max_points: b.regions.max(1),
+        ..Default::default()
+    };
+    let kmeans = StreamingKMeans::new(ctx, kcfg)?;
+    // Regions of as many concepts the dictionary knows as the keyframe has
+    // micro-clusters (each micro-centre lands near atoms: no new concept),
+    // and regions in new directions (every micro-centre a new concept,
+    // which also needs the atoms' own K × K cosines).
+    let seen = directions(d, rng);
+    let atoms_host = rows_around(&seen, k, rng);
+    let kd = ctx.upload_new("bench/kmeans_atoms", &atoms_host)?;
+    let k_anchor = Buffer::device(ctx, "bench/kmeans_anchor", (k * d * 4) as u64)?;
+    let moved = Buffer::device(ctx, "bench/moved", (k * 4) as u64)?;
+    let known = &seen[..kcfg.micro_clusters.min(seen.len() as u32) as usize];
+    let familiar = ctx.upload_new("bench/familiar", &rows_around(known, n, rng))?;
+    let novel = ctx.upload_new("bench/novel", &unit_rows(n, d, rng))?;
+    let full_weights = vec![1.0f32; k];
+    let mut kmeans_time = |features: &Buffer| {
+        let reset = || {
+            ctx.upload(&kd, 0, &atoms_host)?;
+            kmeans.restore(ctx, b.atoms, &full_weights)
+        };
+        time_after(ctx, b.runs, per_kernel, reset, || {
+            let mut rec = ctx.recorder()?;
+            kmeans.record_update(&mut rec, features, None, b.regions, &kd, &k_anchor, &moved)?;
+            rec.submit()?.wait()
+        })
+    };
+    Ok((kmeans_time(&novel)?, kmeans_time(&familiar)?))
+}
+
+/// The image losses on one view, and SSIM alone (the sum of its four
+/// passes): the medians in ms.
+fn image_loss_times(
+    ctx: &Context,
+    b: &LatentBench,
+    rng: &mut ChaCha8Rng,
+    weights: LossWeights,
+    per_kernel: &mut BTreeMap<&'static str, Vec<f64>>,
+) -> Result<(f64, f64)> {
+    let layout = BatchLayout::for_cameras(&[Camera::at_origin(b.ssim_width, b.ssim_height)])?;
+    let pixels = layout.pixels;
+    let img = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<[f32; 4]> {
+        (0..pixels)
+            .map(|_| {
+                [
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..1.0),
+                    2.0,
+                ]
+            })
+            .collect()
+    };
+    let rendered = ctx.upload_new("bench/rendered", &img(rng))?;
+    let target = ctx.upload_new("bench/target", &img(rng))?;
+    let grad_img = Buffer::device(ctx, "bench/grad_image", pixels * 16)?;
+    let image_loss = ImageLoss::new(ctx, pixels, 1, weights)?;
+    let mut image_kernels = BTreeMap::new();
+    let image_ms = time(ctx, b.runs, &mut image_kernels, || {
+        let mut rec = ctx.recorder()?;
+        image_loss.record(&mut rec, &layout, &rendered, &target, &[pixels], &grad_img)?;
+        rec.submit()?.wait()
+    })?;
+    let ssim_runs: Vec<f64> = (0..b.runs)
+        .map(|r| {
+            image_kernels
+                .iter()
+                .filter(|(name, _)| name.starts_with("ssim_"))
+                .map(|(_, v)| v[r])
+                .sum()
+        })
+        .collect();
+    for (name, v) in image_kernels {
+        per_kernel.entry(name).or_default().extend(v);
+    }
+    Ok((image_ms, median(&ssim_runs)))
+}
+
+/// Floating-point operations of one decoder forward and backward pass
+/// over `n` regions, `k` atoms and `d`-d embeddings. Forward: E, S, F.
+/// Backward: dA, dD, dÊ, dD̂, dW, dQ.
+fn decode_flops(n: usize, k: usize, d: usize) -> f64 {
+    let (n, k, d, s) = (n as f64, k as f64, d as f64, QUERY_DIM as f64);
+    2.0 * (n * s * d + 2.0 * n * k * d) + 2.0 * (4.0 * n * k * d + 2.0 * n * s * d)
+}
+
+/// The report's figures on the terminal (the kernel table apart).
+fn print_report(r: &Report) {
+    println!(
+        "device: {}\ndecoder n={} K={} d_f={}: forward {:.3} ms, backward {:.3} ms GPU (median), \
+         {:.2} GFLOP/s",
+        r.device,
+        r.regions,
+        r.atoms,
+        r.dim,
+        r.decode_forward_ms_median,
+        r.decode_backward_ms_median,
+        r.decode_gflops
+    );
+    println!(
+        "Stage II iteration (decode, feature loss, backward, trust region, Adam W+D): {:.3} ms",
+        r.stage2_iteration_ms_median
+    );
+    println!(
+        "streaming k-means, full dictionary, {} regions: new concepts {:.3} ms, familiar ones \
+         {:.3} ms",
+        r.regions, r.kmeans_ms_median, r.kmeans_familiar_ms_median
+    );
+    println!(
+        "image loss {}x{}: {:.3} ms (SSIM forward+backward {:.3} ms)",
+        r.ssim_width, r.ssim_height, r.image_loss_ms_median, r.ssim_forward_backward_ms_median
+    );
+}
+
+/// A decoder sized for the benchmark's regions, atoms and dimension.
+fn decoder(ctx: &Context, b: &LatentBench) -> Result<AttentionDecoder> {
+    let config = DecoderConfig {
+        max_regions: b.regions,
+        max_atoms: b.atoms,
+        dim: b.dim,
+        ..Default::default()
+    };
+    Ok(AttentionDecoder::new(ctx, config)?)
+}
+
 pub fn run(b: LatentBench) -> Result<()> {
     let ctx = profiling_context()?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let (n, k, d) = (b.regions as usize, b.atoms as usize, b.dim as usize);
     let weights = LossWeights::default();
 
-    let dec = AttentionDecoder::new(
-        &ctx,
-        DecoderConfig {
-            max_regions: b.regions,
-            max_atoms: b.atoms,
-            dim: b.dim,
-            ..Default::default()
-        },
-    )?;
+    let dec = decoder(&ctx, &b)?;
     let queries = random_buffer(&ctx, "bench/queries", n * QUERY_DIM, 1.0, &mut rng)?;
     let w = random_buffer(&ctx, "bench/W", QUERY_DIM * d, 1.0, &mut rng)?;
     let atoms = ctx.upload_new("bench/D", &unit_rows(k, d, &mut rng))?;
@@ -212,84 +343,9 @@ pub fn run(b: LatentBench) -> Result<()> {
         rec.submit()?.wait()
     })?;
 
-    // Streaming k-means on a full dictionary (the expensive regime).
-    let kcfg = KMeansConfig {
-        atoms: b.atoms,
-        dim: b.dim,
-        max_points: b.regions.max(1),
-        ..Default::default()
-    };
-    let kmeans = StreamingKMeans::new(&ctx, kcfg)?;
-    // Regions of as many concepts the dictionary knows as the keyframe has
-    // micro-clusters (each micro-centre lands near atoms: no new concept),
-    // and regions in new directions (every micro-centre a new concept,
-    // which also needs the atoms' own K × K cosines).
-    let seen = directions(d, &mut rng);
-    let atoms_host = rows_around(&seen, k, &mut rng);
-    let kd = ctx.upload_new("bench/kmeans_atoms", &atoms_host)?;
-    let k_anchor = Buffer::device(&ctx, "bench/kmeans_anchor", (k * d * 4) as u64)?;
-    let moved = Buffer::device(&ctx, "bench/moved", (k * 4) as u64)?;
-    let known = &seen[..kcfg.micro_clusters.min(seen.len() as u32) as usize];
-    let familiar = ctx.upload_new("bench/familiar", &rows_around(known, n, &mut rng))?;
-    let novel = ctx.upload_new("bench/novel", &unit_rows(n, d, &mut rng))?;
-    let full_weights = vec![1.0f32; k];
-    let mut kmeans_time = |features: &Buffer| {
-        let reset = || {
-            ctx.upload(&kd, 0, &atoms_host)?;
-            kmeans.restore(&ctx, b.atoms, &full_weights)
-        };
-        time_after(&ctx, b.runs, &mut per_kernel, reset, || {
-            let mut rec = ctx.recorder()?;
-            kmeans.record_update(&mut rec, features, None, b.regions, &kd, &k_anchor, &moved)?;
-            rec.submit()?.wait()
-        })
-    };
-    let kmeans_ms = kmeans_time(&novel)?;
-    let kmeans_familiar_ms = kmeans_time(&familiar)?;
+    let (kmeans_ms, kmeans_familiar_ms) = kmeans_times(&ctx, &b, &mut rng, &mut per_kernel)?;
+    let (image_ms, ssim_ms) = image_loss_times(&ctx, &b, &mut rng, weights, &mut per_kernel)?;
 
-    // Image losses on one view; SSIM is the sum of its four passes.
-    let layout = BatchLayout::for_cameras(&[Camera::at_origin(b.ssim_width, b.ssim_height)])?;
-    let pixels = layout.pixels;
-    let img = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<[f32; 4]> {
-        (0..pixels)
-            .map(|_| {
-                [
-                    rng.random_range(0.0..1.0),
-                    rng.random_range(0.0..1.0),
-                    rng.random_range(0.0..1.0),
-                    2.0,
-                ]
-            })
-            .collect()
-    };
-    let rendered = ctx.upload_new("bench/rendered", &img(&mut rng))?;
-    let target = ctx.upload_new("bench/target", &img(&mut rng))?;
-    let grad_img = Buffer::device(&ctx, "bench/grad_image", pixels * 16)?;
-    let image_loss = ImageLoss::new(&ctx, pixels, 1, weights)?;
-    let mut image_kernels = BTreeMap::new();
-    let image_ms = time(&ctx, b.runs, &mut image_kernels, || {
-        let mut rec = ctx.recorder()?;
-        image_loss.record(&mut rec, &layout, &rendered, &target, &[pixels], &grad_img)?;
-        rec.submit()?.wait()
-    })?;
-    let ssim_runs: Vec<f64> = (0..b.runs)
-        .map(|r| {
-            image_kernels
-                .iter()
-                .filter(|(name, _)| name.starts_with("ssim_"))
-                .map(|(_, v)| v[r])
-                .sum()
-        })
-        .collect();
-    for (name, v) in image_kernels {
-        per_kernel.entry(name).or_default().extend(v);
-    }
-
-    let decode_flops = {
-        let (n, k, d, s) = (n as f64, k as f64, d as f64, QUERY_DIM as f64);
-        // Forward: E, S, F. Backward: dA, dD, dÊ, dD̂, dW, dQ.
-        2.0 * (n * s * d + 2.0 * n * k * d) + 2.0 * (4.0 * n * k * d + 2.0 * n * s * d)
-    };
     let report = Report {
         device: ctx.info().name.clone(),
         regions: b.regions,
@@ -300,30 +356,16 @@ pub fn run(b: LatentBench) -> Result<()> {
         runs: b.runs,
         decode_forward_ms_median: forward,
         decode_backward_ms_median: backward,
-        decode_gflops: decode_flops / ((forward + backward) * 1e-3) * 1e-9,
+        decode_gflops: decode_flops(n, k, d) / ((forward + backward) * 1e-3) * 1e-9,
         stage2_iteration_ms_median: stage2,
         kmeans_ms_median: kmeans_ms,
         kmeans_familiar_ms_median: kmeans_familiar_ms,
-        ssim_forward_backward_ms_median: median(&ssim_runs),
+        ssim_forward_backward_ms_median: ssim_ms,
         image_loss_ms_median: image_ms,
         // Every measured run of every operation above, pooled by kernel.
         kernels: kernel_rows(per_kernel, b.runs),
     };
-    println!(
-        "device: {}\ndecoder n={} K={} d_f={}: forward {:.3} ms, backward {:.3} ms GPU (median), \
-         {:.2} GFLOP/s",
-        report.device, b.regions, b.atoms, b.dim, forward, backward, report.decode_gflops
-    );
-    println!("Stage II iteration (decode, feature loss, backward, trust region, Adam W+D): {stage2:.3} ms");
-    println!(
-        "streaming k-means, full dictionary, {} regions: new concepts {kmeans_ms:.3} ms, \
-         familiar ones {kmeans_familiar_ms:.3} ms",
-        b.regions
-    );
-    println!(
-        "image loss {}x{}: {:.3} ms (SSIM forward+backward {:.3} ms)",
-        b.ssim_width, b.ssim_height, image_ms, report.ssim_forward_backward_ms_median
-    );
+    print_report(&report);
     print_kernel_rows(&report.kernels);
     write_json(b.json.as_deref(), &report)
 }

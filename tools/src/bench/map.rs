@@ -180,21 +180,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         (width, height) = (frame.color.width, frame.color.height);
         n += 1;
         if let Integrated::Keyframe(k) = mapper.integrate(&frame)? {
-            let k: &KeyframeReport = &k;
-            curve.push(CurvePoint {
-                keyframe: k.index,
-                frame: k.frame,
-                gaussians: k.gaussians,
-                resident: k.resident,
-                gpu_bytes: k.gpu_bytes,
-                cpu_bytes: k.cpu_bytes,
-                total_ms: k.timings.total_ms,
-                kmeans_ms: k.timings.kmeans_ms,
-                stage_one_ms: k.timings.stage_one_ms,
-                stage_two_ms: k.timings.stage_two_ms,
-                atoms: k.atoms,
-                stage_one_and_two_waits: k.gpu_calls.training().host_waits,
-            });
+            curve.push(CurvePoint::of(&k));
             gpu_calls.push(k.gpu_calls);
             kept.push(frame);
         }
@@ -208,41 +194,14 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
     let stats = mapper.stats();
     let keyframes = stats.keyframes;
 
-    // PSNR of re-rendered keyframes, spread over the run.
-    let every = (kept.len() / b.eval_keyframes.max(1)).max(1);
-    let mut psnr = Vec::new();
-    let vocabulary = read_vocabulary(path, &AssemblyConfig::default().topics.vocabulary)?;
-    let (mut cos, mut cos_pixels) = (0.0, 0u64);
-    let mut classes = std::collections::BTreeMap::new();
     if b.eval_keyframes > 0 {
         ctx.set_memory_budget(None);
-        for f in kept.iter().step_by(every).take(b.eval_keyframes) {
-            let m = mapper.evaluate(f, vocabulary.as_ref(), 1)?;
-            psnr.push(m.psnr);
-            if let Some(c) = m.cosine_loss {
-                cos += c * m.cosine_pixels as f64;
-                cos_pixels += m.cosine_pixels;
-            }
-            add_iou(&mut classes, &m.class_iou);
-        }
     }
+    let quality = keyframe_quality(&mut mapper, &kept, b.eval_keyframes, path)?;
     let t = &stats.timings;
     let hidden_share = match (t.paging_gpu_ms, t.paging_hidden_ms) {
         (Some(g), Some(h)) if g > 0.0 => Some(h / g),
         _ => None,
-    };
-    // Without embeddings there is no dictionary to fill.
-    let has_dictionary = curve.iter().any(|p| p.atoms > 0);
-    let phase = |full: bool| {
-        if !has_dictionary {
-            return None;
-        }
-        let points: Vec<&CurvePoint> = curve
-            .iter()
-            .skip(1)
-            .filter(|p| (p.atoms >= atoms) == full)
-            .collect();
-        Phase::of(&points)
     };
     let report = Report {
         device: ctx.info().name.clone(),
@@ -256,8 +215,8 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         ms_per_keyframe: t.per_keyframe(keyframes),
         gpu_calls_per_keyframe: latentam_core::mapper::HostWaits::of(&gpu_calls),
         atoms,
-        while_filling: phase(false),
-        once_full: phase(true),
+        while_filling: phase(&curve, atoms, false),
+        once_full: phase(&curve, atoms, true),
         paging_gpu_ms_total: t.paging_gpu_ms,
         paging_hidden_ms_total: t.paging_hidden_ms,
         paging_hidden_share: hidden_share,
@@ -270,10 +229,10 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         gaussians: stats.gaussians,
         evicted: stats.evicted,
         fetched: stats.fetched,
-        psnr_keyframes: (!psnr.is_empty()).then(|| psnr.iter().sum::<f64>() / psnr.len() as f64),
-        cosine_loss_keyframes: (cos_pixels > 0).then(|| cos / cos_pixels as f64),
-        miou_keyframes: mean_iou(&classes),
-        keyframes_evaluated: psnr.len(),
+        psnr_keyframes: quality.psnr,
+        cosine_loss_keyframes: quality.cosine_loss,
+        miou_keyframes: quality.miou,
+        keyframes_evaluated: quality.evaluated,
         curve,
     };
     print_report(&report);
@@ -282,6 +241,79 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
+}
+
+/// The keyframes after the first while the dictionary of `atoms` fills
+/// (`full` false) or once it is full; none without embeddings, which have
+/// no dictionary to fill.
+fn phase(curve: &[CurvePoint], atoms: u32, full: bool) -> Option<Phase> {
+    if !curve.iter().any(|p| p.atoms > 0) {
+        return None;
+    }
+    let points: Vec<&CurvePoint> = curve
+        .iter()
+        .skip(1)
+        .filter(|p| (p.atoms >= atoms) == full)
+        .collect();
+    Phase::of(&points)
+}
+
+impl CurvePoint {
+    fn of(k: &KeyframeReport) -> Self {
+        CurvePoint {
+            keyframe: k.index,
+            frame: k.frame,
+            gaussians: k.gaussians,
+            resident: k.resident,
+            gpu_bytes: k.gpu_bytes,
+            cpu_bytes: k.cpu_bytes,
+            total_ms: k.timings.total_ms,
+            kmeans_ms: k.timings.kmeans_ms,
+            stage_one_ms: k.timings.stage_one_ms,
+            stage_two_ms: k.timings.stage_two_ms,
+            atoms: k.atoms,
+            stage_one_and_two_waits: k.gpu_calls.training().host_waits,
+        }
+    }
+}
+
+/// Quality of re-rendered keyframes.
+struct Quality {
+    psnr: Option<f64>,
+    /// Per pixel, over every evaluated pixel.
+    cosine_loss: Option<f64>,
+    miou: Option<f64>,
+    evaluated: usize,
+}
+
+/// PSNR, cosine loss and mIoU of `count` of the `kept` keyframes, spread
+/// over the run, rendered from the map as it ends.
+fn keyframe_quality(
+    mapper: &mut Mapper,
+    kept: &[Frame],
+    count: usize,
+    path: &std::path::Path,
+) -> Result<Quality> {
+    let every = (kept.len() / count.max(1)).max(1);
+    let mut psnr = Vec::new();
+    let vocabulary = read_vocabulary(path, &AssemblyConfig::default().topics.vocabulary)?;
+    let (mut cos, mut cos_pixels) = (0.0, 0u64);
+    let mut classes = std::collections::BTreeMap::new();
+    for f in kept.iter().step_by(every).take(count) {
+        let m = mapper.evaluate(f, vocabulary.as_ref(), 1)?;
+        psnr.push(m.psnr);
+        if let Some(c) = m.cosine_loss {
+            cos += c * m.cosine_pixels as f64;
+            cos_pixels += m.cosine_pixels;
+        }
+        add_iou(&mut classes, &m.class_iou);
+    }
+    Ok(Quality {
+        psnr: (!psnr.is_empty()).then(|| psnr.iter().sum::<f64>() / psnr.len() as f64),
+        cosine_loss: (cos_pixels > 0).then(|| cos / cos_pixels as f64),
+        miou: mean_iou(&classes),
+        evaluated: psnr.len(),
+    })
 }
 
 fn print_report(r: &Report) {

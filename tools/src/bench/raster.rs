@@ -21,7 +21,7 @@ use serde::Serialize;
 
 use super::common::{
     kernel_rows, measure_bandwidth, measure_fma_peak, median, print_kernel_rows, profiling_context,
-    write_json, KernelRow,
+    write_json, KernelRow, Row,
 };
 
 /// Settings of one raster benchmark.
@@ -246,6 +246,80 @@ fn cameras(b: &RasterBench, rng: &mut impl Rng) -> Vec<Camera> {
         .collect()
 }
 
+/// GPU and wall times of every run (after a first, untimed one) of the
+/// forward and the backward pass, and each kernel's GPU times.
+struct Passes {
+    fwd: Vec<f64>,
+    bwd: Vec<f64>,
+    fwd_wall: Vec<f64>,
+    bwd_wall: Vec<f64>,
+    per_kernel: BTreeMap<&'static str, Vec<f64>>,
+}
+
+/// Times `b.runs` forward and backward passes over the benchmark's views;
+/// `upstream` holds the RGB-depth, alpha and query gradients fed back.
+fn time_passes(
+    ctx: &latentam_gpu::Context,
+    raster: &mut Rasterizer,
+    params: &GaussianBuffers,
+    grads: &GaussianBuffers,
+    b: &RasterBench,
+    cams: &[Camera],
+    upstream: &[Vec<f32>; 3],
+) -> Result<Passes> {
+    let mut fwd = Vec::new();
+    let mut bwd = Vec::new();
+    let mut fwd_wall = Vec::new();
+    let mut bwd_wall = Vec::new();
+    let mut per_kernel: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+    let gpu_ms = |samples: &[latentam_gpu::Sample]| -> f64 {
+        samples.iter().map(|s| s.duration_ns * 1e-6).sum()
+    };
+    let mut progress = latentam_cli::progress::Progress::new("bench raster", b.runs + 1);
+    for run in 0..=b.runs {
+        progress.set(run);
+        // Forward (its view upload included: it is part of every render).
+        ctx.profiler_reset();
+        let t = std::time::Instant::now();
+        raster.forward(params, b.gaussians, cams)?;
+        let fw = t.elapsed().as_secs_f64() * 1e3;
+        let mut samples = ctx.profiler_snapshot().samples().to_vec();
+        let f = gpu_ms(&samples);
+
+        let g = raster.image_grads()?;
+        ctx.upload(&g.rgbd, 0, &upstream[0])?;
+        ctx.upload(&g.alpha, 0, &upstream[1])?;
+        ctx.upload(g.query()?, 0, &upstream[2])?;
+        ctx.profiler_reset();
+        let t = std::time::Instant::now();
+        raster.backward(params, grads)?;
+        let bw = t.elapsed().as_secs_f64() * 1e3;
+        let backward_samples = ctx.profiler_snapshot().samples().to_vec();
+        let bk = gpu_ms(&backward_samples);
+        samples.extend(backward_samples);
+        if run > 0 {
+            fwd.push(f);
+            bwd.push(bk);
+            fwd_wall.push(fw);
+            bwd_wall.push(bw);
+            for s in samples {
+                per_kernel
+                    .entry(s.name)
+                    .or_default()
+                    .push(s.duration_ns * 1e-6);
+            }
+        }
+    }
+    progress.set(b.runs + 1);
+    Ok(Passes {
+        fwd,
+        bwd,
+        fwd_wall,
+        bwd_wall,
+        per_kernel,
+    })
+}
+
 pub fn run(b: RasterBench) -> Result<()> {
     let ctx = profiling_context()?;
     eprintln!(
@@ -276,50 +350,14 @@ pub fn run(b: RasterBench) -> Result<()> {
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();
 
-    let mut fwd = Vec::new();
-    let mut bwd = Vec::new();
-    let mut fwd_wall = Vec::new();
-    let mut bwd_wall = Vec::new();
-    let mut per_kernel: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-    let gpu_ms = |samples: &[latentam_gpu::Sample]| -> f64 {
-        samples.iter().map(|s| s.duration_ns * 1e-6).sum()
-    };
-    let mut progress = latentam_cli::progress::Progress::new("bench raster", b.runs + 1);
-    for run in 0..=b.runs {
-        progress.set(run);
-        // Forward (its view upload included: it is part of every render).
-        ctx.profiler_reset();
-        let t = std::time::Instant::now();
-        raster.forward(&params, b.gaussians, &cams)?;
-        let fw = t.elapsed().as_secs_f64() * 1e3;
-        let mut samples = ctx.profiler_snapshot().samples().to_vec();
-        let f = gpu_ms(&samples);
-
-        let g = raster.image_grads()?;
-        ctx.upload(&g.rgbd, 0, &up_rgbd)?;
-        ctx.upload(&g.alpha, 0, &up_alpha)?;
-        ctx.upload(g.query()?, 0, &up_query)?;
-        ctx.profiler_reset();
-        let t = std::time::Instant::now();
-        raster.backward(&params, &grads)?;
-        let bw = t.elapsed().as_secs_f64() * 1e3;
-        let backward_samples = ctx.profiler_snapshot().samples().to_vec();
-        let bk = gpu_ms(&backward_samples);
-        samples.extend(backward_samples);
-        if run > 0 {
-            fwd.push(f);
-            bwd.push(bk);
-            fwd_wall.push(fw);
-            bwd_wall.push(bw);
-            for s in samples {
-                per_kernel
-                    .entry(s.name)
-                    .or_default()
-                    .push(s.duration_ns * 1e-6);
-            }
-        }
-    }
-    progress.set(b.runs + 1);
+    let upstream = [up_rgbd, up_alpha, up_query];
+    let Passes {
+        fwd,
+        bwd,
+        fwd_wall,
+        bwd_wall,
+        per_kernel,
+    } = time_passes(&ctx, &mut raster, &params, &grads, &b, &cams, &upstream)?;
 
     let stats = raster.stats();
     // Work bound: every pixel of a tile walks (at most) the tile's list.
@@ -330,31 +368,8 @@ pub fn run(b: RasterBench) -> Result<()> {
     let copy = measure_bandwidth(&ctx, 64 << 20, b.runs)?;
     let fma = measure_fma_peak(&ctx, 4096, b.runs)?;
     let detach = raster.settings.detach_query_gradients;
-    let (f_ops, b_ops) = (
-        CostModel::forward_ops(&work),
-        CostModel::backward_ops(&work, detach),
-    );
-    let (f_bytes, b_bytes) = (
-        CostModel::forward_bytes(&work, stats.intersections),
-        CostModel::backward_bytes(&work, stats.intersections),
-    );
-    let bound_ms = ((f_ops + b_ops) / (fma.throughput * 1e9))
-        .max((f_bytes + b_bytes) / (copy.throughput * 1e9))
-        * 1e3;
     let measured_ms = median(&fwd) + median(&bwd);
-    let roofline = Roofline {
-        machine_gflops: fma.throughput,
-        machine_gbps: copy.throughput,
-        forward_gflop: f_ops * 1e-9,
-        backward_gflop: b_ops * 1e-9,
-        forward_mb: f_bytes * 1e-6,
-        backward_mb: b_bytes * 1e-6,
-        bound_ms,
-        measured_ms,
-        ratio: measured_ms / bound_ms,
-        ns_per_tested_pair: measured_ms * 1e6
-            / (work.tested_forward + work.tested_backward).max(1) as f64,
-    };
+    let roofline = Roofline::of(&work, stats.intersections, &copy, &fma, detach, measured_ms);
 
     let kernels = kernel_rows(per_kernel, b.runs);
     let report = Report {
@@ -377,27 +392,74 @@ pub fn run(b: RasterBench) -> Result<()> {
         kernels,
     };
 
+    print_report(&report);
+    print_kernel_rows(&report.kernels);
+    write_json(b.json.as_deref(), &report)?;
+    Ok(())
+}
+
+impl Roofline {
+    /// The bound of forward + backward on this machine (`copy` bandwidth,
+    /// `fma` rate) for `work` over `intersections` tile entries, against
+    /// the `measured_ms` GPU time.
+    fn of(
+        work: &Work,
+        intersections: u64,
+        copy: &Row,
+        fma: &Row,
+        detach: bool,
+        measured_ms: f64,
+    ) -> Roofline {
+        let (f_ops, b_ops) = (
+            CostModel::forward_ops(work),
+            CostModel::backward_ops(work, detach),
+        );
+        let (f_bytes, b_bytes) = (
+            CostModel::forward_bytes(work, intersections),
+            CostModel::backward_bytes(work, intersections),
+        );
+        let bound_ms = ((f_ops + b_ops) / (fma.throughput * 1e9))
+            .max((f_bytes + b_bytes) / (copy.throughput * 1e9))
+            * 1e3;
+        Roofline {
+            machine_gflops: fma.throughput,
+            machine_gbps: copy.throughput,
+            forward_gflop: f_ops * 1e-9,
+            backward_gflop: b_ops * 1e-9,
+            forward_mb: f_bytes * 1e-6,
+            backward_mb: b_bytes * 1e-6,
+            bound_ms,
+            measured_ms,
+            ratio: measured_ms / bound_ms,
+            ns_per_tested_pair: measured_ms * 1e6
+                / (work.tested_forward + work.tested_backward).max(1) as f64,
+        }
+    }
+}
+
+/// The report's figures on the terminal (the kernel table apart).
+fn print_report(r: &Report) {
     println!(
         "device: {}\n{} view(s) {}x{}, {} Gaussians: {} visible pairs, {} tile intersections, \
          {} pixel-Gaussian pairs",
-        report.device,
-        b.views,
-        b.width,
-        b.height,
-        b.gaussians,
-        report.visible,
-        report.intersections,
-        report.pixel_gaussian_pairs
+        r.device,
+        r.views,
+        r.width,
+        r.height,
+        r.gaussians,
+        r.visible,
+        r.intersections,
+        r.pixel_gaussian_pairs
     );
     println!(
         "forward  {:>10.3} ms GPU (median; wall {:.3} ms)\nbackward {:>10.3} ms GPU (median; wall \
          {:.3} ms)",
-        report.forward_ms_median,
-        report.forward_wall_ms_median,
-        report.backward_ms_median,
-        report.backward_wall_ms_median
+        r.forward_ms_median,
+        r.forward_wall_ms_median,
+        r.backward_ms_median,
+        r.backward_wall_ms_median
     );
-    let (w, r) = (&report.work, &report.roofline);
+    let (w, rl) = (&r.work, &r.roofline);
     println!(
         "blending work: {} pairs tested forward, {} backward, {} contributing ({:.1} per pixel)",
         w.tested_forward,
@@ -413,20 +475,17 @@ pub fn run(b: RasterBench) -> Result<()> {
         "machine: {:.1} GFLOP/s (FMA probe), {:.1} GB/s (copy); needed: forward {:.3} GFLOP \
          {:.1} MB, backward {:.3} GFLOP {:.1} MB\nbound {:.2} ms; measured {:.2} ms = {:.1}x the \
          bound ({:.1} ns per tested pair)",
-        r.machine_gflops,
-        r.machine_gbps,
-        r.forward_gflop,
-        r.forward_mb,
-        r.backward_gflop,
-        r.backward_mb,
-        r.bound_ms,
-        r.measured_ms,
-        r.ratio,
-        r.ns_per_tested_pair
+        rl.machine_gflops,
+        rl.machine_gbps,
+        rl.forward_gflop,
+        rl.forward_mb,
+        rl.backward_gflop,
+        rl.backward_mb,
+        rl.bound_ms,
+        rl.measured_ms,
+        rl.ratio,
+        rl.ns_per_tested_pair
     );
-    print_kernel_rows(&report.kernels);
-    write_json(b.json.as_deref(), &report)?;
-    Ok(())
 }
 
 /// Σ over tiles of list length × pixels in the tile, from the last forward.

@@ -1,5 +1,5 @@
 //! `latentam convert`: public RGB-D datasets to the engine's MCAP layout
-//! (DESIGN §3 topics), with embeddings from per-frame feature files or,
+//! (the topics of docs/input-logs.md), with embeddings from per-frame feature files or,
 //! for evaluation, oracle embeddings from label images.
 //!
 //! Colour files are copied into `CompressedImage` messages as they are
@@ -9,19 +9,15 @@
 pub mod datasets;
 pub mod features;
 pub mod npy;
+mod writing;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use latentam_io::{
-    cdr, codec, encode_floats, CameraInfo, CompressedImage, Compression, Dtype, FeatureGrid,
-    Header, Image, LogWriter, MaskFeatures, Pose, PoseStamped, TextEmbeddings, TfMessage,
-    TransformStamped, MAX_RECORD_BYTES,
-};
+use latentam_io::{codec, Compression, Dtype, MAX_RECORD_BYTES};
 
 pub use datasets::{Dataset, DepthCamera};
-use features::{FeatureDir, FrameFeatures, LoadedFeatures, Oracle};
+use features::{FeatureDir, Oracle};
 pub use latentam_io::DepthRegistration;
 
 /// Where a log's embeddings come from.
@@ -188,55 +184,18 @@ pub fn convert(
     out: &Path,
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<ConvertSummary> {
-    let depth_camera = match options.registration {
-        Registration::Dataset => dataset.depth_camera,
-        Registration::Off => None,
-        Registration::Given(c) => Some(c),
-    };
-    // Unregistered, the depth camera is the camera.
-    let recorded = match (options.registration, dataset.depth_camera) {
-        (Registration::Off, Some(c)) => Some(c.intrinsics),
-        _ => dataset.intrinsics,
-    };
-    let intrinsics = options
-        .intrinsics
-        .or(recorded)
-        .context("the dataset does not state its intrinsics; pass --intrinsics fx,fy,cx,cy")?;
-    check_intrinsics("intrinsics", &intrinsics)?;
-    if let Some(c) = &depth_camera {
-        check_intrinsics("depth intrinsics", &c.intrinsics)?;
-        let t = c.translation;
-        if !(t.is_finite() && t.length() <= 1.0) {
-            bail!("depth camera offset {t} m is not a lens beside the colour one (at most 1 m)");
-        }
-    }
-    let units = options
-        .depth_units_per_metre
-        .unwrap_or(dataset.depth_units_per_metre);
-    if !(units.is_finite() && units > 0.0) {
-        bail!("depth units per metre must be positive, got {units}");
-    }
+    let cameras = Cameras::resolve(&dataset, options)?;
     if let Some(n) = options.max_frames {
-        dataset.color.truncate(n);
-        if let Some(last) = dataset.color.last().map(|c| c.stamp_ns) {
-            // Depth within the pairing tolerance of the last frame, poses
-            // within the interpolation gap.
-            dataset
-                .depth
-                .retain(|d| d.stamp_ns <= last.saturating_add(20_000_000));
-            dataset
-                .poses
-                .retain(|p| p.0 <= last.saturating_add(200_000_000));
-        }
+        keep_first_frames(&mut dataset, n);
     }
     if dataset.color.is_empty() {
         bail!("no frames to convert");
     }
-    let registration = match depth_camera {
+    let registration = match cameras.depth {
         Some(c) => Some(register_to_colour(
             &mut dataset,
             &c,
-            intrinsics,
+            cameras.intrinsics,
             options.raw_depth,
         )?),
         None => {
@@ -249,7 +208,102 @@ pub fn convert(
             None
         }
     };
-    // ROS stamps are absolute times; datasets without them start at 0.
+    let summary = ConvertSummary {
+        skipped: std::mem::take(&mut dataset.skipped),
+        notes: std::mem::take(&mut dataset.notes),
+        ..ConvertSummary::default()
+    };
+    let (events, offset) = timeline(&dataset)?;
+    let partial = latentam_base::files::PartialFile::new(out)?;
+    let mut log = writing::LogOut::create(
+        partial.path(),
+        options,
+        &cameras,
+        registration,
+        offset,
+        summary,
+    )?;
+    log.write_start(dataset.color[0].stamp_ns)?;
+    let total = dataset.color.len();
+    for e in &events {
+        log.write_event(e)?;
+        if matches!(e, Event::Color(_)) {
+            progress(log.summary().frames, total);
+        }
+    }
+    let summary = log.finish()?;
+    partial.commit()?;
+    Ok(summary)
+}
+
+/// The cameras a conversion writes: the colour intrinsics, the depth
+/// camera to register from (if any) and depth units per metre, from the
+/// options where they say, else the dataset, each checked.
+struct Cameras {
+    intrinsics: [f64; 4],
+    depth: Option<DepthCamera>,
+    units_per_metre: f64,
+}
+
+impl Cameras {
+    fn resolve(dataset: &Dataset, options: &ConvertOptions) -> anyhow::Result<Self> {
+        let depth = match options.registration {
+            Registration::Dataset => dataset.depth_camera,
+            Registration::Off => None,
+            Registration::Given(c) => Some(c),
+        };
+        // Unregistered, the depth camera is the camera.
+        let recorded = match (options.registration, dataset.depth_camera) {
+            (Registration::Off, Some(c)) => Some(c.intrinsics),
+            _ => dataset.intrinsics,
+        };
+        let intrinsics = options
+            .intrinsics
+            .or(recorded)
+            .context("the dataset does not state its intrinsics; pass --intrinsics fx,fy,cx,cy")?;
+        check_intrinsics("intrinsics", &intrinsics)?;
+        if let Some(c) = &depth {
+            check_intrinsics("depth intrinsics", &c.intrinsics)?;
+            let t = c.translation;
+            if !(t.is_finite() && t.length() <= 1.0) {
+                bail!(
+                    "depth camera offset {t} m is not a lens beside the colour one (at most 1 m)"
+                );
+            }
+        }
+        let units_per_metre = options
+            .depth_units_per_metre
+            .unwrap_or(dataset.depth_units_per_metre);
+        if !(units_per_metre.is_finite() && units_per_metre > 0.0) {
+            bail!("depth units per metre must be positive, got {units_per_metre}");
+        }
+        Ok(Cameras {
+            intrinsics,
+            depth,
+            units_per_metre,
+        })
+    }
+}
+
+/// Keeps the first `n` colour frames, and the depth and poses that can
+/// still pair with them: depth within the pairing tolerance of the last
+/// frame, poses within the interpolation gap.
+fn keep_first_frames(dataset: &mut Dataset, n: usize) {
+    dataset.color.truncate(n);
+    if let Some(last) = dataset.color.last().map(|c| c.stamp_ns) {
+        dataset
+            .depth
+            .retain(|d| d.stamp_ns <= last.saturating_add(20_000_000));
+        dataset
+            .poses
+            .retain(|p| p.0 <= last.saturating_add(200_000_000));
+    }
+}
+
+/// Every colour image, depth image and pose of `dataset` in time order,
+/// and the offset added to their stamps: ROS stamps are absolute times, so
+/// a dataset whose stamps start near 0 is moved to [`latentam_cli_epoch`].
+fn timeline(dataset: &Dataset) -> anyhow::Result<(Vec<Event<'_>>, i64)> {
     let offset = if dataset.color[0].stamp_ns < 1_000_000_000_000 {
         latentam_cli_epoch()
     } else {
@@ -260,7 +314,7 @@ pub fn convert(
     events.extend(dataset.poses.iter().map(|(t, p)| Event::Pose(*t, p)));
     events.sort_by_key(|e| (e.stamp(), matches!(e, Event::Color(_)) as u8));
     // The latest stamp must stay an i64 once offset (`offset ≥ 0`, and the
-    // events are sorted), so `stamp + offset` below cannot overflow.
+    // events are sorted), so `stamp + offset` when writing cannot overflow.
     if let Some(last) = events.last() {
         if last.stamp().checked_add(offset).is_none() {
             bail!(
@@ -270,224 +324,7 @@ pub fn convert(
             );
         }
     }
-
-    let partial = latentam_base::files::PartialFile::new(out)?;
-    let mut log = LogWriter::create(partial.path(), options.compression)?;
-    let mut summary = ConvertSummary {
-        skipped: std::mem::take(&mut dataset.skipped),
-        notes: std::mem::take(&mut dataset.notes),
-        ..ConvertSummary::default()
-    };
-    if let EmbeddingSource::Oracle(o) = &options.embeddings {
-        // `Oracle::new` checks 2 ≤ classes ≤ 65536, so `names[1..]` exists
-        // and every id fits a u16.
-        let names: Vec<&str> = o.names[1..].iter().map(String::as_str).collect();
-        let ids: Vec<u16> = (1..o.names.len()).map(|i| i as u16).collect();
-        let ids_bytes = u16_bytes(&ids);
-        let data = encode_floats(&o.vectors[1..].concat(), options.dtype);
-        let t = dataset.color[0].stamp_ns + offset;
-        log.write(
-            "/vocabulary",
-            t as u64,
-            &TextEmbeddings {
-                header: Header::at(t, "map"),
-                names,
-                ids: cdr::Seq::new(&ids_bytes, cdr::Endian::Little),
-                dim: o.dim() as u32,
-                dtype: options.dtype.name(),
-                data: &data,
-                model: &o.model,
-            },
-        )?;
-    }
-    // Raw depth: the depth lens placed in the colour lens's frame.
-    let raw = registration.as_ref().filter(|_| options.raw_depth);
-    if let Some((reg, _, _)) = raw {
-        let t = dataset.color[0].stamp_ns + offset;
-        log.write(
-            "/tf_static",
-            t as u64,
-            &TfMessage {
-                transforms: vec![TransformStamped {
-                    header: Header::at(t, FRAME),
-                    child_frame_id: DEPTH_FRAME,
-                    transform: Pose {
-                        translation: reg.translation,
-                        rotation: reg.rotation,
-                    },
-                }],
-            },
-        )?;
-        summary.notes.push(format!(
-            "depth written as recorded in `{DEPTH_FRAME}`, with its camera info and /tf_static, \
-             for the reader to register"
-        ));
-    }
-    let total = dataset.color.len();
-    let mut first_dim: Option<(usize, String)> = None;
-    let mut first_layout: Option<bool> = None;
-    for e in &events {
-        let t = e.stamp() + offset;
-        let lt = t as u64;
-        let header = Header::at(t, FRAME);
-        match e {
-            Event::Pose(_, p) => {
-                log.write(
-                    "/camera/pose",
-                    lt,
-                    &PoseStamped {
-                        header: Header::at(t, "world"),
-                        pose: **p,
-                    },
-                )?;
-                summary.poses += 1;
-            }
-            Event::Depth(s) => {
-                let bytes = latentam_io::read_input(&s.path)
-                    .with_context(|| format!("reading {}", s.path.display()))?;
-                let (w, h, mut values) = codec::decode_png_u16(&bytes)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
-                if (units - 1000.0).abs() > 1e-9 {
-                    let k = 1000.0 / units;
-                    for v in &mut values {
-                        *v = (*v as f64 * k).round().min(u16::MAX as f64) as u16;
-                    }
-                }
-                let (w, h, header) = match (&registration, raw) {
-                    (Some((reg, _, _)), Some(_)) => {
-                        let header = Header::at(t, DEPTH_FRAME);
-                        log.write(
-                            "/camera/depth/camera_info",
-                            lt,
-                            &CameraInfo::pinhole(header, w, h, reg.depth),
-                        )?;
-                        (w, h, header)
-                    }
-                    (Some((reg, cw, ch)), None) => {
-                        values = reg.register(w as usize, h as usize, &values, 1000.0, *cw, *ch);
-                        (*cw as u32, *ch as u32, header)
-                    }
-                    (None, _) => (w, h, header),
-                };
-                // `values` holds the w × h samples `decode_png_u16` returned
-                // (at most codec::MAX_IMAGE_PIXELS of them), as the encoder requires.
-                let data = codec::encode_compressed_depth_u16(w, h, &values);
-                log.write(
-                    "/camera/depth/image_raw",
-                    lt,
-                    &CompressedImage {
-                        header,
-                        format: "16UC1; compressedDepth png",
-                        data: &data,
-                    },
-                )?;
-                summary.depth += 1;
-            }
-            Event::Color(s) => {
-                let bytes = latentam_io::read_input(&s.path)
-                    .with_context(|| format!("reading {}", s.path.display()))?;
-                check_payload(&s.path.display().to_string(), bytes.len())?;
-                let (w, h, format) = codec::compressed_image_size(&bytes)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
-                log.write(
-                    "/camera/color/camera_info",
-                    lt,
-                    &CameraInfo::pinhole(header, w, h, intrinsics),
-                )?;
-                log.write(
-                    "/camera/color/image_raw",
-                    lt,
-                    &CompressedImage {
-                        header,
-                        format,
-                        data: &bytes,
-                    },
-                )?;
-                let name = stem(&s.path);
-                let loaded = match &options.embeddings {
-                    EmbeddingSource::None => None,
-                    EmbeddingSource::Features(dir) => dir.load(&name)?,
-                    EmbeddingSource::Oracle(o) => match o.load(&name)? {
-                        Some(frame) => {
-                            let (lw, lh) = (frame.width, frame.height);
-                            let class_bytes = u16_bytes(&frame.classes);
-                            log.write(
-                                "/camera/semantic",
-                                lt,
-                                &Image::packed(header, lw, lh, "16UC1", &class_bytes),
-                            )?;
-                            Some(LoadedFeatures {
-                                features: frame.features,
-                                dim: o.dim(),
-                                model: o.model.clone(),
-                            })
-                        }
-                        None => None,
-                    },
-                };
-                match loaded {
-                    Some(f) => {
-                        let grid = matches!(f.features, FrameFeatures::Grid { .. });
-                        if *first_layout.get_or_insert(grid) != grid {
-                            bail!(
-                                "{name}: {} after frames with {}; one log holds one kind (mask regions or a feature grid)",
-                                if grid { "a feature grid" } else { "mask regions" },
-                                if grid { "mask regions" } else { "a feature grid" }
-                            );
-                        }
-                        match &first_dim {
-                            None => first_dim = Some((f.dim, f.model.clone())),
-                            Some((d, m)) if *d != f.dim || *m != f.model => bail!(
-                                "{name}: embeddings of dimension {} from `{}` after {d} from `{m}`; one log holds one embedding space",
-                                f.dim,
-                                f.model
-                            ),
-                            Some(_) => {}
-                        }
-                        write_features(&mut log, header, lt, &f, options.dtype)?;
-                        summary.with_embeddings += 1;
-                    }
-                    None if !matches!(options.embeddings, EmbeddingSource::None) => {
-                        summary.without_embeddings += 1
-                    }
-                    None => {}
-                }
-                summary.frames += 1;
-                progress(summary.frames, total);
-            }
-        }
-    }
-    let mut meta = BTreeMap::from([
-        (
-            "converter".to_string(),
-            format!("latentam convert {}", options.kind),
-        ),
-        ("source".to_string(), options.source.display().to_string()),
-        (
-            "depth".to_string(),
-            format!("millimetres, converted from {units} units per metre"),
-        ),
-        (
-            "embeddings".to_string(),
-            match &options.embeddings {
-                EmbeddingSource::None => "none".to_string(),
-                EmbeddingSource::Features(_) => "per-frame feature files".to_string(),
-                EmbeddingSource::Oracle(_) => {
-                    "oracle: label images and class vectors (evaluation only)".to_string()
-                }
-            },
-        ),
-    ]);
-    if offset != 0 {
-        meta.insert("stamps".into(), "synthetic (the dataset has none)".into());
-    }
-    for (i, n) in summary.notes.iter().enumerate() {
-        meta.insert(format!("note_{i}"), n.clone());
-    }
-    log.metadata("latentam", meta)?;
-    log.finish()?;
-    partial.commit()?;
-    Ok(summary)
+    Ok((events, offset))
 }
 
 /// Stamps given to datasets without time stamps start here
@@ -501,65 +338,6 @@ fn latentam_cli_epoch() -> i64 {
 pub fn check_payload(what: &str, len: usize) -> anyhow::Result<()> {
     if len > MAX_RECORD_BYTES {
         bail!("{what}: {len} bytes, more than one message may hold ({MAX_RECORD_BYTES} bytes)");
-    }
-    Ok(())
-}
-
-fn write_features<W: std::io::Write + std::io::Seek>(
-    log: &mut LogWriter<W>,
-    header: Header<'_>,
-    lt: u64,
-    f: &LoadedFeatures,
-    dtype: Dtype,
-) -> anyhow::Result<()> {
-    match &f.features {
-        FrameFeatures::Regions {
-            width,
-            height,
-            labels,
-            count,
-            vectors,
-        } => {
-            let label_bytes = u16_bytes(labels);
-            let data = encode_floats(vectors, dtype);
-            check_payload("region embeddings", data.len())?;
-            log.write(
-                "/camera/embeddings",
-                lt,
-                &MaskFeatures {
-                    header,
-                    height: *height,
-                    width: *width,
-                    labels: cdr::Seq::new(&label_bytes, cdr::Endian::Little),
-                    count: *count,
-                    dim: f.dim as u32,
-                    dtype: dtype.name(),
-                    data: &data,
-                    model: &f.model,
-                },
-            )?;
-        }
-        FrameFeatures::Grid {
-            rows,
-            cols,
-            vectors,
-        } => {
-            let data = encode_floats(vectors, dtype);
-            check_payload("grid embeddings", data.len())?;
-            log.write(
-                "/camera/embeddings",
-                lt,
-                &FeatureGrid {
-                    header,
-                    rows: *rows,
-                    cols: *cols,
-                    dim: f.dim as u32,
-                    dtype: dtype.name(),
-                    data: &data,
-                    model: &f.model,
-                },
-            )?;
-        }
     }
     Ok(())
 }

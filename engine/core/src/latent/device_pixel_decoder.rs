@@ -315,43 +315,8 @@ impl DevicePixelDecoder {
 
     /// Decodes `pixels` (see [`PixelsToDecode`]) in batches.
     pub fn decode(&mut self, ctx: &Context, pixels: &PixelsToDecode) -> Result<DecodedPixels> {
-        let n = pixels.queries.len();
         let dim = self.dim as usize;
-        if !pixels.region.is_empty() && pixels.region.len() != n {
-            return Err(Error::InvalidArgument(format!(
-                "{n} pixels with {} region indices",
-                pixels.region.len()
-            )));
-        }
-        if !pixels.targets.len().is_multiple_of(dim) || !pixels.texts.len().is_multiple_of(dim) {
-            return Err(Error::InvalidArgument(format!(
-                "{} target and {} text values are not whole {dim}-d embeddings",
-                pixels.targets.len(),
-                pixels.texts.len()
-            )));
-        }
-        let regions = pixels.targets.len() / dim;
-        if let Some(r) = pixels
-            .region
-            .iter()
-            .find(|&&r| r != NO_REGION && r as usize >= regions)
-        {
-            return Err(Error::InvalidArgument(format!(
-                "a pixel of region {r}; {regions} targets were given"
-            )));
-        }
-        if pixels
-            .queries
-            .iter()
-            .flatten()
-            .chain(pixels.targets)
-            .chain(pixels.texts)
-            .any(|x| !x.is_finite())
-        {
-            return Err(Error::InvalidArgument(
-                "pixel queries, targets and texts must be finite".into(),
-            ));
-        }
+        let regions = check_pixels(pixels, dim)?;
         // A table of one zero row stands for "no targets" (never read).
         let (mut unit_targets, _) = unit_rows(pixels.targets, dim);
         if unit_targets.is_empty() {
@@ -370,12 +335,15 @@ impl DevicePixelDecoder {
         }
         let text_buffers = if texts > 0 {
             let rows = batch as u64;
-            Some((
-                ctx.upload_new("pixel_decoder/texts", &unit_rows(pixels.texts, dim).0)?,
-                Buffer::device(ctx, "pixel_decoder/text_dots", rows * texts as u64 * 4)?,
-                Buffer::device(ctx, "pixel_decoder/best_value", rows * 4)?,
-                Buffer::device(ctx, "pixel_decoder/best_text", rows * 4)?,
-            ))
+            Some(TextScores {
+                unit_texts: ctx
+                    .upload_new("pixel_decoder/texts", &unit_rows(pixels.texts, dim).0)?,
+                dots: Buffer::device(ctx, "pixel_decoder/text_dots", rows * texts as u64 * 4)?,
+                best_value: Buffer::device(ctx, "pixel_decoder/best_value", rows * 4)?,
+                best_index: Buffer::device(ctx, "pixel_decoder/best_text", rows * 4)?,
+                texts: texts as u32,
+                dim: self.dim,
+            })
         } else {
             None
         };
@@ -393,37 +361,7 @@ impl DevicePixelDecoder {
             let norm = rec.download(&b.norm, 0, rows as u64 * 4)?;
             let dot = rec.download(&b.target_dot, 0, rows as u64 * 4)?;
             let text_read = match &text_buffers {
-                Some((unit_texts, dots, best_value, best_index)) => {
-                    Gemm {
-                        transpose: Transpose::B,
-                        m: rows,
-                        n: texts as u32,
-                        k: self.dim,
-                        alpha: 1.0,
-                        beta: 0.0,
-                    }
-                    .record(&mut rec, &b.embeddings, unit_texts, dots)?;
-                    Some(match pixels.text_output {
-                        TextOutput::All => rec.download(dots, 0, rows as u64 * texts as u64 * 4)?,
-                        TextOutput::Best => {
-                            rec.dispatch_linear(
-                                &ARGMAX_ROWS,
-                                rows,
-                                bind::ArgmaxRowsBuffers {
-                                    m: dots,
-                                    best_value,
-                                    best_index,
-                                },
-                                &push::ArgmaxRows {
-                                    rows,
-                                    cols: texts as u32,
-                                    exclude_diagonal: 0,
-                                },
-                            )?;
-                            rec.download(best_index, 0, rows as u64 * 4)?
-                        }
-                    })
-                }
+                Some(t) => Some(t.record(&mut rec, &b.embeddings, rows, pixels.text_output)?),
                 None => None,
             };
             rec.submit()?.wait()?;
@@ -566,6 +504,102 @@ pub(crate) fn unit_rows(rows: &[f32], dim: usize) -> (Vec<f32>, Vec<bool>) {
         out.extend(r.iter().map(|&x| (x as f64 * s) as f32));
     }
     (out, valid)
+}
+
+/// Checks `pixels` against a decoder of `dim`-d embeddings: region
+/// indices for every pixel (or none), whole embeddings, regions within
+/// the targets, finite values. Returns the number of targets.
+fn check_pixels(pixels: &PixelsToDecode, dim: usize) -> Result<usize> {
+    let n = pixels.queries.len();
+    if !pixels.region.is_empty() && pixels.region.len() != n {
+        return Err(Error::InvalidArgument(format!(
+            "{n} pixels with {} region indices",
+            pixels.region.len()
+        )));
+    }
+    if !pixels.targets.len().is_multiple_of(dim) || !pixels.texts.len().is_multiple_of(dim) {
+        return Err(Error::InvalidArgument(format!(
+            "{} target and {} text values are not whole {dim}-d embeddings",
+            pixels.targets.len(),
+            pixels.texts.len()
+        )));
+    }
+    let regions = pixels.targets.len() / dim;
+    if let Some(r) = pixels
+        .region
+        .iter()
+        .find(|&&r| r != NO_REGION && r as usize >= regions)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "a pixel of region {r}; {regions} targets were given"
+        )));
+    }
+    if pixels
+        .queries
+        .iter()
+        .flatten()
+        .chain(pixels.targets)
+        .chain(pixels.texts)
+        .any(|x| !x.is_finite())
+    {
+        return Err(Error::InvalidArgument(
+            "pixel queries, targets and texts must be finite".into(),
+        ));
+    }
+    Ok(regions)
+}
+
+/// The texts' buffers of a decode: their unit rows, and each batch's
+/// scores against them (all of them, or the best per pixel).
+struct TextScores {
+    unit_texts: Buffer,
+    dots: Buffer,
+    best_value: Buffer,
+    best_index: Buffer,
+    texts: u32,
+    dim: u32,
+}
+
+impl TextScores {
+    /// Records the scores of `rows` decoded `embeddings` and their
+    /// download: every text's (`TextOutput::All`) or the best text's index.
+    fn record<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        embeddings: &'a Buffer,
+        rows: u32,
+        output: TextOutput,
+    ) -> Result<latentam_gpu::Readback> {
+        Gemm {
+            transpose: Transpose::B,
+            m: rows,
+            n: self.texts,
+            k: self.dim,
+            alpha: 1.0,
+            beta: 0.0,
+        }
+        .record(rec, embeddings, &self.unit_texts, &self.dots)?;
+        match output {
+            TextOutput::All => rec.download(&self.dots, 0, rows as u64 * self.texts as u64 * 4),
+            TextOutput::Best => {
+                rec.dispatch_linear(
+                    &ARGMAX_ROWS,
+                    rows,
+                    bind::ArgmaxRowsBuffers {
+                        m: &self.dots,
+                        best_value: &self.best_value,
+                        best_index: &self.best_index,
+                    },
+                    &push::ArgmaxRows {
+                        rows,
+                        cols: self.texts,
+                        exclude_diagonal: 0,
+                    },
+                )?;
+                rec.download(&self.best_index, 0, rows as u64 * 4)
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@
 use std::collections::BTreeMap;
 
 pub use super::class_iou::{add_iou, count_pixel, mean_iou, ClassCounts};
-use super::history::{camera_of, KeyframeRecord};
+use super::history::{camera_of, KeyframeRecord, RegionTargets};
 use super::online::OnlineMapper;
 use super::pixel_metrics::{pixel_metrics_on_device, PixelInputs};
 use crate::latent::{DevicePixelDecoder, RelevanceScorer, NO_REGION};
@@ -244,18 +244,16 @@ impl Evaluator {
         m.gaussians = n;
         m.pixel_stride = self.pixel_stride.max(1);
 
-        let Some(head) = mapper.head() else {
-            return Ok(m);
-        };
-        if head.atom_count() == 0 {
-            return Ok(m);
-        }
+        // Embedding figures need a dictionary and something to score.
         let texts_needed = vocabulary
             .map_or(0, |v| v.names.len())
             .max(record.regions.as_ref().map_or(0, |r| r.count as usize));
-        if texts_needed == 0 {
+        let Some(head) = mapper
+            .head()
+            .filter(|h| h.atom_count() > 0 && texts_needed > 0)
+        else {
             return Ok(m);
-        }
+        };
         let scorer =
             RelevanceScorer::ensure(&mut self.scorer, &self.ctx, head, texts_needed as u32)?;
         let (w, h) = (view.width as usize, view.height as usize);
@@ -267,16 +265,9 @@ impl Evaluator {
             return Ok(m);
         };
         let dim = r.dim as usize;
-        // Each pixel's region, the label image scaled to the view.
-        let regions: Vec<usize> = (0..w * h)
-            .map(|p| {
-                let ly = (p / w) * r.height as usize / h;
-                let lx = (p % w) * r.width as usize / w;
-                r.labels[ly * r.width as usize + lx] as usize
-            })
-            .collect();
+        let regions = pixel_regions(r, w, h);
         let (sums, counts) = region_sums(&view.query, &regions, r.count as usize);
-        let used: Vec<usize> = (0..sums.len()).filter(|&i| counts[i] > 0).collect();
+        let (used, pooled) = pooled_queries(&sums, &counts);
         if used.is_empty() {
             return Ok(m);
         }
@@ -285,10 +276,6 @@ impl Evaluator {
             .map(|&l| if l < sums.len() { l as u32 } else { NO_REGION })
             .collect();
         let vocab = vocabulary.filter(|v| v.dim == head.config().dim && !v.names.is_empty());
-        let pooled: Vec<[f32; QUERY_DIM]> = used
-            .iter()
-            .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
-            .collect();
         let mut pooled_m =
             pooled_target_metrics(scorer, &self.ctx, head, &pooled, &used, &r.vectors, dim)?;
         // Each pixel's true class: its label, or without labels its
@@ -296,15 +283,11 @@ impl Evaluator {
         // ranking is the dot product with the normalised class vectors).
         let truth_of_pixels = match vocab {
             Some(vocab) => {
-                let teacher = match frame.semantic {
-                    Some(_) => None,
-                    None => Some(teacher_classes(vocab, &r.vectors, dim, sums.len())),
-                };
-                m.segmentation = Some(if teacher.is_some() {
-                    "teacher"
-                } else {
-                    "labels"
-                });
+                let teacher = frame
+                    .semantic
+                    .is_none()
+                    .then(|| teacher_classes(vocab, &r.vectors, dim, sums.len()));
+                m.segmentation = Some(["labels", "teacher"][teacher.is_some() as usize]);
                 pixel_truth(frame, teacher.as_deref(), &regions, vocab, w, h)
             }
             None => vec![0u16; w * h],
@@ -331,12 +314,8 @@ impl Evaluator {
         m.class_iou = pixels.class_iou;
         // Pooled: each region's mean query classified once for its pixels.
         if let Some(vocab) = vocab {
-            let c = vocab.names.len();
-            let s = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
-            let mut predicted = vec![None; sums.len()];
-            for (j, &i) in used.iter().enumerate() {
-                predicted[i] = Some(vocab.ids[argmax(&s[j * c..(j + 1) * c])]);
-            }
+            let scores = scorer.score(&self.ctx, head, &pooled, &vocab.vectors)?;
+            let predicted = pooled_classes(vocab, &scores, &used, sums.len());
             for (&truth, &region) in truth_of_pixels.iter().zip(&regions) {
                 if truth != 0 {
                     let pred = predicted.get(region).copied().flatten();
@@ -347,6 +326,47 @@ impl Evaluator {
         m.region_pooled = Some(pooled_m);
         Ok(m)
     }
+}
+
+/// The regions with pixels and each one's mean rendered query.
+fn pooled_queries(
+    sums: &[[f64; QUERY_DIM]],
+    counts: &[u64],
+) -> (Vec<usize>, Vec<[f32; QUERY_DIM]>) {
+    let used: Vec<usize> = (0..sums.len()).filter(|&i| counts[i] > 0).collect();
+    let pooled = used
+        .iter()
+        .map(|&i| std::array::from_fn(|c| (sums[i][c] / counts[i] as f64) as f32))
+        .collect();
+    (used, pooled)
+}
+
+/// Each pixel's region in a `w` × `h` view: the label image scaled to it.
+fn pixel_regions(r: &RegionTargets, w: usize, h: usize) -> Vec<usize> {
+    (0..w * h)
+        .map(|p| {
+            let ly = (p / w) * r.height as usize / h;
+            let lx = (p % w) * r.width as usize / w;
+            r.labels[ly * r.width as usize + lx] as usize
+        })
+        .collect()
+}
+
+/// The class each region's pooled query scores highest, by region index
+/// (`None` for regions without pixels): `scores` holds one row of
+/// `vocab`'s classes per region of `used`.
+fn pooled_classes(
+    vocab: &Vocabulary,
+    scores: &[f32],
+    used: &[usize],
+    regions: usize,
+) -> Vec<Option<u16>> {
+    let c = vocab.names.len();
+    let mut predicted = vec![None; regions];
+    for (j, &i) in used.iter().enumerate() {
+        predicted[i] = Some(vocab.ids[argmax(&scores[j * c..(j + 1) * c])]);
+    }
+    predicted
 }
 
 /// Each pixel's true class: its label scaled to the view, or without

@@ -45,6 +45,42 @@ impl std::fmt::Debug for Context {
     }
 }
 
+/// Whether the instance loads the validation layer, as `validation` asks
+/// and the system allows.
+fn uses_validation(entry: &ash::Entry, validation: Validation) -> Result<bool> {
+    // SAFETY: plain enumeration calls on a loaded entry.
+    let layers = unsafe { entry.enumerate_instance_layer_properties() }
+        .vk("vkEnumerateInstanceLayerProperties")?;
+    let have_validation = layers
+        .iter()
+        .any(|l| l.layer_name_as_c_str().ok() == Some(VALIDATION_LAYER));
+    match validation {
+        Validation::Off => Ok(false),
+        Validation::IfAvailable => Ok(have_validation),
+        Validation::Required if !have_validation => Err(Error::NoVulkan(
+            "the Vulkan validation layer VK_LAYER_KHRONOS_validation is required but \
+             not installed; on Debian/Ubuntu `sudo apt-get install \
+             vulkan-validationlayers`"
+                .into(),
+        )),
+        Validation::Required => Ok(true),
+    }
+}
+
+/// The validation layer's optional checks `options` turn on.
+fn validation_features(options: &ContextOptions) -> Vec<vk::ValidationFeatureEnableEXT> {
+    let mut enabled = Vec::new();
+    if options.validation_checks.synchronization {
+        enabled.push(vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION);
+    }
+    if options.validation_checks.gpu_assisted {
+        enabled.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED);
+        // The instrumentation needs a descriptor set slot of its own.
+        enabled.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED_RESERVE_BINDING_SLOT);
+    }
+    enabled
+}
+
 impl Context {
     /// Opens the device chosen by `options`.
     ///
@@ -60,25 +96,7 @@ impl Context {
             ))
         })?;
 
-        // SAFETY: plain enumeration calls on a loaded entry.
-        let layers = unsafe { entry.enumerate_instance_layer_properties() }
-            .vk("vkEnumerateInstanceLayerProperties")?;
-        let have_validation = layers
-            .iter()
-            .any(|l| l.layer_name_as_c_str().ok() == Some(VALIDATION_LAYER));
-        let use_validation = match options.validation {
-            Validation::Off => false,
-            Validation::IfAvailable => have_validation,
-            Validation::Required if !have_validation => {
-                return Err(Error::NoVulkan(
-                    "the Vulkan validation layer VK_LAYER_KHRONOS_validation is required but \
-                     not installed; on Debian/Ubuntu `sudo apt-get install \
-                     vulkan-validationlayers`"
-                        .into(),
-                ))
-            }
-            Validation::Required => true,
-        };
+        let use_validation = uses_validation(&entry, options.validation)?;
 
         let app_name = CString::new("latentam").unwrap();
         let app = vk::ApplicationInfo::default()
@@ -110,15 +128,7 @@ impl Context {
             .application_info(&app)
             .enabled_layer_names(&layer_ptrs)
             .enabled_extension_names(&ext_ptrs);
-        let mut enabled_checks = Vec::new();
-        if options.validation_checks.synchronization {
-            enabled_checks.push(vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION);
-        }
-        if options.validation_checks.gpu_assisted {
-            enabled_checks.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED);
-            // The instrumentation needs a descriptor set slot of its own.
-            enabled_checks.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED_RESERVE_BINDING_SLOT);
-        }
+        let enabled_checks = validation_features(&options);
         let mut features =
             vk::ValidationFeaturesEXT::default().enabled_validation_features(&enabled_checks);
         if use_validation {

@@ -135,6 +135,9 @@ impl Report {
 const NVIDIA_WORKGROUPS: [u32; 3] = [2_147_483_647, 65_535, 65_535];
 
 /// The devices, most common robot and workstation targets first.
+//
+// Long because it is data: one entry per device, each beside the source
+// its figures were read from.
 pub fn recorded_devices() -> Vec<RecordedDevice> {
     use vk::PhysicalDeviceType as Kind;
     vec![

@@ -149,16 +149,7 @@ impl FrameAssembler {
             ));
         };
         let depth = depth.value?;
-        let intrinsics = match (&self.config.intrinsics, &self.camera_info) {
-            (Some(k), _) => *k,
-            (None, Some(k)) => k.clone()?,
-            (None, None) => {
-                return Err(Rejection::new(
-                    "frame: no camera info",
-                    format!("colour image at {t} ns arrived before any camera info"),
-                ))
-            }
-        };
+        let intrinsics = self.intrinsics_at(t)?;
         let pose = self.pose_at(t)?;
         // Depth from another lens is re-projected into the colour camera,
         // whose image size it then takes.
@@ -196,23 +187,7 @@ impl FrameAssembler {
                 ),
             ));
         }
-        let intrinsics = Intrinsics {
-            width: color.width,
-            height: color.height,
-            ..match (intrinsics.width, intrinsics.height) {
-                (0, 0) => intrinsics,
-                (w, h) if (w, h) == (color.width, color.height) => intrinsics,
-                (w, h) => {
-                    return Err(Rejection::new(
-                        "frame: intrinsics size differs from colour",
-                        format!(
-                            "camera info is for {w}×{h}, colour image is {}×{}",
-                            color.width, color.height
-                        ),
-                    ))
-                }
-            }
-        };
+        let intrinsics = of_image_size(intrinsics, color.width, color.height)?;
         check_intrinsics(&intrinsics)?;
         let extent = self.config.max_extent_m;
         if pose.translation.abs().max_element() > extent {
@@ -245,6 +220,19 @@ impl FrameAssembler {
             embeddings: embeddings.map(|e| e.value),
             semantic: semantic.map(|s| s.value),
         })
+    }
+
+    /// The camera calibration for a colour image at `t`: the configured
+    /// intrinsics, else the last camera info.
+    fn intrinsics_at(&self, t: i64) -> Result<Intrinsics, Rejection> {
+        match (&self.config.intrinsics, &self.camera_info) {
+            (Some(k), _) => Ok(*k),
+            (None, Some(k)) => k.clone(),
+            (None, None) => Err(Rejection::new(
+                "frame: no camera info",
+                format!("colour image at {t} ns arrived before any camera info"),
+            )),
+        }
     }
 
     /// `depth` re-projected by `reg` into a `width × height` colour image
@@ -338,4 +326,21 @@ fn units_per_metre(metres_per_unit: f32) -> f64 {
     let u = 1.0 / metres_per_unit as f64;
     let scale = 10f64.powi(6 - u.log10().ceil() as i32);
     (u * scale).round() / scale
+}
+
+/// `intrinsics` for a `width × height` image: a calibration that states no
+/// size (0 × 0) takes the image's; one for another size is refused.
+fn of_image_size(intrinsics: Intrinsics, width: u32, height: u32) -> Result<Intrinsics, Rejection> {
+    match (intrinsics.width, intrinsics.height) {
+        (0, 0) => Ok(Intrinsics {
+            width,
+            height,
+            ..intrinsics
+        }),
+        (w, h) if (w, h) == (width, height) => Ok(intrinsics),
+        (w, h) => Err(Rejection::new(
+            "frame: intrinsics size differs from colour",
+            format!("camera info is for {w}×{h}, colour image is {width}×{height}"),
+        )),
+    }
 }

@@ -123,6 +123,11 @@ pub fn backward(
 
 /// Chain rule from one view's projected gradients to the parameters;
 /// adds into `out`.
+//
+// Long because it is one chain rule written out in the order of the
+// kernel it checks (`glsl/project_backward.comp`): opacity, conic, 2-D
+// covariance, Jacobian, mean, scale and rotation, each step beside its
+// counterpart there.
 pub(crate) fn projection_backward(
     g: &Gaussian,
     cam: &Camera,

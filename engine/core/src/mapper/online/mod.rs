@@ -405,57 +405,47 @@ impl OnlineMapper {
         // Each CPU stage is a host span of the profile (`trace.json`),
         // beside the GPU's commands and the waits for them.
         let keyframe_span = ctx.host_span("keyframe");
-        let t = Instant::now();
-        let span = ctx.host_span("dictionary");
-        self.update_dictionary(&record)?;
-        drop(span);
-        timings.kmeans_ms = ms_since(t);
+        ((), timings.kmeans_ms) = in_span(&ctx, "dictionary", || self.update_dictionary(&record))?;
         lap(&mut calls.dictionary);
 
         // What the map already explains at this pose, then new Gaussians,
         // which must be resident for Stage I.
-        let t = Instant::now();
-        let span = ctx.host_span("seeding");
         let centre = frame.pose.translation;
-        let new_keys =
-            self.insert_new_gaussians(frame, &mut record, seed, &mut timings, &mut paging)?;
-        drop(span);
-        timings.insertion_ms = ms_since(t);
+        let new_keys;
+        (new_keys, timings.insertion_ms) = in_span(&ctx, "seeding", || {
+            self.insert_new_gaussians(frame, &mut record, seed, &mut timings, &mut paging)
+        })?;
         lap(&mut calls.insertion);
 
         // Stage I on the keyframe and B past ones.
-        let t = Instant::now();
-        let span = ctx.host_span("stage I");
-        let stage_one = self.train_stage_one(&record, seed, centre)?;
-        drop(span);
-        timings.stage_one_ms = ms_since(t);
+        let stage_one;
+        (stage_one, timings.stage_one_ms) = in_span(&ctx, "stage I", || {
+            self.train_stage_one(&record, seed, centre)
+        })?;
         lap(&mut calls.stage_one);
 
         // Stage II reads no Gaussian: the window pages beside it. The
         // paging batch is submitted first so that it waits for Stage I
         // only (see `Recorder::submit`).
-        let t = Instant::now();
-        let span = ctx.host_span("stage II and paging");
-        let stage_two =
-            self.stage_two_and_paging(centre, &mut timings, &mut paging, &mut lap, &mut calls)?;
-        drop(span);
-        timings.stage_two_ms = ms_since(t);
+        let stage_two;
+        (stage_two, timings.stage_two_ms) = in_span(&ctx, "stage II and paging", || {
+            self.stage_two_and_paging(centre, &mut timings, &mut paging, &mut lap, &mut calls)
+        })?;
 
         let (stamp_ns, exposure) = (record.stamp_ns, record.exposure);
         self.trajectory.push((stamp_ns, frame.pose));
         self.exposure.push(stamp_ns, exposure);
         self.history.push(record);
         self.stats.keyframes += 1;
-        let t = Instant::now();
-        let span = ctx.host_span("pruning");
         let interval = self.cfg.prune_interval as u64;
-        let pruned = if interval > 0 && self.stats.keyframes.is_multiple_of(interval) {
-            self.prune()?
-        } else {
-            0
-        };
-        drop(span);
-        timings.prune_ms = ms_since(t);
+        let pruned;
+        (pruned, timings.prune_ms) = in_span(&ctx, "pruning", || {
+            if interval > 0 && self.stats.keyframes.is_multiple_of(interval) {
+                self.prune()
+            } else {
+                Ok(0)
+            }
+        })?;
         timings.total_ms = ms_since(t_start);
         drop(keyframe_span);
         lap(&mut calls.prune);
@@ -487,4 +477,17 @@ impl OnlineMapper {
             gpu_calls: calls,
         }))
     }
+}
+
+/// Runs one CPU stage of a keyframe as the host span `name` of the
+/// profile: its result and its wall time in milliseconds.
+fn in_span<T>(
+    ctx: &Context,
+    name: &'static str,
+    stage: impl FnOnce() -> Result<T>,
+) -> Result<(T, f64)> {
+    let t = Instant::now();
+    let _span = ctx.host_span(name);
+    let out = stage()?;
+    Ok((out, ms_since(t)))
 }
