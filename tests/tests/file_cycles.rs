@@ -30,6 +30,7 @@ const ROOTS: &[&str] = &[
     "tools/src/main.rs",
     "tools/scene/src/lib.rs",
     "tools/ros/src/main.rs",
+    "fuzz/targets/src/lib.rs",
 ];
 
 fn is_cfg_test(attrs: &[syn::Attribute]) -> bool {

@@ -5,7 +5,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
-use latentam_cli::convert::features::{FeatureDir, Oracle};
+use latentam_cli::convert::features::FeatureDir;
+use latentam_cli::convert::oracle::Oracle;
 use latentam_cli::convert::{
     convert, datasets, npy, ConvertOptions, EmbeddingSource, Registration,
 };

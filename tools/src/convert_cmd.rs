@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use clap::ValueEnum;
-use latentam_cli::convert::features::{FeatureDir, Oracle};
+use latentam_cli::convert::features::FeatureDir;
+use latentam_cli::convert::oracle::Oracle;
 use latentam_cli::convert::{
     convert, datasets, ConvertOptions, DepthCamera, EmbeddingSource, Registration,
 };

@@ -136,8 +136,8 @@ fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_
     let Ok(text) = latentam_io::read_input_to_string(&path) else {
         return Ok(None);
     };
-    let report: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
+    let report = latentam_io::parse_json(&text)
+        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
     // A state with a run id was written with its report: a report without
     // one (or with one that is not a string) is not that run's either.
     if let Some(ours) = state_run_id {
@@ -207,6 +207,35 @@ pub fn run(args: Args) -> Result<()> {
     // Evaluation renders views of any size; the mapping budget is not
     // meant for it.
     ctx.set_memory_budget(None);
+    let rows = evaluate_frames(&args, &mut mapper, frames, vocabulary.as_ref())?;
+    if rows.is_empty() {
+        bail!("no frame of {} could be evaluated", args.log.display());
+    }
+    let eval_ms_per_frame = started.elapsed().as_secs_f64() * 1e3 / rows.len() as f64;
+    let report = eval_report(
+        &args,
+        rows,
+        vocabulary.as_ref(),
+        &class_table,
+        run_report.as_ref(),
+        eval_ms_per_frame,
+    );
+    print_summary(&report);
+    if let Some(p) = &args.json {
+        crate::mapping::write_text(p, &serde_json::to_string_pretty(&report)?)?;
+    }
+    Ok(())
+}
+
+/// Evaluates the frames `args` selects (`--every`, `--offset`,
+/// `--frames`), printing a row per frame unless quiet; a frame the
+/// evaluation refuses is skipped with a word.
+fn evaluate_frames(
+    args: &Args,
+    mapper: &mut Mapper,
+    frames: McapFrames,
+    vocabulary: Option<&latentam_io::Vocabulary>,
+) -> Result<Vec<FrameRow>> {
     let limit = args.frames.unwrap_or(usize::MAX);
     let keyframes: std::collections::HashSet<i64> = mapper
         .trajectory()
@@ -229,7 +258,7 @@ pub fn run(args: Args) -> Result<()> {
             continue;
         }
         let frame = frame.with_context(|| format!("reading {}", args.log.display()))?;
-        let m = match mapper.evaluate(&frame, vocabulary.as_ref(), args.pixel_stride as usize) {
+        let m = match mapper.evaluate(&frame, vocabulary, args.pixel_stride as usize) {
             Ok(m) => m,
             Err(latentam::Error::InvalidArgument(why)) => {
                 eprintln!("frame {i}: skipped ({why})");
@@ -255,16 +284,25 @@ pub fn run(args: Args) -> Result<()> {
             metrics: m,
         });
     }
-    if rows.is_empty() {
-        bail!("no frame of {} could be evaluated", args.log.display());
-    }
-    let eval_ms_per_frame = started.elapsed().as_secs_f64() * 1e3 / rows.len() as f64;
+    Ok(rows)
+}
+
+/// The report of the evaluated `rows`: means over all, over keyframes
+/// and over the views that were not, per class, and the run's own figures.
+fn eval_report(
+    args: &Args,
+    rows: Vec<FrameRow>,
+    vocabulary: Option<&latentam_io::Vocabulary>,
+    class_table: &BTreeMap<u16, String>,
+    run_report: Option<&serde_json::Value>,
+    eval_ms_per_frame: f64,
+) -> EvalReport {
     let all: Vec<&FrameRow> = rows.iter().collect();
-    let (means, classes) = figures(&all, vocabulary.as_ref(), &class_table);
+    let (means, classes) = figures(&all, vocabulary, class_table);
     let group = |keyframe: bool| {
         let rows: Vec<&FrameRow> = rows.iter().filter(|r| r.keyframe == keyframe).collect();
         (!rows.is_empty()).then(|| {
-            let (mean, classes) = figures(&rows, vocabulary.as_ref(), &class_table);
+            let (mean, classes) = figures(&rows, vocabulary, class_table);
             Group {
                 frames: rows.len(),
                 mean,
@@ -272,7 +310,7 @@ pub fn run(args: Args) -> Result<()> {
             }
         })
     };
-    let report = EvalReport {
+    EvalReport {
         run: args.dir.display().to_string(),
         log: args.log.display().to_string(),
         frames_evaluated: rows.len(),
@@ -281,19 +319,12 @@ pub fn run(args: Args) -> Result<()> {
         keyframes: group(true),
         novel_views: group(false),
         classes,
-        run_fps: run_report.as_ref().and_then(|r| r["fps"].as_f64()),
-        run_peak_gpu_bytes: run_report
-            .as_ref()
-            .and_then(|r| r["peak_gpu_bytes"].as_u64()),
+        run_fps: run_report.and_then(|r| r["fps"].as_f64()),
+        run_peak_gpu_bytes: run_report.and_then(|r| r["peak_gpu_bytes"].as_u64()),
         eval_ms_per_frame,
         pixel_stride: args.pixel_stride,
         per_frame: rows,
-    };
-    print_summary(&report);
-    if let Some(p) = &args.json {
-        crate::mapping::write_text(p, &serde_json::to_string_pretty(&report)?)?;
     }
-    Ok(())
 }
 
 /// The mean figures of `rows` and their per-class IoU.

@@ -12,6 +12,7 @@ use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
 use crate::pictures::to_bytes;
 use latentam_core::latent::softmax_rows;
+use latentam_core::mapper::Mapper;
 use latentam_view::{heat_rgba, topic_word, write_foxglove_file, Cloud};
 
 #[derive(clap::Args)]
@@ -61,13 +62,9 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
     let Ok(text) = latentam_io::read_input_to_string(&args.dir.join("report.json")) else {
         return Ok(None);
     };
-    let report: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("reading {}", args.dir.join("report.json").display()))?;
-    let Some(log) = report["log"]
-        .as_str()
-        .map(PathBuf::from)
-        .filter(|p| p.is_file())
-    else {
+    let report = latentam_io::parse_json(&text)
+        .map_err(|e| anyhow::anyhow!("reading {}: {e}", args.dir.join("report.json").display()))?;
+    let Some(log) = report_log(&report) else {
         return Ok(None);
     };
     // The mapped log is a convenience: one without a vocabulary (or no
@@ -76,6 +73,17 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
         .ok()
         .flatten()
         .map(|v| (v, log)))
+}
+
+/// The mapped log a run's report names, when it names an existing file
+/// by an absolute path. Reports from before paths were made absolute name
+/// the log as it was given, relative to a directory that is unknown now:
+/// such a path is not guessed from the current directory.
+fn report_log(report: &serde_json::Value) -> Option<PathBuf> {
+    report["log"]
+        .as_str()
+        .map(PathBuf::from)
+        .filter(|p| p.is_absolute() && p.is_file())
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -88,8 +96,8 @@ pub fn run(args: Args) -> Result<()> {
     // The mapped log named in the run's report is read for its vocabulary.
     let mapped_log = latentam_io::read_input_to_string(&args.dir.join("report.json"))
         .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .and_then(|r| r["log"].as_str().map(PathBuf::from));
+        .and_then(|t| latentam_io::parse_json(&t).ok())
+        .and_then(|r| report_log(&r));
     let mut inputs = vec![Input::RunFolder(&args.dir)];
     inputs.extend(args.vocabulary.as_deref().map(Input::File));
     inputs.extend(mapped_log.as_deref().map(Input::File));
@@ -115,7 +123,7 @@ pub fn run(args: Args) -> Result<()> {
 
     // Relevance per word: a softmax over the whole vocabulary, as
     // `query --name` gives it.
-    let mut relevance: Vec<(String, String, Vec<f32>)> = Vec::new();
+    let mut relevance: Vec<WordRelevance> = Vec::new();
     let has_head = mapper.head().is_some();
     let vocabulary = if has_head {
         vocabulary_of(&args)?
@@ -133,36 +141,7 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     if let Some((vocab, log)) = &vocabulary {
-        mapper
-            .check_vocabulary(vocab)
-            .with_context(|| format!("the vocabulary in {}", log.display()))?;
-        for w in &args.words {
-            if !vocab.names.contains(w) {
-                bail!(
-                    "`{w}` is not in the vocabulary; it has: {}",
-                    vocab.names.join(", ")
-                );
-            }
-        }
-        let count = vocab.names.len();
-        stages.start(format_args!(
-            "scoring {} Gaussians against {count} words of {}",
-            gaussians.len(),
-            log.display()
-        ));
-        let probabilities =
-            softmax_rows(&mapper.query_many(&vocab.vectors)?, count, args.temperature);
-        let mut taken = Vec::new();
-        for (index, name) in vocab.names.iter().enumerate() {
-            if !args.words.is_empty() && !args.words.contains(name) {
-                continue;
-            }
-            let rel: Vec<f32> = probabilities
-                .chunks_exact(count)
-                .map(|row| row[index])
-                .collect();
-            relevance.push((name.clone(), topic_word(name, &mut taken), rel));
-        }
+        relevance = word_relevance(&args, &stages, &mut mapper, vocab, log)?;
     }
 
     stages.start(format_args!("writing {}", args.foxglove.display()));
@@ -204,10 +183,56 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// A word, its topic name and each Gaussian's relevance to it.
+type WordRelevance = (String, String, Vec<f32>);
+
+/// The relevance of every Gaussian to each word `args` asks for (all of
+/// `vocab` when none): a softmax over the whole vocabulary, as
+/// `query --name` gives it.
+fn word_relevance(
+    args: &Args,
+    stages: &Stages,
+    mapper: &mut Mapper,
+    vocab: &Vocabulary,
+    log: &Path,
+) -> Result<Vec<WordRelevance>> {
+    mapper
+        .check_vocabulary(vocab)
+        .with_context(|| format!("the vocabulary in {}", log.display()))?;
+    for w in &args.words {
+        if !vocab.names.contains(w) {
+            bail!(
+                "`{w}` is not in the vocabulary; it has: {}",
+                vocab.names.join(", ")
+            );
+        }
+    }
+    let count = vocab.names.len();
+    stages.start(format_args!(
+        "scoring {} Gaussians against {count} words of {}",
+        mapper.global().len(),
+        log.display()
+    ));
+    let probabilities = softmax_rows(&mapper.query_many(&vocab.vectors)?, count, args.temperature);
+    let mut relevance = Vec::new();
+    let mut taken = Vec::new();
+    for (index, name) in vocab.names.iter().enumerate() {
+        if !args.words.is_empty() && !args.words.contains(name) {
+            continue;
+        }
+        let rel: Vec<f32> = probabilities
+            .chunks_exact(count)
+            .map(|row| row[index])
+            .collect();
+        relevance.push((name.clone(), topic_word(name, &mut taken), rel));
+    }
+    Ok(relevance)
+}
+
 fn print_summary(
     path: &Path,
     gaussians: usize,
-    relevance: &[(String, String, Vec<f32>)],
+    relevance: &[WordRelevance],
     poses: usize,
     frame_id: &str,
     has_head: bool,

@@ -313,32 +313,73 @@ fn states_with_nan_and_vocabularies_of_another_space_are_refused() {
     failed_with(&query(), &["is damaged", "checksum"]);
     // As written so (a crafted file, or a writer's bug): the checksum
     // matches, and the value itself is refused.
-    let mut names: Vec<&String> = header
+    let meta = header["__metadata__"].as_object().unwrap();
+    let tensors = header
         .as_object()
         .unwrap()
-        .keys()
-        .filter(|k| *k != "__metadata__")
-        .collect();
-    names.sort();
-    let mut crc = crc32fast::Hasher::new();
-    for name in names {
-        let o = &header[name.as_str()]["data_offsets"];
-        let (s, e) = (
-            o[0].as_u64().unwrap() as usize,
-            o[1].as_u64().unwrap() as usize,
-        );
-        crc.update(name.as_bytes());
-        crc.update(&bytes[8 + n + s..8 + n + e]);
-    }
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .map(|(name, t)| {
+            let o = &t["data_offsets"];
+            let (s, e) = (
+                o[0].as_u64().unwrap() as usize,
+                o[1].as_u64().unwrap() as usize,
+            );
+            (name.as_str(), &bytes[8 + n + s..8 + n + e])
+        });
+    let sum = latentam_core::mapper::archive_checksum(
+        meta.iter().map(|(k, v)| (k.as_str(), v.as_str().unwrap())),
+        tensors,
+    );
     let old = header["__metadata__"]["crc32"]
         .as_str()
         .unwrap()
         .to_string();
     let text = String::from_utf8(bytes[8..8 + n].to_vec()).unwrap();
-    let text = text.replace(&old, &format!("{:08x}", crc.finalize()));
+    let text = text.replace(&old, &sum);
     bytes[8..8 + n].copy_from_slice(text.as_bytes());
     std::fs::write(&path, &bytes).unwrap();
     failed_with(&query(), &["non-finite"]);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The report names the mapped log by an absolute path, so `export` run
+/// from another directory reads the vocabulary of the log that was mapped,
+/// not of one that happens to have the same relative name there (which
+/// it did: a 32-d vocabulary for a 64-d map, and an error).
+#[test]
+fn the_report_names_the_mapped_log_by_its_absolute_path() {
+    let dir = scratch("runs-relative");
+    gen_scene(&dir, 8);
+    ok(&latentam()
+        .current_dir(&dir)
+        .args(["map", "scene.mcap", "--out", "run", "--no-trace"])
+        .output()
+        .unwrap());
+    let named = report(&dir.join("run"))["log"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert_eq!(
+        std::fs::canonicalize(&named).unwrap(),
+        std::fs::canonicalize(dir.join("scene.mcap")).unwrap()
+    );
+    assert!(Path::new(&named).is_absolute(), "{named}");
+
+    let elsewhere = dir.join("elsewhere");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let other = scene_of_dim(&elsewhere, 32);
+    std::fs::rename(&other, elsewhere.join("scene.mcap")).unwrap();
+    let out = latentam()
+        .current_dir(&elsewhere)
+        .arg("export")
+        .arg(dir.join("run"))
+        .args(["--foxglove", "map.mcap"])
+        .output()
+        .unwrap();
+    ok(&out);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(said.contains("/latentam/relevance/"), "{said}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -123,7 +123,7 @@ fn map_query_eval_profile_on_a_generated_log() {
     assert_eq!(trajectory.len(), 8);
     for (k, (stamp, pose)) in trajectory.iter().enumerate() {
         let f = &frames[4 * k];
-        assert_eq!(*stamp, f.stamp_ns as u64);
+        assert_eq!(*stamp, f.stamp_ns);
         assert!((pose.translation - f.pose.translation).length() < 1e-6);
         assert!(pose.rotation.dot(f.pose.rotation).abs() > 1.0 - 1e-9);
     }

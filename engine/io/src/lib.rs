@@ -38,6 +38,7 @@ mod frame;
 mod frame_check;
 mod frames;
 mod input;
+mod json_keys;
 mod log;
 mod mcap_frames;
 pub mod messages;
@@ -59,6 +60,7 @@ pub use frame::{
 };
 pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, TopicChoice, Topics};
 pub use input::{check_input_file, open_input, read_input, read_input_to_string};
+pub use json_keys::{check_json_keys, check_safetensors_keys, parse_json};
 pub use latentam_base::{Error, InputError, Rejection, Result};
 pub use log::{
     Channel, McapLog, MessageReader, Metadata, RawMessage, ReadFilter, MAX_RECORD_BYTES,

@@ -8,7 +8,8 @@
 //!
 //! Written precision:
 //! * timestamps are printed from the integer nanoseconds as
-//!   `<seconds>.<9 digits>`, never through a float, so a stamp survives a
+//!   `<seconds>.<9 digits>` (a stamp before 1970, which a ROS header may
+//!   carry, with a leading `-`), never through a float, so a stamp survives a
 //!   round trip exactly (an `f64` of seconds since 1970 only keeps about a
 //!   quarter of a microsecond);
 //! * translations with 6 decimals (1 µm, far below any sensor's accuracy,
@@ -39,7 +40,7 @@ const MIN_QUATERNION_NORM: f64 = 1e-6;
 /// component is [`Error::InvalidArgument`], checked before any file is
 /// touched. The write is atomic, as for
 /// `latentam_core::map::write_ply`.
-pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
+pub fn write_tum(path: &Path, poses: &[(i64, CameraPose)]) -> Result<()> {
     let mut text = String::with_capacity(HEADER.len() + 1 + poses.len() * 96);
     text.push_str(HEADER);
     text.push('\n');
@@ -51,11 +52,13 @@ pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
                 path.display()
             )));
         };
-        let (secs, nanos) = (stamp_ns / 1_000_000_000, stamp_ns % 1_000_000_000);
+        let sign = if *stamp_ns < 0 { "-" } else { "" };
+        let magnitude = stamp_ns.unsigned_abs();
+        let (secs, nanos) = (magnitude / 1_000_000_000, magnitude % 1_000_000_000);
         // Writing to a String cannot fail.
         let _ = writeln!(
             text,
-            "{secs}.{nanos:09} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
+            "{sign}{secs}.{nanos:09} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
             t.x, t.y, t.z, q.x, q.y, q.z, q.w
         );
     }
@@ -67,10 +70,11 @@ pub fn write_tum(path: &Path, poses: &[(u64, CameraPose)]) -> Result<()> {
 ///
 /// Blank lines and lines starting with `#` are skipped. Timestamps may have
 /// any number of decimals (beyond nanoseconds they are rounded) or be in
-/// exponent notation; quaternions are normalised. A line without exactly
-/// eight numbers, a negative timestamp, a non-finite value or a zero
+/// exponent notation, and are negative before 1970; quaternions are
+/// normalised. A line without exactly eight numbers, a timestamp outside
+/// ±9.2·10⁹ s (an `i64` of nanoseconds), a non-finite value or a zero
 /// quaternion is [`Error::InvalidArgument`] naming the file and line.
-pub fn read_tum(path: &Path) -> Result<Vec<(u64, CameraPose)>> {
+pub fn read_tum(path: &Path) -> Result<Vec<(i64, CameraPose)>> {
     let text = super::read_input_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
         source,
@@ -121,24 +125,29 @@ fn normalised(q: DQuat) -> Option<DQuat> {
 /// Seconds as written in a TUM file to nanoseconds: decimals are taken
 /// digit by digit so nothing is lost to floating point; anything else a
 /// float parser accepts (exponents) goes through `f64`.
-fn parse_stamp(s: &str) -> Option<u64> {
-    let (int, frac) = s.split_once('.').unwrap_or((s, ""));
+fn parse_stamp(s: &str) -> Option<i64> {
+    let (negative, unsigned) = match s.strip_prefix('-') {
+        Some(rest) => (true, rest),
+        None => (false, s),
+    };
+    let (int, frac) = unsigned.split_once('.').unwrap_or((unsigned, ""));
     let all_digits = |d: &str| d.bytes().all(|b| b.is_ascii_digit());
     if !int.is_empty() && all_digits(int) && all_digits(frac) {
-        let secs: u64 = int.parse().ok()?;
-        let mut nanos = 0u64;
+        let secs: i128 = int.parse().ok()?;
+        let mut nanos = 0i128;
         for (k, b) in frac.bytes().take(9).enumerate() {
-            nanos += u64::from(b - b'0') * 10u64.pow(8 - k as u32);
+            nanos += i128::from(b - b'0') * 10i128.pow(8 - k as u32);
         }
         if frac.as_bytes().get(9).is_some_and(|&b| b >= b'5') {
             nanos += 1;
         }
-        return secs.checked_mul(1_000_000_000)?.checked_add(nanos);
+        let magnitude = secs.checked_mul(1_000_000_000)?.checked_add(nanos)?;
+        return i64::try_from(if negative { -magnitude } else { magnitude }).ok();
     }
     let secs: f64 = s.parse().ok()?;
     let ns = (secs * 1e9).round();
-    // `u64::MAX as f64` rounds up to 2^64, which itself does not fit.
-    (ns.is_finite() && ns >= 0.0 && ns < u64::MAX as f64).then_some(ns as u64)
+    // `i64::MAX as f64` rounds up to 2^63, which itself does not fit.
+    (ns.is_finite() && ns >= i64::MIN as f64 && ns < i64::MAX as f64).then_some(ns as i64)
 }
 
 #[cfg(test)]
@@ -158,10 +167,10 @@ mod tests {
     fn round_trip() {
         let dir = TempDir::new("tum");
         let path = dir.path().join("trajectory.txt");
-        let poses: Vec<(u64, CameraPose)> = (0..20)
+        let poses: Vec<(i64, CameraPose)> = (0..20)
             .map(|i| {
                 (
-                    1_700_000_000_000_000_000 + u64::from(i) * 33_333_333,
+                    1_700_000_000_000_000_000 + i64::from(i) * 33_333_333,
                     pose(i),
                 )
             })
@@ -191,7 +200,10 @@ mod tests {
             999_999_999,
             1_000_000_000,
             1_700_000_000_123_456_789,
-            u64::MAX,
+            i64::MAX,
+            -1,
+            -1_500_000_000,
+            i64::MIN,
         ];
         let poses: Vec<_> = stamps.iter().map(|&s| (s, pose(1))).collect();
         write_tum(&path, &poses).unwrap();
@@ -209,10 +221,13 @@ mod tests {
                 "0.999999999",
                 "1.000000000",
                 "1700000000.123456789",
-                "18446744073.709551615",
+                "9223372036.854775807",
+                "-0.000000001",
+                "-1.500000000",
+                "-9223372036.854775808",
             ]
         );
-        let back: Vec<u64> = read_tum(&path).unwrap().iter().map(|p| p.0).collect();
+        let back: Vec<i64> = read_tum(&path).unwrap().iter().map(|p| p.0).collect();
         assert_eq!(back, stamps);
     }
 
@@ -246,7 +261,9 @@ mod tests {
         for (line, needle) in [
             ("1.0 0 0 0 0 0 0", "found 7 fields"),
             ("1.0 0 0 0 0 0 0 1 5", "found 9 fields"),
-            ("-1.0 0 0 0 0 0 0 1", "bad timestamp"),
+            ("-1.0.0 0 0 0 0 0 0 1", "bad timestamp"),
+            ("--1 0 0 0 0 0 0 1", "bad timestamp"),
+            ("9223372036.854775808 0 0 0 0 0 0 1", "bad timestamp"),
             ("1.0.0 0 0 0 0 0 0 1", "bad timestamp"),
             ("abc 0 0 0 0 0 0 1", "bad timestamp"),
             ("99999999999999999999 0 0 0 0 0 0 1", "bad timestamp"),

@@ -356,12 +356,7 @@ fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
 fn save_run_folder(mapper: &mut latentam::Mapper, out: &std::path::Path) -> Result<()> {
     let state = mapper.save(out)?;
     mapper.export_ply(&out.join("map.ply"))?;
-    let poses: Vec<(u64, latentam_io::CameraPose)> = mapper
-        .trajectory()
-        .iter()
-        .map(|&(s, p)| (s.max(0) as u64, p))
-        .collect();
-    latentam_io::write_tum(&out.join("trajectory.txt"), &poses)?;
+    latentam_io::write_tum(&out.join("trajectory.txt"), mapper.trajectory())?;
     latentam_base::files::write_bytes_atomically(
         &out.join("config.toml"),
         mapper.config().to_toml().as_bytes(),

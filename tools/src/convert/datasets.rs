@@ -245,8 +245,8 @@ pub fn replica(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
     };
     let params = dir.join("cam_params.json");
     if params.is_file() {
-        let v: serde_json::Value = serde_json::from_str(&read_text(&params)?)
-            .with_context(|| format!("{}: not JSON", params.display()))?;
+        let v = latentam_io::parse_json(&read_text(&params)?)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", params.display()))?;
         let cam = v.get("camera").unwrap_or(&v);
         let get = |k: &str| cam.get(k).and_then(|x| x.as_f64());
         match (get("fx"), get("fy"), get("cx"), get("cy")) {

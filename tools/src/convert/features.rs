@@ -1,6 +1,7 @@
 //! Per-frame embedding files written by a user's own extractor (for
-//! example `tools/python/extract_features.py`), and oracle embeddings made
-//! from label images and class vectors for evaluation.
+//! example `tools/python/extract_features.py`), and the readers of `.npy`
+//! and safetensors embeddings they share with the oracle and with
+//! `query --embedding`.
 //!
 //! # Per-frame feature files (`--features DIR`)
 //! For a colour image with file stem `S` (`frame-000000.color.jpg` → `S` =
@@ -19,14 +20,7 @@
 //! For `.npy` files the model id comes from `--model` or `DIR/model.txt`.
 //! Frames with no file are written without embeddings and counted.
 //!
-//! # Oracle embeddings (`--oracle-labels DIR --class-vectors FILE`)
-//! `DIR/S.png` (8- or 16-bit grey) or `DIR/S.npy` holds a class id per
-//! pixel (0 = unlabelled); `FILE` is a `.npy` `[C, D]` (row c = class c)
-//! or a `.safetensors` with `vectors` `[C, D]` and optional metadata
-//! `names` (a JSON list) and `model`. Each class present in a frame
-//! becomes one region whose target is its class vector; the log is marked
-//! `oracle` (model id prefixed `oracle:`), and the label images are also
-//! written as semantic ground truth.
+//! Oracle embeddings for evaluation are in [`super::oracle`].
 
 use std::path::{Path, PathBuf};
 
@@ -64,15 +58,15 @@ pub enum FrameFeatures {
 
 /// File stems a frame's files may have: its image's stem, and that stem
 /// without a trailing `.color` (7-Scenes names images `X.color.jpg`).
-fn candidate_stems(stem: &str) -> impl Iterator<Item = &str> {
+pub(super) fn candidate_stems(stem: &str) -> impl Iterator<Item = &str> {
     std::iter::once(stem).chain(stem.strip_suffix(".color"))
 }
 
 /// A tensor from either file format.
-struct Tensor {
-    dtype: NpyType,
-    shape: Vec<usize>,
-    data: Vec<u8>,
+pub(super) struct Tensor {
+    pub(super) dtype: NpyType,
+    pub(super) shape: Vec<usize>,
+    pub(super) data: Vec<u8>,
 }
 
 impl From<Npy> for Tensor {
@@ -85,14 +79,24 @@ impl From<Npy> for Tensor {
     }
 }
 
-fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
+pub(super) fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
     latentam_io::read_input(path).with_context(|| format!("reading {}", path.display()))
 }
 
-fn safetensors_tensor(
+/// `bytes` as a safetensors file whose header names each key once.
+pub(super) fn open_safetensors<'a>(
+    bytes: &'a [u8],
+    origin: &str,
+) -> anyhow::Result<safetensors::SafeTensors<'a>> {
+    latentam_io::check_safetensors_keys(bytes).map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+    safetensors::SafeTensors::deserialize(bytes)
+        .with_context(|| format!("{origin}: not a safetensors file"))
+}
+
+pub(super) fn safetensors_tensor(
     st: &safetensors::SafeTensors<'_>,
     name: &str,
-    path: &Path,
+    origin: &str,
 ) -> anyhow::Result<Option<Tensor>> {
     let Ok(view) = st.tensor(name) else {
         return Ok(None);
@@ -105,10 +109,9 @@ fn safetensors_tensor(
         D::I64 => NpyType::I64,
         D::F16 => NpyType::F16,
         D::F32 => NpyType::F32,
-        other => bail!(
-            "{}: tensor `{name}` has type {other:?} (accepted: U8 U16 I32 I64 F16 F32)",
-            path.display()
-        ),
+        other => {
+            bail!("{origin}: tensor `{name}` has type {other:?} (accepted: U8 U16 I32 I64 F16 F32)")
+        }
     };
     Ok(Some(Tensor {
         dtype,
@@ -117,7 +120,7 @@ fn safetensors_tensor(
     }))
 }
 
-fn floats(t: &Tensor, what: &str) -> anyhow::Result<Vec<f32>> {
+pub(super) fn floats(t: &Tensor, what: &str) -> anyhow::Result<Vec<f32>> {
     let v: Vec<f32> = match t.dtype {
         NpyType::F32 => t
             .data
@@ -137,7 +140,7 @@ fn floats(t: &Tensor, what: &str) -> anyhow::Result<Vec<f32>> {
     Ok(v)
 }
 
-fn labels(t: &Tensor, what: &str) -> anyhow::Result<Vec<u16>> {
+pub(super) fn labels(t: &Tensor, what: &str) -> anyhow::Result<Vec<u16>> {
     let convert = |v: i64| -> anyhow::Result<u16> {
         match v {
             -1 => Ok(u16::MAX),
@@ -174,7 +177,7 @@ fn size_u32(v: usize, what: &str) -> anyhow::Result<u32> {
 }
 
 /// An embedding dimension from a file, checked against what a log may hold.
-fn dim_of(d: usize, origin: &str) -> anyhow::Result<u32> {
+pub(super) fn dim_of(d: usize, origin: &str) -> anyhow::Result<u32> {
     match u32::try_from(d) {
         Ok(d) if (1..=MAX_EMBEDDING_DIM).contains(&d) => Ok(d),
         _ => bail!("{origin}: embedding dimension {d} is out of range (1…{MAX_EMBEDDING_DIM})"),
@@ -290,16 +293,9 @@ impl FeatureDir {
             let g = self.dir.join(format!("{s}.grid.npy"));
             let origin = |p: &Path| p.display().to_string();
             let (features, dim) = if l.is_file() && f.is_file() {
-                regions(
-                    npy::parse(&read(&l)?).with_context(|| origin(&l))?.into(),
-                    npy::parse(&read(&f)?).with_context(|| origin(&f))?.into(),
-                    &origin(&l),
-                )?
+                regions_from_npy(&read(&l)?, &read(&f)?, &origin(&l), &origin(&f))?
             } else if g.is_file() {
-                grid(
-                    npy::parse(&read(&g)?).with_context(|| origin(&g))?.into(),
-                    &origin(&g),
-                )?
+                grid_from_npy(&read(&g)?, &origin(&g))?
             } else {
                 continue;
             };
@@ -319,211 +315,97 @@ impl FeatureDir {
     }
 
     fn load_safetensors(&self, path: &Path) -> anyhow::Result<LoadedFeatures> {
-        let bytes = read(path)?;
-        let origin = path.display().to_string();
-        let st = safetensors::SafeTensors::deserialize(&bytes)
-            .with_context(|| format!("{origin}: not a safetensors file"))?;
-        let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes)?;
-        let file_model = meta
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("model").cloned());
-        let (features, dim) = match (
-            safetensors_tensor(&st, "labels", path)?,
-            safetensors_tensor(&st, "features", path)?,
-            safetensors_tensor(&st, "grid", path)?,
-        ) {
-            (Some(l), Some(f), _) => regions(l, f, &origin)?,
-            (_, _, Some(g)) => grid(g, &origin)?,
-            _ => bail!("{origin}: needs tensors `labels` + `features`, or `grid`"),
-        };
-        let model = self
-            .model
-            .clone()
-            .or(file_model)
-            .with_context(|| format!("{origin}: no `model` in the metadata; pass --model"))?;
-        Ok(LoadedFeatures {
-            features,
-            dim,
-            model,
-        })
+        features_from_safetensors(
+            &read(path)?,
+            &path.display().to_string(),
+            self.model.clone(),
+        )
     }
 }
 
-/// One frame's class-id image and the oracle embeddings made from it.
-pub struct OracleFrame {
-    /// Label image columns.
-    pub width: u32,
-    /// Label image rows.
-    pub height: u32,
-    /// Class id per pixel.
-    pub classes: Vec<u16>,
-    /// One region per class present.
-    pub features: FrameFeatures,
+/// One frame's region embeddings from the bytes of `S.labels.npy` and
+/// `S.features.npy` (named `labels_origin` and `features_origin` in
+/// errors), and their dimension.
+pub fn regions_from_npy(
+    labels: &[u8],
+    features: &[u8],
+    labels_origin: &str,
+    features_origin: &str,
+) -> anyhow::Result<(FrameFeatures, usize)> {
+    regions(
+        npy::parse(labels)
+            .with_context(|| labels_origin.to_string())?
+            .into(),
+        npy::parse(features)
+            .with_context(|| features_origin.to_string())?
+            .into(),
+        labels_origin,
+    )
 }
 
-/// Class vectors and label images for oracle embeddings.
-pub struct Oracle {
-    labels_dir: PathBuf,
-    /// Class names by id.
-    pub names: Vec<String>,
-    /// Vectors by class id.
-    pub vectors: Vec<Vec<f32>>,
-    /// Model id, `oracle:` + the file's model (or `class-vectors`).
-    pub model: String,
+/// One frame's grid embeddings from the bytes of `S.grid.npy`, and their
+/// dimension.
+pub fn grid_from_npy(bytes: &[u8], origin: &str) -> anyhow::Result<(FrameFeatures, usize)> {
+    grid(
+        npy::parse(bytes)
+            .with_context(|| origin.to_string())?
+            .into(),
+        origin,
+    )
 }
 
-impl Oracle {
-    /// Loads the class vectors; label images are read per frame.
-    pub fn new(labels_dir: &Path, class_vectors: &Path) -> anyhow::Result<Self> {
-        if !labels_dir.is_dir() {
-            bail!("--oracle-labels {}: not a directory", labels_dir.display());
-        }
-        let bytes = read(class_vectors)?;
-        let origin = class_vectors.display().to_string();
-        let (tensor, names, model): (Tensor, Option<Vec<String>>, Option<String>) = if class_vectors
-            .extension()
-            .is_some_and(|e| e == "safetensors")
-        {
-            let st = safetensors::SafeTensors::deserialize(&bytes)
-                .with_context(|| format!("{origin}: not a safetensors file"))?;
-            let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes)?;
-            let meta = meta.metadata().clone().unwrap_or_default();
-            let names = match meta.get("names") {
-                Some(s) => Some(serde_json::from_str(s).with_context(|| {
-                    format!("{origin}: metadata `names` is not a JSON list of strings")
-                })?),
-                None => None,
-            };
-            let t = safetensors_tensor(&st, "vectors", class_vectors)?
-                .with_context(|| format!("{origin}: no tensor `vectors`"))?;
-            (t, names, meta.get("model").cloned())
-        } else {
-            (
-                npy::parse(&bytes).with_context(|| origin.clone())?.into(),
-                None,
-                None,
-            )
-        };
-        let [c, d] = tensor.shape[..] else {
-            bail!(
-                "{origin}: class vectors have shape {:?}, expected [C, D]",
-                tensor.shape
-            );
-        };
-        if c < 2 || d == 0 {
-            bail!("{origin}: need at least 2 classes (row 0 is unlabelled) and D > 0");
-        }
-        // Class ids are u16 in label images and in the vocabulary.
-        if c > u16::MAX as usize + 1 {
-            bail!(
-                "{origin}: {c} class vectors; at most {} (class ids are 16-bit)",
-                u16::MAX as usize + 1
-            );
-        }
-        dim_of(d, &origin)?;
-        let flat = floats(&tensor, &format!("{origin}: vectors"))?;
-        let vectors: Vec<Vec<f32>> = flat.chunks(d).map(|r| r.to_vec()).collect();
-        let names = names.unwrap_or_else(|| (0..c).map(|i| format!("class_{i}")).collect());
-        if names.len() != c {
-            bail!("{origin}: {} names for {c} class vectors", names.len());
-        }
-        Ok(Oracle {
-            labels_dir: labels_dir.to_path_buf(),
-            names,
-            vectors,
-            model: format!("oracle:{}", model.unwrap_or_else(|| "class-vectors".into())),
-        })
-    }
-
-    /// Embedding dimension.
-    pub fn dim(&self) -> usize {
-        // `new` requires at least 2 classes.
-        self.vectors[0].len()
-    }
-
-    /// The class-id image of frame `stem` (`None` if it has none), and its
-    /// embeddings: one region per class present.
-    pub fn load(&self, stem: &str) -> anyhow::Result<Option<OracleFrame>> {
-        for s in candidate_stems(stem) {
-            let png = self.labels_dir.join(format!("{s}.png"));
-            let npy_path = self.labels_dir.join(format!("{s}.npy"));
-            let (w, h, classes) = if png.is_file() {
-                codec::decode_png_labels(&read(&png)?)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?
-            } else if npy_path.is_file() {
-                let t: Tensor = npy::parse(&read(&npy_path)?)
-                    .with_context(|| npy_path.display().to_string())?
-                    .into();
-                let [h, w] = t.shape[..] else {
-                    bail!(
-                        "{}: shape {:?}, expected [H, W]",
-                        npy_path.display(),
-                        t.shape
-                    );
-                };
-                let side = 1..=codec::MAX_IMAGE_SIDE as usize;
-                if !side.contains(&h) || !side.contains(&w) {
-                    bail!(
-                        "{}: label image {w}×{h} is empty or beyond {} per side",
-                        npy_path.display(),
-                        codec::MAX_IMAGE_SIDE
-                    );
-                }
-                (
-                    w as u32,
-                    h as u32,
-                    labels(&t, &npy_path.display().to_string())?,
-                )
-            } else {
-                continue;
-            };
-            let mut present: Vec<u16> = Vec::new();
-            let mut region_of = vec![u16::MAX; self.vectors.len()];
-            for &c in &classes {
-                if c as usize >= self.vectors.len() {
-                    bail!(
-                        "{s}: class id {c} but only {} class vectors",
-                        self.vectors.len()
-                    );
-                }
-                if c != 0 && region_of[c as usize] == u16::MAX {
-                    region_of[c as usize] = present.len() as u16;
-                    present.push(c);
-                }
-            }
-            let labels = classes.iter().map(|&c| region_of[c as usize]).collect();
-            let vectors = present
-                .iter()
-                .flat_map(|&c| self.vectors[c as usize].clone())
-                .collect();
-            let features = FrameFeatures::Regions {
-                width: w,
-                height: h,
-                labels,
-                count: present.len() as u32,
-                vectors,
-            };
-            return Ok(Some(OracleFrame {
-                width: w,
-                height: h,
-                classes,
-                features,
-            }));
-        }
-        Ok(None)
-    }
+/// One frame's embeddings from the bytes of `S.safetensors` (see the
+/// module documentation); `model` overrides the file's model id.
+pub fn features_from_safetensors(
+    bytes: &[u8],
+    origin: &str,
+    model: Option<String>,
+) -> anyhow::Result<LoadedFeatures> {
+    let st = open_safetensors(bytes, origin)?;
+    let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)?;
+    let file_model = meta
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("model").cloned());
+    let (features, dim) = match (
+        safetensors_tensor(&st, "labels", origin)?,
+        safetensors_tensor(&st, "features", origin)?,
+        safetensors_tensor(&st, "grid", origin)?,
+    ) {
+        (Some(l), Some(f), _) => regions(l, f, origin)?,
+        (_, _, Some(g)) => grid(g, origin)?,
+        _ => bail!("{origin}: needs tensors `labels` + `features`, or `grid`"),
+    };
+    let model = model
+        .or(file_model)
+        .with_context(|| format!("{origin}: no `model` in the metadata; pass --model"))?;
+    Ok(LoadedFeatures {
+        features,
+        dim,
+        model,
+    })
 }
 
 /// Reads one embedding vector (e.g. a text embedding to query with) from
 /// a `.npy` file (F16/F32, shape `[D]` or `[1, D]`) or a `.safetensors`
 /// file holding one such tensor (or several, one named `embedding`).
 pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
-    let bytes = read(path)?;
-    let origin = path.display();
-    let tensor = if path.extension().is_some_and(|e| e == "safetensors") {
-        let st = safetensors::SafeTensors::deserialize(&bytes)
-            .with_context(|| format!("{origin}: not a safetensors file"))?;
+    vector_from_bytes(
+        &read(path)?,
+        path.extension().is_some_and(|e| e == "safetensors"),
+        &path.display().to_string(),
+    )
+}
+
+/// [`read_vector`] of a file's bytes: `.safetensors` when `safetensors`,
+/// `.npy` otherwise; `origin` names the file in errors.
+pub fn vector_from_bytes(
+    bytes: &[u8],
+    safetensors: bool,
+    origin: &str,
+) -> anyhow::Result<Vec<f32>> {
+    let tensor = if safetensors {
+        let st = open_safetensors(bytes, origin)?;
         let names = st.names();
         let name = match names.as_slice() {
             [one] => one.to_string(),
@@ -533,15 +415,15 @@ pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
                 names.len(),
                 names
                     .iter()
-                    .map(|n| n.to_string())
+                    .map(|n| latentam_base::text::shown(n))
                     .collect::<Vec<_>>()
                     .join(", ")
             ),
         };
         // `name` is one of `st.names()`, so the tensor exists.
-        safetensors_tensor(&st, &name, path)?.expect("listed above")
+        safetensors_tensor(&st, &name, origin)?.expect("listed above")
     } else {
-        Tensor::from(npy::parse(&bytes).with_context(|| format!("{origin}: not a .npy array"))?)
+        Tensor::from(npy::parse(bytes).with_context(|| format!("{origin}: not a .npy array"))?)
     };
     let len = tensor
         .shape
@@ -554,7 +436,7 @@ pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
             tensor.shape
         );
     }
-    let v = floats(&tensor, &format!("{origin}"))?;
+    let v = floats(&tensor, origin)?;
     if v.iter().all(|&x| x == 0.0) {
         bail!("{origin}: the vector is all zeros");
     }
@@ -564,6 +446,7 @@ pub fn read_vector(path: &Path) -> anyhow::Result<Vec<f32>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::convert::oracle::{ClassVectors, Oracle};
 
     fn tensor(dtype: NpyType, shape: &[usize]) -> Tensor {
         let n: usize = shape.iter().product();
@@ -603,5 +486,56 @@ mod tests {
         let e = oracle.load("f").err().unwrap();
         assert!(e.to_string().contains("empty"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A safetensors file whose header names a tensor (or the metadata)
+    /// twice: other readers would take the first, serde the last.
+    #[test]
+    fn every_safetensors_reader_refuses_a_key_named_twice() {
+        let entry = |name: &str, v: f32| {
+            (
+                format!(
+                    "\"{name}\": {{\"dtype\": \"F32\", \"shape\": [1, 2], \"data_offsets\": [0, 8]}}"
+                ),
+                [v.to_le_bytes(), 1f32.to_le_bytes()].concat(),
+            )
+        };
+        let file = |entries: &[String], data: &[u8]| {
+            let header = format!("{{{}}}", entries.join(", "));
+            let mut out = (header.len() as u64).to_le_bytes().to_vec();
+            out.extend(header.as_bytes());
+            out.extend(data);
+            out
+        };
+        let model = "\"__metadata__\": {\"model\": \"m\"}".to_string();
+        for name in ["embedding", "vectors", "grid"] {
+            let (e, data) = entry(name, 0.5);
+            // Once it reads (where the reader takes such a tensor alone)...
+            let once = file(&[e.clone(), model.clone()], &data);
+            let twice = file(&[e.clone(), e.clone(), model.clone()], &data);
+            let meta_twice = file(&[e, model.clone(), model.clone()], &data);
+            fn vector(b: &[u8]) -> anyhow::Result<()> {
+                vector_from_bytes(b, true, "f").map(|_| ())
+            }
+            fn classes(b: &[u8]) -> anyhow::Result<()> {
+                ClassVectors::parse(b, true, "f").map(|_| ())
+            }
+            fn frame(b: &[u8]) -> anyhow::Result<()> {
+                features_from_safetensors(b, "f", None).map(|_| ())
+            }
+            for read in [vector, classes, frame] {
+                let _ = read(&once);
+                for bad in [&twice, &meta_twice] {
+                    let e = read(bad).unwrap_err().to_string();
+                    assert!(e.contains("appears twice"), "{name}: {e}");
+                }
+            }
+        }
+        // The single files read where their reader takes them.
+        let (e, data) = entry("embedding", 0.5);
+        assert_eq!(
+            vector_from_bytes(&file(&[e], &data), true, "f").unwrap(),
+            [0.5, 1.0]
+        );
     }
 }

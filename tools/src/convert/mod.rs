@@ -9,6 +9,7 @@
 pub mod datasets;
 pub mod features;
 pub mod npy;
+pub mod oracle;
 mod writing;
 
 use std::path::{Path, PathBuf};
@@ -17,8 +18,9 @@ use anyhow::{bail, Context};
 use latentam_io::{codec, Compression, Dtype, MAX_RECORD_BYTES};
 
 pub use datasets::{Dataset, DepthCamera};
-use features::{FeatureDir, Oracle};
+use features::FeatureDir;
 pub use latentam_io::DepthRegistration;
+use oracle::Oracle;
 
 /// Where a log's embeddings come from.
 pub enum EmbeddingSource {

@@ -87,6 +87,13 @@ pub fn parse(bytes: &[u8]) -> anyhow::Result<Npy> {
         .get(start..start + header_len)
         .context(".npy header runs past the end of the file")?;
     let header = std::str::from_utf8(header).context(".npy header is not text")?;
+    // The header is a Python dict literal, where a key named twice means
+    // its last value; `field` reads the first, so neither may be trusted.
+    for key in ["descr", "fortran_order", "shape"] {
+        if header.matches(&format!("'{key}'")).count() > 1 {
+            bail!(".npy header names `{key}` twice");
+        }
+    }
     let descr = field(header, "descr").context(".npy header has no descr")?;
     let descr = descr
         .trim_start_matches('\'')
@@ -182,5 +189,25 @@ mod tests {
         let at = big.windows(3).position(|w| w == b"<f4").unwrap();
         big[at] = b'>';
         assert!(parse(&big).unwrap_err().to_string().contains(">f4"));
+    }
+
+    #[test]
+    fn a_header_naming_a_key_twice_is_refused() {
+        // The same length as the written header, so the data still fits.
+        let good = write(NpyType::F32, &[2], &[0; 8]);
+        for (from, to) in [
+            ("'fortran_order': False", "'shape': (4,)"),
+            ("'fortran_order': False", "'descr': '<f2'"),
+        ] {
+            let at = good
+                .windows(from.len())
+                .position(|w| w == from.as_bytes())
+                .unwrap();
+            let to = format!("{to:<width$}", width = from.len());
+            let mut bad = good.clone();
+            bad[at..at + from.len()].copy_from_slice(to.as_bytes());
+            let e = parse(&bad).unwrap_err().to_string();
+            assert!(e.contains("twice"), "{e}");
+        }
     }
 }

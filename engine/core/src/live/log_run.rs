@@ -14,409 +14,17 @@
 //! timestamp ([`Mapper::already_mapped`](crate::mapper::Mapper::already_mapped)), so a log with a frame more or
 //! less than the first time resumes where the map ends.
 
-use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::path::Path;
+use std::time::Instant;
 
 use super::handle::LiveMapper;
+use super::log_run_types::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 use super::options::LiveOptions;
-use super::reader::LiveReader;
-use super::shared::Outcome;
-use crate::mapper::{
-    Ending, HostWaits, Integrated, KeyframeReport, Mapper, MapperStats, RunFolder, RunReport,
-};
+use super::tally::Tally;
+use crate::mapper::{Ending, HostWaits, Mapper, RunFolder, RunReport};
 use latentam_base::files::write_bytes_atomically;
 use latentam_base::{Error, Result};
-use latentam_io::{write_tum, AssemblyConfig, CameraPose, IngestReport, McapFrames, McapLog};
-
-/// How [`LogRun::map`] goes through a log.
-///
-/// ```no_run
-/// # fn f() -> latentam_core::Result<()> {
-/// use latentam_core::live::LogRunOptions;
-/// // The first 500 frames, saving every 10 keyframes.
-/// let options = LogRunOptions { max_frames: Some(500), autosave_every: 10, ..Default::default() };
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Clone, Debug, Default)]
-pub struct LogRunOptions {
-    /// Stop after this many frames of the log (those a resumed run skips
-    /// included).
-    pub max_frames: Option<usize>,
-    /// Write the run folder every this many keyframes while mapping (0:
-    /// only at the end, by [`LogRun::write_folder`]), so a crash or a lost
-    /// device loses at most this many keyframes.
-    pub autosave_every: u64,
-    /// Keep mapping when an autosave fails (listed in the report's
-    /// `autosave_failures`). By default a failed autosave stops the run:
-    /// a folder that cannot be written now will not be written at the
-    /// end either, and hours of mapping would be lost without a word.
-    pub continue_after_failed_autosave: bool,
-}
-
-/// What a client sees of a run of a log, and what it adds to it. Every
-/// method has a default that does nothing, so `&mut ()` observes nothing.
-///
-/// ```no_run
-/// # fn f() -> latentam_core::Result<()> {
-/// use latentam_core::live::RunObserver;
-/// use latentam_core::mapper::{KeyframeReport, MapperStats};
-/// struct Printer;
-/// impl RunObserver for Printer {
-///     fn frame_done(&mut self, frames: u64, _: &MapperStats, last: Option<&KeyframeReport>) {
-///         if let Some(k) = last {
-///             eprintln!("frame {frames}: keyframe {} took {:.0} ms", k.index, k.timings.total_ms);
-///         }
-///     }
-/// }
-/// # Ok(())
-/// # }
-/// ```
-pub trait RunObserver {
-    /// Before the first frame: the log's frame source (its topic plan, its
-    /// vocabulary) and the number of frames the run will go through, when
-    /// the log's summary says.
-    fn started(&mut self, _frames: &McapFrames, _total: Option<usize>) {}
-
-    /// After each frame of the log, mapped or skipped: how many were gone
-    /// through, the mapper's statistics after it, and the last keyframe's
-    /// report.
-    fn frame_done(&mut self, _frames: u64, _stats: &MapperStats, _last: Option<&KeyframeReport>) {}
-
-    /// Asked before each frame: whether to stop here ([`Ending::Interrupted`]).
-    /// A keyframe in progress can be cut short too, through
-    /// [`Mapper::set_hurry_flag`](crate::mapper::Mapper::set_hurry_flag).
-    fn stop_requested(&mut self) -> bool {
-        false
-    }
-
-    /// Once mapping starts: a reader of the live map (for a viewer, see
-    /// `latentam_view::LiveView`), valid until the run ends.
-    fn live_started(&mut self, _reader: &LiveReader) {}
-
-    /// The input looks wrong in a way that does not stop mapping (e.g.
-    /// depth in another camera frame than colour): said once per warning,
-    /// as soon as it is seen; all are in the report's `ingest.warnings`.
-    fn input_warning(&mut self, _warning: &str) {}
-
-    /// An autosave failed; mapping goes on, and the failure is listed in
-    /// the report.
-    fn autosave_failed(&mut self, _keyframe: u64, _error: &Error) {}
-
-    /// Writes the client's own files into the staged version of the run
-    /// folder `dir`, beside the report, before it is swapped in. Each must
-    /// be one of [`RUN_FOLDER_FILES`](crate::mapper::RUN_FOLDER_FILES).
-    fn write_extra_files(&mut self, _dir: &Path, _report: &RunReport) -> Result<()> {
-        Ok(())
-    }
-}
-
-impl RunObserver for () {}
-
-/// What [`LogRun::write_folder`] did.
-///
-/// ```no_run
-/// # fn f(run: &mut latentam_core::live::LogRun, folder: &latentam_core::mapper::RunFolder) -> latentam_core::Result<()> {
-/// use latentam_core::live::Written;
-/// match run.write_folder(folder, &mut ())? {
-///     Written::Saved(report) => println!("saved {} keyframes", report.keyframes),
-///     Written::Kept(why) => eprintln!("folder unchanged: {why}"),
-/// }
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Debug)]
-pub enum Written {
-    /// The folder now holds this run, described by the report.
-    Saved(Box<RunReport>),
-    /// The folder was left as it was, for this reason.
-    Kept(Kept),
-}
-
-/// Why [`LogRun::write_folder`] left the folder as it was.
-///
-/// ```no_run
-/// # fn f(run: &latentam_core::live::LogRun) -> latentam_core::Result<()> {
-/// use latentam_core::live::Kept;
-/// if let Some(Kept::NothingMapped(why)) = run.not_to_save() {
-///     eprintln!("the log gave no map: {why}");
-/// }
-/// # Ok(())
-/// # }
-/// ```
-#[derive(Debug, Clone, PartialEq)]
-pub enum Kept {
-    /// A resumed run whose log frames were all mapped already: the folder
-    /// holds this map.
-    NothingNew,
-    /// No keyframe, or no Gaussian, came of the log (the reasons, counted).
-    NothingMapped(String),
-    /// A keyframe failed part-way: the map is neither before nor after it.
-    Broken,
-}
-
-impl std::fmt::Display for Kept {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Kept::NothingNew => write!(
-                f,
-                "no new frame was mapped; the folder keeps the map it holds"
-            ),
-            Kept::NothingMapped(why) => write!(f, "nothing was mapped ({why})"),
-            Kept::Broken => write!(f, "a keyframe failed part-way, so the map cannot be saved"),
-        }
-    }
-}
-
-/// A finished (or stopped) run of a log.
-///
-/// ```no_run
-/// use latentam_io::AssemblyConfig;
-/// use latentam_core::live::{LogRun, LogRunOptions, Written};
-/// use latentam_core::mapper::{Mapper, RunFolder, STATE_FILE};
-///
-/// let ctx = latentam_gpu::Context::new(Default::default())?;
-/// let folder = RunFolder::lock("out/run")?;
-/// // Continue the map saved there, or start one.
-/// let mapper = if folder.dir().join(STATE_FILE).exists() {
-///     Mapper::load(&ctx, folder.dir())?
-/// } else {
-///     Mapper::with_context(&ctx, latentam_core::mapper::MapperConfig::default())?
-/// };
-/// let options = LogRunOptions { autosave_every: 25, ..Default::default() };
-/// let mut run = LogRun::map(
-///     mapper,
-///     "log.mcap".as_ref(),
-///     AssemblyConfig::default(),
-///     &options,
-///     Some(&folder),
-///     &mut (),
-/// )?;
-/// match run.write_folder(&folder, &mut ())? {
-///     Written::Saved(report) => println!("{} keyframes", report.keyframes),
-///     Written::Kept(why) => println!("kept as it was: {why}"),
-/// }
-/// # Ok::<(), latentam_core::Error>(())
-/// ```
-pub struct LogRun {
-    /// The mapper, holding the map.
-    pub mapper: Mapper,
-    /// The input log.
-    pub log: PathBuf,
-    /// Frames offered to the mapper in this run.
-    pub frames: u64,
-    /// Frames skipped because the resumed state had mapped them.
-    pub skipped: u64,
-    /// Every keyframe mapped in this run.
-    pub keyframes: Vec<KeyframeReport>,
-    /// Wall time of this run, seconds.
-    pub wall_s: f64,
-    /// How it ended.
-    pub ending: Ending,
-    /// What the log held and what of it was skipped.
-    pub ingest: IngestReport,
-    /// Keyframe count at the last successful autosave.
-    pub autosaved_at: Option<u64>,
-    /// Autosaves that failed (mapping went on).
-    pub autosave_failures: Vec<String>,
-    /// Frames that reached the mapper and were not keyframes.
-    pub not_keyframes: u64,
-}
-
-/// What a run counts while its mapper is on the live handle's worker:
-/// everything of a [`LogRun`] but the mapper.
-struct Tally {
-    log: PathBuf,
-    /// Frames handed to the live handle.
-    submitted: u64,
-    frames: u64,
-    skipped: u64,
-    keyframes: Vec<KeyframeReport>,
-    autosaved_at: Option<u64>,
-    autosave_failures: Vec<String>,
-    not_keyframes: u64,
-    /// The mapper's statistics after the last frame counted.
-    stats: MapperStats,
-    /// Outcomes left to count once the worker has stopped.
-    pending: Vec<Outcome>,
-}
-
-impl Tally {
-    fn new(log: &Path) -> Self {
-        Tally {
-            log: log.to_path_buf(),
-            submitted: 0,
-            frames: 0,
-            skipped: 0,
-            keyframes: Vec::new(),
-            autosaved_at: None,
-            autosave_failures: Vec::new(),
-            not_keyframes: 0,
-            stats: MapperStats::default(),
-            pending: Vec::new(),
-        }
-    }
-
-    /// Counts what the worker did since the last call, autosaving when a
-    /// keyframe makes one due. Returns the ending when a frame failed.
-    fn take_outcomes(
-        &mut self,
-        live: &LiveMapper,
-        options: &LogRunOptions,
-        folder: Option<&RunFolder>,
-        observer: &mut dyn RunObserver,
-        frames: &mut McapFrames,
-    ) -> Option<Ending> {
-        let mut due = false;
-        for outcome in live.take_outcomes() {
-            let before = self.stats.keyframes;
-            if let Some(failed) = self.count(outcome, frames, observer) {
-                self.pending.extend(live.take_outcomes());
-                return Some(failed);
-            }
-            let every = options.autosave_every;
-            due |= every > 0
-                && self.stats.keyframes != before
-                && self.stats.keyframes.is_multiple_of(every);
-        }
-        let folder = folder.filter(|_| due)?;
-        // Between frames, with the mapper: what the worker did meanwhile
-        // is counted first, so the folder's report and state agree.
-        let mut failed = None;
-        let submitted = self.submitted;
-        let saved = live.lend_owned(|mapper| {
-            for outcome in live.take_outcomes() {
-                if let Some(f) = self.count(outcome, frames, observer) {
-                    failed.get_or_insert(f);
-                }
-            }
-            let n = mapper.stats().keyframes;
-            let mut run = std::mem::replace(self, Tally::new(&self.log)).into_run(mapper);
-            run.ingest = frames.report().clone();
-            let written = run.write_folder(folder, observer);
-            let (mapper, tally) = run.into_parts();
-            *self = Tally { submitted, ..tally };
-            match written {
-                Ok(Written::Saved(_)) => self.autosaved_at = Some(n),
-                Ok(Written::Kept(_)) => {}
-                Err(e) => {
-                    observer.autosave_failed(n, &e);
-                    self.autosave_failures.push(format!("keyframe {n}: {e}"));
-                    if !options.continue_after_failed_autosave {
-                        failed.get_or_insert(Ending::Failed(format!(
-                            "the autosave at keyframe {n} failed, so the run stops \
-                             (--continue-after-failed-autosave maps on): {e}"
-                        )));
-                    }
-                }
-            }
-            (mapper, ())
-        });
-        if saved.is_err() {
-            // The worker is gone; its outcomes are counted at the end.
-            self.pending.extend(live.take_outcomes());
-        }
-        failed
-    }
-
-    /// Hands `frame` to the live handle, waiting for room and counting
-    /// what the worker did meanwhile; the ending when the run must stop.
-    fn submit(
-        &mut self,
-        live: &LiveMapper,
-        frame: latentam_io::Frame,
-        options: &LogRunOptions,
-        folder: Option<&RunFolder>,
-        observer: &mut dyn RunObserver,
-        frames: &mut McapFrames,
-    ) -> Option<Ending> {
-        let stamp = frame.stamp_ns;
-        let mut waiting = frame;
-        loop {
-            match live.submit_waiting(waiting, Duration::from_millis(50)) {
-                Ok(None) => return None,
-                Ok(Some(back)) => waiting = back,
-                // The worker stopped: its outcome says why.
-                Err(Error::Stopped(_)) => return None,
-                Err(e) => return Some(Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))),
-            }
-            if let Some(failed) = self.take_outcomes(live, options, folder, observer, frames) {
-                return Some(failed);
-            }
-            if observer.stop_requested() {
-                return Some(Ending::Interrupted);
-            }
-        }
-    }
-
-    /// Waits for the worker to map what is queued, counting (and
-    /// autosaving) as it goes; the ending when the run must stop early.
-    fn drain(
-        &mut self,
-        live: &LiveMapper,
-        options: &LogRunOptions,
-        folder: Option<&RunFolder>,
-        observer: &mut dyn RunObserver,
-        frames: &mut McapFrames,
-    ) -> Option<Ending> {
-        while !live.wait_idle(Duration::from_millis(50)) {
-            if observer.stop_requested() {
-                return Some(Ending::Interrupted);
-            }
-            if let Some(failed) = self.take_outcomes(live, options, folder, observer, frames) {
-                return Some(failed);
-            }
-        }
-        self.take_outcomes(live, options, folder, observer, frames)
-    }
-
-    /// Counts one frame's outcome; the ending when it failed.
-    fn count(
-        &mut self,
-        outcome: Outcome,
-        frames: &mut McapFrames,
-        observer: &mut dyn RunObserver,
-    ) -> Option<Ending> {
-        let stamp = outcome.frame.stamp_ns;
-        frames.recycle(outcome.frame);
-        self.stats = outcome.stats;
-        let failed = match outcome.result {
-            Ok(Integrated::Keyframe(k)) => {
-                self.frames += 1;
-                self.keyframes.push(*k);
-                None
-            }
-            Ok(Integrated::Skipped) => {
-                self.frames += 1;
-                self.not_keyframes += 1;
-                None
-            }
-            Err(e) => Some(Ending::Failed(format!("mapping frame at {stamp} ns: {e}"))),
-        };
-        observer.frame_done(
-            self.skipped + self.frames,
-            &self.stats,
-            self.keyframes.last(),
-        );
-        failed
-    }
-
-    fn into_run(self, mapper: Mapper) -> LogRun {
-        LogRun {
-            mapper,
-            log: self.log,
-            frames: self.frames,
-            skipped: self.skipped,
-            keyframes: self.keyframes,
-            wall_s: 0.0,
-            ending: Ending::Running,
-            ingest: IngestReport::default(),
-            autosaved_at: self.autosaved_at,
-            autosave_failures: self.autosave_failures,
-            not_keyframes: self.not_keyframes,
-        }
-    }
-}
+use latentam_io::{write_tum, AssemblyConfig, CameraPose, McapFrames, McapLog};
 
 impl LogRun {
     /// Maps the log at `log` with `mapper` (new, or loaded to be
@@ -521,32 +129,14 @@ impl LogRun {
                 ending = ended;
             }
         }
-        // An interrupted run stops at once (the keyframe in progress hurries
-        // through the mapper's hurry flag), dropping what is queued.
-        let interrupted = ending == Ending::Interrupted;
-        let (mapper, stopped, last) = live.close_keeping_failures(interrupted);
-        let mapper = mapper.ok_or_else(|| {
-            let why = stopped.map_or("the worker ended".into(), |e| e.to_string());
-            Error::Panicked(format!("the mapper was lost: {why}"))
-        })?;
-        let mut rest = std::mem::take(&mut run.pending);
-        rest.extend(last);
-        for outcome in rest {
-            if let Some(failed) = run.count(outcome, &mut frames, observer) {
-                if !matches!(ending, Ending::Failed(_)) {
-                    ending = failed;
-                }
-            }
-        }
-        let mut run = run.into_run(mapper);
-        run.ending = ending;
+        let mut run = run.close(live, ending, &mut frames, observer)?;
         run.wall_s = start.elapsed().as_secs_f64();
         run.ingest = frames.report().clone();
         Ok(run)
     }
 
     /// The mapper and the counts apart (for an autosave while mapping).
-    fn into_parts(self) -> (Mapper, Tally) {
+    pub(super) fn into_parts(self) -> (Mapper, Tally) {
         let stats = self.mapper.stats();
         let tally = Tally {
             log: self.log,
@@ -589,7 +179,12 @@ impl LogRun {
         let calls: Vec<_> = self.keyframes.iter().map(|k| k.gpu_calls).collect();
         RunReport {
             run_id: run_id.to_string(),
-            log: self.log.display().to_string(),
+            // Absolute, so that a tool run from another directory finds
+            // the same log.
+            log: std::path::absolute(&self.log)
+                .unwrap_or_else(|_| self.log.clone())
+                .display()
+                .to_string(),
             device: ctx.info().name.clone(),
             time_to_ready_ms: ctx.time_to_ready_ms(),
             pipeline_cache_loaded_bytes: ctx.info().pipeline_cache_loaded_bytes,
@@ -636,12 +231,8 @@ impl LogRun {
     /// # Ok(())
     /// # }
     /// ```
-    pub fn trajectory(&self) -> Vec<(u64, CameraPose)> {
-        self.mapper
-            .trajectory()
-            .iter()
-            .map(|&(stamp, pose)| (stamp.max(0) as u64, pose))
-            .collect()
+    pub fn trajectory(&self) -> Vec<(i64, CameraPose)> {
+        self.mapper.trajectory().to_vec()
     }
 
     /// Why the run folder must not be replaced by this run, if so.

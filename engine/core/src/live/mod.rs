@@ -12,16 +12,18 @@
 mod handle;
 mod index;
 mod log_run;
+mod log_run_types;
 mod options;
 mod queue;
 mod reader;
 mod shared;
 mod snapshot;
+mod tally;
 mod worker;
 
 pub use handle::LiveMapper;
 pub use index::{IndexSettings, RelevanceIndex};
-pub use log_run::{Kept, LogRun, LogRunOptions, RunObserver, Written};
+pub use log_run_types::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use options::LiveOptions;
 pub use queue::{frame_bytes, DropCounts};
 pub use reader::{LiveReader, LiveStatus, Relevance};

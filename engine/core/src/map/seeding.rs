@@ -293,9 +293,12 @@ pub fn seed_from_frame(
     let border_holes = (config.border_fill_radius > config.hole_fill_radius)
         .then(|| holes_reaching_the_edge(&frame.depth));
     let mut out = Vec::new();
-    let start = stride / 2;
-    for v in (start..h).step_by(stride as usize) {
-        for u in (start..w).step_by(stride as usize) {
+    // Candidates sit at the centre of each stride cell, but an image
+    // narrower than half a stride (one row, say) still has its first
+    // pixel as one: it would otherwise seed nothing at all.
+    let start = |side: u32| (stride / 2).min(side.saturating_sub(1));
+    for v in (start(h)..h).step_by(stride as usize) {
+        for u in (start(w)..w).step_by(stride as usize) {
             let i = (v * w + u) as usize;
             let Some(z) = frame
                 .depth

@@ -96,6 +96,51 @@ fn seeds_lie_on_the_measured_surface_once_per_voxel() {
     assert!(seed_from_frame(&frame, None, &map, &config, 1, None).is_empty());
 }
 
+/// An image thinner than half the seeding stride (one row, one column, a
+/// single pixel) still seeds its pixels on the stride grid from its edge.
+#[test]
+fn images_thinner_than_half_a_stride_are_seeded() {
+    let full = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    for (w, h) in [(W, 1), (1, H), (1, 1), (3, 2)] {
+        let mut frame = full.clone();
+        // The bottom-right corner of the wall, where every pixel has depth.
+        let keep = |x: u32, y: u32| x >= W - w && y >= H - h;
+        let idx = (0..W * H).filter(|&i| keep(i % W, i / W));
+        frame.color.data = idx
+            .clone()
+            .flat_map(|i| full.color.data[3 * i as usize..3 * i as usize + 3].to_vec())
+            .collect();
+        frame.depth.data = DepthData::Units {
+            values: vec![2000; (w * h) as usize],
+            metres_per_unit: 0.001,
+        };
+        (frame.color.width, frame.color.height) = (w, h);
+        (frame.depth.width, frame.depth.height) = (w, h);
+        frame.intrinsics.width = w;
+        frame.intrinsics.height = h;
+        frame.intrinsics.cx = (w as f64 - 1.0) / 2.0;
+        frame.intrinsics.cy = (h as f64 - 1.0) / 2.0;
+        frame.check().unwrap();
+        for stride in [2, 4] {
+            let config = SeedingConfig {
+                stride,
+                hole_fill_radius: 0,
+                border_fill_radius: 0,
+                ..SeedingConfig::default()
+            };
+            let map = GlobalMap::new(0.001);
+            let seeds = seed_from_frame(&frame, None, &map, &config, 1, None);
+            // Candidates from min(stride / 2, side - 1), every stride pixels.
+            let count = |side: u32| (side - (stride / 2).min(side - 1)).div_ceil(stride);
+            assert_eq!(
+                seeds.len() as u32,
+                count(w) * count(h),
+                "{w}×{h}, stride {stride}"
+            );
+        }
+    }
+}
+
 #[test]
 fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() {
     let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);

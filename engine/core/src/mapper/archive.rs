@@ -84,9 +84,11 @@ impl ArchiveWriter {
         let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
         self.meta.insert("format".into(), format.into());
         self.meta.insert("version".into(), version.to_string());
-        // A CRC-32 of every tensor's bytes, in name order (the order
-        // safetensors lays them out in is its own), checked at load.
-        let sum = checksum(self.tensors.iter().map(|(n, _, _, d)| (n.as_str(), &d[..])));
+        // Checked at load: metadata and tensors alike.
+        let sum = checksum(
+            self.meta.iter().map(|(k, v)| (k.as_str(), v.as_str())),
+            self.tensors.iter().map(|(n, _, _, d)| (n.as_str(), &d[..])),
+        );
         self.meta.insert(CHECKSUM_KEY.into(), sum);
         let views = self
             .tensors
@@ -113,9 +115,8 @@ fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
 /// settings (kilobytes), so a hostile file costs at most this to refuse.
 const MAX_HEADER_BYTES: u64 = 16 << 20;
 
-/// Metadata key of the archive's checksum (a CRC-32 over every tensor's
-/// name and bytes, in name order). Archives written before it was added
-/// have none and load unchecked.
+/// Metadata key of the archive's checksum (see [`checksum`]). Archives
+/// written before it was added have none and load unchecked.
 const CHECKSUM_KEY: &str = "crc32";
 
 /// Where a tensor lies in the archive's bytes.
@@ -126,18 +127,43 @@ struct Entry {
     range: std::ops::Range<usize>,
 }
 
-/// The archive checksum of `tensors` (name, bytes): a CRC-32 over every
-/// name and its bytes in name order (the order safetensors lays them out
-/// in is its own), as 8 hexadecimal digits.
-pub(crate) fn checksum<'b>(tensors: impl Iterator<Item = (&'b str, &'b [u8])>) -> String {
-    let mut sorted: Vec<_> = tensors.collect();
-    sorted.sort_by_key(|(name, _)| *name);
+/// The archive checksum: a CRC-32 over every metadata entry but the
+/// checksum itself, then every tensor's name and bytes, each list in name
+/// order (the order safetensors lays tensors out in is its own) and each
+/// field preceded by its length, so that moving bytes from one field to
+/// the next changes the sum. Written as 8 hexadecimal digits.
+///
+/// Public only for tests and fuzzers that edit an archive on purpose and
+/// must seal it again to reach the checks behind the checksum.
+#[doc(hidden)]
+pub fn checksum<'b>(
+    meta: impl Iterator<Item = (&'b str, &'b str)>,
+    tensors: impl Iterator<Item = (&'b str, &'b [u8])>,
+) -> String {
     let mut crc = crc32fast::Hasher::new();
-    for (name, data) in sorted {
-        crc.update(name.as_bytes());
-        crc.update(data);
+    let mut field = |bytes: &[u8]| {
+        crc.update(&(bytes.len() as u64).to_le_bytes());
+        crc.update(bytes);
+    };
+    let mut meta: Vec<_> = meta.filter(|(key, _)| *key != CHECKSUM_KEY).collect();
+    meta.sort();
+    for (key, value) in meta {
+        field(key.as_bytes());
+        field(value.as_bytes());
+    }
+    let mut tensors: Vec<_> = tensors.collect();
+    tensors.sort_by_key(|(name, _)| *name);
+    for (name, data) in tensors {
+        field(name.as_bytes());
+        field(data);
     }
     format!("{:08x}", crc.finalize())
+}
+
+/// Whether `id` has the form [`new_run_id`](crate::mapper::new_run_id)
+/// gives (and earlier versions gave): 8 to 64 hexadecimal digits.
+fn is_run_id(id: &str) -> bool {
+    (8..=64).contains(&id.len()) && id.bytes().all(|b| b.is_ascii_hexdigit())
 }
 
 /// Reads only the header of the archive at `path` and checks that its
@@ -203,6 +229,7 @@ fn read_header_of(
         return Err(format!("{file_len} bytes do not fit this machine's memory"));
     };
     let header = std::str::from_utf8(header).map_err(|e| format!("header: {e}"))?;
+    latentam_io::check_json_keys(header).map_err(|e| format!("header: {e}"))?;
     let fields: HashMap<String, serde_json::Value> =
         serde_json::from_str(header).map_err(|e| format!("header: {e}"))?;
     let mut meta = HashMap::new();
@@ -326,6 +353,7 @@ impl<'a> Archive<'a> {
         }
         if let Some(want) = meta.get(CHECKSUM_KEY) {
             let got = checksum(
+                meta.iter().map(|(k, v)| (k.as_str(), v.as_str())),
                 tensors
                     .iter()
                     .map(|(n, t)| (n.as_str(), &bytes[t.range.clone()])),
@@ -345,6 +373,32 @@ impl<'a> Archive<'a> {
             tensors,
             path: origin.to_path_buf(),
         })
+    }
+
+    /// Whether the archive carries a checksum, which every archive of this
+    /// version does (and which was checked when it was parsed).
+    pub fn sealed(&self) -> bool {
+        self.meta.contains_key(CHECKSUM_KEY)
+    }
+
+    /// The run id in the metadata (see
+    /// [`new_run_id`](crate::mapper::new_run_id)): 8 to 64 hexadecimal
+    /// digits when present. `required` archives of this version (sealed
+    /// ones) must carry one: a state is always saved into a run folder
+    /// version, whose id ties it to the decoder and report beside it.
+    pub fn run_id(&self, required: bool) -> Result<Option<String>> {
+        match self.meta.get("run_id") {
+            Some(id) if is_run_id(id) => Ok(Some(id.clone())),
+            Some(id) => Err(self.corrupt(format!(
+                "run id \"{}\" is not one this tool writes (8 to 64 hexadecimal digits)",
+                latentam_base::text::shown(id)
+            ))),
+            None if required && self.sealed() => Err(self.corrupt(
+                "no run id, which every state this version saves carries; the file was edited"
+                    .into(),
+            )),
+            None => Ok(None),
+        }
     }
 
     /// The file the archive came from.

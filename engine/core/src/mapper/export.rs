@@ -151,7 +151,8 @@ impl DecoderFile {
             temperature,
             eps,
             model: a.meta("model")?.to_string(),
-            run_id: a.meta("run_id").ok().map(str::to_string),
+            // A decoder written on its own (`Mapper::decoder`) has none.
+            run_id: a.run_id(false)?,
         };
         for (name, values) in [
             ("W", &file.w),

@@ -233,8 +233,7 @@ impl Mapper {
     /// ```
     pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
         let id = staging.run_id();
-        self.inner
-            .save_as(&staging.path().join(STATE_FILE), Some(id))?;
+        self.inner.save_as(&staging.path().join(STATE_FILE), id)?;
         if let Some(mut decoder) = self.inner.decoder_file()? {
             decoder.run_id = Some(id.to_string());
             decoder.write(&staging.path().join(DECODER_FILE))?;

@@ -6,6 +6,8 @@
 //! ([`documented_defaults`], [`apply_overrides`]).
 
 mod archive;
+#[doc(hidden)]
+pub use archive::checksum as archive_checksum;
 pub mod budget;
 pub(crate) mod class_iou;
 mod config;

@@ -74,7 +74,17 @@ fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
             Some((name.as_str(), data.get(range)?))
         })
         .collect();
-    if let Some(sum) = tensors.map(|t| crate::mapper::archive::checksum(t.into_iter())) {
+    let meta: Option<Vec<(&str, &str)>> = match header.get("__metadata__") {
+        Some(Value::Object(m)) => m
+            .iter()
+            .map(|(k, v)| Some((k.as_str(), v.as_str()?)))
+            .collect(),
+        _ => None,
+    };
+    let sum = meta
+        .zip(tensors)
+        .map(|(m, t)| crate::mapper::archive::checksum(m.into_iter(), t.into_iter()));
+    if let Some(sum) = sum {
         if let Some(Value::Object(meta)) = header.get_mut("__metadata__") {
             if meta.contains_key("crc32") {
                 meta.insert("crc32".into(), Value::String(sum));
@@ -657,6 +667,80 @@ fn bit_flips_in_tensor_data_are_all_detected() {
     }
     // The untouched file, rejoined, still loads.
     assert!(SavedState::parse(&join(&header, &data), Path::new(ORIGIN)).is_ok());
+}
+
+/// The metadata is under the checksum too: a changed counter, stamp,
+/// setting or run id is damage, not another map. Edits sealed again (as a
+/// deliberate editor could) still meet the checks behind the checksum: the
+/// run id must have the tool's form and be there, and a state that mapped
+/// frames must say up to which stamp.
+#[test]
+fn metadata_is_checksummed_and_run_ids_and_stamps_are_required() {
+    let bytes = SavedState::example().to_bytes().unwrap();
+    let (header, data) = split(&bytes).expect("a well-formed example");
+    let unsealed = |h: &Map<String, Value>| {
+        let text = serde_json::to_vec(h).unwrap();
+        let mut out = (text.len() as u64).to_le_bytes().to_vec();
+        out.extend(text);
+        out.extend_from_slice(&data);
+        out
+    };
+    let parse = |file: Vec<u8>| match SavedState::parse(&file, Path::new(ORIGIN)) {
+        Ok(_) => panic!("an edited state loaded"),
+        Err(e) => e.to_string(),
+    };
+    let with = |key: &str, value: Option<&str>| {
+        let mut h = header.clone();
+        let meta = h["__metadata__"].as_object_mut().unwrap();
+        match value {
+            Some(v) => meta.insert(key.into(), v.into()),
+            None => meta.remove(key),
+        };
+        h
+    };
+    let min = i64::MIN.to_string();
+    for (key, value) in [
+        ("last_stamp_ns", Some(min.as_str())),
+        ("frames", Some("13")),
+        ("run_id", Some("000000000000002f00000001")),
+        ("model", None),
+    ] {
+        let e = parse(unsealed(&with(key, value)));
+        assert!(e.contains("is damaged"), "{key}: {e}");
+    }
+    for (key, value, why) in [
+        ("run_id", Some("\u{1b}[2J"), "is not one this tool writes"),
+        ("run_id", Some("12"), "is not one this tool writes"),
+        ("run_id", Some(""), "is not one this tool writes"),
+        ("run_id", None, "no run id"),
+        ("last_stamp_ns", None, "no last_stamp_ns"),
+    ] {
+        let e = parse(join(&with(key, value), &data));
+        assert!(e.contains(why), "{key} = {value:?}: {e}");
+        assert!(!e.contains('\u{1b}'), "{e:?}");
+    }
+    // Resealed untouched, it loads.
+    assert!(SavedState::parse(&join(&header, &data), Path::new(ORIGIN)).is_ok());
+}
+
+/// A header naming a key twice (here the metadata, with another run id
+/// first) is refused: JSON readers differ on which one counts.
+#[test]
+fn a_header_naming_a_key_twice_is_refused() {
+    let bytes = SavedState::example().to_bytes().unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header = std::str::from_utf8(&bytes[8..8 + n]).unwrap();
+    let twice = format!(
+        "{{\"__metadata__\": {{\"run_id\": \"ffffffffffffffff\"}}, {}",
+        &header[1..]
+    );
+    let mut file = (twice.len() as u64).to_le_bytes().to_vec();
+    file.extend(twice.as_bytes());
+    file.extend_from_slice(&bytes[8 + n..]);
+    let e = SavedState::parse(&file, Path::new(ORIGIN))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("\"__metadata__\" appears twice"), "{e}");
 }
 
 /// A header whose tensors do not tile the file (a huge file behind a small

@@ -76,8 +76,7 @@ pub fn new_run_id() -> String {
 /// let folder = RunFolder::lock("runs/kitchen")?; // one writer at a time
 /// let staging = folder.stage()?;
 /// mapper.save_into(&staging)?;
-/// let poses: Vec<_> = mapper.trajectory().iter().map(|&(t, p)| (t as u64, p)).collect();
-/// latentam_io::write_tum(&staging.path().join("trajectory.txt"), &poses)?;
+/// latentam_io::write_tum(&staging.path().join("trajectory.txt"), mapper.trajectory())?;
 /// staging.commit()?; // the folder now holds exactly this version
 /// # Ok(())
 /// # }

@@ -55,7 +55,7 @@ pub enum Ending {
 pub struct RunReport {
     /// Shared by every file of this version of the run folder.
     pub run_id: String,
-    /// The input log.
+    /// The input log, as an absolute path.
     pub log: String,
     /// The Vulkan device it ran on.
     pub device: String,

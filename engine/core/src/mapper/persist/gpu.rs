@@ -11,16 +11,17 @@ fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
 }
 
 impl OnlineMapper {
-    /// Saves the whole state to `path` (one file, replaced atomically).
-    /// The window is written back to the global map first.
+    /// Saves the whole state to `path` (one file, replaced atomically)
+    /// under a fresh run id. The window is written back to the global map
+    /// first.
     #[cfg(any(test, feature = "testing"))]
     pub fn save(&mut self, path: &Path) -> Result<()> {
-        self.save_as(path, None)
+        self.save_as(path, &crate::mapper::new_run_id())
     }
 
     /// `OnlineMapper::save`, recording `run_id`: the id of the run folder
     /// version the file belongs to (see [`RunStaging::run_id`](crate::mapper::RunStaging::run_id)).
-    pub fn save_as(&mut self, path: &Path, run_id: Option<&str>) -> Result<()> {
+    pub fn save_as(&mut self, path: &Path, run_id: &str) -> Result<()> {
         self.check_consistent()?;
         self.flush()?;
         let ctx = self.ctx.clone();
@@ -39,7 +40,7 @@ impl OnlineMapper {
             })
             .collect();
         let bytes = StateRef {
-            run_id,
+            run_id: Some(run_id),
             config: &self.cfg,
             counters: Counters {
                 frames: self.frames,

@@ -545,7 +545,7 @@ impl SavedState {
             .collect();
         SavedState {
             origin: PathBuf::from("example.latentam"),
-            run_id: None,
+            run_id: Some("000000000000001f00000001".into()),
             config,
             counters: Counters {
                 frames: 12,

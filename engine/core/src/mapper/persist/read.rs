@@ -41,7 +41,7 @@ impl SavedState {
         };
         Ok(SavedState {
             origin: a.path().to_path_buf(),
-            run_id: a.meta("run_id").ok().map(str::to_string),
+            run_id: a.run_id(true)?,
             config,
             counters,
             model,
@@ -90,6 +90,14 @@ impl SavedState {
                 Err(_) => None,
             },
         };
+        // Resuming a log skips the frames up to this stamp; a state of this
+        // version that integrated frames always records it.
+        if a.sealed() && counters.frames > 0 && counters.last_stamp_ns.is_none() {
+            return Err(a.corrupt(format!(
+                "{} frames mapped but no last_stamp_ns",
+                counters.frames
+            )));
+        }
         if counters.keyframes > counters.frames {
             return Err(a.corrupt(format!(
                 "{} keyframes among {} frames",
