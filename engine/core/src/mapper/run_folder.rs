@@ -110,10 +110,9 @@ impl RunFolder {
                 given.display()
             )));
         };
-        let name = name.to_string_lossy().into_owned();
-        check_committable(&dir, parent, &name)?;
+        check_committable(&dir, parent, name)?;
         std::fs::create_dir_all(parent).map_err(|e| io_error(parent, e))?;
-        let lock_path = parent.join(format!(".{name}.lock"));
+        let lock_path = parent.join(hidden_sibling(name, ".lock"));
         let lock = acquire(&lock_path, &dir)?;
         let folder = RunFolder {
             dir,
@@ -133,12 +132,14 @@ impl RunFolder {
         &self.dir
     }
 
-    fn name(&self) -> String {
-        self.dir
-            .file_name()
-            .expect("checked in lock")
-            .to_string_lossy()
-            .into_owned()
+    /// A hidden sibling of the folder: `.NAME` + `suffix`, NAME byte for
+    /// byte (names that differ only in bytes that are not UTF-8 must not
+    /// share a lock or a staging folder).
+    fn sibling(&self, suffix: &str) -> PathBuf {
+        self.parent().join(hidden_sibling(
+            self.dir.file_name().expect("checked in lock"),
+            suffix,
+        ))
     }
 
     fn parent(&self) -> &Path {
@@ -147,12 +148,17 @@ impl RunFolder {
 
     /// Hidden siblings of the folder with `kind` (`staging`, `old`).
     fn siblings(&self, kind: &str) -> Result<Vec<PathBuf>> {
-        let prefix = format!(".{}.{kind}-", self.name());
+        let prefix = self.sibling(&format!(".{kind}-"));
+        let prefix = prefix.file_name().expect("a sibling has a name");
         let parent = self.parent();
         let mut found = Vec::new();
         for entry in std::fs::read_dir(parent).map_err(|e| io_error(parent, e))? {
             let entry = entry.map_err(|e| io_error(parent, e))?;
-            if entry.file_name().to_string_lossy().starts_with(&prefix) {
+            let name = entry.file_name();
+            if name
+                .as_encoded_bytes()
+                .starts_with(prefix.as_encoded_bytes())
+            {
                 found.push(entry.path());
             }
         }
@@ -254,7 +260,7 @@ impl RunFolder {
     /// [`RunStaging::commit`]; dropping it uncommitted removes it.
     pub fn stage(&self) -> Result<RunStaging<'_>> {
         let id = new_run_id();
-        let path = self.parent().join(format!(".{}.staging-{id}", self.name()));
+        let path = self.sibling(&format!(".staging-{id}"));
         std::fs::create_dir(&path).map_err(|e| io_error(&path, e))?;
         let staging = RunStaging {
             folder: self,
@@ -407,13 +413,22 @@ const MAX_NAME_BYTES: usize = 255 - 34;
 /// Errors unless a run folder `name` in `parent` can be replaced by
 /// renames: a name that leaves room for the staging folder's, and a folder
 /// that is not a mount point (renaming one fails with "busy").
-fn check_committable(dir: &Path, parent: &Path, name: &str) -> Result<()> {
-    if name.len() > MAX_NAME_BYTES {
+/// `.` + `name` + `suffix`, byte for byte.
+fn hidden_sibling(name: &std::ffi::OsStr, suffix: &str) -> std::ffi::OsString {
+    let mut s = std::ffi::OsString::from(".");
+    s.push(name);
+    s.push(suffix);
+    s
+}
+
+fn check_committable(dir: &Path, parent: &Path, name: &std::ffi::OsStr) -> Result<()> {
+    let bytes = name.as_encoded_bytes().len();
+    if bytes > MAX_NAME_BYTES {
         return Err(Error::InvalidArgument(format!(
             "{}: a run folder's name may have at most {MAX_NAME_BYTES} bytes (this one has {}): \
              the staging folder beside it adds 34",
             dir.display(),
-            name.len()
+            bytes
         )));
     }
     #[cfg(unix)]
@@ -505,10 +520,7 @@ impl RunStaging<'_> {
             // The staging path now holds the previous run.
             remove_tree(&self.path)?;
         } else {
-            let old = self
-                .folder
-                .parent()
-                .join(format!(".{}.old-{}", self.folder.name(), self.id));
+            let old = self.folder.sibling(&format!(".old-{}", self.id));
             replace_by_renames(&self.path, dir, &old)?;
         }
         self.done = true;
@@ -759,6 +771,34 @@ mod tests {
         std::fs::remove_dir_all(&root).unwrap();
     }
 
+    /// Folder names that differ only in bytes that are not UTF-8 are two
+    /// folders: each has its own lock and staging folders (a lossy name
+    /// made them share one lock, so the second writer was refused).
+    #[cfg(unix)]
+    #[test]
+    fn names_that_are_not_utf8_keep_their_own_lock() {
+        use std::os::unix::ffi::OsStrExt;
+        let root = scratch("not-utf8");
+        let a = root.join(std::ffi::OsStr::from_bytes(b"run\xff"));
+        let b = root.join(std::ffi::OsStr::from_bytes(b"run\xfe"));
+        let first = RunFolder::lock(&a).unwrap();
+        let second = RunFolder::lock(&b).unwrap();
+        for folder in [&first, &second] {
+            let staging = folder.stage().unwrap();
+            std::fs::write(staging.path().join("state.latentam"), "x").unwrap();
+            staging.commit().unwrap();
+        }
+        assert!(a.join("state.latentam").is_file() && b.join("state.latentam").is_file());
+        let locks: Vec<_> = std::fs::read_dir(&root)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .filter(|n| n.as_bytes().ends_with(b".lock"))
+            .collect();
+        assert_eq!(locks.len(), 2, "{locks:?}");
+        drop((first, second));
+        std::fs::remove_dir_all(&root).ok();
+    }
+
     #[test]
     fn destinations_that_cannot_be_committed_fail_at_once() {
         let root = scratch("uncommittable");
@@ -768,11 +808,11 @@ mod tests {
         assert!(RunFolder::lock(root.join("r".repeat(MAX_NAME_BYTES))).is_ok());
         let dir = root.join("run");
         std::fs::create_dir_all(&dir).unwrap();
-        assert!(check_committable(&dir, &root, "run").is_ok());
+        assert!(check_committable(&dir, &root, "run".as_ref()).is_ok());
         // The file system's root is on another device than /proc.
         #[cfg(target_os = "linux")]
         {
-            let e = check_committable(Path::new("/proc"), Path::new("/"), "proc")
+            let e = check_committable(Path::new("/proc"), Path::new("/"), "proc".as_ref())
                 .unwrap_err()
                 .to_string();
             assert!(e.contains("is a mount point"), "{e}");
