@@ -115,10 +115,6 @@ typedef struct LatentamMapperStatus {
 extern "C" {
 #endif // __cplusplus
 
-// The message of the last failed call on this thread ("" after none);
-// valid until the next failed call on this thread.
-const char *latentam_last_error_message(void);
-
 // Creates a mapper on the first suitable Vulkan device, every kernel
 // compiled before it returns. `config_toml`: the settings as TOML (the
 // keys of `latentam config --print-defaults`), or NULL for the defaults.
@@ -211,6 +207,10 @@ enum LatentamStatus latentam_log_next(struct LatentamLog *log, struct LatentamFr
 
 // Frees a log handle (NULL and unknown pointers are ignored).
 void latentam_log_free(struct LatentamLog *log);
+
+// The message of the last failed call on this thread ("" after none);
+// valid until the next failed call on this thread.
+const char *latentam_last_error_message(void);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -27,7 +27,7 @@ pub enum PoseSource {
     },
 }
 
-/// Topic names (DESIGN §3 defaults).
+/// Topic names (the defaults of docs/input-logs.md).
 ///
 /// ```
 /// use latentam_io::{AssemblyConfig, Topics};
