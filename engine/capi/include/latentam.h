@@ -48,7 +48,7 @@ typedef struct LatentamLog LatentamLog;
 typedef struct LatentamMapper LatentamMapper;
 
 // One RGB-D frame, as the caller holds it: nothing is owned, everything
-// is copied by [`latentam_submit`].
+// is copied by `latentam_submit`.
 typedef struct LatentamFrame {
   // The frame's time, nanoseconds.
   int64_t stamp_ns;

@@ -11,7 +11,7 @@ use std::ffi::c_char;
 use crate::status::{fail, text, LatentamStatus};
 
 /// One RGB-D frame, as the caller holds it: nothing is owned, everything
-/// is copied by [`latentam_submit`].
+/// is copied by `latentam_submit`.
 #[repr(C)]
 pub struct LatentamFrame {
     /// The frame's time, nanoseconds.
