@@ -123,6 +123,16 @@ struct PushStruct {
     fields: Vec<(String, String, u32, u32)>,
 }
 
+/// Writes `contents` to `path` unless it holds them already: the crate
+/// depends on these files, so a rewrite with a new time would rebuild it
+/// and every crate above it although nothing changed.
+fn write_if_changed(path: &Path, contents: &str) {
+    if std::fs::read_to_string(path).is_ok_and(|old| old == contents) {
+        return;
+    }
+    std::fs::write(path, contents).unwrap_or_else(|e| panic!("writing {}: {e}", path.display()));
+}
+
 fn main() {
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let glsl_dir = manifest.join("../glsl");
@@ -139,9 +149,9 @@ fn main() {
         Ok(s) => s,
         Err(e) => panic!("shaders/layouts.rs: {e}"),
     };
-    std::fs::write(out_dir.join(SHARED_GLSL), &shared.glsl).expect("write shared.glsl");
-    std::fs::write(out_dir.join(SHARED_WGSL), &shared.wgsl).expect("write shared.wgsl");
-    std::fs::write(out_dir.join("shared.rs"), &shared.rust).expect("write shared.rs");
+    write_if_changed(&out_dir.join(SHARED_GLSL), &shared.glsl);
+    write_if_changed(&out_dir.join(SHARED_WGSL), &shared.wgsl);
+    write_if_changed(&out_dir.join("shared.rs"), &shared.rust);
 
     let mut kernels = Vec::new();
     let mut errors = Vec::new();
@@ -193,7 +203,7 @@ fn main() {
         Ok(t) => t,
         Err(e) => panic!("{e}"),
     };
-    std::fs::write(out_dir.join("kernels.rs"), table).expect("write kernels.rs");
+    write_if_changed(&out_dir.join("kernels.rs"), &table);
 }
 
 fn sorted_files(dir: &Path, ext: &str) -> Vec<PathBuf> {
