@@ -313,31 +313,8 @@ fn states_with_nan_and_vocabularies_of_another_space_are_refused() {
     failed_with(&query(), &["is damaged", "checksum"]);
     // As written so (a crafted file, or a writer's bug): the checksum
     // matches, and the value itself is refused.
-    let meta = header["__metadata__"].as_object().unwrap();
-    let tensors = header
-        .as_object()
-        .unwrap()
-        .iter()
-        .filter(|(k, _)| *k != "__metadata__")
-        .map(|(name, t)| {
-            let o = &t["data_offsets"];
-            let (s, e) = (
-                o[0].as_u64().unwrap() as usize,
-                o[1].as_u64().unwrap() as usize,
-            );
-            (name.as_str(), &bytes[8 + n + s..8 + n + e])
-        });
-    let sum = latentam_core::mapper::archive_checksum(
-        meta.iter().map(|(k, v)| (k.as_str(), v.as_str().unwrap())),
-        tensors,
-    );
-    let old = header["__metadata__"]["crc32"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let text = String::from_utf8(bytes[8..8 + n].to_vec()).unwrap();
-    let text = text.replace(&old, &sum);
-    bytes[8..8 + n].copy_from_slice(text.as_bytes());
+    let bytes =
+        latentam_core::mapper::archive_join_resealed(header.as_object().unwrap(), &bytes[8 + n..]);
     std::fs::write(&path, &bytes).unwrap();
     failed_with(&query(), &["non-finite"]);
     std::fs::remove_dir_all(&dir).ok();

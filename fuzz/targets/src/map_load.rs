@@ -9,7 +9,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use arbitrary::{Arbitrary, Unstructured};
-use latentam_core::mapper::{archive_checksum, DecoderFile, SavedState};
+use latentam_core::mapper::{archive_join_resealed, DecoderFile, SavedState};
 use serde_json::{Map, Value};
 
 /// Byte-level damage to a file.
@@ -240,35 +240,7 @@ fn split(bytes: &[u8]) -> (Map<String, Value>, Vec<u8>) {
 /// edits (where the header still names the tensors' bytes), so that they
 /// reach the checks behind the checksum rather than stopping at it.
 fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
-    let mut header = header.clone();
-    let meta: Option<Vec<(&str, &str)>> = match header.get("__metadata__") {
-        Some(Value::Object(m)) => m
-            .iter()
-            .map(|(k, v)| Some((k.as_str(), v.as_str()?)))
-            .collect(),
-        _ => None,
-    };
-    let tensors: Option<Vec<(&str, &[u8])>> = header
-        .iter()
-        .filter(|(k, _)| *k != "__metadata__")
-        .map(|(name, _)| {
-            let (s, e, _) = extent(&header, name)?;
-            Some((name.as_str(), data.get(s..e)?))
-        })
-        .collect();
-    let sum = meta
-        .zip(tensors)
-        .map(|(m, t)| archive_checksum(m.into_iter(), t.into_iter()));
-    if let (Some(sum), Some(Value::Object(meta))) = (sum, header.get_mut("__metadata__")) {
-        if meta.contains_key("crc32") {
-            meta.insert("crc32".into(), Value::String(sum));
-        }
-    }
-    let h = serde_json::to_vec(&header).unwrap();
-    let mut out = (h.len() as u64).to_le_bytes().to_vec();
-    out.extend(h);
-    out.extend_from_slice(data);
-    out
+    archive_join_resealed(header, data)
 }
 
 /// A tensor's data offsets (start, end) and element width, where its header

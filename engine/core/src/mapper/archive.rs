@@ -166,6 +166,45 @@ fn is_run_id(id: &str) -> bool {
     (8..=64).contains(&id.len()) && id.bytes().all(|b| b.is_ascii_hexdigit())
 }
 
+/// The archive of `header` (its JSON, as a test or a fuzzer edited it) and
+/// `data`, with its checksum sealed again over the edits wherever the
+/// header still names each tensor's bytes and has a checksum at all, so
+/// that the edits reach the checks behind the checksum.
+#[doc(hidden)]
+pub fn join_resealed(header: &serde_json::Map<String, serde_json::Value>, data: &[u8]) -> Vec<u8> {
+    use serde_json::Value;
+    let mut header = header.clone();
+    let meta: Option<Vec<(&str, &str)>> = match header.get("__metadata__") {
+        Some(Value::Object(m)) => m
+            .iter()
+            .map(|(k, v)| Some((k.as_str(), v.as_str()?)))
+            .collect(),
+        _ => None,
+    };
+    let tensors: Option<Vec<(&str, &[u8])>> = header
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .map(|(name, t)| {
+            let o = t["data_offsets"].as_array()?;
+            let (s, e) = (o.first()?.as_u64()?, o.get(1)?.as_u64()?);
+            Some((name.as_str(), data.get(s as usize..e as usize)?))
+        })
+        .collect();
+    let sum = meta
+        .zip(tensors)
+        .map(|(m, t)| checksum(m.into_iter(), t.into_iter()));
+    if let (Some(sum), Some(Value::Object(meta))) = (sum, header.get_mut("__metadata__")) {
+        if meta.contains_key(CHECKSUM_KEY) {
+            meta.insert(CHECKSUM_KEY.into(), Value::String(sum));
+        }
+    }
+    let text = serde_json::to_vec(&header).expect("a JSON map serialises");
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend(text);
+    out.extend_from_slice(data);
+    out
+}
+
 /// Reads only the header of the archive at `path` and checks that its
 /// tensors tile the rest of the file exactly.
 fn check_extent(path: &Path, what: &str) -> Result<()> {

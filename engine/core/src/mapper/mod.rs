@@ -7,7 +7,7 @@
 
 mod archive;
 #[doc(hidden)]
-pub use archive::checksum as archive_checksum;
+pub use archive::{checksum as archive_checksum, join_resealed as archive_join_resealed};
 pub mod budget;
 pub(crate) mod class_iou;
 mod config;

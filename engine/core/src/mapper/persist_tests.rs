@@ -64,38 +64,7 @@ fn random_tensor(header: &Map<String, Value>, rng: &mut impl Rng) -> String {
 /// checks behind the checksum; [`bit_flips_in_tensor_data_are_all_detected`]
 /// covers the checksum itself.
 fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
-    let mut header = header.clone();
-    let tensors: Option<Vec<(&str, &[u8])>> = header
-        .iter()
-        .filter(|(k, _)| *k != "__metadata__")
-        .map(|(name, t)| {
-            let o = t["data_offsets"].as_array()?;
-            let range = o.first()?.as_u64()? as usize..o.get(1)?.as_u64()? as usize;
-            Some((name.as_str(), data.get(range)?))
-        })
-        .collect();
-    let meta: Option<Vec<(&str, &str)>> = match header.get("__metadata__") {
-        Some(Value::Object(m)) => m
-            .iter()
-            .map(|(k, v)| Some((k.as_str(), v.as_str()?)))
-            .collect(),
-        _ => None,
-    };
-    let sum = meta
-        .zip(tensors)
-        .map(|(m, t)| crate::mapper::archive::checksum(m.into_iter(), t.into_iter()));
-    if let Some(sum) = sum {
-        if let Some(Value::Object(meta)) = header.get_mut("__metadata__") {
-            if meta.contains_key("crc32") {
-                meta.insert("crc32".into(), Value::String(sum));
-            }
-        }
-    }
-    let h = serde_json::to_vec(&header).unwrap();
-    let mut out = (h.len() as u64).to_le_bytes().to_vec();
-    out.extend(h);
-    out.extend_from_slice(data);
-    out
+    crate::mapper::archive::join_resealed(header, data)
 }
 
 /// Metadata values worth trying anywhere.
