@@ -1,6 +1,9 @@
 // Advances the per-row Adam step counts after adam_step.comp (a separate
 // pass, because every element of a row reads the count during the update).
 // CPU reference: engine/reference/src/adam.rs.
+// @cost flops=rows bytes=8 * rows + 4 * use_mask * rows
+// one increment per row (step count read and written; mask read); with a
+// mask, counts every row as advanced (an upper bound).
 #version 450
 #include "common.glsl"
 

@@ -2,6 +2,10 @@
 // dictionary atoms that streaming k-means moved or replaced): both moments
 // and the step count go back to zero. CPU reference:
 // engine/reference/src/adam.rs.
+// @cost flops=elems bytes=4 * elems / max(width, 1)
+// Floor: one flag test per element, the flags read once per row. Each flagged
+// row also writes 8 * width + 4 bytes (moments and step count), not counted:
+// which rows are flagged is known only on the device.
 #version 450
 #include "common.glsl"
 

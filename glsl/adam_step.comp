@@ -7,6 +7,11 @@
 // element whose gradient is not finite (it must not poison the map).
 // adam_count.comp advances the step counts afterwards. CPU reference:
 // engine/reference/src/adam.rs.
+// @cost flops=52 * elems bytes=28 * elems + 4 * (1 + use_mask) * elems / max(width, 1)
+// per element: finite test (2), moments (9), two bias corrections with pow
+// (30), the update with sqrt and division (11); param, m, v read and written,
+// grad read; steps (and mask) once per row. With a mask, counts every row as
+// updated (an upper bound).
 #version 450
 #include "common.glsl"
 

@@ -3,6 +3,10 @@
 // skipped in row r (nearest *other* atom). A row with no candidate gets
 // value -inf and index 0xffffffff. One workgroup per row. CPU reference:
 // engine/reference/src/kmeans.rs.
+// @cost flops=2 * rows * cols bytes=4 * rows * cols + 8 * rows
+// per element: the value and tie compares; reads the matrix, writes value
+// and index per row. (Also dispatched indirectly behind a k-means gate: the
+// push fields give the work when the gate opens.)
 #version 450
 #include "common.glsl"
 

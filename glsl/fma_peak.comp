@@ -3,6 +3,9 @@
 // and writes one value (so the work cannot be optimised away). It measures
 // the device's attainable f32 FLOP rate, the yardstick for compute-bound
 // kernels. No CPU reference: its output is only a sink.
+// @cost flops=16 * iters * invocations bytes=4 * invocations
+// per invocation iters rounds of 8 fmas (as measure_fma_peak counts them),
+// one float written; every launched invocation does the work.
 #version 450
 #include "common.glsl"
 

@@ -10,6 +10,9 @@
 // @kernel gemm_tn TRANS_A=1 TRANS_B=0
 // @kernel gemm_nt TRANS_A=0 TRANS_B=1
 // @push Gemm
+// @cost flops=2 * m * n * k bytes=4 * (m * k + k * n + m * n) + 4 * m * n * min(1, max(beta, 0 - beta) * 1000000)
+// 2mnk as Gemm::flops(); reads A, B once, writes C, and reads C only when
+// beta != 0 (the min/max term is 1 for |beta| >= 1e-6, 0 for beta = 0).
 #version 450
 #include "shared.glsl"
 

@@ -21,6 +21,9 @@
 // @kernel gemm_blocked_tn_scalar TRANS_A=1 TRANS_B=0 VEC4=0
 // @kernel gemm_blocked_nt_scalar TRANS_A=0 TRANS_B=1 VEC4=0
 // @push Gemm
+// @cost flops=2 * m * n * k bytes=4 * (m * k + k * n + m * n) + 4 * m * n * min(1, max(beta, 0 - beta) * 1000000)
+// 2mnk as Gemm::flops(); reads A, B once, writes C, and reads C only when
+// beta != 0 (the min/max term is 1 for |beta| >= 1e-6, 0 for beta = 0).
 #version 450
 
 layout(local_size_x = 8, local_size_y = 8) in;

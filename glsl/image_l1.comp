@@ -5,6 +5,11 @@
 // The gradient is overwritten (the SSIM pass adds to it afterwards); each
 // workgroup writes its share of both weighted losses to the partial sums.
 // CPU reference: engine/reference/src/loss.rs (`image_l1_depth`).
+// @cost flops=19 * pixels bytes=48 * pixels + pixels / 32
+// Floor, per pixel: rgb sub, sign, scale, abs, sum (15), depth validity
+// tests (2), partial sums (2); a valid depth adds 5 more (not counted: the
+// host's valid_depth_pixels knows how many). Reads rendered and target
+// (vec4), writes grad (vec4); two partial floats per 256 pixels.
 #version 450
 #include "common.glsl"
 

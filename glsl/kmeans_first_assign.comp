@@ -26,6 +26,12 @@
 // @kernel kmeans_micro_rows STEP=0
 // @kernel kmeans_gate STEP=1
 // @kernel kmeans_first_assign STEP=2
+// @cost kmeans_micro_rows: flops=count * centres_count * (2 * dim + 1) bytes=4 * (count * dim + centres_count * dim + count * centres_count + 2 * count)
+// per micro row: a dim-long dot product and an argmax compare against each centre; reads its unit row and every centre once, writes its sims row and best.
+// @cost kmeans_gate: flops=micro_count bytes=4 * micro_count + 36
+// one threshold compare per micro-centre's best cosine; writes the 9-word gate.
+// @cost kmeans_first_assign: flops=2 * dim * (atoms - min(micro_count, atoms / 2)) + atoms * max(rows - atoms + min(micro_count, atoms / 2), 0) bytes=8 * dim * (atoms - min(micro_count, atoms / 2)) + 4 * atoms * max(rows - atoms + min(micro_count, atoms / 2), 0) + 12 * rows + 4 * micro_count + 4
+// R = min(micro_count, atoms / 2) atoms assumed replaced by new concepts (the GPU decides; at most that many): the other atoms take a dim-long dot with their own centre (two dim rows read), the R replaced ones and the rows - atoms micro-centres an argmax over an atoms-long sims row; every row writes best value, index, completeness.
 #version 450
 #include "common.glsl"
 

@@ -1,6 +1,8 @@
 // Which atoms a k-means update changed, for the optimiser's moment reset:
 // flag = 1 for a new row (k >= old_count) or when |D_k - old_k| > tolerance.
 // One workgroup per atom. CPU reference: engine/reference/src/kmeans.rs.
+// @cost flops=min(old_count, atoms_count) * (3 * dim + 5) bytes=8 * dim * min(old_count, atoms_count) + 4 * atoms_count
+// per old atom: dim subtract + mul-adds, a sqrt and a compare, reading its new and old rows; one flag written per atom.
 #version 450
 #include "common.glsl"
 

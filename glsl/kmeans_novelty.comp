@@ -9,6 +9,9 @@
 // replaced[j] receives the atom slot micro-centre j took, or 0xffffffff, so
 // that the first Lloyd assignment only recomputes those columns of the
 // similarities (kmeans_patch_sims.comp). A single workgroup; atoms <= 65536. CPU reference: engine/reference/src/kmeans.rs.
+// @cost flops=micro_count + min(micro_count, atoms / 2) * (atoms + 1) bytes=8 * atoms + 8 * micro_count + min(micro_count, atoms / 2) * (8 * dim + 8)
+// worst case (which micro-centres are new is decided on the GPU): every micro-centre new and placed (at most atoms / 2 pairs): each scans the atoms' best cosines
+// for the best free pair (one compare per atom) and copies a dim row; reads best_value/best_index once, writes `replaced`.
 #version 450
 
 #define THREADS 256

@@ -4,6 +4,9 @@
 // product: sims[r, replaced[j]] = unit[r] . unit[atoms + j], the
 // micro-centres being the last rows of the unit points. One thread per
 // (point, micro-centre). CPU reference: engine/reference/src/kmeans.rs.
+// @cost flops=2 * dim * rows * min(micro_count, atoms / 2) bytes=4 * dim * rows + 4 * rows * min(micro_count, atoms / 2) + 4 * micro_count
+// worst case, as kmeans_novelty's: every micro-centre took a slot (at most min(micro_count, atoms / 2)); a dim-long dot per (point, replaced column),
+// reading every unit row once (the micro-centres are the last rows) and writing one sims entry each.
 #version 450
 #include "common.glsl"
 

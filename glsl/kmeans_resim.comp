@@ -17,6 +17,15 @@
 // CPU reference: engine/reference/src/kmeans.rs.
 // @kernel kmeans_resim STEP=0
 // @kernel kmeans_reassign STEP=1
+// @cost kmeans_resim: flops=0 bytes=8 * rows + 4
+// A floor: how many centres went stale (L) and how many rows are recomputed
+// whole (W) the GPU decides, and the host never reads either back. With
+// S = (rows - W) * L + W * centres_count cosines the work is 2 * dim * S
+// flops and 4 * (S + dim * (rows + L) + 2 * rows + L + 1 + W) bytes; the floor
+// takes L = W = 0, the worst case is the dense product (L = centres_count).
+// @cost kmeans_reassign: flops=0 bytes=20 * rows + 4
+// A floor, as above: with Rs rows whose best centre went stale, it reads
+// T = (rows - Rs) * L + Rs * centres_count similarities (one compare each).
 #version 450
 #include "common.glsl"
 

@@ -4,6 +4,9 @@
 // seeds' rows of the raw points are copied to the centres. A single
 // workgroup: n is a keyframe's region count. CPU reference:
 // engine/reference/src/kmeans.rs.
+// @cost flops=n + max(seeds - 1, 0) * n * (2 * dim + 3) bytes=4 * n + (4 * n * dim + 8 * n) * min(max(seeds - 1, 0), 1) + 8 * seeds * dim
+// heaviest-point argmax, then per further seed: each point's dim-long dot with the seed, a max and an argmax compare; reads mass, unit rows and closest once,
+// writes closest, copies seeds rows of points to centres.
 #version 450
 
 #define THREADS 256

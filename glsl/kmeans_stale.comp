@@ -16,6 +16,13 @@
 // the sparse ones reach the same assignments).
 // @kernel kmeans_stale STEP=0
 // @kernel kmeans_stale_list STEP=1
+// @cost kmeans_stale: flops=all_dirty * centres_count * (6 * dim + 14) bytes=4 * centres_count * (2 - all_dirty) + all_dirty * 8 * centres_count * dim
+// Exact when every centre is examined (all_dirty, the first iteration); after
+// that a floor, since the dirty flags (D centres) are the GPU's: per examined
+// centre 6 * dim + 14 flops and 8 * dim bytes, per stale one dim flops and
+// 4 * dim bytes more.
+// @cost kmeans_stale_list: flops=2 * centres_count bytes=8 * centres_count + 4
+// per centre: a flag test and a prefix-sum add; reads stale, clears dirty, writes the count (the 4 bytes per listed stale centre are GPU-data-dependent and left out).
 #version 450
 #include "common.glsl"
 

@@ -13,6 +13,13 @@
 // CPU reference: engine/reference/src/kmeans.rs.
 // @kernel kmeans_update DIRTY=0
 // @kernel kmeans_update_dirty DIRTY=1
+// @cost kmeans_update: flops=points_count * centres_count + 2 * points_count * (dim + 1) + centres_count * (6 * dim + 4 + 4 * normalize * dim) bytes=4 * points_count * (dim + 2) + 4 * centres_count * (dim + 1)
+// each centre tests every assignment once (the scatter pass repeats it: not counted); each point's mass-weighted row is summed once (mul-add per element);
+// per centre a divide and square-sum per element, a sqrt, and with normalize a second divide. Reads assign, mass and points once; writes centres and weights.
+// @cost kmeans_update_dirty: flops=0 bytes=4 * centres_count
+// A floor: which centres are dirty (D) and their points (P) are the GPU's;
+// each adds what kmeans_update counts for it (points_count tests, 2 * P * (dim + 1)
+// sums, 6 * dim + 4 per centre).
 #version 450
 #include "common.glsl"
 

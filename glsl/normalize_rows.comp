@@ -2,6 +2,9 @@
 // uses it (paper Eq. 5):  y[r, :] = x[r, :] / (‖x[r, :]‖ + eps),  norm[r] = ‖x[r, :]‖.
 // One workgroup per row. CPU reference: engine/reference/src/decoder.rs
 // (`normalize_rows`).
+// @cost flops=3 * rows * cols + 9 * rows bytes=8 * rows * cols + 4 * rows
+// per element: the squared norm (fma, 2) and one multiply; per row sqrt,
+// add, division. Reads x, writes y and norm.
 #version 450
 #include "common.glsl"
 

@@ -4,6 +4,10 @@
 // (the second term tends to 0 with r and is 0 at r = 0). beta = 0 never reads
 // dx, so it may start as garbage. One workgroup per row. CPU reference:
 // engine/reference/src/decoder.rs (`normalize_rows_vjp`).
+// @cost flops=(5 + 2 * min(1, max(beta, 0 - beta) * 1000000)) * rows * cols + 10 * rows bytes=(12 + 4 * min(1, max(beta, 0 - beta) * 1000000)) * rows * cols + 4 * rows
+// per element: the y.g dot (fma, 2), g*inv - y*k (3), + beta*dx (fma, 2,
+// only when beta != 0: the min/max term is 1 for |beta| >= 1e-6, 0 for
+// beta = 0); per row two divisions. Reads y, g, norm (and dx), writes dx.
 #version 450
 #include "common.glsl"
 

@@ -16,6 +16,15 @@
 //
 // @kernel pixel_attention STEP=0
 // @kernel pixel_norms STEP=1
+// @cost pixel_attention: flops=27 * rows * atoms + 2126 * rows bytes=4 * rows * atoms + 4 * rows * stride + 128 * rows + 4096
+// per pixel: q G q (32x32 fma + 32 mul + 32 add = 2112), the scale (10),
+// one division; per atom the online softmax as softmax.comp (27). Reads the
+// row's logits, 32 query floats and G (32x32) once; writes stride floats.
+// @cost pixel_norms: flops=2 * rows * dim + 2 * rows * dim * min(regions, 1) + 4 * rows bytes=4 * rows * dim + 12 * rows + 4 * min(regions, rows) * dim
+// The norm's mul-add per element, a square root per pixel; with targets
+// (regions > 0) each pixel's dot with its region's target, counted for every
+// pixel (pixels outside every region skip it). Reads E, region and the
+// targets used; writes norm and target_dot.
 #version 450
 #include "common.glsl"
 #include "shared.glsl"

@@ -6,6 +6,20 @@
 // `accumulate` is set (a batch streamed through the rasterizer one chunk of
 // views at a time; colour and query gradients come from raster_backward). CPU reference: engine/reference/src/raster.rs
 // (`projection_backward`).
+// @cost caller
+// Only visible pairs (tile count > 0) are differentiated. Host, with
+// pairs = n_gaussians * n_views and V = the batch's visible pairs:
+//   flops = pairs + 785 * V + 11 * n_gaussians * accumulate
+//     (a tile-count test per pair; per visible pair the projection again
+//     ~350 (see project_forward.comp) and its chain rule ~435: conic
+//     inverse 22, J cov J^T 72, camera-frame centre 50, W^T v_t 18,
+//     W^T v_cov W 75, M and dM 63, log-scale 21, rotation and quaternion
+//     VJP 83+27, opacity 4; accumulating adds 11 per Gaussian)
+//   bytes = 88 * n_gaussians + 44 * n_gaussians * accumulate
+//           + 128 * n_views + 4 * pairs + 28 * V
+//     (44 parameter bytes read and 44 gradient bytes written per Gaussian,
+//     the old gradients read when accumulating; a tile count per pair; 28
+//     bytes of splat gradient per visible pair)
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

@@ -3,6 +3,22 @@
 // the splat the blending kernels use, its tile rectangle and tile count (0
 // when culled), and a 0/1 visibility flag for stream compaction.
 // CPU reference: engine/reference/src/raster.rs (`project`).
+// @cost caller
+// Culling is data-dependent (visible = pairs with tile count > 0, the
+// count the host reads back in `measure`). Host: with pairs = n_gaussians
+// * n_views and V = visible pairs (before `measure` knows V, V = pairs, an
+// upper bound):
+//   flops = 20 * pairs + 335 * V
+//     (every pair: world-to-camera transform 18 + near/far test 2; a pair
+//     that passes every test: quaternion norm and rotation 51, exp(scale)
+//     30, covariance M M^T 39 + W cov W^T 75, Jacobian and 2-D covariance
+//     53, conic 11, image mean 4, opacity sigmoid 16, extent and tile
+//     rectangle 56;
+//     pairs culled after the depth test but before the last test are
+//     counted at 20, a floor)
+//   bytes = 44 * n_gaussians + 128 * n_views + 8 * pairs + 40 * V
+//     (mean, log-scale, quaternion, logit read once per Gaussian; views;
+//     tile count + flag written per pair; splat 32 + rect 8 per visible)
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

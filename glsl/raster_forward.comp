@@ -24,6 +24,31 @@
 // @kernel raster_forward_columns COLUMNS=1 ROWS=32 QUERY=1
 // @kernel raster_forward_colour COLUMNS=0 ROWS=1 QUERY=0
 // @kernel raster_forward_columns_colour COLUMNS=1 ROWS=32 QUERY=0
+// @cost caller
+// Per-tile list lengths and per-pixel stops are data. Host, with I = the
+// intersections (tile-list entries) read back after binning, P = batch
+// pixels (sum of width * height), Pq = the pixels in the query band
+// [query_first, query_first + query_count), V = visible pairs, U =
+// min(n_gaussians, V) (Gaussians in some list, an upper bound), and
+// 256 * I pairs tested (every entry by every pixel of its tile: an upper
+// bound, pixels stop at their last contributor); constants as
+// tools/src/bench/raster.rs CostModel:
+//   raster_forward:                flops = 25 * 256 * I + 7 * P
+//   raster_forward_colour:         flops = 25 * 256 * I + 7 * P
+//     (TEST 25 per tested pair; background 7 per pixel. Blending a
+//     contributor, BLEND 76 (12 for _colour), is not host-known at dispatch:
+//     add 76 * contributors where a count exists)
+//   raster_forward_columns:        flops = 140 * 256 * I + 7 * P
+//   raster_forward_columns_colour: flops = 44 * 256 * I + 7 * P
+//     (branchless: every tested (entry, pixel) also does the blend and its
+//     selects: 25 + 19 + 96 for the 32 query FMAs and selects; 25 + 19
+//     for _colour)
+//   bytes = 4 * I + 28 * V + 140 * U + 8 * n_tiles + 28 * P + 128 * Pq,
+//     the _colour variants 4 * I + 28 * V + 12 * U + 8 * n_tiles + 28 * P
+//     (pair index per entry; splat per visible pair; colour + query per
+//     Gaussian, each distinct element once (CostModel's ENTRY_BYTES
+//     instead re-reads them per entry); tile range; rgbd, alpha and
+//     state per pixel; the 32 query channels per band pixel)
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

@@ -6,6 +6,8 @@
 // whose subgroups are smaller than the workgroup.
 // @kernel reduce_sum_f32 OP=0
 // @kernel reduce_max_f32 OP=1
+// @cost flops=n bytes=4 * n + 4 * max(1, n / 2048)
+// one add (max) per element; reads src[..n], writes one value per block.
 #version 450
 #include "common.glsl"
 

@@ -5,6 +5,10 @@
 // workgroup per region: 8 pixel lanes x 32 channels, lanes summed in shared
 // memory. Regions are never empty (the builder drops small ones). CPU
 // reference: engine/reference/src/pooling.rs.
+// @cost caller
+// host formula, with P = member pixels of the uploaded regions (regions.pixels.len() = offsets[regions], known to the host at record_upload_at):
+//   flops = 32 * P + 128 * regions  (one add per member pixel and channel, one divide per pooled value)
+//   bytes = 132 * P + 132 * regions + 4  (pixel indices and 32-float query rows of the members; offsets; pooled rows written).
 #version 450
 #include "common.glsl"
 

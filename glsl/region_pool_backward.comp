@@ -3,6 +3,10 @@
 // Regions are disjoint (one label per pixel), so each pixel has at most one
 // region and the whole image gradient is overwritten without atomics. One
 // thread per (pixel, channel). CPU reference: engine/reference/src/pooling.rs.
+// @cost caller
+// host formula, with P = member pixels of the uploaded regions (regions.pixels.len(), as for region_pool) and R = that upload's region count (self.regions()):
+//   flops = 128 * P  (a divide per member (pixel, channel); pixels in no region store 0)
+//   bytes = 132 * pixels + 132 * R + 4  (pixel_region read and 32 gradients written per pixel; grad_pooled rows and offsets read).
 #version 450
 #include "common.glsl"
 #include "shared.glsl"

@@ -6,6 +6,11 @@
 // CPU reference: engine/reference/src/scan.rs.
 // @kernel scan_blocks PASS=0
 // @kernel scan_add PASS=1
+// @cost scan_blocks: flops=2 * n bytes=8 * n + 4 * max(1, n / 1024)
+// @cost scan_add: flops=n bytes=8 * n + 4 * n / 1024
+// scan_blocks: the running sum and the block offset add per element, data
+// read and written, one total per SCAN_BLOCK (1024) block written;
+// scan_add: one add per element, data read and written, block totals read.
 #version 450
 #include "common.glsl"
 #include "shared.glsl"

@@ -4,6 +4,9 @@
 // written over g (in place: each element is read and written by the same
 // thread, after the row's dot product is complete). One workgroup per row.
 // CPU reference: engine/reference/src/decoder.rs (`backward`).
+// @cost flops=5 * rows * cols bytes=12 * rows * cols
+// per element: the a.g dot (fma, 2) and scale * a * (g - dot) (3); reads a
+// and g, writes g.
 #version 450
 #include "common.glsl"
 

@@ -3,6 +3,8 @@
 //     dL/dx = s0 + 2 x s1 + y s2
 // added to the colour gradient of the batch image. CPU reference:
 // engine/reference/src/ssim.rs.
+// @cost flops=216 * width * height bytes=84 * width * height
+// per (pixel, channel): 11 taps x 3 mul-adds and 6 for the chain rule and accumulation; reads 3 blurred, x, y, reads and writes grad.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

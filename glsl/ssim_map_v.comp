@@ -4,6 +4,8 @@
 // through x: S[x], S[x²] and S[xy]. Each workgroup adds weight * (1 - m)
 // over its items to the partial sums. CPU reference:
 // engine/reference/src/ssim.rs.
+// @cost flops=513 * width * height bytes=(96 + 12 / 256) * width * height
+// per (pixel, channel): 11 taps x 5 mul-adds, ~60 for the SSIM value and its three derivatives, 1 for the loss sum; reads 5 stats, writes 3 derivatives, and one partial per 256 items.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

@@ -2,6 +2,8 @@
 // channel) of one view, x the rendered and y the target colour. See
 // engine/core/src/loss/image.rs for the pass structure; CPU reference:
 // engine/reference/src/ssim.rs.
+// @cost flops=429 * width * height bytes=84 * width * height
+// per (pixel, channel): 11 taps x (2 + 2 + 3 + 3 + 3) for the five weighted sums; reads 3 channels of rendered and target, writes 5 floats.
 #version 450
 #include "common.glsl"
 #include "ssim.glsl"

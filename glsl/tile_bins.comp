@@ -10,6 +10,21 @@
 // @kernel gather_counts STEP=1
 // @kernel emit_tiles STEP=2
 // @kernel tile_ranges STEP=3
+// @cost compact_visible: caller
+// Host (n = pairs, V = visible pairs): flops = n (tile-count test);
+// bytes = 4 * n + 16 * V (tile count per pair; per visible pair its
+// position, depth, and key + value written).
+// @cost gather_counts: flops=0 bytes=12 * n
+// Reads order[i] and the count it points at, writes the sorted count.
+// @cost emit_tiles: caller
+// Host (n = V visible pairs, I = intersections read back after binning):
+// flops = 0 (tile keys are index arithmetic); bytes = 16 * n + 8 * I
+// + 8 * n_views (order, rect 8, offset per pair; key + value per
+// intersection; two words of each view).
+// @cost tile_ranges: flops=2 * n bytes=4 * n
+// Two neighbour-key compares per intersection; each key read once (the
+// <= 8 bytes of range written per non-empty tile are left out: the tile
+// count is not a push field here).
 #version 450
 #include "common.glsl"
 #include "splat.glsl"

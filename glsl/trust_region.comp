@@ -4,6 +4,11 @@
 // The gradient is added to `grad` (the decoder's dL/dD); `atom_loss` is
 // overwritten. One workgroup per atom. CPU reference:
 // engine/reference/src/loss.rs (`trust_region`).
+// @cost flops=3 * rows * cols + 6 * rows bytes=8 * rows * cols + 4 * rows
+// Floor: per element sub + fma for the norm; per row sqrt, compare, select.
+// Reads atoms and anchor, writes atom_loss. Each atom past the radius also
+// adds 3 flops and 8 bytes (grad read-modify-write) per element, not counted
+// (how many is known only on the device).
 #version 450
 #include "common.glsl"
 

@@ -31,6 +31,10 @@
 //!   push constants, shared by kernels of several files with one layout.
 //!   Without it the variants of one file share a type named after the file
 //!   when their layouts agree; kernels that end up with one type must agree.
+//! * `// @cost flops=EXPR bytes=EXPR` (or `// @cost NAME: ...` for one
+//!   kernel of the file, or `caller`) states the arithmetic and the bytes of
+//!   global memory one dispatch needs, from its push constants and launch
+//!   size: `Kernel::work`. Every kernel has one; see `build/cost.rs`.
 //!
 //! Constants and structs the host shares with kernels are declared once in
 //! `shaders/layouts.rs`; kernels `#include "shared.glsl"` or
@@ -66,6 +70,8 @@ mod layouts;
 mod bindings;
 #[path = "build/codegen.rs"]
 mod codegen;
+#[path = "build/cost.rs"]
+mod cost;
 #[path = "build/ir.rs"]
 mod ir;
 #[path = "build/preprocess.rs"]
@@ -75,6 +81,7 @@ mod shared;
 
 use bindings::*;
 use codegen::*;
+use cost::*;
 use ir::*;
 use preprocess::*;
 use shared::*;
@@ -114,6 +121,8 @@ struct KernelOut {
     defines: Defines,
     /// The keys of the file's `// @select` directive, if it has one.
     select: Option<Vec<String>>,
+    /// How a dispatch's work is counted (`// @cost`).
+    cost: Option<CostDecl>,
 }
 
 #[derive(PartialEq)]
@@ -297,6 +306,7 @@ fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
         k.push_group = push_group.clone();
         k.select = select.clone();
     }
+    assign_costs(&raw, &file, &mut out)?;
     Ok(out)
 }
 
@@ -379,6 +389,7 @@ fn compile_wgsl_file(path: &Path, include_dir: &Path) -> Result<Vec<KernelOut>, 
         k.push_group = push_group.clone();
         k.select = select.clone();
     }
+    assign_costs(&raw, &file, &mut out)?;
     Ok(out)
 }
 
@@ -616,5 +627,6 @@ fn finish(
         requires,
         defines: Vec::new(),
         select: None,
+        cost: None,
     })
 }

@@ -170,9 +170,11 @@ pub(crate) fn generate_table(kernels: &[KernelOut]) -> Result<String, String> {
         }
         let r = k.requires;
         let set = &sets[i];
+        let (work_fn, work) = work_count(k, &push_ty);
+        s.push_str(&work_fn);
         let _ = writeln!(
             s,
-            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}, bind::{set}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    shared_bytes: {},\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n}});\n",
+            "/// Kernel `{}` from `{}`.\npub static {upper}: KernelDef<{push_ty}, bind::{set}> = KernelDef::new(Kernel {{\n    name: {:?},\n    source: {:?},\n    spirv: &{upper}_SPIRV,\n    workgroup: [{}, {}, {}],\n    shared_bytes: {},\n    bindings: &[{binds}],\n    push_constant_size: {push_size},\n    requires: Requires {{ float_atomics: {}, subgroup_arithmetic: {}, subgroup_shuffle: {} }},\n    work: {work},\n}});\n",
             k.name, k.source, k.name, k.source, k.workgroup[0], k.workgroup[1], k.workgroup[2],
             k.shared_bytes, r.float_atomics, r.subgroup_arithmetic, r.subgroup_shuffle
         );

@@ -48,6 +48,45 @@ pub struct Kernel {
     pub push_constant_size: u32,
     /// What the kernel needs of the device beyond Vulkan 1.2 compute.
     pub requires: Requires,
+    /// How one dispatch's work is counted (the kernel's `// @cost` line).
+    pub work: WorkCount,
+}
+
+/// The work of one dispatch: arithmetic operations and bytes of global
+/// memory (storage buffers) read and written, each element counted once.
+/// A floor, not a measurement: an add, multiply or compare is one
+/// operation, a fused multiply-add two, a division or square root four,
+/// an exponential or logarithm ten; index arithmetic and loop control are
+/// not counted, and caches are taken as perfect.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Work {
+    /// Arithmetic operations.
+    pub flops: f64,
+    /// Bytes of global memory read plus written.
+    pub bytes: f64,
+}
+
+impl std::ops::Add for Work {
+    type Output = Work;
+
+    fn add(self, o: Work) -> Work {
+        Work {
+            flops: self.flops + o.flops,
+            bytes: self.bytes + o.bytes,
+        }
+    }
+}
+
+/// How a kernel's work per dispatch is known.
+#[derive(Clone, Copy, Debug)]
+pub enum WorkCount {
+    /// From the dispatch's push-constant bytes and its workgroup counts
+    /// (`None` for an indirect dispatch; the count is then unknown if the
+    /// kernel's expression needs them).
+    Launch(fn(&[u8], Option<[u32; 3]>) -> Option<Work>),
+    /// The work depends on data the launch does not show (the lengths of
+    /// per-tile lists, say): the code that dispatches it states it.
+    Caller,
 }
 
 /// Device features a kernel uses, read by the build from the kernel's own
@@ -83,6 +122,23 @@ impl Kernel {
             self.name
         } else {
             "main"
+        }
+    }
+
+    /// The work of one dispatch with these push constants (the bytes of
+    /// the kernel's push struct) and workgroup counts (`None` when
+    /// indirect), if its `@cost` line can count it from them.
+    ///
+    /// ```
+    /// use latentam_shaders::{push, GEMM_NN};
+    /// let p = push::Gemm { m: 4, n: 5, k: 6, ..Default::default() };
+    /// let w = GEMM_NN.kernel.work_of(bytemuck::bytes_of(&p), Some([1, 1, 1])).unwrap();
+    /// assert_eq!(w.flops, 2.0 * 4.0 * 5.0 * 6.0);
+    /// ```
+    pub fn work_of(&self, push: &[u8], groups: Option<[u32; 3]>) -> Option<Work> {
+        match self.work {
+            WorkCount::Launch(count) => count(push, groups),
+            WorkCount::Caller => None,
         }
     }
 

@@ -258,3 +258,61 @@ fn no_glsl_condition_guards_an_index_with_a_logical_operator() {
         found.join("\n")
     );
 }
+
+/// Every kernel counted from its launch gives a finite, non-negative work
+/// for push constants of zeros and of ones (flags off and on, sizes of 1),
+/// and nothing for push bytes of the wrong size.
+#[test]
+fn every_launch_counted_kernel_gives_a_sane_work() {
+    let mut counted = 0;
+    for k in ALL {
+        if matches!(k.work, WorkCount::Caller) {
+            continue;
+        }
+        let words = k.push_constant_size as usize / 4;
+        for fill in [0u32, 1] {
+            let push: Vec<u8> = std::iter::repeat_n(fill.to_le_bytes(), words)
+                .flatten()
+                .collect();
+            let w = k
+                .work_of(&push, Some([1, 1, 1]))
+                .unwrap_or_else(|| panic!("kernel {}: no work for its own push size", k.name));
+            assert!(
+                w.flops.is_finite() && w.bytes.is_finite() && w.flops >= 0.0 && w.bytes >= 0.0,
+                "kernel {} with push words of {fill}: {w:?}",
+                k.name
+            );
+        }
+        if words > 0 {
+            assert_eq!(k.work_of(&[0u8; 3], Some([1, 1, 1])), None, "{}", k.name);
+        }
+        counted += 1;
+    }
+    assert!(
+        counted > 40,
+        "only {counted} kernels counted from their launch"
+    );
+}
+
+/// The GEMM's count is the product's flops, and its bytes read A and B
+/// once and write C (reading C too when beta is not 0).
+#[test]
+fn gemm_work_is_the_products() {
+    for k in [&GEMM_NN.kernel, &GEMM_BLOCKED_TN.kernel] {
+        let (m, n, kk) = (48u32, 40u32, 64u32);
+        let p = push::Gemm {
+            m,
+            n,
+            k: kk,
+            beta: 0.0,
+            ..Default::default()
+        };
+        let w = k.work_of(bytemuck::bytes_of(&p), None).unwrap();
+        let (m, n, kk) = (m as f64, n as f64, kk as f64);
+        assert_eq!(w.flops, 2.0 * m * n * kk);
+        assert_eq!(w.bytes, 4.0 * (m * kk + kk * n + m * n));
+        let p = push::Gemm { beta: 1.0, ..p };
+        let w = k.work_of(bytemuck::bytes_of(&p), None).unwrap();
+        assert_eq!(w.bytes, 4.0 * (m * kk + kk * n + 2.0 * m * n));
+    }
+}

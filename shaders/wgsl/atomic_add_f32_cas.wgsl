@@ -3,6 +3,10 @@
 // front end has no atomics. Same interface as atomic_add_f32.wgsl.
 
 // @push ScatterAdd
+// @cost flops=n bytes=16 * n
+// One add per element; value 4 + target 4 read, 8 for the successful
+// compare-and-swap (its first atomicLoad reads the same word; retries
+// under contention are not counted: a floor).
 struct Params {
     n: u32,
 }

@@ -42,6 +42,39 @@
 // @kernel raster_backward_columns_attached_cas SUBGROUP=1 CAS=1 COLUMNS=1 ATTACHED=1
 // @kernel raster_backward_columns_attached_plain SUBGROUP=0 CAS=0 COLUMNS=1 ATTACHED=1
 // @kernel raster_backward_columns_attached_plain_cas SUBGROUP=0 CAS=1 COLUMNS=1 ATTACHED=1
+// @cost caller
+// Per-tile list lengths and per-pixel walks are data. Host, with I, P, V,
+// U as for raster_forward.comp (I tile-list entries, P pixels, V visible
+// pairs, U = min(n_gaussians, V)), 256 * I pairs tested (every entry by
+// every pixel of its tile: an upper bound), n_tiles, detach_query, R the
+// pooled region rows (query_source 1), and CostModel constants
+// (tools/src/bench/raster.rs):
+// flops
+//   pixel variants (raster_backward, _cas, _plain, _plain_cas):
+//     25 * 256 * I + 80 * P  (TEST per tested pair; per pixel c_final,
+//     background term, 32 upstream query scales. The per-contributor
+//     GRAD_DETACHED 132 + GRAD_QUERY 256 * (1 - detach_query) is not
+//     host-known at dispatch: add it times contributors where known)
+//   raster_backward_columns[_cas|_plain|_plain_cas]:
+//     210 * 256 * I + 340 * I + 80 * P
+//   raster_backward_columns_attached[_cas|_plain|_plain_cas]:
+//     498 * 256 * I + 340 * I + 80 * P
+//     (branchless: every tested (entry, pixel) forms all its gradients
+//     with selects, 210, +288 for the attached query terms of the alpha
+//     gradient; per entry 340 for the sum over the 8 lanes and the 42
+//     atomic adds)
+// bytes = 4 * I + 32 * V + 4 * n_tiles + 44 * P + Q + X + A, where
+//   X = 140 * U for the pixel and _attached variants, 12 * U for the
+//     detached column ones (colour, query per Gaussian, distinct once);
+//   Q = query_image 128 * P * (1 - detach_query) (pixel variants) or
+//     128 * P (_attached), plus the upstream query gradient: 128 * P
+//     (query_source 0), 4 * P + 132 * R (1), 0 (2);
+//   A = atomics, 42 gradient words of 8 bytes per flush (CAS the same,
+//     retries not counted): 336 * I for the SUBGROUP variants (pixel ones
+//     a floor, one flush per entry as CostModel ENTRY_GRAD_BYTES; they do
+//     up to 256 / subgroup size), 336 * I for the pixel _plain ones too as
+//     a floor (they flush once per contributor), 2688 * I for the column
+//     _plain ones (each of the 8 invocations flushes every entry).
 //
 // In the COLUMNS variants whether the query gradients reach opacity and
 // geometry is fixed at compile time (ATTACHED), since a run-time branch

@@ -32,6 +32,29 @@
 // @kernel raster_pool_plain_cas SUBGROUP=0 CAS=1 COLUMNS=0
 // @kernel raster_pool_columns CAS=0 COLUMNS=1
 // @kernel raster_pool_columns_cas CAS=1 COLUMNS=1
+// @cost caller
+// Per-tile list lengths, per-pixel walks and regions are data. Host, with
+// I, P, V, U as for glsl/raster_forward.comp (I tile-list entries, P
+// pixels, V visible pairs, U = min(n_gaussians, V)), 256 * I pairs tested
+// (every entry by every pixel of its tile: an upper bound; pixels in no
+// region test none), R regions, S the device's subgroup size:
+// flops
+//   pixel variants (raster_pool, _cas, _plain, _plain_cas):
+//     25 * 256 * I + 70 * P  (CostModel TEST per tested pair; per pixel
+//     the 1/|r| share and 32-channel scale, and its subgroup sum or row
+//     add. Blending the 32 query channels of a contributor, 67, is not
+//     host-known at dispatch: add it times contributors where known)
+//   raster_pool_columns, _columns_cas:
+//     125 * 256 * I + 70 * P  (branchless: every tested (entry, pixel)
+//     also blends the 32 channels with selects)
+// bytes = 4 * I + 32 * V + 128 * U + 4 * n_tiles + 8 * P + 4 * R + A
+//   (pair index per entry; splat per visible pair; query per Gaussian,
+//   distinct once; tile start; label and walked count per pixel; region
+//   offsets), A = 32 atomic adds of 8 bytes per row add (CAS the same,
+//   retries not counted): 256 * P for the _plain ones (one per pixel in a
+//   region: an upper bound), 256 * P / S for raster_pool, _cas (one per
+//   subgroup in one region, a floor) and 256 * P / 16 for the column ones
+//   (one per 16-pixel column in one region, a floor).
 
 #include "raster.wgsl"
 

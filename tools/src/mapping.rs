@@ -343,6 +343,8 @@ pub fn summary(r: &RunReport) -> String {
     );
     s += &r.host_waits_per_keyframe.summary();
     s.push('\n');
+    s += &r.gpu_work.summary();
+    s.push('\n');
     let skipped = r.ingest.total_skipped();
     if skipped > 0 {
         s += &format!("input: {skipped} messages or frames skipped (see report.json `ingest`)\n");

@@ -30,6 +30,7 @@ mod retire;
 pub mod testing;
 #[cfg(test)]
 mod tests;
+mod work;
 
 pub use buffer::{Buffer, Readback};
 pub use context::{
@@ -44,6 +45,7 @@ pub use memory::{ByteCount, MemoryReport};
 pub use objects::LiveObjects;
 pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};
 pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
+pub use work::{Floor, GpuModel, GpuWork, KernelWork};
 
 impl Context {
     /// Bytes allocated, per category and in total, with peaks.

@@ -559,3 +559,53 @@ fn gpu_assisted_validation_reports_a_planted_out_of_bounds_access() {
         "no out-of-bounds access reported: {errors:?}"
     );
 }
+
+/// What a dispatch counts in `Context::gpu_work`: its `@cost` line from
+/// the launch, or what the caller stated; a dispatch of zero workgroups
+/// counts nothing; an upload counts its bytes.
+#[test]
+fn dispatches_count_their_work() {
+    use crate::ops::{Gemm, Transpose};
+    with_context(|ctx| {
+        let gemm = Gemm {
+            transpose: Transpose::None,
+            m: 40,
+            n: 24,
+            k: 36,
+            alpha: 1.0,
+            beta: 0.0,
+        };
+        let a = Buffer::device(ctx, "work/a", 40 * 36 * 4).unwrap();
+        let b = Buffer::device(ctx, "work/b", 36 * 24 * 4).unwrap();
+        let c = Buffer::device(ctx, "work/c", 40 * 24 * 4).unwrap();
+        let before = ctx.gpu_work();
+        let mut rec = ctx.recorder().unwrap();
+        gemm.record(&mut rec, &a, &b, &c).unwrap();
+        let stated = latentam_shaders::Work {
+            flops: 5.0,
+            bytes: 7.0,
+        };
+        rec.work_of_next(stated);
+        gemm.record(&mut rec, &a, &b, &c).unwrap();
+        let empty = Gemm { m: 0, ..gemm };
+        empty.record(&mut rec, &a, &b, &c).unwrap();
+        rec.upload(&a, 0, &[0f32; 16]).unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        let work = ctx.gpu_work() - before;
+        let kernels: Vec<_> = work
+            .kernels
+            .iter()
+            .filter(|(n, _)| n.starts_with("gemm"))
+            .collect();
+        assert_eq!(kernels.len(), 1, "{work:?}");
+        let w = kernels[0].1;
+        assert_eq!((w.dispatches, w.uncounted), (2, 0));
+        assert_eq!(w.flops, gemm.flops() + stated.flops);
+        assert_eq!(
+            w.bytes,
+            4.0 * (40.0 * 36.0 + 36.0 * 24.0 + 40.0 * 24.0) + stated.bytes
+        );
+        assert_eq!(work.uploaded_bytes, 64);
+        assert_eq!(work.downloaded_bytes, 0);
+    });
+}

@@ -10,8 +10,9 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use latentam_core::mapper::budget::MemorySplit;
 use latentam_core::mapper::eval::{add_iou, mean_iou};
+use latentam_core::mapper::GpuWorkReport;
 use latentam_core::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
-use latentam_gpu::{Context, ContextOptions};
+use latentam_gpu::{Context, ContextOptions, GpuModel};
 use latentam_io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
 use serde::Serialize;
 
@@ -25,6 +26,20 @@ pub struct MapBench {
     pub budget: Option<u64>,
     pub eval_keyframes: usize,
     pub json: Option<PathBuf>,
+    /// A GPU to state the floor on besides the presets.
+    pub gpu: Option<GpuModel>,
+}
+
+/// A GPU given by its peak rate and bandwidth, with a discrete GPU's
+/// launch and round-trip costs.
+pub fn custom_gpu(tflops: f64, gbs: f64) -> GpuModel {
+    GpuModel {
+        name: format!("a GPU of {tflops} TFLOPS and {gbs} GB/s"),
+        fp32_tflops: tflops,
+        memory_gbs: gbs,
+        link_gbs: gbs,
+        ..GpuModel::rtx_4090()
+    }
 }
 
 #[derive(Serialize)]
@@ -91,6 +106,10 @@ struct Report {
     ms_per_keyframe: KeyframeTimings,
     /// Host waits, submissions and dispatches per keyframe.
     gpu_calls_per_keyframe: latentam_core::mapper::HostWaits,
+    /// The work per keyframe counted from the kernels' launch sizes, per
+    /// kernel, and the floor it puts on the time per keyframe on GPU
+    /// models.
+    gpu_work: GpuWorkReport,
     /// The dictionary's capacity, and the time per keyframe while it
     /// filled and once it was full (the first keyframe, which creates
     /// every workspace, is left out of both).
@@ -198,6 +217,8 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         ctx.set_memory_budget(None);
     }
     let quality = keyframe_quality(&mut mapper, &kept, b.eval_keyframes, path)?;
+    let mut models = GpuModel::presets();
+    models.extend(b.gpu.clone());
     let t = &stats.timings;
     let hidden_share = match (t.paging_gpu_ms, t.paging_hidden_ms) {
         (Some(g), Some(h)) if g > 0.0 => Some(h / g),
@@ -214,6 +235,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         keyframes_per_s: keyframes as f64 / wall,
         ms_per_keyframe: t.per_keyframe(keyframes),
         gpu_calls_per_keyframe: latentam_core::mapper::HostWaits::of(&gpu_calls),
+        gpu_work: GpuWorkReport::of(&stats.gpu_work, &gpu_calls, &models),
         atoms,
         while_filling: phase(&curve, atoms, false),
         once_full: phase(&curve, atoms, true),
@@ -335,6 +357,7 @@ fn print_report(r: &Report) {
     println!("  pruning           {:>10.1}", m.prune_ms);
     println!("  total             {:>10.1}", m.total_ms);
     println!("{}", r.gpu_calls_per_keyframe.summary());
+    print_work(&r.gpu_work);
     let last_atoms = r.curve.last().map_or(0, |p| p.atoms);
     if last_atoms > 0 {
         println!("dictionary: {last_atoms} of {} atoms at the end", r.atoms);
@@ -391,5 +414,58 @@ fn print_report(r: &Report) {
     }
     if let (Some(c), Some(m)) = (r.cosine_loss_keyframes, r.miou_keyframes) {
         println!("per pixel on the same keyframes: cosine loss {c:.4}, mIoU {m:.4}");
+    }
+}
+
+/// The work per keyframe, the kernels that weigh most in the first GPU
+/// model's floor, and each model's floor by term.
+fn print_work(w: &GpuWorkReport) {
+    println!(
+        "GPU work per keyframe (counted from launch sizes): {:.2} GFLOP, {:.1} MB of GPU memory \
+         traffic, {:.1} MB uploaded, {:.1} MB downloaded, {:.0} dispatches ({:.1} uncounted)",
+        w.gflop_per_keyframe,
+        w.mb_per_keyframe,
+        w.uploaded_mb_per_keyframe,
+        w.downloaded_mb_per_keyframe,
+        w.dispatches_per_keyframe,
+        w.uncounted_dispatches_per_keyframe
+    );
+    let Some(first) = GpuModel::presets().into_iter().next() else {
+        return;
+    };
+    let ms = |k: &latentam_core::mapper::KernelWorkPerKeyframe| {
+        (k.gflop / first.fp32_tflops).max(k.mb / 1e3 / first.memory_gbs)
+    };
+    let mut kernels: Vec<_> = w.kernels.iter().collect();
+    kernels.sort_by(|a, b| ms(b.1).total_cmp(&ms(a.1)));
+    println!(
+        "  {:<34} {:>10} {:>10} {:>10} {:>12}",
+        "kernel",
+        "dispatches",
+        "GFLOP",
+        "MB",
+        format!("ms, {}", "4090")
+    );
+    for (name, k) in kernels.iter().take(10) {
+        println!(
+            "  {name:<34} {:>10.1} {:>10.3} {:>10.1} {:>12.4}",
+            k.dispatches,
+            k.gflop,
+            k.mb,
+            ms(k)
+        );
+    }
+    for f in &w.floors {
+        println!(
+            "  floor on {}: {:.2} ms per keyframe (kernels {:.2}, of which compute-bound {:.2}; \
+             dispatches {:.2}; host waits {:.2}; host link {:.2})",
+            f.gpu,
+            f.total_ms,
+            f.kernels_ms,
+            f.compute_bound_ms,
+            f.dispatch_ms,
+            f.host_wait_ms,
+            f.link_ms
+        );
     }
 }

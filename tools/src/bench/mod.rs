@@ -142,6 +142,15 @@ pub enum Which {
         /// Write the results (with the per-keyframe curves) as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Also state the floor per keyframe on a GPU of this peak FP32
+        /// rate (TFLOPS; a fused multiply-add counts two), beside the RTX
+        /// 4090 and Jetson AGX Orin models. Needs --gpu-gbs.
+        #[arg(long, requires = "gpu_gbs", value_parser = positive_f64)]
+        gpu_tflops: Option<f64>,
+        /// That GPU's memory bandwidth, GB/s (also taken for its host
+        /// link). Needs --gpu-tflops.
+        #[arg(long, requires = "gpu_tflops", value_parser = positive_f64)]
+        gpu_gbs: Option<f64>,
     },
     /// Long run on the demo scene walked lap after lap: GPU and CPU bytes,
     /// Gaussians, kept keyframes and live Vulkan objects per keyframe, and
@@ -211,6 +220,8 @@ pub fn run(which: Which) -> Result<()> {
             budget,
             eval_keyframes,
             json,
+            gpu_tflops,
+            gpu_gbs,
         } => map::run(map::MapBench {
             frames: frames as usize,
             width,
@@ -221,6 +232,9 @@ pub fn run(which: Which) -> Result<()> {
             budget,
             eval_keyframes: eval_keyframes as usize,
             json,
+            gpu: gpu_tflops
+                .zip(gpu_gbs)
+                .map(|(tflops, gbs)| map::custom_gpu(tflops, gbs)),
         }),
         Which::Ingest {
             width,
@@ -237,5 +251,13 @@ pub fn run(which: Which) -> Result<()> {
             frames: frames as usize,
             json,
         }),
+    }
+}
+
+/// A finite number above 0.
+fn positive_f64(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("`{s}` is not a number above 0")),
     }
 }

@@ -6,7 +6,7 @@
 //! `glsl/region_pool_backward.comp`; CPU reference
 //! `latentam_reference::pooling`).
 
-use latentam_shaders::{push, REGION_POOL, REGION_POOL_BACKWARD};
+use latentam_shaders::{push, Work, REGION_POOL, REGION_POOL_BACKWARD};
 
 use std::cell::Cell;
 
@@ -315,6 +315,9 @@ pub struct RegionPooling {
     regions: Cell<u32>,
     first_row: Cell<u32>,
     pixels: Cell<u64>,
+    /// Pixels that belong to a region in that upload: the pooling's work
+    /// (`@cost caller` in region_pool.comp).
+    member_pixels: Cell<u64>,
     offsets: Buffer,
     members: Buffer,
     pixel_region: Buffer,
@@ -331,6 +334,7 @@ impl RegionPooling {
             regions: Cell::new(0),
             first_row: Cell::new(0),
             pixels: Cell::new(0),
+            member_pixels: Cell::new(0),
             offsets: Buffer::device(ctx, "pooling/offsets", (max_regions as u64 + 1) * 4)?,
             members: Buffer::device(ctx, "pixels/pooling_members", p * 4)?,
             pixel_region: Buffer::device(
@@ -409,6 +413,7 @@ impl RegionPooling {
         self.regions.set(regions.len());
         self.first_row.set(first_row);
         self.pixels.set(pixels);
+        self.member_pixels.set(regions.pixels.len() as u64);
         Ok(())
     }
 
@@ -420,6 +425,13 @@ impl RegionPooling {
         query_image: &'a Buffer,
     ) -> Result<()> {
         self.check_image(query_image)?;
+        let (members, regions) = (self.member_pixels.get() as f64, self.regions() as f64);
+        // A sum per member pixel and channel, a division per pooled value;
+        // the members' indices and query rows read, the pooled rows written.
+        rec.work_of_next(Work {
+            flops: 32.0 * members + 128.0 * regions,
+            bytes: 132.0 * members + 132.0 * regions + 4.0,
+        });
         rec.dispatch_linear(
             &REGION_POOL,
             self.regions(),
@@ -450,6 +462,12 @@ impl RegionPooling {
             "region pooling backward: pooled gradient",
         )?;
         let elems = self.pixels.get() * QUERY_DIM as u64;
+        // A division per member pixel and channel; every pixel's region
+        // read and its 32 gradients written, the pooled gradients read.
+        rec.work_of_next(Work {
+            flops: 128.0 * self.member_pixels.get() as f64,
+            bytes: 132.0 * self.pixels.get() as f64 + 132.0 * self.regions() as f64 + 4.0,
+        });
         rec.dispatch_linear(
             &REGION_POOL_BACKWARD,
             elems.div_ceil(256) as u32,

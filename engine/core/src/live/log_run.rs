@@ -21,9 +21,10 @@ use super::handle::LiveMapper;
 use super::log_run_types::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 use super::options::LiveOptions;
 use super::tally::Tally;
-use crate::mapper::{Ending, HostWaits, Mapper, RunFolder, RunReport};
+use crate::mapper::{Ending, GpuWorkReport, HostWaits, Mapper, RunFolder, RunReport};
 use latentam_base::files::write_bytes_atomically;
 use latentam_base::{Error, Result};
+use latentam_gpu::GpuModel;
 use latentam_io::{write_tum, AssemblyConfig, CameraPose, McapFrames, McapLog};
 
 impl LogRun {
@@ -206,6 +207,7 @@ impl LogRun {
             fetched: stats.fetched,
             ms_per_keyframe: t.per_keyframe(stats.keyframes),
             host_waits_per_keyframe: HostWaits::of(&calls),
+            gpu_work: GpuWorkReport::of(&stats.gpu_work, &calls, &GpuModel::presets()),
             paging_hidden_share: match (t.paging_gpu_ms, t.paging_hidden_ms) {
                 (Some(g), Some(h)) if g > 0.0 => Some(h / g),
                 _ => None,

@@ -1,10 +1,10 @@
 //! What the mapper reports: per frame ([`Integrated`]), per keyframe
-//! ([`KeyframeReport`], its timings and GPU calls) and over the run
+//! ([`KeyframeReport`], its timings, GPU calls and GPU work) and over the run
 //! ([`MapperStats`]).
 
 use super::budget::{MemorySplit, WindowBudget};
 use super::trainer::StageOneReport;
-use latentam_gpu::GpuCalls;
+use latentam_gpu::{GpuCalls, GpuWork};
 
 /// What the mapper did with a frame ([`Mapper::integrate`](super::Mapper::integrate)).
 ///
@@ -181,6 +181,46 @@ pub struct KeyframeReport {
     pub exposure: f32,
     /// What this keyframe asked of the GPU, by stage.
     pub gpu_calls: KeyframeGpuCalls,
+    /// The work it recorded for the GPU, counted from launch sizes.
+    pub gpu_work: KeyframeGpuWork,
+}
+
+/// The work a keyframe recorded for the GPU, counted from the kernels'
+/// launch sizes (their `@cost` lines; per kernel in
+/// [`MapperStats::gpu_work`]): what a GPU's peak rate and bandwidth turn
+/// into a floor on its time (`latentam_gpu::GpuModel::floor`).
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::KeyframeReport) {
+/// let w = report.gpu_work;
+/// println!("{:.1} GFLOP, {:.0} MB of GPU memory traffic", w.flops / 1e9, w.bytes / 1e6);
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct KeyframeGpuWork {
+    /// Arithmetic operations of its dispatches.
+    pub flops: f64,
+    /// Bytes of GPU memory its dispatches and device copies read and wrote.
+    pub bytes: f64,
+    /// Bytes uploaded from the host.
+    pub uploaded_bytes: u64,
+    /// Bytes downloaded to the host.
+    pub downloaded_bytes: u64,
+    /// Dispatches whose work nothing counted (missing from the sums).
+    pub uncounted_dispatches: u64,
+}
+
+impl KeyframeGpuWork {
+    /// The totals of `work`.
+    pub fn of(work: &GpuWork) -> Self {
+        KeyframeGpuWork {
+            flops: work.flops(),
+            bytes: work.bytes(),
+            uploaded_bytes: work.uploaded_bytes,
+            downloaded_bytes: work.downloaded_bytes,
+            uncounted_dispatches: work.uncounted(),
+        }
+    }
 }
 
 /// Running totals ([`Mapper::stats`](super::Mapper::stats)).
@@ -227,6 +267,9 @@ pub struct MapperStats {
     pub fetched: u64,
     /// Timings summed over keyframes.
     pub timings: KeyframeTimings,
+    /// GPU work the keyframes recorded, per kernel, summed over keyframes
+    /// (counted from launch sizes; see `latentam_gpu::GpuWork`).
+    pub gpu_work: GpuWork,
 }
 
 impl KeyframeTimings {

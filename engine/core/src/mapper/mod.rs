@@ -25,6 +25,7 @@ mod run_folder;
 mod run_report;
 mod trainer;
 mod warm_up;
+mod work_report;
 
 pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
@@ -32,7 +33,8 @@ pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 pub use facade::Mapper;
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
-    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
+    Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, MapperStats,
+    PagingReport,
 };
 /// The per-keyframe loop under [`Mapper`], for the workspace's tests only.
 #[cfg(any(test, feature = "testing"))]
@@ -47,6 +49,7 @@ pub use run_folder::{
 pub use run_report::{Ending, HostWaits, RunReport};
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 pub use warm_up::warm_up;
+pub use work_report::{GpuWorkReport, KernelWorkPerKeyframe};
 
 #[cfg(test)]
 mod persist_tests;

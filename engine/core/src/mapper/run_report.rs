@@ -104,6 +104,9 @@ pub struct RunReport {
     /// What each keyframe asked of the GPU: host waits (each a CPU–GPU
     /// round trip; in all and in Stage I + II), submissions, dispatches.
     pub host_waits_per_keyframe: HostWaits,
+    /// The work per keyframe counted from the kernels' launch sizes, and
+    /// the floor it puts on the time per keyframe on named GPUs.
+    pub gpu_work: super::GpuWorkReport,
     /// Share of the paging copies' GPU time hidden behind Stage II.
     pub paging_hidden_share: Option<f64>,
     /// Whether paging ran on a transfer queue of its own.

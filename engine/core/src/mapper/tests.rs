@@ -226,6 +226,15 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
                 Integrated::Keyframe(k) => {
                     added_total += k.added;
                     assert!(k.stage_one.image.total().is_finite());
+                    // Every dispatch of a keyframe has its work counted
+                    // (a kernel whose `@cost` is `caller` has its
+                    // dispatching code state it).
+                    let w = k.gpu_work;
+                    assert_eq!(w.uncounted_dispatches, 0, "keyframe {i}: {w:?}");
+                    assert!(
+                        w.flops > 0.0 && w.bytes > 0.0 && w.uploaded_bytes > 0,
+                        "{w:?}"
+                    );
                 }
                 Integrated::Skipped => panic!("every frame is a keyframe here"),
             }
@@ -235,6 +244,13 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
         }
         assert_eq!(mapper.history().len(), 8);
         assert_eq!(mapper.trajectory().len(), 8);
+        let work = &mapper.stats().gpu_work;
+        for stage in ["adam_step", "project_backward", "softmax", "kmeans_update"] {
+            assert!(
+                work.kernels.get(stage).is_some_and(|k| k.flops > 0.0),
+                "{stage}: {work:?}"
+            );
+        }
         assert_eq!(mapper.global().len(), added_total);
         assert!(mapper.head().unwrap().atom_count() >= 2);
         // Every Gaussian of the map is in the window (it is large enough),

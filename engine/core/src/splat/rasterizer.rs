@@ -25,6 +25,7 @@ mod grow;
 mod images;
 mod settings;
 mod variants;
+mod work;
 
 pub use batch::{ForwardStats, RenderBatch};
 use grow::Grow;
@@ -262,6 +263,9 @@ impl Rasterizer {
         let kernel = buildable(rec, &self.settings, |s| {
             forward_kernel(rec.info(), s, batch.channels)
         })?;
+        rec.work_of_next(
+            work::BatchCounts::of(batch).blend_forward(&kernel.kernel, query_count as f64),
+        );
         rec.dispatch_linear(kernel, layout.tiles, bufs, &p)
     }
 

@@ -1239,3 +1239,52 @@ fn dispatched_blend_kernels_are_the_ones_named_for_the_device() {
         });
     }
 }
+
+/// The work the blending kernels state (`splat/rasterizer/work.rs`) bounds
+/// what the f64 reference's walk of every pixel tests: 25 operations per
+/// tested pair at least, and every tile-list entry tested by every pixel
+/// of its tile at most.
+#[test]
+fn stated_blend_work_bounds_the_reference_walk() {
+    with_context(|ctx| {
+        let mut r = rng("stated_blend_work");
+        let cams: Vec<Camera> = (0..2)
+            .map(|_| {
+                let d = r.random_range(2.2..3.5);
+                random_camera(&mut r, 80, 56, d)
+            })
+            .collect();
+        let n = 400;
+        let host = awkward_scene(&mut r, n, &cams);
+        let buf = upload(ctx, &host);
+        let gs = Gaussian::all(&host);
+        let tested: u64 = cams
+            .iter()
+            .map(|c| reference::blend_work(&gs, c).tested)
+            .sum();
+        let pixels: u64 = cams.iter().map(|c| c.pixels()).sum();
+        assert!(tested > 0);
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            raster.forward(&buf, n as u64, &cams).unwrap();
+            let before = ctx.gpu_work();
+            let stats = raster.forward(&buf, n as u64, &cams).unwrap();
+            let work = ctx.gpu_work() - before;
+            assert_eq!(work.uncounted(), 0, "{work:?}");
+            let blend = work
+                .kernels
+                .iter()
+                .find(|(k, _)| k.starts_with("raster_forward"))
+                .map(|(_, w)| *w)
+                .unwrap();
+            let most = 140.0 * 256.0 * stats.intersections as f64 + 7.0 * pixels as f64;
+            assert!(
+                blend.flops >= 25.0 * tested as f64 && blend.flops <= most,
+                "{layout:?}: {} flops stated, {tested} pairs tested by the reference, {} entries",
+                blend.flops,
+                stats.intersections
+            );
+        }
+    });
+}

@@ -13,6 +13,7 @@ use crate::objects::ObjectCounts;
 use crate::pipeline::PipelineCache;
 use crate::profiler::Profiler;
 use crate::retire::{RetireQueue, Retired};
+use crate::work::WorkCounters;
 
 /// One queue and the timeline semaphore its submissions signal.
 pub(crate) struct Queue {
@@ -54,6 +55,8 @@ pub(crate) struct Device {
     pub host_query_reset: bool,
     /// Submissions, host waits and dispatches so far.
     pub(crate) calls: CallCounters,
+    /// Work recorded so far, by kernel (`Context::gpu_work`).
+    pub(crate) work: WorkCounters,
     /// When the device was opened, and how long after that every kernel
     /// a caller warmed up was ready (see `Context::warm_up_only`).
     pub(crate) opened: std::time::Instant,

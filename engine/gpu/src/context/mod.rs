@@ -204,6 +204,13 @@ impl Context {
         self.dev.calls.snapshot()
     }
 
+    /// The work recorded so far: per kernel the arithmetic and bytes its
+    /// dispatches need, and the bytes copied between host and device (see
+    /// [`crate::GpuWork`]; counted when recorded).
+    pub fn gpu_work(&self) -> crate::GpuWork {
+        self.dev.work.snapshot()
+    }
+
     /// Blocks until the GPU has finished all submitted work.
     pub fn wait_idle(&self) -> Result<()> {
         self.dev.calls.waited();

@@ -217,6 +217,7 @@ pub(super) fn open_device(
         profiler,
         host_query_reset: features.host_query_reset,
         calls: CallCounters::default(),
+        work: Default::default(),
         opened: std::time::Instant::now(),
         ready_after: Mutex::new(None),
     })

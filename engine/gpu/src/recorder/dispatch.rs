@@ -111,6 +111,15 @@ impl<'a> Recorder<'a> {
         )
     }
 
+    /// States the work of the next dispatch recorded, for a kernel whose
+    /// work its launch does not show (`// @cost caller`, e.g. the blending
+    /// passes, which walk tile lists whose lengths only the binning knows)
+    /// or to replace a launch-counted figure with a better one. It is
+    /// counted in [`Context::gpu_work`] under that dispatch's kernel.
+    pub fn work_of_next(&mut self, work: latentam_shaders::Work) {
+        self.next_work = Some(work);
+    }
+
     pub(super) fn record_dispatch(
         &mut self,
         k: &'static Kernel,
@@ -118,6 +127,8 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
         push: &[u8],
     ) -> Result<()> {
+        // A stated work belongs to this dispatch whatever becomes of it.
+        let stated = self.next_work.take();
         self.check_dispatch(k, groups, buffers)?;
         if matches!(groups, Groups::Direct(g) if g.contains(&0)) {
             return Ok(());
@@ -186,6 +197,12 @@ impl<'a> Recorder<'a> {
             }
         }
         self.dev.calls.dispatched();
+        let direct = match groups {
+            Groups::Direct(g) => Some(g),
+            Groups::Indirect(..) => None,
+        };
+        let work = stated.or_else(|| k.work_of(push, direct));
+        self.dev.work.recorded(k.name, work);
         let end = self.timestamp(vk::PipelineStageFlags::COMPUTE_SHADER);
         if let (Some(s), Some(e)) = (start, end) {
             self.labels.push((k.name, s, e));

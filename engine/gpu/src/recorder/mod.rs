@@ -97,6 +97,9 @@ pub struct Recorder<'a> {
     overlaps_other_queue: bool,
     /// Whether a command touching a buffer has been recorded yet.
     touched: bool,
+    /// The work the caller stated for the next dispatch
+    /// ([`Recorder::work_of_next`]).
+    next_work: Option<latentam_shaders::Work>,
     _borrows: PhantomData<&'a Buffer>,
 }
 
@@ -200,6 +203,7 @@ impl<'a> Recorder<'a> {
                 calibration: false,
                 overlaps_other_queue: false,
                 touched: false,
+                next_work: None,
                 _borrows: PhantomData,
             })
         }

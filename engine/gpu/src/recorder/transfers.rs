@@ -4,16 +4,18 @@
 use super::*;
 
 impl<'a> Recorder<'a> {
-    pub(super) fn copy_raw(&mut self, src: vk::Buffer, dst: vk::Buffer, region: vk::BufferCopy) {
+    pub(super) fn copy_raw(&mut self, src: &Buffer, dst: &Buffer, region: vk::BufferCopy) {
         self.copy_raw_regions(src, dst, &[region]);
     }
 
     pub(super) fn copy_raw_regions(
         &mut self,
-        src: vk::Buffer,
-        dst: vk::Buffer,
+        src: &Buffer,
+        dst: &Buffer,
         regions: &[vk::BufferCopy],
     ) {
+        self.count_copy(src, dst, regions.iter().map(|r| r.size).sum());
+        let (src, dst) = (src.raw, dst.raw);
         self.track(&[src], &[dst]);
         let start = self.timestamp(vk::PipelineStageFlags::TRANSFER);
         // SAFETY: recording a copy between live buffers with checked ranges.
@@ -22,6 +24,36 @@ impl<'a> Recorder<'a> {
         if let (Some(s), Some(e)) = (start, end) {
             self.labels.push(("copy", s, e));
         }
+    }
+
+    /// Counts a copy in [`Context::gpu_work`]: between device buffers it
+    /// reads and writes device memory; to or from staging it crosses
+    /// between host and device.
+    fn count_copy(&mut self, src: &Buffer, dst: &Buffer, bytes: u64) {
+        let work = &self.dev.work;
+        match (
+            src.kind() == BufferKind::Device,
+            dst.kind() == BufferKind::Device,
+        ) {
+            (true, true) => work.recorded(
+                "copy",
+                Some(latentam_shaders::Work {
+                    flops: 0.0,
+                    bytes: 2.0 * bytes as f64,
+                }),
+            ),
+            (false, true) => work.uploaded(bytes),
+            (true, false) => work.downloaded(bytes),
+            (false, false) => {}
+        }
+    }
+
+    fn count_fill(&mut self, bytes: u64) {
+        let written = latentam_shaders::Work {
+            flops: 0.0,
+            bytes: bytes as f64,
+        };
+        self.dev.work.recorded("fill", Some(written));
     }
 
     /// Copies `bytes` bytes between device buffers.
@@ -44,8 +76,8 @@ impl<'a> Recorder<'a> {
             return Ok(());
         }
         self.copy_raw(
-            src.raw,
-            dst.raw,
+            src,
+            dst,
             vk::BufferCopy {
                 src_offset,
                 dst_offset,
@@ -102,7 +134,7 @@ impl<'a> Recorder<'a> {
             })
             .collect();
         if !regions.is_empty() {
-            self.copy_raw_regions(src.raw, dst.raw, &regions);
+            self.copy_raw_regions(src, dst, &regions);
         }
         Ok(())
     }
@@ -110,6 +142,7 @@ impl<'a> Recorder<'a> {
     /// Fills a device buffer with a repeated 32-bit pattern (e.g. to poison
     /// outputs before a test dispatch, or to zero accumulators).
     pub fn fill_u32(&mut self, buf: &'a Buffer, value: u32) {
+        self.count_fill(buf.bytes());
         self.track(&[], &[buf.raw]);
         // SAFETY: whole-buffer fill of a live buffer.
         unsafe {
@@ -137,6 +170,7 @@ impl<'a> Recorder<'a> {
         if bytes == 0 {
             return Ok(());
         }
+        self.count_fill(bytes);
         self.track(&[], &[buf.raw]);
         // SAFETY: range checked against the live buffer above.
         unsafe {
@@ -178,8 +212,8 @@ impl<'a> Recorder<'a> {
         )?;
         staging.mapped_mut().copy_from_slice(bytes);
         self.copy_raw(
-            staging.raw,
-            dst.raw,
+            &staging,
+            dst,
             vk::BufferCopy {
                 src_offset: 0,
                 dst_offset: offset,
@@ -211,8 +245,8 @@ impl<'a> Recorder<'a> {
         )?);
         if bytes > 0 {
             self.copy_raw(
-                src.raw,
-                staging.raw,
+                src,
+                &staging,
                 vk::BufferCopy {
                     src_offset: offset,
                     dst_offset: 0,

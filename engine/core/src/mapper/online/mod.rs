@@ -29,7 +29,8 @@ mod paging;
 mod stages;
 
 use super::keyframe_report::{
-    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, MapperStats, PagingReport,
+    Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, MapperStats,
+    PagingReport,
 };
 
 /// The online mapper's state.
@@ -385,6 +386,7 @@ impl OnlineMapper {
         let t_start = Instant::now();
         let mut calls = KeyframeGpuCalls::default();
         let ctx = self.ctx.clone();
+        let work_before = ctx.gpu_work();
         let mut since = ctx.gpu_calls();
         let mut lap = |stage: &mut GpuCalls| {
             let now = ctx.gpu_calls();
@@ -456,6 +458,8 @@ impl OnlineMapper {
             self.stats.over_capacity += p.over_capacity as u64;
         }
         self.stats.timings.add(&timings);
+        let work = ctx.gpu_work() - work_before;
+        self.stats.gpu_work += &work;
         let cpu_bytes = self.cpu_bytes();
         self.stats.cpu_peak_bytes = self.stats.cpu_peak_bytes.max(cpu_bytes);
         Ok(Box::new(KeyframeReport {
@@ -475,6 +479,7 @@ impl OnlineMapper {
             atoms: self.head.as_ref().map_or(0, |h| h.atom_count()),
             exposure,
             gpu_calls: calls,
+            gpu_work: KeyframeGpuWork::of(&work),
         }))
     }
 }

@@ -2,6 +2,7 @@
 //! walk, then `project_backward` per Gaussian) and region pooling of the
 //! rendered queries (`raster_pool`), which walks the same tile lists.
 
+use super::work::BatchCounts;
 use super::*;
 use crate::splat::QUERY_DIM;
 use latentam_shaders::bind;
@@ -107,7 +108,12 @@ impl Rasterizer {
             pixel_region: labels,
         };
         let kernel = buildable(rec, &self.settings, |s| backward_kernel(rec.info(), s))?;
+        let counts = BatchCounts::of(batch);
+        let detach = self.settings.detach_query_gradients;
+        let upstream_image = source == QUERY_GRAD_FROM_IMAGE;
+        rec.work_of_next(counts.blend_backward(&kernel.kernel, detach, upstream_image));
         rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
+        rec.work_of_next(counts.project_backward(accumulate));
         self.record_projection_backward(rec, gaussians, grads, count, n_views, accumulate)
     }
 
@@ -192,6 +198,9 @@ impl Rasterizer {
             pooled,
         };
         let kernel = buildable(rec, &self.settings, |s| pool_kernel(rec.info(), s))?;
+        // The rows pooled into are not known here; their 4 bytes each are
+        // a small term.
+        rec.work_of_next(BatchCounts::of(batch).pool(&kernel.kernel, 0.0));
         rec.dispatch_linear(kernel, batch.layout.tiles, bufs, &p)?;
         Ok(())
     }

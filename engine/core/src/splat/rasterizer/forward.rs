@@ -8,6 +8,7 @@ use latentam_shaders::{
     push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_FORWARD, TILE_RANGES,
 };
 
+use super::work::BatchCounts;
 use super::{Channels, ForwardStats, Rasterizer, RenderBatch, QUERY_BYTES};
 use crate::splat::views::BatchLayout;
 use crate::splat::{Camera, GaussianBuffers};
@@ -236,6 +237,7 @@ impl Rasterizer {
         let positions = self.positions.get();
         rec.upload(self.views.get(), 0, &batch.views)?;
         rec.fill_u32(positions, 0);
+        rec.work_of_next(BatchCounts::of(batch).project_forward());
         rec.dispatch_linear(
             &PROJECT_FORWARD,
             pairs.div_ceil(256) as u32,
@@ -297,6 +299,8 @@ impl Rasterizer {
             n_gaussians: batch.count as u32,
             n_views: batch.views.len() as u32,
         };
+        let counts = BatchCounts::of(batch);
+        rec.work_of_next(counts.compact_visible());
         rec.dispatch_linear(
             &COMPACT_VISIBLE,
             pairs.div_ceil(256) as u32,
@@ -327,6 +331,7 @@ impl Rasterizer {
             &bins(visible),
         )?;
         scan.record(rec, self.sorted_offsets.get(), visible)?;
+        rec.work_of_next(counts.emit_tiles());
         rec.dispatch_linear(
             &EMIT_TILES,
             visible.div_ceil(256) as u32,
