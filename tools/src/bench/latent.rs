@@ -16,7 +16,7 @@ use latentam_core::loss::{
 };
 use latentam_core::optim::{AdamGroup, AdamHyper};
 use latentam_core::splat::{BatchLayout, Camera, QUERY_DIM};
-use latentam_gpu::{Buffer, Context, Sample};
+use latentam_gpu::{Buffer, Context, Floor, GpuModel, Sample};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -56,7 +56,30 @@ struct Report {
     kmeans_familiar_ms_median: f64,
     ssim_forward_backward_ms_median: f64,
     image_loss_ms_median: f64,
+    /// The floor of one Stage II iteration on each GPU model, from its
+    /// work counted from launch sizes (`latentam_gpu::GpuModel::floor`).
+    stage2_iteration_floor: Vec<Floor>,
+    /// The same for one full-dictionary k-means update (the mean of the
+    /// new-concept and familiar runs).
+    kmeans_floor: Vec<Floor>,
     kernels: Vec<KernelRow>,
+}
+
+/// Runs `op` and the floor per run of the work it recorded (it runs the
+/// measured operation `runs + 1` times, the first to warm up).
+fn with_floor<T>(
+    ctx: &Context,
+    runs: f64,
+    op: impl FnOnce() -> Result<T>,
+) -> Result<(T, Vec<Floor>)> {
+    let (work, calls) = (ctx.gpu_work(), ctx.gpu_calls());
+    let out = op()?;
+    let (work, calls) = (ctx.gpu_work() - work, ctx.gpu_calls() - calls);
+    let floors = GpuModel::presets()
+        .iter()
+        .map(|m| m.floor(&work, calls, runs))
+        .collect();
+    Ok((out, floors))
 }
 
 fn random_buffer(
@@ -263,6 +286,17 @@ fn print_report(r: &Report) {
         "image loss {}x{}: {:.3} ms (SSIM forward+backward {:.3} ms)",
         r.ssim_width, r.ssim_height, r.image_loss_ms_median, r.ssim_forward_backward_ms_median
     );
+    for (what, floors) in [
+        ("a Stage II iteration", &r.stage2_iteration_floor),
+        ("a full-dictionary k-means update", &r.kmeans_floor),
+    ] {
+        for f in floors {
+            println!(
+                "floor of {what} on {}: {:.3} ms (kernels {:.3}, dispatches {:.3}, host waits {:.3}, host link {:.3})",
+                f.gpu, f.total_ms, f.kernels_ms, f.dispatch_ms, f.host_wait_ms, f.link_ms
+            );
+        }
+    }
 }
 
 /// A decoder sized for the benchmark's regions, atoms and dimension.
@@ -327,23 +361,28 @@ pub fn run(b: LatentBench) -> Result<()> {
         AdamHyper::new(0.01, 1e-8),
     )?;
     let adam_d = AdamGroup::new(&ctx, "D", b.atoms, b.dim, AdamHyper::new(0.01, 1e-8))?;
-    let stage2 = time(&ctx, b.runs, &mut per_kernel, || {
-        let mut rec = ctx.recorder()?;
-        dec.record_forward(&mut rec, params, &queries, b.regions)?;
-        feature.record(&mut rec, dec.output(), &targets, &row_weights, b.regions)?;
-        let g = DecoderGrads {
-            queries: None,
-            w: &grad_w,
-            atoms: &grad_d,
-        };
-        dec.record_backward(&mut rec, params, &queries, b.regions, feature.grad(), g)?;
-        trust.record(&mut rec, &atoms, &anchor, &grad_d, b.atoms)?;
-        adam_w.record_step(&mut rec, &w, &grad_w, QUERY_DIM as u32, None)?;
-        adam_d.record_step(&mut rec, &atoms, &grad_d, b.atoms, None)?;
-        rec.submit()?.wait()
+    let runs = (b.runs + 1) as f64;
+    let (stage2, stage2_floor) = with_floor(&ctx, runs, || {
+        time(&ctx, b.runs, &mut per_kernel, || {
+            let mut rec = ctx.recorder()?;
+            dec.record_forward(&mut rec, params, &queries, b.regions)?;
+            feature.record(&mut rec, dec.output(), &targets, &row_weights, b.regions)?;
+            let g = DecoderGrads {
+                queries: None,
+                w: &grad_w,
+                atoms: &grad_d,
+            };
+            dec.record_backward(&mut rec, params, &queries, b.regions, feature.grad(), g)?;
+            trust.record(&mut rec, &atoms, &anchor, &grad_d, b.atoms)?;
+            adam_w.record_step(&mut rec, &w, &grad_w, QUERY_DIM as u32, None)?;
+            adam_d.record_step(&mut rec, &atoms, &grad_d, b.atoms, None)?;
+            rec.submit()?.wait()
+        })
     })?;
 
-    let (kmeans_ms, kmeans_familiar_ms) = kmeans_times(&ctx, &b, &mut rng, &mut per_kernel)?;
+    let ((kmeans_ms, kmeans_familiar_ms), kmeans_floor) = with_floor(&ctx, 2.0 * runs, || {
+        kmeans_times(&ctx, &b, &mut rng, &mut per_kernel)
+    })?;
     let (image_ms, ssim_ms) = image_loss_times(&ctx, &b, &mut rng, weights, &mut per_kernel)?;
 
     let report = Report {
@@ -362,6 +401,8 @@ pub fn run(b: LatentBench) -> Result<()> {
         kmeans_familiar_ms_median: kmeans_familiar_ms,
         ssim_forward_backward_ms_median: ssim_ms,
         image_loss_ms_median: image_ms,
+        stage2_iteration_floor: stage2_floor,
+        kmeans_floor,
         // Every measured run of every operation above, pooled by kernel.
         kernels: kernel_rows(per_kernel, b.runs),
     };

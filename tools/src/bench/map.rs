@@ -439,12 +439,12 @@ fn print_work(w: &GpuWorkReport) {
     let mut kernels: Vec<_> = w.kernels.iter().collect();
     kernels.sort_by(|a, b| ms(b.1).total_cmp(&ms(a.1)));
     println!(
+        "  the kernels that weigh most in the floor on {}:",
+        first.name
+    );
+    println!(
         "  {:<34} {:>10} {:>10} {:>10} {:>12}",
-        "kernel",
-        "dispatches",
-        "GFLOP",
-        "MB",
-        format!("ms, {}", "4090")
+        "kernel", "dispatches", "GFLOP", "MB", "floor ms"
     );
     for (name, k) in kernels.iter().take(10) {
         println!(
