@@ -335,7 +335,7 @@ fn malformed_and_wrong_values_are_errors() {
     // Range errors come from validate(), which names the field.
     let e = error(&["voxel_size=-1"]);
     assert!(e.contains("voxel_size"), "{e}");
-    let e = error(&["seeding.stride=0"]);
+    let e = error(&["seeding.stride=65"]);
     assert!(e.contains("seeding.stride"), "{e}");
     let e = error(&["gpu_budget=0"]);
     assert!(e.contains("gpu_budget"), "{e}");
