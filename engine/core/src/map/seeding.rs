@@ -30,14 +30,14 @@ settings! {
         // world: at 1280×720 every 2nd pixel seeded four times the
         // Gaussians of 640×480 for the same room, each a quarter the size,
         // and views between keyframes saw through the gaps (the demo
-        // scene at 1280×720: 20.7 dB on novel views at stride 2, 23.0 at
-        // 4, with 44 % of the Gaussians). One candidate per 4 mrad gives
-        // 640×480 lenses (f ≈ 480–620 px) the stride 2 the ablation chose
-        // there and 1280×720 ones (f ≈ 900–1000) stride 4.
+        // scene at 1280×720: 20.7 dB on novel views at stride 2, 22.9 at
+        // 3 with 65 % of the Gaussians and a better depth). One candidate
+        // per 3.3 mrad gives 640×480 lenses (f ≈ 480–620 px) the stride 2
+        // the ablation chose there and 1280×720 ones (f ≈ 900–1000) 3.
         /// Every stride-th pixel along rows and columns is a candidate; 0
-        /// picks it from the focal length f (pixels): one candidate per 4
-        /// milliradians of view, round(f / 250), at least 2 (every 2nd pixel
-        /// at 640×480, every 4th at 1280×720 with the usual lenses), so the
+        /// picks it from the focal length f (pixels): one candidate per 3.3
+        /// milliradians of view, round(f / 300), at least 2 (every 2nd pixel
+        /// at 640×480, every 3rd at 1280×720 with the usual lenses), so the
         /// map's density does not depend on the camera's resolution.
         pub stride: u32 = 0 => value().range(0u32, 64u32),
         /// Depths beyond this (metres) are not seeded.
@@ -143,24 +143,25 @@ pub struct RegionQueries<'a> {
 
 impl SeedingConfig {
     /// The pixel stride of seed candidates for a camera of focal length
-    /// `focal` pixels: `stride`, or with 0 one candidate per 4 mrad,
-    /// at least every 2nd pixel.
+    /// `focal` pixels: `stride`, or with 0 one candidate per 3.3 mrad
+    /// (round(focal / 300)), at least every 2nd pixel.
     ///
     /// ```
     /// use latentam_core::map::SeedingConfig;
     /// let auto = SeedingConfig::default();
     /// assert_eq!(auto.pixel_stride(585.0), 2); // Kinect, 640×480
-    /// assert_eq!(auto.pixel_stride(910.0), 4); // RealSense D435, 1280×720
+    /// assert_eq!(auto.pixel_stride(910.0), 3); // RealSense D435, 1280×720
+    /// assert_eq!(auto.pixel_stride(1400.0), 5); // 1920×1080
     /// assert_eq!(auto.pixel_stride(120.0), 2); // a 160×120 preview
-    /// assert_eq!(SeedingConfig { stride: 3, ..auto }.pixel_stride(910.0), 3);
+    /// assert_eq!(SeedingConfig { stride: 4, ..auto }.pixel_stride(910.0), 4);
     /// ```
     pub fn pixel_stride(&self, focal: f64) -> u32 {
         if self.stride > 0 {
             return self.stride;
         }
-        let per_4_mrad = (focal / 250.0).round();
-        if per_4_mrad.is_finite() {
-            per_4_mrad.clamp(2.0, 64.0) as u32
+        let per_3_mrad = (focal / 300.0).round();
+        if per_3_mrad.is_finite() {
+            per_3_mrad.clamp(2.0, 64.0) as u32
         } else {
             2
         }
