@@ -216,6 +216,13 @@ impl GpuModel {
         }
     }
 
+    /// The least time, ms, of `flops` operations over `bytes` of memory
+    /// traffic on this GPU: the longer of the two at its peak rates (a
+    /// kernel can overlap them, not beat either).
+    pub fn kernel_ms(&self, flops: f64, bytes: f64) -> f64 {
+        (flops / (self.fp32_tflops * 1e9)).max(bytes / (self.memory_gbs * 1e6))
+    }
+
     /// The models reports state their floor on.
     pub fn presets() -> Vec<GpuModel> {
         vec![GpuModel::rtx_4090(), GpuModel::jetson_agx_orin()]
@@ -241,16 +248,13 @@ impl GpuModel {
     /// ```
     pub fn floor(&self, work: &GpuWork, calls: GpuCalls, per: f64) -> Floor {
         let per = per.max(1e-9);
-        let flops_per_ms = self.fp32_tflops * 1e9 * per;
-        let bytes_per_ms = self.memory_gbs * 1e6 * per;
         let mut kernels_ms = 0.0;
         let mut compute_bound_ms = 0.0;
         for k in work.kernels.values() {
-            let compute = k.flops / flops_per_ms;
-            let memory = k.bytes / bytes_per_ms;
-            kernels_ms += compute.max(memory);
-            if compute >= memory {
-                compute_bound_ms += compute;
+            let ms = self.kernel_ms(k.flops, k.bytes) / per;
+            kernels_ms += ms;
+            if self.kernel_ms(k.flops, 0.0) / per >= ms {
+                compute_bound_ms += ms;
             }
         }
         let dispatch_ms = calls.dispatches as f64 * self.dispatch_us / 1e3 / per;

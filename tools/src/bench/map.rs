@@ -434,7 +434,7 @@ fn print_work(w: &GpuWorkReport) {
         return;
     };
     let ms = |k: &latentam_core::mapper::KernelWorkPerKeyframe| {
-        (k.gflop / first.fp32_tflops).max(k.mb / 1e3 / first.memory_gbs)
+        first.kernel_ms(k.gflop * 1e9, k.mb * 1e6)
     };
     let mut kernels: Vec<_> = w.kernels.iter().collect();
     kernels.sort_by(|a, b| ms(b.1).total_cmp(&ms(a.1)));
