@@ -18,19 +18,15 @@
 //! centre moved) and reassign against them: (K + m) × (a few) × d_f work
 //! instead of (K + m) × K × d_f.
 
-use latentam_shaders::{
-    push, KMEANS_FIRST_ASSIGN, KMEANS_MOVED, KMEANS_NOVELTY, KMEANS_PATCH_SIMS, KMEANS_SEED,
-};
-
 use std::cell::Cell;
 
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Recorder};
-use latentam_shaders::bind;
 
 mod steps;
 #[cfg(test)]
 mod tests;
+mod update;
 
 /// Largest dictionary the novelty kernel can track (its shared bit set).
 pub const MAX_KMEANS_ATOMS: u32 = 65536;
@@ -294,25 +290,7 @@ impl StreamingKMeans {
         anchor: &'a Buffer,
         moved: &'a Buffer,
     ) -> Result<KMeansStep> {
-        let (k_max, d) = (self.cfg.atoms as u64, self.cfg.dim as u64);
-        if n > self.cfg.max_points {
-            return Err(Error::InvalidArgument(format!(
-                "k-means update with {n} regions; sized for {}",
-                self.cfg.max_points
-            )));
-        }
-        let sizes = [
-            (features, n as u64 * d * 4),
-            (atoms, k_max * d * 4),
-            (anchor, k_max * d * 4),
-            (moved, k_max * 4),
-        ];
-        for (b, need) in sizes {
-            b.ensure_bytes(need, "k-means")?;
-        }
-        if let Some(m) = mass {
-            m.ensure_bytes(n as u64 * 4, "k-means region masses")?;
-        }
+        self.check_update(features, mass, n, atoms, anchor, moved)?;
         let before = self.atom_count.get();
         let mut step = KMeansStep {
             atoms_before: before,
@@ -324,165 +302,23 @@ impl StreamingKMeans {
         }
         let mass = mass.unwrap_or(&self.ones);
         let m = self.cfg.micro_clusters.min(n);
-        let dim = self.cfg.dim;
 
         // 1. Micro-clusters of the keyframe.
-        self.normalize(rec, features, &self.unit, n)?;
-        rec.dispatch(
-            &KMEANS_SEED,
-            [1, 1, 1],
-            bind::KmeansSeedBuffers {
-                points: features,
-                unit: &self.unit,
-                mass,
-                closest: &self.closest,
-                centres: &self.micro,
-            },
-            &push::KmeansSeed { n, dim, seeds: m },
-        )?;
-        for _ in 0..self.cfg.local_iterations {
-            self.normalize(rec, &self.micro, &self.micro_unit, m)?;
-            self.similarities(rec, &self.unit, &self.micro_unit, n, m)?;
-            self.best_centres(rec, n, m)?;
-            self.lloyd_update(
-                rec,
-                features,
-                mass,
-                &self.best_index,
-                &self.micro,
-                &self.micro_weights,
-                n,
-                m,
-                0,
-                None,
-            )?;
-        }
-
+        self.record_micro_clusters(rec, features, mass, n, m)?;
         // 2. The points of the re-clustering: [old atoms; micro-centres].
-        let (row, bytes) = (d * 4, before as u64 * d * 4);
-        rec.copy(atoms, 0, &self.points, 0, bytes)?;
-        rec.copy(&self.micro, 0, &self.points, bytes, m as u64 * row)?;
-        rec.copy(&self.weights, 0, &self.point_mass, 0, before as u64 * 4)?;
-        rec.copy(
-            &self.micro_weights,
-            0,
-            &self.point_mass,
-            before as u64 * 4,
-            m as u64 * 4,
-        )?;
+        self.record_reclustering_points(rec, atoms, before, m)?;
 
         let after = if before + m <= self.cfg.atoms {
             // 3a. Room left: append.
-            rec.copy(&self.micro, 0, atoms, bytes, m as u64 * row)?;
-            rec.copy(
-                &self.micro_weights,
-                0,
-                &self.weights,
-                before as u64 * 4,
-                m as u64 * 4,
-            )?;
-            before + m
+            self.record_append(rec, atoms, before, m)?
         } else {
             // 3b. Full: novelty, then weighted Lloyd warm-started from the atoms.
             step.reclustered = true;
-            let total = before + m;
-            self.normalize(rec, &self.points, &self.unit, total)?;
-            self.normalize(rec, atoms, &self.centre_unit, before)?;
-            self.record_novelty_similarities(rec, before, m)?;
-            rec.dispatch(
-                &KMEANS_NOVELTY,
-                [1, 1, 1],
-                bind::KmeansNoveltyBuffers {
-                    best_value: &self.best_value,
-                    best_index: &self.best_index,
-                    weights: &self.weights,
-                    micro: &self.micro,
-                    centres: atoms,
-                    replaced: &self.replaced,
-                },
-                &push::KmeansNovelty {
-                    atoms: before,
-                    micro_count: m,
-                    dim,
-                    threshold: self.cfg.novelty_threshold,
-                },
-            )?;
-            for iteration in 0..self.cfg.global_iterations {
-                if iteration == 0 {
-                    // The similarities to the atoms are known but for the
-                    // columns the novelty step replaced.
-                    rec.dispatch_linear(
-                        &KMEANS_PATCH_SIMS,
-                        (total * m).div_ceil(256),
-                        bind::KmeansPatchSimsBuffers {
-                            unit: &self.unit,
-                            replaced: &self.replaced,
-                            sims: &self.sims,
-                        },
-                        &push::KmeansPatchSims {
-                            rows: total,
-                            atoms: before,
-                            micro_count: m,
-                            dim,
-                        },
-                    )?;
-                    rec.dispatch_linear(
-                        &KMEANS_FIRST_ASSIGN,
-                        total,
-                        bind::KmeansFirstAssignBuffers {
-                            unit: &self.unit,
-                            centre_unit: &self.centre_unit,
-                            sims: &self.sims,
-                            replaced: &self.replaced,
-                            gate: &self.gate,
-                            best_value: &self.best_value,
-                            best_index: &self.best_index,
-                            row_complete: &self.row_complete,
-                        },
-                        &push::KmeansFirstAssign {
-                            rows: total,
-                            atoms: before,
-                            micro_count: m,
-                            dim,
-                        },
-                    )?;
-                    self.lloyd_update(
-                        rec,
-                        &self.points,
-                        &self.point_mass,
-                        &self.best_index,
-                        atoms,
-                        &self.weights,
-                        total,
-                        before,
-                        before,
-                        None,
-                    )?;
-                } else {
-                    // The first iteration computed every centre.
-                    self.record_sparse_iteration(rec, atoms, total, before, iteration == 1)?;
-                }
-            }
-            before
+            self.record_recluster(rec, atoms, before, m)?
         };
 
         // 4. Moved flags and the trust-region anchor.
-        rec.dispatch_linear(
-            &KMEANS_MOVED,
-            after,
-            bind::KmeansMovedBuffers {
-                atoms,
-                old: &self.points,
-                moved,
-            },
-            &push::KmeansMoved {
-                atoms_count: after,
-                old_count: before,
-                dim,
-                tolerance: self.cfg.moved_tolerance,
-            },
-        )?;
-        rec.copy(atoms, 0, anchor, 0, after as u64 * row)?;
+        self.record_moved_and_anchor(rec, atoms, anchor, moved, before, after)?;
         self.atom_count.set(after);
         step.atoms_after = after;
         step.micro_clusters = m;
