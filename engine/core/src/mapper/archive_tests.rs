@@ -1,0 +1,127 @@
+//! Tests of the saved-map file: round trips and refusals, malformed
+//! headers, unaligned tensors.
+
+use super::*;
+
+#[test]
+fn round_trip_and_refusals() {
+    let dir = std::env::temp_dir().join(format!("latentam-archive-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("a.map");
+    let mut w = ArchiveWriter::default();
+    w.meta("answer", 42);
+    w.tensor("x", &[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
+    w.tensor("k", &[2], &[-7i32, 9]);
+    w.bytes("raw", 1, 3, vec![1, 2, 3]);
+    latentam_base::files::write_bytes_atomically(&path, &w.into_bytes().unwrap()).unwrap();
+    let a = Archive::open(&path).unwrap();
+    assert_eq!(a.meta_parse::<u32>("answer").unwrap(), 42);
+    assert_eq!(a.exact::<f32>("x", &[2, 3]).unwrap()[5], 6.0);
+    assert!(a.exact::<f32>("x", &[3, 2]).is_err());
+    assert!(a.flat::<f32>("x").is_err());
+    assert_eq!(a.flat::<i32>("k").unwrap(), vec![-7, 9]);
+    assert!(a.flat::<i64>("k").is_err());
+    assert!(a.flat::<f32>("missing").is_err());
+    assert_eq!(a.shape::<u8>("raw").unwrap(), &[1, 3]);
+    assert!(a.meta("missing").is_err());
+    assert!(a.has("raw") && !a.has("nope"));
+    // No temporary files left behind.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+
+    // Truncated, foreign, or from a future version: clear errors.
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
+    assert!(Archive::open(&path).is_err());
+    std::fs::write(&path, b"not a map at all").unwrap();
+    let e = Archive::open(&path).err().unwrap().to_string();
+    assert!(e.contains("not a latentam map"), "{e}");
+    let views = vec![(
+        "x".to_string(),
+        TensorView::new(Dtype::U8, vec![1], &[0u8]).unwrap(),
+    )];
+    let mut meta = HashMap::new();
+    meta.insert("format".to_string(), FORMAT.to_string());
+    meta.insert("version".to_string(), "99".to_string());
+    std::fs::write(&path, safetensors::serialize(views, Some(meta)).unwrap()).unwrap();
+    let e = Archive::open(&path).err().unwrap().to_string();
+    assert!(e.contains("version 99"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A safetensors file with a hand-written header.
+fn raw(header: &str, data: &[u8]) -> Vec<u8> {
+    let mut v = (header.len() as u64).to_le_bytes().to_vec();
+    v.extend_from_slice(header.as_bytes());
+    v.extend_from_slice(data);
+    v
+}
+
+fn parse(bytes: &[u8]) -> Result<Archive<'_>> {
+    Archive::parse_as(Cow::Borrowed(bytes), Path::new("t"), FORMAT, VERSION, "map")
+}
+
+#[test]
+fn malformed_headers_are_errors_not_panics() {
+    let meta = r#""__metadata__":{"format":"latentam-map","version":"1"}"#;
+    // Offsets near usize::MAX (the safetensors 0.8 reader overflows
+    // adding them to the header length).
+    let huge = usize::MAX - 7;
+    let h =
+        format!(r#"{{{meta},"a":{{"dtype":"U8","shape":[{huge}],"data_offsets":[0,{huge}]}}}}"#);
+    assert!(parse(&raw(&h, &[0; 8])).is_err());
+    // Shapes whose element count overflows, or with a zero dimension.
+    let h = format!(
+        r#"{{{meta},"a":{{"dtype":"F64","shape":[4294967296,4294967296,16],"data_offsets":[0,0]}}}}"#
+    );
+    assert!(parse(&raw(&h, &[])).is_err());
+    let h = format!(r#"{{{meta},"a":{{"dtype":"F32","shape":[{huge},0],"data_offsets":[0,0]}}}}"#);
+    let bytes = raw(&h, &[]);
+    let a = parse(&bytes).unwrap();
+    assert!(a.exact::<f32>("a", &[huge, 0]).unwrap().is_empty());
+    assert!(a.flat::<f32>("a").is_err());
+    // Overlapping tensors, gaps, trailing bytes, short files.
+    let two = |a: (usize, usize), b: (usize, usize)| {
+        format!(
+            r#"{{{meta},"a":{{"dtype":"U8","shape":[{}],"data_offsets":[{},{}]}},"b":{{"dtype":"U8","shape":[{}],"data_offsets":[{},{}]}}}}"#,
+            a.1 - a.0,
+            a.0,
+            a.1,
+            b.1 - b.0,
+            b.0,
+            b.1
+        )
+    };
+    assert!(parse(&raw(&two((0, 2), (0, 2)), &[0; 2])).is_err());
+    assert!(parse(&raw(&two((0, 2), (1, 3)), &[0; 3])).is_err());
+    assert!(parse(&raw(&two((0, 1), (2, 3)), &[0; 3])).is_err());
+    assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 4])).is_err());
+    assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 2])).is_err());
+    assert!(parse(&raw(&two((0, 1), (1, 3)), &[0; 3])).is_ok());
+    for n in 0..8 {
+        assert!(parse(&[0xff; 8][..n]).is_err());
+    }
+    assert!(parse(&u64::MAX.to_le_bytes()).is_err());
+    // Metadata that is not strings.
+    let h = r#"{"__metadata__":{"format":1}}"#;
+    assert!(parse(&raw(h, &[])).is_err());
+}
+
+#[test]
+fn unaligned_tensors_are_read() {
+    // One byte, then f64s starting at an odd offset.
+    let meta = r#""__metadata__":{"format":"latentam-map","version":"1"}"#;
+    let h = format!(
+        r#"{{{meta},"a":{{"dtype":"U8","shape":[1],"data_offsets":[0,1]}},"b":{{"dtype":"F64","shape":[2],"data_offsets":[1,17]}}}}"#
+    );
+    let mut data = vec![7u8];
+    data.extend(1.5f64.to_le_bytes());
+    data.extend((-2.25f64).to_le_bytes());
+    for pad in 0..8 {
+        // Header lengths of every residue move the data's alignment.
+        let h = format!("{h}{}", " ".repeat(pad));
+        let bytes = raw(&h, &data);
+        let a = parse(&bytes).unwrap();
+        assert_eq!(a.flat::<f64>("b").unwrap(), vec![1.5, -2.25]);
+        assert_eq!(a.flat::<u8>("a").unwrap(), vec![7]);
+    }
+}
