@@ -19,16 +19,18 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context as _, Result};
 use latentam_base::HostGaussians;
 use latentam_core::latent::TextQuery;
-use latentam_core::live::{DropCounts, IndexSettings, LiveMapper, LiveOptions, MapSnapshot};
+use latentam_core::live::{IndexSettings, LiveMapper, LiveOptions, MapSnapshot};
 use latentam_core::mapper::{
     camera_of, DecoderFile, Integrated, Mapper, MapperConfig, MapperStats,
 };
 use latentam_gpu::{Context, ContextOptions};
 use latentam_io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 use rand::{Rng, SeedableRng};
-use serde::Serialize;
 
 use super::common::{median, write_json};
+
+mod report;
+use report::{FirstKeyframe, LargeSnapshot, Latencies, Pass, Ready, Report};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -69,106 +71,6 @@ pub struct Args {
     /// Write the results as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
-}
-
-/// A latency sample, summarised.
-#[derive(Serialize, Clone, Copy)]
-struct Latencies {
-    count: usize,
-    p50_ms: f64,
-    p99_ms: f64,
-    max_ms: f64,
-}
-
-impl Latencies {
-    fn of(ms: &[f64]) -> Option<Self> {
-        if ms.is_empty() {
-            return None;
-        }
-        let mut s = ms.to_vec();
-        s.sort_by(f64::total_cmp);
-        let at = |q: f64| s[((s.len() as f64 * q).ceil() as usize).clamp(1, s.len()) - 1];
-        Some(Latencies {
-            count: s.len(),
-            p50_ms: at(0.5),
-            p99_ms: at(0.99),
-            max_ms: s[s.len() - 1],
-        })
-    }
-}
-
-/// Time from opening the device to every kernel compiled.
-#[derive(Serialize)]
-struct Ready {
-    cold_ms: f64,
-    warm_ms: f64,
-    /// Bytes of the pipeline cache file the warm start loaded.
-    warm_cache_bytes: usize,
-}
-
-/// The first keyframe's Stage I time against the later ones'.
-#[derive(Serialize)]
-struct FirstKeyframe {
-    stage_one_ms: Vec<f64>,
-    first_over_median_of_later: f64,
-}
-
-/// One pass of the scene through the live handle.
-#[derive(Serialize)]
-struct Pass {
-    /// How the frames were submitted.
-    fed: &'static str,
-    /// What a second thread asked while the scene was submitted.
-    probing: &'static str,
-    submitted: u64,
-    keyframes: u64,
-    dropped: DropCounts,
-    wall_s: f64,
-    /// Mean mapping time per keyframe (the worker's), ms.
-    mapping_ms_per_keyframe: f64,
-    /// Keyframes per second of mapping time.
-    keyframes_per_mapping_s: f64,
-    submit: Option<Latencies>,
-    /// Relevance of one vocabulary word on the live map's snapshots.
-    live_map_queries: Option<Latencies>,
-    /// Relevance of one embedding on the large snapshot.
-    large_snapshot_queries: Option<Latencies>,
-    renders: Option<Latencies>,
-    last_keyframe_latency_ms: Option<f64>,
-    gaussians: usize,
-}
-
-#[derive(Serialize)]
-struct LargeSnapshot {
-    gaussians: u64,
-    atoms: u64,
-    dim: u64,
-    /// Building its relevance index (what the indexer thread spends on
-    /// each new snapshot of this size).
-    index_build_ms: f64,
-    index_bytes: u64,
-    mean_atoms_per_gaussian: f64,
-}
-
-#[derive(Serialize)]
-struct Report {
-    device: String,
-    cores: usize,
-    frames: u64,
-    width: u32,
-    height: u32,
-    dim: u64,
-    rate_hz: f64,
-    query_hz: f64,
-    queue_frames: u64,
-    ready: Ready,
-    first_keyframe_cold: FirstKeyframe,
-    first_keyframe_warm: FirstKeyframe,
-    large_snapshot: LargeSnapshot,
-    passes: Vec<Pass>,
-    /// Mapping throughput with queries over without.
-    throughput_with_queries: f64,
-    abort_ms: f64,
 }
 
 pub fn run(args: Args) -> Result<()> {
