@@ -267,10 +267,9 @@ fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views
 
 /// Every Gaussian once in the global map, every resident row equal to its
 /// key's Gaussian after a write-back (the window is internal: reached
-/// through the unstable `Mapper::online`).
+/// through the unstable `Mapper::window`).
 fn check_consistent(ctx: &Context, mapper: &mut Mapper) {
-    let mapper = mapper.online();
-    mapper.flush().unwrap();
+    mapper.write_back_window().unwrap();
     let global = mapper.global();
     let keys: HashSet<VoxelKey> = global.iter().map(|(k, _)| k).collect();
     assert_eq!(keys.len(), global.len());
@@ -353,8 +352,8 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     let mut loaded = Mapper::load(&ctx, &dir).unwrap();
     assert_eq!(gaussians_of(&loaded), gaussians_of(&first));
     assert_eq!(
-        loaded.online_ref().window().unwrap().keys(),
-        first.online_ref().window().unwrap().keys()
+        loaded.window().unwrap().keys(),
+        first.window().unwrap().keys()
     );
     assert_eq!(loaded.history().len(), first.history().len());
     for i in 0..first.history().len() {

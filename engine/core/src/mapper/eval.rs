@@ -18,14 +18,26 @@ use std::collections::BTreeMap;
 
 pub use super::class_iou::{add_iou, count_pixel, mean_iou, ClassCounts};
 use super::history::{camera_of, KeyframeRecord, RegionTargets};
-use super::online::OnlineMapper;
 use super::pixel_metrics::{pixel_metrics_on_device, PixelInputs};
-use crate::latent::{DevicePixelDecoder, RelevanceScorer, NO_REGION};
-use crate::map::push_gaussian;
+use crate::latent::{DevicePixelDecoder, LatentHead, RelevanceScorer, NO_REGION};
+use crate::map::{push_gaussian, ExposureTrack, GlobalMap};
 use crate::splat::{Camera, GaussianBuffers, HostGaussians, Rasterizer, RenderedView, QUERY_DIM};
 use latentam_base::{Error, Result};
 use latentam_gpu::Context;
 use latentam_io::{Frame, Vocabulary};
+
+/// What a view is rendered and scored from: a map's Gaussians (its GPU
+/// window written back), the camera's exposure over time, and the latent
+/// head once there is one.
+#[derive(Clone, Copy)]
+pub struct MapParts<'a> {
+    /// Every Gaussian, by voxel.
+    pub global: &'a GlobalMap,
+    /// The camera's exposure at each keyframe.
+    pub exposure: &'a ExposureTrack,
+    /// W and D, once the map has embeddings.
+    pub head: Option<&'a LatentHead>,
+}
 
 /// Metrics of one view.
 ///
@@ -144,15 +156,11 @@ impl Evaluator {
         }
     }
 
-    /// Renders `camera`'s view of `mapper`'s map (written back first) from
+    /// Renders `camera`'s view of `map` from
     /// the Gaussians within [`Evaluator::radius`] of the camera; returns
     /// the view and the number of Gaussians rendered.
-    pub fn render(
-        &mut self,
-        mapper: &mut OnlineMapper,
-        camera: &Camera,
-    ) -> Result<(RenderedView, usize)> {
-        self.render_within(mapper, camera, self.radius)
+    pub fn render(&mut self, map: MapParts<'_>, camera: &Camera) -> Result<(RenderedView, usize)> {
+        self.render_within(map, camera, self.radius)
     }
 
     /// Renders the view of `frame`'s camera, reaching at least as far as
@@ -161,15 +169,15 @@ impl Evaluator {
     /// number of Gaussians rendered.
     pub fn render_frame(
         &mut self,
-        mapper: &mut OnlineMapper,
+        map: MapParts<'_>,
         frame: &Frame,
     ) -> Result<(RenderedView, usize)> {
-        self.render_record(mapper, frame, &KeyframeRecord::from_frame(frame))
+        self.render_record(map, frame, &KeyframeRecord::from_frame(frame))
     }
 
     fn render_record(
         &mut self,
-        mapper: &mut OnlineMapper,
+        map: MapParts<'_>,
         frame: &Frame,
         record: &KeyframeRecord,
     ) -> Result<(RenderedView, usize)> {
@@ -185,10 +193,10 @@ impl Evaluator {
         } else {
             self.radius
         };
-        let (mut view, n) = self.render_within(mapper, &camera, radius)?;
+        let (mut view, n) = self.render_within(map, &camera, radius)?;
         // The map holds colours at its own brightness: the view is shown at
         // the camera's exposure of its time, from the keyframes around it.
-        let gain = mapper.exposure().at(frame.stamp_ns);
+        let gain = map.exposure.at(frame.stamp_ns);
         for p in &mut view.rgbd {
             p[..3].iter_mut().for_each(|c| *c *= gain);
         }
@@ -197,12 +205,11 @@ impl Evaluator {
 
     fn render_within(
         &mut self,
-        mapper: &mut OnlineMapper,
+        map: MapParts<'_>,
         camera: &Camera,
         radius: f64,
     ) -> Result<(RenderedView, usize)> {
-        mapper.flush()?;
-        let global = mapper.global();
+        let global = map.global;
         let mut host = HostGaussians::default();
         for key in global.within(camera.cam_to_world.translation, radius) {
             let g = global.get(key).expect("within() returns present keys");
@@ -229,17 +236,16 @@ impl Evaluator {
         Ok((self.raster.download_view(0)?, n))
     }
 
-    /// Metrics of `frame` rendered from `mapper`'s map (written back
-    /// first). Segmentation needs `vocabulary` and the frame's semantic
+    /// Metrics of `frame` rendered from `map`. Segmentation needs `vocabulary` and the frame's semantic
     /// labels; embeddings need the latent head.
     pub fn evaluate(
         &mut self,
-        mapper: &mut OnlineMapper,
+        map: MapParts<'_>,
         frame: &Frame,
         vocabulary: Option<&Vocabulary>,
     ) -> Result<ViewMetrics> {
         let record = KeyframeRecord::from_frame(frame);
-        let (view, n) = self.render_record(mapper, frame, &record)?;
+        let (view, n) = self.render_record(map, frame, &record)?;
         let mut m = image_metrics(&view, &record.target_rgbd());
         m.gaussians = n;
         m.pixel_stride = self.pixel_stride.max(1);
@@ -248,10 +254,7 @@ impl Evaluator {
         let texts_needed = vocabulary
             .map_or(0, |v| v.names.len())
             .max(record.regions.as_ref().map_or(0, |r| r.count as usize));
-        let Some(head) = mapper
-            .head()
-            .filter(|h| h.atom_count() > 0 && texts_needed > 0)
-        else {
+        let Some(head) = map.head.filter(|h| h.atom_count() > 0 && texts_needed > 0) else {
             return Ok(m);
         };
         let scorer =

@@ -14,7 +14,6 @@ use std::borrow::Cow;
 use std::path::Path;
 
 use super::archive::{Archive, ArchiveWriter};
-use super::online::OnlineMapper;
 use crate::latent::HostDecoder;
 use crate::splat::QUERY_DIM;
 use latentam_base::Result;
@@ -165,36 +164,5 @@ impl DecoderFile {
             }
         }
         Ok(file)
-    }
-}
-
-impl OnlineMapper {
-    /// The decoder as it stands (`None` before the first keyframe with
-    /// embeddings).
-    pub fn decoder_file(&self) -> Result<Option<DecoderFile>> {
-        let Some(head) = &self.head else {
-            return Ok(None);
-        };
-        let ctx = &self.ctx;
-        let d = head.config().dim as usize;
-        let k = head.atom_count() as usize;
-        let w: Vec<f32> = ctx.download(head.w())?;
-        let mut atoms: Vec<f32> = ctx.download(head.atoms())?;
-        atoms.truncate(k * d);
-        let mut anchors: Vec<f32> = ctx.download(head.anchor())?;
-        anchors.truncate(k * d);
-        let mut atom_weights: Vec<f32> = ctx.download(head.kmeans().weights())?;
-        atom_weights.truncate(k);
-        Ok(Some(DecoderFile {
-            dim: d as u32,
-            w: w[..QUERY_DIM * d].to_vec(),
-            atoms,
-            anchors,
-            atom_weights,
-            temperature: head.decoder().config().temperature,
-            eps: head.decoder().config().eps,
-            model: self.model.clone().unwrap_or_default(),
-            run_id: None,
-        }))
     }
 }

@@ -1,24 +1,32 @@
-//! The library façade: one value that owns the GPU context and the online
-//! mapper, with the calls a robot program needs.
+//! The library façade: one value that owns the GPU context and the
+//! mapper's parts, with the calls a robot program needs. A frame's route
+//! through the parts is in `route.rs`; saving and loading them in
+//! `persist/`.
 
-use std::borrow::Borrow;
 use std::path::{Path, PathBuf};
 
 use super::config::MapperConfig;
+use super::dictionary::Dictionary;
 use super::export::{DecoderFile, DECODER_FILE};
-use super::keyframe_report::{Integrated, MapperStats};
-use super::online::OnlineMapper;
+use super::keyframe_report::MapperStats;
+use super::pager::{Pager, PagerSettings};
 use super::persist::SavedState;
+use super::progress::Progress;
 use super::run_folder::{read_one_version, RunFolder, RunStaging, STATE_FILE};
+use super::seeder::Seeder;
+use super::trainer::Trainer;
+use super::workspace::gpu_budget;
 use latentam_base::{Error, Result};
 use latentam_gpu::{Context, ContextOptions};
 use std::sync::atomic::AtomicBool;
 
-use super::eval::{Evaluator, ViewMetrics};
+use super::eval::{Evaluator, MapParts, ViewMetrics};
 use super::history::History;
 use crate::latent::LatentHead;
 use crate::latent::{DevicePixelDecoder, TextQuery};
-use crate::map::{write_ply, write_ply_without_latents, ExposureTrack, GlobalMap};
+use crate::map::{
+    write_ply, write_ply_without_latents, ExposureTrack, GlobalMap, KeyframeSelector,
+};
 use crate::splat::{Camera, RenderedView};
 use latentam_io::{CameraPose, Frame, Vocabulary};
 
@@ -38,7 +46,26 @@ use latentam_io::{CameraPose, Frame, Vocabulary};
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub struct Mapper {
-    inner: OnlineMapper,
+    pub(super) ctx: Context,
+    pub(super) cfg: MapperConfig,
+    /// Decides which frames are keyframes.
+    pub(super) selector: KeyframeSelector,
+    /// The latent head and the embedding model.
+    pub(super) dictionary: Dictionary,
+    /// New Gaussians from keyframes, and the guesses among them.
+    pub(super) seeder: Seeder,
+    /// The global map and its GPU window.
+    pub(super) pager: Pager,
+    /// Stage I and Stage II, sized at the first keyframe.
+    pub(super) trainer: Option<Trainer>,
+    /// The keyframes kept for replay.
+    pub(super) history: History,
+    /// Stamp and pose of every keyframe (the history may have let some go).
+    pub(super) trajectory: Vec<(i64, CameraPose)>,
+    /// Each keyframe's exposure over the map's brightness.
+    pub(super) exposure: ExposureTrack,
+    /// Counters, the run id, and whether a keyframe failed part-way.
+    pub(super) progress: Progress,
     /// Renders views for `render*` and `evaluate` (made on first use).
     evaluator: Option<Evaluator>,
 }
@@ -74,9 +101,25 @@ impl Mapper {
     /// # Ok::<(), latentam_core::Error>(())
     /// ```
     pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {
+        config.validate()?;
+        ctx.set_memory_budget(Some(gpu_budget(ctx, &config)));
+        let pager = PagerSettings {
+            radius: config.window_radius,
+            sync_distance: config.sync_distance,
+        };
         Ok(Mapper {
-            inner: OnlineMapper::new(ctx, config)?,
+            ctx: ctx.clone(),
+            selector: KeyframeSelector::new(config.keyframes),
+            dictionary: Dictionary::new(&config),
+            seeder: Seeder::new(config.seeding),
+            pager: Pager::new(config.voxel_size, pager),
+            trainer: None,
+            history: History::with_cell(config.history_cell),
+            trajectory: Vec::new(),
+            exposure: ExposureTrack::default(),
+            progress: Progress::default(),
             evaluator: None,
+            cfg: config,
         })
     }
 
@@ -90,27 +133,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn context(&self) -> &Context {
-        self.inner.context()
-    }
-
-    /// Offers one frame: keyframe selection, then for a keyframe the
-    /// dictionary update, Gaussian seeding, Stage I over the keyframe and
-    /// past ones, Stage II with the window's paging beside it, and at its
-    /// interval pruning (the paper's Algorithm 1). A frame refused for its
-    /// content leaves the map as it was; a failure part-way through a
-    /// keyframe leaves it unusable ([`Mapper::is_broken`]).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: latentam_io::Frame) -> latentam_core::Result<()> {
-    /// use latentam_core::mapper::Integrated;
-    /// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
-    ///     println!("keyframe {}: {} Gaussians", report.index, report.gaussians);
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {
-        self.inner.integrate(frame.borrow())
+        &self.ctx
     }
 
     /// Relevance of every Gaussian to `text_embedding` (cosine similarity
@@ -142,7 +165,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
-        let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
+        let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
         let dim = head.config().dim as usize;
         if embeddings.is_empty() || !embeddings.len().is_multiple_of(dim) {
             return Err(Error::EmbeddingDimension {
@@ -151,14 +174,13 @@ impl Mapper {
                 context: Some("a query, or several back to back".into()),
             });
         }
-        self.inner.flush()?;
-        let ctx = self.inner.context().clone();
-        let head = self.inner.head().expect("checked above");
+        self.flush()?;
+        let head = self.dictionary.head().expect("checked above");
         // Made per call, not kept: its batch buffers would otherwise hold
         // tens of MB of the mapping budget between queries.
-        let mut decoder = DevicePixelDecoder::from_head(&ctx, head)?;
-        let queries: Vec<_> = self.inner.global().iter().map(|(_, g)| g.query).collect();
-        decoder.cosines(&ctx, &queries, embeddings)
+        let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
+        let queries: Vec<_> = self.pager.global().iter().map(|(_, g)| g.query).collect();
+        decoder.cosines(&self.ctx, &queries, embeddings)
     }
 
     /// Relevance of every Gaussian to `query` (cosine, or the softmax over
@@ -189,10 +211,9 @@ impl Mapper {
     /// # }
     /// ```
     pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
-        let head = self.inner.head().ok_or(Error::NoEmbeddings)?;
-        let ctx = self.inner.context().clone();
-        let mut decoder = DevicePixelDecoder::from_head(&ctx, head)?;
-        Ok(query.relevance_of(&decoder.cosines(&ctx, &view.query, &query.embeddings)?))
+        let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
+        let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
+        Ok(query.relevance_of(&decoder.cosines(&self.ctx, &view.query, &query.embeddings)?))
     }
 
     /// Saves the whole state into the run folder `dir` (created if
@@ -233,8 +254,8 @@ impl Mapper {
     /// ```
     pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
         let id = staging.run_id();
-        self.inner.save_as(&staging.path().join(STATE_FILE), id)?;
-        if let Some(mut decoder) = self.inner.decoder_file()? {
+        self.save_as(&staging.path().join(STATE_FILE), id)?;
+        if let Some(mut decoder) = self.decoder()? {
             decoder.run_id = Some(id.to_string());
             decoder.write(&staging.path().join(DECODER_FILE))?;
         }
@@ -309,10 +330,7 @@ impl Mapper {
                 )));
             }
         }
-        Ok(Mapper {
-            inner: OnlineMapper::from_saved(ctx, state, Some(overrides))?,
-            evaluator: None,
-        })
+        Self::from_saved(ctx, state, Some(overrides))
     }
 
     /// Counts, memory and timings.
@@ -325,7 +343,24 @@ impl Mapper {
     /// # }
     /// ```
     pub fn stats(&self) -> MapperStats {
-        self.inner.stats()
+        let mem = self.ctx.memory_report();
+        let mut s = self.progress.stats();
+        s.gaussians = self.pager.global().len();
+        s.resident = self.pager.resident();
+        s.window = self.pager.budget();
+        s.gpu_bytes = mem.total.current;
+        s.gpu_peak_bytes = mem.total.peak;
+        s.gpu_peak_split = super::budget::MemorySplit::of(&mem);
+        s.cpu_bytes = self.cpu_bytes();
+        s.cpu_peak_bytes = s.cpu_peak_bytes.max(s.cpu_bytes);
+        s
+    }
+
+    /// Host bytes of the map, the history and the trajectory.
+    pub(super) fn cpu_bytes(&self) -> u64 {
+        self.pager.cpu_bytes()
+            + self.history.bytes()
+            + (self.trajectory.len() * std::mem::size_of::<(i64, CameraPose)>()) as u64
     }
 
     /// Whether `frame` is at or before the last frame this map integrated:
@@ -345,7 +380,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn already_mapped(&self, frame: &Frame) -> bool {
-        self.inner.already_mapped(frame)
+        self.progress.already_mapped(frame.stamp_ns)
     }
 
     /// The global map (current as of the last sync, query or save).
@@ -359,7 +394,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn global(&self) -> &GlobalMap {
-        self.inner.global()
+        self.pager.global()
     }
 
     /// The settings the map is built with.
@@ -371,7 +406,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn config(&self) -> &MapperConfig {
-        self.inner.config()
+        &self.cfg
     }
 
     /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
@@ -385,7 +420,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn trajectory(&self) -> &[(i64, CameraPose)] {
-        self.inner.trajectory()
+        &self.trajectory
     }
 
     /// The camera's exposure over the map's brightness at each keyframe,
@@ -399,7 +434,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn exposure(&self) -> &ExposureTrack {
-        self.inner.exposure()
+        &self.exposure
     }
 
     /// The keyframes kept for replay.
@@ -411,7 +446,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn history(&self) -> &History {
-        self.inner.history()
+        &self.history
     }
 
     /// The latent head (W, D and their training state), once a keyframe
@@ -426,7 +461,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn head(&self) -> Option<&LatentHead> {
-        self.inner.head()
+        self.dictionary.head()
     }
 
     /// The embedding model id of the map's region embeddings.
@@ -438,7 +473,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn embedding_model(&self) -> Option<&str> {
-        self.inner.embedding_model()
+        self.dictionary.model()
     }
 
     /// The id of the run folder version this map was loaded from or last
@@ -453,7 +488,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn run_id(&self) -> Option<&str> {
-        self.inner.run_id()
+        self.progress.run_id()
     }
 
     /// Whether a keyframe failed part-way: the map refuses further frames
@@ -468,7 +503,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn is_broken(&self) -> bool {
-        self.inner.is_broken()
+        self.progress.is_broken()
     }
 
     /// Checks that a vocabulary's embeddings suit the map (model and
@@ -484,7 +519,7 @@ impl Mapper {
     /// # }
     /// ```
     pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
-        self.inner.check_vocabulary(vocabulary)
+        self.dictionary.check_vocabulary(vocabulary)
     }
 
     /// A flag that, once set (say from a signal handler), makes the
@@ -500,7 +535,7 @@ impl Mapper {
     /// # Ok::<(), latentam_core::Error>(())
     /// ```
     pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
-        self.inner.set_hurry_flag(flag);
+        self.progress.set_hurry_flag(flag);
     }
 
     /// Renders colour, depth and queries of the map from `camera`, with
@@ -515,8 +550,8 @@ impl Mapper {
     /// # }
     /// ```
     pub fn render(&mut self, camera: &Camera) -> Result<(RenderedView, usize)> {
-        let (ev, mapper) = self.evaluator();
-        ev.render(mapper, camera)
+        let (ev, map) = self.evaluator()?;
+        ev.render(map, camera)
     }
 
     /// [`Mapper::render`] at a frame's pose and with its camera, at the
@@ -531,8 +566,8 @@ impl Mapper {
     /// # }
     /// ```
     pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
-        let (ev, mapper) = self.evaluator();
-        ev.render_frame(mapper, frame)
+        let (ev, map) = self.evaluator()?;
+        ev.render_frame(map, frame)
     }
 
     /// Measures the map on a frame it did not necessarily see (the paper's
@@ -553,9 +588,9 @@ impl Mapper {
         vocabulary: Option<&Vocabulary>,
         pixel_stride: usize,
     ) -> Result<ViewMetrics> {
-        let (ev, mapper) = self.evaluator();
+        let (ev, map) = self.evaluator()?;
         ev.pixel_stride = pixel_stride.max(1);
-        ev.evaluate(mapper, frame, vocabulary)
+        ev.evaluate(map, frame, vocabulary)
     }
 
     /// Writes the map as a 3D Gaussian splatting PLY file (positions,
@@ -570,10 +605,10 @@ impl Mapper {
     /// # }
     /// ```
     pub fn export_ply(&mut self, path: &Path) -> Result<()> {
-        self.inner.flush()?;
-        let gaussians: Vec<_> = self.inner.global().iter().map(|(_, g)| *g).collect();
+        self.flush()?;
+        let gaussians: Vec<_> = self.pager.global().iter().map(|(_, g)| *g).collect();
         // A map without embeddings has no meaningful queries to write.
-        if self.inner.head().is_some() {
+        if self.dictionary.head().is_some() {
             write_ply(path, &gaussians, &[])
         } else {
             write_ply_without_latents(path, &gaussians, &[])
@@ -593,60 +628,73 @@ impl Mapper {
     /// # }
     /// ```
     pub fn decoder(&self) -> Result<Option<DecoderFile>> {
-        self.inner.decoder_file()
-    }
-
-    /// [`Mapper::integrate`] for a frame that passed `Frame::check`.
-    pub(crate) fn integrate_checked(&mut self, frame: &Frame) -> Result<Integrated> {
-        self.inner.integrate_checked(frame)
+        self.dictionary.decoder_file(&self.ctx)
     }
 
     /// Every Gaussian as it stands, changing nothing (the window's rows
     /// are read, not written back).
     pub(crate) fn gaussians_now(&self) -> Result<latentam_base::HostGaussians> {
-        self.inner.gaussians_now()
+        self.pager.gaussians_now(&self.ctx)
     }
 
     /// Counts frames dropped before reaching the mapper (see
-    /// [`KeyframeSelector::count_unseen`](crate::map::KeyframeSelector::count_unseen)).
+    /// [`KeyframeSelector::count_unseen`]).
     pub(crate) fn count_unseen_frames(&mut self, n: u32) {
-        self.inner.selector.count_unseen(n);
+        self.selector.count_unseen(n);
     }
 
     /// The keyframe rule's state: the last keyframe's pose and the frames
     /// offered since.
     pub(crate) fn keyframe_rule_state(&self) -> (Option<CameraPose>, u32) {
-        self.inner.selector.state()
+        self.selector.state()
     }
 
     /// The mapper's own hurry flag, which a live handle's `abort` sets.
     pub(crate) fn stop_flag(&self) -> std::sync::Arc<AtomicBool> {
-        self.inner.stop_flag()
+        self.progress.stop_flag()
     }
 
-    /// The view renderer (made on first use) beside the mapper it renders.
-    fn evaluator(&mut self) -> (&mut Evaluator, &mut OnlineMapper) {
-        let layout = self.config().blend_layout;
+    /// Writes the GPU window back to the global map, so that
+    /// [`Mapper::global`] is current.
+    pub(super) fn flush(&mut self) -> Result<()> {
+        let rows = self
+            .trainer
+            .as_ref()
+            .map(Trainer::window_rows)
+            .unwrap_or_default();
+        self.pager.flush(&self.ctx, &rows)
+    }
+
+    /// The view renderer (made on first use) and the parts of the map it
+    /// renders, the window written back first.
+    fn evaluator(&mut self) -> Result<(&mut Evaluator, MapParts<'_>)> {
+        self.flush()?;
+        let layout = self.cfg.blend_layout;
+        let ctx = &self.ctx;
         let ev = self
             .evaluator
-            .get_or_insert_with(|| Evaluator::with_layout(self.inner.context(), layout));
-        (ev, &mut self.inner)
+            .get_or_insert_with(|| Evaluator::with_layout(ctx, layout));
+        let map = MapParts {
+            global: self.pager.global(),
+            exposure: &self.exposure,
+            head: self.dictionary.head(),
+        };
+        Ok((ev, map))
     }
 
-    /// The mapper underneath. Unstable: for the engine's integration tests
-    /// that check its internals (the GPU window against the global map);
-    /// everything a program needs is on `Mapper` itself, and neither the
-    /// CLI nor the benchmarks call this.
-    #[cfg(feature = "testing")]
+    /// Writes the GPU window back to the global map. Unstable: for the
+    /// engine's tests that check the window against the global map.
+    #[cfg(any(test, feature = "testing"))]
     #[doc(hidden)]
-    pub fn online(&mut self) -> &mut OnlineMapper {
-        &mut self.inner
+    pub fn write_back_window(&mut self) -> Result<()> {
+        self.flush()
     }
 
-    /// The mapper underneath, read-only. Unstable, as [`Mapper::online`].
-    #[cfg(feature = "testing")]
+    /// The GPU window, once the first keyframe sized it. Unstable: for the
+    /// engine's tests that check it against the global map.
+    #[cfg(any(test, feature = "testing"))]
     #[doc(hidden)]
-    pub fn online_ref(&self) -> &OnlineMapper {
-        &self.inner
+    pub fn window(&self) -> Option<&crate::map::LocalWindow> {
+        self.pager.window()
     }
 }

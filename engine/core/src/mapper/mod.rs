@@ -1,9 +1,11 @@
-//! The online mapper (paper §III, Algorithm 1): the keyframe history
-//! replayed in each Stage I batch, the Stage I / II trainer, the
-//! per-keyframe loop with window paging and a GPU memory budget
-//! (`OnlineMapper`), saving and loading its state ([`SavedState`]), the library
-//! façade [`Mapper`], and the configuration written out for users
-//! ([`documented_defaults`], [`apply_overrides`]).
+//! The online mapper (paper §III, Algorithm 1): [`Mapper`], one value of
+//! owned parts (the keyframe selector, the dictionary, the seeder, the
+//! pager of the global map and its GPU window, the Stage I / II trainer,
+//! the keyframe history replayed in each Stage I batch, the exposure
+//! track, the progress counters), the route a frame takes through them,
+//! saving and loading its state ([`SavedState`]), run folders, evaluation,
+//! and the configuration written out for users ([`documented_defaults`],
+//! [`apply_overrides`]).
 
 mod archive;
 #[doc(hidden)]
@@ -12,20 +14,25 @@ pub mod budget;
 pub(crate) mod class_iou;
 mod config;
 mod config_doc;
+mod dictionary;
 pub mod eval;
 mod export;
 mod facade;
 mod history;
 mod keyframe_report;
-mod online;
+mod pager;
 mod persist;
 pub mod pixel_metrics;
 mod preset;
+mod progress;
+mod route;
 mod run_folder;
 mod run_report;
+mod seeder;
 mod trainer;
 mod warm_up;
 mod work_report;
+mod workspace;
 
 pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
@@ -36,10 +43,6 @@ pub use keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, MapperStats,
     PagingReport,
 };
-/// The per-keyframe loop under [`Mapper`], for the workspace's tests only.
-#[cfg(any(test, feature = "testing"))]
-#[doc(hidden)]
-pub use online::OnlineMapper;
 pub use persist::SavedState;
 pub use preset::Preset;
 pub use run_folder::{

@@ -517,7 +517,7 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
             min_region_pixels: 4,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         for i in 0..3 {
             let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
             f.stamp_ns = i as i64;
@@ -529,7 +529,7 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
         let dir = std::env::temp_dir().join(format!("latentam-persist-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("state.latentam");
-        mapper.save(&path).unwrap();
+        mapper.save_file(&path).unwrap();
         let bytes = std::fs::read(&path).unwrap();
 
         // The unmutated file parses to the mapper's state, and loads.
@@ -542,9 +542,8 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
         assert_eq!(state.config(), mapper.config());
         let again = SavedState::parse(&state.to_bytes().unwrap(), &path).unwrap();
         assert!(again == state, "parse and write are inverse");
-        let loaded = OnlineMapper::load(ctx, &path, None).unwrap();
-        let gaussians =
-            |m: &OnlineMapper| m.global().iter().map(|(k, g)| (k, *g)).collect::<Vec<_>>();
+        let loaded = Mapper::load_file(ctx, &path, None).unwrap();
+        let gaussians = |m: &Mapper| m.global().iter().map(|(k, g)| (k, *g)).collect::<Vec<_>>();
         assert_eq!(gaussians(&loaded), gaussians(&mapper));
         assert_eq!(
             loaded.window().unwrap().keys(),
@@ -570,7 +569,7 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
         let mut applied = 0;
         for (state, what) in accepted.into_iter().take(16) {
             let r = catch_unwind(AssertUnwindSafe(|| {
-                OnlineMapper::from_saved(ctx, state, None).map(drop)
+                Mapper::from_saved(ctx, state, None).map(drop)
             }));
             match r {
                 Err(_) => panic!("from_saved panicked on an accepted mutation: {what}"),
@@ -588,7 +587,7 @@ fn a_diverged_map_is_not_saved() {
         let dir = std::env::temp_dir().join(format!("latentam-diverged-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("state.latentam");
-        let mut m = OnlineMapper::new(
+        let mut m = Mapper::with_context(
             ctx,
             MapperConfig {
                 window_capacity: Some(8192),
@@ -596,9 +595,9 @@ fn a_diverged_map_is_not_saved() {
             },
         )
         .unwrap();
-        m.integrate(&super::tests::keyframe(glam::DVec3::ZERO))
+        m.integrate(super::tests::keyframe(glam::DVec3::ZERO))
             .unwrap();
-        m.save(&path).unwrap();
+        m.save_file(&path).unwrap();
         let good = std::fs::read(&path).unwrap();
         // The projection gone infinite, as a learning rate far too large
         // makes it: refused, and the last save stays.
@@ -606,7 +605,7 @@ fn a_diverged_map_is_not_saved() {
         let mut w: Vec<f32> = ctx.download(head.w()).unwrap();
         w[5] = f32::INFINITY;
         ctx.upload(head.w(), 0, &w).unwrap();
-        let e = m.save(&path).unwrap_err().to_string();
+        let e = m.save_file(&path).unwrap_err().to_string();
         assert!(e.contains("diverged") && e.contains("head/W"), "{e}");
         assert_eq!(std::fs::read(&path).unwrap(), good);
         std::fs::remove_dir_all(&dir).ok();

@@ -213,7 +213,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
             min_region_pixels: 4,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         let mut added_total = 0;
         let mut psnr_after_first = 0.0;
         for i in 0..8 {
@@ -272,7 +272,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
 }
 
 /// PSNR of the map's rendering of the first keyframe against its image.
-fn psnr_of_first_keyframe(ctx: &latentam_gpu::Context, mapper: &OnlineMapper) -> f64 {
+fn psnr_of_first_keyframe(ctx: &latentam_gpu::Context, mapper: &Mapper) -> f64 {
     let first = mapper.history().get(0).unwrap();
     let mut raster = crate::splat::Rasterizer::new(ctx);
     let window = mapper.window().unwrap();
@@ -304,7 +304,7 @@ fn frames_without_embeddings_map_geometry_and_colour_only() {
             replay: 2,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         for i in 0..4 {
             let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
             f.stamp_ns = i as i64;
@@ -526,7 +526,7 @@ fn the_window_and_batches_stay_within_a_small_binding_limit() {
             atoms: 64,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         for i in 0..4 {
             let mut f = keyframe(DVec3::new(0.03 * i as f64, 0.0, 0.0));
             f.stamp_ns = i as i64;
@@ -560,7 +560,7 @@ fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
             min_region_pixels: 4,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         for i in 0..4 {
             let mut f = keyframe(DVec3::new(0.04 * i as f64, 0.0, 0.0));
             f.stamp_ns = i as i64;
@@ -587,13 +587,13 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
             window_capacity: Some(8192),
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         let at = |i: u32| {
             let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
             f.stamp_ns = i as i64;
             f
         };
-        mapper.integrate(&at(0)).unwrap();
+        mapper.integrate(at(0)).unwrap();
         let before = (mapper.stats().frames, mapper.global().len());
         let selector = mapper.selector.state();
         // Another dimension, another model, a NaN pose, garbage
@@ -622,17 +622,17 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
         }
         // Mapping goes on as if they had never come.
         assert!(matches!(
-            mapper.integrate(&at(1)).unwrap(),
+            mapper.integrate(at(1)).unwrap(),
             Integrated::Keyframe(_)
         ));
         assert_eq!(mapper.stats().keyframes, 2);
         // A keyframe that failed part-way: neither saved nor mapped on.
-        mapper.broken = Some("keyframe at 2 ns".into());
+        mapper.progress.keyframe_started(2);
         let path = std::env::temp_dir().join(format!("latentam-broken-{}", std::process::id()));
-        let e = mapper.save(&path).unwrap_err().to_string();
+        let e = mapper.save_file(&path).unwrap_err().to_string();
         assert!(e.contains("failed") && e.contains("last save"), "{e}");
         assert!(!path.exists());
-        assert!(mapper.integrate(&at(2)).is_err());
+        assert!(mapper.integrate(at(2)).is_err());
     });
 }
 
@@ -647,7 +647,7 @@ fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
             stage_two_iterations: 20,
             ..MapperConfig::default()
         };
-        let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
         mapper.set_hurry_flag(&STOP);
         let at = |i: u32| {
             let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
@@ -658,14 +658,14 @@ fn a_hurried_keyframe_skips_its_remaining_steps_and_stays_consistent() {
             Integrated::Keyframe(k) => k.stage_two,
             Integrated::Skipped => panic!("every frame is a keyframe here"),
         };
-        assert!(stage_two(mapper.integrate(&at(0)).unwrap()) > 0.0);
+        assert!(stage_two(mapper.integrate(at(0)).unwrap()) > 0.0);
         STOP.store(true, Ordering::SeqCst);
         // Stage II skipped (no feature loss measured), the keyframe counted.
-        assert_eq!(stage_two(mapper.integrate(&at(1)).unwrap()), 0.0);
+        assert_eq!(stage_two(mapper.integrate(at(1)).unwrap()), 0.0);
         STOP.store(false, Ordering::SeqCst);
         assert_eq!(mapper.stats().keyframes, 2);
         assert!(!mapper.is_broken());
-        assert!(stage_two(mapper.integrate(&at(2)).unwrap()) > 0.0);
+        assert!(stage_two(mapper.integrate(at(2)).unwrap()) > 0.0);
     });
 }
 
@@ -689,7 +689,7 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
         f
     };
     // The band's Gaussians: in front of 2 m, right of the band's edge.
-    let band = |m: &OnlineMapper| {
+    let band = |m: &Mapper| {
         let edge = (W - BAND) as f32 - 0.5;
         m.global()
             .iter()
@@ -704,19 +704,19 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
                 prune_interval: 1,
                 ..MapperConfig::default()
             };
-            let mut mapper = OnlineMapper::new(ctx, cfg).unwrap();
+            let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
             // No depth in the band, which reaches the image's edge: filled
             // from the wall beside it.
-            mapper.integrate(&with_depth(0)).unwrap();
+            mapper.integrate(with_depth(0)).unwrap();
             let guessed = band(&mapper);
             assert!(guessed >= (BAND / 2 * H / 2) as usize, "{guessed} guesses");
-            assert_eq!(mapper.guesses.len(), guessed);
+            assert_eq!(mapper.seeder.guesses(), guessed);
             let mut later = with_depth(later_mm);
             later.stamp_ns = 1;
             mapper.integrate(&later).unwrap();
             if kept {
                 assert_eq!(band(&mapper), guessed, "measured where guessed");
-                assert!(mapper.guesses.is_empty(), "confirmed");
+                assert!(mapper.seeder.guesses() == 0, "confirmed");
             } else {
                 assert_eq!(band(&mapper), 0, "the guesses in front are gone");
             }

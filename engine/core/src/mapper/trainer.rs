@@ -8,6 +8,7 @@
 use super::history::KeyframeRecord;
 use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
+use crate::map::Companion;
 use crate::map::LocalWindow;
 use crate::optim::{GaussianLearningRates, GaussianOptimizer};
 use crate::splat::{
@@ -196,6 +197,16 @@ impl Trainer {
     /// The Gaussian optimiser (its state moves with the window's rows).
     pub fn optimizer(&self) -> &GaussianOptimizer {
         &self.optimizer
+    }
+
+    /// The optimiser's per-row state, which moves with the window's rows
+    /// when it pages.
+    pub fn window_rows(&self) -> Vec<Companion<'_>> {
+        self.optimizer
+            .state()
+            .into_iter()
+            .map(|(buffer, row_bytes)| Companion { buffer, row_bytes })
+            .collect()
     }
 
     /// Gradients of the last Stage I step, summed over its batch.

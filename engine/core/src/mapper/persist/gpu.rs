@@ -2,6 +2,8 @@
 //! archive, and creating the GPU buffers of a loaded one.
 
 use super::*;
+use crate::mapper::facade::Mapper;
+use crate::mapper::progress::Progress;
 
 /// Reads a whole device buffer as bytes (first `bytes` kept).
 fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
@@ -10,49 +12,45 @@ fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
     Ok(v)
 }
 
-impl OnlineMapper {
-    /// Saves the whole state to `path` (one file, replaced atomically)
-    /// under a fresh run id. The window is written back to the global map
-    /// first.
+impl Mapper {
+    /// Saves the whole state to the file `path` (replaced atomically)
+    /// under a fresh run id. Unstable: for the engine's tests.
     #[cfg(any(test, feature = "testing"))]
-    pub fn save(&mut self, path: &Path) -> Result<()> {
+    #[doc(hidden)]
+    pub fn save_file(&mut self, path: &Path) -> Result<()> {
         self.save_as(path, &crate::mapper::new_run_id())
     }
 
-    /// `OnlineMapper::save`, recording `run_id`: the id of the run folder
-    /// version the file belongs to (see [`RunStaging::run_id`](crate::mapper::RunStaging::run_id)).
-    pub fn save_as(&mut self, path: &Path, run_id: &str) -> Result<()> {
-        self.check_consistent()?;
+    /// Saves the whole state to the file `path` (replaced atomically),
+    /// recording `run_id`: the id of the run folder version the file
+    /// belongs to (see [`RunStaging::run_id`](crate::mapper::RunStaging::run_id)).
+    /// The window is written back to the global map first.
+    pub(in crate::mapper) fn save_as(&mut self, path: &Path, run_id: &str) -> Result<()> {
+        self.progress.check_consistent()?;
         self.flush()?;
         let ctx = self.ctx.clone();
-        let map: Vec<(VoxelKey, Gaussian)> = self.global.iter().map(|(k, g)| (k, *g)).collect();
+        let global = self.pager.global();
+        let map: Vec<(VoxelKey, Gaussian)> = global.iter().map(|(k, g)| (k, *g)).collect();
         let window = self.download_window(&ctx)?;
         let head = self.download_head(&ctx)?;
         check_finite(&map, head.as_ref(), window.as_ref())?;
         let guesses: Vec<u8> = map
             .iter()
             .map(|(key, _)| {
-                if self.superseded.contains(key) {
+                if self.seeder.is_superseded(key) {
                     SUPERSEDED
                 } else {
-                    GUESSED * self.guesses.contains(key) as u8
+                    GUESSED * self.seeder.is_guess(key) as u8
                 }
             })
             .collect();
         let bytes = StateRef {
             run_id: Some(run_id),
             config: &self.cfg,
-            counters: Counters {
-                frames: self.frames,
-                keyframes: self.stats.keyframes,
-                evicted: self.stats.evicted,
-                fetched: self.stats.fetched,
-                over_capacity: self.stats.over_capacity,
-                last_stamp_ns: self.last_stamp_ns,
-            },
-            model: self.model.as_deref(),
+            counters: self.progress.counters(),
+            model: self.dictionary.model(),
             selector: self.selector.state(),
-            last_sync: self.last_sync,
+            last_sync: self.pager.last_sync(),
             map: &map,
             guesses: &guesses,
             head: head.as_ref(),
@@ -75,29 +73,31 @@ impl OnlineMapper {
 
     /// The window's residents and their optimiser rows, from the GPU.
     fn download_window(&self, ctx: &Context) -> Result<Option<SavedWindow>> {
-        Ok(match (&self.window, &self.trainer, &self.window_budget) {
-            (Some(window), Some(trainer), Some(sized)) => {
-                let n = window.len() as u64;
-                let state = trainer
-                    .optimizer()
-                    .state()
-                    .into_iter()
-                    .map(|(buf, row)| download_bytes(ctx, buf, n * row))
-                    .collect::<Result<Vec<_>>>()?;
-                Some(SavedWindow {
-                    capacity: sized.capacity,
-                    view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
-                    keys: window.keys().to_vec(),
-                    state,
-                })
-            }
-            _ => None,
-        })
+        Ok(
+            match (self.pager.window(), &self.trainer, self.pager.budget()) {
+                (Some(window), Some(trainer), Some(sized)) => {
+                    let n = window.len() as u64;
+                    let state = trainer
+                        .optimizer()
+                        .state()
+                        .into_iter()
+                        .map(|(buf, row)| download_bytes(ctx, buf, n * row))
+                        .collect::<Result<Vec<_>>>()?;
+                    Some(SavedWindow {
+                        capacity: sized.capacity,
+                        view_pixels: self.history.get(0).map_or(0, |k| k.camera.pixels()),
+                        keys: window.keys().to_vec(),
+                        state,
+                    })
+                }
+                _ => None,
+            },
+        )
     }
 
     /// The latent head's parameters and optimiser state, from the GPU.
     fn download_head(&self, ctx: &Context) -> Result<Option<SavedHead>> {
-        Ok(match &self.head {
+        Ok(match self.dictionary.head() {
             Some(head) => {
                 let d = head.config().dim as usize;
                 let k = head.config().atoms as usize;
@@ -127,25 +127,22 @@ impl OnlineMapper {
         })
     }
 
-    /// Loads a state saved by `OnlineMapper::save` onto `ctx`, ready to
-    /// integrate more frames or to be queried. `overrides` replaces the
-    /// saved configuration's run-time settings (budget, learning rates...)
-    /// when given; the settings that shape the saved state (voxel size,
-    /// dictionary size, replay count, window capacity) are kept.
-    ///
-    /// The file is read and checked on the CPU first
-    /// ([`SavedState::read`]), then put on the GPU
-    /// (`OnlineMapper::from_saved`).
+    /// Loads a state saved by [`Mapper::save_file`] onto `ctx`.
+    /// Unstable: for the engine's tests.
     #[cfg(any(test, feature = "testing"))]
-    pub fn load(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
+    #[doc(hidden)]
+    pub fn load_file(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
         let state = SavedState::read(path)?;
         Self::from_saved(ctx, state, overrides)
     }
 
-    /// A mapper on `ctx` with the state `saved` (see
-    /// `OnlineMapper::load` for `overrides`): creates the GPU buffers and
-    /// uploads the window, the latent head and their optimiser state.
-    pub fn from_saved(
+    /// A mapper on `ctx` with the state `saved`: creates the GPU buffers
+    /// and uploads the window, the latent head and their optimiser state.
+    /// `overrides` replaces the saved configuration's run-time settings
+    /// (budget, learning rates...) when given; the settings that shape the
+    /// saved state (voxel size, dictionary size, replay count, window
+    /// capacity) are kept.
+    pub(in crate::mapper) fn from_saved(
         ctx: &Context,
         saved: SavedState,
         overrides: Option<MapperConfig>,
@@ -172,31 +169,25 @@ impl OnlineMapper {
         if let Some(w) = &window {
             cfg.window_capacity = Some(w.capacity);
         }
-        let mut m = OnlineMapper::new(ctx, cfg)?;
-        m.frames = counters.frames;
-        m.stats.keyframes = counters.keyframes;
-        m.stats.evicted = counters.evicted;
-        m.stats.fetched = counters.fetched;
-        m.stats.over_capacity = counters.over_capacity;
-        m.last_stamp_ns = counters.last_stamp_ns;
-        m.model = model;
-        m.run_id = run_id;
+        let mut m = Mapper::with_context(ctx, cfg)?;
+        m.progress = Progress::restored(counters, run_id);
+        m.dictionary.restore_model(model);
         m.selector.restore(selector.0, selector.1);
-        m.last_sync = last_sync;
+        m.pager.restore_last_sync(last_sync);
         for ((key, g), flag) in map.into_iter().zip(guesses) {
-            if !m.global.insert_at(key, g) {
+            if !m.pager.restore_gaussian(key, g) {
                 return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
             }
             match flag {
-                GUESSED => _ = m.guesses.insert(key),
-                SUPERSEDED => _ = m.superseded.insert(key),
+                GUESSED => m.seeder.restore_guess(key),
+                SUPERSEDED => m.seeder.restore_superseded(key),
                 _ => {}
             }
         }
 
         // Latent head.
         if let Some(h) = head {
-            let head = m.make_head(h.dim)?;
+            let head = m.dictionary.make_head(ctx, h.dim)?;
             ctx.upload(head.w(), 0, &h.w)?;
             ctx.upload(head.atoms(), 0, &h.atoms)?;
             ctx.upload(head.anchor(), 0, &h.anchors)?;
@@ -214,7 +205,8 @@ impl OnlineMapper {
                 "head/adam",
                 &corrupt,
             )?;
-            m.head = Some(head);
+            let model = m.dictionary.model().map(str::to_string);
+            m.dictionary.restore(head, model);
         }
 
         for record in history {
@@ -228,14 +220,14 @@ impl OnlineMapper {
         // Window: the same residents in the same rows, with their Adam
         // state.
         if let Some(w) = window {
-            let dim = m.head.as_ref().map(|h| h.config().dim);
+            let dim = m.dictionary.head().map(|h| h.config().dim);
             m.ensure_workspace(w.view_pixels, dim)?;
-            m.append(&w.keys)?;
-            let rows = w.keys.len() as u64;
             let trainer = m
                 .trainer
                 .as_ref()
                 .ok_or_else(|| corrupt("no trainer for the window".into()))?;
+            m.pager.append(ctx, &w.keys, &trainer.window_rows())?;
+            let rows = w.keys.len() as u64;
             let buffers = trainer.optimizer().state();
             let expected: Vec<u64> = buffers.iter().map(|(_, row)| rows * row).collect();
             upload_state(ctx, buffers, &w.state, &expected, "window/state", &corrupt)?;

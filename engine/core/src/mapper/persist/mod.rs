@@ -6,7 +6,7 @@
 //!
 //! Loading is two steps: [`SavedState::parse`] reads and checks the whole
 //! file on the CPU (any file: it returns an error for anything malformed
-//! and never panics), then `OnlineMapper::from_saved` creates the GPU
+//! and never panics), then `Mapper::from_saved` creates the GPU
 //! buffers and uploads.
 
 use std::borrow::Cow;
@@ -17,7 +17,7 @@ use glam::{DAffine3, DMat3, DQuat, DVec3};
 use super::archive::{Archive, ArchiveWriter, FORMAT, VERSION};
 use super::config::MapperConfig;
 use super::history::{KeyframeRecord, RegionTargets};
-use super::online::OnlineMapper;
+use super::progress::Counters;
 use crate::latent::NO_REGION_LABEL;
 use crate::map::{Gaussian, VoxelKey, EXPOSURE_RANGE};
 use crate::splat::{Camera, FIELD_WIDTHS, QUERY_DIM};
@@ -142,19 +142,6 @@ fn message(e: Error) -> String {
     }
 }
 
-/// Running counters.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub(super) struct Counters {
-    pub frames: u64,
-    pub keyframes: u64,
-    pub evicted: u64,
-    pub fetched: u64,
-    pub over_capacity: u64,
-    /// Stamp of the last frame integrated (absent in states written before
-    /// it was kept).
-    pub last_stamp_ns: Option<i64>,
-}
-
 /// The latent head as saved.
 #[derive(Clone, Debug, PartialEq)]
 pub(super) struct SavedHead {
@@ -189,7 +176,7 @@ pub(super) struct SavedWindow {
 }
 
 /// A saved mapper state, read from a file and checked on the CPU: what
-/// `OnlineMapper::load` then puts on the GPU. [`SavedState::parse`]
+/// `Mapper::load` then puts on the GPU. [`SavedState::parse`]
 /// accepts any bytes: whatever is malformed or inconsistent (metadata,
 /// tensor types and shapes, counts, duplicate or unknown voxel keys,
 /// non-finite cameras and poses, sizes too large to allocate) is an
@@ -227,7 +214,7 @@ pub struct SavedState {
 }
 
 /// What one archive holds, borrowed: written by both
-/// `OnlineMapper::save` and [`SavedState::to_bytes`].
+/// `Mapper::save` and [`SavedState::to_bytes`].
 struct StateRef<'a> {
     run_id: Option<&'a str>,
     config: &'a MapperConfig,
@@ -388,7 +375,7 @@ fn write_trajectory(w: &mut ArchiveWriter, trajectory: &[(i64, CameraPose)], exp
 }
 
 impl SavedState {
-    /// Reads and checks a state saved by `OnlineMapper::save` from
+    /// Reads and checks a state saved by `Mapper::save` from
     /// `bytes`, the contents of `origin` (which only names it in errors).
     /// Nothing touches the GPU; see the type's documentation for what is
     /// checked.
@@ -402,7 +389,7 @@ impl SavedState {
         Self::from_archive(&Archive::open(path)?)
     }
 
-    /// The file as `OnlineMapper::save` writes it.
+    /// The file as `Mapper::save` writes it.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         StateRef {
             run_id: self.run_id.as_deref(),

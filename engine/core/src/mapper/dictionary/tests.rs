@@ -1,0 +1,129 @@
+//! The dictionary part: the head created from the first embeddings, their
+//! model and dimension held to, and what it hands to the other parts.
+
+use glam::DVec3;
+
+use super::*;
+use crate::mapper::tests::keyframe;
+use latentam_gpu::testing::with_context;
+
+fn config() -> MapperConfig {
+    MapperConfig {
+        atoms: 16,
+        max_regions: 64,
+        ..MapperConfig::default()
+    }
+}
+
+fn vocabulary(dim: u32, model: &str) -> Vocabulary {
+    Vocabulary {
+        names: vec!["wall".into()],
+        ids: vec![0],
+        dim,
+        vectors: vec![1.0; dim as usize],
+        model: model.into(),
+    }
+}
+
+#[test]
+fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
+    with_context(|ctx| {
+        let mut dictionary = Dictionary::new(&config());
+        let frame = keyframe(DVec3::ZERO);
+        let record = KeyframeRecord::from_frame(&frame);
+        // Nothing to decode or score with before.
+        assert!(dictionary.decoder_file(ctx).unwrap().is_none());
+        let regions = record.regions.as_ref().unwrap();
+        assert!(dictionary
+            .projected_queries(ctx, regions)
+            .unwrap()
+            .is_none());
+        assert!(matches!(
+            dictionary.check_vocabulary(&vocabulary(32, "test")),
+            Err(Error::NoEmbeddings)
+        ));
+        assert_eq!(dictionary.dim_for(&frame), Some(32));
+
+        dictionary.update(ctx, &frame, &record).unwrap();
+        let head = dictionary.head().expect("created by the first embeddings");
+        assert_eq!(head.config().dim, 32);
+        assert_eq!(head.config().atoms, 16);
+        assert!(head.atom_count() >= 1);
+        assert_eq!(dictionary.model(), Some("test"));
+
+        let mut other_model = keyframe(DVec3::ZERO);
+        other_model.embeddings.as_mut().unwrap().model = "another".into();
+        assert!(matches!(
+            dictionary.check_frame(&other_model),
+            Err(Error::EmbeddingModel { .. })
+        ));
+        let mut other_dim = keyframe(DVec3::ZERO);
+        let e = other_dim.embeddings.as_mut().unwrap();
+        (e.dim, e.count) = (16, 4);
+        assert!(matches!(
+            dictionary.check_frame(&other_dim),
+            Err(Error::EmbeddingDimension {
+                map: 32,
+                given: 16,
+                ..
+            })
+        ));
+        dictionary.check_frame(&frame).unwrap();
+        let mut no_embeddings = keyframe(DVec3::ZERO);
+        no_embeddings.embeddings = None;
+        dictionary.check_frame(&no_embeddings).unwrap();
+
+        dictionary
+            .check_vocabulary(&vocabulary(32, "oracle:test"))
+            .unwrap();
+        assert!(matches!(
+            dictionary.check_vocabulary(&vocabulary(16, "test")),
+            Err(Error::EmbeddingDimension { .. })
+        ));
+        assert!(matches!(
+            dictionary.check_vocabulary(&vocabulary(32, "another")),
+            Err(Error::EmbeddingModel { .. })
+        ));
+    });
+}
+
+#[test]
+fn the_head_hands_out_its_decoder_and_projected_queries() {
+    with_context(|ctx| {
+        let mut dictionary = Dictionary::new(&config());
+        let frame = keyframe(DVec3::ZERO);
+        let record = KeyframeRecord::from_frame(&frame);
+        dictionary.update(ctx, &frame, &record).unwrap();
+        let head = dictionary.head().unwrap();
+        let file = dictionary.decoder_file(ctx).unwrap().unwrap();
+        let atoms = head.atom_count() as usize;
+        assert_eq!(file.dim, 32);
+        assert_eq!(file.w.len(), QUERY_DIM * 32);
+        assert_eq!(file.atoms.len(), atoms * 32);
+        assert_eq!(file.atom_weights.len(), atoms);
+        assert_eq!(file.model, "test");
+        let w: Vec<f32> = ctx.download(head.w()).unwrap();
+        assert_eq!(file.w, w[..QUERY_DIM * 32]);
+
+        let regions = record.regions.as_ref().unwrap();
+        let queries = dictionary.projected_queries(ctx, regions).unwrap().unwrap();
+        assert_eq!(queries.len(), regions.count as usize);
+        assert!(queries
+            .iter()
+            .all(|q| q.is_some_and(|q| q.iter().all(|x| x.is_finite()))));
+    });
+}
+
+#[test]
+fn regions_without_an_embedding_do_not_reach_the_dictionary() {
+    let regions = RegionTargets {
+        width: 2,
+        height: 1,
+        labels: vec![0, 1],
+        grid: false,
+        count: 3,
+        vectors: vec![1.0, 0.0, 0.0, 0.0, 0.0, 0.5],
+        dim: 2,
+    };
+    assert_eq!(nonzero_rows(&regions), vec![1.0, 0.0, 0.0, 0.5]);
+}

@@ -1,0 +1,431 @@
+//! A frame's route through the mapper's parts (the paper's Algorithm 1):
+//! decide whether it is a keyframe; for a keyframe update the dictionary,
+//! seed new Gaussians, run Stage I, page the window beside Stage II, and
+//! report.
+
+use std::borrow::Borrow;
+use std::time::Instant;
+
+use glam::DVec3;
+
+use super::facade::Mapper;
+use super::history::KeyframeRecord;
+use super::keyframe_report::{
+    Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, PagingReport,
+};
+use super::seeder::Coverage;
+use super::trainer::{StageOneReport, Trainer};
+use super::workspace::size_workspace;
+use crate::map::{QueryInit, RegionQueries, VoxelKey};
+use latentam_base::Result;
+use latentam_gpu::{Context, GpuCalls, GpuWork};
+use latentam_io::Frame;
+
+impl Mapper {
+    /// Offers one frame: keyframe selection, then for a keyframe the
+    /// dictionary update, Gaussian seeding, Stage I over the keyframe and
+    /// past ones, Stage II with the window's paging beside it, and at its
+    /// interval pruning (the paper's Algorithm 1). A frame refused for its
+    /// content leaves the map as it was; a failure part-way through a
+    /// keyframe leaves it unusable ([`Mapper::is_broken`]).
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: latentam_io::Frame) -> latentam_core::Result<()> {
+    /// use latentam_core::mapper::Integrated;
+    /// if let Integrated::Keyframe(report) = mapper.integrate(frame)? {
+    ///     println!("keyframe {}: {} Gaussians", report.index, report.gaussians);
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn integrate(&mut self, frame: impl Borrow<Frame>) -> Result<Integrated> {
+        let frame = frame.borrow();
+        frame.check()?;
+        self.integrate_checked(frame)
+    }
+
+    /// [`Mapper::integrate`] for a frame that passed `Frame::check`
+    /// already (the live handle checks at `submit`, on the caller's
+    /// thread).
+    pub(crate) fn integrate_checked(&mut self, frame: &Frame) -> Result<Integrated> {
+        self.progress.check_consistent()?;
+        self.dictionary.check_frame(frame)?;
+        let selector = self.selector.state();
+        if !self.selector.decide(frame, self.pager.global()).keyframe {
+            self.progress.count_frame(frame.stamp_ns);
+            return Ok(Integrated::Skipped);
+        }
+        // The first keyframe sizes the window against the budget before any
+        // GPU work, so a configuration that cannot map fails here, with the
+        // setting to change, and with the map as it was.
+        let pixels = frame.color.width as u64 * frame.color.height as u64;
+        if let Err(e) = self.ensure_workspace(pixels, self.dictionary.dim_for(frame)) {
+            self.selector.restore(selector.0, selector.1);
+            return Err(e);
+        }
+        self.progress.keyframe_started(frame.stamp_ns);
+        let report = self.integrate_keyframe(frame)?;
+        self.progress.keyframe_done(frame.stamp_ns);
+        Ok(Integrated::Keyframe(report))
+    }
+
+    /// Creates the window and the trainer, sized from the budget (first
+    /// keyframe only). `dim` is the embedding dimension the head has or
+    /// will have, `None` when no embeddings were seen yet.
+    pub(super) fn ensure_workspace(&mut self, pixels: u64, dim: Option<u32>) -> Result<()> {
+        if self.trainer.is_some() {
+            return Ok(());
+        }
+        let has_head = self.dictionary.head().is_some();
+        let (window, trainer) = size_workspace(&self.ctx, &self.cfg, pixels, dim, has_head)?;
+        self.pager.open_window(&self.ctx, window)?;
+        self.trainer = Some(Trainer::new(&self.ctx, trainer, dim.unwrap_or(1))?);
+        Ok(())
+    }
+
+    /// One keyframe, a line per step of the algorithm.
+    fn integrate_keyframe(&mut self, frame: &Frame) -> Result<Box<KeyframeReport>> {
+        let mut clock = KeyframeClock::start(&self.ctx);
+        let mut record = KeyframeRecord::from_frame(frame);
+        let seed = self.cfg.seed ^ self.progress.keyframes().wrapping_mul(0x9e37_79b9);
+        let ctx = self.ctx.clone();
+        let centre = frame.pose.translation;
+        let keyframe_span = ctx.host_span("keyframe");
+
+        clock.step(Step::Dictionary, |_| {
+            self.dictionary.update(&ctx, frame, &record)
+        })?;
+        let new_keys = clock.step(Step::Seeding, |clock| {
+            self.seed(frame, &mut record, seed, clock)
+        })?;
+        let stage_one = clock.step(Step::StageOne, |_| self.stage_one(&record, seed, centre))?;
+        let stage_two = clock.step(Step::StageTwo, |clock| {
+            self.stage_two_and_paging(centre, clock)
+        })?;
+        let exposure = self.remember(frame, record);
+        let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
+
+        drop(keyframe_span);
+        let trained = Trained {
+            added: new_keys.len(),
+            stage_one,
+            stage_two,
+            pruned,
+            exposure,
+        };
+        Ok(self.report(frame, clock, trained))
+    }
+
+    /// Seeds the keyframe's new Gaussians where the map rendered at its
+    /// pose does not explain it, inserts them into the global map and makes
+    /// them resident for Stage I (paging the window around the camera when
+    /// they do not fit). Returns their voxels.
+    fn seed(
+        &mut self,
+        frame: &Frame,
+        record: &mut KeyframeRecord,
+        seed: u64,
+        clock: &mut KeyframeClock,
+    ) -> Result<Vec<VoxelKey>> {
+        let trainer = self.trainer.as_mut().expect("ensured");
+        let window = self.pager.window().expect("ensured");
+        let coverage = Coverage::render(trainer.rasterizer(), window, record)?;
+        if self.cfg.exposure_compensation {
+            // The last keyframe's where too little of the map is in view.
+            let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
+            record.exposure = coverage
+                .as_ref()
+                .and_then(|c| c.exposure(frame, record, self.cfg.seeding.depth_error))
+                .unwrap_or(last_gain);
+        }
+        // New Gaussians in a region start from its embedding projected
+        // through the decoder's W.
+        let projected = match &record.regions {
+            Some(r) if self.cfg.seeding.query_init == QueryInit::Embedding => self
+                .dictionary
+                .projected_queries(&self.ctx, r)?
+                .map(|q| (r, q)),
+            _ => None,
+        };
+        let queries = projected.as_ref().map(|(r, queries)| RegionQueries {
+            width: r.width,
+            height: r.height,
+            labels: &r.labels,
+            queries,
+        });
+        let global = self.pager.global();
+        let seeds = self.seeder.seeds(
+            frame,
+            coverage.as_ref(),
+            self.pager.extent(),
+            record.exposure,
+            global,
+            seed,
+            queries.as_ref(),
+        );
+        self.seeder.check_guesses(frame, global);
+        let keys = self.seeder.insert(frame, seeds, self.pager.global_mut());
+
+        let rows = self.trainer.as_ref().expect("ensured").window_rows();
+        let centre = frame.pose.translation;
+        if let Some((report, ms)) = self.pager.make_resident(&self.ctx, &keys, &rows, centre)? {
+            clock.timings.paging_cpu_ms += ms;
+            clock.paging.push(report);
+        }
+        Ok(keys)
+    }
+
+    /// Stage I: R1 steps on the keyframe and B past ones drawn among those
+    /// the window can render; the report is the first step's (the losses
+    /// before this keyframe trained anything).
+    fn stage_one(
+        &mut self,
+        record: &KeyframeRecord,
+        seed: u64,
+        centre: DVec3,
+    ) -> Result<StageOneReport> {
+        let picks = self.history.sample_near(
+            self.cfg.replay as usize,
+            seed,
+            centre,
+            self.cfg.window_radius,
+        );
+        let mut batch: Vec<&KeyframeRecord> = vec![record];
+        batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
+        let trainer = self.trainer.as_mut().expect("ensured");
+        let window = self.pager.window().expect("ensured");
+        let head = self.dictionary.head();
+        let report = trainer.stage_one(&self.ctx, window, head, &batch)?;
+        for _ in 1..self.cfg.stage_one_iterations {
+            if self.progress.hurried() {
+                break;
+            }
+            trainer.stage_one(&self.ctx, window, head, &batch)?;
+        }
+        self.pager.mark_trained();
+        Ok(report)
+    }
+
+    /// Stage II, with the window paged around the camera beside it when the
+    /// camera moved far enough (Stage II reads no Gaussian). The paging
+    /// batch is submitted first so that it waits for Stage I only (see
+    /// `Recorder::submit`). Returns Stage II's loss.
+    fn stage_two_and_paging(&mut self, centre: DVec3, clock: &mut KeyframeClock) -> Result<f64> {
+        let trainer = self.trainer.as_ref().expect("ensured");
+        let rows = trainer.window_rows();
+        let t_page = Instant::now();
+        let paging = self.pager.follow(&self.ctx, centre, &rows)?;
+        if paging.is_some() {
+            clock.timings.paging_cpu_ms += ms_since(t_page);
+            clock.lap(|c| &mut c.paging);
+        }
+        let iterations = match self.progress.hurried() {
+            true => 0,
+            false => self.cfg.stage_two_iterations,
+        };
+        let head = self.dictionary.head();
+        let (stage_two, span) = trainer
+            .submit_stage_two(&self.ctx, head, iterations)?
+            .finish()?;
+        clock.timings.stage_two_gpu_ms = span.map(|s| s.ms());
+        clock.lap(|c| &mut c.stage_two);
+        if let Some(run) = paging {
+            let t_page = Instant::now();
+            let (report, gpu) = self.pager.finish(run, span.as_ref())?;
+            clock.timings.paging_cpu_ms += ms_since(t_page);
+            clock.timings.paging_gpu_ms = gpu.map(|s| s.0);
+            clock.timings.paging_hidden_ms = gpu.and_then(|s| s.1);
+            clock.paging.push(report);
+            clock.lap(|c| &mut c.paging);
+        }
+        Ok(stage_two)
+    }
+
+    /// Keeps the keyframe: its pose, its exposure and its record for
+    /// replay. Returns its exposure.
+    fn remember(&mut self, frame: &Frame, record: KeyframeRecord) -> f32 {
+        let (stamp_ns, exposure) = (record.stamp_ns, record.exposure);
+        self.trajectory.push((stamp_ns, frame.pose));
+        self.exposure.push(stamp_ns, exposure);
+        self.history.push(record);
+        self.progress.keyframe_trained();
+        exposure
+    }
+
+    /// Prunes every `prune_interval` keyframes; returns how many Gaussians
+    /// went.
+    fn prune_at_interval(&mut self) -> Result<usize> {
+        let interval = self.cfg.prune_interval as u64;
+        if interval > 0 && self.progress.keyframes().is_multiple_of(interval) {
+            self.prune()
+        } else {
+            Ok(0)
+        }
+    }
+
+    /// Removes the resident Gaussians that are nearly transparent or too
+    /// large ([`MapperConfig::prune_min_opacity`](super::MapperConfig::prune_min_opacity),
+    /// `prune_max_scale`), and the guesses a keyframe saw float in front of
+    /// its surface. Returns how many were removed.
+    pub(super) fn prune(&mut self) -> Result<usize> {
+        let rows = self
+            .trainer
+            .as_ref()
+            .map(Trainer::window_rows)
+            .unwrap_or_default();
+        let superseded = self.seeder.take_superseded();
+        let (min_opacity, max_scale) = (self.cfg.prune_min_opacity, self.cfg.prune_max_scale);
+        self.pager
+            .prune(&self.ctx, &rows, superseded, min_opacity, max_scale)
+    }
+
+    /// The keyframe's report, its figures added to the run's.
+    fn report(
+        &mut self,
+        frame: &Frame,
+        clock: KeyframeClock,
+        trained: Trained,
+    ) -> Box<KeyframeReport> {
+        let KeyframeClock {
+            mut timings,
+            calls,
+            paging,
+            start,
+            work_before,
+            ..
+        } = clock;
+        timings.total_ms = ms_since(start);
+        self.progress.count_paging(&paging);
+        let work = self.ctx.gpu_work() - work_before;
+        let cpu_bytes = self.cpu_bytes();
+        let stats = self.progress.stats_mut();
+        stats.timings.add(&timings);
+        stats.gpu_work += &work;
+        stats.cpu_peak_bytes = stats.cpu_peak_bytes.max(cpu_bytes);
+        Box::new(KeyframeReport {
+            index: self.progress.keyframes() - 1,
+            frame: self.progress.counters().frames,
+            stamp_ns: frame.stamp_ns,
+            added: trained.added,
+            stage_one: trained.stage_one,
+            stage_two: trained.stage_two,
+            pruned: trained.pruned,
+            paging,
+            timings,
+            gaussians: self.pager.global().len(),
+            resident: self.pager.resident(),
+            gpu_bytes: self.ctx.memory_report().total.current,
+            cpu_bytes,
+            atoms: self.dictionary.head().map_or(0, |h| h.atom_count()),
+            exposure: trained.exposure,
+            gpu_calls: calls,
+            gpu_work: KeyframeGpuWork::of(&work),
+        })
+    }
+}
+
+/// What a keyframe's steps did to the map.
+struct Trained {
+    /// Gaussians seeded.
+    added: usize,
+    stage_one: StageOneReport,
+    /// Stage II's loss.
+    stage_two: f64,
+    pruned: usize,
+    /// The keyframe's exposure over the map's brightness.
+    exposure: f32,
+}
+
+/// The steps of a keyframe timed on their own: each is a host span of the
+/// profile (`trace.json`), with its wall time and GPU calls in the report.
+#[derive(Clone, Copy)]
+enum Step {
+    Dictionary,
+    Seeding,
+    StageOne,
+    StageTwo,
+    Pruning,
+}
+
+impl Step {
+    fn name(self) -> &'static str {
+        match self {
+            Step::Dictionary => "dictionary",
+            Step::Seeding => "seeding",
+            Step::StageOne => "stage I",
+            Step::StageTwo => "stage II and paging",
+            Step::Pruning => "pruning",
+        }
+    }
+
+    fn ms(self, t: &mut KeyframeTimings) -> &mut f64 {
+        match self {
+            Step::Dictionary => &mut t.kmeans_ms,
+            Step::Seeding => &mut t.insertion_ms,
+            Step::StageOne => &mut t.stage_one_ms,
+            Step::StageTwo => &mut t.stage_two_ms,
+            Step::Pruning => &mut t.prune_ms,
+        }
+    }
+
+    fn calls(self, c: &mut KeyframeGpuCalls) -> &mut GpuCalls {
+        match self {
+            Step::Dictionary => &mut c.dictionary,
+            Step::Seeding => &mut c.insertion,
+            Step::StageOne => &mut c.stage_one,
+            // Stage II laps its paging and its own calls as they end.
+            Step::StageTwo => &mut c.stage_two,
+            Step::Pruning => &mut c.prune,
+        }
+    }
+}
+
+/// What a keyframe's steps took: wall time, GPU calls by step, paging.
+struct KeyframeClock {
+    ctx: Context,
+    start: Instant,
+    work_before: GpuWork,
+    /// GPU calls when the last step ended.
+    since: GpuCalls,
+    calls: KeyframeGpuCalls,
+    timings: KeyframeTimings,
+    paging: Vec<PagingReport>,
+}
+
+impl KeyframeClock {
+    fn start(ctx: &Context) -> Self {
+        KeyframeClock {
+            ctx: ctx.clone(),
+            start: Instant::now(),
+            work_before: ctx.gpu_work(),
+            since: ctx.gpu_calls(),
+            calls: KeyframeGpuCalls::default(),
+            timings: KeyframeTimings::default(),
+            paging: Vec::new(),
+        }
+    }
+
+    /// Runs `step` as a host span, records its wall time and adds the GPU
+    /// calls since the last lap to its count.
+    fn step<T>(&mut self, step: Step, run: impl FnOnce(&mut Self) -> Result<T>) -> Result<T> {
+        let t = Instant::now();
+        let span = self.ctx.host_span(step.name());
+        let out = run(self)?;
+        *step.ms(&mut self.timings) = ms_since(t);
+        drop(span);
+        self.lap(|c| step.calls(c));
+        Ok(out)
+    }
+
+    /// Adds the GPU calls since the last lap to the count `stage` picks.
+    fn lap(&mut self, stage: impl FnOnce(&mut KeyframeGpuCalls) -> &mut GpuCalls) {
+        let now = self.ctx.gpu_calls();
+        let slot = stage(&mut self.calls);
+        *slot = *slot + (now - self.since);
+        self.since = now;
+    }
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
