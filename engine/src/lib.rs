@@ -59,8 +59,26 @@ pub mod frames {
     pub use latentam_io::{
         encode_floats, read_vocabulary, AssemblyConfig, BadInputPolicy, CameraPose, ColorImage,
         DepthData, DepthImage, Dtype, EmbeddingLayout, Embeddings, Frame, IngestReport, Intrinsics,
-        LabelImage, McapFrames, PixelFormat, Topics, Vocabulary,
+        LabelImage, McapFrames, PixelFormat, PoseSource, TopicChoice, Topics, Vocabulary,
     };
+}
+
+/// Building a [`Config`] the way the command-line tool and the ROS node
+/// do: from a TOML file, a named preset and `key=value` overrides.
+///
+/// ```no_run
+/// use latentam::config::{apply_overrides, read_input_to_string, Preset};
+///
+/// // Bounded: a file far larger than any configuration is refused.
+/// let text = read_input_to_string("mapper.toml".as_ref())?;
+/// let base = latentam::Config::from_toml(&text)?;
+/// let quality = "quality".parse::<Preset>()?.apply(&base)?;
+/// let config = apply_overrides(&quality, &["gpu_budget=2000000000".to_string()])?;
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub mod config {
+    pub use latentam_core::mapper::{apply_overrides, documented_defaults, Preset};
+    pub use latentam_io::read_input_to_string;
 }
 
 /// A live view of the map in Foxglove (feature `view`): a WebSocket

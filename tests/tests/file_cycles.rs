@@ -28,6 +28,7 @@ const ROOTS: &[&str] = &[
     "shaders/src/lib.rs",
     "tools/src/lib.rs",
     "tools/src/main.rs",
+    "tools/args/src/lib.rs",
     "tools/scene/src/lib.rs",
     "tools/ros/src/main.rs",
     "fuzz/targets/src/lib.rs",

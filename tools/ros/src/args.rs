@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use latentam_cli::config_args::ConfigArgs;
-use latentam_cli::input_args::InputArgs;
-use latentam_cli::live_args::LiveViewArgs;
+use latentam_args::config_args::ConfigArgs;
+use latentam_args::input_args::InputArgs;
+use latentam_args::live_args::LiveViewArgs;
 
 /// latentam as a ROS 2 node: maps from a robot's topics, publishes the map
 /// and answers queries.

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _, Result};
 use latentam::{LiveMapper, LiveOptions, MapSnapshot, TextQuery};
-use latentam_cli::interrupt;
+use latentam_args::interrupt;
 use latentam_core::latent::{softmax_rows, Relevance};
 use latentam_io::{RosMessage, StringMessage, Vocabulary};
 use latentam_view::MapPoints;

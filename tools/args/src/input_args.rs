@@ -1,7 +1,7 @@
 //! How a log's messages become frames: the topic and pairing options the
 //! commands that read logs share (`map`, `eval`, `profile`, `inspect`).
 
-use latentam_io::{AssemblyConfig, BadInputPolicy, PoseSource, TopicChoice, Topics};
+use latentam::frames::{AssemblyConfig, BadInputPolicy, PoseSource, TopicChoice, Topics};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct InputArgs {

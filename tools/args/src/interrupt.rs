@@ -36,7 +36,7 @@ pub fn install() {
 }
 
 /// The flag a stop request sets, for the mapper to cut the keyframe in
-/// progress short ([`latentam_core::mapper::Mapper::set_hurry_flag`]).
+/// progress short ([`latentam::Mapper::set_hurry_flag`]).
 pub fn flag() -> &'static AtomicBool {
     &REQUESTED
 }

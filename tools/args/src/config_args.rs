@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
-use latentam_core::mapper::{apply_overrides, MapperConfig, Preset};
+use latentam::config::{apply_overrides, Preset};
+use latentam::Config as MapperConfig;
 
 /// Where the mapper's configuration comes from.
 #[derive(clap::Args, Clone, Debug, Default)]
@@ -38,7 +39,7 @@ impl ConfigArgs {
     pub fn load_over(&self, base: MapperConfig) -> Result<MapperConfig> {
         let base = match &self.config {
             Some(p) => {
-                let text = latentam_io::read_input_to_string(p)
+                let text = latentam::config::read_input_to_string(p)
                     .with_context(|| format!("reading {}", p.display()))?;
                 MapperConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
             }

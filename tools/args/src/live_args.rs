@@ -5,8 +5,8 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use anyhow::{bail, Result};
-use latentam_io::Vocabulary;
-use latentam_view::{ViewOptions, ViewWord};
+use latentam::frames::Vocabulary;
+use latentam::view::{ViewOptions, ViewWord};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct LiveViewArgs {
