@@ -112,13 +112,7 @@ impl LiveMapper {
         );
         let (last, since) = mapper.keyframe_rule_state();
         queue.start_after(last, since);
-        let first = MapSnapshot::new(
-            mapper.gaussians_now()?,
-            mapper.decoder()?,
-            mapper.trajectory().to_vec(),
-            mapper.stats(),
-            options.index,
-        );
+        let first = MapSnapshot::of(&mapper, options.index)?;
         let shared = Arc::new(Shared {
             state: Mutex::new(State {
                 queue,

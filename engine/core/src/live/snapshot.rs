@@ -10,7 +10,7 @@ use latentam_io::{CameraPose, ColorImage};
 
 use super::index::{DecoderView, IndexSettings, RelevanceIndex};
 use crate::latent::TextQuery;
-use crate::mapper::{DecoderFile, MapperStats};
+use crate::mapper::{DecoderFile, Mapper, MapperStats};
 use crate::splat::Camera;
 
 /// The map as it stood after a keyframe: every Gaussian (positions,
@@ -70,6 +70,18 @@ impl MapSnapshot {
             index: OnceLock::new(),
             building: Mutex::new(()),
         }
+    }
+
+    /// The map of `mapper` as it stands, without writing its GPU window
+    /// back (so taking it between keyframes leaves mapping as it was).
+    pub(crate) fn of(mapper: &Mapper, settings: IndexSettings) -> Result<Self> {
+        Ok(MapSnapshot::new(
+            mapper.gaussians_now()?,
+            mapper.decoder()?,
+            mapper.trajectory().to_vec(),
+            mapper.stats(),
+            settings,
+        ))
     }
 
     /// Gaussians in it.

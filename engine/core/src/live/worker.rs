@@ -195,13 +195,7 @@ fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
 
 /// Takes a snapshot of the map and makes it the one readers see.
 fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
-    let snapshot = MapSnapshot::new(
-        mapper.gaussians_now()?,
-        mapper.decoder()?,
-        mapper.trajectory().to_vec(),
-        mapper.stats(),
-        shared.options.index,
-    );
+    let snapshot = MapSnapshot::of(mapper, shared.options.index)?;
     *shared.snapshot.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(snapshot);
     shared.index_wake.notify_all();
     Ok(())
