@@ -1,0 +1,160 @@
+//! FIFOs given as inputs, and escape sequences and huge values in text
+//! the binary prints.
+
+use super::*;
+
+/// Makes a FIFO at `path`.
+fn mkfifo(path: &std::path::Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: `c` is a NUL-terminated path that outlives the call.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
+#[test]
+fn fifos_given_as_inputs_are_refused_without_blocking() {
+    use std::ffi::OsStr;
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+
+    let dir = common::scratch("cli-fifo");
+    let fifo = dir.join("x.mcap");
+    mkfifo(&fifo);
+    // A rosbag2 folder whose split file is a link to the FIFO.
+    let bag = dir.join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    std::os::unix::fs::symlink(&fifo, bag.join("bag_0.mcap")).unwrap();
+    // TUM folders: one whose list is a FIFO, one whose images are.
+    let tum_list = dir.join("tum-list");
+    std::fs::create_dir(&tum_list).unwrap();
+    mkfifo(&tum_list.join("rgb.txt"));
+    let tum_images = dir.join("tum-images");
+    for sub in ["rgb", "depth"] {
+        std::fs::create_dir_all(tum_images.join(sub)).unwrap();
+        mkfifo(&tum_images.join(sub).join("1.png"));
+    }
+    for (name, text) in [
+        ("rgb.txt", "1.0 rgb/1.png\n"),
+        ("depth.txt", "1.0 depth/1.png\n"),
+        ("groundtruth.txt", "1.0 0 0 0 0 0 0 1\n"),
+    ] {
+        std::fs::write(tum_images.join(name), text).unwrap();
+    }
+    let scene = common::gen_scene(&dir, 3);
+    let run = dir.join("run");
+    run_ok(&[
+        OsStr::new("map"),
+        scene.as_os_str(),
+        OsStr::new("--out"),
+        run.as_os_str(),
+    ]);
+    let out = dir.join("out");
+    let converted = dir.join("converted.mcap");
+
+    let os = |s: &'static str| -> &OsStr { s.as_ref() };
+    let cases: Vec<Vec<&OsStr>> = vec![
+        vec![os("inspect"), fifo.as_os_str()],
+        vec![os("inspect"), bag.as_os_str()],
+        vec![os("map"), fifo.as_os_str(), os("--out"), out.as_os_str()],
+        vec![os("map"), bag.as_os_str(), os("--out"), out.as_os_str()],
+        vec![
+            os("map"),
+            scene.as_os_str(),
+            os("--config"),
+            fifo.as_os_str(),
+            os("--out"),
+            out.as_os_str(),
+        ],
+        vec![os("config"), os("--config"), fifo.as_os_str()],
+        vec![os("eval"), run.as_os_str(), fifo.as_os_str()],
+        vec![
+            os("query"),
+            run.as_os_str(),
+            os("--embedding"),
+            fifo.as_os_str(),
+        ],
+        vec![
+            os("query"),
+            run.as_os_str(),
+            os("--name"),
+            os("chair"),
+            os("--vocabulary"),
+            fifo.as_os_str(),
+        ],
+        vec![
+            os("convert"),
+            os("tum"),
+            tum_list.as_os_str(),
+            os("-o"),
+            converted.as_os_str(),
+        ],
+        vec![
+            os("convert"),
+            os("tum"),
+            tum_images.as_os_str(),
+            os("--intrinsics"),
+            os("500"),
+            os("500"),
+            os("320"),
+            os("240"),
+            os("-o"),
+            converted.as_os_str(),
+        ],
+    ];
+    for args in cases {
+        let mut child = latentam()
+            .args(&args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let started = Instant::now();
+        while child.try_wait().unwrap().is_none() {
+            if started.elapsed() > Duration::from_secs(20) {
+                child.kill().unwrap();
+                let _ = child.wait();
+                panic!("latentam {args:?} blocked on the FIFO for 20 s");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let output = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("a FIFO, not a regular file") && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+    assert!(!out.exists() && !converted.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Text from the command line or a file is printed defused: an escape
+/// sequence in a value is shown escaped, never sent to the terminal, and a
+/// huge value is cut.
+#[test]
+fn errors_show_escape_sequences_escaped_and_huge_values_cut() {
+    let dir = std::env::temp_dir().join(format!("latentam-hygiene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("missing.mcap");
+    for value in ["\u{1b}[2J\rerror: forged".to_string(), "9".repeat(100_000)] {
+        let out = latentam()
+            .arg("map")
+            .arg(&missing)
+            .arg("--out")
+            .arg(dir.join("run"))
+            .arg("--set")
+            .arg(format!("seeding.stride={value}"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !stderr.contains('\u{1b}') && !stderr.contains('\r'),
+            "{stderr:?}"
+        );
+        assert!(stderr.len() < 10_000, "{} bytes of stderr", stderr.len());
+        assert!(stderr.starts_with("error: "), "{stderr:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
