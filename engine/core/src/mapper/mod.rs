@@ -30,6 +30,7 @@ mod run_folder;
 mod run_report;
 mod seeder;
 mod trainer;
+mod views;
 mod warm_up;
 mod work_report;
 mod workspace;
@@ -54,7 +55,5 @@ pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAU
 pub use warm_up::warm_up;
 pub use work_report::{GpuWorkReport, KernelWorkPerKeyframe};
 
-#[cfg(test)]
-mod persist_tests;
 #[cfg(test)]
 mod tests;

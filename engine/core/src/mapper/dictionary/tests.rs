@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::*;
-use crate::mapper::tests::keyframe;
+use crate::mapper::tests::fixtures::keyframe;
 use latentam_gpu::testing::with_context;
 
 fn config() -> MapperConfig {

@@ -1,6 +1,7 @@
 //! Between a mapper and its saved state: downloading the GPU state into an
 //! archive, and creating the GPU buffers of a loaded one.
 
+use super::write::StateRef;
 use super::*;
 use crate::mapper::facade::Mapper;
 use crate::mapper::progress::Progress;

@@ -5,7 +5,7 @@ use bytemuck::Zeroable;
 use glam::DVec3;
 
 use super::*;
-use crate::mapper::tests::keyframe;
+use crate::mapper::tests::fixtures::keyframe;
 use latentam_io::DepthData;
 
 const W: usize = 48;

@@ -11,15 +11,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};
 
-use super::tests::keyframe;
-use super::*;
+use crate::mapper::*;
 use latentam_base::Error;
-use latentam_gpu::testing::with_context;
 
-const ORIGIN: &str = "mutated.latentam";
+pub(super) const ORIGIN: &str = "mutated.latentam";
 
 /// Seed of the mutation runs (fixed; `LATENTAM_TEST_SEED` overrides).
-fn seed() -> u64 {
+pub(super) fn seed() -> u64 {
     std::env::var("LATENTAM_TEST_SEED")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -28,7 +26,7 @@ fn seed() -> u64 {
 
 /// A safetensors file split into its JSON header and its data, when it
 /// still has a readable header.
-fn split(bytes: &[u8]) -> Option<(Map<String, Value>, Vec<u8>)> {
+pub(super) fn split(bytes: &[u8]) -> Option<(Map<String, Value>, Vec<u8>)> {
     let n = usize::try_from(u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?)).ok()?;
     let header: Map<String, Value> =
         serde_json::from_slice(bytes.get(8..8usize.checked_add(n)?)?).ok()?;
@@ -63,7 +61,7 @@ fn random_tensor(header: &Map<String, Value>, rng: &mut impl Rng) -> String {
 /// mutations did (when the offsets still allow it), so that they reach the
 /// checks behind the checksum; [`bit_flips_in_tensor_data_are_all_detected`]
 /// covers the checksum itself.
-fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
+pub(super) fn join(header: &Map<String, Value>, data: &[u8]) -> Vec<u8> {
     crate::mapper::archive::join_resealed(header, data)
 }
 
@@ -286,7 +284,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
 /// parsing each result: a panic fails with the seed and the mutations,
 /// and every error must be an invalid argument naming the file. Returns
 /// the mutated files that still parsed.
-fn parse_mutations(bytes: &[u8], count: usize, seed: u64) -> Vec<(SavedState, String)> {
+pub(super) fn parse_mutations(bytes: &[u8], count: usize, seed: u64) -> Vec<(SavedState, String)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (mut accepted, mut refused) = (Vec::new(), 0);
     for i in 0..count {
@@ -492,265 +490,6 @@ fn mutated_example_states_never_panic_the_parser() {
         assert!(
             format!("{back:?}") == format!("{state:?}"),
             "written again, read back differently: {what}"
-        );
-    }
-}
-
-#[test]
-fn a_mapped_state_parses_loads_and_survives_mutations() {
-    use crate::map::{KeyframeConfig, KeyframePolicy, SeedingConfig};
-    with_context(|ctx| {
-        let cfg = MapperConfig {
-            keyframes: KeyframeConfig {
-                policy: KeyframePolicy::Interval(1),
-                ..KeyframeConfig::default()
-            },
-            seeding: SeedingConfig {
-                stride: 4,
-                ..SeedingConfig::default()
-            },
-            window_capacity: Some(2048),
-            replay: 1,
-            history_cell: 0.0,
-            atoms: 8,
-            max_regions: 16,
-            min_region_pixels: 4,
-            ..MapperConfig::default()
-        };
-        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
-        for i in 0..3 {
-            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
-            f.stamp_ns = i as i64;
-            if i == 1 {
-                f.embeddings = None;
-            }
-            mapper.integrate(&f).unwrap();
-        }
-        let dir = std::env::temp_dir().join(format!("latentam-persist-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("state.latentam");
-        mapper.save_file(&path).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-
-        // The unmutated file parses to the mapper's state, and loads.
-        let state = SavedState::parse(&bytes, &path).unwrap();
-        assert_eq!(state.gaussians(), mapper.global().len());
-        assert_eq!(state.resident(), mapper.window().unwrap().len());
-        assert_eq!(state.history_len(), 3);
-        assert_eq!(state.keyframes(), 3);
-        assert_eq!(state.embedding_dim(), Some(32));
-        assert_eq!(state.config(), mapper.config());
-        let again = SavedState::parse(&state.to_bytes().unwrap(), &path).unwrap();
-        assert!(again == state, "parse and write are inverse");
-        let loaded = Mapper::load_file(ctx, &path, None).unwrap();
-        let gaussians = |m: &Mapper| m.global().iter().map(|(k, g)| (k, *g)).collect::<Vec<_>>();
-        assert_eq!(gaussians(&loaded), gaussians(&mapper));
-        assert_eq!(
-            loaded.window().unwrap().keys(),
-            mapper.window().unwrap().keys()
-        );
-        assert_eq!(loaded.trajectory(), mapper.trajectory());
-        assert_eq!(loaded.exposure(), mapper.exposure());
-        assert_eq!(loaded.exposure().len(), 3);
-        // A resumed run goes on after the last stamp integrated.
-        assert_eq!(loaded.stats().last_frame_stamp_ns, Some(2));
-        assert_eq!(loaded.stats().frames, 3);
-        let mut next = keyframe(DVec3::new(0.2, 0.0, 0.0));
-        for (stamp, mapped) in [(0, true), (2, true), (3, false)] {
-            next.stamp_ns = stamp;
-            assert_eq!(loaded.already_mapped(&next), mapped, "stamp {stamp}");
-        }
-        drop(loaded);
-        drop(mapper);
-
-        // Mutations: refused cleanly or accepted; a few accepted ones are
-        // put on the GPU too.
-        let accepted = parse_mutations(&bytes, 3000, seed() ^ 1);
-        let mut applied = 0;
-        for (state, what) in accepted.into_iter().take(16) {
-            let r = catch_unwind(AssertUnwindSafe(|| {
-                Mapper::from_saved(ctx, state, None).map(drop)
-            }));
-            match r {
-                Err(_) => panic!("from_saved panicked on an accepted mutation: {what}"),
-                Ok(r) => applied += r.is_ok() as usize,
-            }
-        }
-        eprintln!("{applied} accepted mutations loaded");
-        std::fs::remove_dir_all(&dir).unwrap();
-    });
-}
-
-#[test]
-fn a_diverged_map_is_not_saved() {
-    with_context(|ctx| {
-        let dir = std::env::temp_dir().join(format!("latentam-diverged-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("state.latentam");
-        let mut m = Mapper::with_context(
-            ctx,
-            MapperConfig {
-                window_capacity: Some(8192),
-                ..MapperConfig::default()
-            },
-        )
-        .unwrap();
-        m.integrate(super::tests::keyframe(glam::DVec3::ZERO))
-            .unwrap();
-        m.save_file(&path).unwrap();
-        let good = std::fs::read(&path).unwrap();
-        // The projection gone infinite, as a learning rate far too large
-        // makes it: refused, and the last save stays.
-        let head = m.head().unwrap();
-        let mut w: Vec<f32> = ctx.download(head.w()).unwrap();
-        w[5] = f32::INFINITY;
-        ctx.upload(head.w(), 0, &w).unwrap();
-        let e = m.save_file(&path).unwrap_err().to_string();
-        assert!(e.contains("diverged") && e.contains("head/W"), "{e}");
-        assert_eq!(std::fs::read(&path).unwrap(), good);
-        std::fs::remove_dir_all(&dir).ok();
-    });
-}
-
-/// A byte changed anywhere in a saved state's tensors (a bit flip on disk,
-/// a bad copy) is caught by its checksum, however plausible the changed
-/// value: none of the flips loads.
-#[test]
-fn bit_flips_in_tensor_data_are_all_detected() {
-    let bytes = SavedState::example().to_bytes().unwrap();
-    let (header, data) = split(&bytes).expect("a well-formed example");
-    let start = bytes.len() - data.len();
-    let mut rng = ChaCha8Rng::seed_from_u64(seed());
-    for _ in 0..64 {
-        let mut flipped = bytes.clone();
-        let at = rng.random_range(start..bytes.len());
-        flipped[at] ^= 1 << rng.random_range(0..8);
-        let e = SavedState::parse(&flipped, Path::new(ORIGIN)).err();
-        assert!(
-            e.as_ref()
-                .is_some_and(|e| e.to_string().contains("is damaged")),
-            "a flip at byte {at} of {} loaded or failed otherwise: {e:?}",
-            bytes.len()
-        );
-    }
-    // The untouched file, rejoined, still loads.
-    assert!(SavedState::parse(&join(&header, &data), Path::new(ORIGIN)).is_ok());
-}
-
-/// The metadata is under the checksum too: a changed counter, stamp,
-/// setting or run id is damage, not another map. Edits sealed again (as a
-/// deliberate editor could) still meet the checks behind the checksum: the
-/// run id must have the tool's form and be there, and a state that mapped
-/// frames must say up to which stamp.
-#[test]
-fn metadata_is_checksummed_and_run_ids_and_stamps_are_required() {
-    let bytes = SavedState::example().to_bytes().unwrap();
-    let (header, data) = split(&bytes).expect("a well-formed example");
-    let unsealed = |h: &Map<String, Value>| {
-        let text = serde_json::to_vec(h).unwrap();
-        let mut out = (text.len() as u64).to_le_bytes().to_vec();
-        out.extend(text);
-        out.extend_from_slice(&data);
-        out
-    };
-    let parse = |file: Vec<u8>| match SavedState::parse(&file, Path::new(ORIGIN)) {
-        Ok(_) => panic!("an edited state loaded"),
-        Err(e) => e.to_string(),
-    };
-    let with = |key: &str, value: Option<&str>| {
-        let mut h = header.clone();
-        let meta = h["__metadata__"].as_object_mut().unwrap();
-        match value {
-            Some(v) => meta.insert(key.into(), v.into()),
-            None => meta.remove(key),
-        };
-        h
-    };
-    let min = i64::MIN.to_string();
-    for (key, value) in [
-        ("last_stamp_ns", Some(min.as_str())),
-        ("frames", Some("13")),
-        ("run_id", Some("000000000000002f00000001")),
-        ("model", None),
-    ] {
-        let e = parse(unsealed(&with(key, value)));
-        assert!(e.contains("is damaged"), "{key}: {e}");
-    }
-    for (key, value, why) in [
-        ("run_id", Some("\u{1b}[2J"), "is not one this tool writes"),
-        ("run_id", Some("12"), "is not one this tool writes"),
-        ("run_id", Some(""), "is not one this tool writes"),
-        ("run_id", None, "no run id"),
-        ("last_stamp_ns", None, "no last_stamp_ns"),
-    ] {
-        let e = parse(join(&with(key, value), &data));
-        assert!(e.contains(why), "{key} = {value:?}: {e}");
-        assert!(!e.contains('\u{1b}'), "{e:?}");
-    }
-    // Resealed untouched, it loads.
-    assert!(SavedState::parse(&join(&header, &data), Path::new(ORIGIN)).is_ok());
-}
-
-/// A header naming a key twice (here the metadata, with another run id
-/// first) is refused: JSON readers differ on which one counts.
-#[test]
-fn a_header_naming_a_key_twice_is_refused() {
-    let bytes = SavedState::example().to_bytes().unwrap();
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let header = std::str::from_utf8(&bytes[8..8 + n]).unwrap();
-    let twice = format!(
-        "{{\"__metadata__\": {{\"run_id\": \"ffffffffffffffff\"}}, {}",
-        &header[1..]
-    );
-    let mut file = (twice.len() as u64).to_le_bytes().to_vec();
-    file.extend(twice.as_bytes());
-    file.extend_from_slice(&bytes[8 + n..]);
-    let e = SavedState::parse(&file, Path::new(ORIGIN))
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("\"__metadata__\" appears twice"), "{e}");
-}
-
-/// A header whose tensors do not tile the file (a huge file behind a small
-/// header) is refused from the header alone, before the rest is read.
-#[test]
-fn a_file_larger_than_its_tensors_is_refused_from_its_header() {
-    let dir = std::env::temp_dir().join(format!("latentam-sparse-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("state.latentam");
-    let bytes = SavedState::example().to_bytes().unwrap();
-    let file = std::fs::File::create(&path).unwrap();
-    use std::io::Write;
-    (&file).write_all(&bytes).unwrap();
-    // 3 GiB more, sparse: reading it would cost gigabytes and seconds.
-    file.set_len(bytes.len() as u64 + (3u64 << 30)).unwrap();
-    drop(file);
-    let started = std::time::Instant::now();
-    let e = SavedState::read(&path).unwrap_err().to_string();
-    assert!(e.contains("bytes after the last tensor"), "{e}");
-    assert!(started.elapsed() < std::time::Duration::from_secs(2));
-    std::fs::remove_dir_all(&dir).unwrap();
-}
-
-/// Gaussians no map holds (a zero rotation, a log-scale whose exponential
-/// overflows) are refused with the voxel they are in.
-#[test]
-fn implausible_gaussians_are_refused() {
-    for (field, value) in [("quat", 0.0f32), ("log_scale", 88.0)] {
-        let mut state = SavedState::example();
-        let g = &mut state.map[0].1;
-        match field {
-            "quat" => g.quat = [value; 4],
-            _ => g.log_scale[1] = value,
-        }
-        let bytes = state.to_bytes().unwrap();
-        let e = SavedState::parse(&bytes, Path::new(ORIGIN))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("the Gaussian of voxel")
-                && e.contains(field.split('_').next_back().unwrap()),
-            "{e}"
         );
     }
 }
