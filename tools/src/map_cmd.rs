@@ -60,6 +60,10 @@ pub fn run(args: Args) -> Result<bool> {
     let config = args.config.load()?;
     let assembly = args.input.assembly()?;
     args.live.check()?;
+    // What the command reads is never inside what it replaces.
+    let mut inputs = vec![("the log", args.log.as_path())];
+    inputs.extend(args.config.config.as_deref().map(|c| ("--config", c)));
+    crate::own_inputs::refuse_inputs_inside(&args.out, &inputs)?;
     // Taken before anything is read: no other process writes the folder
     // while this run reads its state or replaces it.
     let folder = RunFolder::lock(&args.out)?;

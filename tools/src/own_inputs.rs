@@ -69,6 +69,27 @@ pub fn refuse_overwriting_inputs(inputs: &[Input], outputs: &[(&str, &Path)]) ->
     Ok(())
 }
 
+/// Errors when one of `inputs` (flag name, path) lies inside `run`, a run
+/// folder the command replaces whole: the input would go with it (a log
+/// or a configuration kept in a run folder, even the run's own
+/// `config.toml` edited by hand).
+pub fn refuse_inputs_inside(run: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
+    let Some(run_dir) = resolved(run) else {
+        return Ok(());
+    };
+    for &(what, input) in inputs {
+        if resolved(input).is_some_and(|i| i.starts_with(&run_dir)) {
+            bail!(
+                "{what} {} lies inside {}, the run folder this command replaces whole, so it \
+                 would be lost: move it out of the folder or choose another --out",
+                input.display(),
+                run.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -125,13 +125,112 @@ fn runs_that_map_nothing_or_fail_leave_the_folder_as_it_was() {
     std::fs::create_dir_all(&notes).unwrap();
     std::fs::write(notes.join("thesis.tex"), "precious").unwrap();
     failed_with(
-        &map(&log, &notes, &[]),
-        &["thesis.tex", "not part of a latentam run"],
+        &map(&log, &notes, &["--frames", "4"]),
+        &["not a latentam run folder", ".latentam-run"],
     );
     assert_eq!(
         std::fs::read_to_string(notes.join("thesis.tex")).unwrap(),
         "precious"
     );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Every file under `dir`, nested folders included, with its bytes.
+fn all_files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let path = e.unwrap().path();
+        if path.is_dir() {
+            out.insert(path.clone(), Vec::new());
+            out.extend(all_files(&path));
+        } else {
+            out.insert(path.clone(), std::fs::read(&path).unwrap());
+        }
+    }
+    out
+}
+
+/// The folder named by `--out` holding a user's files whose names a run
+/// also uses (a folder named `trace.json`, their own `config.toml`, the
+/// command's own configuration or input log), or a run folder holding the
+/// command's own inputs: `map` refuses before the first frame, and every
+/// byte stays.
+#[test]
+fn a_users_files_in_the_out_folder_are_never_deleted() {
+    let dir = scratch("runs-users-files");
+    let log = gen_scene(&dir, 12);
+    let settings = b"# my settings\nvoxel_size = 0.02\n";
+    // Per case: the folder, the files planted in it, extra arguments.
+    type Case<'a> = (&'a str, Vec<(&'a str, Vec<u8>)>, Vec<String>);
+    let cases: Vec<Case> = vec![
+        (
+            "photos",
+            vec![("trace.json/photos/img1.jpg", b"\xff\xd8 photo".to_vec())],
+            vec![],
+        ),
+        (
+            "own-files",
+            vec![
+                ("config.toml", settings.to_vec()),
+                ("report.json", b"{\"mine\": 1}".to_vec()),
+                ("trajectory.txt", b"0 0 0 0 0 0 0 1\n".to_vec()),
+                ("map.ply", b"ply\n".to_vec()),
+            ],
+            vec![],
+        ),
+        (
+            "myrun",
+            vec![("config.toml", settings.to_vec())],
+            vec!["--config".into(), "CASE/config.toml".into()],
+        ),
+        (
+            "inlog",
+            vec![("trace.json", std::fs::read(&log).unwrap())],
+            vec![],
+        ),
+    ];
+    for (name, files, extra) in cases {
+        let out = dir.join(name);
+        for (file, bytes) in &files {
+            let path = out.join(file);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(&path, bytes).unwrap();
+        }
+        let extra: Vec<String> = extra
+            .iter()
+            .map(|a| a.replace("CASE", &out.to_string_lossy()))
+            .collect();
+        let mut args: Vec<&str> = extra.iter().map(String::as_str).collect();
+        args.extend(["--frames", "4"]);
+        // The input log is the user's file in the folder in the last case.
+        let input = match name {
+            "inlog" => out.join("trace.json"),
+            _ => log.clone(),
+        };
+        let before = all_files(&out);
+        let why = match name {
+            // The command's own inputs are refused by name first.
+            "myrun" | "inlog" => "lies inside",
+            _ => "not a latentam run folder",
+        };
+        failed_with(&map(&input, &out, &args), &[why]);
+        assert_eq!(all_files(&out), before, "{name}: the user's files changed");
+    }
+    // A run folder of this tool whose config.toml was edited by hand, named
+    // as the next run's configuration, and a log kept in it.
+    let run = dir.join("run");
+    ok(&map(&log, &run, &["--frames", "4"]));
+    std::fs::write(run.join("config.toml"), settings).unwrap();
+    std::fs::copy(&log, run.join("trace.json")).unwrap();
+    let before = all_files(&run);
+    let config = run.join("config.toml");
+    let config_args = ["--config", config.to_str().unwrap(), "--frames", "4"];
+    failed_with(&map(&log, &run, &config_args), &["--config", "lies inside"]);
+    failed_with(
+        &map(&run.join("trace.json"), &run, &["--frames", "4"]),
+        &["the log", "lies inside"],
+    );
+    assert_eq!(all_files(&run), before);
     std::fs::remove_dir_all(&dir).ok();
 }
 

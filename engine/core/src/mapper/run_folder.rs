@@ -26,6 +26,9 @@ use std::path::{Path, PathBuf};
 use super::export::DECODER_FILE;
 use latentam_base::{Error, Result};
 
+mod swap;
+use swap::exchange;
+
 /// File name of the resumable state inside a run folder.
 pub const STATE_FILE: &str = "state.latentam";
 
@@ -91,8 +94,9 @@ pub struct RunFolder {
 impl RunFolder {
     /// Locks `dir` for writing (its parent is created when missing). Fails
     /// with [`Error::Locked`] when another writer holds it, and with
-    /// [`Error::InvalidArgument`] when `dir` is not a directory or holds
-    /// files that are not part of a run (see [`RUN_FOLDER_FILES`]).
+    /// [`Error::InvalidArgument`] when `dir` is not a directory, is a
+    /// folder with something in it but no [`RUN_MARKER`], or holds entries
+    /// that are not a run's files (see [`RUN_FOLDER_FILES`]).
     ///
     /// A swap cut short by a crash is finished here: a run moved aside and
     /// not replaced is moved back, and stale staging folders are removed.
@@ -210,6 +214,10 @@ impl RunFolder {
         Ok(found)
     }
 
+    /// A folder is replaced only when it is missing, empty, or holds the
+    /// [`RUN_MARKER`] this tool wrote and nothing but a run's files: the
+    /// marker, not the names of its files, says it is a run (a user's own
+    /// `config.toml` or a folder named `trace.json` looks like one).
     fn check_replaceable(&self) -> Result<()> {
         let meta = match std::fs::metadata(&self.dir) {
             Ok(m) => m,
@@ -222,37 +230,49 @@ impl RunFolder {
                 self.dir.display()
             )));
         }
-        let mut foreign = Vec::new();
+        let mut entries = Vec::new();
         for entry in std::fs::read_dir(&self.dir).map_err(|e| io_error(&self.dir, e))? {
             let entry = entry.map_err(|e| io_error(&self.dir, e))?;
-            let name = entry.file_name().to_string_lossy().into_owned();
-            // A file of a run, or a partial one of a writer (`X.<pid>-<n>.partial`).
-            let ours = name == RUN_MARKER
-                || RUN_FOLDER_FILES.iter().any(|f| {
-                    name == *f || (name.starts_with(&format!("{f}.")) && name.ends_with(".partial"))
-                });
-            if !ours {
-                foreign.push(name);
-            }
+            let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
+            entries.push((entry.file_name().to_string_lossy().into_owned(), is_dir));
         }
-        if !foreign.is_empty() {
-            foreign.sort();
-            let shown: Vec<_> = foreign.iter().take(5).map(String::as_str).collect();
+        if entries.is_empty() {
+            return Ok(());
+        }
+        let dir = self.dir.display();
+        if !holds_marker(&self.dir, None) {
             return Err(Error::InvalidArgument(format!(
-                "{} holds {} that {} not part of a latentam run ({}{}): a run folder is replaced \
-                 whole, so write the run to a new or empty folder",
-                self.dir.display(),
-                if foreign.len() == 1 {
-                    "an entry"
-                } else {
-                    "entries"
-                },
-                if foreign.len() == 1 { "is" } else { "are" },
-                shown.join(", "),
-                if foreign.len() > 5 { ", ..." } else { "" }
+                "{dir} is not empty and is not a latentam run folder (it has no {RUN_MARKER}): a                  run folder is replaced whole, so what it holds would be lost; write the run to a                  new or empty folder"
             )));
         }
-        Ok(())
+        // A file of a run, or a partial one of a writer (`X.<pid>-<n>.partial`);
+        // never a folder, whatever its name.
+        let ours = |name: &str| {
+            name == RUN_MARKER
+                || RUN_FOLDER_FILES.iter().any(|f| {
+                    name == *f || (name.starts_with(&format!("{f}.")) && name.ends_with(".partial"))
+                })
+        };
+        let mut foreign: Vec<_> = entries
+            .into_iter()
+            .filter(|(name, is_dir)| *is_dir || !ours(name))
+            .map(|(name, _)| name)
+            .collect();
+        if foreign.is_empty() {
+            return Ok(());
+        }
+        foreign.sort();
+        let shown: Vec<_> = foreign.iter().take(5).map(String::as_str).collect();
+        let (entry, are) = match foreign.len() {
+            1 => ("an entry", "is"),
+            _ => ("entries", "are"),
+        };
+        let more = if foreign.len() > 5 { ", ..." } else { "" };
+        Err(Error::InvalidArgument(format!(
+            "{dir} holds {entry} that {are} not part of a latentam run ({}{more}): a run folder \
+             is replaced whole, so move them out or write the run to a new or empty folder",
+            shown.join(", ")
+        )))
     }
 
     /// A fresh, empty staging folder beside the run folder, with a new
@@ -546,41 +566,6 @@ fn replace_by_renames(staged: &Path, dir: &Path, old: &Path) -> Result<()> {
         return Err(io_error(dir, e));
     }
     remove_tree(old)
-}
-
-/// Swaps two directory entries in one step (`renameat2(RENAME_EXCHANGE)`).
-#[cfg(target_os = "linux")]
-fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
-    use std::ffi::CString;
-    use std::os::unix::ffi::OsStrExt;
-    let c = |p: &Path| {
-        CString::new(p.as_os_str().as_bytes())
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
-    };
-    let (a, b) = (c(a)?, c(b)?);
-    // SAFETY: both paths are NUL-terminated and outlive the call; the
-    // syscall only reads them. The raw syscall avoids needing a C library
-    // new enough to wrap it.
-    let r = unsafe {
-        libc::syscall(
-            libc::SYS_renameat2,
-            libc::AT_FDCWD,
-            a.as_ptr(),
-            libc::AT_FDCWD,
-            b.as_ptr(),
-            libc::RENAME_EXCHANGE,
-        )
-    };
-    if r == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
-}
-
-#[cfg(not(target_os = "linux"))]
-fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
-    Err(std::io::ErrorKind::Unsupported.into())
 }
 
 #[cfg(test)]

@@ -100,7 +100,7 @@ fn folders_that_are_not_runs_are_refused() {
     std::fs::write(dir.join("map.ply"), "ours").unwrap();
     let e = RunFolder::lock(&dir).unwrap_err().to_string();
     assert!(
-        e.contains("thesis.tex") && e.contains("not part of a latentam run"),
+        e.contains("not a latentam run folder") && e.contains(RUN_MARKER),
         "{e}"
     );
     assert!(dir.join("thesis.tex").exists());
@@ -109,6 +109,104 @@ fn folders_that_are_not_runs_are_refused() {
     let e = RunFolder::lock(&file).unwrap_err().to_string();
     assert!(e.contains("not a directory"), "{e}");
     assert!(RunFolder::lock("/").is_err());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// Every file under `dir` with its bytes (links as their targets' paths).
+fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let meta = std::fs::symlink_metadata(&path).unwrap();
+        if meta.is_dir() {
+            out.push((path.clone(), Vec::new()));
+            out.extend(tree(&path));
+        } else if meta.is_symlink() {
+            let target = std::fs::read_link(&path).unwrap();
+            out.push((path, target.to_string_lossy().into_owned().into_bytes()));
+        } else {
+            out.push((path.clone(), std::fs::read(&path).unwrap()));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// A user's folder that merely holds files with a run's names (their own
+/// configuration, a report, a PLY from another tool, a folder named like
+/// the trace) is no run folder: it is refused, and every byte stays.
+#[test]
+fn a_users_folder_with_run_file_names_is_never_replaced() {
+    let root = scratch("run-names");
+    let planted: &[(&str, &[u8])] = &[
+        (
+            "config.toml",
+            b"# my own settings, with comments\nvoxel_size = 0.02\n",
+        ),
+        ("report.json", b"{\"mine\": true}"),
+        ("trajectory.txt", b"0 0 0 0 0 0 0 1\n"),
+        ("map.ply", b"ply\nformat ascii 1.0\nend_header\n"),
+        ("trace.json/photos/img1.jpg", b"\xff\xd8 a photo"),
+    ];
+    for (i, only) in [None, Some(3), Some(4)].into_iter().enumerate() {
+        let dir = root.join(format!("proj{i}"));
+        for (name, bytes) in planted
+            .iter()
+            .skip(only.unwrap_or(0))
+            .take(only.map_or(9, |_| 1))
+        {
+            let path = dir.join(name);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(&path, bytes).unwrap();
+        }
+        let before = tree(&dir);
+        let e = match RunFolder::lock(&dir) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{}: a user's folder was taken as a run", dir.display()),
+        };
+        assert!(e.contains("not a latentam run folder"), "{e}");
+        assert_eq!(tree(&dir), before, "{}", dir.display());
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// An empty folder becomes a run; a run folder the user put a folder or a
+/// file of their own into is refused, with those left as they were.
+#[test]
+fn only_empty_folders_and_the_tools_own_runs_are_replaced() {
+    let root = scratch("marked");
+    let dir = root.join("run");
+    std::fs::create_dir_all(&dir).unwrap();
+    let folder = RunFolder::lock(&dir).unwrap();
+    commit(&folder, &[("map.ply", "v1"), ("trace.json", "{}")]);
+    drop(folder);
+    assert!(folder_version(&dir).is_some());
+    // The tool's own run is replaced.
+    let folder = RunFolder::lock(&dir).unwrap();
+    commit(&folder, &[("map.ply", "v2")]);
+    drop(folder);
+    assert_eq!(std::fs::read_to_string(dir.join("map.ply")).unwrap(), "v2");
+    for (name, bytes) in [
+        ("trace.json/photos/img1.jpg", "a photo"),
+        ("notes.txt", "mine"),
+    ] {
+        let path = dir.join(name);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, bytes).unwrap();
+        let before = tree(&dir);
+        let e = match RunFolder::lock(&dir) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{name}: a run folder holding a user's entry was replaced"),
+        };
+        assert!(
+            e.contains("not part of a latentam run") && e.contains("move them out"),
+            "{e}"
+        );
+        assert_eq!(tree(&dir), before);
+        let first = name.split('/').next().unwrap();
+        let _ = std::fs::remove_dir_all(dir.join(first));
+        let _ = std::fs::remove_file(dir.join(first));
+    }
     std::fs::remove_dir_all(&root).unwrap();
 }
 
@@ -296,8 +394,7 @@ fn only_folders_the_tool_made_are_removed_or_moved_back() {
 fn the_fallback_swap_gives_the_same_result() {
     let root = scratch("fallback");
     let dir = root.join("run");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("map.ply"), "1").unwrap();
+    commit(&RunFolder::lock(&dir).unwrap(), &[("map.ply", "1")]);
     let folder = RunFolder::lock(&dir).unwrap();
     // Exchange refused (as on file systems without it): rename twice.
     let s = folder.stage().unwrap();
