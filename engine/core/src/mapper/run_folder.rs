@@ -106,6 +106,17 @@ impl RunFolder {
             // A symbolic link to a folder: the folder it points to is the
             // run folder (swapping the link itself away would lose it).
             Ok(d) => d,
+            // A link to nothing: the first save could not replace it, after
+            // all the mapping before it.
+            Err(_) if std::fs::symlink_metadata(given).is_ok_and(|m| m.is_symlink()) => {
+                let target = std::fs::read_link(given).unwrap_or_default();
+                return Err(Error::InvalidArgument(format!(
+                    "{} is a link to {}, which does not exist: create that folder or write the \
+                     run elsewhere",
+                    given.display(),
+                    target.display()
+                )));
+            }
             Err(_) => std::path::absolute(given).map_err(|e| io_error(given, e))?,
         };
         let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {

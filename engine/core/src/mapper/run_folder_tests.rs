@@ -210,6 +210,24 @@ fn only_empty_folders_and_the_tools_own_runs_are_replaced() {
     std::fs::remove_dir_all(&root).unwrap();
 }
 
+/// A dangling link as the run folder is refused when it is locked, before
+/// any mapping, and stays as it was.
+#[cfg(unix)]
+#[test]
+fn a_link_to_nothing_is_refused_at_once() {
+    let root = scratch("dangling");
+    let link = root.join("run");
+    std::os::unix::fs::symlink(root.join("gone"), &link).unwrap();
+    let e = match RunFolder::lock(&link) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a dangling link was taken as a run folder"),
+    };
+    assert!(e.contains("does not exist") && e.contains("gone"), "{e}");
+    assert_eq!(std::fs::read_link(&link).unwrap(), root.join("gone"));
+    assert!(!root.join("gone").exists());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
 #[test]
 fn a_swap_cut_short_is_repaired_when_locked_again() {
     let root = scratch("repair");
