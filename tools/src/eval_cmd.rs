@@ -132,12 +132,9 @@ struct EvalReport {
 /// The run folder's `report.json`, when it has one; one written by another
 /// run than the state's is refused.
 fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_json::Value>> {
-    let path = dir.join("report.json");
-    let Ok(text) = latentam_io::read_input_to_string(&path) else {
+    let Some(report) = crate::loaded_map::read_run_report(dir)? else {
         return Ok(None);
     };
-    let report = latentam_io::parse_json(&text)
-        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
     // A state with a run id was written with its report: a report without
     // one (or with one that is not a string) is not that run's either.
     if let Some(ours) = state_run_id {

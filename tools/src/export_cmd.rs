@@ -59,11 +59,9 @@ fn vocabulary_of(args: &Args) -> Result<Option<(Vocabulary, PathBuf)>> {
         })?;
         return Ok(Some((v, log.clone())));
     }
-    let Ok(text) = latentam_io::read_input_to_string(&args.dir.join("report.json")) else {
+    let Some(report) = crate::loaded_map::read_run_report(&args.dir)? else {
         return Ok(None);
     };
-    let report = latentam_io::parse_json(&text)
-        .map_err(|e| anyhow::anyhow!("reading {}: {e}", args.dir.join("report.json").display()))?;
     let Some(log) = report_log(&report) else {
         return Ok(None);
     };
@@ -94,10 +92,7 @@ pub fn run(args: Args) -> Result<()> {
         bail!("--frame-id must name a frame");
     }
     // The mapped log named in the run's report is read for its vocabulary.
-    let mapped_log = latentam_io::read_input_to_string(&args.dir.join("report.json"))
-        .ok()
-        .and_then(|t| latentam_io::parse_json(&t).ok())
-        .and_then(|r| report_log(&r));
+    let mapped_log = crate::loaded_map::read_run_report(&args.dir)?.and_then(|r| report_log(&r));
     let mut inputs = vec![Input::RunFolder(&args.dir)];
     inputs.extend(args.vocabulary.as_deref().map(Input::File));
     inputs.extend(mapped_log.as_deref().map(Input::File));

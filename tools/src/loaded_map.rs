@@ -7,6 +7,23 @@ use latentam_cli::progress::Stages;
 use latentam_core::mapper::Mapper;
 use latentam_gpu::{Context, ContextOptions};
 
+/// The run folder `dir`'s `report.json`: `None` when it has none. One
+/// that cannot be read (a FIFO or a device in its place, larger than a
+/// report may be, not UTF-8) or is not JSON is an error, not a missing
+/// report: the checks that rely on it (the run it belongs to) would
+/// silently be skipped.
+pub fn read_run_report(dir: &Path) -> Result<Option<serde_json::Value>> {
+    let path = dir.join("report.json");
+    if std::fs::symlink_metadata(&path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) {
+        return Ok(None);
+    }
+    let text = latentam_io::read_input_to_string(&path)
+        .with_context(|| format!("reading {}", path.display()))?;
+    let report = latentam_io::parse_json(&text)
+        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
+    Ok(Some(report))
+}
+
 /// The map in `dir` on a new context; a map without Gaussians is refused,
 /// as there is nothing to `verb`.
 pub fn load_nonempty_map(stages: &Stages, dir: &Path, verb: &str) -> Result<(Context, Mapper)> {

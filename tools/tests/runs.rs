@@ -363,6 +363,36 @@ fn a_second_writer_is_refused_and_mixed_folders_do_not_load() {
         std::fs::write(mixed.join("report.json"), report.to_string()).unwrap();
         failed_with(&eval(), &["mixes two runs", says]);
     }
+    // A report that cannot be read is not a missing one (which would skip
+    // the check above): 3 GiB of it (sparse) is refused from its size,
+    // unread, and so is a FIFO in its place, by eval and export alike.
+    let export = || {
+        latentam()
+            .arg("export")
+            .arg(&mixed)
+            .arg("--foxglove")
+            .arg(dir.join("out.mcap"))
+            .output()
+            .unwrap()
+    };
+    let path = mixed.join("report.json");
+    std::fs::File::create(&path)
+        .unwrap()
+        .set_len(3 << 30)
+        .unwrap();
+    for out in [eval(), export()] {
+        failed_with(&out, &["report.json", "3221225472 bytes, more than"]);
+    }
+    #[cfg(unix)]
+    {
+        std::fs::remove_file(&path).unwrap();
+        let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+        // SAFETY: a NUL-terminated path that outlives the call.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        for out in [eval(), export()] {
+            failed_with(&out, &["report.json", "a FIFO"]);
+        }
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -6,6 +6,12 @@
 //! ([`std::fs::metadata`] follows symlinks, so a link to a FIFO is caught
 //! too), then again on the opened file, which is opened non-blocking so a
 //! FIFO swapped in between the two cannot block either.
+//!
+//! A file read whole is capped by its kind ([`MAX_TEXT_BYTES`] for text:
+//! configurations, reports, trajectories, names and dataset indexes;
+//! [`MAX_BINARY_BYTES`] for an array or image read whole): a larger one is
+//! refused from its size before a byte is read, so a huge or sparse file
+//! costs nothing to refuse.
 
 use std::fs::{File, FileType};
 use std::io::{Error, ErrorKind, Read, Result};
@@ -78,20 +84,50 @@ pub fn open_input(path: &Path) -> Result<File> {
     Ok(file)
 }
 
-/// The bytes of the regular file `path` (see [`check_input_file`]).
-pub fn read_input(path: &Path) -> Result<Vec<u8>> {
-    let mut file = open_input(path)?;
-    let mut bytes = Vec::new();
-    file.read_to_end(&mut bytes)?;
+/// Most bytes of a text file read whole: a configuration, a run's
+/// `report.json` (about 4 kB a keyframe: some 60 000 keyframes), a
+/// trajectory, class names, a dataset's index.
+pub const MAX_TEXT_BYTES: u64 = 256 << 20;
+
+/// Most bytes of a binary file read whole: one frame's embedding array or
+/// features, an image of a dataset, a query vector. (Logs and saved maps
+/// are not read whole: logs are mapped, maps read by their header.)
+pub const MAX_BINARY_BYTES: u64 = 1 << 30;
+
+/// The whole of `file`, refused when its size says it holds more than
+/// `cap` bytes, and read at most `cap` bytes far (a file that grows while
+/// it is read is refused too).
+fn read_capped(mut file: File, cap: u64, kind: &str) -> Result<Vec<u8>> {
+    let too_big = |n: u64| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!("{n} bytes, more than a {kind} file may have ({cap} bytes)"),
+        )
+    };
+    let len = file.metadata()?.len();
+    if len > cap {
+        return Err(too_big(len));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    (&mut file).take(cap + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > cap {
+        return Err(too_big(bytes.len() as u64));
+    }
     Ok(bytes)
 }
 
-/// The text of the regular file `path` (see [`check_input_file`]).
+/// The bytes of the regular file `path` (see [`check_input_file`]), at
+/// most [`MAX_BINARY_BYTES`].
+pub fn read_input(path: &Path) -> Result<Vec<u8>> {
+    read_capped(open_input(path)?, MAX_BINARY_BYTES, "binary input")
+}
+
+/// The text of the regular file `path` (see [`check_input_file`]), at
+/// most [`MAX_TEXT_BYTES`].
 pub fn read_input_to_string(path: &Path) -> Result<String> {
-    let mut file = open_input(path)?;
-    let mut text = String::new();
-    file.read_to_string(&mut text)?;
-    Ok(text)
+    let bytes = read_capped(open_input(path)?, MAX_TEXT_BYTES, "text")?;
+    String::from_utf8(bytes)
+        .map_err(|_| Error::new(ErrorKind::InvalidData, "stream did not contain valid UTF-8"))
 }
 
 #[cfg(test)]
@@ -116,6 +152,33 @@ mod tests {
         });
         rx.recv_timeout(std::time::Duration::from_secs(20))
             .expect("blocked for 20 s")
+    }
+
+    /// A 3 GiB file (sparse: it takes no disk) of any kind is refused from
+    /// its size, before a byte is read; one at the cap is read whole.
+    #[test]
+    fn files_over_their_kind_s_cap_are_refused_unread() {
+        let dir = TempDir::new("input-cap");
+        let huge = dir.path().join("report.json");
+        File::create(&huge).unwrap().set_len(3 << 30).unwrap();
+        for e in [
+            read_input_to_string(&huge).unwrap_err(),
+            read_input(&huge).unwrap_err(),
+        ] {
+            assert_eq!(e.kind(), ErrorKind::InvalidData, "{e}");
+            assert!(e.to_string().contains("3221225472 bytes, more than"), "{e}");
+        }
+        let small = dir.path().join("small");
+        std::fs::write(&small, b"12345678").unwrap();
+        let read = |cap| read_capped(File::open(&small).unwrap(), cap, "test");
+        assert_eq!(read(8).unwrap(), b"12345678");
+        assert!(read(7).is_err());
+        assert_eq!(read_input_to_string(&small).unwrap(), "12345678");
+        std::fs::write(&small, [0xff, 0xfe]).unwrap();
+        assert_eq!(
+            read_input_to_string(&small).unwrap_err().kind(),
+            ErrorKind::InvalidData
+        );
     }
 
     #[test]
