@@ -14,8 +14,15 @@ use latentam_base::{Error, Result};
 
 /// Format name stored in every archive's metadata.
 pub const FORMAT: &str = "latentam-map";
-/// Version this build writes and reads.
-pub const VERSION: u32 = 1;
+/// Version this build writes and reads: its archives must carry their
+/// checksum. (It is otherwise laid out as [`LEGACY_VERSION`].)
+pub const VERSION: u32 = 2;
+/// The version before the checksum was required, of maps and decoders
+/// alike: read too, and checked when it carries a checksum, since the
+/// files written before there was one have none. A file that names this
+/// version says it is such a file; one of the current version without a
+/// checksum was edited and is refused.
+pub const LEGACY_VERSION: u32 = 1;
 
 /// Element types an archive stores.
 pub(crate) trait Element: bytemuck::Pod {
@@ -115,8 +122,9 @@ fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
 /// settings (kilobytes), so a hostile file costs at most this to refuse.
 const MAX_HEADER_BYTES: u64 = 16 << 20;
 
-/// Metadata key of the archive's checksum (see [`checksum`]). Archives
-/// written before it was added have none and load unchecked.
+/// Metadata key of the archive's checksum (see [`checksum`]). Archives of
+/// [`LEGACY_VERSION`] written before it was added have none and load
+/// unchecked; every later one must have it.
 const CHECKSUM_KEY: &str = "crc32";
 
 /// Where a tensor lies in the archive's bytes.
@@ -383,10 +391,19 @@ impl<'a> Archive<'a> {
             other => return Err(not_ours(format!("format is {other:?}"))),
         }
         let found = meta.get("version").map(String::as_str).unwrap_or("none");
-        if found != version.to_string() {
+        let legacy = found == LEGACY_VERSION.to_string();
+        if found != version.to_string() && !legacy {
             let found: String = found.chars().take(32).collect();
             return Err(Error::InvalidArgument(format!(
-                "{} is a version {found} {what}; this build reads version {version}",
+                "{} is a version {found} {what}; this build reads versions {LEGACY_VERSION} and \
+                 {version}",
+                origin.display()
+            )));
+        }
+        if !legacy && !meta.contains_key(CHECKSUM_KEY) {
+            return Err(Error::InvalidArgument(format!(
+                "{} is damaged: a version {version} {what} without its checksum (the `{CHECKSUM_KEY}` \
+                 entry was removed); use another copy or the run's last save",
                 origin.display()
             )));
         }

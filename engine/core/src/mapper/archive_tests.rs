@@ -125,3 +125,54 @@ fn unaligned_tensors_are_read() {
         assert_eq!(a.flat::<u8>("a").unwrap(), vec![7]);
     }
 }
+
+/// `bytes` with its header's metadata edited by `edit` and nothing sealed
+/// again (as a hand edit leaves it).
+fn with_metadata(
+    bytes: &[u8],
+    edit: impl Fn(&mut serde_json::Map<String, serde_json::Value>),
+) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    edit(header["__metadata__"].as_object_mut().unwrap());
+    raw(&serde_json::to_string(&header).unwrap(), &bytes[8 + n..])
+}
+
+/// Removing the checksum does not turn the checks off: an archive of this
+/// version without one is refused. Only a file that names the legacy
+/// version, from before the checksum, loads without one.
+#[test]
+fn a_current_archive_without_its_checksum_is_refused() {
+    let mut w = ArchiveWriter::default();
+    w.meta("last_stamp_ns", 12);
+    w.tensor("x", &[2], &[1.0f32, 2.0]);
+    let sealed = w.into_bytes().unwrap();
+    let a = parse(&sealed).unwrap();
+    assert!(a.sealed());
+    assert_eq!(a.meta("version").unwrap(), VERSION.to_string());
+
+    let stripped = with_metadata(&sealed, |m| _ = m.remove(CHECKSUM_KEY));
+    let e = parse(&stripped).err().unwrap().to_string();
+    assert!(
+        e.contains("damaged") && e.contains("without its checksum"),
+        "{e}"
+    );
+    // Stripped and edited: still refused.
+    let edited = with_metadata(&sealed, |m| {
+        m.remove(CHECKSUM_KEY);
+        m.insert("last_stamp_ns".into(), i64::MIN.to_string().into());
+    });
+    assert!(parse(&edited).is_err());
+
+    // A legacy file: no checksum to check; with one, it is checked.
+    let legacy = with_metadata(&stripped, |m| {
+        m.insert("version".into(), LEGACY_VERSION.to_string().into());
+    });
+    let a = parse(&legacy).unwrap();
+    assert!(!a.sealed());
+    let wrong = with_metadata(&legacy, |m| {
+        m.insert(CHECKSUM_KEY.into(), "00000000".into());
+    });
+    assert!(parse(&wrong).err().unwrap().to_string().contains("damaged"));
+}

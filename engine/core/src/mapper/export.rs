@@ -22,8 +22,10 @@ use latentam_base::Result;
 pub const DECODER_FILE: &str = "decoder.safetensors";
 /// Format name of decoder files.
 pub const DECODER_FORMAT: &str = "latentam-decoder";
-/// Version this build writes and reads.
-pub const DECODER_VERSION: u32 = 1;
+/// Version this build writes (with a `crc32` checksum, which it must
+/// carry); version 1 files, from before the checksum was required, are
+/// read too.
+pub const DECODER_VERSION: u32 = 2;
 
 /// A map's decoder, on the host.
 ///
