@@ -58,7 +58,27 @@ pub enum Relevance {
     },
 }
 
+/// Smallest softmax temperature, of the decoder's attention and of a
+/// vocabulary's relevance: scores are cosines divided by it, so at most
+/// 1024 here, which keeps every exponential, sum and gradient finite in
+/// f32 (at 1e-45 the division overflows and scores turn to NaN). A power
+/// of two, so the bound reads the same in f32, f64 and decimal text.
+pub const MIN_TEMPERATURE: f32 = 1.0 / 1024.0;
+/// Largest softmax temperature: beyond it every score is about the same.
+pub const MAX_TEMPERATURE: f32 = 10.0;
+
 impl TextQuery {
+    /// Refuses a softmax temperature outside
+    /// [`MIN_TEMPERATURE`]..=[`MAX_TEMPERATURE`] (NaN included).
+    pub fn check_temperature(temperature: f32) -> Result<()> {
+        if (MIN_TEMPERATURE..=MAX_TEMPERATURE).contains(&temperature) {
+            return Ok(());
+        }
+        Err(Error::InvalidArgument(format!(
+            "softmax temperature {temperature} is outside {MIN_TEMPERATURE}..={MAX_TEMPERATURE}"
+        )))
+    }
+
     /// Cosine relevance to one embedding.
     pub fn embedding(embedding: Vec<f32>) -> Self {
         TextQuery {
@@ -70,7 +90,7 @@ impl TextQuery {
 
     /// Relevance to the vocabulary word `name` against all the others,
     /// through a softmax at `temperature` (errors for an unknown word or a
-    /// temperature that is not positive).
+    /// temperature outside [`MIN_TEMPERATURE`]..=[`MAX_TEMPERATURE`]).
     pub fn vocabulary_word(
         vocabulary: &latentam_io::Vocabulary,
         name: &str,
@@ -82,11 +102,7 @@ impl TextQuery {
                 vocabulary.names.join(", ")
             )));
         };
-        if !(temperature > 0.0 && temperature.is_finite()) {
-            return Err(Error::InvalidArgument(format!(
-                "softmax temperature {temperature} is not positive"
-            )));
-        }
+        Self::check_temperature(temperature)?;
         Ok(TextQuery {
             embeddings: vocabulary.vectors.clone(),
             texts: vocabulary.names.len(),

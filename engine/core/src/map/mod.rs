@@ -13,7 +13,10 @@ pub use exposure::{relative_exposure, ExposureTrack, EXPOSURE_RANGE};
 pub use global::{Gaussian, GlobalMap, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
 pub use ply::{read_ply, unit_quat, write_ply, write_ply_without_latents, PlyMap};
-pub use seeding::{seed_from_frame, QueryInit, RegionQueries, SeedingConfig, ViewCoverage};
+pub use seeding::{
+    seed_from_frame, QueryInit, RegionQueries, SeedingConfig, ViewCoverage, MAX_DEPTH_ERROR,
+    MAX_SCALE_FACTOR,
+};
 pub use voxel::{KeyMap, KeySet, VoxelKey};
 pub use window::{gaussian_at, push_gaussian, Companion, LocalWindow, PendingSync, SyncPlan};
 

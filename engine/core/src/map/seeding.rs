@@ -47,7 +47,7 @@ settings! {
         pub alpha_threshold: f32 = 0.5 => value().range(0.0, 1.0),
         /// ... or where the rendered depth is off by more than this
         /// fraction of the measured depth (0.05 = 5 %).
-        pub depth_error: f32 = 0.05 => value().at_least(0.0),
+        pub depth_error: f32 = 0.05 => value().range(0.0, MAX_DEPTH_ERROR),
         // High, because a Gaussian gets few steps online: seeded at 0.5,
         // surfaces stayed half transparent over the black background (a
         // keyframe rendered at its own pose right after seeding: 18.5 dB
@@ -57,7 +57,7 @@ settings! {
         /// Initial standard deviation of new Gaussians as a multiple of the
         /// spacing between seeds (stride x depth / focal length); at least
         /// half a voxel in any case.
-        pub scale_factor: f32 = 0.75 => value().positive(),
+        pub scale_factor: f32 = 0.75 => value().above(0.0, MAX_SCALE_FACTOR),
         // Partial alpha and depth disagreements at edges come with every
         // revisit from a new position; seeding them would grow the map
         // with time rather than with the space (and detail) explored.
@@ -94,6 +94,12 @@ settings! {
 
 /// Largest `hole_fill_radius`: wider holes are not one surface.
 pub const MAX_HOLE_FILL_RADIUS: u32 = 64;
+/// Largest `depth_error`: a rendered depth ten times off the measured one
+/// already explains nothing.
+pub const MAX_DEPTH_ERROR: f32 = 10.0;
+/// Largest `scale_factor`: new Gaussians a hundred seed spacings wide
+/// cover the whole view; larger ones only overflow the covariance.
+pub const MAX_SCALE_FACTOR: f32 = 100.0;
 
 /// Where a new Gaussian's query starts (the paper leaves it open).
 ///

@@ -2,7 +2,7 @@
 //! `latentam config --print-defaults` prints, and the valid range (see
 //! [`settings!`]).
 
-use crate::latent::MAX_KMEANS_ATOMS;
+use crate::latent::{MAX_KMEANS_ATOMS, MAX_TEMPERATURE, MIN_TEMPERATURE};
 use crate::loss::LossWeights;
 use crate::map::{KeyframeConfig, SeedingConfig};
 use crate::optim::GaussianLearningRates;
@@ -111,7 +111,7 @@ settings! {
         /// Softmax temperature (tau) of the latent decoder, over the cosine
         /// similarities between a query and the dictionary atoms (M3 uses
         /// 0.05).
-        pub temperature: f32 = 0.05 => value().positive(),
+        pub temperature: f32 = 0.05 => value().range(MIN_TEMPERATURE, MAX_TEMPERATURE),
         /// Learning rate of the latent weights W and the dictionary D.
         pub latent_lr: f32 = 0.01 => value().range(0.0, MAX_LATENT_LR),
         /// Most regions in one training batch, over all its views.

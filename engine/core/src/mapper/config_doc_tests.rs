@@ -179,7 +179,7 @@ fn documented_defaults_parse_back_to_the_defaults() {
         ("replay", "Integer from 0 to 65536."),
         ("gpu_budget", "Integer at least 1."),
         ("seeding.opacity", "From 0 to 1."),
-        ("temperature", "Above 0."),
+        ("temperature", "From 0.0009765625 to 10."),
     ] {
         let d = lookup(key).unwrap();
         assert!(d.text.ends_with(range), "`{key}`: {}", d.text);

@@ -330,3 +330,79 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
         }
     });
 }
+
+/// Every floating-point setting at the ends of its documented range, and
+/// each just past them: the map, its queries and its save stay finite at
+/// the ends, and validation refuses what lies past them.
+#[test]
+fn float_settings_at_their_limits_keep_every_output_finite() {
+    use crate::latent::{TextQuery, MAX_TEMPERATURE, MIN_TEMPERATURE};
+    use crate::map::{MAX_DEPTH_ERROR, MAX_SCALE_FACTOR};
+    let at = |temperature, depth_error, scale_factor, opacity| MapperConfig {
+        keyframes: every_frame_a_keyframe(),
+        window_capacity: Some(8192),
+        atoms: 16,
+        max_regions: 64,
+        min_region_pixels: 4,
+        temperature,
+        seeding: SeedingConfig {
+            depth_error,
+            scale_factor,
+            opacity,
+            ..SeedingConfig::default()
+        },
+        ..MapperConfig::default()
+    };
+    for past in [
+        at(MIN_TEMPERATURE / 2.0, 0.05, 0.75, 0.9),
+        at(1e-45, 0.05, 0.75, 0.9),
+        at(MAX_TEMPERATURE * 2.0, 0.05, 0.75, 0.9),
+        at(0.05, MAX_DEPTH_ERROR * 2.0, 0.75, 0.9),
+        at(0.05, 0.05, MAX_SCALE_FACTOR * 2.0, 0.9),
+        at(0.05, 0.05, 0.0, 0.9),
+    ] {
+        assert!(
+            past.validate().is_err(),
+            "{:?}",
+            (past.temperature, past.seeding)
+        );
+    }
+    with_context(|ctx| {
+        let limits = [
+            at(MIN_TEMPERATURE, 0.0, 1e-6, 0.0),
+            at(MAX_TEMPERATURE, MAX_DEPTH_ERROR, MAX_SCALE_FACTOR, 1.0),
+        ];
+        for cfg in limits {
+            let tag = cfg.temperature;
+            let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
+            for i in 0..3 {
+                let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+                f.stamp_ns = i;
+                mapper.integrate(f).unwrap();
+            }
+            let mut word = vec![0.0f32; DIM];
+            word[3] = 1.0;
+            let scores = mapper.query(&word).unwrap();
+            assert!(!scores.is_empty() && scores.iter().all(|s| s.is_finite()));
+            let vocabulary = latentam_io::Vocabulary {
+                names: vec!["a".into(), "b".into()],
+                ids: vec![0, 1],
+                dim: DIM as u32,
+                vectors: [word.clone(), word.iter().rev().copied().collect()].concat(),
+                model: "test".into(),
+            };
+            for temperature in [MIN_TEMPERATURE, MAX_TEMPERATURE] {
+                let q = TextQuery::vocabulary_word(&vocabulary, "a", temperature).unwrap();
+                let p = mapper.relevance(&q).unwrap();
+                assert!(p.iter().all(|p| p.is_finite() && (0.0..=1.0).contains(p)));
+            }
+            let path = std::env::temp_dir().join(format!(
+                "latentam-limits-{}-{}",
+                std::process::id(),
+                tag
+            ));
+            mapper.save_file(&path).unwrap();
+            std::fs::remove_file(&path).ok();
+        }
+    });
+}
