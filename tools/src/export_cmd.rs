@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use crate::own_inputs::{refuse_overwriting_inputs, Input};
 
 use anyhow::{bail, Context as _, Result};
+use latentam_base::text::{shown, shown_path};
 use latentam_cli::progress::Stages;
 use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
@@ -233,10 +234,13 @@ fn print_summary(
     has_head: bool,
     has_vocabulary: bool,
 ) {
-    println!("{} (frame `{frame_id}`):", path.display());
+    println!("{} (frame `{}`):", shown_path(path), shown(frame_id));
     println!("  /latentam/map  {gaussians} points");
     for (name, word, _) in relevance {
-        println!("  /latentam/relevance/{word}  relevance of `{name}`");
+        println!(
+            "  /latentam/relevance/{word}  relevance of `{}`",
+            shown(name)
+        );
     }
     println!("  /latentam/trajectory  {poses} keyframe poses");
     if !has_head {

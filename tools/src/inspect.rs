@@ -1,5 +1,6 @@
 //! `latentam inspect`: what a log holds and what the engine makes of it.
 
+use latentam_base::text::{shown, shown_path};
 use std::path::{Path, PathBuf};
 
 use latentam_io::{McapFrames, McapLog, Metadata};
@@ -19,9 +20,10 @@ pub struct Args {
 /// whole YAML document) are summarised, not printed.
 const SHORT: usize = 160;
 
-fn shown(v: &str) -> String {
+/// A metadata value as printed: escaped, or summarised when long.
+fn summarised(v: &str) -> String {
     if v.len() <= SHORT && !v.contains('\n') {
-        v.to_string()
+        shown(v)
     } else {
         format!(
             "({} bytes, {} lines; not shown)",
@@ -37,9 +39,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let channels = log.channels();
     let range = log.time_range();
     if !args.json {
-        println!("{}:", args.log.display());
+        println!("{}:", shown_path(&args.log));
         for (file, why) in log.unindexed_files() {
-            println!("  warning: {}: {why}", file.display());
+            println!("  warning: {}: {}", shown_path(file), shown(why));
         }
         if let Some((a, b)) = range {
             println!("  {:.1} s of messages", (b.saturating_sub(a)) as f64 * 1e-9);
@@ -48,11 +50,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let n = log
                 .message_count(&c.topic)
                 .map_or("?".into(), |n| n.to_string());
-            println!("  {:<32} {:>7} × {}", c.topic, n, c.schema_name);
+            println!(
+                "  {:<32} {:>7} × {}",
+                shown(&c.topic),
+                n,
+                shown(&c.schema_name)
+            );
         }
         for (name, values) in &metadata {
             for (k, v) in values {
-                println!("  metadata {name}.{k}: {}", shown(v));
+                println!("  metadata {}.{}: {}", shown(name), shown(k), summarised(v));
             }
         }
     }
@@ -60,7 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut frames = McapFrames::from_log(log.clone(), config)?;
     if !args.json {
         for line in frames.topic_plan() {
-            println!("  chosen by type: {line}");
+            println!("  chosen by type: {}", shown(&line.to_string()));
         }
     }
     let mut first_error = None;
@@ -77,7 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let doc = json_document(&args.log, &log, &metadata, &frames, sizes);
         println!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
-        print!("{}", frames.report());
+        print!("{}", shown(&frames.report().to_string()));
         if let Some((w, h)) = sizes {
             println!("  frames are {w}×{h}");
         }
@@ -86,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "  vocabulary: {} classes of dimension {} ({})",
                 v.names.len(),
                 v.dim,
-                v.model
+                shown(&v.model)
             );
         }
     }
@@ -122,7 +129,7 @@ fn json_document(
         .flat_map(|(name, values)| {
             values
                 .iter()
-                .map(move |(k, v)| (format!("{name}.{k}"), shown(v).into()))
+                .map(move |(k, v)| (format!("{name}.{k}"), summarised(v).into()))
         })
         .collect();
     let t = frames.topics();
@@ -158,12 +165,12 @@ fn json_document(
 mod tests {
     #[test]
     fn long_metadata_is_summarised() {
-        assert_eq!(super::shown("jazzy"), "jazzy");
+        assert_eq!(super::summarised("jazzy"), "jazzy");
         let yaml = "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n";
         assert_eq!(
-            super::shown(yaml),
+            super::summarised(yaml),
             format!("({} bytes, 3 lines; not shown)", yaml.len())
         );
-        assert!(super::shown(&"x".repeat(500)).starts_with("(500 bytes"));
+        assert!(super::summarised(&"x".repeat(500)).starts_with("(500 bytes"));
     }
 }

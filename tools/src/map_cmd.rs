@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
+use latentam_base::text::shown_path;
 
 use crate::config_args::ConfigArgs;
 use crate::input_args::InputArgs;
@@ -90,10 +91,10 @@ pub fn run(args: Args) -> Result<bool> {
     let report = match write_folder(&mut run, &folder) {
         Ok(Written::Saved(report)) => {
             print!("{}", summary(&report));
-            println!("run folder {}:", args.out.display());
+            println!("run folder {}:", shown_path(&args.out));
             for f in RUN_FILES {
                 if args.out.join(f).exists() {
-                    println!("  {}", args.out.join(f).display());
+                    println!("  {}", shown_path(&args.out.join(f)));
                 }
             }
             Ok(report)

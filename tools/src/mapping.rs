@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
+use latentam_base::text::shown;
 use latentam_core::live::{LiveReader, LogRun, LogRunOptions, RunObserver, Written};
 use latentam_core::mapper::{
     KeyframeReport, Mapper, MapperConfig, MapperStats, RunFolder, RunReport, DECODER_FILE,
@@ -198,7 +199,7 @@ struct CliObserver {
 impl RunObserver for CliObserver {
     fn started(&mut self, frames: &McapFrames, total: Option<usize>) {
         for line in frames.topic_plan() {
-            eprintln!("input: {line}");
+            eprintln!("input: {}", shown(&line.to_string()));
         }
         if let Some(live) = &self.live {
             // The log's vocabulary is read before its first frame when the
@@ -245,7 +246,7 @@ impl RunObserver for CliObserver {
     }
 
     fn input_warning(&mut self, warning: &str) {
-        eprintln!("warning: {warning}");
+        eprintln!("warning: {}", shown(warning));
     }
 
     fn autosave_failed(&mut self, keyframe: u64, error: &latentam::Error) {
@@ -258,7 +259,10 @@ impl RunObserver for CliObserver {
             }
             cause = c.source();
         }
-        eprintln!("warning: autosave at keyframe {keyframe} failed: {message}");
+        eprintln!(
+            "warning: autosave at keyframe {keyframe} failed: {}",
+            shown(&message.to_string())
+        );
     }
 
     fn write_extra_files(&mut self, dir: &Path, report: &RunReport) -> latentam::Result<()> {

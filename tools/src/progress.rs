@@ -109,9 +109,11 @@ impl Stages {
     pub fn start(&self, what: impl std::fmt::Display) {
         let _ = writeln!(
             std::io::stderr().lock(),
-            "{} [{:>6.1} s] {what}",
+            "{} [{:>6.1} s] {}",
             self.label,
-            self.start.elapsed().as_secs_f64()
+            self.start.elapsed().as_secs_f64(),
+            // Paths and names in it come from the user or a log.
+            latentam_base::text::shown(&what.to_string())
         );
     }
 }

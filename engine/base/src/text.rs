@@ -37,6 +37,17 @@ pub fn shown(text: &str) -> String {
     out
 }
 
+/// [`shown`] for a path: a file name may hold any byte but `/` and NUL,
+/// escape sequences included.
+///
+/// ```
+/// use latentam_base::text::shown_path;
+/// assert_eq!(shown_path("run\u{1b}[2J".as_ref()), "run\\u{1b}[2J");
+/// ```
+pub fn shown_path(path: &std::path::Path) -> String {
+    shown(&path.display().to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

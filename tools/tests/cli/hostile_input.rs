@@ -158,3 +158,80 @@ fn errors_show_escape_sequences_escaped_and_huge_values_cut() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Text a log carries (topic, type and metadata names and values) and
+/// paths a user gives (an `--out` folder named with an escape sequence)
+/// reach the terminal escaped: no escape, bell or carriage return is
+/// printed as it is, by `inspect` or by `map`.
+#[test]
+fn text_from_logs_and_paths_is_printed_escaped() {
+    use latentam_io::{CompressedImage, Compression, LogWriter};
+    let dir = std::env::temp_dir().join(format!("latentam-escapes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let hostile = "\u{1b}[2J\u{1b}]0;pwned\u{7}\rforged";
+    let log = dir.join("hostile.mcap");
+    let mut w = LogWriter::create(&log, Compression::None).unwrap();
+    // A colour stream named with escapes, whose frame id and format carry
+    // them too (the frames do not decode: `inspect` says so, escaped).
+    let header = latentam_io::Header {
+        stamp: latentam_io::Time { sec: 1, nanosec: 0 },
+        frame_id: hostile,
+    };
+    let image = CompressedImage {
+        header,
+        format: hostile,
+        data: b"not a jpeg",
+    };
+    w.write(&format!("/camera/color/image_raw{hostile}"), 1, &image)
+        .unwrap();
+    let values = [(format!("key{hostile}"), hostile.to_string())].into();
+    w.metadata(&format!("meta{hostile}"), values).unwrap();
+    w.finish().unwrap();
+    let defused = |what: &str, out: &std::process::Output| {
+        for (stream, bytes) in [("stdout", &out.stdout), ("stderr", &out.stderr)] {
+            let text = String::from_utf8_lossy(bytes);
+            assert!(
+                !text.contains(['\u{1b}', '\u{7}', '\r']),
+                "{what} {stream}: {text:?}"
+            );
+        }
+    };
+    let inspected = latentam().arg("inspect").arg(&log).output().unwrap();
+    let stdout = String::from_utf8_lossy(&inspected.stdout);
+    assert!(stdout.contains("image_raw\\u{1b}[2J"), "{stdout}");
+    defused("inspect", &inspected);
+
+    let scene = dir.join("scene.mcap");
+    let gen = latentam()
+        .args([
+            "gen-scene",
+            "--frames",
+            "4",
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "-o",
+        ])
+        .arg(&scene)
+        .output()
+        .unwrap();
+    assert!(gen.status.success());
+    let out = dir.join(format!("run{hostile}"));
+    let mapped = latentam()
+        .arg("map")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .arg("--no-trace")
+        .output()
+        .unwrap();
+    assert!(
+        mapped.status.success(),
+        "{}",
+        String::from_utf8_lossy(&mapped.stderr)
+    );
+    assert!(String::from_utf8_lossy(&mapped.stdout).contains("run\\u{1b}[2J"));
+    defused("map", &mapped);
+    std::fs::remove_dir_all(&dir).ok();
+}
