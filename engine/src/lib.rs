@@ -81,6 +81,37 @@ pub mod config {
     pub use latentam_io::read_input_to_string;
 }
 
+/// The embedding files users bring, `.npy` arrays and safetensors files:
+/// one frame's embeddings from a feature extractor, the class vectors and
+/// class-id images oracle embeddings are made of, and a vector to query a
+/// map with. Each reader takes a file's bytes (or, [`read_vector`], its
+/// path) and refuses what it cannot use with [`Error::InvalidArgument`]
+/// naming the file; none panics on any bytes.
+///
+/// [`read_vector`]: crate::embedding_files::read_vector
+///
+/// ```no_run
+/// use latentam::embedding_files::{features_from_safetensors, read_vector, FrameFeatures};
+/// use latentam::TextQuery;
+///
+/// // A text embedding from a vision-language model, saved with `np.save`.
+/// let chair = read_vector("chair.npy".as_ref())?;
+/// let query = TextQuery::embedding(chair);
+/// // One frame's region embeddings, as `latentam convert --features` reads them.
+/// let bytes = std::fs::read("frame-000000.safetensors")?;
+/// let frame = features_from_safetensors(&bytes, "frame-000000.safetensors", None)?;
+/// if let FrameFeatures::Regions { count, .. } = frame.features {
+///     println!("{count} regions of {}-d {} embeddings", frame.dim, frame.model);
+/// }
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub mod embedding_files {
+    pub use latentam_io::embedding_files::{
+        class_ids_from_npy, features_from_safetensors, grid_from_npy, npy, read_vector,
+        regions_from_npy, vector_from_bytes, ClassVectors, FrameFeatures, LoadedFeatures,
+    };
+}
+
 /// A live view of the map in Foxglove (feature `view`): a WebSocket
 /// server publishing the map, trajectory, keyframe images and relevance
 /// clouds while mapping goes on.

@@ -14,6 +14,8 @@
 //! * [`McapFrames`] / [`FrameAssembler`]: stamp pairing of colour, depth,
 //!   intrinsics, pose and embeddings into checked [`Frame`]s, with every
 //!   unused message counted in an [`IngestReport`];
+//! * [`embedding_files`]: the embedding files users bring (`.npy` and
+//!   safetensors: per-frame features, class vectors, query vectors);
 //! * [`LogWriter`]: writing logs (converters, the demo scene, tests);
 //! * [`trajectory`]: camera trajectories in the TUM RGB-D format
 //!   ([`write_tum`] / [`read_tum`]).
@@ -34,6 +36,7 @@
 pub mod cdr;
 mod class_names;
 pub mod codec;
+pub mod embedding_files;
 mod frame;
 mod frame_check;
 mod frames;
