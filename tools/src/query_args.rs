@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
-use latentam_cli::convert::features::read_vector;
+use latentam::embedding_files::read_vector;
 use latentam_core::latent::{Relevance, TextQuery};
 use latentam_core::mapper::Mapper;
 use latentam_core::splat::RenderedView;
@@ -79,7 +79,16 @@ impl QueryArgs {
     ) -> Result<Option<Query>> {
         match (&self.embedding, &self.name) {
             (Some(path), _) => {
-                let v = read_vector(path)?;
+                let v = match read_vector(path) {
+                    Ok(v) => v,
+                    // The reason names the file.
+                    Err(latentam::Error::InvalidArgument(why)) => bail!("{why}"),
+                    Err(latentam::Error::Io { path, source }) => {
+                        return Err(anyhow::Error::new(source)
+                            .context(format!("reading {}", path.display())))
+                    }
+                    Err(e) => return Err(e.into()),
+                };
                 if v.len() != dim {
                     bail!(
                         "{}: the query has {} values; the map's embeddings are {dim}-d",

@@ -6,11 +6,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
+use latentam::embedding_files::npy;
 use latentam_cli::convert::features::FeatureDir;
 use latentam_cli::convert::oracle::Oracle;
-use latentam_cli::convert::{
-    convert, datasets, npy, ConvertOptions, EmbeddingSource, Registration,
-};
+use latentam_cli::convert::{convert, datasets, ConvertOptions, EmbeddingSource, Registration};
 use latentam_io::{
     codec, AssemblyConfig, Compression, DepthData, Dtype, EmbeddingLayout, Frame, McapFrames,
 };

@@ -8,7 +8,6 @@
 
 pub mod datasets;
 pub mod features;
-pub mod npy;
 pub mod oracle;
 mod writing;
 

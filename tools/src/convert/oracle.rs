@@ -12,14 +12,11 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use anyhow::bail;
+use latentam::embedding_files::{class_ids_from_npy, ClassVectors, FrameFeatures};
 use latentam_io::codec;
 
-use super::features::{
-    candidate_stems, dim_of, floats, labels, open_safetensors, read, safetensors_tensor,
-    FrameFeatures, Tensor,
-};
-use super::npy;
+use super::features::{candidate_stems, read, refused};
 
 /// One frame's class-id image and the oracle embeddings made from it.
 pub struct OracleFrame {
@@ -31,77 +28,6 @@ pub struct OracleFrame {
     pub classes: Vec<u16>,
     /// One region per class present.
     pub features: FrameFeatures,
-}
-
-/// The class vectors of `--class-vectors`: one row per class id.
-#[derive(Debug)]
-pub struct ClassVectors {
-    /// Class names by id (`class_<id>` where the file names none).
-    pub names: Vec<String>,
-    /// Vectors by class id, at least 2 (row 0 is unlabelled), all of one
-    /// dimension.
-    pub vectors: Vec<Vec<f32>>,
-    /// Model id, `oracle:` + the file's model (or `class-vectors`).
-    pub model: String,
-}
-
-impl ClassVectors {
-    /// Reads the bytes of a `.npy` `[C, D]` file, or of a `.safetensors`
-    /// one (`safetensors` true) with `vectors` `[C, D]` and optional
-    /// metadata `names` (a JSON list) and `model`; `origin` names the file
-    /// in errors.
-    pub fn parse(bytes: &[u8], safetensors: bool, origin: &str) -> anyhow::Result<Self> {
-        let (tensor, names, model): (Tensor, Option<Vec<String>>, Option<String>) = if safetensors {
-            let st = open_safetensors(bytes, origin)?;
-            let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)?;
-            let meta = meta.metadata().clone().unwrap_or_default();
-            let names = match meta.get("names") {
-                Some(s) => Some(serde_json::from_str(s).with_context(|| {
-                    format!("{origin}: metadata `names` is not a JSON list of strings")
-                })?),
-                None => None,
-            };
-            let t = safetensors_tensor(&st, "vectors", origin)?
-                .with_context(|| format!("{origin}: no tensor `vectors`"))?;
-            (t, names, meta.get("model").cloned())
-        } else {
-            (
-                npy::parse(bytes)
-                    .with_context(|| origin.to_string())?
-                    .into(),
-                None,
-                None,
-            )
-        };
-        let [c, d] = tensor.shape[..] else {
-            bail!(
-                "{origin}: class vectors have shape {:?}, expected [C, D]",
-                tensor.shape
-            );
-        };
-        if c < 2 || d == 0 {
-            bail!("{origin}: need at least 2 classes (row 0 is unlabelled) and D > 0");
-        }
-        // Class ids are u16 in label images and in the vocabulary.
-        if c > u16::MAX as usize + 1 {
-            bail!(
-                "{origin}: {c} class vectors; at most {} (class ids are 16-bit)",
-                u16::MAX as usize + 1
-            );
-        }
-        dim_of(d, origin)?;
-        let flat = floats(&tensor, &format!("{origin}: vectors"))?;
-        let vectors: Vec<Vec<f32>> = flat.chunks(d).map(|r| r.to_vec()).collect();
-        let names = names.unwrap_or_else(|| (0..c).map(|i| format!("class_{i}")).collect());
-        if names.len() != c {
-            bail!("{origin}: {} names for {c} class vectors", names.len());
-        }
-        Ok(ClassVectors {
-            names,
-            vectors,
-            model: format!("oracle:{}", model.unwrap_or_else(|| "class-vectors".into())),
-        })
-    }
 }
 
 /// Class vectors and label images for oracle embeddings.
@@ -127,7 +53,8 @@ impl Oracle {
                 .extension()
                 .is_some_and(|e| e == "safetensors"),
             &class_vectors.display().to_string(),
-        )?;
+        )
+        .map_err(refused)?;
         Ok(Oracle {
             labels_dir: labels_dir.to_path_buf(),
             names: classes.names,
@@ -152,29 +79,8 @@ impl Oracle {
                 codec::decode_png_labels(&read(&png)?)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?
             } else if npy_path.is_file() {
-                let t: Tensor = npy::parse(&read(&npy_path)?)
-                    .with_context(|| npy_path.display().to_string())?
-                    .into();
-                let [h, w] = t.shape[..] else {
-                    bail!(
-                        "{}: shape {:?}, expected [H, W]",
-                        npy_path.display(),
-                        t.shape
-                    );
-                };
-                let side = 1..=codec::MAX_IMAGE_SIDE as usize;
-                if !side.contains(&h) || !side.contains(&w) {
-                    bail!(
-                        "{}: label image {w}×{h} is empty or beyond {} per side",
-                        npy_path.display(),
-                        codec::MAX_IMAGE_SIDE
-                    );
-                }
-                (
-                    w as u32,
-                    h as u32,
-                    labels(&t, &npy_path.display().to_string())?,
-                )
+                class_ids_from_npy(&read(&npy_path)?, &npy_path.display().to_string())
+                    .map_err(refused)?
             } else {
                 continue;
             };
@@ -212,5 +118,36 @@ impl Oracle {
             }));
         }
         Ok(None)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use latentam::embedding_files::npy::{self, NpyType};
+
+    #[test]
+    fn files_the_readers_refuse_are_errors_naming_the_file() {
+        let dir = std::env::temp_dir().join(format!("latentam-oracle-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // More classes than 16-bit class ids can name.
+        let vectors = dir.join("vectors.npy");
+        let c = u16::MAX as usize + 2;
+        std::fs::write(&vectors, npy::write(NpyType::F16, &[c, 1], &vec![0; c * 2])).unwrap();
+        let e = Oracle::new(&dir, &vectors).err().unwrap().to_string();
+        assert!(
+            e.starts_with(&format!("{}: ", vectors.display())) && e.contains("16-bit"),
+            "{e}"
+        );
+        // An empty label image.
+        std::fs::write(&vectors, npy::write(NpyType::F16, &[2, 1], &[0; 4])).unwrap();
+        let oracle = Oracle::new(&dir, &vectors).unwrap();
+        std::fs::write(dir.join("f.npy"), npy::write(NpyType::U16, &[0, 3], &[])).unwrap();
+        let e = oracle.load("f").err().unwrap().to_string();
+        assert!(
+            e.starts_with(dir.to_str().unwrap()) && e.contains("empty"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

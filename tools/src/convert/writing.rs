@@ -7,12 +7,12 @@ use std::io::BufWriter;
 use std::path::Path;
 
 use anyhow::{bail, Context};
+use latentam::embedding_files::{FrameFeatures, LoadedFeatures};
 use latentam_io::{
     cdr, codec, encode_floats, CameraInfo, CompressedImage, FeatureGrid, Header, Image, LogWriter,
     MaskFeatures, Pose, PoseStamped, TextEmbeddings, TfMessage, TransformStamped,
 };
 
-use super::features::{FrameFeatures, LoadedFeatures};
 use super::{
     check_payload, datasets, stem, u16_bytes, Cameras, ConvertOptions, ConvertSummary,
     DepthRegistration, EmbeddingSource, Event, DEPTH_FRAME, FRAME,
