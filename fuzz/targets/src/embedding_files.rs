@@ -1,18 +1,18 @@
 //! The embedding files users bring, through every reader of them:
 //! `.npy` arrays and safetensors files as per-frame features
-//! (`convert --features`), class vectors (`convert --class-vectors`) and
-//! query vectors (`query --embedding`). Raw bytes, and files assembled from
+//! (`convert --features`), class vectors (`convert --class-vectors`),
+//! class-id images (`convert --oracle-labels`) and query vectors
+//! (`query --embedding`). Raw bytes, and files assembled from
 //! arbitrary headers (any element type, shape, offsets, duplicate keys,
 //! metadata). The readers may refuse anything but must not panic, and what
 //! they accept must be consistent: sizes that match, finite values, labels
 //! within range.
 
 use arbitrary::{Arbitrary, Unstructured};
-use latentam_cli::convert::features::{
-    features_from_safetensors, grid_from_npy, regions_from_npy, vector_from_bytes, FrameFeatures,
+use latentam_io::embedding_files::{
+    class_ids_from_npy, features_from_safetensors, grid_from_npy, npy, regions_from_npy,
+    vector_from_bytes, ClassVectors, FrameFeatures,
 };
-use latentam_cli::convert::npy;
-use latentam_cli::convert::oracle::ClassVectors;
 
 const DESCRS: &[&str] = &[
     "<f4", "<f2", "<u2", "|u1", "<i4", "<i8", ">f4", "<f8", "|b1", "<c8", "", "<f4'",
@@ -254,6 +254,10 @@ fn check_npy(bytes: &[u8]) {
     }
     if let Ok(c) = ClassVectors::parse(bytes, false, "fuzz.npy") {
         check_classes(&c);
+    }
+    if let Ok((w, h, ids)) = class_ids_from_npy(bytes, "fuzz.npy") {
+        assert!(w > 0 && h > 0);
+        assert_eq!(ids.len(), w as usize * h as usize);
     }
 }
 
