@@ -86,9 +86,8 @@ fn report_log(report: &serde_json::Value) -> Option<PathBuf> {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    if !(args.temperature > 0.0 && args.temperature.is_finite()) {
-        bail!("--temperature must be positive and finite, got {} (a value past f32's range reads as inf)", args.temperature);
-    }
+    latentam::TextQuery::check_temperature(args.temperature)
+        .map_err(|e| anyhow::anyhow!("--temperature: {e}"))?;
     if args.frame_id.trim().is_empty() {
         bail!("--frame-id must name a frame");
     }

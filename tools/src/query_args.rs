@@ -110,9 +110,8 @@ impl QueryArgs {
                 mapper
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
-                if !(self.temperature > 0.0 && self.temperature.is_finite()) {
-                    bail!("--temperature must be positive and finite, got {} (a value past f32's range reads as inf)", self.temperature);
-                }
+                TextQuery::check_temperature(self.temperature)
+                    .map_err(|e| anyhow::anyhow!("--temperature: {e}"))?;
                 let text = match TextQuery::vocabulary_word(&vocab, name, self.temperature) {
                     Ok(t) => t,
                     Err(latentam::Error::InvalidArgument(why)) => bail!("{why}"),

@@ -62,7 +62,10 @@ pub use frame::{
     Dtype, EmbeddingLayout, Embeddings, Frame, Intrinsics, LabelImage, PixelFormat, MIN_DEPTH_M,
 };
 pub use frames::{AssemblyConfig, BadInputPolicy, FrameAssembler, PoseSource, TopicChoice, Topics};
-pub use input::{check_input_file, open_input, read_input, read_input_to_string};
+pub use input::{
+    check_input_file, open_input, read_input, read_input_to_string, MAX_BINARY_BYTES,
+    MAX_TEXT_BYTES,
+};
 pub use json_keys::{check_json_keys, check_safetensors_keys, parse_json};
 pub use latentam_base::{Error, InputError, Rejection, Result};
 pub use log::{

@@ -242,13 +242,19 @@ fn query_render_and_export_misuse_are_clear_errors() {
         (
             by_name("ball", 22, &["--temperature", "0"]),
             1,
-            "--temperature must be positive",
+            "--temperature: invalid argument: softmax temperature 0 is outside 0.0009765625..=10",
         ),
         (
             // Past f32's range: infinite, and said so.
             by_name("ball", 22, &["--temperature", "1e308"]),
             1,
-            "must be positive and finite, got inf",
+            "softmax temperature inf is outside",
+        ),
+        (
+            // Small enough to overflow the scores: refused too.
+            by_name("ball", 22, &["--temperature", "1e-45"]),
+            1,
+            "softmax temperature 0.000000000000000000000000000000000000000000001 is outside",
         ),
         (
             vec![
@@ -347,7 +353,7 @@ fn query_render_and_export_misuse_are_clear_errors() {
         (
             refs(&export(&run, &["--temperature", "0"])),
             1,
-            "--temperature must be positive",
+            "--temperature: invalid argument: softmax temperature 0 is outside",
         ),
         (
             refs(&export(&run, &["--frame-id", " "])),

@@ -17,7 +17,7 @@ use latentam_io::{Frame, Vocabulary};
 impl Mapper {
     /// Relevance of every Gaussian to `text_embedding` (cosine similarity
     /// of its decoded embedding), in the order of
-    /// [`GlobalMap::iter`] on [`Mapper::global`].
+    /// [`GlobalMap::iter`](crate::map::GlobalMap::iter) on [`Mapper::global`].
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
@@ -63,7 +63,7 @@ impl Mapper {
     }
 
     /// Relevance of every Gaussian to `query` (cosine, or the softmax over
-    /// a vocabulary), in the order of [`GlobalMap::iter`].
+    /// a vocabulary), in the order of [`GlobalMap::iter`](crate::map::GlobalMap::iter).
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {

@@ -213,7 +213,6 @@ pub struct SavedState {
     pub(super) window: Option<SavedWindow>,
 }
 
-
 impl SavedState {
     /// Reads and checks a state saved by `Mapper::save` from
     /// `bytes`, the contents of `origin` (which only names it in errors).
