@@ -98,6 +98,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     logging::install(cli.verbose);
+    interrupt::file_size_limit_is_an_error();
     let result = match cli.command {
         Command::Devices => selfcheck::devices(),
         Command::Selfcheck { validation } => selfcheck::run(validation),

@@ -72,18 +72,32 @@ pub fn refuse_overwriting_inputs(inputs: &[Input], outputs: &[(&str, &Path)]) ->
 /// Errors when one of `inputs` (flag name, path) lies inside `run`, a run
 /// folder the command replaces whole: the input would go with it (a log
 /// or a configuration kept in a run folder, even the run's own
-/// `config.toml` edited by hand).
+/// `config.toml` edited by hand); and when `run` lies inside an input
+/// folder (a rosbag2 folder), which it would change.
 pub fn refuse_inputs_inside(run: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
     let Some(run_dir) = resolved(run) else {
         return Ok(());
     };
     for &(what, input) in inputs {
-        if resolved(input).is_some_and(|i| i.starts_with(&run_dir)) {
+        let Some(input_path) = resolved(input) else {
+            continue;
+        };
+        if input_path.starts_with(&run_dir) {
             bail!(
                 "{what} {} lies inside {}, the run folder this command replaces whole, so it \
                  would be lost: move it out of the folder or choose another --out",
                 input.display(),
                 run.display()
+            );
+        }
+        // A rosbag2 folder holding the run: the bag would no longer read
+        // as one (a folder it does not know).
+        if input_path.is_dir() && run_dir.starts_with(&input_path) {
+            bail!(
+                "--out {} lies inside {what} {}, a folder this command reads: choose an --out \
+                 outside it",
+                run.display(),
+                input.display()
             );
         }
     }

@@ -231,6 +231,17 @@ fn a_users_files_in_the_out_folder_are_never_deleted() {
         &["the log", "lies inside"],
     );
     assert_eq!(all_files(&run), before);
+    // A run folder inside the bag folder it maps: the bag would hold a
+    // folder it does not know.
+    let bag = dir.join("bag");
+    std::fs::create_dir_all(&bag).unwrap();
+    std::fs::copy(&log, bag.join("bag_0.mcap")).unwrap();
+    let before = all_files(&bag);
+    failed_with(
+        &map(&bag, &bag.join("run"), &["--frames", "4"]),
+        &["lies inside the log", "choose an --out outside it"],
+    );
+    assert_eq!(all_files(&bag), before);
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -49,8 +49,17 @@ pub struct LogWriter<W: Write + Seek> {
     sequence: u32,
 }
 
-fn write_error(e: impl std::fmt::Display) -> InputError {
-    InputError::Write(e.to_string())
+/// A failed write, with its causes: the MCAP writer's "I/O error from
+/// writing" alone does not say that the disk is full or the file too
+/// large.
+fn write_error(e: impl std::error::Error) -> InputError {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(cause) = source {
+        text.push_str(&format!(": {cause}"));
+        source = cause.source();
+    }
+    InputError::Write(text)
 }
 
 impl LogWriter<BufWriter<std::fs::File>> {

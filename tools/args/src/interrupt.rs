@@ -45,3 +45,17 @@ pub fn flag() -> &'static AtomicBool {
 pub fn requested() -> bool {
     REQUESTED.load(Ordering::SeqCst)
 }
+
+/// Makes a write past the process's file-size limit (`ulimit -f`,
+/// RLIMIT_FSIZE) fail with an error naming the file ("File too large"),
+/// which the command reports and cleans up after, instead of the default
+/// SIGXFSZ that ends the process mid-write with nothing said. Only the
+/// tool's own processes call this: a library does not change its host's
+/// signal handling.
+pub fn file_size_limit_is_an_error() {
+    // SAFETY: setting a signal's disposition to "ignore" has no handler
+    // to be unsafe in; SIGXFSZ is a valid signal number.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}

@@ -35,6 +35,7 @@ fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(filter))
         .format_timestamp(None)
         .init();
+    latentam_args::interrupt::file_size_limit_is_an_error();
     match node::run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

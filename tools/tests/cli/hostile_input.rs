@@ -235,3 +235,31 @@ fn text_from_logs_and_paths_is_printed_escaped() {
     defused("map", &mapped);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A write past the file-size limit (`ulimit -f`) is an error the tool
+/// reports, with exit status 1 and no partial file left, not a SIGXFSZ
+/// that ends it with nothing said.
+#[cfg(unix)]
+#[test]
+fn a_file_size_limit_is_an_error_not_a_signal() {
+    let dir = std::env::temp_dir().join(format!("latentam-fsize-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("scene.mcap");
+    // 64 blocks: far less than the log needs.
+    let out = std::process::Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -f 64 && exec \"$0\" gen-scene --frames 8 -o \"$1\"")
+        .arg(env!("CARGO_BIN_EXE_latentam"))
+        .arg(&log)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{:?}: {stderr}", out.status);
+    assert!(
+        stderr.contains("error:") && stderr.contains("too large"),
+        "{stderr}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
