@@ -111,8 +111,14 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive");
+    // Stamps are index / fps: within this range they stay distinct and
+    // within i64 for any dataset this tool reads.
+    let (min, max) = (latentam_scene::MIN_FPS, latentam_scene::MAX_FPS);
+    if !(min..=max).contains(&args.fps) {
+        bail!(
+            "--fps must be from {min} to {max} frames per second, got {:?}",
+            args.fps
+        );
     }
     let dataset = match args.kind {
         Kind::Tum => datasets::tum(&args.dir),

@@ -110,6 +110,13 @@ pub const MODEL: &str = "synthetic:latentam-gen-scene-1";
 /// Stamp of the first frame: 2023-11-14T22:13:20Z.
 pub const START_NS: i64 = 1_700_000_000_000_000_000;
 
+/// Slowest synthetic frame rate (frames per second) a log is stamped at:
+/// a frame every 1000 s keeps 7 million frames' stamps within i64.
+pub const MIN_FPS: f64 = 1e-3;
+/// Fastest synthetic frame rate: a frame every microsecond, far apart in
+/// nanosecond stamps (at 1e300 every frame had the same stamp).
+pub const MAX_FPS: f64 = 1e6;
+
 /// What was written.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct SceneSummary {
@@ -254,8 +261,19 @@ fn check(config: &SceneConfig) -> anyhow::Result<()> {
     if config.dim == 0 || config.dim > 8192 {
         bail!("embedding dimension {} outside 1…8192", config.dim);
     }
-    if !(config.fps > 0.0 && config.fps.is_finite()) {
-        bail!("frame rate must be positive");
+    if !(MIN_FPS..=MAX_FPS).contains(&config.fps) {
+        bail!(
+            "frame rate {:?} outside {MIN_FPS}…{MAX_FPS} frames per second",
+            config.fps
+        );
+    }
+    let last_ns = config.frames.saturating_sub(1) as f64 * 1e9 / config.fps;
+    if START_NS as f64 + last_ns >= i64::MAX as f64 {
+        bail!(
+            "{} frames at {:?} frames per second run past the largest stamp",
+            config.frames,
+            config.fps
+        );
     }
     if !(0.0..=1.0).contains(&config.mask_noise) {
         bail!("mask noise {} outside 0…1", config.mask_noise);

@@ -103,7 +103,30 @@ fn command_line_misuse_is_a_clear_error() {
                 log.as_os_str(),
             ],
             exit_error,
-            "--fps must be positive",
+            "--fps must be from 0.001 to 1000000 frames per second, got 0.0",
+        ),
+        (
+            // Stamps past i64 (the generator overflowed them), or all one.
+            vec![
+                os("gen-scene"),
+                os("--fps"),
+                os("1e-300"),
+                os("-o"),
+                log.as_os_str(),
+            ],
+            exit_error,
+            "frame rate 1e-300 outside 0.001…1000000 frames per second",
+        ),
+        (
+            vec![
+                os("gen-scene"),
+                os("--fps"),
+                os("1e300"),
+                os("-o"),
+                log.as_os_str(),
+            ],
+            exit_error,
+            "frame rate 1e300 outside",
         ),
     ]);
     assert!(!run.exists() && !png.exists() && !log.exists());
