@@ -320,6 +320,24 @@ fn tum_list(path: &Path) -> anyhow::Result<Vec<(i64, Vec<String>)>> {
     Ok(out)
 }
 
+/// `name`, a file an index (`what`) lists, within the dataset folder
+/// `dir`: an absolute name or one that climbs out with `..` is refused, so
+/// an index cannot make the converter read files elsewhere.
+fn inside(dir: &Path, name: &str, what: &str) -> anyhow::Result<PathBuf> {
+    use std::path::Component;
+    let rel = Path::new(name);
+    if !rel
+        .components()
+        .all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
+    {
+        anyhow::bail!(
+            "{what} lists {}, which is not inside the dataset folder",
+            latentam_base::text::shown(name)
+        );
+    }
+    Ok(dir.join(rel))
+}
+
 /// TUM RGB-D: `rgb.txt` and `depth.txt` (`timestamp filename`),
 /// `groundtruth.txt` (`timestamp tx ty tz qx qy qz qw`, the colour
 /// camera's optical centre in the world), depth PNGs at 5000 units per
@@ -331,15 +349,17 @@ pub fn tum(dir: &Path) -> anyhow::Result<Dataset> {
         ..Dataset::default()
     };
     for (t, rest) in tum_list(&dir.join("rgb.txt"))? {
+        let name = rest.first().context("rgb.txt line without a file name")?;
         d.color.push(Stamped {
             stamp_ns: t,
-            path: dir.join(rest.first().context("rgb.txt line without a file name")?),
+            path: inside(dir, name, "rgb.txt")?,
         });
     }
     for (t, rest) in tum_list(&dir.join("depth.txt"))? {
+        let name = rest.first().context("depth.txt line without a file name")?;
         d.depth.push(Stamped {
             stamp_ns: t,
-            path: dir.join(rest.first().context("depth.txt line without a file name")?),
+            path: inside(dir, name, "depth.txt")?,
         });
     }
     let gt = dir.join("groundtruth.txt");
@@ -433,6 +453,21 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    #[test]
+    fn tum_indexes_cannot_lead_outside_the_dataset() {
+        let dir = Scratch::new("tum-outside");
+        std::fs::write(dir.0.join("depth.txt"), "").unwrap();
+        std::fs::write(dir.0.join("groundtruth.txt"), "").unwrap();
+        for name in ["../outside.png", "/etc/passwd", "rgb/../../x.png"] {
+            std::fs::write(dir.0.join("rgb.txt"), format!("1.0 {name}\n")).unwrap();
+            let err = format!("{:#}", tum(&dir.0).unwrap_err());
+            assert!(err.contains("not inside the dataset folder"), "{err}");
+        }
+        std::fs::write(dir.0.join("rgb.txt"), "1.0 ./rgb/a.png\n").unwrap();
+        let d = tum(&dir.0).unwrap();
+        assert_eq!(d.color[0].path, dir.0.join("./rgb/a.png"));
     }
 
     #[test]
