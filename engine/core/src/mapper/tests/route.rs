@@ -406,3 +406,47 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
         }
     });
 }
+
+/// Every learning rate at the top of its range (10): Adam's steps are
+/// bounded by the rate whatever the gradients, so the map, its queries
+/// and its save stay finite.
+#[test]
+fn learning_rates_at_their_maximum_keep_every_output_finite() {
+    use crate::optim::GaussianLearningRates;
+    // MAX_LEARNING_RATE (optim) and MAX_LATENT_LR (config) are both 10.
+    let top = 10.0;
+    with_context(|ctx| {
+        let cfg = MapperConfig {
+            keyframes: every_frame_a_keyframe(),
+            window_capacity: Some(8192),
+            atoms: 16,
+            max_regions: 64,
+            min_region_pixels: 4,
+            latent_lr: top,
+            learning_rates: GaussianLearningRates {
+                means: top,
+                log_scales: top,
+                quats: top,
+                colors: top,
+                opacity: top,
+                queries: top,
+            },
+            stage_two_iterations: 20,
+            ..MapperConfig::default()
+        };
+        assert!(cfg.validate().is_ok());
+        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
+        for i in 0..4 {
+            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+            f.stamp_ns = i;
+            mapper.integrate(f).unwrap();
+        }
+        let mut word = vec![0.0f32; DIM];
+        word[3] = 1.0;
+        let scores = mapper.query(&word).unwrap();
+        assert!(scores.iter().all(|s| s.is_finite()));
+        let path = std::env::temp_dir().join(format!("latentam-top-lr-{}", std::process::id()));
+        mapper.save_file(&path).unwrap();
+        std::fs::remove_file(&path).ok();
+    });
+}
