@@ -250,18 +250,9 @@ impl RunObserver for CliObserver {
     }
 
     fn autosave_failed(&mut self, keyframe: u64, error: &latentam::Error) {
-        let mut message = error.to_string();
-        let mut cause = std::error::Error::source(error);
-        while let Some(c) = cause {
-            let c_text = c.to_string();
-            if !message.contains(&c_text) {
-                message = format!("{message}: {c_text}");
-            }
-            cause = c.source();
-        }
         eprintln!(
             "warning: autosave at keyframe {keyframe} failed: {}",
-            shown(&message.to_string())
+            shown(&latentam_base::text::with_causes(error))
         );
     }
 

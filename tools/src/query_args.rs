@@ -98,7 +98,7 @@ impl QueryArgs {
                 }
                 Ok(Some(Query {
                     text: TextQuery::embedding(v),
-                    what: latentam_base::text::shown(&path.display().to_string()),
+                    what: latentam_base::text::shown_path(path),
                 }))
             }
             (None, Some(name)) => {

@@ -48,6 +48,32 @@ pub fn shown_path(path: &std::path::Path) -> String {
     shown(&path.display().to_string())
 }
 
+/// An error's message followed by each of its causes that it does not
+/// already quote, joined by `: `. A wrapper's own text ("I/O error from
+/// writing") often leaves out what the user can act on ("File too
+/// large"), which only its source says.
+///
+/// ```
+/// use latentam_base::text::with_causes;
+/// let e = latentam_base::Error::Io {
+///     path: "map.ply".into(),
+///     source: std::io::Error::other("disk full"),
+/// };
+/// assert_eq!(with_causes(&e), "map.ply: disk full");
+/// ```
+pub fn with_causes(error: &dyn std::error::Error) -> String {
+    let mut message = error.to_string();
+    let mut cause = error.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !message.contains(&text) {
+            message = format!("{message}: {text}");
+        }
+        cause = c.source();
+    }
+    message
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

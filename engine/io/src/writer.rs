@@ -53,13 +53,7 @@ pub struct LogWriter<W: Write + Seek> {
 /// writing" alone does not say that the disk is full or the file too
 /// large.
 fn write_error(e: impl std::error::Error) -> InputError {
-    let mut text = e.to_string();
-    let mut source = e.source();
-    while let Some(cause) = source {
-        text.push_str(&format!(": {cause}"));
-        source = cause.source();
-    }
-    InputError::Write(text)
+    InputError::Write(latentam_base::text::with_causes(&e))
 }
 
 impl LogWriter<BufWriter<std::fs::File>> {

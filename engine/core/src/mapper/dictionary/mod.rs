@@ -68,9 +68,8 @@ impl Dictionary {
     }
 
     /// Puts a head in place (a loaded state's).
-    pub(crate) fn restore(&mut self, head: LatentHead, model: Option<String>) {
+    pub(crate) fn restore(&mut self, head: LatentHead) {
         self.head = Some(head);
-        self.model = model;
     }
 
     /// Sets the map's embedding model (a loaded state's, which may have

@@ -206,8 +206,7 @@ impl Mapper {
                 "head/adam",
                 &corrupt,
             )?;
-            let model = m.dictionary.model().map(str::to_string);
-            m.dictionary.restore(head, model);
+            m.dictionary.restore(head);
         }
 
         for record in history {
