@@ -32,18 +32,28 @@ fn ok(out: &Output) {
     );
 }
 
-/// Every file of a folder, by name.
+/// Every file under a folder, nested folders included (as empty
+/// entries), by its path relative to the folder, with its bytes.
 fn contents(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| {
-            let e = e.unwrap();
-            (
-                e.file_name().to_string_lossy().into_owned(),
-                std::fs::read(e.path()).unwrap(),
-            )
-        })
-        .collect()
+    let mut out = BTreeMap::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(at) = todo.pop() {
+        for e in std::fs::read_dir(&at).unwrap() {
+            let path = e.unwrap().path();
+            let name = path
+                .strip_prefix(dir)
+                .unwrap()
+                .to_string_lossy()
+                .into_owned();
+            if path.is_dir() {
+                out.insert(format!("{name}/"), Vec::new());
+                todo.push(path);
+            } else {
+                out.insert(name, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    out
 }
 
 /// Asserts that `dir` holds exactly `before` (naming what differs).
@@ -135,21 +145,6 @@ fn runs_that_map_nothing_or_fail_leave_the_folder_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// Every file under `dir`, nested folders included, with its bytes.
-fn all_files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let path = e.unwrap().path();
-        if path.is_dir() {
-            out.insert(path.clone(), Vec::new());
-            out.extend(all_files(&path));
-        } else {
-            out.insert(path.clone(), std::fs::read(&path).unwrap());
-        }
-    }
-    out
-}
-
 /// The folder named by `--out` holding a user's files whose names a run
 /// also uses (a folder named `trace.json`, their own `config.toml`, the
 /// command's own configuration or input log), or a run folder holding the
@@ -207,14 +202,14 @@ fn a_users_files_in_the_out_folder_are_never_deleted() {
             "inlog" => out.join("trace.json"),
             _ => log.clone(),
         };
-        let before = all_files(&out);
+        let before = contents(&out);
         let why = match name {
             // The command's own inputs are refused by name first.
             "myrun" | "inlog" => "lies inside",
             _ => "not a latentam run folder",
         };
         failed_with(&map(&input, &out, &args), &[why]);
-        assert_eq!(all_files(&out), before, "{name}: the user's files changed");
+        unchanged(&out, &before);
     }
     // A run folder of this tool whose config.toml was edited by hand, named
     // as the next run's configuration, and a log kept in it.
@@ -222,7 +217,7 @@ fn a_users_files_in_the_out_folder_are_never_deleted() {
     ok(&map(&log, &run, &["--frames", "4"]));
     std::fs::write(run.join("config.toml"), settings).unwrap();
     std::fs::copy(&log, run.join("trace.json")).unwrap();
-    let before = all_files(&run);
+    let before = contents(&run);
     let config = run.join("config.toml");
     let config_args = ["--config", config.to_str().unwrap(), "--frames", "4"];
     failed_with(&map(&log, &run, &config_args), &["--config", "lies inside"]);
@@ -230,18 +225,18 @@ fn a_users_files_in_the_out_folder_are_never_deleted() {
         &map(&run.join("trace.json"), &run, &["--frames", "4"]),
         &["the log", "lies inside"],
     );
-    assert_eq!(all_files(&run), before);
+    unchanged(&run, &before);
     // A run folder inside the bag folder it maps: the bag would hold a
     // folder it does not know.
     let bag = dir.join("bag");
     std::fs::create_dir_all(&bag).unwrap();
     std::fs::copy(&log, bag.join("bag_0.mcap")).unwrap();
-    let before = all_files(&bag);
+    let before = contents(&bag);
     failed_with(
         &map(&bag, &bag.join("run"), &["--frames", "4"]),
         &["lies inside the log", "choose an --out outside it"],
     );
-    assert_eq!(all_files(&bag), before);
+    unchanged(&bag, &before);
     std::fs::remove_dir_all(&dir).ok();
 }
 

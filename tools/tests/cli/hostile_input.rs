@@ -201,22 +201,7 @@ fn text_from_logs_and_paths_is_printed_escaped() {
     assert!(stdout.contains("image_raw\\u{1b}[2J"), "{stdout}");
     defused("inspect", &inspected);
 
-    let scene = dir.join("scene.mcap");
-    let gen = latentam()
-        .args([
-            "gen-scene",
-            "--frames",
-            "4",
-            "--width",
-            "32",
-            "--height",
-            "24",
-            "-o",
-        ])
-        .arg(&scene)
-        .output()
-        .unwrap();
-    assert!(gen.status.success());
+    let scene = common::gen_scene(&dir, 4);
     let out = dir.join(format!("run{hostile}"));
     let mapped = latentam()
         .arg("map")

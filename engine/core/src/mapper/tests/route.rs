@@ -331,6 +331,49 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
     });
 }
 
+/// The small map the tests of setting limits build.
+fn limits_config() -> MapperConfig {
+    MapperConfig {
+        keyframes: every_frame_a_keyframe(),
+        window_capacity: Some(8192),
+        atoms: 16,
+        max_regions: 64,
+        min_region_pixels: 4,
+        ..MapperConfig::default()
+    }
+}
+
+/// Maps `keyframes` frames with `cfg`, then checks that a query scores
+/// every Gaussian finitely and that the map saves (a diverged one would
+/// not). Returns the mapper and the query's embedding.
+fn map_query_and_save(
+    ctx: &latentam_gpu::Context,
+    cfg: MapperConfig,
+    keyframes: i64,
+) -> (Mapper, Vec<f32>) {
+    let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
+    for i in 0..keyframes {
+        let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+        f.stamp_ns = i;
+        mapper.integrate(f).unwrap();
+    }
+    let mut word = vec![0.0f32; DIM];
+    word[3] = 1.0;
+    let scores = mapper.query(&word).unwrap();
+    assert!(!scores.is_empty() && scores.iter().all(|s| s.is_finite()));
+    let path = std::env::temp_dir().join(format!(
+        "latentam-limits-{}-{}",
+        std::process::id(),
+        std::thread::current()
+            .name()
+            .unwrap_or("test")
+            .replace("::", "-")
+    ));
+    mapper.save_file(&path).unwrap();
+    std::fs::remove_file(&path).ok();
+    (mapper, word)
+}
+
 /// Every floating-point setting at the ends of its documented range, and
 /// each just past them: the map, its queries and its save stay finite at
 /// the ends, and validation refuses what lies past them.
@@ -339,11 +382,6 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
     use crate::latent::{TextQuery, MAX_TEMPERATURE, MIN_TEMPERATURE};
     use crate::map::{MAX_DEPTH_ERROR, MAX_SCALE_FACTOR};
     let at = |temperature, depth_error, scale_factor, opacity| MapperConfig {
-        keyframes: every_frame_a_keyframe(),
-        window_capacity: Some(8192),
-        atoms: 16,
-        max_regions: 64,
-        min_region_pixels: 4,
         temperature,
         seeding: SeedingConfig {
             depth_error,
@@ -351,7 +389,7 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
             opacity,
             ..SeedingConfig::default()
         },
-        ..MapperConfig::default()
+        ..limits_config()
     };
     for past in [
         at(MIN_TEMPERATURE / 2.0, 0.05, 0.75, 0.9),
@@ -373,17 +411,7 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
             at(MAX_TEMPERATURE, MAX_DEPTH_ERROR, MAX_SCALE_FACTOR, 1.0),
         ];
         for cfg in limits {
-            let tag = cfg.temperature;
-            let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
-            for i in 0..3 {
-                let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
-                f.stamp_ns = i;
-                mapper.integrate(f).unwrap();
-            }
-            let mut word = vec![0.0f32; DIM];
-            word[3] = 1.0;
-            let scores = mapper.query(&word).unwrap();
-            assert!(!scores.is_empty() && scores.iter().all(|s| s.is_finite()));
+            let (mut mapper, word) = map_query_and_save(ctx, cfg, 3);
             let vocabulary = latentam_io::Vocabulary {
                 names: vec!["a".into(), "b".into()],
                 ids: vec![0, 1],
@@ -396,13 +424,6 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
                 let p = mapper.relevance(&q).unwrap();
                 assert!(p.iter().all(|p| p.is_finite() && (0.0..=1.0).contains(p)));
             }
-            let path = std::env::temp_dir().join(format!(
-                "latentam-limits-{}-{}",
-                std::process::id(),
-                tag
-            ));
-            mapper.save_file(&path).unwrap();
-            std::fs::remove_file(&path).ok();
         }
     });
 }
@@ -415,38 +436,19 @@ fn learning_rates_at_their_maximum_keep_every_output_finite() {
     use crate::optim::GaussianLearningRates;
     // MAX_LEARNING_RATE (optim) and MAX_LATENT_LR (config) are both 10.
     let top = 10.0;
-    with_context(|ctx| {
-        let cfg = MapperConfig {
-            keyframes: every_frame_a_keyframe(),
-            window_capacity: Some(8192),
-            atoms: 16,
-            max_regions: 64,
-            min_region_pixels: 4,
-            latent_lr: top,
-            learning_rates: GaussianLearningRates {
-                means: top,
-                log_scales: top,
-                quats: top,
-                colors: top,
-                opacity: top,
-                queries: top,
-            },
-            stage_two_iterations: 20,
-            ..MapperConfig::default()
-        };
-        assert!(cfg.validate().is_ok());
-        let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
-        for i in 0..4 {
-            let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
-            f.stamp_ns = i;
-            mapper.integrate(f).unwrap();
-        }
-        let mut word = vec![0.0f32; DIM];
-        word[3] = 1.0;
-        let scores = mapper.query(&word).unwrap();
-        assert!(scores.iter().all(|s| s.is_finite()));
-        let path = std::env::temp_dir().join(format!("latentam-top-lr-{}", std::process::id()));
-        mapper.save_file(&path).unwrap();
-        std::fs::remove_file(&path).ok();
-    });
+    let cfg = MapperConfig {
+        latent_lr: top,
+        learning_rates: GaussianLearningRates {
+            means: top,
+            log_scales: top,
+            quats: top,
+            colors: top,
+            opacity: top,
+            queries: top,
+        },
+        stage_two_iterations: 20,
+        ..limits_config()
+    };
+    assert!(cfg.validate().is_ok());
+    with_context(|ctx| _ = map_query_and_save(ctx, cfg, 4));
 }
