@@ -435,8 +435,13 @@ fn edit(bytes: &[u8], edits: &[Edit]) -> Vec<u8> {
 
 fn check_map(bytes: &[u8]) {
     if let Ok(state) = SavedState::parse(bytes, Path::new("fuzz.latentam")) {
-        // What is accepted writes back out and reads the same.
-        let again = state.to_bytes().expect("an accepted state writes");
+        // What is accepted writes back out and reads the same; the writer
+        // refuses only a version 1 state from before run ids.
+        let again = match state.to_bytes() {
+            Ok(again) => again,
+            Err(e) if state.run_id().is_none() && e.to_string().contains("no run id") => return,
+            Err(e) => panic!("an accepted state did not write: {e}"),
+        };
         let back =
             SavedState::parse(&again, Path::new("fuzz.latentam")).expect("a written state reads");
         assert_eq!(format!("{back:?}"), format!("{state:?}"));

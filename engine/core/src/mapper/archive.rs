@@ -106,9 +106,47 @@ impl ArchiveWriter {
                     .map_err(|e| Error::InvalidArgument(format!("tensor `{name}`: {e}")))
             })
             .collect::<Result<Vec<_>>>()?;
-        safetensors::serialize(views, Some(self.meta))
-            .map_err(|e| Error::InvalidArgument(format!("serialising the map: {e}")))
+        let bytes = safetensors::serialize(views, Some(self.meta))
+            .map_err(|e| Error::InvalidArgument(format!("serialising the map: {e}")))?;
+        with_sorted_header(bytes)
     }
+}
+
+/// `bytes`, a file safetensors just wrote, with its metadata in key order.
+/// safetensors writes the metadata in the order of a `HashMap`, which
+/// differs from one process to the next: the same state would give other
+/// bytes on every save, and tests that mutate a saved file at random would
+/// not be reproducible from their seed. The entries are the same, so the
+/// compact JSON is no longer; it is padded with spaces to the original
+/// length (safetensors pads its header the same way), so the tensors'
+/// offsets hold.
+fn with_sorted_header(mut bytes: Vec<u8>) -> Result<Vec<u8>> {
+    use std::collections::BTreeMap;
+    let ours = |why: String| Error::InvalidArgument(format!("serialising the map: {why}"));
+    let n = bytes
+        .get(..8)
+        .and_then(|b| b.try_into().ok())
+        .map(u64::from_le_bytes)
+        .and_then(|n| usize::try_from(n).ok())
+        .filter(|n| n.checked_add(8).is_some_and(|end| end <= bytes.len()))
+        .ok_or_else(|| ours("safetensors wrote no header".into()))?;
+    let header = &bytes[8..8 + n];
+    // Sorted explicitly (BTreeMap), not through serde_json's own map,
+    // whose order depends on a feature another crate may turn on.
+    let mut top: BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(header).map_err(|e| ours(e.to_string()))?;
+    if let Some(meta) = top.get_mut("__metadata__") {
+        let sorted: BTreeMap<String, serde_json::Value> =
+            serde_json::from_value(meta.take()).map_err(|e| ours(e.to_string()))?;
+        *meta = serde_json::to_value(sorted).map_err(|e| ours(e.to_string()))?;
+    }
+    let mut text = serde_json::to_vec(&top).map_err(|e| ours(e.to_string()))?;
+    if text.len() > n {
+        return Err(ours("the sorted header came out longer".into()));
+    }
+    text.resize(n, b' ');
+    bytes[8..8 + n].copy_from_slice(&text);
+    Ok(bytes)
 }
 
 fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
@@ -439,20 +477,15 @@ impl<'a> Archive<'a> {
 
     /// The run id in the metadata (see
     /// [`new_run_id`](crate::mapper::new_run_id)): 8 to 64 hexadecimal
-    /// digits when present. `required` archives of this version (sealed
-    /// ones) must carry one: a state is always saved into a run folder
-    /// version, whose id ties it to the decoder and report beside it.
-    pub fn run_id(&self, required: bool) -> Result<Option<String>> {
+    /// digits when present. Whether a file must carry one is its reader's
+    /// rule (a saved state must, a decoder written on its own need not).
+    pub fn run_id(&self) -> Result<Option<String>> {
         match self.meta.get("run_id") {
             Some(id) if is_run_id(id) => Ok(Some(id.clone())),
             Some(id) => Err(self.corrupt(format!(
                 "run id \"{}\" is not one this tool writes (8 to 64 hexadecimal digits)",
                 latentam_base::text::shown(id)
             ))),
-            None if required && self.sealed() => Err(self.corrupt(
-                "no run id, which every state this version saves carries; the file was edited"
-                    .into(),
-            )),
             None => Ok(None),
         }
     }

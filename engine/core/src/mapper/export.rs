@@ -153,7 +153,7 @@ impl DecoderFile {
             eps,
             model: a.meta("model")?.to_string(),
             // A decoder written on its own (`Mapper::decoder`) has none.
-            run_id: a.run_id(false)?,
+            run_id: a.run_id()?,
         };
         for (name, values) in [
             ("W", &file.w),

@@ -44,6 +44,15 @@ pub(crate) struct Counters {
     pub last_stamp_ns: Option<i64>,
 }
 
+impl Counters {
+    /// Whether frames were mapped without the last one's stamp kept. The
+    /// one definition of "has no stamp" that the reader and the writer of
+    /// a saved state share (see `persist::missing_from`).
+    pub fn stamp_missing(&self) -> bool {
+        self.frames > 0 && self.last_stamp_ns.is_none()
+    }
+}
+
 impl Progress {
     /// A loaded state's counters and run id.
     pub(crate) fn restored(counters: Counters, run_id: Option<String>) -> Self {

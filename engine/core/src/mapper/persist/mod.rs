@@ -43,6 +43,26 @@ pub(super) const GUESSED: u8 = 1;
 /// removed at the next pruning.
 pub(super) const SUPERSEDED: u8 = 2;
 
+/// What a state lacks of what every state this version writes carries,
+/// if anything: a run id (a state is saved into a run folder version,
+/// whose id ties it to the decoder and report beside it) and, once frames
+/// were mapped, the last frame's stamp (`--resume` skips the log up to
+/// it). One rule for both sides: the writer refuses to write such a state,
+/// and the reader refuses a sealed file that lacks either, since only an
+/// edit makes one.
+pub(super) fn missing_from(run_id: Option<&str>, counters: &Counters) -> Option<String> {
+    if run_id.is_none() {
+        Some("no run id".into())
+    } else if counters.stamp_missing() {
+        Some(format!(
+            "{} frames mapped but no last_stamp_ns",
+            counters.frames
+        ))
+    } else {
+        None
+    }
+}
+
 fn keys_to_i32(keys: impl Iterator<Item = VoxelKey>) -> Vec<i32> {
     keys.flat_map(|k| [k.x, k.y, k.z]).collect()
 }
@@ -195,7 +215,9 @@ pub(super) struct SavedWindow {
 pub struct SavedState {
     pub(super) origin: PathBuf,
     /// The id of the run folder version the state was saved in (see
-    /// [`super::RunFolder`]); `None` for a state saved on its own.
+    /// [`super::RunFolder`]); `None` only in a version 1 state from
+    /// before run ids, which is written again only through a run folder
+    /// (which gives it one).
     pub(super) run_id: Option<String>,
     pub(super) config: MapperConfig,
     pub(super) counters: Counters,

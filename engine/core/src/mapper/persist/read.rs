@@ -32,6 +32,8 @@ impl SavedState {
             )));
         }
         let trajectory = Self::parse_trajectory(a, counters.keyframes, &history)?;
+        let run_id = a.run_id()?;
+        let counters = Self::brought_up_to_date(a, counters, run_id.as_deref(), &trajectory)?;
         let exposure = read_exposure(a, "trajectory/exposure", trajectory.len())?;
         let window = match window_meta {
             None => None,
@@ -41,7 +43,7 @@ impl SavedState {
         };
         Ok(SavedState {
             origin: a.path().to_path_buf(),
-            run_id: a.run_id(true)?,
+            run_id,
             config,
             counters,
             model,
@@ -90,19 +92,44 @@ impl SavedState {
                 Err(_) => None,
             },
         };
-        // Resuming a log skips the frames up to this stamp; a state of this
-        // version that integrated frames always records it.
-        if a.sealed() && counters.frames > 0 && counters.last_stamp_ns.is_none() {
-            return Err(a.corrupt(format!(
-                "{} frames mapped but no last_stamp_ns",
-                counters.frames
-            )));
-        }
         if counters.keyframes > counters.frames {
             return Err(a.corrupt(format!(
                 "{} keyframes among {} frames",
                 counters.keyframes, counters.frames
             )));
+        }
+        Ok(counters)
+    }
+
+    /// The counters as a state of this version keeps them. A sealed file
+    /// lacking what every state this version writes carries was edited
+    /// ([`missing_from`]). A version 1 file from before the checksum may
+    /// have mapped frames without keeping the last one's stamp: it takes
+    /// its last keyframe's, so that it can be saved again and `--resume`
+    /// re-reads only the frames after that keyframe (frames that were not
+    /// keyframes, counted again) instead of the whole log.
+    fn brought_up_to_date(
+        a: &Archive<'_>,
+        mut counters: Counters,
+        run_id: Option<&str>,
+        trajectory: &[(i64, CameraPose)],
+    ) -> Result<Counters> {
+        if a.sealed() {
+            if let Some(what) = missing_from(run_id, &counters) {
+                return Err(a.corrupt(format!(
+                    "{what}, which every state this version saves carries; the file was edited"
+                )));
+            }
+        } else if counters.stamp_missing() {
+            match trajectory.iter().map(|(stamp, _)| *stamp).max() {
+                Some(last) => counters.last_stamp_ns = Some(last),
+                None => {
+                    return Err(a.corrupt(format!(
+                        "{} frames mapped but no last_stamp_ns, and no keyframe to take one from",
+                        counters.frames
+                    )))
+                }
+            }
         }
         Ok(counters)
     }
