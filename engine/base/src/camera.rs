@@ -139,28 +139,34 @@ impl Camera {
             .all(|v| v.abs() < 1e-4)
             && m.determinant() > 0.0;
         if !finite || !ortho {
-            return Err(crate::Error::InvalidArgument(format!(
-                "camera pose must be a finite rotation + translation: {:?}",
-                self.cam_to_world
-            )));
+            return Err(crate::Error::bad_input(
+                "camera pose",
+                format!(
+                    "must be a finite rotation + translation: {:?}",
+                    self.cam_to_world
+                ),
+            ));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(crate::Error::InvalidArgument(format!(
-                "camera focal lengths must be positive, got fx={} fy={}",
-                self.fx, self.fy
-            )));
+            return Err(crate::Error::bad_input(
+                "camera focal lengths",
+                format!("must be positive, got fx={} fy={}", self.fx, self.fy),
+            ));
         }
         if !(self.near > 0.0 && self.far > self.near) {
-            return Err(crate::Error::InvalidArgument(format!(
-                "camera depth range must satisfy 0 < near < far, got {}..{}",
-                self.near, self.far
-            )));
+            return Err(crate::Error::bad_input(
+                "camera depth range",
+                format!(
+                    "must satisfy 0 < near < far, got {}..{}",
+                    self.near, self.far
+                ),
+            ));
         }
         if self.width == 0 || self.height == 0 || self.width > 16384 || self.height > 16384 {
-            return Err(crate::Error::InvalidArgument(format!(
-                "image size {}x{} outside 1..=16384",
-                self.width, self.height
-            )));
+            return Err(crate::Error::bad_input(
+                "camera image size",
+                format!("{}x{} outside 1..=16384", self.width, self.height),
+            ));
         }
         Ok(())
     }

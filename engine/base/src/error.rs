@@ -6,7 +6,10 @@ use std::path::PathBuf;
 use ash::vk;
 
 /// Everything that can go wrong inside the engine, with enough context to
-/// tell the user what to change.
+/// tell the user what to change. A program tells what to do from the
+/// kind, not the words: fix what it passed ([`Error::BadInput`]), fix a
+/// setting ([`Error::Config`]), raise a budget ([`Error::Budget`]), use
+/// another copy of a file ([`Error::Damaged`]).
 ///
 /// ```
 /// use latentam_base::Error;
@@ -15,11 +18,16 @@ use ash::vk;
 ///     match e {
 ///         Error::NoVulkan(_) => "install a Vulkan driver (mesa-vulkan-drivers)",
 ///         Error::OutOfMemory(_) => "lower gpu_budget or the image size",
+///         Error::Budget { .. } => "raise the budget it names",
+///         Error::Config { .. } => "fix the setting it names",
+///         Error::Damaged { .. } => "use another copy of the file",
+///         Error::BadInput { .. } => "fix the input it names",
 ///         Error::Locked { .. } => "wait for the other process or pick another folder",
 ///         _ => "see the message",
 ///     }
 /// }
 /// assert_eq!(advice(&Error::OutOfMemory("window".into())), "lower gpu_budget or the image size");
+/// assert_eq!(advice(&Error::config("voxel_size", "-1 must be from 0.0001 to 1 metres")), "fix the setting it names");
 /// ```
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -57,7 +65,48 @@ pub enum Error {
     /// configured budget reached).
     #[error("GPU memory: {0}")]
     OutOfMemory(String),
-    /// An argument is outside what the operation supports.
+    /// A value handed in is unusable: an argument of a call, a field of a
+    /// frame, a query, a vocabulary, a command-line value. Names the input
+    /// and says what is wrong with it; the caller fixes what it passed.
+    #[error("{what}: {reason}")]
+    BadInput {
+        /// The input (an argument, a field, a file's entry).
+        what: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A setting is outside its documented range, or settings contradict
+    /// each other (a TOML file that does not parse is this too); the
+    /// caller fixes the setting.
+    #[error("setting `{setting}`: {reason}")]
+    Config {
+        /// The setting (its dotted key, e.g. `window.capacity`), or the
+        /// configuration as a whole.
+        setting: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A memory budget the caller set (`gpu_budget`, a window capacity...)
+    /// is too small for the work asked of it: raise it or ask for less.
+    #[error("{budget} is too small: {reason}")]
+    Budget {
+        /// The budget (the setting or argument that sets it).
+        budget: String,
+        /// What it would have to hold.
+        reason: String,
+    },
+    /// A file is damaged or is not what it claims to be (a checksum that
+    /// does not match, sizes that do not agree, another format or
+    /// version): use another copy.
+    #[error("{}: {reason}", path.display())]
+    Damaged {
+        /// The file (or folder).
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    // Being replaced by the kinds above.
+    #[doc(hidden)]
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// The map has no embeddings yet (no keyframe with region embeddings
@@ -130,6 +179,70 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+}
+
+impl Error {
+    /// [`Error::BadInput`]: `what` is unusable because of `reason`.
+    ///
+    /// ```
+    /// use latentam_base::Error;
+    ///
+    /// let e = Error::bad_input("query", "empty");
+    /// assert_eq!(e.to_string(), "query: empty");
+    /// assert!(matches!(e, Error::BadInput { .. }));
+    /// ```
+    pub fn bad_input(what: impl Into<String>, reason: impl Into<String>) -> Self {
+        Error::BadInput {
+            what: what.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// [`Error::Config`]: `setting` is out of range because of `reason`.
+    ///
+    /// ```
+    /// use latentam_base::Error;
+    ///
+    /// let e = Error::config("window.capacity", "must be at least 1");
+    /// assert_eq!(e.to_string(), "setting `window.capacity`: must be at least 1");
+    /// ```
+    pub fn config(setting: impl Into<String>, reason: impl Into<String>) -> Self {
+        Error::Config {
+            setting: setting.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// [`Error::Budget`]: `budget` cannot hold what `reason` says.
+    ///
+    /// ```
+    /// use latentam_base::Error;
+    ///
+    /// let e = Error::budget("gpu_budget", "the window needs 2 GiB");
+    /// assert_eq!(e.to_string(), "gpu_budget is too small: the window needs 2 GiB");
+    /// ```
+    pub fn budget(budget: impl Into<String>, reason: impl Into<String>) -> Self {
+        Error::Budget {
+            budget: budget.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// [`Error::Damaged`]: the file at `path` is damaged, because of
+    /// `reason`.
+    ///
+    /// ```
+    /// use latentam_base::Error;
+    ///
+    /// let e = Error::damaged("run/map.safetensors", "checksum mismatch");
+    /// assert_eq!(e.to_string(), "run/map.safetensors: checksum mismatch");
+    /// ```
+    pub fn damaged(path: impl Into<PathBuf>, reason: impl Into<String>) -> Self {
+        Error::Damaged {
+            path: path.into(),
+            reason: reason.into(),
+        }
+    }
 }
 
 /// What went wrong reading or writing a log.

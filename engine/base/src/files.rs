@@ -101,10 +101,10 @@ pub fn write_atomically(
     body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<()> {
     let Some(partial) = own_partial_path(path) else {
-        return Err(Error::InvalidArgument(format!(
-            "{}: not a file path",
-            path.display()
-        )));
+        return Err(Error::bad_input(
+            path.display().to_string(),
+            "not a file path",
+        ));
     };
     write_through(&partial, path, body)
 }
@@ -224,9 +224,8 @@ impl PartialFile {
     /// (errors when `path` names no file, or the partial file cannot be
     /// created).
     pub fn new(path: &Path) -> Result<Self> {
-        let partial = own_partial_path(path).ok_or_else(|| {
-            Error::InvalidArgument(format!("{}: not a file path", path.display()))
-        })?;
+        let partial = own_partial_path(path)
+            .ok_or_else(|| Error::bad_input(path.display().to_string(), "not a file path"))?;
         create_fresh(&partial).map_err(|source| Error::Io {
             path: partial.clone(),
             source,

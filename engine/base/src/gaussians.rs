@@ -66,11 +66,14 @@ impl HostGaussians {
             self.queries.len(),
         ];
         if lens.iter().any(|&l| l != n) {
-            return Err(Error::InvalidArgument(format!(
-                "Gaussian fields have different lengths: means {n}, log_scales {}, quats {}, \
-                 colors {}, opacity_logits {}, queries {}",
-                lens[0], lens[1], lens[2], lens[3], lens[4]
-            )));
+            return Err(Error::bad_input(
+                "Gaussian fields",
+                format!(
+                    "different lengths: means {n}, log_scales {}, quats {}, colors {}, \
+                     opacity_logits {}, queries {}",
+                    lens[0], lens[1], lens[2], lens[3], lens[4]
+                ),
+            ));
         }
         Ok(n)
     }
