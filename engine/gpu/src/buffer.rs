@@ -206,10 +206,10 @@ impl Buffer {
     /// a short buffer is an error rather than an out-of-bounds GPU access).
     pub fn ensure_bytes(&self, need: u64, context: &str) -> Result<()> {
         if self.bytes < need {
-            return Err(Error::InvalidArgument(format!(
-                "{context}: `{}` has {} bytes, needs {need}",
-                self.name, self.bytes
-            )));
+            return Err(Error::bad_input(
+                context,
+                format!("`{}` has {} bytes, needs {need}", self.name, self.bytes),
+            ));
         }
         Ok(())
     }
@@ -301,8 +301,9 @@ impl Readback {
         let done = self.staging.dev.completed();
         let done = if self.transfer { done.1 } else { done.0 };
         if done < self.after.load(std::sync::atomic::Ordering::SeqCst) {
-            return Err(Error::InvalidArgument(
-                "readback used before its submission completed; wait on it first".into(),
+            return Err(Error::bad_input(
+                "readback",
+                "used before its submission completed; wait on it first",
             ));
         }
         Ok(self.staging.mapped())

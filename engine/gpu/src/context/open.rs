@@ -108,10 +108,10 @@ pub(super) fn pick_device(instance: &ash::Instance, wanted: Option<&str>) -> Res
                     .position(|c| c.name.to_lowercase().contains(&w.to_lowercase())),
             };
             let i = idx.ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "LATENTAM_DEVICE={w} matches no device (available: {})",
-                    names()
-                ))
+                Error::config(
+                    "LATENTAM_DEVICE",
+                    format!("{w} matches no device (available: {})", names()),
+                )
             })?;
             if !usable(&all[i]) {
                 return Err(Error::Unsupported(format!(

@@ -177,7 +177,7 @@ impl Gemm {
     ) -> Result<()> {
         let max = rec.info().max_workgroup_count;
         if self.groups().iter().zip(max).any(|(g, m)| *g > m) {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::Unsupported(format!(
                 "GEMM {}x{}x{}: {:?} workgroups exceed the device limit {max:?}",
                 self.m,
                 self.n,

@@ -80,13 +80,16 @@ impl Reducer {
         dst: &'a Buffer,
     ) -> Result<()> {
         if n > self.max_len || n * 4 > src.bytes() || dst.bytes() < 4 {
-            return Err(Error::InvalidArgument(format!(
-                "reduction of {n} elements of `{}` ({} bytes) into `{}` (capacity {})",
-                src.name(),
-                src.bytes(),
-                dst.name(),
-                self.max_len
-            )));
+            return Err(Error::bad_input(
+                "reduction",
+                format!(
+                    "{n} elements of `{}` ({} bytes) into `{}` (capacity {})",
+                    src.name(),
+                    src.bytes(),
+                    dst.name(),
+                    self.max_len
+                ),
+            ));
         }
         let mut cur = src;
         let mut len = n;

@@ -58,17 +58,23 @@ impl PrefixScan {
     /// overflow).
     pub fn record<'a>(&'a self, rec: &mut Recorder<'a>, data: &'a Buffer, n: u64) -> Result<()> {
         if n > self.max_len {
-            return Err(Error::InvalidArgument(format!(
-                "scan of {n} elements exceeds this PrefixScan's capacity {}",
-                self.max_len
-            )));
+            return Err(Error::bad_input(
+                "prefix scan",
+                format!(
+                    "{n} elements exceed this PrefixScan's capacity {}",
+                    self.max_len
+                ),
+            ));
         }
         if n * 4 > data.bytes() {
-            return Err(Error::InvalidArgument(format!(
-                "scan of {n} u32 overflows `{}` ({} bytes)",
-                data.name(),
-                data.bytes()
-            )));
+            return Err(Error::bad_input(
+                "prefix scan",
+                format!(
+                    "{n} u32 overflow `{}` ({} bytes)",
+                    data.name(),
+                    data.bytes()
+                ),
+            ));
         }
         self.level(rec, data, n, 0)
     }

@@ -67,19 +67,23 @@ impl RadixSorter {
         key_bits: u32,
     ) -> Result<()> {
         if n > self.max_len || keys.bytes() < n * 4 || values.bytes() < n * 4 {
-            return Err(Error::InvalidArgument(format!(
-                "sorting {n} pairs in `{}`/`{}` ({}/{} bytes) with a sorter for {}",
-                keys.name(),
-                values.name(),
-                keys.bytes(),
-                values.bytes(),
-                self.max_len
-            )));
+            return Err(Error::bad_input(
+                "radix sort",
+                format!(
+                    "sorting {n} pairs in `{}`/`{}` ({}/{} bytes) with a sorter for {}",
+                    keys.name(),
+                    values.name(),
+                    keys.bytes(),
+                    values.bytes(),
+                    self.max_len
+                ),
+            ));
         }
         if !(1..=32).contains(&key_bits) {
-            return Err(Error::InvalidArgument(format!(
-                "key_bits must be in 1..=32, got {key_bits}"
-            )));
+            return Err(Error::bad_input(
+                "key_bits",
+                format!("must be in 1..=32, got {key_bits}"),
+            ));
         }
         if n <= 1 {
             return Ok(());

@@ -79,29 +79,30 @@ impl<'a> Recorder<'a> {
     ) -> Result<()> {
         let buffers = S::in_order(&buffers);
         if !offset.is_multiple_of(4) {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}`: indirect arguments at byte {offset}, not a multiple of 4",
-                kernel.kernel.name
-            )));
+            return Err(Error::bad_input(
+                format!("kernel `{}`", kernel.kernel.name),
+                format!("indirect arguments at byte {offset}, not a multiple of 4"),
+            ));
         }
         args.ensure_bytes(offset + 12, "indirect dispatch arguments")?;
         if args.kind() != BufferKind::Device {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}`: indirect arguments in staging buffer `{}`",
-                kernel.kernel.name,
-                args.name()
-            )));
+            return Err(Error::bad_input(
+                format!("kernel `{}`", kernel.kernel.name),
+                format!("indirect arguments in staging buffer `{}`", args.name()),
+            ));
         }
         let written = buffers
             .iter()
             .zip(kernel.kernel.bindings)
             .any(|(b, decl)| decl.writable && b.raw == args.raw);
         if written {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}` writes `{}`, which holds its own workgroup counts",
-                kernel.kernel.name,
-                args.name()
-            )));
+            return Err(Error::bad_input(
+                format!("kernel `{}`", kernel.kernel.name),
+                format!(
+                    "writes `{}`, which holds its own workgroup counts",
+                    args.name()
+                ),
+            ));
         }
         self.record_dispatch(
             &kernel.kernel,
@@ -218,26 +219,28 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
     ) -> Result<()> {
         if self.transfer {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}` recorded on the transfer queue",
-                k.name
-            )));
+            return Err(Error::bad_input(
+                format!("kernel `{}`", k.name),
+                "recorded on the transfer queue",
+            ));
         }
         if buffers.len() != k.bindings.len() {
-            return Err(Error::InvalidArgument(format!(
-                "kernel `{}` takes {} buffers ({}), got {}",
-                k.name,
-                k.bindings.len(),
-                k.bindings
-                    .iter()
-                    .map(|b| b.name)
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                buffers.len()
-            )));
+            return Err(Error::bad_input(
+                format!("kernel `{}`", k.name),
+                format!(
+                    "takes {} buffers ({}), got {}",
+                    k.bindings.len(),
+                    k.bindings
+                        .iter()
+                        .map(|b| b.name)
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    buffers.len()
+                ),
+            ));
         }
         if k.bindings.len() as u32 > MAX_BINDINGS {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::Unsupported(format!(
                 "kernel `{}` has more than {MAX_BINDINGS} bindings",
                 k.name
             )));
@@ -245,7 +248,7 @@ impl<'a> Recorder<'a> {
         let max = self.dev.info.max_workgroup_count;
         if let Groups::Direct(groups) = groups {
             if groups.iter().zip(max.iter()).any(|(g, m)| g > m) {
-                return Err(Error::InvalidArgument(format!(
+                return Err(Error::Unsupported(format!(
                     "kernel `{}`: {groups:?} workgroups exceed the device limit {max:?}",
                     k.name
                 )));
@@ -253,11 +256,10 @@ impl<'a> Recorder<'a> {
         }
         for b in buffers {
             if b.kind() != BufferKind::Device {
-                return Err(Error::InvalidArgument(format!(
-                    "kernel `{}`: `{}` is a staging buffer",
-                    k.name,
-                    b.name()
-                )));
+                return Err(Error::bad_input(
+                    format!("kernel `{}`", k.name),
+                    format!("`{}` is a staging buffer", b.name()),
+                ));
             }
         }
         Ok(())

@@ -66,11 +66,14 @@ impl<'a> Recorder<'a> {
         bytes: u64,
     ) -> Result<()> {
         if src_offset + bytes > src.bytes() || dst_offset + bytes > dst.bytes() {
-            return Err(Error::InvalidArgument(format!(
-                "copy of {bytes} bytes from `{}`+{src_offset} to `{}`+{dst_offset} is out of range",
-                src.name(),
-                dst.name()
-            )));
+            return Err(Error::bad_input(
+                "copy",
+                format!(
+                    "{bytes} bytes from `{}`+{src_offset} to `{}`+{dst_offset} is out of range",
+                    src.name(),
+                    dst.name()
+                ),
+            ));
         }
         if bytes == 0 {
             return Ok(());
@@ -100,11 +103,14 @@ impl<'a> Recorder<'a> {
         let mut spans: Vec<(u64, u64, bool)> = Vec::with_capacity(regions.len() * 2);
         for &(s, d, n) in regions {
             if s + n > src.bytes() || d + n > dst.bytes() {
-                return Err(Error::InvalidArgument(format!(
-                    "copy region of {n} bytes from `{}`+{s} to `{}`+{d} is out of range",
-                    src.name(),
-                    dst.name()
-                )));
+                return Err(Error::bad_input(
+                    "copy region",
+                    format!(
+                        "{n} bytes from `{}`+{s} to `{}`+{d} is out of range",
+                        src.name(),
+                        dst.name()
+                    ),
+                ));
             }
             spans.push((d, d + n, true));
             if src.raw == dst.raw {
@@ -114,14 +120,17 @@ impl<'a> Recorder<'a> {
         spans.sort_unstable();
         for w in spans.windows(2) {
             if w[1].0 < w[0].1 && (w[0].2 || w[1].2) {
-                return Err(Error::InvalidArgument(format!(
-                    "copy regions into `{}` overlap (bytes {}..{} and {}..{})",
-                    dst.name(),
-                    w[0].0,
-                    w[0].1,
-                    w[1].0,
-                    w[1].1
-                )));
+                return Err(Error::bad_input(
+                    "copy regions",
+                    format!(
+                        "those into `{}` overlap (bytes {}..{} and {}..{})",
+                        dst.name(),
+                        w[0].0,
+                        w[0].1,
+                        w[1].0,
+                        w[1].1
+                    ),
+                ));
             }
         }
         let regions: Vec<vk::BufferCopy> = regions
@@ -162,10 +171,13 @@ impl<'a> Recorder<'a> {
         value: u32,
     ) -> Result<()> {
         if !offset.is_multiple_of(4) || !bytes.is_multiple_of(4) || offset + bytes > buf.bytes() {
-            return Err(Error::InvalidArgument(format!(
-                "fill of {bytes} bytes at {offset} in a {}-byte buffer (multiples of 4 within it)",
-                buf.bytes()
-            )));
+            return Err(Error::bad_input(
+                "fill",
+                format!(
+                    "{bytes} bytes at {offset} in a {}-byte buffer (multiples of 4 within it)",
+                    buf.bytes()
+                ),
+            ));
         }
         if bytes == 0 {
             return Ok(());
@@ -191,12 +203,15 @@ impl<'a> Recorder<'a> {
     ) -> Result<()> {
         let bytes = bytemuck::cast_slice::<T, u8>(data);
         if offset + bytes.len() as u64 > dst.bytes() {
-            return Err(Error::InvalidArgument(format!(
-                "upload of {} bytes at offset {offset} overflows `{}` ({} bytes)",
-                bytes.len(),
-                dst.name(),
-                dst.bytes()
-            )));
+            return Err(Error::bad_input(
+                "upload",
+                format!(
+                    "{} bytes at offset {offset} overflow `{}` ({} bytes)",
+                    bytes.len(),
+                    dst.name(),
+                    dst.bytes()
+                ),
+            ));
         }
         if bytes.is_empty() {
             return Ok(());
@@ -228,11 +243,14 @@ impl<'a> Recorder<'a> {
     /// buffer; read it with [`Readback::read`] after the submission completes.
     pub fn download(&mut self, src: &'a Buffer, offset: u64, bytes: u64) -> Result<Readback> {
         if offset + bytes > src.bytes() {
-            return Err(Error::InvalidArgument(format!(
-                "download of {bytes} bytes at offset {offset} overflows `{}` ({} bytes)",
-                src.name(),
-                src.bytes()
-            )));
+            return Err(Error::bad_input(
+                "download",
+                format!(
+                    "{bytes} bytes at offset {offset} overflow `{}` ({} bytes)",
+                    src.name(),
+                    src.bytes()
+                ),
+            ));
         }
         let ctx = Context {
             dev: self.dev.clone(),
