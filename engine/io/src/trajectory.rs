@@ -37,7 +37,7 @@ const MIN_QUATERNION_NORM: f64 = 1e-6;
 /// the TUM RGB-D format (see the module documentation for the precision).
 ///
 /// The quaternion is written normalised. A pose with a non-finite or zero
-/// component is [`Error::InvalidArgument`], checked before any file is
+/// component is [`Error::BadInput`], checked before any file is
 /// touched. The write is atomic, as for
 /// `latentam_core::map::write_ply`.
 pub fn write_tum(path: &Path, poses: &[(i64, CameraPose)]) -> Result<()> {
@@ -47,10 +47,10 @@ pub fn write_tum(path: &Path, poses: &[(i64, CameraPose)]) -> Result<()> {
     for (i, (stamp_ns, pose)) in poses.iter().enumerate() {
         let t = pose.translation;
         let Some(q) = normalised(pose.rotation).filter(|_| t.is_finite()) else {
-            return Err(Error::InvalidArgument(format!(
-                "{}: pose {i} (stamp {stamp_ns} ns) is not finite or has a zero rotation: {pose:?}",
-                path.display()
-            )));
+            return Err(Error::bad_input(
+                format!("{}: pose {i} (stamp {stamp_ns} ns)", path.display()),
+                format!("not finite or with a zero rotation: {pose:?}"),
+            ));
         };
         let sign = if *stamp_ns < 0 { "-" } else { "" };
         let magnitude = stamp_ns.unsigned_abs();
@@ -73,7 +73,7 @@ pub fn write_tum(path: &Path, poses: &[(i64, CameraPose)]) -> Result<()> {
 /// exponent notation, and are negative before 1970; quaternions are
 /// normalised. A line without exactly eight numbers, a timestamp outside
 /// ±9.2·10⁹ s (an `i64` of nanoseconds), a non-finite value or a zero
-/// quaternion is [`Error::InvalidArgument`] naming the file and line.
+/// quaternion is [`Error::Damaged`] naming the file and line.
 pub fn read_tum(path: &Path) -> Result<Vec<(i64, CameraPose)>> {
     let text = super::read_input_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
@@ -85,8 +85,7 @@ pub fn read_tum(path: &Path) -> Result<Vec<(i64, CameraPose)>> {
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let bad =
-            |why: String| Error::InvalidArgument(format!("{}:{}: {why}", path.display(), i + 1));
+        let bad = |why: String| Error::damaged(path, format!("line {}: {why}", i + 1));
         let fields: Vec<&str> = line.split_ascii_whitespace().collect();
         let Some((stamp, rest)) = fields.split_first().filter(|(_, rest)| rest.len() == 7) else {
             return Err(bad(format!(
@@ -275,10 +274,16 @@ mod tests {
         ] {
             std::fs::write(&path, format!("# header\n{good}\n\n{line}\n{good}\n")).unwrap();
             match read_tum(&path) {
-                Err(Error::InvalidArgument(m)) => {
-                    let at = format!("{}:4: ", path.display());
-                    assert!(m.starts_with(&at), "{m:?} should start with {at:?}");
-                    assert!(m.contains(needle), "{m:?} should mention {needle:?}");
+                Err(Error::Damaged { path: p, reason }) => {
+                    assert_eq!(p, path);
+                    assert!(
+                        reason.starts_with("line 4: "),
+                        "{reason:?} should name line 4"
+                    );
+                    assert!(
+                        reason.contains(needle),
+                        "{reason:?} should mention {needle:?}"
+                    );
                 }
                 other => panic!("{line:?}: expected an error, got {other:?}"),
             }
@@ -299,7 +304,7 @@ mod tests {
         zero.rotation = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
         for bad in [nan, zero] {
             let result = write_tum(&path, &[(0, pose(1)), (1, bad)]);
-            assert!(matches!(result, Err(Error::InvalidArgument(_))));
+            assert!(matches!(result, Err(Error::BadInput { .. })), "{result:?}");
             assert!(!path.exists());
         }
     }

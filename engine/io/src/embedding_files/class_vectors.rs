@@ -44,45 +44,53 @@ impl ClassVectors {
             let mut meta = safetensors_metadata(bytes, origin)?;
             let names = match meta.get("names") {
                 Some(s) => Some(serde_json::from_str(s).map_err(|e| {
-                    bad(format!(
-                        "{origin}: metadata `names` is not a JSON list of strings: {e}"
-                    ))
+                    bad(
+                        origin,
+                        format!("metadata `names` is not a JSON list of strings: {e}"),
+                    )
                 })?),
                 None => None,
             };
             let t = safetensors_tensor(&st, "vectors", origin)?
-                .ok_or_else(|| bad(format!("{origin}: no tensor `vectors`")))?;
+                .ok_or_else(|| bad(origin, "no tensor `vectors`"))?;
             (t, names, meta.remove("model"))
         } else {
             (npy_tensor(bytes, origin)?, None, None)
         };
         let [c, d] = tensor.shape[..] else {
-            return Err(bad(format!(
-                "{origin}: class vectors have shape {:?}, expected [C, D]",
-                tensor.shape
-            )));
+            return Err(bad(
+                origin,
+                format!(
+                    "class vectors have shape {:?}, expected [C, D]",
+                    tensor.shape
+                ),
+            ));
         };
         if c < 2 || d == 0 {
-            return Err(bad(format!(
-                "{origin}: need at least 2 classes (row 0 is unlabelled) and D > 0"
-            )));
+            return Err(bad(
+                origin,
+                "need at least 2 classes (row 0 is unlabelled) and D > 0",
+            ));
         }
         // Class ids are u16 in label images and in the vocabulary.
         if c > u16::MAX as usize + 1 {
-            return Err(bad(format!(
-                "{origin}: {c} class vectors; at most {} (class ids are 16-bit)",
-                u16::MAX as usize + 1
-            )));
+            return Err(bad(
+                origin,
+                format!(
+                    "{c} class vectors; at most {} (class ids are 16-bit)",
+                    u16::MAX as usize + 1
+                ),
+            ));
         }
         dim_of(d, origin)?;
         let flat = floats(&tensor, &format!("{origin}: vectors"))?;
         let vectors: Vec<Vec<f32>> = flat.chunks(d).map(|r| r.to_vec()).collect();
         let names = names.unwrap_or_else(|| (0..c).map(|i| format!("class_{i}")).collect());
         if names.len() != c {
-            return Err(bad(format!(
-                "{origin}: {} names for {c} class vectors",
-                names.len()
-            )));
+            return Err(bad(
+                origin,
+                format!("{} names for {c} class vectors", names.len()),
+            ));
         }
         Ok(ClassVectors {
             names,
@@ -99,17 +107,17 @@ impl ClassVectors {
 pub fn class_ids_from_npy(bytes: &[u8], origin: &str) -> Result<(u32, u32, Vec<u16>)> {
     let t = npy_tensor(bytes, origin)?;
     let [h, w] = t.shape[..] else {
-        return Err(bad(format!(
-            "{origin}: shape {:?}, expected [H, W]",
-            t.shape
-        )));
+        return Err(bad(origin, format!("shape {:?}, expected [H, W]", t.shape)));
     };
     let side = 1..=codec::MAX_IMAGE_SIDE as usize;
     if !side.contains(&h) || !side.contains(&w) {
-        return Err(bad(format!(
-            "{origin}: label image {w}×{h} is empty or beyond {} per side",
-            codec::MAX_IMAGE_SIDE
-        )));
+        return Err(bad(
+            origin,
+            format!(
+                "label image {w}×{h} is empty or beyond {} per side",
+                codec::MAX_IMAGE_SIDE
+            ),
+        ));
     }
     // Both at most MAX_IMAGE_SIDE (checked above).
     Ok((w as u32, h as u32, labels(&t, origin)?))

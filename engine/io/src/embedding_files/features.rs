@@ -61,16 +61,16 @@ pub struct LoadedFeatures {
 
 pub(super) fn regions(l: Tensor, f: Tensor, origin: &str) -> Result<(FrameFeatures, usize)> {
     let [h, w] = l.shape[..] else {
-        return Err(bad(format!(
-            "{origin}: labels have shape {:?}, expected [H, W]",
-            l.shape
-        )));
+        return Err(bad(
+            origin,
+            format!("labels have shape {:?}, expected [H, W]", l.shape),
+        ));
     };
     let [n, d] = f.shape[..] else {
-        return Err(bad(format!(
-            "{origin}: features have shape {:?}, expected [N, D]",
-            f.shape
-        )));
+        return Err(bad(
+            origin,
+            format!("features have shape {:?}, expected [N, D]", f.shape),
+        ));
     };
     if h == 0
         || w == 0
@@ -78,17 +78,19 @@ pub(super) fn regions(l: Tensor, f: Tensor, origin: &str) -> Result<(FrameFeatur
         || w > codec::MAX_IMAGE_SIDE as usize
         || d == 0
     {
-        return Err(bad(format!(
-            "{origin}: label image {w}×{h} or dimension {d} out of range"
-        )));
+        return Err(bad(
+            origin,
+            format!("label image {w}×{h} or dimension {d} out of range"),
+        ));
     }
     dim_of(d, origin)?;
     let count = size_u32(n, &format!("{origin}: feature row count"))?;
     let labels = labels(&l, &format!("{origin}: labels"))?;
     if let Some(bad_label) = labels.iter().find(|&&x| x != u16::MAX && x as usize >= n) {
-        return Err(bad(format!(
-            "{origin}: region label {bad_label} but only {n} feature rows"
-        )));
+        return Err(bad(
+            origin,
+            format!("region label {bad_label} but only {n} feature rows"),
+        ));
     }
     Ok((
         // `w`, `h` are at most MAX_IMAGE_SIDE (checked above).
@@ -105,20 +107,20 @@ pub(super) fn regions(l: Tensor, f: Tensor, origin: &str) -> Result<(FrameFeatur
 
 pub(super) fn grid(g: Tensor, origin: &str) -> Result<(FrameFeatures, usize)> {
     let [r, c, d] = g.shape[..] else {
-        return Err(bad(format!(
-            "{origin}: grid has shape {:?}, expected [R, C, D]",
-            g.shape
-        )));
+        return Err(bad(
+            origin,
+            format!("grid has shape {:?}, expected [R, C, D]", g.shape),
+        ));
     };
     if r == 0 || c == 0 || d == 0 {
-        return Err(bad(format!("{origin}: empty grid {:?}", g.shape)));
+        return Err(bad(origin, format!("empty grid {:?}", g.shape)));
     }
     dim_of(d, origin)?;
     // The ingest takes at most u32::MAX cells in all.
     if r.checked_mul(c)
         .is_none_or(|cells| cells > u32::MAX as usize)
     {
-        return Err(bad(format!("{origin}: grid of {r}×{c} cells is too large")));
+        return Err(bad(origin, format!("grid of {r}×{c} cells is too large")));
     }
     Ok((
         FrameFeatures::Grid {
@@ -188,16 +190,15 @@ pub fn features_from_safetensors(
         (Some(l), Some(f), _) => regions(l, f, origin)?,
         (_, _, Some(g)) => grid(g, origin)?,
         _ => {
-            return Err(bad(format!(
-                "{origin}: needs tensors `labels` + `features`, or `grid`"
-            )))
+            return Err(bad(
+                origin,
+                "needs tensors `labels` + `features`, or `grid`",
+            ))
         }
     };
-    let model = model.or(file_model).ok_or_else(|| {
-        bad(format!(
-            "{origin}: no `model` in the metadata; pass --model"
-        ))
-    })?;
+    let model = model
+        .or(file_model)
+        .ok_or_else(|| bad(origin, "no `model` in the metadata; pass --model"))?;
     Ok(LoadedFeatures {
         features,
         dim,

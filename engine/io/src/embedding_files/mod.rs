@@ -11,10 +11,13 @@
 //! * the `.npy` format itself ([`npy`]).
 //!
 //! The readers take a file's bytes and a name for it (`origin`) and refuse
-//! what they cannot use with [`Error::InvalidArgument`](crate::Error::InvalidArgument)
-//! beginning with that name: a malformed file, a type or shape they do not
-//! take, a non-finite value, a label out of range, a dimension or size a
-//! log cannot hold, a safetensors header naming a key twice. They never
+//! what they cannot use with an error beginning with that name:
+//! [`Error::Damaged`](crate::Error::Damaged) for a file that is no `.npy`
+//! or safetensors file (cut short, another version or byte order, a
+//! safetensors header naming a key twice), and
+//! [`Error::BadInput`](crate::Error::BadInput) for one whose contents they
+//! cannot use (a type or shape they do not take, a non-finite value, a
+//! label out of range, a dimension or size a log cannot hold). They never
 //! panic on any bytes (the fuzz target `embedding_files` drives them all).
 
 mod class_vectors;

@@ -64,8 +64,9 @@ pub struct Npy {
     pub data: Vec<u8>,
 }
 
+/// Bytes that are no `.npy` array this reader takes.
 fn bad(why: impl Into<String>) -> Error {
-    Error::InvalidArgument(why.into())
+    Error::bad_input(".npy data", why)
 }
 
 fn field<'a>(header: &'a str, key: &str) -> Option<&'a str> {
@@ -75,8 +76,9 @@ fn field<'a>(header: &'a str, key: &str) -> Option<&'a str> {
 }
 
 /// Parses `.npy` bytes (format versions 1–3, little-endian, C order). A
-/// file it cannot read is [`Error::InvalidArgument`] saying why (callers
-/// put the file's name in front).
+/// file it cannot read is [`Error::BadInput`] saying why (the readers of
+/// [`embedding_files`](super) turn it into [`Error::Damaged`] naming the
+/// file).
 ///
 /// ```
 /// use latentam_io::embedding_files::npy::{self, NpyType};

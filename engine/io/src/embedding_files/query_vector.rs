@@ -11,8 +11,9 @@ use super::tensor::{bad, floats, npy_tensor, open_safetensors, safetensors_tenso
 /// Reads one embedding vector (e.g. a text embedding to query with) from
 /// a `.npy` file (F16/F32, shape `[D]` or `[1, D]`) or a `.safetensors`
 /// file holding one such tensor (or several, one named `embedding`).
-/// A file that cannot be read is [`Error::Io`]; one that holds no such
-/// vector is [`Error::InvalidArgument`] naming the file.
+/// A file that cannot be read is [`Error::Io`]; one that is no `.npy` or
+/// safetensors file is [`Error::Damaged`], one that holds no such vector
+/// [`Error::BadInput`], both naming the file.
 pub fn read_vector(path: &Path) -> Result<Vec<f32>> {
     let bytes = crate::read_input(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
@@ -35,36 +36,48 @@ pub fn vector_from_bytes(bytes: &[u8], safetensors: bool, origin: &str) -> Resul
             [one] => one.to_string(),
             _ if names.contains(&"embedding") => "embedding".to_string(),
             _ => {
-                return Err(bad(format!(
-                    "{origin}: {} tensors ({}); keep one, or name the query `embedding`",
-                    names.len(),
-                    names
-                        .iter()
-                        .map(|n| latentam_base::text::shown(n))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )))
+                return Err(bad(
+                    origin,
+                    format!(
+                        "{} tensors ({}); keep one, or name the query `embedding`",
+                        names.len(),
+                        names
+                            .iter()
+                            .map(|n| latentam_base::text::shown(n))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                ))
             }
         };
         // `name` is one of `st.names()`, so the tensor exists.
         safetensors_tensor(&st, &name, origin)?.expect("listed above")
     } else {
-        npy_tensor(bytes, &format!("{origin}: not a .npy array"))?
+        npy_tensor(bytes, origin).map_err(|e| match e {
+            Error::Damaged { path, reason } => Error::Damaged {
+                path,
+                reason: format!("not a .npy array: {reason}"),
+            },
+            e => e,
+        })?
     };
     let len = tensor
         .shape
         .iter()
         .try_fold(1usize, |a, &d| a.checked_mul(d))
-        .ok_or_else(|| bad(format!("{origin}: shape {:?} overflows", tensor.shape)))?;
+        .ok_or_else(|| bad(origin, format!("shape {:?} overflows", tensor.shape)))?;
     if tensor.shape.iter().filter(|&&d| d != 1).count() > 1 || len == 0 {
-        return Err(bad(format!(
-            "{origin}: shape {:?}; one vector ([D] or [1, D]) is expected",
-            tensor.shape
-        )));
+        return Err(bad(
+            origin,
+            format!(
+                "shape {:?}; one vector ([D] or [1, D]) is expected",
+                tensor.shape
+            ),
+        ));
     }
     let v = floats(&tensor, origin)?;
     if v.iter().all(|&x| x == 0.0) {
-        return Err(bad(format!("{origin}: the vector is all zeros")));
+        return Err(bad(origin, "the vector is all zeros"));
     }
     Ok(v)
 }

@@ -27,15 +27,23 @@ impl From<Npy> for Tensor {
     }
 }
 
-/// A file the readers refuse, and why (naming the file).
-pub(super) fn bad(why: impl Into<String>) -> Error {
-    Error::InvalidArgument(why.into())
+/// A file whose contents the readers refuse ([`Error::BadInput`] naming
+/// the file, `origin`, and saying why): the caller fixes the file.
+pub(super) fn bad(origin: &str, why: impl Into<String>) -> Error {
+    Error::bad_input(origin, why)
 }
 
-/// `e` with `origin: ` in front of its message.
+/// A file that is not what it claims to be (no `.npy` or safetensors
+/// file, cut short, another version): [`Error::Damaged`] naming it.
+pub(super) fn damaged(origin: &str, why: impl Into<String>) -> Error {
+    Error::damaged(origin, why)
+}
+
+/// An error of [`npy::parse`], which knows no file, as the damage of the
+/// file `origin`.
 fn within(origin: &str, e: Error) -> Error {
     match e {
-        Error::InvalidArgument(why) => bad(format!("{origin}: {why}")),
+        Error::BadInput { reason, .. } => damaged(origin, reason),
         other => other,
     }
 }
@@ -52,15 +60,15 @@ pub(super) fn open_safetensors<'a>(
     bytes: &'a [u8],
     origin: &str,
 ) -> Result<safetensors::SafeTensors<'a>> {
-    crate::check_safetensors_keys(bytes).map_err(|e| bad(format!("{origin}: {e}")))?;
+    crate::check_safetensors_keys(bytes).map_err(|e| damaged(origin, e))?;
     safetensors::SafeTensors::deserialize(bytes)
-        .map_err(|e| bad(format!("{origin}: not a safetensors file: {e}")))
+        .map_err(|e| damaged(origin, format!("not a safetensors file: {e}")))
 }
 
 /// The metadata of the safetensors file `bytes` (empty when it has none).
 pub(super) fn safetensors_metadata(bytes: &[u8], origin: &str) -> Result<HashMap<String, String>> {
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| bad(format!("{origin}: not a safetensors file: {e}")))?;
+        .map_err(|e| damaged(origin, format!("not a safetensors file: {e}")))?;
     Ok(meta.metadata().clone().unwrap_or_default())
 }
 
@@ -82,9 +90,10 @@ pub(super) fn safetensors_tensor(
         D::F16 => NpyType::F16,
         D::F32 => NpyType::F32,
         other => {
-            return Err(bad(format!(
-                "{origin}: tensor `{name}` has type {other:?} (accepted: U8 U16 I32 I64 F16 F32)"
-            )))
+            return Err(bad(
+                origin,
+                format!("tensor `{name}` has type {other:?} (accepted: U8 U16 I32 I64 F16 F32)"),
+            ))
         }
     };
     Ok(Some(Tensor {
@@ -107,10 +116,10 @@ pub(super) fn floats(t: &Tensor, what: &str) -> Result<Vec<f32>> {
             .chunks_exact(2)
             .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
             .collect(),
-        other => return Err(bad(format!("{what} must be F16 or F32, not {other:?}"))),
+        other => return Err(bad(what, format!("must be F16 or F32, not {other:?}"))),
     };
     if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(bad(format!("{what} has a non-finite value at element {i}")));
+        return Err(bad(what, format!("a non-finite value at element {i}")));
     }
     Ok(v)
 }
@@ -121,7 +130,7 @@ pub(super) fn labels(t: &Tensor, what: &str) -> Result<Vec<u16>> {
         match v {
             -1 => Ok(u16::MAX),
             0..=65535 => Ok(v as u16),
-            _ => Err(bad(format!("{what} has label {v} outside -1…65535"))),
+            _ => Err(bad(what, format!("label {v} outside -1…65535"))),
         }
     };
     match t.dtype {
@@ -142,24 +151,23 @@ pub(super) fn labels(t: &Tensor, what: &str) -> Result<Vec<u16>> {
             // `chunks_exact(8)` gives 8-byte slices.
             .map(|b| convert(i64::from_le_bytes(b.try_into().expect("8 bytes"))))
             .collect(),
-        other => Err(bad(format!(
-            "{what} must be an integer type, not {other:?}"
-        ))),
+        other => Err(bad(what, format!("must be an integer type, not {other:?}"))),
     }
 }
 
 /// `v` as a `u32`, or an error naming what it is: sizes from a file are
 /// written to messages as `u32`s.
 pub(super) fn size_u32(v: usize, what: &str) -> Result<u32> {
-    u32::try_from(v).map_err(|_| bad(format!("{what} {v} is too large")))
+    u32::try_from(v).map_err(|_| bad(what, format!("{v} is too large")))
 }
 
 /// An embedding dimension from a file, checked against what a log may hold.
 pub(super) fn dim_of(d: usize, origin: &str) -> Result<u32> {
     match u32::try_from(d) {
         Ok(d) if (1..=MAX_EMBEDDING_DIM).contains(&d) => Ok(d),
-        _ => Err(bad(format!(
-            "{origin}: embedding dimension {d} is out of range (1…{MAX_EMBEDDING_DIM})"
-        ))),
+        _ => Err(bad(
+            origin,
+            format!("embedding dimension {d} is out of range (1…{MAX_EMBEDDING_DIM})"),
+        )),
     }
 }

@@ -59,9 +59,12 @@ fn every_safetensors_reader_refuses_a_key_named_twice() {
 fn errors_name_the_file() {
     let e = grid_from_npy(b"hello world", "S.grid.npy").unwrap_err();
     assert!(
-        matches!(&e, latentam_base::Error::InvalidArgument(m)
-            if m == "S.grid.npy: not a .npy file (no \\x93NUMPY magic)"),
+        matches!(&e, latentam_base::Error::Damaged { path, .. } if path.as_os_str() == "S.grid.npy"),
         "{e:?}"
+    );
+    assert_eq!(
+        e.to_string(),
+        "S.grid.npy: not a .npy file (no \\x93NUMPY magic)"
     );
     let e = vector_from_bytes(b"hello world", false, "q.npy").unwrap_err();
     assert!(
@@ -71,6 +74,7 @@ fn errors_name_the_file() {
     );
     let zeros = npy::write(npy::NpyType::F32, &[2], &[0; 8]);
     let e = vector_from_bytes(&zeros, false, "q.npy").unwrap_err();
+    assert!(matches!(e, latentam_base::Error::BadInput { .. }), "{e:?}");
     assert!(
         e.to_string().ends_with("q.npy: the vector is all zeros"),
         "{e}"
