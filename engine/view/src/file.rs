@@ -35,7 +35,7 @@ pub fn write_foxglove_file(
         let run = (|| {
             // The sink owns its writer: a second handle on the same file,
             // whose buffered bytes are flushed before the file is committed.
-            let file = w.get_ref().try_clone().map_err(|e| write_error(&e))?;
+            let file = w.get_ref().try_clone().map_err(|e| write_error(path, &e))?;
             let latch = Latched::new(BufWriter::new(file));
             let topics = Topics::new(frame_id);
             let options = McapWriteOptions::new()
@@ -45,11 +45,11 @@ pub fn write_foxglove_file(
                 .context()
                 .mcap_writer_with_options(options)
                 .create(latch.clone())
-                .map_err(|e| write_error(&e))?;
+                .map_err(|e| write_error(path, &e))?;
             body(&topics)?;
-            let mut out = sink.close().map_err(|e| write_error(&e))?;
-            out.flush().map_err(|e| write_error(&e))?;
-            latch.result()
+            let mut out = sink.close().map_err(|e| write_error(path, &e))?;
+            out.flush().map_err(|e| write_error(path, &e))?;
+            latch.result(path)
         })();
         run.map_err(|e: Error| {
             let message = e.to_string();
@@ -63,8 +63,13 @@ pub fn write_foxglove_file(
     }
 }
 
-fn write_error(e: &dyn std::fmt::Display) -> Error {
-    Error::InvalidArgument(format!("writing the Foxglove file: {e}"))
+/// A failure writing the Foxglove file at `path`, as [`Error::Io`]: the
+/// foxglove sink's errors (and a failed write it only logged) name no file.
+fn write_error(path: &Path, e: &dyn std::fmt::Display) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(format!("writing the Foxglove file: {e}")),
+    }
 }
 
 /// A writer that keeps its first error: the foxglove sink reports a
@@ -102,9 +107,10 @@ impl<W> Latched<W> {
         r
     }
 
-    pub(crate) fn result(&self) -> Result<()> {
+    /// The first error of a write to the file at `path`, if any.
+    pub(crate) fn result(&self, path: &Path) -> Result<()> {
         match &self.inner.lock().unwrap_or_else(|e| e.into_inner()).1 {
-            Some(e) => Err(write_error(e)),
+            Some(e) => Err(write_error(path, e)),
             None => Ok(()),
         }
     }

@@ -119,7 +119,7 @@ impl ViewWord {
             TextQuery::vocabulary_word(vocabulary, name, temperature)?;
         }
         if vocabulary.names.is_empty() {
-            return Err(Error::InvalidArgument("the vocabulary has no word".into()));
+            return Err(Error::bad_input("the vocabulary", "it has no word"));
         }
         TextQuery::vocabulary_word(vocabulary, &vocabulary.names[0], temperature)?;
         let shared = Arc::new((vocabulary.vectors.clone(), vocabulary.names.len()));
@@ -208,10 +208,10 @@ impl LiveView {
             .listener(subscriptions.clone())
             .start_blocking()
             .map_err(|e| {
-                Error::InvalidArgument(format!(
-                    "the live view cannot listen on {}: {e}",
-                    options.listen
-                ))
+                Error::bad_input(
+                    format!("the live view's address {}", options.listen),
+                    format!("cannot listen on it: {e}"),
+                )
             })?;
         let port = server.port();
         let listen = options.listen;

@@ -70,11 +70,14 @@ fn base64(bytes: &[u8]) -> String {
 pub fn point_cloud(frame_id: &str, stamp_ns: u64, cloud: &Cloud<'_>) -> Result<Value> {
     let n = cloud.positions.len();
     if cloud.colours.len() != n || cloud.value.1.len() != n {
-        return Err(Error::InvalidArgument(format!(
-            "a cloud of {n} positions, {} colours and {} values",
-            cloud.colours.len(),
-            cloud.value.1.len()
-        )));
+        return Err(Error::bad_input(
+            "point cloud",
+            format!(
+                "a cloud of {n} positions, {} colours and {} values",
+                cloud.colours.len(),
+                cloud.value.1.len()
+            ),
+        ));
     }
     let mut data = Vec::with_capacity(n * CLOUD_POINT_STRIDE);
     for ((p, c), v) in cloud.positions.iter().zip(cloud.colours).zip(cloud.value.1) {
@@ -131,12 +134,15 @@ pub fn pose_in_frame(frame_id: &str, stamp_ns: u64, p: &CameraPose) -> Value {
 pub fn raw_image(frame_id: &str, stamp_ns: u64, image: &RgbImage<'_>) -> Result<Value> {
     let expected = image.width as usize * image.height as usize * 3;
     if image.rgb.len() != expected {
-        return Err(Error::InvalidArgument(format!(
-            "a {}x{} RGB image of {} bytes (expected {expected})",
-            image.width,
-            image.height,
-            image.rgb.len()
-        )));
+        return Err(Error::bad_input(
+            "image",
+            format!(
+                "a {}x{} RGB image of {} bytes (expected {expected})",
+                image.width,
+                image.height,
+                image.rgb.len()
+            ),
+        ));
     }
     Ok(json!({
         "timestamp": time(stamp_ns),

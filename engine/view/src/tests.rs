@@ -176,6 +176,7 @@ fn a_write_that_failed_once_fails_the_file() {
     // A later flush that the writer itself would let through still fails,
     // and so does the file.
     assert!(w.flush().is_err());
-    let err = latch.result().unwrap_err();
+    let err = latch.result("map.mcap".as_ref()).unwrap_err();
+    assert!(matches!(err, latentam_base::Error::Io { .. }), "{err:?}");
     assert!(err.to_string().contains("no space"), "{err}");
 }

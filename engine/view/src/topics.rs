@@ -63,7 +63,7 @@ impl Topics {
             return Ok(c.clone());
         }
         let text = schemas::schema(schema)
-            .ok_or_else(|| Error::InvalidArgument(format!("no schema named {schema}")))?
+            .ok_or_else(|| Error::bad_input("schema", format!("no schema named {schema}")))?
             .to_string();
         let channel = self
             .context
@@ -71,7 +71,7 @@ impl Topics {
             .schema(Schema::new(schema, "jsonschema", text.into_bytes()))
             .message_encoding("json")
             .build_raw()
-            .map_err(|e| Error::InvalidArgument(format!("the channel {topic}: {e}")))?;
+            .map_err(|e| Error::bad_input(format!("the channel {topic}"), e.to_string()))?;
         channels.insert(topic.to_string(), channel.clone());
         Ok(channel)
     }
@@ -92,7 +92,7 @@ impl Topics {
             return Ok(0);
         }
         let bytes = serde_json::to_vec(message)
-            .map_err(|e| Error::InvalidArgument(format!("encoding a message on {topic}: {e}")))?;
+            .map_err(|e| Error::bad_input(format!("a message on {topic}"), e.to_string()))?;
         channel.log_with_meta(&bytes, PartialMetadata::with_log_time(stamp_ns));
         Ok(bytes.len())
     }
