@@ -146,15 +146,17 @@ impl AttentionDecoder {
     /// Allocates the workspace for `cfg`.
     pub fn new(ctx: &Context, cfg: DecoderConfig) -> Result<Self> {
         if cfg.max_regions == 0 || cfg.max_atoms == 0 || cfg.dim == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "decoder sizes must be positive: {cfg:?}"
-            )));
+            return Err(Error::bad_input(
+                "decoder sizes",
+                format!("must be positive: {cfg:?}"),
+            ));
         }
         let valid = cfg.temperature > 0.0 && cfg.temperature.is_finite() && cfg.eps >= 0.0;
         if !valid {
-            return Err(Error::InvalidArgument(format!(
-                "decoder temperature must be positive and eps non-negative: {cfg:?}"
-            )));
+            return Err(Error::bad_input(
+                "decoder temperature and eps",
+                format!("the temperature must be positive and eps non-negative: {cfg:?}"),
+            ));
         }
         let (n, k, d) = (cfg.max_regions as u64, cfg.max_atoms as u64, cfg.dim as u64);
         let buf =
@@ -192,16 +194,22 @@ impl AttentionDecoder {
 
     fn check(&self, p: &DecoderParams, n: u32) -> Result<()> {
         if n > self.cfg.max_regions {
-            return Err(Error::InvalidArgument(format!(
-                "decoding {n} regions, the decoder was sized for {}",
-                self.cfg.max_regions
-            )));
+            return Err(Error::bad_input(
+                "regions to decode",
+                format!(
+                    "decoding {n} regions, the decoder was sized for {}",
+                    self.cfg.max_regions
+                ),
+            ));
         }
         if p.atom_count == 0 || p.atom_count > self.cfg.max_atoms {
-            return Err(Error::InvalidArgument(format!(
-                "decoding with {} atoms; the dictionary holds 1 ..= {}",
-                p.atom_count, self.cfg.max_atoms
-            )));
+            return Err(Error::bad_input(
+                "atom count",
+                format!(
+                    "decoding with {} atoms; the dictionary holds 1 ..= {}",
+                    p.atom_count, self.cfg.max_atoms
+                ),
+            ));
         }
         Ok(())
     }

@@ -111,15 +111,17 @@ impl DevicePixelDecoder {
         eps: f32,
     ) -> Result<Self> {
         if atom_count == 0 || dim == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "a pixel decoder of {atom_count} atoms in {dim} dimensions"
-            )));
+            return Err(Error::bad_input(
+                "pixel decoder sizes",
+                format!("{atom_count} atoms in {dim} dimensions (both must be positive)"),
+            ));
         }
         let finite = temperature.is_finite() && eps.is_finite();
         if !(finite && temperature > 0.0 && eps >= 0.0) {
-            return Err(Error::InvalidArgument(format!(
-                "decoder temperature {temperature} and eps {eps}"
-            )));
+            return Err(Error::bad_input(
+                "decoder temperature and eps",
+                format!("temperature {temperature} must be finite and positive, eps {eps} finite and non-negative"),
+            ));
         }
         let stride = atom_count.next_multiple_of(4);
         let (k, d64) = (stride as u64, dim as u64);
@@ -212,9 +214,7 @@ impl DevicePixelDecoder {
     /// The head's current W and atoms.
     pub fn from_head(ctx: &Context, head: &LatentHead) -> Result<Self> {
         if head.atom_count() == 0 {
-            return Err(Error::InvalidArgument(
-                "the dictionary is empty: no embeddings have been mapped yet".into(),
-            ));
+            return Err(Error::NoEmbeddings);
         }
         let cfg = head.config();
         Self::new(
@@ -258,7 +258,7 @@ impl DevicePixelDecoder {
             .min(BATCH_BYTES / per_row)
             .min(u32::MAX as u64);
         if rows == 0 {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::Unsupported(format!(
                 "one pixel's {atoms} attention weights do not fit the device's \
                  {limit}-byte buffers"
             )));
@@ -281,7 +281,7 @@ impl DevicePixelDecoder {
         let limit = ctx.info().max_buffer_bytes();
         let batch = (self.batch.rows as u64).min(limit / (4 * texts.max(1) as u64)) as usize;
         if batch == 0 {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::Unsupported(format!(
                 "one pixel's scores against {texts} texts do not fit the device's \
                  {limit}-byte buffers"
             )));
@@ -339,7 +339,7 @@ impl DevicePixelDecoder {
         texts: &[f32],
     ) -> Result<Vec<f32>> {
         if texts.is_empty() {
-            return Err(Error::InvalidArgument("no text to score against".into()));
+            return Err(Error::bad_input("texts", "no text to score against"));
         }
         let out = self.decode(
             ctx,

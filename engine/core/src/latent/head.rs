@@ -104,10 +104,13 @@ impl LatentHead {
     /// empty dictionary.
     pub fn new(ctx: &Context, cfg: LatentHeadConfig) -> Result<Self> {
         if cfg.dim == 0 || cfg.atoms == 0 || cfg.max_regions == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "latent head needs positive sizes, got d_f {}, K {}, max regions {}",
-                cfg.dim, cfg.atoms, cfg.max_regions
-            )));
+            return Err(Error::bad_input(
+                "latent head sizes",
+                format!(
+                    "must be positive, got d_f {}, K {}, max regions {}",
+                    cfg.dim, cfg.atoms, cfg.max_regions
+                ),
+            ));
         }
         let (d, k, n) = (cfg.dim, cfg.atoms, cfg.max_regions);
         let decoder = AttentionDecoder::new(
@@ -244,10 +247,10 @@ impl LatentHead {
     ) -> Result<KMeansStep> {
         let d = self.cfg.dim as usize;
         if !rows.len().is_multiple_of(d) {
-            return Err(Error::InvalidArgument(format!(
-                "{} values are not whole {d}-d embeddings",
-                rows.len()
-            )));
+            return Err(Error::bad_input(
+                "region embeddings",
+                format!("{} values are not whole {d}-d embeddings", rows.len()),
+            ));
         }
         let n = (rows.len() / d).min(self.cfg.max_regions as usize);
         rec.upload(&self.keyframe_features, 0, &rows[..n * d])?;
@@ -271,9 +274,7 @@ impl LatentHead {
     ) -> Result<()> {
         let k = self.atom_count();
         if k == 0 {
-            return Err(Error::InvalidArgument(
-                "the dictionary is empty: record a dictionary update first".into(),
-            ));
+            return Err(Error::NoEmbeddings);
         }
         let params = DecoderParams {
             w: &self.w,

@@ -200,10 +200,13 @@ impl StreamingKMeans {
             && cfg.novelty_threshold.is_finite()
             && cfg.moved_tolerance >= 0.0;
         if !ok {
-            return Err(Error::InvalidArgument(format!(
-                "k-means settings out of range (need 1 ≤ K ≤ {MAX_KMEANS_ATOMS}, 1 ≤ m ≤ K, \
-                 iterations ≥ 1, decay in [0, 1]): {cfg:?}"
-            )));
+            return Err(Error::bad_input(
+                "k-means settings",
+                format!(
+                    "out of range (need 1 ≤ K ≤ {MAX_KMEANS_ATOMS}, 1 ≤ m ≤ K, iterations ≥ 1, \
+                     decay in [0, 1]): {cfg:?}"
+                ),
+            ));
         }
         let (k, m, n, d) = (
             cfg.atoms as u64,
@@ -261,11 +264,14 @@ impl StreamingKMeans {
     /// weights are in `weights` (e.g. when a map is loaded).
     pub fn restore(&self, ctx: &Context, atom_count: u32, weights: &[f32]) -> Result<()> {
         if atom_count > self.cfg.atoms || weights.len() != atom_count as usize {
-            return Err(Error::InvalidArgument(format!(
-                "restoring {atom_count} atoms with {} weights into a dictionary of {}",
-                weights.len(),
-                self.cfg.atoms
-            )));
+            return Err(Error::bad_input(
+                "atoms to restore",
+                format!(
+                    "restoring {atom_count} atoms with {} weights into a dictionary of {}",
+                    weights.len(),
+                    self.cfg.atoms
+                ),
+            ));
         }
         ctx.upload(&self.weights, 0, weights)?;
         self.atom_count.set(atom_count);

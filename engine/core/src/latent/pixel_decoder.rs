@@ -69,16 +69,22 @@ impl FactorisedDecoder {
             || atoms.is_empty()
             || !atoms.len().is_multiple_of(dim)
         {
-            return Err(Error::InvalidArgument(format!(
-                "decoder of {} W values and {} atom values for {dim}-d embeddings",
-                w.len(),
-                atoms.len()
-            )));
+            return Err(Error::bad_input(
+                "pixel decoder sizes",
+                format!(
+                    "{} W values and {} atom values for {dim}-d embeddings",
+                    w.len(),
+                    atoms.len()
+                ),
+            ));
         }
         if !(temperature > 0.0 && temperature.is_finite()) || eps < 0.0 {
-            return Err(Error::InvalidArgument(format!(
-                "decoder temperature {temperature} and eps {eps}"
-            )));
+            return Err(Error::bad_input(
+                "decoder temperature and eps",
+                format!(
+                    "temperature {temperature} must be finite and positive, eps {eps} non-negative"
+                ),
+            ));
         }
         let k = atoms.len() / dim;
         let dot = |a: &[f32], b: &[f32]| -> f64 {
@@ -130,9 +136,7 @@ impl FactorisedDecoder {
         let cfg = head.config();
         let k = head.atom_count() as usize;
         if k == 0 {
-            return Err(Error::InvalidArgument(
-                "the dictionary is empty: no embeddings have been mapped yet".into(),
-            ));
+            return Err(Error::NoEmbeddings);
         }
         let dim = cfg.dim as usize;
         let w = ctx.download::<f32>(head.w())?;

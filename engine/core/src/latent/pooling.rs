@@ -170,21 +170,25 @@ impl Regions {
             || img.height == 0
             || img.labels.len() != (img.width * img.height) as usize
         {
-            return Err(Error::InvalidArgument(format!(
-                "label image of {}x{} has {} labels",
-                img.width,
-                img.height,
-                img.labels.len()
-            )));
+            return Err(Error::bad_input(
+                "label image",
+                format!(
+                    "{}x{} with {} labels",
+                    img.width,
+                    img.height,
+                    img.labels.len()
+                ),
+            ));
         }
         if let Some(&bad) = img
             .labels
             .iter()
             .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
         {
-            return Err(Error::InvalidArgument(format!(
-                "view {view}: region label {bad} but the message has {count} regions"
-            )));
+            return Err(Error::bad_input(
+                format!("view {view}"),
+                format!("region label {bad} but the message has {count} regions"),
+            ));
         }
         self.add(view, count, |slot, u, v| {
             let lu = nearest(u, slot.width, img.width);
@@ -198,9 +202,10 @@ impl Regions {
     /// feature grid laid over the image (cell index = row · cols + col).
     pub fn add_grid(&mut self, view: usize, rows: u32, cols: u32) -> Result<&ViewRegions> {
         if rows == 0 || cols == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "view {view}: feature grid of {rows}x{cols} cells"
-            )));
+            return Err(Error::bad_input(
+                format!("view {view}"),
+                format!("feature grid of {rows}x{cols} cells"),
+            ));
         }
         self.add(view, rows * cols, |slot, u, v| {
             Some(nearest(v, slot.height, rows) * cols + nearest(u, slot.width, cols))
@@ -214,16 +219,19 @@ impl Regions {
         label_of: impl Fn(&crate::splat::ViewSlot, u32, u32) -> Option<u32>,
     ) -> Result<&ViewRegions> {
         let Some(slot) = self.layout.views.get(view).copied() else {
-            return Err(Error::InvalidArgument(format!(
-                "regions for view {view}, the batch has {} views",
-                self.layout.views.len()
-            )));
+            return Err(Error::bad_input(
+                format!("regions for view {view}"),
+                format!("the batch has {} views", self.layout.views.len()),
+            ));
         };
         if self.views.last().is_some_and(|v| v.view >= view) {
-            return Err(Error::InvalidArgument(format!(
-                "regions for view {view} added after view {}; add views in order, once each",
-                self.views.last().map_or(0, |v| v.view)
-            )));
+            return Err(Error::bad_input(
+                format!("regions for view {view}"),
+                format!(
+                    "added after view {}; add views in order, once each",
+                    self.views.last().map_or(0, |v| v.view)
+                ),
+            ));
         }
         let mut labels = Vec::with_capacity((slot.width * slot.height) as usize);
         let mut sizes = vec![0u32; count as usize];
@@ -398,13 +406,16 @@ impl RegionPooling {
         let pixels = regions.pixel_region.len() as u64;
         let rows = first_row as u64 + regions.len() as u64;
         if rows > self.max_regions as u64 || pixels > self.max_pixels {
-            return Err(Error::InvalidArgument(format!(
-                "{} regions from row {first_row} over {pixels} pixels; region pooling was sized \
-                 for {} over {}",
-                regions.len(),
-                self.max_regions,
-                self.max_pixels
-            )));
+            return Err(Error::bad_input(
+                "regions to pool",
+                format!(
+                    "{} regions from row {first_row} over {pixels} pixels; region pooling was \
+                     sized for {} over {}",
+                    regions.len(),
+                    self.max_regions,
+                    self.max_pixels
+                ),
+            ));
         }
         rec.upload(&self.offsets, 0, &regions.offsets)?;
         rec.upload(&self.members, 0, &regions.pixels)?;

@@ -74,9 +74,12 @@ impl TextQuery {
         if (MIN_TEMPERATURE..=MAX_TEMPERATURE).contains(&temperature) {
             return Ok(());
         }
-        Err(Error::InvalidArgument(format!(
-            "softmax temperature {temperature} is outside {MIN_TEMPERATURE}..={MAX_TEMPERATURE}"
-        )))
+        Err(Error::bad_input(
+            "temperature",
+            format!(
+                "softmax temperature {temperature} is outside {MIN_TEMPERATURE}..={MAX_TEMPERATURE}"
+            ),
+        ))
     }
 
     /// Cosine relevance to one embedding.
@@ -97,10 +100,13 @@ impl TextQuery {
         temperature: f32,
     ) -> Result<Self> {
         let Some(index) = vocabulary.names.iter().position(|n| n == name) else {
-            return Err(Error::InvalidArgument(format!(
-                "`{name}` is not in the vocabulary; it has: {}",
-                vocabulary.names.join(", ")
-            )));
+            return Err(Error::bad_input(
+                "word",
+                format!(
+                    "`{name}` is not in the vocabulary; it has: {}",
+                    vocabulary.names.join(", ")
+                ),
+            ));
         };
         Self::check_temperature(temperature)?;
         Ok(TextQuery {
@@ -168,8 +174,9 @@ impl RelevanceScorer {
         let rows = head.config().max_regions;
         let dim = head.config().dim;
         if max_texts == 0 {
-            return Err(Error::InvalidArgument(
-                "a relevance scorer needs room for at least one text".into(),
+            return Err(Error::bad_input(
+                "max_texts",
+                "a relevance scorer needs room for at least one text",
             ));
         }
         let buf = |name: &str, bytes: u64| Buffer::device(ctx, &format!("relevance/{name}"), bytes);
@@ -218,31 +225,31 @@ impl RelevanceScorer {
     ) -> Result<Vec<f32>> {
         let d = self.dim as usize;
         if head.config().dim != self.dim || head.config().max_regions != self.rows {
-            return Err(Error::InvalidArgument(
-                "relevance scorer built for another latent head".into(),
+            return Err(Error::bad_input(
+                "latent head",
+                "the relevance scorer was built for another latent head",
             ));
         }
         if texts.is_empty() || !texts.len().is_multiple_of(d) {
-            return Err(Error::InvalidArgument(format!(
-                "{} text values are not whole {d}-d embeddings",
-                texts.len()
-            )));
+            return Err(Error::bad_input(
+                "text embeddings",
+                format!("{} text values are not whole {d}-d embeddings", texts.len()),
+            ));
         }
         let m = texts.len() / d;
         if m > self.max_texts as usize {
-            return Err(Error::InvalidArgument(format!(
-                "{m} texts; the scorer holds {}",
-                self.max_texts
-            )));
-        }
-        if head.atom_count() == 0 {
-            return Err(Error::InvalidArgument(
-                "the dictionary is empty: no embeddings have been mapped yet".into(),
+            return Err(Error::bad_input(
+                "text embeddings",
+                format!("{m} texts; the scorer holds {}", self.max_texts),
             ));
         }
+        if head.atom_count() == 0 {
+            return Err(Error::NoEmbeddings);
+        }
         if texts.iter().any(|x| !x.is_finite()) {
-            return Err(Error::InvalidArgument(
-                "text embedding has non-finite values".into(),
+            return Err(Error::bad_input(
+                "text embeddings",
+                "a text embedding has non-finite values",
             ));
         }
         let mut unit_texts = Vec::with_capacity(texts.len());

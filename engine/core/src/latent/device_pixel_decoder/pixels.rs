@@ -81,17 +81,20 @@ pub(crate) fn unit_rows(rows: &[f32], dim: usize) -> (Vec<f32>, Vec<bool>) {
 pub(super) fn check_pixels(pixels: &PixelsToDecode, dim: usize) -> Result<usize> {
     let n = pixels.queries.len();
     if !pixels.region.is_empty() && pixels.region.len() != n {
-        return Err(Error::InvalidArgument(format!(
-            "{n} pixels with {} region indices",
-            pixels.region.len()
-        )));
+        return Err(Error::bad_input(
+            "pixels to decode",
+            format!("{n} pixels with {} region indices", pixels.region.len()),
+        ));
     }
     if !pixels.targets.len().is_multiple_of(dim) || !pixels.texts.len().is_multiple_of(dim) {
-        return Err(Error::InvalidArgument(format!(
-            "{} target and {} text values are not whole {dim}-d embeddings",
-            pixels.targets.len(),
-            pixels.texts.len()
-        )));
+        return Err(Error::bad_input(
+            "pixels to decode",
+            format!(
+                "{} target and {} text values are not whole {dim}-d embeddings",
+                pixels.targets.len(),
+                pixels.texts.len()
+            ),
+        ));
     }
     let regions = pixels.targets.len() / dim;
     if let Some(r) = pixels
@@ -99,9 +102,10 @@ pub(super) fn check_pixels(pixels: &PixelsToDecode, dim: usize) -> Result<usize>
         .iter()
         .find(|&&r| r != NO_REGION && r as usize >= regions)
     {
-        return Err(Error::InvalidArgument(format!(
-            "a pixel of region {r}; {regions} targets were given"
-        )));
+        return Err(Error::bad_input(
+            "pixels to decode",
+            format!("a pixel of region {r}; {regions} targets were given"),
+        ));
     }
     if pixels
         .queries
@@ -111,8 +115,9 @@ pub(super) fn check_pixels(pixels: &PixelsToDecode, dim: usize) -> Result<usize>
         .chain(pixels.texts)
         .any(|x| !x.is_finite())
     {
-        return Err(Error::InvalidArgument(
-            "pixel queries, targets and texts must be finite".into(),
+        return Err(Error::bad_input(
+            "pixels to decode",
+            "pixel queries, targets and texts must be finite",
         ));
     }
     Ok(regions)

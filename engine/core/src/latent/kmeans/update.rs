@@ -27,10 +27,13 @@ impl StreamingKMeans {
     ) -> Result<()> {
         let (k_max, d) = (self.cfg.atoms as u64, self.cfg.dim as u64);
         if n > self.cfg.max_points {
-            return Err(Error::InvalidArgument(format!(
-                "k-means update with {n} regions; sized for {}",
-                self.cfg.max_points
-            )));
+            return Err(Error::bad_input(
+                "regions to cluster",
+                format!(
+                    "k-means update with {n} regions; sized for {}",
+                    self.cfg.max_points
+                ),
+            ));
         }
         let sizes = [
             (features, n as u64 * d * 4),
