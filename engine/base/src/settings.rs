@@ -51,6 +51,37 @@ pub struct KeyDoc {
     pub text: String,
 }
 
+/// A setting outside its documented range, as [`Setting::check_nested`]
+/// finds it; as the engine's error it is [`Error::Config`](crate::Error::Config).
+///
+/// ```
+/// use latentam_base::settings::OutOfRange;
+///
+/// let e = OutOfRange { key: "seeding.stride".into(), reason: "0 must be from 1 to 64".into() };
+/// assert_eq!(e.to_string(), "seeding.stride 0 must be from 1 to 64");
+/// let e: latentam_base::Error = e.into();
+/// assert_eq!(e.to_string(), "setting `seeding.stride`: 0 must be from 1 to 64");
+/// ```
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OutOfRange {
+    /// The dotted key of the setting.
+    pub key: String,
+    /// What is wrong with its value.
+    pub reason: String,
+}
+
+impl std::fmt::Display for OutOfRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} {}", self.key, self.reason)
+    }
+}
+
+impl From<OutOfRange> for crate::Error {
+    fn from(e: OutOfRange) -> Self {
+        crate::Error::config(e.key, e.reason)
+    }
+}
+
 /// A value type of a setting: how it is documented and checked.
 pub trait Setting {
     /// Whether the value is an integer (said in its range's text).
@@ -66,9 +97,9 @@ pub trait Setting {
     /// appended to `out` under `prefix`.
     fn nested_docs(_prefix: &str, _out: &mut Vec<KeyDoc>) {}
 
-    /// Checks the keys below this one; the message names the first
+    /// Checks the keys below this one; the error names the first
     /// offending key under `prefix`.
-    fn check_nested(&self, _prefix: &str) -> Result<(), String> {
+    fn check_nested(&self, _prefix: &str) -> Result<(), OutOfRange> {
         Ok(())
     }
 }
@@ -278,7 +309,7 @@ impl<C> Spec<C> {
     }
 
     /// Checks `value` of field `key` of `config` against the range.
-    pub fn check(&self, key: &str, value: Option<f64>, config: &C) -> Result<(), String> {
+    pub fn check(&self, key: &str, value: Option<f64>, config: &C) -> Result<(), OutOfRange> {
         let (Some(r), Some(x)) = (&self.range, value) else {
             return Ok(());
         };
@@ -292,7 +323,10 @@ impl<C> Spec<C> {
             _ => display(v),
         };
         let allowed = self.allows(r, &named(&r.low, low), &named(&r.high, high));
-        Err(format!("{key} {} must be {allowed}", display(x)))
+        Err(OutOfRange {
+            key: key.to_string(),
+            reason: format!("{} must be {allowed}", display(x)),
+        })
     }
 }
 
@@ -375,7 +409,10 @@ macro_rules! settings {
                 )*
             }
 
-            fn check_nested(&self, prefix: &str) -> Result<(), String> {
+            fn check_nested(
+                &self,
+                prefix: &str,
+            ) -> Result<(), $crate::settings::OutOfRange> {
                 #[allow(unused_imports)]
                 use $crate::settings::{choice, optional, section, setting, value};
                 $(
@@ -452,7 +489,7 @@ mod tests {
         let with = |f: &dyn Fn(&mut Inner)| {
             let mut o = Outer::default();
             f(&mut o.inner);
-            o.check_nested("").unwrap_err()
+            o.check_nested("").unwrap_err().to_string()
         };
         assert_eq!(with(&|i| i.count = 0), "inner.count 0 must be from 1 to 10");
         assert_eq!(

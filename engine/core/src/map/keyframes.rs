@@ -4,7 +4,7 @@ use glam::DVec3;
 
 use super::global::GlobalMap;
 use latentam_base::settings;
-use latentam_base::settings::{join, KeyDoc, Kind, Setting, MAX_DISTANCE};
+use latentam_base::settings::{join, KeyDoc, Kind, OutOfRange, Setting, MAX_DISTANCE};
 use latentam_io::{CameraPose, Frame};
 
 /// The rule that proposes keyframes.
@@ -119,16 +119,21 @@ impl Setting for KeyframePolicy {
         );
     }
 
-    fn check_nested(&self, prefix: &str) -> Result<(), String> {
+    fn check_nested(&self, prefix: &str) -> Result<(), OutOfRange> {
         match *self {
-            KeyframePolicy::Interval(0) => Err(format!("{prefix} interval must be at least 1")),
+            KeyframePolicy::Interval(0) => Err(OutOfRange {
+                key: join(prefix, "interval"),
+                reason: "0 must be at least 1".into(),
+            }),
             KeyframePolicy::Overlap {
                 min_overlap,
                 stride,
-            } if !(0.0..=1.0).contains(&min_overlap) || stride == 0 => Err(format!(
-                "{prefix} overlap: min_overlap {min_overlap} must be within 0..1 and stride \
-                 {stride} at least 1"
-            )),
+            } if !(0.0..=1.0).contains(&min_overlap) || stride == 0 => Err(OutOfRange {
+                key: join(prefix, "overlap"),
+                reason: format!(
+                    "min_overlap {min_overlap} must be within 0..1 and stride {stride} at least 1"
+                ),
+            }),
             _ => Ok(()),
         }
     }

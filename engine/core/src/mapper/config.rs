@@ -152,12 +152,16 @@ settings! {
     }
 }
 
+/// The `setting` of an [`Error::Config`] about the configuration as a
+/// whole (TOML that does not parse, or does not fit the structure).
+pub(crate) const WHOLE_CONFIGURATION: &str = "mapper configuration";
+
 impl MapperConfig {
     /// Parses TOML (unknown keys are errors; missing keys keep defaults)
-    /// and checks the values.
+    /// and checks the values: errors are [`Error::Config`].
     pub fn from_toml(text: &str) -> Result<Self> {
-        let cfg: MapperConfig = toml::from_str(text)
-            .map_err(|e| Error::InvalidArgument(format!("mapper configuration: {e}")))?;
+        let cfg: MapperConfig =
+            toml::from_str(text).map_err(|e| Error::config(WHOLE_CONFIGURATION, e.to_string()))?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -193,9 +197,8 @@ impl MapperConfig {
     }
 
     /// Checks every value against the range its documentation states;
-    /// the error names the first key out of range.
+    /// the error ([`Error::Config`]) names the first key out of range.
     pub fn validate(&self) -> Result<()> {
-        self.check_nested("")
-            .map_err(|e| Error::InvalidArgument(format!("mapper configuration: {e}")))
+        self.check_nested("").map_err(Error::from)
     }
 }

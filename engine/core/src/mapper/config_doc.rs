@@ -16,6 +16,7 @@ use std::sync::OnceLock;
 
 use toml::{Table, Value};
 
+use super::config::WHOLE_CONFIGURATION;
 use super::MapperConfig;
 use latentam_base::settings::{KeyDoc, Kind, Setting};
 use latentam_base::{Error, Result};
@@ -63,19 +64,21 @@ fn children(key: &str) -> impl Iterator<Item = &'static KeyDoc> + '_ {
     docs().iter().filter(move |d| parent(&d.key) == key)
 }
 
-fn invalid(message: String) -> Error {
-    Error::InvalidArgument(message)
+/// [`Error::Config`]: `setting` (a dotted key, or what `--set` was
+/// given) is wrong because of `reason`.
+fn invalid(setting: &str, reason: String) -> Error {
+    Error::config(setting, reason)
 }
 
 /// The configuration as a TOML table (unset optional keys are absent).
 fn to_table(config: &MapperConfig) -> Result<Table> {
     match Value::try_from(config) {
         Ok(Value::Table(t)) => Ok(t),
-        Ok(other) => Err(invalid(format!(
-            "mapper configuration serialized to a {}, not a table",
-            other.type_str()
-        ))),
-        Err(e) => Err(invalid(format!("mapper configuration: {e}"))),
+        Ok(other) => Err(invalid(
+            WHOLE_CONFIGURATION,
+            format!("serialized to a {}, not a table", other.type_str()),
+        )),
+        Err(e) => Err(invalid(WHOLE_CONFIGURATION, e.to_string())),
     }
 }
 
@@ -235,29 +238,27 @@ fn format_value(value: &Value) -> String {
 /// documentation shows, or by setting one of its fields. A table given
 /// for a section is merged key by key.
 ///
-/// Errors ([`Error::InvalidArgument`]) name the key: an unknown key (with
+/// Errors ([`Error::Config`]) name the key: an unknown key (with
 /// the valid keys beside it), a missing `=`, a value of the wrong type;
 /// the result is then checked with [`MapperConfig::validate`].
 pub fn apply_overrides(config: &MapperConfig, sets: &[String]) -> Result<MapperConfig> {
     let mut root = to_table(config)?;
     for set in sets {
         let Some((key, raw)) = set.split_once('=') else {
-            return Err(invalid(format!(
-                "--set `{set}`: expected key=value, e.g. seeding.stride=4"
-            )));
+            return Err(invalid(
+                set,
+                "expected key=value, e.g. seeding.stride=4".into(),
+            ));
         };
         let (key, raw) = (key.trim(), raw.trim());
         if key.is_empty() {
-            return Err(invalid(format!(
-                "--set `{set}`: the key before `=` is empty"
-            )));
+            return Err(invalid(set, "the key before `=` is empty".into()));
         }
         set_key(&mut root, key, parse_value(raw))?;
         // Check the types now, so the error names this key.
-        from_table(&root).map_err(|e| invalid(format!("--set {key}={raw}: {}", one_line(&e))))?;
+        from_table(&root).map_err(|e| invalid(key, format!("{key}={raw}: {}", one_line(&e))))?;
     }
-    let cfg = from_table(&root)
-        .map_err(|e| invalid(format!("mapper configuration: {}", one_line(&e))))?;
+    let cfg = from_table(&root).map_err(|e| invalid(WHOLE_CONFIGURATION, one_line(&e)))?;
     cfg.validate()?;
     Ok(cfg)
 }
@@ -292,11 +293,14 @@ fn set_key(root: &mut Table, key: &str, value: Value) -> Result<()> {
             }
             Ok(())
         }
-        (Some(Section), other) => Err(invalid(format!(
-            "--set {key}: `{key}` is a section, not a value ({} given); set its keys: {}",
-            other.type_str(),
-            keys_below(key)
-        ))),
+        (Some(Section), other) => Err(invalid(
+            key,
+            format!(
+                "a section, not a value ({} given); set its keys: {}",
+                other.type_str(),
+                keys_below(key)
+            ),
+        )),
         (Some(Kind::Variant { payload }), Value::Table(t))
             if payload.trim_start().starts_with('{') =>
         {
@@ -335,10 +339,13 @@ fn unknown_key(key: &str, parent: &str) -> Error {
             _ => format!("keys of `{parent}`"),
         }
     };
-    invalid(format!(
-        "unknown configuration key `{key}`; valid {place}: {}",
-        keys_below(parent)
-    ))
+    invalid(
+        key,
+        format!(
+            "unknown configuration key; valid {place}: {}",
+            keys_below(parent)
+        ),
+    )
 }
 
 /// Walks the dotted `key` through `root`, creating absent sections and
@@ -370,7 +377,7 @@ fn set_path(root: &mut Table, key: &str, value: Option<Value>) -> Result<()> {
                 .entry(segment)
                 .or_insert_with(|| Value::Table(Table::new()))
                 .as_table_mut()
-                .ok_or_else(|| invalid(format!("--set {key}: `{path}` is not a table")))?,
+                .ok_or_else(|| invalid(key, format!("`{path}` is not a table")))?,
             Choice => {
                 // Not the last segment: the last one returned above.
                 let variant = segments[i + 1];
@@ -386,17 +393,17 @@ fn set_path(root: &mut Table, key: &str, value: Option<Value>) -> Result<()> {
             Kind::Variant { .. } => match here.get_mut(segment) {
                 Some(Value::Table(t)) => t,
                 _ => {
-                    return Err(invalid(format!(
-                        "unknown configuration key `{key}`; `{path}` is a value, \
-                         not a table"
-                    )))
+                    return Err(invalid(
+                        key,
+                        format!("unknown configuration key; `{path}` is a value, not a table"),
+                    ))
                 }
             },
             _ => {
-                return Err(invalid(format!(
-                    "unknown configuration key `{key}`; `{path}` is a value, not a \
-                     section"
-                )))
+                return Err(invalid(
+                    key,
+                    format!("unknown configuration key; `{path}` is a value, not a section"),
+                ))
             }
         };
     }
@@ -419,14 +426,14 @@ fn select_variant<'t>(
     if current.as_deref() != Some(variant) {
         let start = payload
             .parse::<Value>()
-            .map_err(|e| invalid(format!("documented value of `{variant}`: {e}")))?;
+            .map_err(|e| invalid(variant, format!("its documented value: {e}")))?;
         let mut one = Table::new();
         one.insert(variant.to_string(), start);
         table.insert(choice.to_string(), Value::Table(one));
     }
     match table.get_mut(choice) {
         Some(Value::Table(t)) => Ok(t),
-        _ => Err(invalid(format!("`{choice}` is not a table"))),
+        _ => Err(invalid(choice, "not a table".into())),
     }
 }
 

@@ -16,7 +16,7 @@ fn error(items: &[&str]) -> String {
     match apply(items) {
         Ok(cfg) => panic!("{items:?} was accepted: {cfg:?}"),
         Err(e) => {
-            assert!(matches!(e, Error::InvalidArgument(_)), "{e:?}");
+            assert!(matches!(e, Error::Config { .. }), "{e:?}");
             e.to_string()
         }
     }
@@ -341,6 +341,18 @@ fn malformed_and_wrong_values_are_errors() {
     assert!(e.contains("gpu_budget"), "{e}");
     let e = error(&["keyframes.policy.interval=0"]);
     assert!(e.contains("interval"), "{e}");
+    // A program reads the setting from the error's kind, not its words.
+    for (set, key) in [
+        ("seeding.stride=65", "seeding.stride"),
+        ("keyframes.policy.interval=0", "keyframes.policy.interval"),
+        ("replay=abc", "replay"),
+        ("replya=3", "replya"),
+    ] {
+        match apply(&[set]) {
+            Err(Error::Config { setting, .. }) => assert_eq!(setting, key, "{set}"),
+            other => panic!("{set}: {other:?}"),
+        }
+    }
     for set in ["stage_one_iterations=0", "stage_one_iterations=1001"] {
         let e = error(&[set]);
         assert!(
@@ -370,11 +382,11 @@ fn malformed_and_wrong_values_are_errors() {
         // Finite but overflowing f32 in the first step.
         (
             "weights.rgb=1e30",
-            "weights.rgb 1e30 must be from 0 to 10000",
+            "setting `weights.rgb`: 1e30 must be from 0 to 10000",
         ),
         (
             "learning_rates.means=1e30",
-            "learning_rates.means 1e30 must be from 0 to 10",
+            "setting `learning_rates.means`: 1e30 must be from 0 to 10",
         ),
     ] {
         let e = error(&[set]);

@@ -53,10 +53,13 @@ impl std::str::FromStr for Preset {
             .find(|(name, _)| *name == s)
             .map(|&(_, p)| p)
             .ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "no preset `{s}`; the presets are {}",
-                    Preset::ALL.map(|(n, _)| n).join(", ")
-                ))
+                Error::config(
+                    "preset",
+                    format!(
+                        "no preset `{s}`; the presets are {}",
+                        Preset::ALL.map(|(n, _)| n).join(", ")
+                    ),
+                )
             })
     }
 }

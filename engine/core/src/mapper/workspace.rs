@@ -52,11 +52,14 @@ pub(crate) fn size_workspace(
         Some(capacity) => {
             let buffer_limit_rows = max_buffer / largest_row_bytes(views);
             if capacity > buffer_limit_rows {
-                return Err(Error::InvalidArgument(format!(
-                    "window_capacity = {capacity}, but {} can hold at most {buffer_limit_rows} \
-                     Gaussians in one buffer ({max_buffer} bytes); lower window_capacity",
-                    ctx.info().name
-                )));
+                return Err(Error::config(
+                    "window_capacity",
+                    format!(
+                        "{capacity}, but {} can hold at most {buffer_limit_rows} Gaussians in \
+                         one buffer ({max_buffer} bytes); lower window_capacity",
+                        ctx.info().name
+                    ),
+                ));
             }
             WindowBudget {
                 budget,
