@@ -103,11 +103,11 @@ impl ArchiveWriter {
             .map(|(name, dtype, shape, data)| {
                 TensorView::new(*dtype, shape.clone(), data)
                     .map(|v| (name.clone(), v))
-                    .map_err(|e| Error::InvalidArgument(format!("tensor `{name}`: {e}")))
+                    .map_err(|e| Error::bad_input(format!("tensor `{name}`"), e.to_string()))
             })
             .collect::<Result<Vec<_>>>()?;
         let bytes = safetensors::serialize(views, Some(self.meta))
-            .map_err(|e| Error::InvalidArgument(format!("serialising the map: {e}")))?;
+            .map_err(|e| Error::bad_input("serialising the map", e.to_string()))?;
         with_sorted_header(bytes)
     }
 }
@@ -122,7 +122,7 @@ impl ArchiveWriter {
 /// offsets hold.
 fn with_sorted_header(mut bytes: Vec<u8>) -> Result<Vec<u8>> {
     use std::collections::BTreeMap;
-    let ours = |why: String| Error::InvalidArgument(format!("serialising the map: {why}"));
+    let ours = |why: String| Error::bad_input("serialising the map", why);
     let n = bytes
         .get(..8)
         .and_then(|b| b.try_into().ok())
@@ -270,12 +270,9 @@ fn check_extent(path: &Path, what: &str) -> Result<()> {
             .read_to_end(&mut head)
             .map_err(|e| io_error(path, "reading", e))?;
     }
-    read_header_of(&head, len).map(|_| ()).map_err(|why| {
-        Error::InvalidArgument(format!(
-            "{} is not a latentam {what}: {why}",
-            path.display()
-        ))
-    })
+    read_header_of(&head, len)
+        .map(|_| ())
+        .map_err(|why| Error::damaged(path, format!("not a latentam {what}: {why}")))
 }
 
 /// Reads a safetensors header and checks every tensor's extent: element
@@ -417,12 +414,8 @@ impl<'a> Archive<'a> {
         version: u32,
         what: &str,
     ) -> Result<Self> {
-        let not_ours = |why: String| {
-            Error::InvalidArgument(format!(
-                "{} is not a latentam {what}: {why}",
-                origin.display()
-            ))
-        };
+        let not_ours =
+            |why: String| Error::damaged(origin, format!("not a latentam {what}: {why}"));
         let (meta, tensors) = read_header(&bytes).map_err(not_ours)?;
         match meta.get("format").map(String::as_str) {
             Some(f) if f == format => {}
@@ -432,18 +425,23 @@ impl<'a> Archive<'a> {
         let legacy = found == LEGACY_VERSION.to_string();
         if found != version.to_string() && !legacy {
             let found: String = found.chars().take(32).collect();
-            return Err(Error::InvalidArgument(format!(
-                "{} is a version {found} {what}; this build reads versions {LEGACY_VERSION} and \
-                 {version}",
-                origin.display()
-            )));
+            return Err(Error::damaged(
+                origin,
+                format!(
+                    "a version {found} {what}; this build reads versions {LEGACY_VERSION} and \
+                     {version}"
+                ),
+            ));
         }
         if !legacy && !meta.contains_key(CHECKSUM_KEY) {
-            return Err(Error::InvalidArgument(format!(
-                "{} is damaged: a version {version} {what} without its checksum (the `{CHECKSUM_KEY}` \
-                 entry was removed); use another copy or the run's last save",
-                origin.display()
-            )));
+            return Err(Error::damaged(
+                origin,
+                format!(
+                    "this {what} is damaged: a version {version} {what} without its checksum \
+                     (the `{CHECKSUM_KEY}` entry was removed); use another copy or the run's \
+                     last save"
+                ),
+            ));
         }
         if let Some(want) = meta.get(CHECKSUM_KEY) {
             let got = checksum(
@@ -454,11 +452,14 @@ impl<'a> Archive<'a> {
             );
             if *want != got {
                 let want: String = want.chars().take(16).collect();
-                return Err(Error::InvalidArgument(format!(
-                    "{} is damaged: its checksum is {want:?}, its contents give {got} (a byte \
-                     changed on disk or in a copy); use another copy or the run's last save",
-                    origin.display()
-                )));
+                return Err(Error::damaged(
+                    origin,
+                    format!(
+                        "this {what} is damaged: its checksum is {want:?}, its contents give \
+                         {got} (a byte changed on disk or in a copy); use another copy or the \
+                         run's last save"
+                    ),
+                ));
             }
         }
         Ok(Archive {
@@ -495,9 +496,9 @@ impl<'a> Archive<'a> {
         &self.path
     }
 
-    /// An error naming the file.
+    /// [`Error::Damaged`] naming the file.
     pub fn corrupt(&self, why: String) -> Error {
-        Error::InvalidArgument(format!("{}: {why}", self.path.display()))
+        Error::damaged(&self.path, why)
     }
 
     /// A metadata value.

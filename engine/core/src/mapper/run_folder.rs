@@ -78,8 +78,9 @@ pub fn new_run_id() -> String {
 /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
 /// let folder = RunFolder::lock("runs/kitchen")?; // one writer at a time
 /// let staging = folder.stage()?;
-/// mapper.save_into(&staging)?;
-/// latentam_io::write_tum(&staging.path().join("trajectory.txt"), mapper.trajectory())?;
+/// let map = mapper.snapshot()?;
+/// map.export_ply(&staging.path().join("map.ply"))?;
+/// latentam_io::write_tum(&staging.path().join("trajectory.txt"), &map.trajectory)?;
 /// staging.commit()?; // the folder now holds exactly this version
 /// # Ok(())
 /// # }
@@ -94,7 +95,7 @@ pub struct RunFolder {
 impl RunFolder {
     /// Locks `dir` for writing (its parent is created when missing). Fails
     /// with [`Error::Locked`] when another writer holds it, and with
-    /// [`Error::InvalidArgument`] when `dir` is not a directory, is a
+    /// [`Error::BadInput`] when `dir` is not a directory, is a
     /// folder with something in it but no [`RUN_MARKER`], or holds entries
     /// that are not a run's files (see [`RUN_FOLDER_FILES`]).
     ///
@@ -110,20 +111,22 @@ impl RunFolder {
             // all the mapping before it.
             Err(_) if std::fs::symlink_metadata(given).is_ok_and(|m| m.is_symlink()) => {
                 let target = std::fs::read_link(given).unwrap_or_default();
-                return Err(Error::InvalidArgument(format!(
-                    "{} is a link to {}, which does not exist: create that folder or write the \
-                     run elsewhere",
-                    given.display(),
-                    target.display()
-                )));
+                return Err(Error::bad_input(
+                    given.display().to_string(),
+                    format!(
+                        "a link to {}, which does not exist: create that folder or write the \
+                         run elsewhere",
+                        target.display()
+                    ),
+                ));
             }
             Err(_) => std::path::absolute(given).map_err(|e| io_error(given, e))?,
         };
         let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
-            return Err(Error::InvalidArgument(format!(
-                "{}: a run folder needs a name and a parent directory",
-                given.display()
-            )));
+            return Err(Error::bad_input(
+                given.display().to_string(),
+                "a run folder needs a name and a parent directory",
+            ));
         };
         check_committable(&dir, parent, name)?;
         std::fs::create_dir_all(parent).map_err(|e| io_error(parent, e))?;
@@ -236,10 +239,10 @@ impl RunFolder {
             Err(e) => return Err(io_error(&self.dir, e)),
         };
         if !meta.is_dir() {
-            return Err(Error::InvalidArgument(format!(
-                "{} exists and is not a directory",
-                self.dir.display()
-            )));
+            return Err(Error::bad_input(
+                self.dir.display().to_string(),
+                "exists and is not a directory",
+            ));
         }
         let mut entries = Vec::new();
         for entry in std::fs::read_dir(&self.dir).map_err(|e| io_error(&self.dir, e))? {
@@ -252,9 +255,14 @@ impl RunFolder {
         }
         let dir = self.dir.display();
         if !holds_marker(&self.dir, None) {
-            return Err(Error::InvalidArgument(format!(
-                "{dir} is not empty and is not a latentam run folder (it has no {RUN_MARKER}): a                  run folder is replaced whole, so what it holds would be lost; write the run to a                  new or empty folder"
-            )));
+            return Err(Error::bad_input(
+                dir.to_string(),
+                format!(
+                    "not empty and not a latentam run folder (it has no {RUN_MARKER}): a run \
+                     folder is replaced whole, so what it holds would be lost; write the run to \
+                     a new or empty folder"
+                ),
+            ));
         }
         // A file of a run, or a partial one of a writer (`X.<pid>-<n>.partial`);
         // never a folder, whatever its name.
@@ -279,11 +287,14 @@ impl RunFolder {
             _ => ("entries", "are"),
         };
         let more = if foreign.len() > 5 { ", ..." } else { "" };
-        Err(Error::InvalidArgument(format!(
-            "{dir} holds {entry} that {are} not part of a latentam run ({}{more}): a run folder \
-             is replaced whole, so move them out or write the run to a new or empty folder",
-            shown.join(", ")
-        )))
+        Err(Error::bad_input(
+            dir.to_string(),
+            format!(
+                "holds {entry} that {are} not part of a latentam run ({}{more}): a run folder is \
+                 replaced whole, so move them out or write the run to a new or empty folder",
+                shown.join(", ")
+            ),
+        ))
     }
 
     /// A fresh, empty staging folder beside the run folder, with a new
@@ -333,11 +344,11 @@ fn acquire(lock_path: &Path, dir: &Path) -> Result<File> {
         let mut file = options.open(lock_path).map_err(|e| {
             #[cfg(unix)]
             if e.raw_os_error() == Some(libc::ELOOP) {
-                return Error::InvalidArgument(format!(
-                    "{} is a symbolic link; the run folder's lock is not taken through one \
+                return Error::bad_input(
+                    lock_path.display().to_string(),
+                    "it is a symbolic link; the run folder's lock is not taken through one \
                      (remove it if it is not yours)",
-                    lock_path.display()
-                ));
+                );
             }
             io_error(lock_path, e)
         })?;
@@ -455,12 +466,13 @@ fn hidden_sibling(name: &std::ffi::OsStr, suffix: &str) -> std::ffi::OsString {
 fn check_committable(dir: &Path, parent: &Path, name: &std::ffi::OsStr) -> Result<()> {
     let bytes = name.as_encoded_bytes().len();
     if bytes > MAX_NAME_BYTES {
-        return Err(Error::InvalidArgument(format!(
-            "{}: a run folder's name may have at most {MAX_NAME_BYTES} bytes (this one has {}): \
-             the staging folder beside it adds 34",
-            dir.display(),
-            bytes
-        )));
+        return Err(Error::bad_input(
+            dir.display().to_string(),
+            format!(
+                "a run folder's name may have at most {MAX_NAME_BYTES} bytes (this one has \
+                 {bytes}): the staging folder beside it adds 34"
+            ),
+        ));
     }
     #[cfg(unix)]
     let mount = {
@@ -473,11 +485,11 @@ fn check_committable(dir: &Path, parent: &Path, name: &std::ffi::OsStr) -> Resul
     #[cfg(not(unix))]
     let mount = false;
     if dir.exists() && (mount || latentam_base::faults::mount_point()) {
-        return Err(Error::InvalidArgument(format!(
-            "{} is a mount point: a run folder is replaced whole by renaming, which a mount \
+        return Err(Error::bad_input(
+            dir.display().to_string(),
+            "it is a mount point: a run folder is replaced whole by renaming, which a mount \
              point does not allow; write the run to a folder inside it",
-            dir.display()
-        )));
+        ));
     }
     Ok(())
 }

@@ -45,14 +45,14 @@ pub struct PlyMap {
 /// numeric scalar type is accepted and converted to `f32`.
 ///
 /// Errors: [`Error::Io`] when the file cannot be read,
-/// [`Error::InvalidArgument`] (with the path in the message) when it is not
-/// a PLY file this reader supports or is damaged.
+/// [`Error::Damaged`] (naming the file) when it is not a PLY file this
+/// reader supports or is damaged.
 pub fn read_ply(path: &Path) -> Result<PlyMap> {
     let io_err = |source| Error::Io {
         path: path.to_path_buf(),
         source,
     };
-    let bad = |message: String| Error::InvalidArgument(format!("{}: {message}", path.display()));
+    let bad = |message: String| Error::damaged(path, message);
 
     let file = latentam_io::open_input(path).map_err(io_err)?;
     let file_len = file.metadata().map_err(io_err)?.len();

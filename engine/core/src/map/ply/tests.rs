@@ -60,9 +60,12 @@ fn write_raw(path: &Path, header: &str, body: &[u8]) {
 
 fn expect_error(path: &Path, needle: &str) {
     match read_ply(path) {
-        Err(Error::InvalidArgument(m)) => {
-            assert!(m.contains(&path.display().to_string()), "{m}");
-            assert!(m.contains(needle), "{m:?} should mention {needle:?}");
+        Err(Error::Damaged { path: p, reason }) => {
+            assert_eq!(p, path);
+            assert!(
+                reason.contains(needle),
+                "{reason:?} should mention {needle:?}"
+            );
         }
         other => panic!("expected a format error mentioning {needle:?}, got {other:?}"),
     }
@@ -402,10 +405,7 @@ fn bad_extras_are_rejected_before_writing() {
         vec![("", &two[..])],
     ] {
         let result = write_ply(&path, &gaussians, &extra);
-        assert!(
-            matches!(result, Err(Error::InvalidArgument(_))),
-            "{extra:?}"
-        );
+        assert!(matches!(result, Err(Error::BadInput { .. })), "{extra:?}");
     }
     assert!(!path.exists() && !partial_left(&path));
 }

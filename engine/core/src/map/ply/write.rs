@@ -17,7 +17,7 @@ use latentam_base::{Error, Result};
 /// Each extra slice must have one value per Gaussian, and its name must be
 /// a plain token (ASCII graphic characters, no spaces), distinct from the
 /// other extras and from the standard property names; otherwise
-/// [`Error::InvalidArgument`] is returned before any file is touched.
+/// [`Error::BadInput`] is returned before any file is touched.
 ///
 /// The write is atomic: the data goes to `<path>.partial` next to `path`,
 /// is flushed and synced, and is then renamed over `path`, so a reader
@@ -85,26 +85,28 @@ pub(super) fn validate_extra(count: usize, extra: &[(&str, &[f32])]) -> Result<(
     let mut seen = HashSet::new();
     for (name, values) in extra {
         if name.is_empty() || !name.bytes().all(|b| b.is_ascii_graphic()) {
-            return Err(Error::InvalidArgument(format!(
-                "PLY property name {name:?} must be non-empty ASCII without spaces"
-            )));
+            return Err(Error::bad_input(
+                format!("PLY property name {name:?}"),
+                "must be non-empty ASCII without spaces",
+            ));
         }
         if is_reserved(name) {
-            return Err(Error::InvalidArgument(format!(
-                "PLY property name {name:?} clashes with a standard property (or the \
-                 reserved latent_* names)"
-            )));
+            return Err(Error::bad_input(
+                format!("PLY property name {name:?}"),
+                "clashes with a standard property (or the reserved latent_* names)",
+            ));
         }
         if !seen.insert(*name) {
-            return Err(Error::InvalidArgument(format!(
-                "PLY property name {name:?} given twice"
-            )));
+            return Err(Error::bad_input(
+                format!("PLY property name {name:?}"),
+                "given twice",
+            ));
         }
         if values.len() != count {
-            return Err(Error::InvalidArgument(format!(
-                "PLY property {name:?} has {} values for {count} Gaussians",
-                values.len()
-            )));
+            return Err(Error::bad_input(
+                format!("PLY property {name:?}"),
+                format!("{} values for {count} Gaussians", values.len()),
+            ));
         }
     }
     Ok(())

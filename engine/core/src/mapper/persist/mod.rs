@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use glam::{DAffine3, DMat3, DQuat, DVec3};
 
 use super::archive::{Archive, ArchiveWriter, FORMAT, VERSION};
-use super::config::MapperConfig;
+use super::config::{MapperConfig, WHOLE_CONFIGURATION};
 use super::history::{KeyframeRecord, RegionTargets};
 use super::progress::Counters;
 use crate::latent::NO_REGION_LABEL;
@@ -154,10 +154,11 @@ fn head_state_bytes(dim: u64, atoms: u64) -> Option<[u64; 6]> {
     Some([w, w, QUERY_DIM as u64 * 4, d, d, atoms.checked_mul(4)?])
 }
 
-/// The message of an error, without its kind.
-fn message(e: Error) -> String {
+/// What is wrong with a saved configuration (an error of
+/// [`MapperConfig::from_toml`]), for a message that names the file.
+fn config_message(e: Error) -> String {
     match e {
-        Error::InvalidArgument(m) => m,
+        Error::Config { setting, reason } if setting == WHOLE_CONFIGURATION => reason,
         e => e.to_string(),
     }
 }
@@ -200,7 +201,7 @@ pub(super) struct SavedWindow {
 /// accepts any bytes: whatever is malformed or inconsistent (metadata,
 /// tensor types and shapes, counts, duplicate or unknown voxel keys,
 /// non-finite cameras and poses, sizes too large to allocate) is an
-/// [`Error::InvalidArgument`] naming the file; it never panics, and
+/// [`Error::Damaged`] naming the file; it never panics, and
 /// allocates only in proportion to the bytes it is given.
 ///
 /// ```no_run

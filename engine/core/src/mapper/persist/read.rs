@@ -14,7 +14,7 @@ type Voxels = HashSet<VoxelKey>;
 impl SavedState {
     pub(super) fn from_archive(a: &Archive<'_>) -> Result<Self> {
         let config = MapperConfig::from_toml(a.meta("config")?)
-            .map_err(|e| a.corrupt(format!("saved {}", message(e))))?;
+            .map_err(|e| a.corrupt(format!("saved mapper configuration: {}", config_message(e))))?;
         // Sizes that shape GPU allocations, before anything is read.
         let window_meta = Self::parse_window_meta(a)?;
         let counters = Self::parse_counters(a)?;

@@ -26,10 +26,14 @@ impl StateRef<'_> {
     pub(super) fn into_bytes(self) -> Result<Vec<u8>> {
         // Never a file the reader would refuse.
         if let Some(what) = missing_from(self.run_id, &self.counters) {
-            return Err(Error::InvalidArgument(format!(
-                "a state with {what} cannot be saved: every state this version writes carries \
-                 both (save a loaded state through a run folder, which gives it a run id)"
-            )));
+            return Err(Error::bad_input(
+                "the state to save",
+                format!(
+                    "a state with {what} cannot be saved: every state this version writes \
+                     carries both (save a loaded state through a run folder, which gives it a \
+                     run id)"
+                ),
+            ));
         }
         let mut w = ArchiveWriter::default();
         if let Some(id) = self.run_id {

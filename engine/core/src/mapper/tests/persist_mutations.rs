@@ -282,7 +282,7 @@ fn mutate(rng: &mut ChaCha8Rng, bytes: &[u8]) -> (Vec<u8>, String) {
 
 /// Applies `count` seeded mutations (one to three each) to `bytes`,
 /// parsing each result: a panic fails with the seed and the mutations,
-/// and every error must be an invalid argument naming the file. Returns
+/// and every error must be [`Error::Damaged`] naming the file. Returns
 /// the mutated files that still parsed.
 pub(super) fn parse_mutations(bytes: &[u8], count: usize, seed: u64) -> Vec<(SavedState, String)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -304,16 +304,17 @@ pub(super) fn parse_mutations(bytes: &[u8], count: usize, seed: u64) -> Vec<(Sav
                 what.join("; ")
             ),
             Ok(Ok(state)) => accepted.push((state, what.join("; "))),
-            Ok(Err(Error::InvalidArgument(msg))) => {
+            Ok(Err(Error::Damaged { path, reason })) => {
                 assert!(
-                    msg.contains(ORIGIN),
-                    "seed {seed}, mutation {i} ({}): error does not name the file: {msg}",
-                    what.join("; ")
+                    path == Path::new(ORIGIN),
+                    "seed {seed}, mutation {i} ({}): error does not name the file: {}: {reason}",
+                    what.join("; "),
+                    path.display()
                 );
                 refused += 1;
             }
             Ok(Err(e)) => panic!(
-                "seed {seed}, mutation {i} ({}): not an invalid argument: {e}",
+                "seed {seed}, mutation {i} ({}): not a damaged file: {e}",
                 what.join("; ")
             ),
         }
