@@ -14,9 +14,10 @@ pub const COSINE_EPS: f32 = 1e-8;
 
 fn check_rows(what: &str, rows: u32, capacity: u32) -> Result<()> {
     if rows > capacity {
-        return Err(Error::InvalidArgument(format!(
-            "{what}: {rows} rows, sized for {capacity}"
-        )));
+        return Err(Error::bad_input(
+            what,
+            format!("{rows} rows, sized for {capacity}"),
+        ));
     }
     Ok(())
 }

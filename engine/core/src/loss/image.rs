@@ -198,16 +198,20 @@ impl ImageLoss {
     ) -> Result<()> {
         let views = layout.views.len();
         if batch_views < views {
-            return Err(Error::InvalidArgument(format!(
-                "a part of {views} views of a batch of {batch_views}"
-            )));
+            return Err(Error::bad_input(
+                "image loss views",
+                format!("a part of {views} views of a batch of {batch_views}"),
+            ));
         }
         if views > self.max_views as usize || valid_depth_pixels.len() != views {
-            return Err(Error::InvalidArgument(format!(
-                "image loss of {views} views with {} valid-depth counts; sized for {} views",
-                valid_depth_pixels.len(),
-                self.max_views
-            )));
+            return Err(Error::bad_input(
+                "image loss views",
+                format!(
+                    "{views} views with {} valid-depth counts; sized for {} views",
+                    valid_depth_pixels.len(),
+                    self.max_views
+                ),
+            ));
         }
         let need = layout.pixels * 16;
         for b in [rendered, target, grad] {
@@ -221,16 +225,22 @@ impl ImageLoss {
         for (v, slot) in layout.views.iter().enumerate() {
             let pixels = slot.width as u64 * slot.height as u64;
             if pixels > self.max_view_pixels {
-                return Err(Error::InvalidArgument(format!(
-                    "view {v} has {pixels} pixels; the image loss was sized for {}",
-                    self.max_view_pixels
-                )));
+                return Err(Error::bad_input(
+                    format!("view {v}"),
+                    format!(
+                        "{pixels} pixels; the image loss was sized for {}",
+                        self.max_view_pixels
+                    ),
+                ));
             }
             if valid_depth_pixels[v] > pixels {
-                return Err(Error::InvalidArgument(format!(
-                    "view {v}: {} valid depths out of {pixels} pixels",
-                    valid_depth_pixels[v]
-                )));
+                return Err(Error::bad_input(
+                    format!("view {v}"),
+                    format!(
+                        "{} valid depths out of {pixels} pixels",
+                        valid_depth_pixels[v]
+                    ),
+                ));
             }
             let per_colour = inv_views / (3 * pixels) as f64;
             let w_depth = if valid_depth_pixels[v] > 0 {

@@ -97,9 +97,12 @@ impl PendingSync {
         let host = self.readback.read()?;
         for (i, key) in self.keys.iter().enumerate() {
             if !global.write_back(*key, gaussian_at(&host, i)) {
-                return Err(Error::InvalidArgument(format!(
-                    "window row {i} holds voxel {key:?}, which the global map does not have"
-                )));
+                return Err(Error::bad_input(
+                    "global map",
+                    format!(
+                        "window row {i} holds voxel {key:?}, which the global map does not have"
+                    ),
+                ));
             }
         }
         Ok(self.keys.len())
@@ -158,8 +161,9 @@ impl LocalWindow {
     /// `window/...` in the memory report).
     pub fn new(ctx: &Context, capacity: u64) -> Result<Self> {
         if capacity == 0 {
-            return Err(Error::InvalidArgument(
-                "a window needs room for at least one Gaussian".into(),
+            return Err(Error::bad_input(
+                "window capacity",
+                "a window needs room for at least one Gaussian",
             ));
         }
         Ok(LocalWindow {
@@ -344,10 +348,13 @@ impl LocalWindow {
     /// companion buffer covers the capacity.
     fn check_room(&self, keep: usize, incoming: usize, companions: &[Companion<'_>]) -> Result<()> {
         if keep + incoming > self.capacity() as usize {
-            return Err(Error::InvalidArgument(format!(
-                "keeping {keep} and bringing in {incoming} Gaussians overflows a window of {}",
-                self.capacity()
-            )));
+            return Err(Error::budget(
+                "the window capacity",
+                format!(
+                    "keeping {keep} and bringing in {incoming} Gaussians overflows a window of {}",
+                    self.capacity()
+                ),
+            ));
         }
         for c in companions {
             c.buffer
@@ -380,9 +387,10 @@ fn gather(global: &GlobalMap, keys: &[VoxelKey]) -> Result<HostGaussians> {
     let mut fetched = HostGaussians::default();
     for k in keys {
         let g = global.get(*k).ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "sync fetches voxel {k:?}, which the global map does not have"
-            ))
+            Error::bad_input(
+                "global map",
+                format!("sync fetches voxel {k:?}, which the global map does not have"),
+            )
         })?;
         push_gaussian(&mut fetched, g);
     }

@@ -172,16 +172,19 @@ fn check_inputs(v: &PixelInputs, dim: usize) -> Result<()> {
         || !v.targets.len().is_multiple_of(dim)
         || !vocab_ok
     {
-        return Err(Error::InvalidArgument(format!(
-            "per-pixel metrics of a {}x{} view with {} queries, {} regions, {} labels, \
+        return Err(Error::bad_input(
+            "per-pixel metrics",
+            format!(
+                "a {}x{} view with {} queries, {} regions, {} labels, \
              {} target values and a vocabulary of another size for {dim}-d embeddings",
-            v.width,
-            v.height,
-            v.queries.len(),
-            v.region.len(),
-            v.truth.len(),
-            v.targets.len()
-        )));
+                v.width,
+                v.height,
+                v.queries.len(),
+                v.region.len(),
+                v.truth.len(),
+                v.targets.len()
+            ),
+        ));
     }
     Ok(())
 }

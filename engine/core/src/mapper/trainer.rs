@@ -159,7 +159,10 @@ impl Trainer {
         let chunk_views = cfg.views_per_chunk();
         let max_pixels = cfg.max_view_pixels * chunk_views as u64;
         let capacity = u32::try_from(cfg.capacity).map_err(|_| {
-            Error::InvalidArgument(format!("window capacity {} too large", cfg.capacity))
+            Error::bad_input(
+                "window capacity",
+                format!("{} too large (at most {})", cfg.capacity, u32::MAX),
+            )
         })?;
         Ok(Trainer {
             region_targets: Buffer::device(
@@ -254,21 +257,24 @@ impl Trainer {
         batch: &[&KeyframeRecord],
     ) -> Result<StageOneReport> {
         if batch.is_empty() || batch.len() > self.cfg.max_views as usize {
-            return Err(Error::InvalidArgument(format!(
-                "a batch of {} keyframes; between 1 and {} allowed",
-                batch.len(),
-                self.cfg.max_views
-            )));
+            return Err(Error::bad_input(
+                "keyframe batch",
+                format!(
+                    "a batch of {} keyframes; between 1 and {} allowed",
+                    batch.len(),
+                    self.cfg.max_views
+                ),
+            ));
         }
         let count = window.len() as u64;
         let dim = head.map_or(0, |h| h.config().dim as usize);
         let (chunks, rows, rows_per_view) = self.plan(batch, head.is_some(), dim)?;
         let n: u32 = rows_per_view.iter().sum();
         if n > self.cfg.max_regions {
-            return Err(Error::InvalidArgument(format!(
-                "batch has {n} regions; the trainer holds {}",
-                self.cfg.max_regions
-            )));
+            return Err(Error::bad_input(
+                "keyframe batch",
+                format!("{n} regions; the trainer holds {}", self.cfg.max_regions),
+            ));
         }
         let mut weights = mean_per_view_weights(&rows_per_view);
         for (w, row) in weights.iter_mut().zip(rows.chunks(dim.max(1))) {
@@ -473,10 +479,11 @@ impl Trainer {
                     continue;
                 };
                 if r.dim as usize != dim {
-                    return Err(Error::InvalidArgument(format!(
-                        "keyframe at {} ns has {}-d embeddings; the head is {dim}-d",
-                        k.stamp_ns, r.dim
-                    )));
+                    return Err(Error::EmbeddingDimension {
+                        map: dim as u32,
+                        given: r.dim,
+                        context: Some(format!("the keyframe at {} ns", k.stamp_ns)),
+                    });
                 }
                 let view = if r.grid {
                     regions.add_grid(v, r.height, r.width)?

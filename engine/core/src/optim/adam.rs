@@ -50,9 +50,10 @@ impl AdamHyper {
             && self.eps.is_finite()
             && self.eps >= 0.0;
         if !ok {
-            return Err(Error::InvalidArgument(format!(
-                "Adam group `{name}`: need lr ≥ 0, 0 ≤ β < 1, ε ≥ 0; got {self:?}"
-            )));
+            return Err(Error::bad_input(
+                format!("Adam group `{name}`"),
+                format!("need lr ≥ 0, 0 ≤ β < 1, ε ≥ 0; got {self:?}"),
+            ));
         }
         Ok(())
     }
@@ -96,9 +97,10 @@ impl AdamGroup {
     pub fn new(ctx: &Context, name: &str, rows: u32, width: u32, hyper: AdamHyper) -> Result<Self> {
         hyper.validate(name)?;
         if width == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "Adam group `{name}`: width must be positive"
-            )));
+            return Err(Error::bad_input(
+                format!("Adam group `{name}`"),
+                "width must be positive",
+            ));
         }
         let elems = (rows.max(1) as u64) * width as u64;
         let buf =
@@ -132,10 +134,10 @@ impl AdamGroup {
 
     fn check(&self, what: &str, rows: u32, bufs: &[&Buffer], per_row: &[u64]) -> Result<()> {
         if rows > self.rows {
-            return Err(Error::InvalidArgument(format!(
-                "Adam group `{}` ({} rows): {what} of {rows} rows",
-                self.name, self.rows
-            )));
+            return Err(Error::bad_input(
+                format!("Adam group `{}` ({} rows)", self.name, self.rows),
+                format!("{what} of {rows} rows"),
+            ));
         }
         for (b, &bytes) in bufs.iter().zip(per_row) {
             b.ensure_bytes(
@@ -164,10 +166,10 @@ impl AdamGroup {
         }
         let elems = rows as u64 * self.width as u64;
         if elems > u32::MAX as u64 {
-            return Err(Error::InvalidArgument(format!(
-                "Adam group `{}`: {elems} elements exceed one dispatch",
-                self.name
-            )));
+            return Err(Error::bad_input(
+                format!("Adam group `{}`", self.name),
+                format!("{elems} elements exceed one dispatch"),
+            ));
         }
         let use_mask = mask.is_some() as u32;
         let mask = mask.unwrap_or(&self.no_mask);

@@ -103,10 +103,13 @@ impl GaussianBuffers {
     ) -> Result<()> {
         let n = host.len()? as u64;
         if first + n > self.capacity {
-            return Err(Error::InvalidArgument(format!(
-                "uploading {n} Gaussians at slot {first} exceeds the capacity {}",
-                self.capacity
-            )));
+            return Err(Error::bad_input(
+                "Gaussians to upload",
+                format!(
+                    "uploading {n} Gaussians at slot {first} exceeds the capacity {}",
+                    self.capacity
+                ),
+            ));
         }
         let data: [&[f32]; 6] = [
             bytemuck::cast_slice(&host.means),
@@ -140,10 +143,13 @@ impl GaussianBuffers {
         count: u64,
     ) -> Result<GaussianReadback> {
         if count > self.capacity {
-            return Err(Error::InvalidArgument(format!(
-                "downloading {count} Gaussians from buffers of capacity {}",
-                self.capacity
-            )));
+            return Err(Error::bad_input(
+                "Gaussians to download",
+                format!(
+                    "downloading {count} Gaussians from buffers of capacity {}",
+                    self.capacity
+                ),
+            ));
         }
         let mut reads = Vec::new();
         if count > 0 {

@@ -211,10 +211,13 @@ impl Rasterizer {
     /// `offsets_at` the regions' CSR offsets) against `batch`.
     fn check_region_labels(batch: &RenderBatch, labels: &Buffer, offsets_at: u32) -> Result<()> {
         if (offsets_at as u64) < batch.layout.pixels {
-            return Err(Error::InvalidArgument(format!(
-                "region offsets at {offsets_at} overlap the labels of {} pixels",
-                batch.layout.pixels
-            )));
+            return Err(Error::bad_input(
+                "region labels and offsets",
+                format!(
+                    "offsets at {offsets_at} overlap the labels of {} pixels",
+                    batch.layout.pixels
+                ),
+            ));
         }
         labels.ensure_bytes((offsets_at as u64 + 1) * 4, "region labels and offsets")
     }
@@ -309,8 +312,9 @@ impl Rasterizer {
     /// [`Channels::Colour`] pass, whose query image is stale).
     pub fn download_view(&self, index: usize) -> Result<RenderedView> {
         if self.last.channels != Channels::All {
-            return Err(Error::InvalidArgument(
-                "the last forward pass rendered no query channels".into(),
+            return Err(Error::bad_input(
+                "the rendered view",
+                "the last forward pass rendered no query channels",
             ));
         }
         let slot = self.view_slot(index)?;
@@ -346,10 +350,13 @@ impl Rasterizer {
 impl Rasterizer {
     fn view_slot(&self, index: usize) -> Result<super::ViewSlot> {
         self.last.layout.views.get(index).copied().ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "view {index} of a batch of {}",
-                self.last.layout.views.len()
-            ))
+            Error::bad_input(
+                format!("view {index}"),
+                format!(
+                    "not in the last batch, of {} views",
+                    self.last.layout.views.len()
+                ),
+            )
         })
     }
 
@@ -380,5 +387,5 @@ impl Rasterizer {
 }
 
 fn no_forward() -> Error {
-    Error::InvalidArgument("the rasterizer has not rendered a batch yet".into())
+    Error::bad_input("rasterizer", "it has not rendered a batch yet")
 }

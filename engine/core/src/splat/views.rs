@@ -103,15 +103,16 @@ impl BatchLayout {
                 .checked_add(tx * ty)
                 .filter(|&t| t < 1 << 24)
                 .ok_or_else(|| {
-                    crate::Error::InvalidArgument(
-                        "the batch has too many tiles (more than 2^24 16x16 tiles)".into(),
+                    crate::Error::bad_input(
+                        "the views of a batch",
+                        "too many tiles (more than 2^24 16x16 tiles)",
                     )
                 })?;
             if layout.pixels > u32::MAX as u64 / 8 {
-                return Err(crate::Error::InvalidArgument(format!(
-                    "the batch has too many pixels ({})",
-                    layout.pixels
-                )));
+                return Err(crate::Error::bad_input(
+                    "the views of a batch",
+                    format!("too many pixels ({})", layout.pixels),
+                ));
             }
             layout.views.push(slot);
         }

@@ -44,10 +44,10 @@ impl Rasterizer {
         let stub = self.stub()?;
         let attached = !self.settings.detach_query_gradients;
         if attached && (batch.channels != Channels::All || images.query.is_none()) {
-            return Err(Error::InvalidArgument(
+            return Err(Error::bad_input(
+                "rendered batch",
                 "query gradients reaching geometry need the rendered query: render with \
-                 Channels::All"
-                    .into(),
+                 Channels::All",
             ));
         }
         let (source, first_row, grad_query, labels, offsets_at) = match query {
@@ -65,10 +65,13 @@ impl Rasterizer {
         };
         let count = batch.count;
         if grads.capacity() < count || gaussians.capacity() < count {
-            return Err(Error::InvalidArgument(format!(
-                "backward over {count} Gaussians into buffers of capacity {}",
-                grads.capacity().min(gaussians.capacity())
-            )));
+            return Err(Error::bad_input(
+                "gradient buffers",
+                format!(
+                    "backward over {count} Gaussians into buffers of capacity {}",
+                    grads.capacity().min(gaussians.capacity())
+                ),
+            ));
         }
         let n_views = batch.layout.views.len() as u32;
         if !accumulate {

@@ -96,15 +96,18 @@ impl Rasterizer {
         channels: Channels,
     ) -> Result<Vec<RenderBatch>> {
         if count > gaussians.capacity() {
-            return Err(Error::InvalidArgument(format!(
-                "rendering {count} Gaussians from buffers of capacity {}",
-                gaussians.capacity()
-            )));
+            return Err(Error::bad_input(
+                "Gaussians to render",
+                format!(
+                    "rendering {count} Gaussians from buffers of capacity {}",
+                    gaussians.capacity()
+                ),
+            ));
         }
         let mut measured = Vec::with_capacity(batches.len());
         for cameras in batches {
             if cameras.is_empty() {
-                return Err(Error::InvalidArgument("no views to render".into()));
+                return Err(Error::bad_input("batch", "no views to render"));
             }
             let (layout, views) = BatchLayout::new(cameras)?;
             let pairs = count * cameras.len() as u64;
@@ -116,11 +119,14 @@ impl Rasterizer {
                 .unwrap_or(0);
             // Every count below is a u32 on the GPU, intersections included.
             if pairs.saturating_mul(max_view_tiles) >= u32::MAX as u64 {
-                return Err(Error::InvalidArgument(format!(
-                    "a batch of {} views x {count} Gaussians could exceed 2^32 tile \
-                     intersections; render fewer views per batch",
-                    cameras.len()
-                )));
+                return Err(Error::bad_input(
+                    "batch",
+                    format!(
+                        "{} views x {count} Gaussians could exceed 2^32 tile intersections; \
+                         render fewer views per batch",
+                        cameras.len()
+                    ),
+                ));
             }
             measured.push(RenderBatch {
                 layout,
@@ -368,10 +374,10 @@ impl Rasterizer {
 }
 
 fn not_measured() -> Error {
-    Error::InvalidArgument(
+    Error::bad_input(
+        "batch",
         "record_forward of a batch this rasterizer has not measured: call Rasterizer::measure \
-         for it first"
-            .into(),
+         for it first",
     )
 }
 

@@ -74,10 +74,10 @@ impl PixelBuffers {
     /// [`Rasterizer::download_view`](super::Rasterizer::download_view) returns the whole view.
     pub fn query(&self) -> Result<&Buffer> {
         self.query.as_ref().ok_or_else(|| {
-            Error::InvalidArgument(
+            Error::bad_input(
+                "query image",
                 "no per-pixel query image: render with Channels::All (images) or keep \
-                 RenderSettings::query_gradient_image (gradients)"
-                    .into(),
+                 RenderSettings::query_gradient_image (gradients)",
             )
         })
     }
