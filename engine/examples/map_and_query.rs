@@ -7,6 +7,7 @@
 //! ```
 
 use latentam::frames::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::{Scored, TextQuery};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -28,7 +29,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .position(|n| n == word)
         .ok_or_else(|| format!("`{word}` is not in the vocabulary {:?}", vocabulary.names))?;
     let d = vocabulary.dim as usize;
-    let scores = mapper.query(&vocabulary.vectors[i * d..(i + 1) * d])?; // one per Gaussian
+    let word_embedding = TextQuery::embedding(vocabulary.vectors[i * d..(i + 1) * d].to_vec());
+    let scores = mapper.relevance(&word_embedding, Scored::Gaussians)?; // one per Gaussian
     let state = mapper.save(out)?;
     let stats = mapper.stats();
     let best = scores.iter().cloned().fold(f32::NEG_INFINITY, f32::max);

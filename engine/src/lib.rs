@@ -46,12 +46,19 @@
 #![warn(missing_docs)]
 
 pub use latentam_base::{Camera, Error, HostGaussians, InputError, Result};
-pub use latentam_core::latent::TextQuery;
+pub use latentam_core::latent::{Relevance as Scoring, TextQuery};
 pub use latentam_core::live::{
     DropCounts, KeyframeImage, LiveMapper, LiveOptions, LiveReader, LiveStatus, LogRun,
-    LogRunOptions, MapSnapshot, Relevance, RunObserver,
+    LogRunOptions, Relevance, RunObserver,
 };
-pub use latentam_core::mapper::{Mapper, MapperConfig as Config, RunReport};
+pub use latentam_core::map::Gaussian;
+pub use latentam_core::mapper::eval::ViewMetrics;
+pub use latentam_core::mapper::{
+    DecoderFile, Ending, IndexSettings, Integrated, KeyframeReport, MapSnapshot, Mapper,
+    MapperConfig as Config, MapperStats, RelevanceIndex, RunReport, Scored, Viewpoint,
+};
+pub use latentam_core::splat::RenderedView;
+pub use latentam_gpu::{Context, ContextOptions, DeviceInfo};
 
 /// What a frame is made of, and reading frames from MCAP logs and rosbag2
 /// folders.

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use latentam_core::latent::TextQuery;
 use latentam_core::live::{LiveMapper, LiveOptions};
 use latentam_core::map::{Gaussian, VoxelKey};
-use latentam_core::mapper::{camera_of, Mapper, MapperConfig};
+use latentam_core::mapper::{camera_of, Mapper, MapperConfig, Scored};
 use latentam_gpu::{Context, ContextOptions, Validation};
 use latentam_io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 
@@ -65,10 +65,9 @@ fn config() -> MapperConfig {
 
 /// The global map, by voxel (written back from the GPU first).
 fn global_of(mapper: &mut Mapper) -> BTreeMap<VoxelKey, Gaussian> {
-    let path = std::env::temp_dir().join(format!("latentam-live-{}.ply", std::process::id()));
-    mapper.export_ply(&path).unwrap(); // writes the window back
-    std::fs::remove_file(&path).unwrap();
-    mapper.global().iter().map(|(k, g)| (k, *g)).collect()
+    mapper.write_back_window().unwrap();
+    let internals = mapper.internals();
+    internals.global.iter().map(|(k, g)| (k, *g)).collect()
 }
 
 fn assert_no_validation_errors(ctx: Context) {
@@ -185,12 +184,14 @@ fn queries_while_mapping_see_consistent_snapshots_and_the_map_matches_a_synchron
         pipelines,
         "a pipeline was compiled while mapping"
     );
-    let exact = mapper.relevance(&chair).unwrap();
+    let exact = mapper.relevance(&chair, Scored::Gaussians).unwrap();
     let by_mean: HashMap<[u32; 3], f32> = mapper
-        .global()
+        .snapshot()
+        .unwrap()
+        .to_gaussians()
         .iter()
         .zip(&exact)
-        .map(|((_, g), &p)| (g.mean.map(f32::to_bits), p))
+        .map(|(g, &p)| (g.mean.map(f32::to_bits), p))
         .collect();
     let mut worst = 0f32;
     for (mean, p) in last.gaussians.means.iter().zip(&from_snapshot) {

@@ -89,7 +89,7 @@ pub fn run(args: Args) -> Result<()> {
         Ending::Interrupted => bail!("interrupted; what was mapped is in {}", run_dir.display()),
         _ => {}
     }
-    let profile = run.mapper.context().profiler_snapshot();
+    let profile = run.context().profiler_snapshot();
     drop(run);
 
     // Every 6th frame from 2: views that were never keyframes (2, 14, …)

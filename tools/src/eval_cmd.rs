@@ -179,7 +179,7 @@ pub fn run(args: Args) -> Result<()> {
     // the folder.
     let (mut mapper, run_report) = latentam_core::mapper::read_one_version(&args.dir, || {
         let mapper = Mapper::load(&ctx, &args.dir)?;
-        let report = run_report_of(&args.dir, mapper.run_id())
+        let report = run_report_of(&args.dir, mapper.stats().run_id.as_deref())
             .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))?;
         Ok((mapper, report))
     })
@@ -187,8 +187,9 @@ pub fn run(args: Args) -> Result<()> {
     let assembly = args.input.assembly()?;
     let vocabulary = read_vocabulary(&args.log, &assembly.topics.vocabulary)?;
     if let Some(v) = &vocabulary {
-        if mapper.head().is_some() {
-            mapper.check_vocabulary(v).with_context(|| {
+        let stats = mapper.stats();
+        if stats.embedding_dim.is_some() {
+            stats.check_vocabulary(v).with_context(|| {
                 format!(
                     "the vocabulary on {} in {}",
                     assembly.topics.vocabulary,
@@ -235,7 +236,8 @@ fn evaluate_frames(
 ) -> Result<Vec<FrameRow>> {
     let limit = args.frames.unwrap_or(usize::MAX);
     let keyframes: std::collections::HashSet<i64> = mapper
-        .trajectory()
+        .snapshot()?
+        .trajectory
         .iter()
         .map(|&(stamp, _)| stamp)
         .collect();

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use crate::own_inputs::{refuse_overwriting_inputs, Input};
 
 use anyhow::{bail, Context as _, Result};
+use latentam::{Scored, Scoring, TextQuery};
 use latentam_base::text::{shown, shown_path};
 use latentam_cli::progress::Stages;
 use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
@@ -99,7 +100,8 @@ pub fn run(args: Args) -> Result<()> {
     refuse_overwriting_inputs(&inputs, &[("--foxglove", &args.foxglove)])?;
     let stages = Stages::new("export");
     let (_ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "export")?;
-    let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
+    let snapshot = mapper.snapshot()?;
+    let gaussians = snapshot.to_gaussians();
     let positions: Vec<[f32; 3]> = gaussians.iter().map(|g| g.mean).collect();
     let opacity: Vec<f32> = gaussians
         .iter()
@@ -113,13 +115,13 @@ pub fn run(args: Args) -> Result<()> {
             [r, gr, b, to_bytes([a; 3])[0]]
         })
         .collect();
-    let trajectory: Vec<(i64, CameraPose)> = mapper.trajectory().to_vec();
+    let trajectory: Vec<(i64, CameraPose)> = snapshot.trajectory.clone();
     let stamp = trajectory.last().map_or(0, |&(s, _)| s.max(0) as u64);
 
     // Relevance per word: a softmax over the whole vocabulary, as
     // `query --name` gives it.
     let mut relevance: Vec<WordRelevance> = Vec::new();
-    let has_head = mapper.head().is_some();
+    let has_head = snapshot.decoder.is_some();
     let vocabulary = if has_head {
         vocabulary_of(&args)?
     } else {
@@ -192,6 +194,7 @@ fn word_relevance(
     log: &Path,
 ) -> Result<Vec<WordRelevance>> {
     mapper
+        .stats()
         .check_vocabulary(vocab)
         .with_context(|| format!("the vocabulary in {}", log.display()))?;
     for w in &args.words {
@@ -205,10 +208,16 @@ fn word_relevance(
     let count = vocab.names.len();
     stages.start(format_args!(
         "scoring {} Gaussians against {count} words of {}",
-        mapper.global().len(),
+        mapper.stats().gaussians,
         log.display()
     ));
-    let probabilities = softmax_rows(&mapper.query_many(&vocab.vectors)?, count, args.temperature);
+    let cosines = TextQuery {
+        embeddings: vocab.vectors.clone(),
+        texts: count,
+        relevance: Scoring::Cosine,
+    };
+    let cosines = mapper.relevance(&cosines, Scored::Gaussians)?;
+    let probabilities = softmax_rows(&cosines, count, args.temperature);
     let mut relevance = Vec::new();
     let mut taken = Vec::new();
     for (index, name) in vocab.names.iter().enumerate() {

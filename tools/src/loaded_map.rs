@@ -31,7 +31,7 @@ pub fn load_nonempty_map(stages: &Stages, dir: &Path, verb: &str) -> Result<(Con
     let ctx = Context::new(ContextOptions::default())?;
     let mapper =
         Mapper::load(&ctx, dir).with_context(|| format!("loading the map in {}", dir.display()))?;
-    if mapper.global().is_empty() {
+    if mapper.stats().gaussians == 0 {
         bail!(
             "the map in {} holds no Gaussians: there is nothing to {verb}",
             dir.display()

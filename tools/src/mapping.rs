@@ -122,7 +122,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         ..ContextOptions::default()
     })?;
     latentam_core::mapper::warm_up(&ctx)?;
-    let mut mapper = match (folder, &opts.resume) {
+    let mapper = match (folder, &opts.resume) {
         (Some(folder), Some(settings)) => {
             let settings = |saved: &MapperConfig| {
                 settings
@@ -137,7 +137,6 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
     // Profile the mapping, not the warm-up or the load.
     ctx.profiler_reset();
     interrupt::install();
-    mapper.set_hurry_flag(interrupt::flag());
     let mut observer = CliObserver {
         live: opts.live.clone(),
         log: opts.log.clone(),
@@ -151,6 +150,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
             max_frames: opts.max_frames,
             autosave_every: opts.autosave_every,
             continue_after_failed_autosave: opts.continue_after_failed_autosave,
+            hurry: Some(interrupt::flag()),
         },
         folder,
         &mut observer,

@@ -45,11 +45,11 @@ pub fn run(args: Args) -> Result<()> {
     if let Ending::Failed(e) = &run.ending {
         bail!("{e}");
     }
-    let profile = run.mapper.context().profiler_snapshot();
+    let profile = run.context().profiler_snapshot();
     if profile.stats().is_empty() {
         bail!(
             "no kernel was timed: {} has no timestamp support on its compute queue",
-            run.mapper.context().info().name
+            run.context().info().name
         );
     }
     let wall_ms = run.wall_s * 1e3;
@@ -60,7 +60,7 @@ pub fn run(args: Args) -> Result<()> {
         run.frames,
         run.keyframes.len(),
         run.wall_s,
-        run.mapper.context().info().name,
+        run.context().info().name,
         wall_ms / frames,
         profile.total_ms() / frames,
         100.0 * profile.total_ms() / wall_ms.max(1e-9)

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use latentam::embedding_files::read_vector;
+use latentam::Scored;
 use latentam_core::latent::{Relevance, TextQuery};
 use latentam_core::mapper::Mapper;
 use latentam_core::splat::RenderedView;
@@ -46,7 +47,7 @@ pub struct Query {
 /// be queried.
 pub fn queryable_dim(mapper: &Mapper, dir: &Path) -> Result<usize> {
     // A head's dim is at least 1 (`LatentHead::new` refuses 0).
-    let Some(dim) = mapper.head().map(|h| h.config().dim as usize) else {
+    let Some(dim) = mapper.stats().embedding_dim.map(|d| d as usize) else {
         if mapper.stats().keyframes == 0 {
             bail!(
                 "{} holds no keyframe: there is nothing to query",
@@ -108,6 +109,7 @@ impl QueryArgs {
                 let vocab = read_vocabulary(log, topic)?
                     .with_context(|| format!("{} has no vocabulary on {topic}", log.display()))?;
                 mapper
+                    .stats()
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
                 TextQuery::check_temperature(self.temperature)
@@ -140,6 +142,6 @@ impl Query {
     /// The relevance of every pixel of `view` (decoded from its rendered
     /// queries).
     pub fn score_view(&self, mapper: &mut Mapper, view: &RenderedView) -> Result<Vec<f32>> {
-        Ok(mapper.view_relevance(view, &self.text)?)
+        Ok(mapper.relevance(&self.text, Scored::Pixels(view))?)
     }
 }

@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
+use latentam::{Scored, Viewpoint};
 use latentam_cli::progress::Stages;
 use latentam_core::map::write_ply;
 use latentam_core::mapper::Mapper;
@@ -13,7 +14,7 @@ use latentam_gpu::{Context, ContextOptions};
 use crate::own_inputs::{refuse_overwriting_inputs, Input};
 use crate::pictures::heat;
 use crate::query_args::{queryable_dim, QueryArgs};
-use crate::render_cmd::{camera_at, parse_pose, relevance_picture};
+use crate::render_cmd::{parse_pose, relevance_picture};
 use latentam_core::latent::Relevance;
 
 #[derive(clap::Args)]
@@ -59,7 +60,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut mapper = Mapper::load(&ctx, &args.dir)
         .with_context(|| format!("loading the map in {}", args.dir.display()))?;
     let dim = queryable_dim(&mapper, &args.dir)?;
-    if mapper.global().is_empty() {
+    if mapper.stats().gaussians == 0 {
         bail!(
             "the map in {} holds no Gaussians: there is nothing to score",
             args.dir.display()
@@ -71,11 +72,11 @@ pub fn run(args: Args) -> Result<()> {
         .expect("clap requires --embedding or --name");
     stages.start(format_args!(
         "scoring {} Gaussians against {}",
-        mapper.global().len(),
+        mapper.stats().gaussians,
         query.what
     ));
-    let rel = mapper.relevance(&query.text)?;
-    let mut gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
+    let rel = mapper.relevance(&query.text, Scored::Gaussians)?;
+    let mut gaussians = mapper.snapshot()?.to_gaussians();
 
     // Heat map: colour spans the scores' range (cosine) or 0..1 (softmax).
     let (lo, hi) = query.colour_range(&rel, |_| true);
@@ -121,8 +122,7 @@ pub fn run(args: Args) -> Result<()> {
 
     if let (Some(pose), Some(png)) = (pose, &args.png) {
         stages.start("rendering the relevance image");
-        let camera = camera_at(&mapper, pose)?;
-        let (view, _) = mapper.render(&camera)?;
+        let (view, _) = mapper.render(Viewpoint::Pose(pose))?;
         relevance_picture(&mut mapper, &query, &view)?
             .0
             .write_png(png)?;

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
+use latentam::Viewpoint;
 use latentam_cli::progress::Stages;
 use latentam_core::mapper::Mapper;
-use latentam_core::splat::{Camera, RenderedView};
+use latentam_core::splat::RenderedView;
 use latentam_io::{Frame, McapFrames};
 
 use crate::pictures::{self, heat_picture, range_of, Picture, COVERED_ALPHA};
@@ -68,17 +69,6 @@ pub fn parse_pose(s: &str) -> Result<DAffine3> {
     ))
 }
 
-/// A camera at `pose` with the intrinsics of the map's last keyframe.
-pub fn camera_at(mapper: &Mapper, pose: DAffine3) -> Result<Camera> {
-    let history = mapper.history();
-    let Some(last) = history.len().checked_sub(1).and_then(|i| history.get(i)) else {
-        bail!("the map has no keyframe to take intrinsics from");
-    };
-    let mut camera = last.camera;
-    camera.cam_to_world = pose;
-    Ok(camera)
-}
-
 /// The relevance of every pixel of `view` as a picture (black where the
 /// map covers the pixel too little), with the range its colours span.
 pub fn relevance_picture(
@@ -124,11 +114,8 @@ pub fn render_pictures(
     query: Option<&Query>,
 ) -> Result<Pictures> {
     let (view, gaussians) = match source {
-        ViewSource::Pose(pose) => {
-            let camera = camera_at(mapper, pose)?;
-            mapper.render(&camera)?
-        }
-        ViewSource::Frame(frame) => mapper.render_frame(frame)?,
+        ViewSource::Pose(pose) => mapper.render(Viewpoint::Pose(pose))?,
+        ViewSource::Frame(frame) => mapper.render(frame)?,
     };
     let rendered_depth = pictures::rendered_depth_m(&view);
     let input_depth = match source {

@@ -117,7 +117,7 @@ pub fn run(
                 added: k.added,
                 pruned: k.pruned,
                 resident: k.resident,
-                kept_keyframes: mapper.history().len(),
+                kept_keyframes: mapper.stats().kept_keyframes,
                 gpu_bytes: k.gpu_bytes,
                 cpu_bytes: k.cpu_bytes,
                 objects: ctx.live_objects(),

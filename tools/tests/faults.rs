@@ -35,7 +35,7 @@ fn consistent_run(ctx: &Context, dir: &Path) -> u64 {
     let r = report(dir);
     assert_eq!(
         r["run_id"].as_str(),
-        mapper.run_id(),
+        stats.run_id.as_deref(),
         "report and state of different runs"
     );
     assert_eq!(r["keyframes"].as_u64(), Some(stats.keyframes));

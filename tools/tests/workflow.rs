@@ -104,8 +104,9 @@ fn map_query_eval_profile_on_a_generated_log() {
     let ply = read_ply(&run.join("map.ply")).unwrap();
     assert_eq!(ply.gaussians.len(), gaussians);
     let ctx = Context::new(ContextOptions::default()).unwrap();
-    let mapper = Mapper::load(&ctx, &run).unwrap();
-    for ((_, g), p) in mapper.global().iter().zip(&ply.gaussians) {
+    let mut mapper = Mapper::load(&ctx, &run).unwrap();
+    let map = mapper.snapshot().unwrap().to_gaussians();
+    for (g, p) in map.iter().zip(&ply.gaussians) {
         assert_eq!((g.mean, g.log_scale), (p.mean, p.log_scale));
         assert_eq!(unit_quat(g.quat), p.quat);
         assert_eq!((g.opacity_logit, g.query), (p.opacity_logit, p.query));
@@ -230,7 +231,7 @@ fn map_query_eval_profile_on_a_generated_log() {
     let points = |topic: &str| summary[topic]["points"].as_array().unwrap().clone();
     let map_points = points("/latentam/map");
     assert_eq!(map_points.len(), gaussians);
-    for ((_, g), p) in mapper.global().iter().zip(&map_points).step_by(97) {
+    for (g, p) in map.iter().zip(&map_points).step_by(97) {
         for (a, axis) in ["x", "y", "z"].iter().enumerate() {
             assert_eq!(p[axis].as_f64().unwrap() as f32, g.mean[a]);
         }
@@ -280,7 +281,7 @@ fn map_query_eval_profile_on_a_generated_log() {
         buf
     };
     let mut again = Mapper::load(&ctx, &run).unwrap();
-    let (view, _) = again.render_frame(&frames[6]).unwrap();
+    let (view, _) = again.render(&frames[6]).unwrap();
     let expected: Vec<u8> = view
         .rgbd
         .iter()
@@ -334,7 +335,13 @@ fn map_query_eval_profile_on_a_generated_log() {
     let per_frame = e["per_frame"].as_array().unwrap();
     assert_eq!(per_frame.len(), 15);
     assert_eq!(per_frame[1]["frame"], 4);
-    let keyframe_stamps: Vec<i64> = mapper.trajectory().iter().map(|t| t.0).collect();
+    let keyframe_stamps: Vec<i64> = mapper
+        .snapshot()
+        .unwrap()
+        .trajectory
+        .iter()
+        .map(|t| t.0)
+        .collect();
     let mut novel = 0;
     for f in per_frame {
         let stamp = f["stamp_ns"].as_i64().unwrap();

@@ -17,7 +17,7 @@
 //! use latentam_core::mapper::{Mapper, MapperConfig};
 //!
 //! let mapper = Mapper::new(MapperConfig::default())?;
-//! println!("mapping on {}", mapper.context().info().name);
+//! println!("{} atoms, voxel {} m", mapper.config().atoms, mapper.config().voxel_size);
 //! # Ok::<(), latentam_core::Error>(())
 //! ```
 

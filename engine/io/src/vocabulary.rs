@@ -16,7 +16,7 @@ use latentam_base::Rejection;
 /// // Score the map against the text embedding of one class.
 /// let i = vocab.names.iter().position(|n| n == "chair").expect("`chair` in the vocabulary");
 /// let d = vocab.dim as usize;
-/// let scores = query(&vocab.vectors[i * d..(i + 1) * d])?; // `latentam::Mapper::query`
+/// let scores = query(&vocab.vectors[i * d..(i + 1) * d])?; // `latentam::Mapper::relevance`
 /// println!("class {} ({}): {} Gaussians scored", vocab.ids[i], vocab.model, scores.len());
 /// # Ok(())
 /// # }

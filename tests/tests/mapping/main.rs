@@ -123,7 +123,7 @@ fn quality(mapper: &mut Mapper) -> Quality {
         miou: mean_iou(&iou).unwrap_or(0.0),
         pooled_cosine_loss: pooled_cos / pooled_n.max(1) as f64,
         pooled_miou: mean_iou(&pooled_iou).unwrap_or(0.0),
-        gaussians: mapper.global().len(),
+        gaussians: mapper.stats().gaussians,
     }
 }
 
@@ -164,8 +164,8 @@ fn factorised_decoding_matches_the_gpu_decoder(mapper: &mut Mapper) {
     let frame = &s.frames[held_out()[0]];
     let camera = latentam_core::mapper::camera_of(frame);
     let (view, _) = mapper.render(&camera).unwrap();
-    let ctx = mapper.context();
-    let head = mapper.head().unwrap();
+    let ctx = mapper.internals().ctx;
+    let head = mapper.internals().head.unwrap();
     let dec = FactorisedDecoder::from_head(ctx, head).unwrap();
     let texts = &s.vocabulary.vectors;
     let c = s.vocabulary.names.len();
@@ -272,10 +272,10 @@ fn the_demo_scene_is_mapped_with_geometry_colour_and_semantics_on_held_out_views
 /// through the unstable `Mapper::window`).
 fn check_consistent(ctx: &Context, mapper: &mut Mapper) {
     mapper.write_back_window().unwrap();
-    let global = mapper.global();
+    let global = mapper.internals().global;
     let keys: HashSet<VoxelKey> = global.iter().map(|(k, _)| k).collect();
     assert_eq!(keys.len(), global.len());
-    let window = mapper.window().unwrap();
+    let window = mapper.internals().window.unwrap();
     let resident: HashSet<VoxelKey> = window.keys().iter().copied().collect();
     assert_eq!(resident.len(), window.len(), "a Gaussian resident twice");
     assert!(resident.is_subset(&keys));

@@ -56,7 +56,7 @@ fn a_tiny_gpu_budget_pages_and_maps_about_as_well_as_an_unbounded_run() {
 }
 
 fn gaussians_of(m: &Mapper) -> Vec<(VoxelKey, Gaussian)> {
-    m.global().iter().map(|(k, g)| (k, *g)).collect()
+    m.internals().global.iter().map(|(k, g)| (k, *g)).collect()
 }
 
 #[test]
@@ -71,14 +71,23 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     let mut loaded = Mapper::load(&ctx, &dir).unwrap();
     assert_eq!(gaussians_of(&loaded), gaussians_of(&first));
     assert_eq!(
-        loaded.window().unwrap().keys(),
-        first.window().unwrap().keys()
+        loaded.internals().window.unwrap().keys(),
+        first.internals().window.unwrap().keys()
     );
-    assert_eq!(loaded.history().len(), first.history().len());
-    for i in 0..first.history().len() {
-        assert_eq!(loaded.history().get(i), first.history().get(i));
+    assert_eq!(
+        loaded.internals().history.len(),
+        first.internals().history.len()
+    );
+    for i in 0..first.internals().history.len() {
+        assert_eq!(
+            loaded.internals().history.get(i),
+            first.internals().history.get(i)
+        );
     }
-    let (a, b) = (first.head().unwrap(), loaded.head().unwrap());
+    let (a, b) = (
+        first.internals().head.unwrap(),
+        loaded.internals().head.unwrap(),
+    );
     assert_eq!(a.atom_count(), b.atom_count());
     for (x, y) in [
         (a.w(), b.w()),

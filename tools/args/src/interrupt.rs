@@ -36,7 +36,7 @@ pub fn install() {
 }
 
 /// The flag a stop request sets, for the mapper to cut the keyframe in
-/// progress short ([`latentam::Mapper::set_hurry_flag`]).
+/// progress short ([`latentam::LogRunOptions::hurry`]).
 pub fn flag() -> &'static AtomicBool {
     &REQUESTED
 }

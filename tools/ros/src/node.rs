@@ -355,8 +355,9 @@ fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
 /// leaves them (it adds the report of a log's run, which a node has not).
 fn save_run_folder(mapper: &mut latentam::Mapper, out: &std::path::Path) -> Result<()> {
     let state = mapper.save(out)?;
-    mapper.export_ply(&out.join("map.ply"))?;
-    latentam_io::write_tum(&out.join("trajectory.txt"), mapper.trajectory())?;
+    let map = mapper.snapshot()?;
+    map.export_ply(&out.join("map.ply"))?;
+    latentam_io::write_tum(&out.join("trajectory.txt"), &map.trajectory)?;
     latentam_base::files::write_bytes_atomically(
         &out.join("config.toml"),
         mapper.config().to_toml().as_bytes(),

@@ -11,8 +11,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use latentam_core::mapper::Mapper;
-use latentam_gpu::{Context, ContextOptions};
+use latentam::{Context, ContextOptions, Mapper, Scored, TextQuery};
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("latentam-{name}-{}", std::process::id()));
@@ -86,7 +85,8 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     // exceeds the map), the same keyframe poses.
     let ctx = Context::new(ContextOptions::default()).unwrap();
     let mut mapper = Mapper::load(&ctx, dir.join("run")).unwrap();
-    let gaussians: Vec<_> = mapper.global().iter().map(|(_, g)| *g).collect();
+    let snapshot = mapper.snapshot().unwrap();
+    let gaussians = snapshot.to_gaussians();
     let key = |p: [f32; 3]| p.map(f32::to_bits);
     let by_position: HashMap<[u32; 3], usize> = gaussians
         .iter()
@@ -103,8 +103,8 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
         assert!((p["opacity"].as_f64().unwrap() - opacity).abs() < 1e-6);
     }
     let trajectory = summary["trajectory"].as_array().unwrap();
-    assert_eq!(trajectory.len(), mapper.trajectory().len());
-    for (p, (_, t)) in trajectory.iter().zip(mapper.trajectory()) {
+    assert_eq!(trajectory.len(), snapshot.trajectory.len());
+    for (p, (_, t)) in trajectory.iter().zip(&snapshot.trajectory) {
         assert!((p[0].as_f64().unwrap() - t.translation.x).abs() < 1e-9);
         assert!((p[6].as_f64().unwrap() - t.rotation.w).abs() < 1e-9);
     }
@@ -117,7 +117,10 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     let word = summary["word"].as_str().unwrap();
     let k = vocab.names.iter().position(|n| n == word).unwrap();
     let d = vocab.dim as usize;
-    let cosines = mapper.query(&vocab.vectors[k * d..(k + 1) * d]).unwrap();
+    let word_embedding = TextQuery::embedding(vocab.vectors[k * d..(k + 1) * d].to_vec());
+    let cosines = mapper
+        .relevance(&word_embedding, Scored::Gaussians)
+        .unwrap();
     let field = format!(
         "relevance_{}",
         word.to_lowercase()

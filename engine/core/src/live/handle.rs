@@ -14,9 +14,9 @@ use super::options::LiveOptions;
 use super::queue::{frame_bytes, DropCounts, FrameQueue};
 use super::reader::{LiveReader, LiveStatus, Relevance};
 use super::shared::{Close, Outcome, Shared, State};
-use super::snapshot::MapSnapshot;
 use super::worker;
 use crate::latent::TextQuery;
+use crate::mapper::MapSnapshot;
 use crate::mapper::{Mapper, MapperConfig};
 use crate::splat::{Camera, RenderedView};
 

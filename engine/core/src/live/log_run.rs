@@ -11,7 +11,7 @@
 //! folder as it was.
 //!
 //! A resumed run skips the frames its saved state mapped already, by
-//! timestamp ([`Mapper::already_mapped`](crate::mapper::Mapper::already_mapped)), so a log with a frame more or
+//! timestamp (the resumed map's `last_frame_stamp_ns`), so a log with a frame more or
 //! less than the first time resumes where the map ends.
 
 use std::path::Path;
@@ -54,6 +54,10 @@ impl LogRun {
         folder: Option<&RunFolder>,
         observer: &mut dyn RunObserver,
     ) -> Result<LogRun> {
+        let mut mapper = mapper;
+        if let Some(flag) = options.hurry {
+            mapper.set_hurry_flag(flag);
+        }
         let opened = McapLog::open(log)?;
         let mut frames = McapFrames::from_log(opened.clone(), assembly)?;
         // Colour images bound the frames; the summary says how many there are.
@@ -235,6 +239,19 @@ impl LogRun {
     /// ```
     pub fn trajectory(&self) -> Vec<(i64, CameraPose)> {
         self.mapper.trajectory().to_vec()
+    }
+
+    /// The GPU context the run mapped on: the device's name, and the
+    /// profiler's kernel timings when profiling was on.
+    ///
+    /// ```no_run
+    /// # fn f(run: &latentam_core::live::LogRun) {
+    /// let ctx = run.context();
+    /// println!("{} kernels timed on {}", ctx.profiler_snapshot().stats().len(), ctx.info().name);
+    /// # }
+    /// ```
+    pub fn context(&self) -> &latentam_gpu::Context {
+        self.mapper.context()
     }
 
     /// Why the run folder must not be replaced by this run, if so.

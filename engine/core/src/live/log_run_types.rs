@@ -35,6 +35,11 @@ pub struct LogRunOptions {
     /// a folder that cannot be written now will not be written at the
     /// end either, and hours of mapping would be lost without a word.
     pub continue_after_failed_autosave: bool,
+    /// A flag that, once set (say from a signal handler), makes the
+    /// keyframe in progress skip its remaining optimisation steps, leaving
+    /// the map consistent, so that the run can stop and be saved soon;
+    /// clear it to map normally again.
+    pub hurry: Option<&'static std::sync::atomic::AtomicBool>,
 }
 
 /// What a client sees of a run of a log, and what it adds to it. Every
@@ -68,7 +73,7 @@ pub trait RunObserver {
 
     /// Asked before each frame: whether to stop here ([`Ending::Interrupted`]).
     /// A keyframe in progress can be cut short too, through
-    /// [`Mapper::set_hurry_flag`](crate::mapper::Mapper::set_hurry_flag).
+    /// [`LogRunOptions::hurry`].
     fn stop_requested(&mut self) -> bool {
         false
     }

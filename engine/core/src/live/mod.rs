@@ -10,21 +10,20 @@
 //! ```
 
 mod handle;
-mod index;
+mod keyframe_image;
 mod log_run;
 mod log_run_types;
 mod options;
 mod queue;
 mod reader;
 mod shared;
-mod snapshot;
 mod tally;
 mod worker;
 
+pub use crate::mapper::{IndexSettings, MapSnapshot, RelevanceIndex};
 pub use handle::LiveMapper;
-pub use index::{IndexSettings, RelevanceIndex};
+pub use keyframe_image::KeyframeImage;
 pub use log_run_types::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 pub use options::LiveOptions;
 pub use queue::{frame_bytes, DropCounts};
 pub use reader::{LiveReader, LiveStatus, Relevance};
-pub use snapshot::{KeyframeImage, MapSnapshot};

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use super::index::IndexSettings;
+use crate::mapper::IndexSettings;
 
 /// How a [`LiveMapper`](super::LiveMapper) queues frames and serves readers.
 ///

@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 
 use latentam_base::{Error, Result};
 
+use super::keyframe_image::KeyframeImage;
 use super::queue::DropCounts;
 use super::shared::Shared;
-use super::snapshot::{KeyframeImage, MapSnapshot};
 use crate::latent::TextQuery;
+use crate::mapper::MapSnapshot;
 use crate::mapper::Mapper;
 use crate::splat::{Camera, RenderedView};
 

@@ -9,9 +9,10 @@ use std::time::Instant;
 use latentam_base::Error;
 use latentam_io::Frame;
 
+use super::keyframe_image::KeyframeImage;
 use super::options::LiveOptions;
 use super::queue::{DropCounts, FrameQueue};
-use super::snapshot::{KeyframeImage, MapSnapshot};
+use crate::mapper::MapSnapshot;
 use crate::mapper::{Integrated, Mapper};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -9,9 +9,10 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use latentam_base::{Error, Result};
 
+use super::keyframe_image::KeyframeImage;
 use super::queue::Queued;
 use super::shared::{Close, Lent, Outcome, Shared};
-use super::snapshot::{KeyframeImage, MapSnapshot};
+use crate::mapper::MapSnapshot;
 use crate::mapper::{camera_of, Integrated, Mapper};
 
 /// What the worker does next.

@@ -112,11 +112,10 @@ pub struct RegionPooled {
     pub class_iou: BTreeMap<u16, ClassCounts>,
 }
 
-/// Renders and scores views of a map: what [`Mapper::render`],
-/// [`Mapper::render_frame`] and [`Mapper::evaluate`] run on.
+/// Renders and scores views of a map: what [`Mapper::render`] and
+/// [`Mapper::evaluate`] run on.
 ///
 /// [`Mapper::render`]: super::Mapper::render
-/// [`Mapper::render_frame`]: super::Mapper::render_frame
 /// [`Mapper::evaluate`]: super::Mapper::evaluate
 pub(crate) struct Evaluator {
     ctx: Context,

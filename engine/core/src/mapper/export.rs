@@ -152,7 +152,7 @@ impl DecoderFile {
             temperature,
             eps,
             model: a.meta("model")?.to_string(),
-            // A decoder written on its own (`Mapper::decoder`) has none.
+            // A decoder written on its own (a snapshot's) has none.
             run_id: a.run_id()?,
         };
         for (name, values) in [

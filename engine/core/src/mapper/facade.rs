@@ -22,9 +22,8 @@ use std::sync::atomic::AtomicBool;
 
 use super::eval::Evaluator;
 use super::history::History;
-use crate::latent::LatentHead;
-use crate::map::{ExposureTrack, GlobalMap, KeyframeSelector};
-use latentam_io::{CameraPose, Frame, Vocabulary};
+use crate::map::{ExposureTrack, KeyframeSelector};
+use latentam_io::CameraPose;
 
 /// A latent Gaussian map built online.
 ///
@@ -36,7 +35,8 @@ use latentam_io::{CameraPose, Frame, Vocabulary};
 ///     mapper.integrate(&frame?)?;
 /// }
 /// let text_embedding = vec![0.0f32; 512]; // from your vision-language model
-/// let scores: Vec<f32> = mapper.query(&text_embedding)?; // one per Gaussian
+/// let query = latentam_core::latent::TextQuery::embedding(text_embedding);
+/// let scores = mapper.relevance(&query, latentam_core::mapper::Scored::Gaussians)?; // one per Gaussian
 /// mapper.save("out/")?;
 /// println!("{} Gaussians", mapper.stats().gaussians);
 /// # Ok::<(), Box<dyn std::error::Error>>(())
@@ -121,14 +121,7 @@ impl Mapper {
 
     /// The GPU context the mapper runs on (device information, the
     /// profiler's kernel timings).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// println!("mapping on {}", mapper.context().info().name);
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn context(&self) -> &Context {
+    pub(crate) fn context(&self) -> &Context {
         &self.ctx
     }
 
@@ -156,19 +149,7 @@ impl Mapper {
     /// Writes [`STATE_FILE`] and [`DECODER_FILE`] (when the map has
     /// embeddings) into a staged run folder, tagged with its run id, for
     /// callers that add files of their own before committing it.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> Result<(), Box<dyn std::error::Error>> {
-    /// use latentam_core::mapper::RunFolder;
-    /// let folder = RunFolder::lock("runs/kitchen")?;
-    /// let staging = folder.stage()?;
-    /// mapper.save_into(&staging)?;
-    /// std::fs::write(staging.path().join("notes.txt"), "first floor")?;
-    /// staging.commit()?;
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
+    pub(crate) fn save_into(&mut self, staging: &RunStaging<'_>) -> Result<()> {
         let id = staging.run_id();
         self.save_as(&staging.path().join(STATE_FILE), id)?;
         if let Some(mut decoder) = self.decoder()? {
@@ -269,6 +250,10 @@ impl Mapper {
         s.gpu_peak_split = super::budget::MemorySplit::of(&mem);
         s.cpu_bytes = self.cpu_bytes();
         s.cpu_peak_bytes = s.cpu_peak_bytes.max(s.cpu_bytes);
+        s.embedding_dim = self.dictionary.head().map(|h| h.config().dim);
+        s.embedding_model = self.dictionary.model().map(str::to_string);
+        s.kept_keyframes = self.history.len();
+        s.run_id = self.progress.run_id().map(str::to_string);
         s
     }
 
@@ -277,40 +262,6 @@ impl Mapper {
         self.pager.cpu_bytes()
             + self.history.bytes()
             + (self.trajectory.len() * std::mem::size_of::<(i64, CameraPose)>()) as u64
-    }
-
-    /// Whether `frame` is at or before the last frame this map integrated:
-    /// replaying a log into a resumed map skips those, so a log with a
-    /// dropped or an extra message still resumes at the right frame.
-    /// (States saved before stamps were kept answer `false`.)
-    ///
-    /// ```no_run
-    /// # use latentam_core::mapper::Mapper; use latentam_io::Frame;
-    /// # fn replay(mapper: &mut Mapper, log: Vec<Frame>) -> latentam_core::Result<()> {
-    /// for frame in &log {
-    ///     if !mapper.already_mapped(frame) {
-    ///         mapper.integrate(frame)?;
-    ///     }
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn already_mapped(&self, frame: &Frame) -> bool {
-        self.progress.already_mapped(frame.stamp_ns)
-    }
-
-    /// The global map (current as of the last sync, query or save).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// for (key, gaussian) in mapper.global().iter().take(3) {
-    ///     println!("{key:?}: opacity logit {}", gaussian.opacity_logit);
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn global(&self) -> &GlobalMap {
-        self.pager.global()
     }
 
     /// The settings the map is built with.
@@ -326,131 +277,30 @@ impl Mapper {
     }
 
     /// Every keyframe's stamp (ns) and camera-to-world pose, in order.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// for (stamp_ns, pose) in mapper.trajectory() {
-    ///     println!("{stamp_ns}: {:?}", pose.translation);
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn trajectory(&self) -> &[(i64, CameraPose)] {
+    pub(crate) fn trajectory(&self) -> &[(i64, CameraPose)] {
         &self.trajectory
     }
 
-    /// The camera's exposure over the map's brightness at each keyframe,
-    /// and in between (`exposure_compensation`): the map's colours times
-    /// `exposure().at(stamp)` are what the camera saw at that time.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper, stamp_ns: i64) {
-    /// let gain = mapper.exposure().at(stamp_ns);
-    /// println!("the camera saw the map {:.0} % brighter", 100.0 * (gain - 1.0));
-    /// # }
-    /// ```
-    pub fn exposure(&self) -> &ExposureTrack {
-        &self.exposure
-    }
-
     /// The keyframes kept for replay.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// println!("{} keyframes kept for replay", mapper.history().len());
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn history(&self) -> &History {
+    pub(crate) fn history(&self) -> &History {
         &self.history
     }
 
-    /// The latent head (W, D and their training state), once a keyframe
-    /// with embeddings has been mapped.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// if let Some(head) = mapper.head() {
-    ///     println!("{} dictionary atoms in use", head.atom_count());
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn head(&self) -> Option<&LatentHead> {
-        self.dictionary.head()
-    }
-
     /// The embedding model id of the map's region embeddings.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// println!("embeddings from {}", mapper.embedding_model().unwrap_or("no model yet"));
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn embedding_model(&self) -> Option<&str> {
+    pub(crate) fn embedding_model(&self) -> Option<&str> {
         self.dictionary.model()
-    }
-
-    /// The id of the run folder version this map was loaded from or last
-    /// saved to.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// if let Some(id) = mapper.run_id() {
-    ///     println!("run {id}");
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn run_id(&self) -> Option<&str> {
-        self.progress.run_id()
     }
 
     /// Whether a keyframe failed part-way: the map refuses further frames
     /// and saves (reload the last save to go on).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, ctx: &latentam_gpu::Context) -> latentam_core::Result<()> {
-    /// if mapper.is_broken() {
-    ///     *mapper = latentam_core::mapper::Mapper::load(ctx, "runs/kitchen")?; // back to the last save
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn is_broken(&self) -> bool {
+    pub(crate) fn is_broken(&self) -> bool {
         self.progress.is_broken()
-    }
-
-    /// Checks that a vocabulary's embeddings suit the map (model and
-    /// dimension), with an error that says what differs.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> Result<(), Box<dyn std::error::Error>> {
-    /// let vocabulary = latentam_io::read_vocabulary("words.mcap".as_ref(), "/vocabulary")?;
-    /// if let Some(v) = vocabulary {
-    ///     mapper.check_vocabulary(&v)?; // names the model or dimension that differs
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
-        self.dictionary.check_vocabulary(vocabulary)
     }
 
     /// A flag that, once set (say from a signal handler), makes the
     /// keyframe in progress skip its remaining optimisation steps, leaving
     /// the map consistent; clear it to map normally again.
-    ///
-    /// ```no_run
-    /// use std::sync::atomic::{AtomicBool, Ordering};
-    /// static STOP: AtomicBool = AtomicBool::new(false);
-    /// let mut mapper = latentam_core::mapper::Mapper::new(latentam_core::mapper::MapperConfig::default())?;
-    /// mapper.set_hurry_flag(&STOP);
-    /// // elsewhere: STOP.store(true, Ordering::Relaxed);
-    /// # Ok::<(), latentam_core::Error>(())
-    /// ```
-    pub fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
+    pub(crate) fn set_hurry_flag(&mut self, flag: &'static AtomicBool) {
         self.progress.set_hurry_flag(flag);
     }
 
@@ -478,7 +328,7 @@ impl Mapper {
     }
 
     /// Writes the GPU window back to the global map, so that
-    /// [`Mapper::global`] is current.
+    /// the global map is current.
     pub(super) fn flush(&mut self) -> Result<()> {
         let rows = self
             .trainer
@@ -496,11 +346,34 @@ impl Mapper {
         self.flush()
     }
 
-    /// The GPU window, once the first keyframe sized it. Unstable: for the
-    /// engine's tests that check it against the global map.
+    /// The parts behind the façade, read-only. Unstable: for the engine's
+    /// tests that check them against each other (the window against the
+    /// global map, a loaded state against the saved one).
     #[cfg(any(test, feature = "testing"))]
     #[doc(hidden)]
-    pub fn window(&self) -> Option<&crate::map::LocalWindow> {
-        self.pager.window()
+    pub fn internals(&self) -> Internals<'_> {
+        Internals {
+            ctx: &self.ctx,
+            global: self.pager.global(),
+            window: self.pager.window(),
+            history: &self.history,
+            head: self.dictionary.head(),
+        }
     }
+}
+
+/// What [`Mapper::internals`] shows. Unstable: for the engine's tests.
+#[cfg(any(test, feature = "testing"))]
+#[doc(hidden)]
+pub struct Internals<'a> {
+    /// The GPU context.
+    pub ctx: &'a Context,
+    /// The global map (current as of the last write-back).
+    pub global: &'a crate::map::GlobalMap,
+    /// The GPU window, once the first keyframe sized it.
+    pub window: Option<&'a crate::map::LocalWindow>,
+    /// The keyframes kept for replay.
+    pub history: &'a History,
+    /// The latent head, once a keyframe with embeddings was mapped.
+    pub head: Option<&'a crate::latent::LatentHead>,
 }

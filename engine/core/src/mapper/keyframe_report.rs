@@ -4,7 +4,9 @@
 
 use super::budget::{MemorySplit, WindowBudget};
 use super::trainer::StageOneReport;
+use latentam_base::{Error, Result};
 use latentam_gpu::{GpuCalls, GpuWork};
+use latentam_io::Vocabulary;
 
 /// What the mapper did with a frame ([`Mapper::integrate`](super::Mapper::integrate)).
 ///
@@ -237,7 +239,7 @@ pub struct MapperStats {
     /// Frames offered.
     pub frames: u64,
     /// Stamp of the last frame integrated (ns), kept in saved states: a
-    /// resumed run goes on after it (see `Mapper::already_mapped`).
+    /// resumed run goes on after it.
     pub last_frame_stamp_ns: Option<i64>,
     /// Keyframes mapped.
     pub keyframes: u64,
@@ -270,6 +272,45 @@ pub struct MapperStats {
     /// GPU work the keyframes recorded, per kernel, summed over keyframes
     /// (counted from launch sizes; see `latentam_gpu::GpuWork`).
     pub gpu_work: GpuWork,
+    /// The dimension d_f of the map's embeddings, once a keyframe with
+    /// embeddings was mapped. (Not in `report.json`, which names the
+    /// model beside the statistics.)
+    #[serde(skip)]
+    pub embedding_dim: Option<u32>,
+    /// The model of the map's embeddings, once a keyframe with embeddings
+    /// was mapped.
+    #[serde(skip)]
+    pub embedding_model: Option<String>,
+    /// Keyframes kept for replay (the history may let some go).
+    #[serde(skip)]
+    pub kept_keyframes: usize,
+    /// The id of the run folder version the map was loaded from or last
+    /// saved to. (`report.json` has its own.)
+    #[serde(skip)]
+    pub run_id: Option<String>,
+}
+
+impl MapperStats {
+    /// Checks that a vocabulary's embeddings suit the map these
+    /// statistics describe (its embedding model and dimension), with an
+    /// error that says what differs; [`Error::NoEmbeddings`] before a
+    /// keyframe with embeddings.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> Result<(), Box<dyn std::error::Error>> {
+    /// let vocabulary = latentam_io::read_vocabulary("words.mcap".as_ref(), "/vocabulary")?;
+    /// if let Some(v) = vocabulary {
+    ///     mapper.stats().check_vocabulary(&v)?; // names the model or dimension that differs
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn check_vocabulary(&self, vocabulary: &Vocabulary) -> Result<()> {
+        let Some(dim) = self.embedding_dim else {
+            return Err(Error::NoEmbeddings);
+        };
+        super::dictionary::check_vocabulary(dim, self.embedding_model.as_deref(), vocabulary)
+    }
 }
 
 impl KeyframeTimings {

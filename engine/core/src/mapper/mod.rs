@@ -25,10 +25,12 @@ mod persist;
 pub mod pixel_metrics;
 mod preset;
 mod progress;
+mod relevance_index;
 mod route;
 mod run_folder;
 mod run_report;
 mod seeder;
+mod snapshot;
 mod trainer;
 mod views;
 mod warm_up;
@@ -38,6 +40,8 @@ mod workspace;
 pub use config::MapperConfig;
 pub use config_doc::{apply_overrides, documented_defaults};
 pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
+#[cfg(any(test, feature = "testing"))]
+pub use facade::Internals;
 pub use facade::Mapper;
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
@@ -46,12 +50,15 @@ pub use keyframe_report::{
 };
 pub use persist::SavedState;
 pub use preset::Preset;
+pub use relevance_index::{IndexSettings, RelevanceIndex};
 pub use run_folder::{
     folder_version, new_run_id, read_one_version, RunFolder, RunStaging, RUN_FOLDER_FILES,
     RUN_MARKER, STATE_FILE,
 };
 pub use run_report::{Ending, HostWaits, RunReport};
+pub use snapshot::MapSnapshot;
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
+pub use views::{Scored, Viewpoint};
 pub use warm_up::warm_up;
 pub use work_report::{GpuWorkReport, KernelWorkPerKeyframe};
 

@@ -92,11 +92,6 @@ impl Progress {
         self.last_stamp_ns = Some(stamp_ns);
     }
 
-    /// Whether `stamp_ns` is at or before the last frame integrated.
-    pub(crate) fn already_mapped(&self, stamp_ns: i64) -> bool {
-        self.last_stamp_ns.is_some_and(|last| stamp_ns <= last)
-    }
-
     /// A keyframe at `stamp_ns` starts changing the map: until
     /// [`Progress::keyframe_done`] the map is inconsistent.
     pub(crate) fn keyframe_started(&mut self, stamp_ns: i64) {

@@ -27,7 +27,8 @@ impl Mapper {
     /// past ones, Stage II with the window's paging beside it, and at its
     /// interval pruning (the paper's Algorithm 1). A frame refused for its
     /// content leaves the map as it was; a failure part-way through a
-    /// keyframe leaves it unusable ([`Mapper::is_broken`]).
+    /// keyframe leaves it unusable: it refuses further frames and saves
+    /// (reload the last save to go on).
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: latentam_io::Frame) -> latentam_core::Result<()> {

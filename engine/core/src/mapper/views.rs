@@ -5,45 +5,62 @@
 
 use std::path::Path;
 
+use glam::DAffine3;
+
 use super::eval::{Evaluator, MapParts, ViewMetrics};
 use super::export::DecoderFile;
 use super::facade::Mapper;
+use super::relevance_index::IndexSettings;
+use super::snapshot::MapSnapshot;
 use crate::latent::{DevicePixelDecoder, TextQuery};
 use crate::map::{write_ply, write_ply_without_latents};
 use crate::splat::{Camera, RenderedView};
 use latentam_base::{Error, Result};
 use latentam_io::{Frame, Vocabulary};
 
-impl Mapper {
-    /// Relevance of every Gaussian to `text_embedding` (cosine similarity
-    /// of its decoded embedding), in the order of
-    /// [`GlobalMap::iter`](crate::map::GlobalMap::iter) on [`Mapper::global`].
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// let text_embedding = vec![0.0f32; 512]; // from the map's embedding model
-    /// let scores = mapper.query(&text_embedding)?;
-    /// let best = scores.iter().cloned().fold(f32::MIN, f32::max);
-    /// println!("best match {best:.3} over {} Gaussians", scores.len());
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn query(&mut self, text_embedding: &[f32]) -> Result<Vec<f32>> {
-        self.query_many(text_embedding)
-    }
+/// What [`Mapper::relevance`] scores.
+#[derive(Clone, Copy, Debug)]
+pub enum Scored<'a> {
+    /// Every Gaussian of the map.
+    Gaussians,
+    /// Every pixel of a view rendered from the map.
+    Pixels(&'a RenderedView),
+}
 
-    /// Relevance of every Gaussian to each of several embeddings given
-    /// back to back: Gaussians × embeddings scores, row-major.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// let (a, b) = (vec![0.0f32; 512], vec![1.0f32; 512]);
-    /// let scores = mapper.query_many(&[a, b].concat())?;
-    /// let first_gaussian = &scores[0..2]; // its score for a, then for b
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn query_many(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
+/// Where [`Mapper::render`] renders from: a camera of your choosing, or
+/// a recorded frame, whose pose and intrinsics give the camera, whose
+/// time gives the exposure (interpolated between the keyframes around
+/// it; see `exposure_compensation`) and whose depth says how far the
+/// view reaches.
+#[derive(Clone, Copy, Debug)]
+pub enum Viewpoint<'a> {
+    /// A camera: pose and intrinsics.
+    Camera(&'a Camera),
+    /// A recorded frame.
+    Frame(&'a Frame),
+    /// A camera-to-world pose, with the intrinsics of the last keyframe
+    /// kept for replay (the map's own camera).
+    Pose(DAffine3),
+}
+
+impl<'a> From<&'a Camera> for Viewpoint<'a> {
+    fn from(camera: &'a Camera) -> Self {
+        Viewpoint::Camera(camera)
+    }
+}
+
+impl<'a> From<&'a Frame> for Viewpoint<'a> {
+    fn from(frame: &'a Frame) -> Self {
+        Viewpoint::Frame(frame)
+    }
+}
+
+impl Mapper {
+    /// The cosine of every Gaussian's decoded embedding with each of
+    /// several embeddings given back to back (Gaussians × embeddings,
+    /// row-major), in the order of the global map's `iter` (the window
+    /// written back first).
+    pub(crate) fn cosines(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
         let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
         let dim = head.config().dim as usize;
         if embeddings.is_empty() || !embeddings.len().is_multiple_of(dim) {
@@ -62,42 +79,41 @@ impl Mapper {
         decoder.cosines(&self.ctx, &queries, embeddings)
     }
 
-    /// Relevance of every Gaussian to `query` (cosine, or the softmax over
-    /// a vocabulary), in the order of [`GlobalMap::iter`](crate::map::GlobalMap::iter).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {
-    /// use latentam_core::latent::TextQuery;
-    /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
-    /// let p: Vec<f32> = mapper.relevance(&chair)?; // per Gaussian, 0..1
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn relevance(&mut self, query: &TextQuery) -> Result<Vec<f32>> {
-        Ok(query.relevance_of(&self.query_many(&query.embeddings)?))
-    }
-
-    /// Relevance of every pixel of a rendered view to `query`, from its
-    /// rendered queries (see [`Mapper::render`]).
+    /// Relevance to `query` (the cosine with one embedding, the cosines
+    /// with several, or the softmax over a vocabulary at one word; see
+    /// [`TextQuery`]) of every Gaussian, in the order of
+    /// [`Mapper::snapshot`]'s, or of every pixel of a view rendered with
+    /// [`Mapper::render`]. With several embeddings and
+    /// [`Relevance::Cosine`](crate::latent::Relevance::Cosine) the result
+    /// holds one row of cosines per Gaussian or pixel.
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {
     /// use latentam_core::latent::TextQuery;
-    /// let (view, _) = mapper.render_frame(frame)?;
+    /// use latentam_core::mapper::Scored;
     /// let chair = TextQuery::vocabulary_word(vocabulary, "chair", 0.1)?;
-    /// let heat: Vec<f32> = mapper.view_relevance(&view, &chair)?; // per pixel
+    /// let per_gaussian: Vec<f32> = mapper.relevance(&chair, Scored::Gaussians)?; // 0..1
+    /// let (view, _) = mapper.render(frame)?;
+    /// let per_pixel: Vec<f32> = mapper.relevance(&chair, Scored::Pixels(&view))?;
     /// # Ok(())
     /// # }
     /// ```
-    pub fn view_relevance(&mut self, view: &RenderedView, query: &TextQuery) -> Result<Vec<f32>> {
-        let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
-        let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
-        Ok(query.relevance_of(&decoder.cosines(&self.ctx, &view.query, &query.embeddings)?))
+    pub fn relevance(&mut self, query: &TextQuery, of: Scored<'_>) -> Result<Vec<f32>> {
+        let cosines = match of {
+            Scored::Gaussians => self.cosines(&query.embeddings)?,
+            Scored::Pixels(view) => {
+                let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
+                let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
+                decoder.cosines(&self.ctx, &view.query, &query.embeddings)?
+            }
+        };
+        Ok(query.relevance_of(&cosines))
     }
 
-    /// Renders colour, depth and queries of the map from `camera`, with
-    /// the Gaussians of the global map near it (those paged out included),
-    /// and says how many Gaussians it drew.
+    /// Renders colour, depth and queries of the map from a camera or a
+    /// recorded frame ([`Viewpoint`]), with the Gaussians of the global map
+    /// near it (those paged out included), and says how many Gaussians it
+    /// drew.
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, camera: &latentam_core::splat::Camera) -> latentam_core::Result<()> {
@@ -106,23 +122,54 @@ impl Mapper {
     /// # Ok(())
     /// # }
     /// ```
-    pub fn render(&mut self, camera: &Camera) -> Result<(RenderedView, usize)> {
-        let (ev, map) = self.evaluator()?;
-        ev.render(map, camera)
+    pub fn render<'a>(&mut self, at: impl Into<Viewpoint<'a>>) -> Result<(RenderedView, usize)> {
+        match at.into() {
+            Viewpoint::Camera(camera) => {
+                let (ev, map) = self.evaluator()?;
+                ev.render(map, camera)
+            }
+            Viewpoint::Frame(frame) => self.render_frame(frame),
+            Viewpoint::Pose(pose) => {
+                let last = self.history.len().checked_sub(1);
+                let Some(record) = last.and_then(|i| self.history.get(i)) else {
+                    return Err(Error::bad_input(
+                        "a view at a pose",
+                        "the map has no keyframe to take the camera's intrinsics from",
+                    ));
+                };
+                let mut camera = record.camera;
+                camera.cam_to_world = pose;
+                let (ev, map) = self.evaluator()?;
+                ev.render(map, &camera)
+            }
+        }
+    }
+
+    /// The map as it stands, as a [`MapSnapshot`] of its own: every
+    /// Gaussian (in the order [`Mapper::relevance`] scores them), the
+    /// decoder, the trajectory, the last keyframe's camera and the
+    /// statistics. The GPU window is written back first.
+    ///
+    /// ```no_run
+    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
+    /// let map = mapper.snapshot()?;
+    /// println!("{} Gaussians, {} keyframes", map.len(), map.trajectory.len());
+    /// map.export_ply("kitchen.ply".as_ref())?; // opens in 3DGS viewers
+    /// if let Some(decoder) = &map.decoder {
+    ///     decoder.write("decoder.safetensors".as_ref())?;
+    /// }
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn snapshot(&mut self) -> Result<MapSnapshot> {
+        self.flush()?;
+        MapSnapshot::of(self, IndexSettings::default())
     }
 
     /// [`Mapper::render`] at a frame's pose and with its camera, at the
     /// camera's exposure of the frame's time (interpolated between the
     /// keyframes around it; see `exposure_compensation`).
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame) -> latentam_core::Result<()> {
-    /// let (view, drawn) = mapper.render_frame(frame)?;
-    /// println!("{drawn} Gaussians drawn, {} pixels", view.rgbd.len());
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
+    pub(crate) fn render_frame(&mut self, frame: &Frame) -> Result<(RenderedView, usize)> {
         let (ev, map) = self.evaluator()?;
         ev.render_frame(map, frame)
     }
@@ -153,15 +200,8 @@ impl Mapper {
     /// Writes the map as a 3D Gaussian splatting PLY file (positions,
     /// scales, rotations, opacities, colours as degree-0 SH, and with
     /// embeddings the 32 `latent_*` query channels), atomically. The
-    /// queries decode to embeddings with [`Mapper::decoder`].
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &mut latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// mapper.export_ply("kitchen.ply".as_ref())?; // opens in 3DGS viewers
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn export_ply(&mut self, path: &Path) -> Result<()> {
+    /// queries decode to embeddings with the decoder.
+    pub(crate) fn export_ply(&mut self, path: &Path) -> Result<()> {
         self.flush()?;
         let gaussians: Vec<_> = self.pager.global().iter().map(|(_, g)| *g).collect();
         // A map without embeddings has no meaningful queries to write.
@@ -175,16 +215,7 @@ impl Mapper {
     /// The decoder as it stands (W, the dictionary and the temperature),
     /// to turn the map's queries into embeddings elsewhere; `None` before
     /// the first keyframe with embeddings.
-    ///
-    /// ```no_run
-    /// # fn f(mapper: &latentam_core::mapper::Mapper) -> latentam_core::Result<()> {
-    /// if let Some(decoder) = mapper.decoder()? {
-    ///     decoder.write("decoder.safetensors".as_ref())?;
-    /// }
-    /// # Ok(())
-    /// # }
-    /// ```
-    pub fn decoder(&self) -> Result<Option<DecoderFile>> {
+    pub(crate) fn decoder(&self) -> Result<Option<DecoderFile>> {
         self.dictionary.decoder_file(&self.ctx)
     }
 

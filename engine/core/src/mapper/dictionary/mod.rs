@@ -120,34 +120,6 @@ impl Dictionary {
         Ok(())
     }
 
-    /// Refuses a query vocabulary the map cannot score: one of another
-    /// embedding dimension or from another model than the map's region
-    /// embeddings (their spaces differ, so scores would mean nothing).
-    /// An `oracle:` prefix on either side does not count as a difference.
-    pub(crate) fn check_vocabulary(&self, v: &Vocabulary) -> Result<()> {
-        let Some(head) = &self.head else {
-            return Err(Error::NoEmbeddings);
-        };
-        let dim = head.config().dim;
-        if v.dim != dim {
-            return Err(Error::EmbeddingDimension {
-                map: dim,
-                given: v.dim,
-                context: Some(format!("the vocabulary's, of `{}`", v.model)),
-            });
-        }
-        if let Some(m) = &self.model {
-            if embedding_space(m) != embedding_space(&v.model) {
-                return Err(Error::EmbeddingModel {
-                    map: m.clone(),
-                    given: v.model.clone(),
-                    context: Some("the vocabulary's".into()),
-                });
-            }
-        }
-        Ok(())
-    }
-
     /// Folds a keyframe's region embeddings into the dictionary by
     /// streaming k-means, creating the head (and taking the model as the
     /// map's) at the first keyframe with embeddings.
@@ -236,4 +208,26 @@ fn nonzero_rows(r: &RegionTargets) -> Vec<f32> {
         .flatten()
         .copied()
         .collect()
+}
+
+/// Whether vocabulary `v` suits a map of `dim`-d embeddings of `model`
+/// (when known): the same dimension and the same embedding space.
+pub(crate) fn check_vocabulary(dim: u32, model: Option<&str>, v: &Vocabulary) -> Result<()> {
+    if v.dim != dim {
+        return Err(Error::EmbeddingDimension {
+            map: dim,
+            given: v.dim,
+            context: Some(format!("the vocabulary's, of `{}`", v.model)),
+        });
+    }
+    if let Some(m) = model {
+        if embedding_space(m) != embedding_space(&v.model) {
+            return Err(Error::EmbeddingModel {
+                map: m.to_string(),
+                given: v.model.clone(),
+                context: Some("the vocabulary's".into()),
+            });
+        }
+    }
+    Ok(())
 }

@@ -29,6 +29,11 @@ fn vocabulary(dim: u32, model: &str) -> Vocabulary {
 fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
     with_context(|ctx| {
         let mut dictionary = Dictionary::new(&config());
+        // What a snapshot of a map with this dictionary checks.
+        let check = |d: &Dictionary, v: &Vocabulary| match d.head() {
+            None => Err(Error::NoEmbeddings),
+            Some(head) => check_vocabulary(head.config().dim, d.model(), v),
+        };
         let frame = keyframe(DVec3::ZERO);
         let record = KeyframeRecord::from_frame(&frame);
         // Nothing to decode or score with before.
@@ -39,7 +44,7 @@ fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
             .unwrap()
             .is_none());
         assert!(matches!(
-            dictionary.check_vocabulary(&vocabulary(32, "test")),
+            check(&dictionary, &vocabulary(32, "test")),
             Err(Error::NoEmbeddings)
         ));
         assert_eq!(dictionary.dim_for(&frame), Some(32));
@@ -73,15 +78,13 @@ fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
         no_embeddings.embeddings = None;
         dictionary.check_frame(&no_embeddings).unwrap();
 
-        dictionary
-            .check_vocabulary(&vocabulary(32, "oracle:test"))
-            .unwrap();
+        check(&dictionary, &vocabulary(32, "oracle:test")).unwrap();
         assert!(matches!(
-            dictionary.check_vocabulary(&vocabulary(16, "test")),
+            check(&dictionary, &vocabulary(16, "test")),
             Err(Error::EmbeddingDimension { .. })
         ));
         assert!(matches!(
-            dictionary.check_vocabulary(&vocabulary(32, "another")),
+            check(&dictionary, &vocabulary(32, "another")),
             Err(Error::EmbeddingModel { .. })
         ));
     });

@@ -66,18 +66,18 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
                 "{stage}: {work:?}"
             );
         }
-        assert_eq!(mapper.global().len(), added_total);
-        assert!(mapper.head().unwrap().atom_count() >= 2);
+        assert_eq!(mapper.pager.global().len(), added_total);
+        assert!(mapper.dictionary.head().unwrap().atom_count() >= 2);
         // Every Gaussian of the map is in the window (it is large enough),
         // once.
-        let window = mapper.window().unwrap();
+        let window = mapper.pager.window().unwrap();
         let keys: std::collections::HashSet<_> = window.keys().iter().copied().collect();
         assert_eq!(keys.len(), window.len());
-        assert_eq!(keys.len(), mapper.global().len());
+        assert_eq!(keys.len(), mapper.pager.global().len());
         let psnr = psnr_of_first_keyframe(ctx, &mapper);
         eprintln!(
             "PSNR of keyframe 0: {psnr_after_first:.1} dB after it, {psnr:.1} dB after 8 keyframes ({} Gaussians)",
-            mapper.global().len()
+            mapper.pager.global().len()
         );
         assert!(
             psnr > 15.0 && psnr > psnr_after_first + 1.0,
@@ -90,7 +90,7 @@ fn the_online_loop_maps_a_moving_camera_with_and_without_embeddings() {
 fn psnr_of_first_keyframe(ctx: &latentam_gpu::Context, mapper: &Mapper) -> f64 {
     let first = mapper.history().get(0).unwrap();
     let mut raster = crate::splat::Rasterizer::new(ctx);
-    let window = mapper.window().unwrap();
+    let window = mapper.pager.window().unwrap();
     raster
         .forward(window.params(), window.len() as u64, &[first.camera])
         .unwrap();
@@ -130,8 +130,8 @@ fn frames_without_embeddings_map_geometry_and_colour_only() {
             assert!(k.stage_one.image.total().is_finite());
             assert_eq!(k.stage_one.regions, 0);
         }
-        assert!(mapper.head().is_none());
-        assert!(!mapper.global().is_empty());
+        assert!(mapper.dictionary.head().is_none());
+        assert!(!mapper.pager.global().is_empty());
         // No per-pixel feature buffer (query images or their gradients)
         // was ever allocated, and no latent head.
         let mem = ctx.memory_report();
@@ -176,7 +176,7 @@ fn embeddings_arriving_after_the_first_keyframes_train_the_head() {
             assert_eq!(k.stage_one.regions > 0, i >= 2, "keyframe {i}");
             assert!(k.stage_one.feature.is_finite());
         }
-        assert_eq!(mapper.head().unwrap().config().dim, DIM as u32);
+        assert_eq!(mapper.dictionary.head().unwrap().config().dim, DIM as u32);
     });
 }
 
@@ -195,7 +195,7 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
             f
         };
         mapper.integrate(at(0)).unwrap();
-        let before = (mapper.stats().frames, mapper.global().len());
+        let before = (mapper.stats().frames, mapper.pager.global().len());
         let selector = mapper.selector.state();
         // Another dimension, another model, a NaN pose, garbage
         // intrinsics: refused before anything changes.
@@ -217,7 +217,7 @@ fn refused_frames_leave_the_map_as_it_was_and_a_broken_one_is_not_saved() {
         ] {
             let e = mapper.integrate(&frame).unwrap_err().to_string();
             assert!(e.contains(why), "{e}");
-            assert_eq!((mapper.stats().frames, mapper.global().len()), before);
+            assert_eq!((mapper.stats().frames, mapper.pager.global().len()), before);
             assert_eq!(mapper.selector.state(), selector);
             assert!(!mapper.is_broken());
         }
@@ -292,7 +292,8 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
     // The band's Gaussians: in front of 2 m, right of the band's edge.
     let band = |m: &Mapper| {
         let edge = (W - BAND) as f32 - 0.5;
-        m.global()
+        m.pager
+            .global()
             .iter()
             .filter(|(_, g)| g.mean[2] < 2.0 && g.mean[0] / g.mean[2] * 50.0 + 23.5 > edge)
             .count()
@@ -321,12 +322,12 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
             } else {
                 assert_eq!(band(&mapper), 0, "the guesses in front are gone");
             }
-            let window = mapper.window().unwrap();
-            assert_eq!(window.len(), mapper.global().len());
+            let window = mapper.pager.window().unwrap();
+            assert_eq!(window.len(), mapper.pager.global().len());
             assert!(window
                 .keys()
                 .iter()
-                .all(|&k| mapper.global().get(k).is_some()));
+                .all(|&k| mapper.pager.global().get(k).is_some()));
         }
     });
 }
@@ -359,7 +360,7 @@ fn map_query_and_save(
     }
     let mut word = vec![0.0f32; DIM];
     word[3] = 1.0;
-    let scores = mapper.query(&word).unwrap();
+    let scores = mapper.cosines(&word).unwrap();
     assert!(!scores.is_empty() && scores.iter().all(|s| s.is_finite()));
     let path = std::env::temp_dir().join(format!(
         "latentam-limits-{}-{}",
@@ -421,7 +422,7 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
             };
             for temperature in [MIN_TEMPERATURE, MAX_TEMPERATURE] {
                 let q = TextQuery::vocabulary_word(&vocabulary, "a", temperature).unwrap();
-                let p = mapper.relevance(&q).unwrap();
+                let p = mapper.relevance(&q, Scored::Gaussians).unwrap();
                 assert!(p.iter().all(|p| p.is_finite() && (0.0..=1.0).contains(p)));
             }
         }

@@ -6,12 +6,14 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
 
 use latentam_base::{Error, HostGaussians, Result};
-use latentam_io::{CameraPose, ColorImage};
+use latentam_io::CameraPose;
 
-use super::index::{DecoderView, IndexSettings, RelevanceIndex};
+use super::relevance_index::{DecoderView, IndexSettings, RelevanceIndex};
+use super::{DecoderFile, Mapper, MapperStats};
 use crate::latent::TextQuery;
-use crate::mapper::{DecoderFile, Mapper, MapperStats};
+use crate::map::{gaussian_at, write_ply, write_ply_without_latents, Gaussian};
 use crate::splat::Camera;
+use std::path::Path;
 
 /// The map as it stood after a keyframe: every Gaussian (positions,
 /// colours, opacities, scales, rotations, latent queries), the decoder
@@ -44,6 +46,9 @@ pub struct MapSnapshot {
     pub trajectory: Vec<(i64, CameraPose)>,
     /// The mapper's counts, memory and timings at that moment.
     pub stats: MapperStats,
+    /// The camera (pose and intrinsics) of the last keyframe kept for
+    /// replay, to render the map as the camera saw it.
+    pub camera: Option<Camera>,
     settings: IndexSettings,
     index: OnceLock<RelevanceIndex>,
     /// Held while the index is built, so it is built once.
@@ -66,6 +71,7 @@ impl MapSnapshot {
             decoder,
             trajectory,
             stats,
+            camera: None,
             settings,
             index: OnceLock::new(),
             building: Mutex::new(()),
@@ -75,13 +81,48 @@ impl MapSnapshot {
     /// The map of `mapper` as it stands, without writing its GPU window
     /// back (so taking it between keyframes leaves mapping as it was).
     pub(crate) fn of(mapper: &Mapper, settings: IndexSettings) -> Result<Self> {
-        Ok(MapSnapshot::new(
+        let mut snapshot = MapSnapshot::new(
             mapper.gaussians_now()?,
             mapper.decoder()?,
             mapper.trajectory().to_vec(),
             mapper.stats(),
             settings,
-        ))
+        );
+        let history = mapper.history();
+        snapshot.camera = history
+            .len()
+            .checked_sub(1)
+            .and_then(|last| history.get(last))
+            .map(|k| k.camera);
+        Ok(snapshot)
+    }
+
+    /// Gaussian `i`, as the map stores it.
+    ///
+    /// # Panics
+    /// If `i` is not below [`MapSnapshot::len`].
+    pub fn gaussian(&self, i: usize) -> Gaussian {
+        gaussian_at(&self.gaussians, i)
+    }
+
+    /// Every Gaussian, as the map stores them (positions, scales,
+    /// rotations, colours, opacity logits, queries), in order.
+    pub fn to_gaussians(&self) -> Vec<Gaussian> {
+        (0..self.len()).map(|i| self.gaussian(i)).collect()
+    }
+
+    /// Writes the map as a 3D Gaussian splatting PLY file (positions,
+    /// scales, rotations, opacities, colours as degree-0 SH, and with
+    /// embeddings the 32 `latent_*` query channels), atomically. The
+    /// queries decode to embeddings with [`MapSnapshot::decoder`].
+    pub fn export_ply(&self, path: &Path) -> Result<()> {
+        let gaussians = self.to_gaussians();
+        // A map without embeddings has no meaningful queries to write.
+        if self.decoder.is_some() {
+            write_ply(path, &gaussians, &[])
+        } else {
+            write_ply_without_latents(path, &gaussians, &[])
+        }
     }
 
     /// Gaussians in it.
@@ -142,19 +183,4 @@ impl MapSnapshot {
     pub fn relevance(&self, query: &TextQuery) -> Result<Vec<f32>> {
         Ok(query.relevance_of(&self.cosines(&query.embeddings)?))
     }
-}
-
-/// The last keyframe as the camera saw it: its colour image, camera and
-/// stamp, for a viewer to show beside the map rendered from the same
-/// camera.
-#[derive(Clone, Debug)]
-pub struct KeyframeImage {
-    /// The keyframe's index in the map (0 for its first).
-    pub keyframe: u64,
-    /// The frame's stamp, ns.
-    pub stamp_ns: i64,
-    /// Its camera: pose and intrinsics.
-    pub camera: Camera,
-    /// Its colour image, as submitted.
-    pub color: ColorImage,
 }
