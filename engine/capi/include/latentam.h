@@ -15,7 +15,8 @@ typedef enum LatentamStatus {
   LATENTAM_STATUS_OK = 0,
   // A NULL, freed or unknown handle.
   LATENTAM_STATUS_INVALID_HANDLE = 1,
-  // An argument out of range, or a NULL pointer where one is needed.
+  // An argument that is unusable (out of range, of the wrong size), or a
+  // NULL pointer where one is needed: fix what was passed.
   LATENTAM_STATUS_INVALID_ARGUMENT = 2,
   // A frame that does not hold together (sizes, pose, intrinsics).
   LATENTAM_STATUS_BAD_FRAME = 3,
@@ -25,7 +26,8 @@ typedef enum LatentamStatus {
   LATENTAM_STATUS_EMBEDDING_MISMATCH = 5,
   // No usable Vulkan device, a lost device, a failed Vulkan call.
   LATENTAM_STATUS_DEVICE = 6,
-  // GPU memory ran out, or the budget is too small.
+  // GPU memory ran out (the device's, or `gpu_budget` reached by an
+  // allocation).
   LATENTAM_STATUS_GPU_MEMORY = 7,
   // The mapper stopped (on the error in the message) or was finished.
   LATENTAM_STATUS_STOPPED = 8,
@@ -39,6 +41,16 @@ typedef enum LatentamStatus {
   LATENTAM_STATUS_INTERNAL = 12,
   // The queue stayed full for the time given; the frame was not queued.
   LATENTAM_STATUS_BUSY = 13,
+  // A setting outside its documented range, settings that contradict
+  // each other, or a configuration that does not parse: fix the setting
+  // the message names.
+  LATENTAM_STATUS_CONFIG = 14,
+  // A file that is damaged or not what it claims to be (a checksum that
+  // does not match, another format or version): use another copy.
+  LATENTAM_STATUS_DAMAGED = 15,
+  // A memory budget the caller set (`gpu_budget`, the window capacity)
+  // is too small for the work asked of it: raise it or ask for less.
+  LATENTAM_STATUS_BUDGET = 16,
 } LatentamStatus;
 
 // The frames of an MCAP log or rosbag2 folder (opaque).

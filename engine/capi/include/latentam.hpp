@@ -19,7 +19,9 @@
 
 namespace latentam {
 
-/// A failed call: what() is the engine's message.
+/// A failed call: what() is the engine's message, status its kind (e.g.
+/// LATENTAM_STATUS_CONFIG: fix the setting named; LATENTAM_STATUS_DAMAGED:
+/// use another copy of the file; LATENTAM_STATUS_BUDGET: raise the budget).
 class Error : public std::runtime_error {
 public:
     Error(LatentamStatus status, const char *message)

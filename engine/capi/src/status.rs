@@ -14,7 +14,8 @@ pub enum LatentamStatus {
     Ok = 0,
     /// A NULL, freed or unknown handle.
     InvalidHandle = 1,
-    /// An argument out of range, or a NULL pointer where one is needed.
+    /// An argument that is unusable (out of range, of the wrong size), or a
+    /// NULL pointer where one is needed: fix what was passed.
     InvalidArgument = 2,
     /// A frame that does not hold together (sizes, pose, intrinsics).
     BadFrame = 3,
@@ -24,7 +25,8 @@ pub enum LatentamStatus {
     EmbeddingMismatch = 5,
     /// No usable Vulkan device, a lost device, a failed Vulkan call.
     Device = 6,
-    /// GPU memory ran out, or the budget is too small.
+    /// GPU memory ran out (the device's, or `gpu_budget` reached by an
+    /// allocation).
     GpuMemory = 7,
     /// The mapper stopped (on the error in the message) or was finished.
     Stopped = 8,
@@ -38,6 +40,16 @@ pub enum LatentamStatus {
     Internal = 12,
     /// The queue stayed full for the time given; the frame was not queued.
     Busy = 13,
+    /// A setting outside its documented range, settings that contradict
+    /// each other, or a configuration that does not parse: fix the setting
+    /// the message names.
+    Config = 14,
+    /// A file that is damaged or not what it claims to be (a checksum that
+    /// does not match, another format or version): use another copy.
+    Damaged = 15,
+    /// A memory budget the caller set (`gpu_budget`, the window capacity)
+    /// is too small for the work asked of it: raise it or ask for less.
+    Budget = 16,
 }
 
 thread_local! {
@@ -60,7 +72,10 @@ pub(crate) fn fail(status: LatentamStatus, message: impl Into<String>) -> Latent
 pub(crate) fn engine_error(e: latentam::Error) -> LatentamStatus {
     use latentam::Error as E;
     let status = match &e {
-        E::InvalidArgument(_) => LatentamStatus::InvalidArgument,
+        E::BadInput { .. } | E::InvalidArgument(_) => LatentamStatus::InvalidArgument,
+        E::Config { .. } => LatentamStatus::Config,
+        E::Damaged { .. } => LatentamStatus::Damaged,
+        E::Budget { .. } => LatentamStatus::Budget,
         E::BadFrame { .. } => LatentamStatus::BadFrame,
         E::NoEmbeddings => LatentamStatus::NoEmbeddings,
         E::EmbeddingDimension { .. } | E::EmbeddingModel { .. } => {

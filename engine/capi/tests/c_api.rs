@@ -1,8 +1,9 @@
 //! The C API from C and C++: the checked-in header is the one cbindgen
 //! makes of the code, the C example compiles with `-Wall -Werror` against
 //! it and maps a generated log (misuse answered with status codes, a freed
-//! handle refused), also under AddressSanitizer and UBSan, and the C++
-//! example does the same through the RAII wrapper.
+//! handle refused), also under AddressSanitizer and UBSan, the C++
+//! example does the same through the RAII wrapper, and each kind of error
+//! (a setting, a damaged file, an argument) has its own status.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -142,5 +143,31 @@ fn the_c_and_cpp_examples_map_a_log() {
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("frames 24"));
     assert!(dir.join("run-cpp/state.latentam").exists());
+
+    // A byte of the saved map's tensors changed: its checksum no longer
+    // matches, and loading it says so with its own status.
+    let state = dir.join("run-c/state.latentam");
+    let mut bytes = std::fs::read(&state).unwrap();
+    let last = bytes.len() - 5;
+    bytes[last] ^= 0x40;
+    std::fs::write(&state, bytes).unwrap();
+    let kinds = dir.join("error_kinds");
+    compile(
+        "cc",
+        &crate_dir().join("tests/error_kinds.c"),
+        &kinds,
+        &["-std=gnu11"],
+    );
+    let out = Command::new(&kinds)
+        .arg(dir.join("run-c"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("every kind has its status"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

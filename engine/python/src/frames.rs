@@ -1,6 +1,6 @@
 //! numpy arrays to engine frames and back, every shape and dtype checked
-//! (a `ValueError` that names the argument, what it must be and what it
-//! is), with one copy of each image.
+//! (a `BadInputError`, a `ValueError`, that names the argument, what it
+//! must be and what it is), with one copy of each image.
 
 use glam::DAffine3;
 use half::f16;
@@ -10,12 +10,11 @@ use latentam::frames::{
 };
 use latentam::Camera;
 use numpy::{Element, PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 fn bad(message: String) -> PyErr {
-    PyValueError::new_err(message)
+    crate::errors::BadInputError::new_err(message)
 }
 
 /// What `obj` is, for a message: its dtype and shape when it is an array.

@@ -239,3 +239,29 @@ def test_misuse_raises_clear_errors(scene):
         latentam.LogFrames("/nonexistent/log.mcap")
     with pytest.raises(ValueError):
         latentam.Mapper(config="voxel_size = -1")
+
+
+def test_errors_say_what_to_fix_by_their_class(scene, tmp_path):
+    """A program tells a bad argument, a bad setting and a damaged file
+    apart by the exception's class, not by its words."""
+    # A setting out of range: ConfigError, still a ValueError.
+    with pytest.raises(latentam.ConfigError, match="voxel_size") as caught:
+        latentam.Mapper(config="voxel_size = -1")
+    assert isinstance(caught.value, ValueError)
+    assert not isinstance(caught.value, latentam.BadInputError)
+    # An array that does not fit: BadInputError, still a ValueError.
+    f = base_frame(scene)
+    with pytest.raises(latentam.BadInputError, match="rgb"):
+        latentam.Mapper().submit(**with_(f, rgb=f["rgb"].astype(np.float32)))
+    # A saved map with one byte changed: DamagedFileError, an InputError.
+    run("map", str(scene), "--out", str(tmp_path / "run"), "--frames", "8")
+    state = tmp_path / "run" / "state.latentam"
+    data = bytearray(state.read_bytes())
+    data[-5] ^= 0x40
+    state.write_bytes(bytes(data))
+    with pytest.raises(latentam.DamagedFileError, match="is damaged") as caught:
+        latentam.Mapper.load(tmp_path / "run")
+    assert isinstance(caught.value, latentam.InputError)
+    assert str(state) in str(caught.value)
+    # The budget kind sits under GPU memory errors.
+    assert issubclass(latentam.BudgetError, latentam.GpuMemoryError)

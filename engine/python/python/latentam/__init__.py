@@ -3,9 +3,12 @@
 A ``Mapper`` maps on a worker thread: ``submit`` only enqueues a frame and
 returns, while any thread reads snapshots of the map and asks which
 Gaussians match a text embedding. Every array is checked (shape, dtype,
-finite values, a rigid pose) and a misfit raises ``ValueError``; the
-engine's other failures raise subclasses of ``latentam.Error``. The GIL is
-released while the engine works.
+finite values, a rigid pose) and a misfit raises ``BadInputError``, a
+setting out of range ``ConfigError`` (both ``ValueError`` subclasses); the
+engine's other failures raise subclasses of ``latentam.Error``:
+``BudgetError`` (a ``GpuMemoryError``) when a memory budget set is too
+small, ``DamagedFileError`` (an ``InputError``) for a damaged file. The GIL
+is released while the engine works.
 
     import latentam
     mapper = latentam.Mapper()
@@ -17,6 +20,10 @@ released while the engine works.
 """
 
 from ._latentam import (
+    BadInputError,
+    BudgetError,
+    ConfigError,
+    DamagedFileError,
     DeviceError,
     EmbeddingMismatchError,
     Error,
@@ -30,6 +37,10 @@ from ._latentam import (
 )
 
 __all__ = [
+    "BadInputError",
+    "BudgetError",
+    "ConfigError",
+    "DamagedFileError",
     "DeviceError",
     "EmbeddingMismatchError",
     "Error",

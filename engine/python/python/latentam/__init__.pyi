@@ -10,7 +10,13 @@ _Path = Union[str, "PathLike[str]"]
 _Matrix = Union[npt.NDArray[np.floating[Any]], Sequence[Sequence[float]]]
 
 class Error(Exception):
-    """Base class of latentam's errors (bad arrays raise ValueError)."""
+    """Base class of latentam's errors (bad arrays and settings raise ValueError subclasses)."""
+
+class BadInputError(ValueError):
+    """A value handed in is unusable (an array, a frame, a query, a vocabulary): the message names it and says what is wrong."""
+
+class ConfigError(ValueError):
+    """A setting is outside its documented range, settings contradict each other, or the configuration does not parse."""
 
 class NoEmbeddingsError(Error):
     """The map has no embeddings yet: nothing to query."""
@@ -24,11 +30,17 @@ class DeviceError(Error):
 class GpuMemoryError(DeviceError):
     """GPU memory ran out, or the configured budget is too small."""
 
+class BudgetError(GpuMemoryError):
+    """A memory budget set by the caller (gpu_budget, the window capacity) is too small for the work asked of it: raise it or ask for less."""
+
 class StoppedError(Error):
     """The mapper stopped (on the error in the message) or was finished."""
 
 class InputError(Error):
     """A log, file or run folder that cannot be read or written."""
+
+class DamagedFileError(InputError):
+    """A file is damaged or is not what it claims to be (a checksum that does not match, sizes that disagree, another format or version): use another copy."""
 
 class Snapshot:
     """The map as it stood after one keyframe, as numpy arrays."""
