@@ -143,12 +143,15 @@ pub fn window_budget(
         }
         // The budget that leaves the smallest window, 10 % kept free.
         let needed = reserved + (MIN_WINDOW * bytes_per_row).div_ceil(9) * 10;
-        return Err(Error::OutOfMemory(format!(
-            "a GPU budget of {budget} bytes leaves room for {capacity} Gaussians in the window \
-             ({reserved} bytes go to images and the latent head, {bytes_per_row} per Gaussian); \
-             at least {MIN_WINDOW} are needed: set gpu_budget to at least {needed} (or lower the \
-             image size or the dictionary size `atoms`)"
-        )));
+        return Err(Error::budget(
+            "gpu_budget",
+            format!(
+                "a GPU budget of {budget} bytes leaves room for {capacity} Gaussians in the \
+                 window ({reserved} bytes go to images and the latent head, {bytes_per_row} per \
+                 Gaussian); at least {MIN_WINDOW} are needed: set gpu_budget to at least \
+                 {needed} (or lower the image size or the dictionary size `atoms`)"
+            ),
+        ));
     }
     Ok(WindowBudget {
         budget,
@@ -225,9 +228,13 @@ mod tests {
         let c = window_budget(1 << 30, 1 << 29, 0, 6, big).unwrap();
         assert!(a.capacity > b.capacity && b.capacity > c.capacity);
         assert!(b.capacity * b.bytes_per_row <= (1 << 30));
-        let err = window_budget(1 << 20, 0, 0, 6, big)
-            .unwrap_err()
-            .to_string();
+        let err = window_budget(1 << 20, 0, 0, 6, big).unwrap_err();
+        // A budget the caller set, which it can raise.
+        assert!(
+            matches!(&err, Error::Budget { budget, .. } if budget == "gpu_budget"),
+            "{err:?}"
+        );
+        let err = err.to_string();
         // The budget the error names is enough.
         let needed: u64 = err
             .split("set gpu_budget to at least ")
