@@ -169,9 +169,7 @@ impl State {
     /// What a call on a handle whose worker stopped returns.
     pub fn stopped_error(&self) -> Error {
         let cause = self.stopped.clone().unwrap_or_else(|| {
-            Arc::new(Error::InvalidArgument(
-                "the live mapper's worker has ended".into(),
-            ))
+            Arc::new(Error::bad_input("the live mapper", "its worker has ended"))
         });
         Error::Stopped(cause)
     }

@@ -216,8 +216,9 @@ impl Evaluator {
         }
         let n = host.means.len();
         if n == 0 {
-            return Err(Error::InvalidArgument(
-                "no Gaussians near this view: nothing to render".into(),
+            return Err(Error::bad_input(
+                "the view",
+                "no Gaussians near it: nothing to render",
             ));
         }
         if self

@@ -205,12 +205,14 @@ impl Mapper {
             if let (Some(id), true) = (state.run_id(), decoder.exists()) {
                 let theirs = DecoderFile::read(&decoder)?.run_id;
                 if theirs.as_deref() != Some(id) {
-                    return Err(Error::InvalidArgument(format!(
-                        "{}: {DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
-                         ({id}); the folder mixes two runs",
-                        dir.display(),
-                        theirs.as_deref().unwrap_or("no run id")
-                    )));
+                    return Err(Error::damaged(
+                        dir,
+                        format!(
+                            "{DECODER_FILE} was written by another run ({}) than {STATE_FILE} \
+                             ({id}); the folder mixes two runs",
+                            theirs.as_deref().unwrap_or("no run id")
+                        ),
+                    ));
                 }
             }
             Ok(state)
@@ -221,10 +223,13 @@ impl Mapper {
         let asked = overrides.shape_settings();
         for ((name, saved), (_, asked)) in state.config().shape_settings().into_iter().zip(asked) {
             if saved != asked {
-                return Err(Error::InvalidArgument(format!(
-                    "{name} = {asked} asked for, but the saved map was built with {name} = \
-                     {saved}, which a resumed map keeps; map from scratch to change it"
-                )));
+                return Err(Error::config(
+                    name,
+                    format!(
+                        "{name} = {asked} asked for, but the saved map was built with {name} = \
+                         {saved}, which a resumed map keeps; map from scratch to change it"
+                    ),
+                ));
             }
         }
         Self::from_saved(ctx, state, Some(overrides))

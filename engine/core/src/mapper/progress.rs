@@ -146,10 +146,14 @@ impl Progress {
     pub(crate) fn check_consistent(&self) -> Result<()> {
         match &self.broken {
             None => Ok(()),
-            Some(why) => Err(Error::InvalidArgument(format!(
-                "the map is in the middle of a keyframe that failed ({why}); it cannot be saved \
-                 or mapped further: load the last save instead"
-            ))),
+            // Stopped: nothing but a reload goes on from here.
+            Some(why) => Err(Error::Stopped(std::sync::Arc::new(Error::bad_input(
+                "the map",
+                format!(
+                    "it is in the middle of a keyframe that failed ({why}); it cannot be saved \
+                     or mapped further: load the last save instead"
+                ),
+            )))),
         }
     }
 

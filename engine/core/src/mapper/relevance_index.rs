@@ -113,7 +113,13 @@ impl RelevanceIndex {
                 .map(|h| h.join().expect("index worker"))
                 .collect::<Option<Vec<Part>>>()
         })
-        .ok_or_else(|| Error::InvalidArgument("the relevance index build was cancelled".into()))?;
+        .ok_or_else(|| {
+            // Only a closing live handle cancels a build.
+            Error::Stopped(std::sync::Arc::new(Error::bad_input(
+                "the relevance index",
+                "its build was cancelled: the live mapper is closing",
+            )))
+        })?;
         let mut index = RelevanceIndex {
             dim: d,
             atoms: decoder.atoms.to_vec(),
@@ -183,8 +189,9 @@ impl RelevanceIndex {
             });
         }
         if texts.iter().any(|x| !x.is_finite()) {
-            return Err(Error::InvalidArgument(
-                "a query embedding has non-finite values".into(),
+            return Err(Error::bad_input(
+                "a query embedding",
+                "it has non-finite values",
             ));
         }
         let m = texts.len() / d;

@@ -34,7 +34,7 @@ impl Mapper {
         let map: Vec<(VoxelKey, Gaussian)> = global.iter().map(|(k, g)| (k, *g)).collect();
         let window = self.download_window(&ctx)?;
         let head = self.download_head(&ctx)?;
-        check_finite(&map, head.as_ref(), window.as_ref())?;
+        check_finite(path, &map, head.as_ref(), window.as_ref())?;
         let guesses: Vec<u8> = map
             .iter()
             .map(|(key, _)| {
@@ -164,7 +164,7 @@ impl Mapper {
             exposure,
             window,
         } = saved;
-        let corrupt = |why: String| Error::InvalidArgument(format!("{}: {why}", origin.display()));
+        let corrupt = |why: String| Error::damaged(&origin, why);
         let mut cfg = overrides.unwrap_or_else(|| kept.clone());
         cfg.keep_shape_of(&kept);
         if let Some(w) = &window {
@@ -269,6 +269,7 @@ fn upload_state(
 /// Refuses to save a diverged map: loading refuses non-finite values, so
 /// refusing them here too keeps a diverged map from replacing a good save.
 fn check_finite(
+    path: &Path,
     map: &[(VoxelKey, Gaussian)],
     head: Option<&SavedHead>,
     window: Option<&SavedWindow>,
@@ -276,9 +277,10 @@ fn check_finite(
     // Loading refuses non-finite values; refusing them here too keeps a
     // diverged map from replacing a good save.
     let diverged = |why: String| {
-        Error::InvalidArgument(format!(
-            "the map has diverged and is not saved (it would not load): {why}"
-        ))
+        Error::damaged(
+            path,
+            format!("the map has diverged and is not saved (it would not load): {why}"),
+        )
     };
     for (key, g) in map {
         if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
