@@ -148,34 +148,18 @@ impl Mapper {
         saved: SavedState,
         overrides: Option<MapperConfig>,
     ) -> Result<Self> {
-        let SavedState {
-            origin,
-            run_id,
-            config: kept,
-            counters,
-            model,
-            selector,
-            last_sync,
-            map,
-            guesses,
-            head,
-            history,
-            trajectory,
-            exposure,
-            window,
-        } = saved;
-        let corrupt = |why: String| Error::damaged(&origin, why);
-        let mut cfg = overrides.unwrap_or_else(|| kept.clone());
-        cfg.keep_shape_of(&kept);
-        if let Some(w) = &window {
+        let corrupt = |why: String| Error::damaged(&saved.origin, why);
+        let mut cfg = overrides.unwrap_or_else(|| saved.config.clone());
+        cfg.keep_shape_of(&saved.config);
+        if let Some(w) = &saved.window {
             cfg.window_capacity = Some(w.capacity);
         }
         let mut m = Mapper::with_context(ctx, cfg)?;
-        m.progress = Progress::restored(counters, run_id);
-        m.dictionary.restore_model(model);
-        m.selector.restore(selector.0, selector.1);
-        m.pager.restore_last_sync(last_sync);
-        for ((key, g), flag) in map.into_iter().zip(guesses) {
+        m.progress = Progress::restored(saved.counters, saved.run_id);
+        m.dictionary.restore_model(saved.model);
+        m.selector.restore(saved.selector.0, saved.selector.1);
+        m.pager.restore_last_sync(saved.last_sync);
+        for ((key, g), flag) in saved.map.into_iter().zip(saved.guesses) {
             if !m.pager.restore_gaussian(key, g) {
                 return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
             }
@@ -187,7 +171,7 @@ impl Mapper {
         }
 
         // Latent head.
-        if let Some(h) = head {
+        if let Some(h) = saved.head {
             let head = m.dictionary.make_head(ctx, h.dim)?;
             ctx.upload(head.w(), 0, &h.w)?;
             ctx.upload(head.atoms(), 0, &h.atoms)?;
@@ -209,17 +193,17 @@ impl Mapper {
             m.dictionary.restore(head);
         }
 
-        for record in history {
+        for record in saved.history {
             m.history.push(record);
         }
-        for ((stamp_ns, _), gain) in trajectory.iter().zip(exposure) {
+        for ((stamp_ns, _), gain) in saved.trajectory.iter().zip(saved.exposure) {
             m.exposure.push(*stamp_ns, gain);
         }
-        m.trajectory = trajectory;
+        m.trajectory = saved.trajectory;
 
         // Window: the same residents in the same rows, with their Adam
         // state.
-        if let Some(w) = window {
+        if let Some(w) = saved.window {
             let dim = m.dictionary.head().map(|h| h.config().dim);
             m.ensure_workspace(w.view_pixels, dim)?;
             let trainer = m
