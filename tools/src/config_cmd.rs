@@ -2,8 +2,8 @@
 //! configuration.
 
 use anyhow::Result;
+use latentam::config::documented_defaults;
 use latentam_cli::config_args::ConfigArgs;
-use latentam_core::mapper::documented_defaults;
 
 #[derive(clap::Args)]
 pub struct Args {

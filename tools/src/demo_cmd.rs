@@ -5,21 +5,17 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
+use latentam::frames::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::runs::{RunFolder, Written};
+use latentam::{Context, ContextOptions, Ending, Mapper};
 use latentam_cli::progress::Progress;
-use latentam_core::mapper::Mapper;
-use latentam_gpu::{Context, ContextOptions};
-use latentam_io::{read_vocabulary, AssemblyConfig, McapFrames};
 use latentam_scene::{generate, SceneConfig};
 
 use crate::config_args::ConfigArgs;
+use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
 use crate::pictures::Picture;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{nth_frame, render_pictures, ViewSource};
-use latentam_core::mapper::RunFolder;
-
-use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam_core::live::Written;
-use latentam_core::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -11,11 +11,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
+use latentam::eval::{add_iou, mean_iou, RegionPooled};
+use latentam::frames::{read_class_names, read_vocabulary, McapFrames, Vocabulary};
+use latentam::runs::read_one_version;
+use latentam::{Context, ContextOptions, Mapper, ViewMetrics};
 use latentam_cli::progress::Stages;
-use latentam_core::mapper::eval::{add_iou, mean_iou, ViewMetrics};
-use latentam_core::mapper::Mapper;
-use latentam_gpu::{Context, ContextOptions};
-use latentam_io::{read_class_names, read_vocabulary, McapFrames};
 use serde::Serialize;
 
 #[derive(clap::Args)]
@@ -139,11 +139,11 @@ fn run_report_of(dir: &Path, state_run_id: Option<&str>) -> Result<Option<serde_
     // one (or with one that is not a string) is not that run's either.
     if let Some(ours) = state_run_id {
         let theirs = match &report["run_id"] {
-            serde_json::Value::String(s) => latentam_base::text::shown(s),
+            serde_json::Value::String(s) => latentam::text::shown(s),
             serde_json::Value::Null => "no run id".to_string(),
             other => format!(
                 "a run id that is not text, {}",
-                latentam_base::text::shown(&other.to_string())
+                latentam::text::shown(&other.to_string())
             ),
         };
         if report["run_id"].as_str() != Some(ours) {
@@ -177,7 +177,7 @@ pub fn run(args: Args) -> Result<()> {
     let ctx = Context::new(ContextOptions::default())?;
     // The map and its report of one version, even while a writer swaps
     // the folder.
-    let (mut mapper, run_report) = latentam_core::mapper::read_one_version(&args.dir, || {
+    let (mut mapper, run_report) = read_one_version(&args.dir, || {
         let mapper = Mapper::load(&ctx, &args.dir)?;
         let report = run_report_of(&args.dir, mapper.stats().run_id.as_deref())
             .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))?;
@@ -232,7 +232,7 @@ fn evaluate_frames(
     args: &Args,
     mapper: &mut Mapper,
     frames: McapFrames,
-    vocabulary: Option<&latentam_io::Vocabulary>,
+    vocabulary: Option<&Vocabulary>,
 ) -> Result<Vec<FrameRow>> {
     let limit = args.frames.unwrap_or(usize::MAX);
     let keyframes: std::collections::HashSet<i64> = mapper
@@ -291,7 +291,7 @@ fn evaluate_frames(
 fn eval_report(
     args: &Args,
     rows: Vec<FrameRow>,
-    vocabulary: Option<&latentam_io::Vocabulary>,
+    vocabulary: Option<&Vocabulary>,
     class_table: &BTreeMap<u16, String>,
     run_report: Option<&serde_json::Value>,
     eval_ms_per_frame: f64,
@@ -329,7 +329,7 @@ fn eval_report(
 /// The mean figures of `rows` and their per-class IoU.
 fn figures(
     rows: &[&FrameRow],
-    vocabulary: Option<&latentam_io::Vocabulary>,
+    vocabulary: Option<&Vocabulary>,
     class_table: &BTreeMap<u16, String>,
 ) -> (Means, Vec<ClassRow>) {
     let mut counts = BTreeMap::new();
@@ -351,7 +351,7 @@ fn figures(
         });
         (n > 0).then(|| s / n as f64)
     };
-    let pooled = |f: fn(&latentam_core::mapper::eval::RegionPooled) -> Option<f64>| {
+    let pooled = |f: fn(&RegionPooled) -> Option<f64>| {
         mean(
             rows.iter()
                 .filter_map(|r| r.metrics.region_pooled.as_ref().and_then(f)),
@@ -408,7 +408,7 @@ fn print_summary(r: &EvalReport) {
         None => println!("  mIoU          n/a (no vocabulary in the log)"),
     }
     for c in &r.classes {
-        let name = latentam_base::text::shown(&c.name);
+        let name = latentam::text::shown(&c.name);
         println!("    {name:<16} {:.3}  ({} pixels)", c.iou, c.pixels);
     }
     if let (Some(k), Some(n)) = (&r.keyframes, &r.novel_views) {

@@ -7,14 +7,12 @@ use std::path::{Path, PathBuf};
 use crate::own_inputs::{refuse_overwriting_inputs, Input};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::{Scored, Scoring, TextQuery};
-use latentam_base::text::{shown, shown_path};
+use latentam::frames::{read_vocabulary, CameraPose, Vocabulary};
+use latentam::text::{shown, shown_path};
+use latentam::{softmax_rows, Mapper, Scored, Scoring, TextQuery};
 use latentam_cli::progress::Stages;
-use latentam_io::{read_vocabulary, CameraPose, Vocabulary};
 
 use crate::pictures::to_bytes;
-use latentam_core::latent::softmax_rows;
-use latentam_core::mapper::Mapper;
 use latentam_view::{heat_rgba, topic_word, write_foxglove_file, Cloud};
 
 #[derive(clap::Args)]

@@ -3,8 +3,9 @@
 use std::path::PathBuf;
 
 use clap::ValueEnum;
+use latentam::frames::Dtype;
+use latentam::logs::Compression;
 use latentam_cli::progress::Progress;
-use latentam_io::{Compression, Dtype};
 use latentam_scene::{generate, spread_for_cosine, SceneConfig};
 
 /// Chunk compression of written logs.

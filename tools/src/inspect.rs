@@ -1,9 +1,10 @@
 //! `latentam inspect`: what a log holds and what the engine makes of it.
 
-use latentam_base::text::{shown, shown_path};
+use latentam::text::{shown, shown_path};
 use std::path::{Path, PathBuf};
 
-use latentam_io::{McapFrames, McapLog, Metadata};
+use latentam::frames::{McapFrames, PoseSource};
+use latentam::logs::{McapLog, Metadata};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -134,11 +135,11 @@ fn json_document(
         .collect();
     let t = frames.topics();
     let pose = match &t.pose {
-        latentam_io::PoseSource::Topic(p) => p.clone(),
-        latentam_io::PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
+        PoseSource::Topic(p) => p.clone(),
+        PoseSource::Tf { world_frame, .. } if world_frame.is_empty() => {
             "/tf (from the root of the tree)".into()
         }
-        latentam_io::PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
+        PoseSource::Tf { world_frame, .. } => format!("/tf (from {world_frame})"),
     };
     serde_json::json!({
         "log": path.display().to_string(),

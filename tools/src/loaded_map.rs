@@ -3,9 +3,8 @@
 use std::path::Path;
 
 use anyhow::{bail, Context as _, Result};
+use latentam::{Context, ContextOptions, Mapper};
 use latentam_cli::progress::Stages;
-use latentam_core::mapper::Mapper;
-use latentam_gpu::{Context, ContextOptions};
 
 /// The run folder `dir`'s `report.json`: `None` when it has none. One
 /// that cannot be read (a FIFO or a device in its place, larger than a
@@ -17,9 +16,9 @@ pub fn read_run_report(dir: &Path) -> Result<Option<serde_json::Value>> {
     if std::fs::symlink_metadata(&path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) {
         return Ok(None);
     }
-    let text = latentam_io::read_input_to_string(&path)
+    let text = latentam::files::read_input_to_string(&path)
         .with_context(|| format!("reading {}", path.display()))?;
-    let report = latentam_io::parse_json(&text)
+    let report = latentam::files::parse_json(&text)
         .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
     Ok(Some(report))
 }

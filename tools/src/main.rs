@@ -123,10 +123,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             // Errors quote file contents and arguments: shown defused.
-            eprintln!(
-                "error: {}",
-                latentam_base::text::shown(&mapping::describe(&e))
-            );
+            eprintln!("error: {}", latentam::text::shown(&mapping::describe(&e)));
             ExitCode::FAILURE
         }
     }

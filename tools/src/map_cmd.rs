@@ -3,15 +3,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
-use latentam_base::text::shown_path;
+use latentam::runs::{Kept, RunFolder, Written, STATE_FILE};
+use latentam::text::shown_path;
+use latentam::Ending;
 
 use crate::config_args::ConfigArgs;
 use crate::input_args::InputArgs;
-use latentam_core::mapper::{RunFolder, STATE_FILE};
-
 use crate::mapping::{map_log, summary, write_folder, RunOptions, RUN_FILES};
-use latentam_core::live::{Kept, Written};
-use latentam_core::mapper::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -6,14 +6,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
-use latentam_base::text::shown;
-use latentam_core::live::{LiveReader, LogRun, LogRunOptions, RunObserver, Written};
-use latentam_core::mapper::{
-    KeyframeReport, Mapper, MapperConfig, MapperStats, RunFolder, RunReport, DECODER_FILE,
-    STATE_FILE,
+use latentam::frames::{AssemblyConfig, McapFrames};
+use latentam::runs::{RunFolder, Written, DECODER_FILE, STATE_FILE};
+use latentam::text::shown;
+use latentam::{
+    Config as MapperConfig, Context, ContextOptions, KeyframeReport, LiveReader, LogRun,
+    LogRunOptions, Mapper, MapperStats, RunObserver, RunReport,
 };
-use latentam_gpu::{Context, ContextOptions};
-use latentam_io::{AssemblyConfig, McapFrames};
 
 use crate::interrupt;
 use latentam_cli::progress::StatusLine;
@@ -121,7 +120,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         profiling: opts.profile,
         ..ContextOptions::default()
     })?;
-    latentam_core::mapper::warm_up(&ctx)?;
+    latentam::warm_up(&ctx)?;
     let mapper = match (folder, &opts.resume) {
         (Some(folder), Some(settings)) => {
             let settings = |saved: &MapperConfig| {
@@ -190,8 +189,8 @@ struct CliObserver {
     /// known, and the view once mapping started.
     live: Option<crate::live_args::LiveViewArgs>,
     log: PathBuf,
-    view_options: Option<latentam_view::ViewOptions>,
-    view: Option<latentam_view::LiveView>,
+    view_options: Option<latentam::view::ViewOptions>,
+    view: Option<latentam::view::LiveView>,
     /// What stopped the run before its first frame.
     error: Option<anyhow::Error>,
 }
@@ -205,7 +204,7 @@ impl RunObserver for CliObserver {
             // The log's vocabulary is read before its first frame when the
             // log has one (its message may come later in the log).
             let vocabulary = frames.vocabulary().cloned().or_else(|| {
-                latentam_io::read_vocabulary(&self.log, &frames.topics().vocabulary)
+                latentam::frames::read_vocabulary(&self.log, &frames.topics().vocabulary)
                     .ok()
                     .flatten()
             });
@@ -222,7 +221,7 @@ impl RunObserver for CliObserver {
             return;
         };
         let listen = options.listen;
-        match latentam_view::LiveView::serve(reader.clone(), options) {
+        match latentam::view::LiveView::serve(reader.clone(), options) {
             Ok(view) => {
                 eprintln!(
                     "live view: ws://{}:{} (Foxglove: Open connection)",
@@ -252,7 +251,7 @@ impl RunObserver for CliObserver {
     fn autosave_failed(&mut self, keyframe: u64, error: &latentam::Error) {
         eprintln!(
             "warning: autosave at keyframe {keyframe} failed: {}",
-            shown(&latentam_base::text::with_causes(error))
+            shown(&latentam::text::with_causes(error))
         );
     }
 
@@ -262,13 +261,13 @@ impl RunObserver for CliObserver {
             path: path.clone(),
             source: std::io::Error::other(format!("{e:#}")),
         })?;
-        latentam_base::files::write_bytes_atomically(&path, html.as_bytes())
+        latentam::files::write_bytes_atomically(&path, html.as_bytes())
     }
 }
 
 /// Writes `text` to `path` whole or not at all.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    Ok(latentam_base::files::write_bytes_atomically(
+    Ok(latentam::files::write_bytes_atomically(
         path,
         text.as_bytes(),
     )?)

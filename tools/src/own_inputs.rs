@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
-use latentam_core::mapper::RUN_FOLDER_FILES;
+use latentam::runs::RUN_FOLDER_FILES;
 
 /// Something a command reads.
 #[derive(Clone, Copy, Debug)]

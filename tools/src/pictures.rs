@@ -5,8 +5,8 @@
 use std::path::Path;
 
 use anyhow::Result;
-use latentam_core::splat::RenderedView;
-use latentam_io::Frame;
+use latentam::frames::Frame;
+use latentam::RenderedView;
 
 /// Pixels whose accumulated opacity is below this show no surface
 /// (black), as in the evaluation's coverage.

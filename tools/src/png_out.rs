@@ -17,5 +17,5 @@ pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()>
         .with_context(|| format!("encoding {}", path.display()))?;
     w.finish()
         .with_context(|| format!("encoding {}", path.display()))?;
-    Ok(latentam_base::files::write_bytes_atomically(path, &bytes)?)
+    Ok(latentam::files::write_bytes_atomically(path, &bytes)?)
 }

@@ -8,7 +8,7 @@ use anyhow::{bail, Result};
 use crate::config_args::ConfigArgs;
 use crate::input_args::InputArgs;
 use crate::mapping::{map_log, RunOptions};
-use latentam_core::mapper::Ending;
+use latentam::Ending;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -113,7 +113,7 @@ impl Stages {
             self.label,
             self.start.elapsed().as_secs_f64(),
             // Paths and names in it come from the user or a log.
-            latentam_base::text::shown(&what.to_string())
+            latentam::text::shown(&what.to_string())
         );
     }
 }

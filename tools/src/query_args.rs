@@ -6,11 +6,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use latentam::embedding_files::read_vector;
-use latentam::Scored;
-use latentam_core::latent::{Relevance, TextQuery};
-use latentam_core::mapper::Mapper;
-use latentam_core::splat::RenderedView;
-use latentam_io::read_vocabulary;
+use latentam::frames::read_vocabulary;
+use latentam::{Mapper, RenderedView, Scored, Scoring, TextQuery};
 
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct QueryArgs {
@@ -99,7 +96,7 @@ impl QueryArgs {
                 }
                 Ok(Some(Query {
                     text: TextQuery::embedding(v),
-                    what: latentam_base::text::shown_path(path),
+                    what: latentam::text::shown_path(path),
                 }))
             }
             (None, Some(name)) => {
@@ -121,7 +118,7 @@ impl QueryArgs {
                 };
                 Ok(Some(Query {
                     text,
-                    what: format!("`{}`", latentam_base::text::shown(name)),
+                    what: format!("`{}`", latentam::text::shown(name)),
                 }))
             }
             (None, None) => Ok(None),
@@ -134,8 +131,8 @@ impl Query {
     /// (cosine), or 0..1 (softmax, a probability).
     pub fn colour_range(&self, relevance: &[f32], keep: impl Fn(usize) -> bool) -> (f32, f32) {
         match self.text.relevance {
-            Relevance::Cosine => crate::pictures::range_of(relevance, keep).unwrap_or((0.0, 1.0)),
-            Relevance::Softmax { .. } => (0.0, 1.0),
+            Scoring::Cosine => crate::pictures::range_of(relevance, keep).unwrap_or((0.0, 1.0)),
+            Scoring::Softmax { .. } => (0.0, 1.0),
         }
     }
 

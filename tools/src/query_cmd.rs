@@ -5,17 +5,14 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use latentam::{Scored, Viewpoint};
+use latentam::interchange::write_ply;
+use latentam::{Context, ContextOptions, Mapper, Scored, Scoring, Viewpoint};
 use latentam_cli::progress::Stages;
-use latentam_core::map::write_ply;
-use latentam_core::mapper::Mapper;
-use latentam_gpu::{Context, ContextOptions};
 
 use crate::own_inputs::{refuse_overwriting_inputs, Input};
 use crate::pictures::heat;
 use crate::query_args::{queryable_dim, QueryArgs};
 use crate::render_cmd::{parse_pose, relevance_picture};
-use latentam_core::latent::Relevance;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["embedding", "name"])))]
@@ -101,7 +98,7 @@ pub fn run(args: Args) -> Result<()> {
         pct(0.5),
         pct(0.0)
     );
-    if matches!(query.text.relevance, Relevance::Softmax { .. }) {
+    if matches!(query.text.relevance, Scoring::Softmax { .. }) {
         let likely = rel.iter().filter(|&&r| r >= 0.5).count();
         println!("{likely} Gaussians are more likely this class than all others together (≥ 0.5)");
     }

@@ -6,11 +6,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::{DAffine3, DQuat, DVec3};
-use latentam::Viewpoint;
+use latentam::frames::{Frame, McapFrames};
+use latentam::{Mapper, RenderedView, Viewpoint};
 use latentam_cli::progress::Stages;
-use latentam_core::mapper::Mapper;
-use latentam_core::splat::RenderedView;
-use latentam_io::{Frame, McapFrames};
 
 use crate::pictures::{self, heat_picture, range_of, Picture, COVERED_ALPHA};
 use crate::query_args::{queryable_dim, Query, QueryArgs};

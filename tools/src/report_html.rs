@@ -5,10 +5,8 @@
 use std::fmt::Write as _;
 
 use anyhow::{anyhow, Result};
-use latentam_core::mapper::KeyframeReport;
+use latentam::{KeyframeReport, RunReport};
 use plotters::prelude::*;
-
-use latentam_core::mapper::RunReport;
 
 const PLOT_SIZE: (u32, u32) = (900, 320);
 /// Rows of the kernel table.

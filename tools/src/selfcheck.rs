@@ -1,4 +1,10 @@
 //! `latentam devices` and `latentam selfcheck`.
+//!
+//! Unlike the rest of the tool, which uses the `latentam` façade alone,
+//! this module reaches into `latentam-gpu` (its primitives, buffers and
+//! validation), the kernel table of `latentam-shaders` and the CPU
+//! reference: it checks the layers themselves, below what the façade
+//! exports.
 
 use anyhow::{bail, Context as _, Result};
 use latentam_gpu::ops::{self, Gemm, PrefixScan, RadixSorter, ReduceOp, Reducer, Transpose};

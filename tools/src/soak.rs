@@ -12,9 +12,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context as _, Result};
-use latentam_core::mapper::{Integrated, Mapper, MapperConfig};
-use latentam_gpu::{Context, LiveObjects};
-use latentam_io::{AssemblyConfig, McapFrames};
+use latentam::frames::{AssemblyConfig, McapFrames};
+use latentam::{Config as MapperConfig, Context, Integrated, LiveObjects, Mapper};
 use serde::Serialize;
 
 use latentam_scene::{generate, SceneConfig};
@@ -99,7 +98,7 @@ pub fn run(
     let frames = McapFrames::open(&log, AssemblyConfig::default())
         .with_context(|| format!("opening {}", log.display()))?;
     // Every pipeline up front, so the object counts compare like with like.
-    latentam_core::mapper::warm_up(ctx)?;
+    latentam::warm_up(ctx)?;
     let mut mapper = Mapper::with_context(ctx, opts.config.clone())?;
     let validation = ctx.validation_log();
     let per_lap = opts.scene.frames as f64 / opts.scene.laps as f64;

@@ -2,6 +2,12 @@
 //! Times are GPU time from timestamp queries (the sum of the operation's
 //! commands), median over the measured runs after one warm-up run (lavapipe
 //! compiles a pipeline on its first dispatch).
+//!
+//! Unlike the rest of the tool, which uses the `latentam` façade alone,
+//! the benchmarks reach into the lower crates (`latentam-core`,
+//! `latentam-gpu`, `latentam-io`, `latentam-base`, the CPU reference and
+//! the shaders): they measure the layers themselves, below what the
+//! façade exports.
 
 mod common;
 mod decode;

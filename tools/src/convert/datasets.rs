@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use glam::{DMat3, DQuat, DVec3};
-use latentam_io::Pose;
+use latentam::messages::Pose;
 
 /// An image file and its stamp.
 #[derive(Clone, Debug, PartialEq)]
@@ -66,7 +66,8 @@ impl Dataset {
 }
 
 fn read_text(path: &Path) -> anyhow::Result<String> {
-    latentam_io::read_input_to_string(path).with_context(|| format!("reading {}", path.display()))
+    latentam::files::read_input_to_string(path)
+        .with_context(|| format!("reading {}", path.display()))
 }
 
 /// A camera-to-world pose from a row-major 4×4 matrix, checked to be rigid.
@@ -245,7 +246,7 @@ pub fn replica(dir: &Path, fps: f64) -> anyhow::Result<Dataset> {
     };
     let params = dir.join("cam_params.json");
     if params.is_file() {
-        let v = latentam_io::parse_json(&read_text(&params)?)
+        let v = latentam::files::parse_json(&read_text(&params)?)
             .map_err(|e| anyhow::anyhow!("{}: {e}", params.display()))?;
         let cam = v.get("camera").unwrap_or(&v);
         let get = |k: &str| cam.get(k).and_then(|x| x.as_f64());
@@ -332,7 +333,7 @@ fn inside(dir: &Path, name: &str, what: &str) -> anyhow::Result<PathBuf> {
     {
         anyhow::bail!(
             "{what} lists {}, which is not inside the dataset folder",
-            latentam_base::text::shown(name)
+            latentam::text::shown(name)
         );
     }
     Ok(dir.join(rel))

@@ -37,7 +37,7 @@ pub(super) fn candidate_stems(stem: &str) -> impl Iterator<Item = &str> {
 }
 
 pub(super) fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
-    latentam_io::read_input(path).with_context(|| format!("reading {}", path.display()))
+    latentam::files::read_input(path).with_context(|| format!("reading {}", path.display()))
 }
 
 /// A file the library's readers refused, as the tool says it: the reason
@@ -63,7 +63,7 @@ impl FeatureDir {
         }
         let model = match model {
             Some(m) => Some(m),
-            None => latentam_io::read_input_to_string(&dir.join("model.txt"))
+            None => latentam::files::read_input_to_string(&dir.join("model.txt"))
                 .ok()
                 .map(|s| s.trim().to_string()),
         };

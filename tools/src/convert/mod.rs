@@ -14,11 +14,13 @@ mod writing;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use latentam_io::{codec, Compression, Dtype, MAX_RECORD_BYTES};
+use latentam::frames::Dtype;
+use latentam::logs::{Compression, MAX_RECORD_BYTES};
+use latentam::messages::{codec, Pose};
 
 pub use datasets::{Dataset, DepthCamera};
 use features::FeatureDir;
-pub use latentam_io::DepthRegistration;
+pub use latentam::frames::DepthRegistration;
 use oracle::Oracle;
 
 /// Where a log's embeddings come from.
@@ -104,7 +106,7 @@ fn u16_bytes(v: &[u16]) -> Vec<u8> {
 enum Event<'a> {
     Color(&'a datasets::Stamped),
     Depth(&'a datasets::Stamped),
-    Pose(i64, &'a latentam_io::Pose),
+    Pose(i64, &'a Pose),
 }
 
 impl Event<'_> {
@@ -146,8 +148,8 @@ fn register_to_colour(
         translation: camera.translation,
     };
     let first = &dataset.color[0].path;
-    let bytes =
-        latentam_io::read_input(first).with_context(|| format!("reading {}", first.display()))?;
+    let bytes = latentam::files::read_input(first)
+        .with_context(|| format!("reading {}", first.display()))?;
     let (w, h, _) = codec::compressed_image_size(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
     if camera.poses_are_depth {
@@ -215,7 +217,7 @@ pub fn convert(
         ..ConvertSummary::default()
     };
     let (events, offset) = timeline(&dataset)?;
-    let partial = latentam_base::files::PartialFile::new(out)?;
+    let partial = latentam::files::PartialFile::new(out)?;
     let mut log = writing::LogOut::create(
         partial.path(),
         options,
@@ -368,7 +370,7 @@ mod tests {
                 stamp_ns: color,
                 path: PathBuf::from("/nonexistent/latentam/colour.png"),
             }],
-            poses: vec![(pose, latentam_io::Pose::IDENTITY)],
+            poses: vec![(pose, Pose::IDENTITY)],
             intrinsics: Some([500.0, 500.0, 320.0, 240.0]),
             depth_units_per_metre: 1000.0,
             ..Dataset::default()

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::bail;
 use latentam::embedding_files::{class_ids_from_npy, ClassVectors, FrameFeatures};
-use latentam_io::codec;
+use latentam::messages::codec;
 
 use super::features::{candidate_stems, read, refused};
 

@@ -8,9 +8,11 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use latentam::embedding_files::{FrameFeatures, LoadedFeatures};
-use latentam_io::{
-    cdr, codec, encode_floats, CameraInfo, CompressedImage, FeatureGrid, Header, Image, LogWriter,
-    MaskFeatures, Pose, PoseStamped, TextEmbeddings, TfMessage, TransformStamped,
+use latentam::frames::encode_floats;
+use latentam::logs::LogWriter;
+use latentam::messages::{
+    cdr, codec, CameraInfo, CompressedImage, FeatureGrid, Header, Image, MaskFeatures, Pose,
+    PoseStamped, TextEmbeddings, TfMessage, TransformStamped,
 };
 
 use super::{
@@ -145,7 +147,7 @@ impl<'o> LogOut<'o> {
     /// as recorded beside its own camera info.
     fn write_depth(&mut self, s: &datasets::Stamped, t: i64) -> anyhow::Result<()> {
         let lt = t as u64;
-        let bytes = latentam_io::read_input(&s.path)
+        let bytes = latentam::files::read_input(&s.path)
             .with_context(|| format!("reading {}", s.path.display()))?;
         let (w, h, mut values) = codec::decode_png_u16(&bytes)
             .map_err(|e| anyhow::anyhow!("{}: {e}", s.path.display()))?;
@@ -193,7 +195,7 @@ impl<'o> LogOut<'o> {
     fn write_color(&mut self, s: &datasets::Stamped, t: i64) -> anyhow::Result<()> {
         let lt = t as u64;
         let header = Header::at(t, FRAME);
-        let bytes = latentam_io::read_input(&s.path)
+        let bytes = latentam::files::read_input(&s.path)
             .with_context(|| format!("reading {}", s.path.display()))?;
         check_payload(&s.path.display().to_string(), bytes.len())?;
         let (w, h, format) = codec::compressed_image_size(&bytes)
