@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 mod common;
 use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch};
-use latentam_core::map::read_ply;
-use latentam_core::mapper::{Mapper, STATE_FILE};
-use latentam_gpu::{Context, ContextOptions};
+use latentam::interchange::read_ply;
+use latentam::runs::STATE_FILE;
+use latentam::{Context, ContextOptions, Mapper};
 
 fn map(log: &Path, out: &Path, faults: &str, extra: &[&str]) -> Output {
     latentam()

@@ -11,8 +11,8 @@ use std::process::Command;
 
 mod common;
 use common::{gen_scene, scratch};
-use latentam_core::map::read_ply;
-use latentam_io::{read_tum, read_vocabulary};
+use latentam::frames::read_vocabulary;
+use latentam::interchange::{read_ply, read_tum};
 
 /// Runs `script` with `sh` in a new network namespace whose only
 /// interface is loopback, brought up first.

@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 mod common;
 use common::{failed_with, gen_scene, latentam_fast as latentam, report, scratch, SCENE_DIM};
-use latentam_core::mapper::{MapperConfig, STATE_FILE};
+use latentam::runs::STATE_FILE;
+use latentam::Config as MapperConfig;
 
 fn map(log: &Path, out: &Path, extra: &[&str]) -> Output {
     latentam()
@@ -448,8 +449,7 @@ fn states_with_nan_and_vocabularies_of_another_space_are_refused() {
     failed_with(&query(), &["is damaged", "checksum"]);
     // As written so (a crafted file, or a writer's bug): the checksum
     // matches, and the value itself is refused.
-    let bytes =
-        latentam_core::mapper::archive_join_resealed(header.as_object().unwrap(), &bytes[8 + n..]);
+    let bytes = latentam::runs::archive_join_resealed(header.as_object().unwrap(), &bytes[8 + n..]);
     std::fs::write(&path, &bytes).unwrap();
     failed_with(&query(), &["non-finite"]);
     std::fs::remove_dir_all(&dir).ok();

@@ -5,9 +5,9 @@
 //! layer must stay silent (leaks are reported when the device goes).
 //! `latentam bench soak` runs the same check for thousands of frames.
 
+use latentam::config::KeyframePolicy;
+use latentam::{Config as MapperConfig, Context, ContextOptions, Validation};
 use latentam_cli::soak::{lap_table, run, SoakOptions};
-use latentam_core::mapper::MapperConfig;
-use latentam_gpu::{Context, ContextOptions, Validation};
 use latentam_scene::SceneConfig;
 
 #[test]
@@ -23,7 +23,7 @@ fn a_long_walk_keeps_gpu_memory_flat_leaks_nothing_and_grows_with_the_space_seen
         atoms: 32,
         ..MapperConfig::default()
     };
-    config.keyframes.policy = latentam_core::map::KeyframePolicy::Interval(8);
+    config.keyframes.policy = KeyframePolicy::Interval(8);
     let opts = SoakOptions {
         scene: SceneConfig {
             frames: 400,

@@ -7,10 +7,8 @@ use std::process::Output;
 
 mod common;
 use common::{gen_scene, latentam_fast as latentam, scratch};
-use latentam_io::{
-    CameraInfo, Compression, Image, LogWriter, MaskFeatures, McapLog, PoseStamped, ReadFilter,
-    TextEmbeddings,
-};
+use latentam::logs::{Compression, LogWriter, McapLog, ReadFilter};
+use latentam::messages::{CameraInfo, Image, MaskFeatures, PoseStamped, TextEmbeddings};
 
 /// `src` rewritten with each topic renamed by `rename` (`None` drops it)
 /// and, when `extra` is given, the depth images written a second time on

@@ -10,10 +10,9 @@ use std::process::{Output, Stdio};
 
 mod common;
 use common::{gen_scene, latentam, run_python, scratch, write_npy, SCENE_DIM};
-use latentam_core::map::{read_ply, unit_quat};
-use latentam_core::mapper::{DecoderFile, Mapper, MapperConfig};
-use latentam_gpu::{Context, ContextOptions};
-use latentam_io::{read_tum, read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::frames::{read_vocabulary, AssemblyConfig, McapFrames};
+use latentam::interchange::{read_ply, read_tum, unit_quat};
+use latentam::{Config as MapperConfig, Context, ContextOptions, DecoderFile, Mapper};
 
 const FRAMES: usize = 32;
 const DIM: usize = SCENE_DIM;

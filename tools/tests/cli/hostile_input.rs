@@ -165,7 +165,8 @@ fn errors_show_escape_sequences_escaped_and_huge_values_cut() {
 /// printed as it is, by `inspect` or by `map`.
 #[test]
 fn text_from_logs_and_paths_is_printed_escaped() {
-    use latentam_io::{CompressedImage, Compression, LogWriter};
+    use latentam::logs::{Compression, LogWriter};
+    use latentam::messages::{CompressedImage, Header, Time};
     let dir = std::env::temp_dir().join(format!("latentam-escapes-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let hostile = "\u{1b}[2J\u{1b}]0;pwned\u{7}\rforged";
@@ -173,8 +174,8 @@ fn text_from_logs_and_paths_is_printed_escaped() {
     let mut w = LogWriter::create(&log, Compression::None).unwrap();
     // A colour stream named with escapes, whose frame id and format carry
     // them too (the frames do not decode: `inspect` says so, escaped).
-    let header = latentam_io::Header {
-        stamp: latentam_io::Time { sec: 1, nanosec: 0 },
+    let header = Header {
+        stamp: Time { sec: 1, nanosec: 0 },
         frame_id: hostile,
     };
     let image = CompressedImage {

@@ -206,7 +206,7 @@ fn query_render_and_export_misuse_are_clear_errors() {
     let end = ply.windows(10).position(|w| w == b"end_header").unwrap();
     assert!(!String::from_utf8_lossy(&ply[..end]).contains("latent_"));
     assert!(!plain.join("decoder.safetensors").exists());
-    assert!(latentam_core::map::read_ply(&plain.join("map.ply")).is_ok());
+    assert!(latentam::interchange::read_ply(&plain.join("map.ply")).is_ok());
     let short = dir.join("short.npy");
     write_npy(&short, &[1.0; 8]);
     let zeros = dir.join("zeros.npy");
