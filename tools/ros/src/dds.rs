@@ -1,6 +1,7 @@
 //! DDS as ROS 2 uses it: topic and type names, QoS profiles, and readers
 //! and writers of raw CDR payloads (the messages themselves are decoded
-//! and encoded by `latentam-io`, exactly as when they come from a bag).
+//! and encoded by `latentam::messages`, exactly as when they come from a
+//! bag).
 
 use std::time::Duration;
 
@@ -131,8 +132,8 @@ impl rustdds::no_key::SerializerAdapter<RawMessage> for RawAdapter {
         RepresentationIdentifier::CDR_LE
     }
 
-    /// `latentam-io` encodes little-endian CDR with its header; DDS adds
-    /// its own.
+    /// `latentam::messages` encodes little-endian CDR with its header;
+    /// DDS adds its own.
     fn to_bytes(value: &RawMessage) -> Result<Bytes, Self::Error> {
         Ok(Bytes::copy_from_slice(value.0.get(4..).unwrap_or_default()))
     }

@@ -12,8 +12,9 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use futures::StreamExt;
+use latentam::frames::{AssemblyConfig, PlannedInput, Vocabulary};
+use latentam::logs::{Channel, RawMessage};
 use latentam::LiveMapper;
-use latentam_io::{AssemblyConfig, Channel, PlannedInput, RawMessage, Vocabulary};
 
 use crate::dds::{Dds, Profile, RawReader};
 

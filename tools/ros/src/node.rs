@@ -5,10 +5,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _, Result};
-use latentam::{LiveMapper, LiveOptions, MapSnapshot, TextQuery};
+use latentam::frames::Vocabulary;
+use latentam::messages::{RosMessage, StringMessage};
+use latentam::{softmax_rows, LiveMapper, LiveOptions, MapSnapshot, Scoring, TextQuery};
 use latentam_args::interrupt;
-use latentam_core::latent::{softmax_rows, Relevance};
-use latentam_io::{RosMessage, StringMessage, Vocabulary};
 use latentam_view::MapPoints;
 
 use crate::args::Args;
@@ -133,7 +133,7 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("reading {} ({})", c.topic, c.schema_name);
     }
     let view = match args.live.options(None)? {
-        Some(options) => Some(latentam_view::LiveView::serve(live.reader(), options)?),
+        Some(options) => Some(latentam::view::LiveView::serve(live.reader(), options)?),
         None => None,
     };
     let result = serve(&args, &live, &mut inputs, own);
@@ -248,7 +248,7 @@ fn scored_points(
     let query = TextQuery {
         embeddings: embeddings.to_vec(),
         texts: n,
-        relevance: Relevance::Cosine,
+        relevance: Scoring::Cosine,
     };
     let answer = live.relevance(&query)?;
     let points = MapPoints::of(&answer.snapshot.gaussians, args.map_points);
@@ -357,8 +357,8 @@ fn save_run_folder(mapper: &mut latentam::Mapper, out: &std::path::Path) -> Resu
     let state = mapper.save(out)?;
     let map = mapper.snapshot()?;
     map.export_ply(&out.join("map.ply"))?;
-    latentam_io::write_tum(&out.join("trajectory.txt"), &map.trajectory)?;
-    latentam_base::files::write_bytes_atomically(
+    latentam::interchange::write_tum(&out.join("trajectory.txt"), &map.trajectory)?;
+    latentam::files::write_bytes_atomically(
         &out.join("config.toml"),
         mapper.config().to_toml().as_bytes(),
     )?;

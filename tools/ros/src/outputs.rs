@@ -2,10 +2,10 @@
 //! keyframe trajectory as `nav_msgs/Path`, and its status as
 //! `diagnostic_msgs/DiagnosticArray`.
 
-use latentam::{LiveStatus, MapSnapshot};
-use latentam_io::{
+use latentam::messages::{
     DiagnosticArray, DiagnosticStatus, Header, Path, PointCloud2, PointField, Pose, RosMessage,
 };
+use latentam::{LiveStatus, MapSnapshot};
 use latentam_view::MapPoints;
 
 /// Bytes of one published point before its extra fields: `x y z` and

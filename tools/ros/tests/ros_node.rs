@@ -111,7 +111,7 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
 
     // The query's cosines are the map's (the live index drops attention
     // below 1e-3 of a Gaussian's mass, so a small difference is allowed).
-    let vocab = latentam_io::read_vocabulary(&log, "/vocabulary")
+    let vocab = latentam::frames::read_vocabulary(&log, "/vocabulary")
         .unwrap()
         .unwrap();
     let word = summary["word"].as_str().unwrap();
@@ -144,9 +144,9 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     );
     assert!(read("node.err").contains("saved"), "{}", read("node.err"));
     // The folder holds what `latentam map` leaves beside the state.
-    let ply = latentam_core::map::read_ply(&dir.join("run/map.ply")).unwrap();
+    let ply = latentam::interchange::read_ply(&dir.join("run/map.ply")).unwrap();
     assert_eq!(ply.gaussians.len(), gaussians.len());
-    let tum = latentam_io::read_tum(&dir.join("run/trajectory.txt")).unwrap();
+    let tum = latentam::interchange::read_tum(&dir.join("run/trajectory.txt")).unwrap();
     assert_eq!(tum.len(), trajectory.len());
     assert!(dir.join("run/config.toml").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
