@@ -101,8 +101,9 @@ pub mod config {
 /// one frame's embeddings from a feature extractor, the class vectors and
 /// class-id images oracle embeddings are made of, and a vector to query a
 /// map with. Each reader takes a file's bytes (or, [`read_vector`], its
-/// path) and refuses what it cannot use with [`Error::InvalidArgument`]
-/// naming the file; none panics on any bytes.
+/// path) and refuses what it cannot use, naming the file: [`Error::Damaged`]
+/// for a file that is not the format it claims, [`Error::BadInput`] for
+/// contents it cannot use; none panics on any bytes.
 ///
 /// [`read_vector`]: crate::embedding_files::read_vector
 ///

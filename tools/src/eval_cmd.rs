@@ -179,8 +179,9 @@ pub fn run(args: Args) -> Result<()> {
     // the folder.
     let (mut mapper, run_report) = read_one_version(&args.dir, || {
         let mapper = Mapper::load(&ctx, &args.dir)?;
-        let report = run_report_of(&args.dir, mapper.stats().run_id.as_deref())
-            .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))?;
+        let report = run_report_of(&args.dir, mapper.stats().run_id.as_deref()).map_err(|e| {
+            latentam::Error::damaged(args.dir.join("report.json"), format!("{e:#}"))
+        })?;
         Ok((mapper, report))
     })
     .with_context(|| format!("loading the map in {}", args.dir.display()))?;
@@ -259,8 +260,8 @@ fn evaluate_frames(
         let frame = frame.with_context(|| format!("reading {}", args.log.display()))?;
         let m = match mapper.evaluate(&frame, vocabulary, args.pixel_stride as usize) {
             Ok(m) => m,
-            Err(latentam::Error::InvalidArgument(why)) => {
-                eprintln!("frame {i}: skipped ({why})");
+            Err(e @ latentam::Error::BadInput { .. }) => {
+                eprintln!("frame {i}: skipped ({e})");
                 continue;
             }
             Err(e) => return Err(e.into()),

@@ -86,7 +86,7 @@ fn report_log(report: &serde_json::Value) -> Option<PathBuf> {
 
 pub fn run(args: Args) -> Result<()> {
     latentam::TextQuery::check_temperature(args.temperature)
-        .map_err(|e| anyhow::anyhow!("--temperature: {e}"))?;
+        .map_err(latentam_args::flag_error("--temperature"))?;
     if args.frame_id.trim().is_empty() {
         bail!("--frame-id must name a frame");
     }

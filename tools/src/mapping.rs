@@ -124,9 +124,15 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
     let mapper = match (folder, &opts.resume) {
         (Some(folder), Some(settings)) => {
             let settings = |saved: &MapperConfig| {
-                settings
-                    .load_over(saved.clone())
-                    .map_err(|e| latentam::Error::InvalidArgument(format!("{e:#}")))
+                settings.load_over(saved.clone()).map_err(|e| {
+                    // The library's own error as it is; one with context
+                    // (the --config file it came from) keeps the context.
+                    let (text, links) = (format!("{e:#}"), e.chain().count());
+                    match e.downcast::<latentam::Error>() {
+                        Ok(e) if links == 1 => e,
+                        _ => latentam::Error::config("--config", text),
+                    }
+                })
             };
             Mapper::load_with(&ctx, folder.dir(), &settings)
                 .with_context(|| format!("loading the saved state in {}", folder.dir().display()))?

@@ -80,7 +80,11 @@ impl QueryArgs {
                 let v = match read_vector(path) {
                     Ok(v) => v,
                     // The reason names the file.
-                    Err(latentam::Error::InvalidArgument(why)) => bail!("{why}"),
+                    Err(
+                        e @ (latentam::Error::BadInput { .. } | latentam::Error::Damaged { .. }),
+                    ) => {
+                        bail!("{e}")
+                    }
                     Err(latentam::Error::Io { path, source }) => {
                         return Err(anyhow::Error::new(source)
                             .context(format!("reading {}", path.display())))
@@ -110,10 +114,10 @@ impl QueryArgs {
                     .check_vocabulary(&vocab)
                     .with_context(|| format!("the vocabulary in {}", log.display()))?;
                 TextQuery::check_temperature(self.temperature)
-                    .map_err(|e| anyhow::anyhow!("--temperature: {e}"))?;
+                    .map_err(latentam_args::flag_error("--temperature"))?;
                 let text = match TextQuery::vocabulary_word(&vocab, name, self.temperature) {
                     Ok(t) => t,
-                    Err(latentam::Error::InvalidArgument(why)) => bail!("{why}"),
+                    Err(e @ latentam::Error::BadInput { .. }) => bail!("{e}"),
                     Err(e) => return Err(e.into()),
                 };
                 Ok(Some(Query {

@@ -40,13 +40,10 @@ pub(super) fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
     latentam::files::read_input(path).with_context(|| format!("reading {}", path.display()))
 }
 
-/// A file the library's readers refused, as the tool says it: the reason
-/// alone (it names the file), without the library's "invalid argument: ".
+/// A file the library's readers refused, as the tool says it: the
+/// library's message, which names the file (`BadInput` or `Damaged`).
 pub(super) fn refused(e: latentam::Error) -> anyhow::Error {
-    match e {
-        latentam::Error::InvalidArgument(why) => anyhow::anyhow!(why),
-        e => e.into(),
-    }
+    e.into()
 }
 
 /// A folder of per-frame feature files.

@@ -140,7 +140,7 @@ fn command_line_misuse_is_a_clear_error() {
         (
             "range.toml",
             "voxel_size = 0\n",
-            "voxel_size 0 must be from 0.0001 to 1 metres",
+            "setting `voxel_size`: 0 must be from 0.0001 to 1 metres",
         ),
         ("syntax.toml", "replay = [\n", "TOML parse error"),
     ] {
@@ -265,7 +265,7 @@ fn query_render_and_export_misuse_are_clear_errors() {
         (
             by_name("ball", 22, &["--temperature", "0"]),
             1,
-            "--temperature: invalid argument: softmax temperature 0 is outside 0.0009765625..=10",
+            "--temperature: softmax temperature 0 is outside 0.0009765625..=10",
         ),
         (
             // Past f32's range: infinite, and said so.
@@ -376,7 +376,7 @@ fn query_render_and_export_misuse_are_clear_errors() {
         (
             refs(&export(&run, &["--temperature", "0"])),
             1,
-            "--temperature: invalid argument: softmax temperature 0 is outside",
+            "--temperature: softmax temperature 0 is outside",
         ),
         (
             refs(&export(&run, &["--frame-id", " "])),
