@@ -105,10 +105,6 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
-    // Being replaced by the kinds above.
-    #[doc(hidden)]
-    #[error("invalid argument: {0}")]
-    InvalidArgument(String),
     /// The map has no embeddings yet (no keyframe with region embeddings
     /// has been mapped), so there is nothing to score a query against.
     #[error("the map has no embeddings yet: nothing to query")]

@@ -72,7 +72,7 @@ pub(crate) fn fail(status: LatentamStatus, message: impl Into<String>) -> Latent
 pub(crate) fn engine_error(e: latentam::Error) -> LatentamStatus {
     use latentam::Error as E;
     let status = match &e {
-        E::BadInput { .. } | E::InvalidArgument(_) => LatentamStatus::InvalidArgument,
+        E::BadInput { .. } => LatentamStatus::InvalidArgument,
         E::Config { .. } => LatentamStatus::Config,
         E::Damaged { .. } => LatentamStatus::Damaged,
         E::Budget { .. } => LatentamStatus::Budget,

@@ -88,7 +88,6 @@ pub fn to_py(e: latentam::Error) -> PyErr {
         E::Config { .. } => ConfigError::new_err(message),
         E::Budget { .. } => BudgetError::new_err(message),
         E::Damaged { .. } => DamagedFileError::new_err(message),
-        E::InvalidArgument(_) => PyValueError::new_err(message),
         E::NoEmbeddings => NoEmbeddingsError::new_err(message),
         E::EmbeddingDimension { .. } | E::EmbeddingModel { .. } => {
             EmbeddingMismatchError::new_err(message)
