@@ -57,9 +57,8 @@ pub use run_folder::{
 };
 pub use run_report::{Ending, HostWaits, RunReport};
 pub use snapshot::MapSnapshot;
-pub use trainer::{
-    views_per_chunk, StageOneReport, StageTwoRun, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS,
-};
+pub use trainer::stage_two::StageTwoRun;
+pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 pub use views::{Scored, Viewpoint};
 pub use warm_up::warm_up;
 pub use work_report::{GpuWorkReport, KernelWorkPerKeyframe};

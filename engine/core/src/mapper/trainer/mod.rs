@@ -517,5 +517,6 @@ impl Trainer {
     }
 }
 
-mod stage_two;
-pub use stage_two::StageTwoRun;
+// Stage II builds on this file; its run is exported by `mapper` itself,
+// so that this file does not depend on the one below it.
+pub(super) mod stage_two;
