@@ -21,6 +21,7 @@ pub mod normalize;
 pub mod pooling;
 pub mod raster;
 pub mod reduce;
+pub mod rows;
 pub mod scan;
 pub mod softmax;
 pub mod sort;

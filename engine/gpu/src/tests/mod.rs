@@ -11,4 +11,5 @@ use latentam_shaders::bind;
 mod checks;
 mod lifetimes;
 mod profiling;
+mod rows;
 mod synchronisation;
