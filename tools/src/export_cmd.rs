@@ -98,28 +98,38 @@ pub fn run(args: Args) -> Result<()> {
     refuse_overwriting_inputs(&inputs, &[("--foxglove", &args.foxglove)])?;
     let stages = Stages::new("export");
     let (_ctx, mut mapper) = crate::loaded_map::load_nonempty_map(&stages, &args.dir, "export")?;
-    let snapshot = mapper.snapshot()?;
-    let gaussians = snapshot.to_gaussians();
-    let positions: Vec<[f32; 3]> = gaussians.iter().map(|g| g.mean).collect();
-    let opacity: Vec<f32> = gaussians
-        .iter()
-        .map(|g| 1.0 / (1.0 + (-g.opacity_logit).exp()))
-        .collect();
-    let colours: Vec<[u8; 4]> = gaussians
-        .iter()
-        .zip(&opacity)
-        .map(|(g, &a)| {
-            let [r, gr, b] = to_bytes(g.color);
-            [r, gr, b, to_bytes([a; 3])[0]]
-        })
-        .collect();
-    let trajectory: Vec<(i64, CameraPose)> = snapshot.trajectory.clone();
+    // What the Foxglove file shows of each Gaussian, taken from a snapshot
+    // that is dropped here (its queries are most of its size).
+    let (positions, opacity, colours, trajectory, has_head) = {
+        let map = mapper.snapshot()?;
+        let g = map.gaussians;
+        let opacity: Vec<f32> = g
+            .opacity_logits
+            .iter()
+            .map(|l| 1.0 / (1.0 + (-l).exp()))
+            .collect();
+        let colours: Vec<[u8; 4]> = g
+            .colors
+            .iter()
+            .zip(&opacity)
+            .map(|(&c, &a)| {
+                let [r, gr, b] = to_bytes(c);
+                [r, gr, b, to_bytes([a; 3])[0]]
+            })
+            .collect();
+        (
+            g.means,
+            opacity,
+            colours,
+            map.trajectory,
+            map.decoder.is_some(),
+        )
+    };
     let stamp = trajectory.last().map_or(0, |&(s, _)| s.max(0) as u64);
 
     // Relevance per word: a softmax over the whole vocabulary, as
     // `query --name` gives it.
     let mut relevance: Vec<WordRelevance> = Vec::new();
-    let has_head = snapshot.decoder.is_some();
     let vocabulary = if has_head {
         vocabulary_of(&args)?
     } else {
@@ -168,7 +178,7 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     print_summary(
         &args.foxglove,
-        gaussians.len(),
+        positions.len(),
         &relevance,
         trajectory.len(),
         &args.frame_id,

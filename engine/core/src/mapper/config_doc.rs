@@ -64,21 +64,15 @@ fn children(key: &str) -> impl Iterator<Item = &'static KeyDoc> + '_ {
     docs().iter().filter(move |d| parent(&d.key) == key)
 }
 
-/// [`Error::Config`]: `setting` (a dotted key, or what `--set` was
-/// given) is wrong because of `reason`.
-fn invalid(setting: &str, reason: String) -> Error {
-    Error::config(setting, reason)
-}
-
 /// The configuration as a TOML table (unset optional keys are absent).
 fn to_table(config: &MapperConfig) -> Result<Table> {
     match Value::try_from(config) {
         Ok(Value::Table(t)) => Ok(t),
-        Ok(other) => Err(invalid(
+        Ok(other) => Err(Error::config(
             WHOLE_CONFIGURATION,
             format!("serialized to a {}, not a table", other.type_str()),
         )),
-        Err(e) => Err(invalid(WHOLE_CONFIGURATION, e.to_string())),
+        Err(e) => Err(Error::config(WHOLE_CONFIGURATION, e.to_string())),
     }
 }
 
@@ -245,20 +239,21 @@ pub fn apply_overrides(config: &MapperConfig, sets: &[String]) -> Result<MapperC
     let mut root = to_table(config)?;
     for set in sets {
         let Some((key, raw)) = set.split_once('=') else {
-            return Err(invalid(
+            return Err(Error::config(
                 set,
-                "expected key=value, e.g. seeding.stride=4".into(),
+                "expected key=value, e.g. seeding.stride=4",
             ));
         };
         let (key, raw) = (key.trim(), raw.trim());
         if key.is_empty() {
-            return Err(invalid(set, "the key before `=` is empty".into()));
+            return Err(Error::config(set, "the key before `=` is empty"));
         }
         set_key(&mut root, key, parse_value(raw))?;
         // Check the types now, so the error names this key.
-        from_table(&root).map_err(|e| invalid(key, format!("{key}={raw}: {}", one_line(&e))))?;
+        from_table(&root)
+            .map_err(|e| Error::config(key, format!("{key}={raw}: {}", one_line(&e))))?;
     }
-    let cfg = from_table(&root).map_err(|e| invalid(WHOLE_CONFIGURATION, one_line(&e)))?;
+    let cfg = from_table(&root).map_err(|e| Error::config(WHOLE_CONFIGURATION, one_line(&e)))?;
     cfg.validate()?;
     Ok(cfg)
 }
@@ -293,7 +288,7 @@ fn set_key(root: &mut Table, key: &str, value: Value) -> Result<()> {
             }
             Ok(())
         }
-        (Some(Section), other) => Err(invalid(
+        (Some(Section), other) => Err(Error::config(
             key,
             format!(
                 "a section, not a value ({} given); set its keys: {}",
@@ -339,7 +334,7 @@ fn unknown_key(key: &str, parent: &str) -> Error {
             _ => format!("keys of `{parent}`"),
         }
     };
-    invalid(
+    Error::config(
         key,
         format!(
             "unknown configuration key; valid {place}: {}",
@@ -377,7 +372,7 @@ fn set_path(root: &mut Table, key: &str, value: Option<Value>) -> Result<()> {
                 .entry(segment)
                 .or_insert_with(|| Value::Table(Table::new()))
                 .as_table_mut()
-                .ok_or_else(|| invalid(key, format!("`{path}` is not a table")))?,
+                .ok_or_else(|| Error::config(key, format!("`{path}` is not a table")))?,
             Choice => {
                 // Not the last segment: the last one returned above.
                 let variant = segments[i + 1];
@@ -393,14 +388,14 @@ fn set_path(root: &mut Table, key: &str, value: Option<Value>) -> Result<()> {
             Kind::Variant { .. } => match here.get_mut(segment) {
                 Some(Value::Table(t)) => t,
                 _ => {
-                    return Err(invalid(
+                    return Err(Error::config(
                         key,
                         format!("unknown configuration key; `{path}` is a value, not a table"),
                     ))
                 }
             },
             _ => {
-                return Err(invalid(
+                return Err(Error::config(
                     key,
                     format!("unknown configuration key; `{path}` is a value, not a section"),
                 ))
@@ -426,14 +421,14 @@ fn select_variant<'t>(
     if current.as_deref() != Some(variant) {
         let start = payload
             .parse::<Value>()
-            .map_err(|e| invalid(variant, format!("its documented value: {e}")))?;
+            .map_err(|e| Error::config(variant, format!("its documented value: {e}")))?;
         let mut one = Table::new();
         one.insert(variant.to_string(), start);
         table.insert(choice.to_string(), Value::Table(one));
     }
     match table.get_mut(choice) {
         Some(Value::Table(t)) => Ok(t),
-        _ => Err(invalid(choice, "not a table".into())),
+        _ => Err(Error::config(choice, "not a table")),
     }
 }
 

@@ -264,6 +264,11 @@ impl History {
         self.records.get(i)
     }
 
+    /// The newest keyframe kept.
+    pub fn last(&self) -> Option<&KeyframeRecord> {
+        self.records.last()
+    }
+
     /// Heap bytes held by all keyframes.
     pub fn bytes(&self) -> u64 {
         self.bytes

@@ -11,7 +11,7 @@ use latentam_io::CameraPose;
 use super::relevance_index::{DecoderView, IndexSettings, RelevanceIndex};
 use super::{DecoderFile, Mapper, MapperStats};
 use crate::latent::TextQuery;
-use crate::map::{gaussian_at, write_ply, write_ply_without_latents, Gaussian};
+use crate::map::{gaussian_at, write_map_ply, Gaussian};
 use crate::splat::Camera;
 use std::path::Path;
 
@@ -88,12 +88,7 @@ impl MapSnapshot {
             mapper.stats(),
             settings,
         );
-        let history = mapper.history();
-        snapshot.camera = history
-            .len()
-            .checked_sub(1)
-            .and_then(|last| history.get(last))
-            .map(|k| k.camera);
+        snapshot.camera = mapper.history().last().map(|k| k.camera);
         Ok(snapshot)
     }
 
@@ -116,13 +111,7 @@ impl MapSnapshot {
     /// embeddings the 32 `latent_*` query channels), atomically. The
     /// queries decode to embeddings with [`MapSnapshot::decoder`].
     pub fn export_ply(&self, path: &Path) -> Result<()> {
-        let gaussians = self.to_gaussians();
-        // A map without embeddings has no meaningful queries to write.
-        if self.decoder.is_some() {
-            write_ply(path, &gaussians, &[])
-        } else {
-            write_ply_without_latents(path, &gaussians, &[])
-        }
+        write_map_ply(path, &self.to_gaussians(), self.decoder.is_some())
     }
 
     /// Gaussians in it.

@@ -13,7 +13,7 @@ use super::facade::Mapper;
 use super::relevance_index::IndexSettings;
 use super::snapshot::MapSnapshot;
 use crate::latent::{DevicePixelDecoder, TextQuery};
-use crate::map::{write_ply, write_ply_without_latents};
+use crate::map::write_map_ply;
 use crate::splat::{Camera, RenderedView};
 use latentam_base::{Error, Result};
 use latentam_io::{Frame, Vocabulary};
@@ -130,8 +130,7 @@ impl Mapper {
             }
             Viewpoint::Frame(frame) => self.render_frame(frame),
             Viewpoint::Pose(pose) => {
-                let last = self.history.len().checked_sub(1);
-                let Some(record) = last.and_then(|i| self.history.get(i)) else {
+                let Some(record) = self.history.last() else {
                     return Err(Error::bad_input(
                         "a view at a pose",
                         "the map has no keyframe to take the camera's intrinsics from",
@@ -204,12 +203,7 @@ impl Mapper {
     pub(crate) fn export_ply(&mut self, path: &Path) -> Result<()> {
         self.flush()?;
         let gaussians: Vec<_> = self.pager.global().iter().map(|(_, g)| *g).collect();
-        // A map without embeddings has no meaningful queries to write.
-        if self.dictionary.head().is_some() {
-            write_ply(path, &gaussians, &[])
-        } else {
-            write_ply_without_latents(path, &gaussians, &[])
-        }
+        write_map_ply(path, &gaussians, self.dictionary.head().is_some())
     }
 
     /// The decoder as it stands (W, the dictionary and the temperature),

@@ -36,6 +36,13 @@ pub fn write_ply_without_latents(
     write_ply_as(path, gaussians, extra, false)
 }
 
+/// The map's PLY as the engine exports it: [`write_ply`] when the map has
+/// embeddings, [`write_ply_without_latents`] when it has none (its
+/// queries mean nothing then).
+pub fn write_map_ply(path: &Path, gaussians: &[Gaussian], has_embeddings: bool) -> Result<()> {
+    write_ply_as(path, gaussians, &[], has_embeddings)
+}
+
 /// A quaternion scaled to unit length (computed in f64); the identity for
 /// one of zero or non-finite length.
 pub fn unit_quat(q: [f32; 4]) -> [f32; 4] {
