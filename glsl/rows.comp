@@ -1,13 +1,14 @@
 // Moves whole rows of 32-bit words between a row-major buffer and a packed
 // staging buffer, by a list of row indices: what the GPU window's paging
 // moves when a block of Gaussians leaves or enters the window.
-//   gather:  staging[i * width + j] = data[index[i] * width + j]
-//   scatter: data[index[i] * width + j] = staging[i * width + j]
-// for i < count and j < width. Words are copied as bits (uint), so every
-// value, NaN payloads and signed zeros included, moves unchanged. One
-// invocation per word; the host checks that count * width and every
-// index * width + width fit the buffers. CPU reference:
-// engine/reference/src/rows.rs.
+//   gather:  staging[first + i * width + j] = data[index[list + i] * width + j]
+//   scatter: data[index[list + i] * width + j] = staging[first + i * width + j]
+// for i < count and j < width. `first` places the rows in a staging buffer
+// that packs several fields one after another (the window's outbox);
+// `list` is where the row list starts in the index buffer. Words are copied
+// as bits (uint), so every value, NaN payloads and signed zeros included,
+// moves unchanged. One invocation per word; the host checks that every
+// range fits its buffer. CPU reference: engine/reference/src/rows.rs.
 // @kernel rows_gather GATHER=1
 // @kernel rows_scatter GATHER=0
 // @cost flops=0 bytes=8 * count * width + 4 * count
@@ -26,6 +27,8 @@ layout(std430, set = 0, binding = 2) readonly buffer Index { uint index[]; };
 layout(push_constant) uniform Params {
     uint count;
     uint width;
+    uint first;
+    uint list;
 } pc;
 
 void main() {
@@ -34,10 +37,10 @@ void main() {
         return;
     }
     uint i = k / pc.width;
-    uint at = index[i] * pc.width + (k - i * pc.width);
+    uint at = index[pc.list + i] * pc.width + (k - i * pc.width);
 #if GATHER
-    staging[k] = data[at];
+    staging[pc.first + k] = data[at];
 #else
-    data[at] = staging[k];
+    data[at] = staging[pc.first + k];
 #endif
 }

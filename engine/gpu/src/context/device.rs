@@ -26,6 +26,9 @@ pub(crate) struct Queue {
     pub timeline: vk::Semaphore,
     /// Last value handed to a submission.
     pub submitted: AtomicU64,
+    /// Last value handed to a submission the other queue's later batches
+    /// wait for: all but detached ones (see `Recorder::detach`).
+    pub attached: AtomicU64,
     /// Valid bits of this family's timestamps (0: none).
     pub timestamp_bits: u32,
 }

@@ -413,6 +413,7 @@ fn create_queues(raw: &ash::Device, families: &QueueFamilies) -> Result<(Queue, 
             queue: handle,
             timeline,
             submitted: AtomicU64::new(0),
+            attached: AtomicU64::new(0),
             timestamp_bits: families.timestamp_bits(family),
         })
     };

@@ -1,31 +1,63 @@
-//! Whole rows moved by index between a row-major buffer and a packed
-//! staging buffer (kernels `glsl/rows.comp`; CPU reference
-//! `latentam_reference::rows`): the GPU side of paging a window by block,
-//! where the rows of the blocks that leave are gathered for one download
-//! and those of the blocks that arrive are scattered from one upload.
-//! Words move as bits, so any 32-bit field (floats, counts) moves exactly.
+//! Whole rows moved by index (kernels `glsl/rows.comp` and
+//! `glsl/rows_move.comp`; CPU reference `latentam_reference::rows`): the
+//! GPU side of paging a window by block. The rows of the blocks that leave
+//! are gathered into one outbox for one download, the rows left behind are
+//! moved down into the holes (compaction), and a reader's rows are gathered
+//! the same way. Words move as bits, so any 32-bit field (floats, counts)
+//! moves exactly.
 
-use latentam_shaders::{bind, push, KernelDef, ROWS_GATHER, ROWS_SCATTER};
+use latentam_shaders::{bind, push, ROWS_GATHER, ROWS_MOVE, ROWS_SCATTER};
 
 use crate::{Buffer, Recorder};
 use latentam_base::{Error, Result};
 
 /// Invocations per workgroup of the row kernels (`THREADS` in
-/// `glsl/rows.comp`).
+/// `glsl/rows.comp` and `glsl/rows_move.comp`).
 const THREADS: u64 = 256;
 
-/// Records `staging[i * width + j] = data[index[i] * width + j]` for the
-/// first `count` indices of `index` and every word `j < width`. Every index
-/// must name a row of `data` (the kernel does not check: the caller builds
-/// the lists); an index may repeat.
+/// A list of row indices: `count` `u32`s from index `first` of `index`.
 ///
 /// ```no_run
-/// # use latentam_gpu::{Buffer, Context};
+/// # use latentam_gpu::{Context, ops::RowList};
+/// # fn f(ctx: &Context) -> latentam_base::Result<()> {
+/// let index = ctx.upload_new("rows", &[7u32, 2, 40, 5])?;
+/// let last_two = RowList { index: &index, first: 2, count: 2 }; // rows 40 and 5
+/// # Ok(())
+/// # }
+/// ```
+#[derive(Clone, Copy)]
+pub struct RowList<'a> {
+    /// The index buffer.
+    pub index: &'a Buffer,
+    /// Where the list starts, in indices.
+    pub first: u32,
+    /// How many rows it names.
+    pub count: u32,
+}
+
+/// Where packed rows lie in a staging buffer: from 32-bit word `word` of
+/// `buffer`, one row after another.
+#[derive(Clone, Copy)]
+pub struct Packed<'a> {
+    /// The staging buffer (a device buffer).
+    pub buffer: &'a Buffer,
+    /// The first word.
+    pub word: u64,
+}
+
+/// Records `staging[word + i * width + j] = data[rows[i] * width + j]` for
+/// every row `i` of the list and every word `j < width`. Every index must
+/// name a row of `data` (the kernel does not check: the caller builds the
+/// lists); an index may repeat.
+///
+/// ```no_run
+/// # use latentam_gpu::{Buffer, Context, ops::{gather_rows, Packed, RowList}};
 /// # fn f(ctx: &Context, means: &Buffer) -> latentam_base::Result<()> {
 /// let leaving = ctx.upload_new("leaving rows", &[7u32, 2, 40])?;
-/// let out = Buffer::device(ctx, "outbox", 3 * 3 * 4)?;
+/// let outbox = Buffer::device(ctx, "outbox", 3 * 3 * 4)?;
+/// let rows = RowList { index: &leaving, first: 0, count: 3 };
 /// let mut rec = ctx.recorder()?;
-/// latentam_gpu::ops::gather_rows(&mut rec, means, &out, &leaving, 3, 3)?; // xyz rows
+/// gather_rows(&mut rec, means, 3, rows, Packed { buffer: &outbox, word: 0 })?; // xyz rows
 /// rec.submit()?.wait()?;
 /// # Ok(())
 /// # }
@@ -33,43 +65,77 @@ const THREADS: u64 = 256;
 pub fn gather_rows<'a>(
     rec: &mut Recorder<'a>,
     data: &'a Buffer,
-    staging: &'a Buffer,
-    index: &'a Buffer,
-    count: u32,
     width: u32,
+    rows: RowList<'a>,
+    staging: Packed<'a>,
 ) -> Result<()> {
-    record(rec, &ROWS_GATHER, data, staging, index, count, width)
+    record(rec, true, data, width, rows, staging)
 }
 
-/// Records `data[index[i] * width + j] = staging[i * width + j]` for the
-/// first `count` indices of `index` and every word `j < width`. Every index
-/// must name a row of `data`, and no row twice (the writes of one row
-/// listed twice would race).
+/// Records `data[rows[i] * width + j] = staging[word + i * width + j]` for
+/// every row `i` of the list and every word `j < width`. Every index must
+/// name a row of `data`, and no row twice (the writes of one row listed
+/// twice would race).
 pub fn scatter_rows<'a>(
     rec: &mut Recorder<'a>,
     data: &'a Buffer,
-    staging: &'a Buffer,
-    index: &'a Buffer,
-    count: u32,
     width: u32,
+    rows: RowList<'a>,
+    staging: Packed<'a>,
 ) -> Result<()> {
-    record(rec, &ROWS_SCATTER, data, staging, index, count, width)
+    record(rec, false, data, width, rows, staging)
 }
 
-fn record<'a>(
+/// Records the move of row `from[i]` of `data` to row `to[i]`, for every
+/// `i` of two lists of the same length, within one buffer and without
+/// staging. No row may be both a source and a destination and no
+/// destination may repeat (checked by the caller, who builds the lists:
+/// a window's compaction takes sources at or above the rows it keeps and
+/// destinations below). `to` must follow `from` in the same index buffer.
+///
+/// ```no_run
+/// # use latentam_gpu::{Buffer, Context, ops::{move_rows, RowList}};
+/// # fn f(ctx: &Context, means: &Buffer) -> latentam_base::Result<()> {
+/// // Rows 9 and 8 fill the holes at rows 1 and 4.
+/// let index = ctx.upload_new("moves", &[9u32, 8, 1, 4])?;
+/// let mut rec = ctx.recorder()?;
+/// move_rows(&mut rec, means, 3, RowList { index: &index, first: 0, count: 2 })?;
+/// rec.submit()?.wait()?;
+/// # Ok(())
+/// # }
+/// ```
+pub fn move_rows<'a>(
     rec: &mut Recorder<'a>,
-    kernel: &'static KernelDef<push::Rows, bind::Rows>,
     data: &'a Buffer,
-    staging: &'a Buffer,
-    index: &'a Buffer,
-    count: u32,
     width: u32,
+    from_then_to: RowList<'a>,
 ) -> Result<()> {
+    let RowList {
+        index,
+        first,
+        count,
+    } = from_then_to;
     if count == 0 || width == 0 {
         return Ok(());
     }
+    let words = check_words(data, width, count)?;
+    data.ensure_bytes(width as u64 * 4, "rows data")?;
+    index.ensure_bytes((first as u64 + 2 * count as u64) * 4, "row moves")?;
+    rec.dispatch_linear(
+        &ROWS_MOVE,
+        words.div_ceil(THREADS) as u32,
+        bind::RowsMoveBuffers { data, index },
+        &push::RowsMove {
+            count,
+            width,
+            list: first,
+        },
+    )
+}
+
+/// The kernels count words in 32 bits.
+fn check_words(data: &Buffer, width: u32, count: u32) -> Result<u64> {
     let words = count as u64 * width as u64;
-    // The kernel counts words in 32 bits.
     if words > u32::MAX as u64 || data.bytes() / 4 > u32::MAX as u64 {
         return Err(Error::bad_input(
             "rows to move",
@@ -80,17 +146,54 @@ fn record<'a>(
             ),
         ));
     }
+    Ok(words)
+}
+
+fn record<'a>(
+    rec: &mut Recorder<'a>,
+    gather: bool,
+    data: &'a Buffer,
+    width: u32,
+    rows: RowList<'a>,
+    staging: Packed<'a>,
+) -> Result<()> {
+    let RowList {
+        index,
+        first,
+        count,
+    } = rows;
+    if count == 0 || width == 0 {
+        return Ok(());
+    }
+    let words = check_words(data, width, count)?;
+    let word = u32::try_from(staging.word)
+        .ok()
+        .filter(|w| (*w as u64 + words) <= u32::MAX as u64)
+        .ok_or_else(|| {
+            Error::bad_input(
+                "rows to move",
+                format!("staging from word {}: past 2^32 words", staging.word),
+            )
+        })?;
     data.ensure_bytes(width as u64 * 4, "rows data")?;
-    staging.ensure_bytes(words * 4, "rows staging")?;
-    index.ensure_bytes(count as u64 * 4, "row indices")?;
+    staging
+        .buffer
+        .ensure_bytes((word as u64 + words) * 4, "rows staging")?;
+    index.ensure_bytes((first as u64 + count as u64) * 4, "row indices")?;
+    let kernel = if gather { &ROWS_GATHER } else { &ROWS_SCATTER };
     rec.dispatch_linear(
         kernel,
         words.div_ceil(THREADS) as u32,
         bind::RowsBuffers {
             data,
-            staging,
+            staging: staging.buffer,
             index,
         },
-        &push::Rows { count, width },
+        &push::Rows {
+            count,
+            width,
+            first: word,
+            list: first,
+        },
     )
 }

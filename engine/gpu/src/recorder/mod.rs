@@ -95,6 +95,9 @@ pub struct Recorder<'a> {
     /// Set by [`Recorder::overlap_other_queue`]: the batch does not wait for
     /// the other queue's earlier submissions.
     overlaps_other_queue: bool,
+    /// Set by [`Recorder::detach`]: the other queue's later batches do not
+    /// wait for this one either.
+    detached: bool,
     /// Whether a command touching a buffer has been recorded yet.
     touched: bool,
     /// The work the caller stated for the next dispatch
@@ -202,6 +205,7 @@ impl<'a> Recorder<'a> {
                 span_start: None,
                 calibration: false,
                 overlaps_other_queue: false,
+                detached: false,
                 touched: false,
                 next_work: None,
                 _borrows: PhantomData,
@@ -227,6 +231,36 @@ impl<'a> Recorder<'a> {
     /// Later batches of either queue still wait for both.
     pub fn overlap_other_queue(&mut self) {
         self.overlaps_other_queue = true;
+    }
+
+    /// Detaches this batch from the other queue both ways: it runs beside
+    /// what that queue was given before it (as with
+    /// [`Recorder::overlap_other_queue`]), and that queue's later batches
+    /// do not wait for it either. A batch that needs its results waits for
+    /// it by name ([`Recorder::wait_for`] with its
+    /// [`Submission::sync_point`]). Only for a batch that touches no buffer
+    /// the other queue's work reads or writes meanwhile: uploading the
+    /// next window sync's arrivals into a staging buffer of their own while
+    /// Stage I trains, say. Batches of its own queue still run after it.
+    ///
+    /// ```no_run
+    /// # use latentam_gpu::*;
+    /// # fn f(ctx: &Context, inbox: &Buffer, rows: &Buffer, data: &[u32]) -> latentam_gpu::Result<()> {
+    /// let mut upload = ctx.transfer_recorder()?;
+    /// upload.detach();
+    /// upload.upload(inbox, 0, data)?;
+    /// let uploaded = upload.submit()?;
+    /// // ... compute work that does not wait for the upload ...
+    /// let mut rec = ctx.recorder()?;
+    /// rec.wait_for(uploaded.sync_point());
+    /// rec.copy(inbox, 0, rows, 0, inbox.bytes())?;
+    /// rec.submit()?.wait()?;
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn detach(&mut self) {
+        self.overlaps_other_queue = true;
+        self.detached = true;
     }
 
     /// Makes this batch wait (on the GPU) for `point` before it starts.
@@ -398,6 +432,30 @@ impl<'a> Recorder<'a> {
         self.dev.queue(self.transfer)
     }
 
+    /// The other queue's batch this one waits for without being told.
+    /// With two queues, a batch waits for everything submitted earlier to
+    /// the other queue: submission order is dependency order across queues
+    /// (and the semaphore makes the other queue's writes visible). To
+    /// overlap two batches, submit the one that must not wait first, with
+    /// [`Recorder::overlap_other_queue`]. A semaphore's value counts
+    /// batches in submission order, so waiting for the other queue's last
+    /// attached batch leaves a later detached one ([`Recorder::detach`])
+    /// free to run on.
+    pub(crate) fn implicit_wait(&self) -> Option<SyncPoint> {
+        if self.dev.transfer.is_none() || self.overlaps_other_queue {
+            return None;
+        }
+        let other = self
+            .dev
+            .queue(!self.transfer)
+            .attached
+            .load(Ordering::SeqCst);
+        (other > 0).then_some(SyncPoint {
+            transfer: !self.transfer,
+            value: other,
+        })
+    }
+
     /// Ends recording and submits. The returned [`Submission`] can be waited
     /// on, or its [`SyncPoint`] passed to another recorder.
     pub fn submit(mut self) -> Result<Submission> {
@@ -432,18 +490,8 @@ impl<'a> Recorder<'a> {
 
         let dev = self.dev.clone();
         let transfer = self.transfer;
-        // With two queues, a batch waits for everything submitted earlier
-        // to the other queue: submission order is dependency order across
-        // queues (and the semaphore makes the other queue's writes visible).
-        // To overlap two batches, submit the one that must not wait first.
-        if dev.transfer.is_some() && !self.overlaps_other_queue {
-            let other = dev.queue(!transfer).submitted.load(Ordering::SeqCst);
-            if other > 0 {
-                self.waits.push(SyncPoint {
-                    transfer: !transfer,
-                    value: other,
-                });
-            }
+        if let Some(point) = self.implicit_wait() {
+            self.waits.push(point);
         }
         let mut wait_sems = Vec::new();
         let mut wait_values = Vec::new();
@@ -478,6 +526,9 @@ impl<'a> Recorder<'a> {
             unsafe { dev.raw.queue_submit(*guard, &[submit], vk::Fence::null()) }
                 .vk("vkQueueSubmit")?;
             q.submitted.store(value, Ordering::SeqCst);
+            if !self.detached {
+                q.attached.store(value, Ordering::SeqCst);
+            }
             value
         };
         for r in self.readbacks.drain(..) {

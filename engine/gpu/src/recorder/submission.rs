@@ -56,6 +56,11 @@ impl GpuSpan {
         (self.end_ns - self.start_ns).max(0.0) * 1e-6
     }
 
+    /// Milliseconds of this span that ran before `other` began.
+    pub fn ms_before(&self, other: &GpuSpan) -> f64 {
+        (self.end_ns.min(other.start_ns) - self.start_ns).max(0.0) * 1e-6
+    }
+
     /// Milliseconds during which both spans ran.
     pub fn overlap_ms(&self, other: &GpuSpan) -> f64 {
         (self.end_ns.min(other.end_ns) - self.start_ns.max(other.start_ns)).max(0.0) * 1e-6
@@ -79,6 +84,19 @@ impl Submission {
     /// to the profiler.
     pub fn wait(self) -> Result<()> {
         self.wait_span().map(|_| ())
+    }
+
+    /// [`Submission::wait_span`] for a batch the GPU has already finished
+    /// (a later batch that waited for it on the GPU was waited for):
+    /// returns its span and hands its timestamps to the profiler without a
+    /// host wait. Waits, counted, if it is not finished after all.
+    pub fn finished_span(mut self) -> Result<Option<GpuSpan>> {
+        if !self.is_done() {
+            return self.wait_span();
+        }
+        let span = self.collect_timestamps();
+        self.dev.collect();
+        Ok(span)
     }
 
     /// [`Submission::wait`], returning when the batch ran if it was timed

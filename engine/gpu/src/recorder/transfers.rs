@@ -239,6 +239,75 @@ impl<'a> Recorder<'a> {
         Ok(())
     }
 
+    /// Records an upload of several parts, each `(destination, byte
+    /// offset, bytes)`, through one staging buffer that packs them one
+    /// after another: one contiguous range crosses the host link, then a
+    /// copy per part. Each part's length must be a multiple of 4 (the
+    /// parts stay 4-byte aligned in staging).
+    ///
+    /// ```no_run
+    /// # use latentam_gpu::*;
+    /// # fn f(ctx: &Context, means: &Buffer, colors: &Buffer) -> latentam_gpu::Result<()> {
+    /// let (xyz, rgb) = ([0.0f32; 6], [1.0f32; 6]); // two rows of each
+    /// let mut rec = ctx.recorder()?;
+    /// rec.upload_packed(&[
+    ///     (means, 0, bytemuck::cast_slice(&xyz)),
+    ///     (colors, 0, bytemuck::cast_slice(&rgb)),
+    /// ])?;
+    /// rec.submit()?.wait()?;
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn upload_packed(&mut self, parts: &[(&'a Buffer, u64, &[u8])]) -> Result<()> {
+        let mut total = 0u64;
+        for (dst, offset, bytes) in parts {
+            let n = bytes.len() as u64;
+            if offset + n > dst.bytes() || !n.is_multiple_of(4) {
+                return Err(Error::bad_input(
+                    "upload",
+                    format!(
+                        "{n} bytes at offset {offset} into `{}` ({} bytes): past its end, \
+                         or not whole 32-bit words",
+                        dst.name(),
+                        dst.bytes()
+                    ),
+                ));
+            }
+            total += n;
+        }
+        if total == 0 {
+            return Ok(());
+        }
+        let ctx = Context {
+            dev: self.dev.clone(),
+        };
+        let mut staging = Buffer::new(&ctx, "staging/packed", total, BufferKind::Upload)?;
+        let mut at = 0u64;
+        let mapped = staging.mapped_mut();
+        for (_, _, bytes) in parts {
+            mapped[at as usize..at as usize + bytes.len()].copy_from_slice(bytes);
+            at += bytes.len() as u64;
+        }
+        let mut at = 0u64;
+        for (dst, offset, bytes) in parts {
+            let size = bytes.len() as u64;
+            if size > 0 {
+                self.copy_raw(
+                    &staging,
+                    dst,
+                    vk::BufferCopy {
+                        src_offset: at,
+                        dst_offset: *offset,
+                        size,
+                    },
+                );
+            }
+            at += size;
+        }
+        self.keep.push(Arc::new(staging));
+        Ok(())
+    }
+
     /// Records a copy of `bytes` bytes at `offset` of `src` into a staging
     /// buffer; read it with [`Readback::read`] after the submission completes.
     pub fn download(&mut self, src: &'a Buffer, offset: u64, bytes: u64) -> Result<Readback> {

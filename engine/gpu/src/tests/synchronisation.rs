@@ -89,6 +89,64 @@ fn the_transfer_path_rehearsed_on_the_compute_family_orders_both_ways() {
     });
 }
 
+/// A detached transfer batch (the next window sync's arrivals, uploaded
+/// while Stage I trains) makes no later compute batch wait for it, while an
+/// attached one does; the batch that uses its data waits for it by name and
+/// sees it. Run on the rehearsed transfer path, so that there are two
+/// timelines on any device, under the suite's synchronization validation.
+#[test]
+fn a_detached_batch_is_waited_for_only_by_name() {
+    let options = ContextOptions {
+        transfer_queue: TransferQueue::SameFamily,
+        ..ContextOptions::default()
+    };
+    with_options(options, |ctx| {
+        let n = 100_000u64;
+        let data: Vec<u32> = (0..n as u32)
+            .map(|i| i.wrapping_mul(2_654_435_761))
+            .collect();
+        let inbox = Buffer::device(ctx, "detach/inbox", n * 4).unwrap();
+        let rows = Buffer::device(ctx, "detach/rows", n * 4).unwrap();
+        let other = Buffer::device(ctx, "detach/other", 64).unwrap();
+
+        let mut attached = ctx.transfer_recorder().unwrap();
+        attached.fill_u32(&other, 1);
+        let attached = attached.submit().unwrap();
+        let mut upload = ctx.transfer_recorder().unwrap();
+        upload.detach();
+        assert_eq!(
+            upload.implicit_wait(),
+            None,
+            "it waits for no compute batch"
+        );
+        upload.upload(&inbox, 0, &data).unwrap();
+        let uploaded = upload.submit().unwrap();
+        // A compute batch waits for the attached batch, not the detached one.
+        let mut beside = ctx.recorder().unwrap();
+        assert_eq!(beside.implicit_wait(), Some(attached.sync_point()));
+        beside.fill_u32(&other, 7);
+        beside.submit().unwrap().wait().unwrap();
+        // The batch that reads the upload names it.
+        let mut rec = ctx.recorder().unwrap();
+        rec.wait_for(uploaded.sync_point());
+        rec.copy(&inbox, 0, &rows, 0, n * 4).unwrap();
+        rec.submit().unwrap().wait().unwrap();
+        assert!(uploaded.is_done());
+        uploaded.wait().unwrap();
+        attached.wait().unwrap();
+        assert_eq!(ctx.download::<u32>(&rows).unwrap(), data);
+        // An attached transfer batch again makes compute wait for it.
+        let mut again = ctx.transfer_recorder().unwrap();
+        again.fill_u32(&other, 3);
+        let again = again.submit().unwrap();
+        assert_eq!(
+            ctx.recorder().unwrap().implicit_wait(),
+            Some(again.sync_point())
+        );
+        again.wait().unwrap();
+    });
+}
+
 /// A context under validation with `checks`, for the tests that expect its
 /// errors (`testing::with_options` fails on any).
 fn checked_context(checks: ValidationChecks) -> Context {
