@@ -58,6 +58,53 @@ struct CurvePoint {
     atoms: u32,
     /// Host waits in Stage I and Stage II.
     stage_one_and_two_waits: u64,
+    /// Host waits of the whole keyframe.
+    host_waits: u64,
+    /// Bytes the keyframe uploaded and downloaded in all (images and
+    /// embeddings included).
+    uploaded_bytes: u64,
+    downloaded_bytes: u64,
+    /// Paging alone: bytes up and down, blocks in and out, host
+    /// milliseconds (planning and recording; waits included).
+    paging_bytes_up: u64,
+    paging_bytes_down: u64,
+    paging_blocks_in: usize,
+    paging_blocks_out: usize,
+    paging_cpu_ms: f64,
+}
+
+/// Paging per keyframe, mean over the keyframes after the first five
+/// (which build the window up rather than page it).
+#[derive(Serialize)]
+struct PagingPerKeyframe {
+    /// Keyframes averaged over.
+    keyframes: usize,
+    bytes_up: f64,
+    bytes_down: f64,
+    blocks_in: f64,
+    blocks_out: f64,
+    cpu_ms: f64,
+    /// Host waits of the whole keyframe.
+    host_waits: f64,
+}
+
+impl PagingPerKeyframe {
+    const SKIP: usize = 5;
+
+    fn of(curve: &[CurvePoint]) -> Option<Self> {
+        let points = curve.get(Self::SKIP..).filter(|p| !p.is_empty())?;
+        let n = points.len() as f64;
+        let mean = |f: &dyn Fn(&CurvePoint) -> f64| points.iter().map(f).sum::<f64>() / n;
+        Some(PagingPerKeyframe {
+            keyframes: points.len(),
+            bytes_up: mean(&|p| p.paging_bytes_up as f64),
+            bytes_down: mean(&|p| p.paging_bytes_down as f64),
+            blocks_in: mean(&|p| p.paging_blocks_in as f64),
+            blocks_out: mean(&|p| p.paging_blocks_out as f64),
+            cpu_ms: mean(&|p| p.paging_cpu_ms),
+            host_waits: mean(&|p| p.host_waits as f64),
+        })
+    }
 }
 
 /// Mean milliseconds per keyframe of one phase of the run: while the
@@ -119,6 +166,8 @@ struct Report {
     paging_gpu_ms_total: Option<f64>,
     paging_hidden_ms_total: Option<f64>,
     paging_hidden_share: Option<f64>,
+    /// Paging per keyframe after the first five.
+    paging_per_keyframe: Option<PagingPerKeyframe>,
     dedicated_transfer_queue: bool,
     gpu_budget: u64,
     window_capacity: u64,
@@ -242,6 +291,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         paging_gpu_ms_total: t.paging_gpu_ms,
         paging_hidden_ms_total: t.paging_hidden_ms,
         paging_hidden_share: hidden_share,
+        paging_per_keyframe: PagingPerKeyframe::of(&curve),
         dedicated_transfer_queue: ctx.info().dedicated_transfer_queue,
         gpu_budget: stats.window.map_or(0, |w| w.budget),
         window_capacity: stats.window.map_or(0, |w| w.capacity),
@@ -295,6 +345,14 @@ impl CurvePoint {
             stage_two_ms: k.timings.stage_two_ms,
             atoms: k.atoms,
             stage_one_and_two_waits: k.gpu_calls.training().host_waits,
+            host_waits: k.gpu_calls.total().host_waits,
+            uploaded_bytes: k.gpu_work.uploaded_bytes,
+            downloaded_bytes: k.gpu_work.downloaded_bytes,
+            paging_bytes_up: k.paging.iter().map(|p| p.bytes_up).sum(),
+            paging_bytes_down: k.paging.iter().map(|p| p.bytes_down).sum(),
+            paging_blocks_in: k.paging.iter().map(|p| p.blocks_in).sum(),
+            paging_blocks_out: k.paging.iter().map(|p| p.blocks_out).sum(),
+            paging_cpu_ms: k.timings.paging_cpu_ms,
         }
     }
 }
@@ -380,6 +438,19 @@ fn print_report(r: &Report) {
              grows with the Gaussians resident, not the dictionary)",
             b.total_ms / a.total_ms,
             b.dictionary_ms() / a.dictionary_ms()
+        );
+    }
+    if let Some(p) = &r.paging_per_keyframe {
+        println!(
+            "paging per keyframe (keyframes {} on): {:.2} MB up, {:.2} MB down, {:.1} blocks in, \
+             {:.1} out, {:.1} ms of host time; {:.1} host waits per keyframe in all",
+            PagingPerKeyframe::SKIP,
+            p.bytes_up / 1e6,
+            p.bytes_down / 1e6,
+            p.blocks_in,
+            p.blocks_out,
+            p.cpu_ms,
+            p.host_waits
         );
     }
     println!(

@@ -1,27 +1,42 @@
-//! The local window: the Gaussians near the camera, on the GPU.
+//! The local window: the Gaussians near the camera, on the GPU, by block.
 //!
-//! Rows `0..len` of the window's buffers hold the resident Gaussians; the
-//! CPU keeps each row's voxel key. Re-synchronising with the global map
-//! ([`LocalWindow::plan`], [`LocalWindow::record_sync`]) is all transfer
-//! commands, so it can run on the dedicated transfer queue while Stage II
-//! (which reads no Gaussian) runs on the compute queue:
-//! 1. every resident row is downloaded (write-back of what Stage I changed);
-//! 2. rows from the tail are copied into the rows of evicted Gaussians,
-//!    keeping residents contiguous (sources and destinations are disjoint,
-//!    so the copies are order-free);
-//! 3. fetched Gaussians are uploaded after the last resident row.
+//! The window pages whole blocks (cubes of [`BLOCK_VOXELS`](super::BLOCK_VOXELS) voxels of the
+//! global map) in and out. Rows `0..len` of its buffers hold the resident
+//! Gaussians, densely; the CPU keeps each row's voxel key and, per resident
+//! block, its rows. The GPU holds the truth for what is resident: training
+//! changes rows there, and the global map's copy of a resident Gaussian is
+//! brought up to date only when its block leaves the window or a reader
+//! asks for the whole map, and then only for the blocks training changed
+//! since their last copy (each block carries a dirty flag).
+//!
+//! A re-synchronisation ([`LocalWindow::plan`], [`LocalWindow::record_sync`],
+//! [`LocalWindow::record_outbox`]) is planned as a difference of block
+//! sets and moves rows by kernels (`latentam_gpu::ops`):
+//! 1. the rows of the leaving blocks that changed are gathered into one
+//!    packed outbox, downloaded with one copy (on the transfer queue, beside
+//!    work that reads no Gaussian);
+//! 2. rows from the tail move into the rows the leaving Gaussians freed
+//!    (compaction: one dispatch per buffer; sources at or above the rows
+//!    kept, destinations below, so the moves never race);
+//! 3. the arriving blocks' Gaussians are uploaded after the last resident
+//!    row from one packed staging buffer (the rows are contiguous there, so
+//!    a copy per field is the scatter).
 //!
 //! Per-Gaussian state kept beside the parameters (Adam moments, step
-//! counts) is moved the same way through [`Companion`] buffers, and zeroed
-//! for fetched rows.
+//! counts) moves the same way through [`Companion`] buffers, and is zeroed
+//! for arriving rows.
 
 use glam::DVec3;
 
 use super::global::{Gaussian, GlobalMap};
-use super::voxel::{KeySet, VoxelKey};
-use crate::splat::{GaussianBuffers, GaussianReadback, HostGaussians, FIELD_WIDTHS};
+use super::voxel::{KeyMap, KeySet, VoxelKey};
+use crate::splat::{GaussianBuffers, HostGaussians, FIELD_WIDTHS, GAUSSIAN_BYTES};
 use latentam_base::{Error, Result};
-use latentam_gpu::{Buffer, Context, Recorder};
+use latentam_gpu::ops::{gather_rows, move_rows, Packed, RowList};
+use latentam_gpu::{Buffer, Context, Readback, Recorder};
+
+/// 32-bit words of one Gaussian's parameters, all fields together.
+const GAUSSIAN_WORDS: u64 = GAUSSIAN_BYTES / 4;
 
 /// A buffer with one fixed-size row per window row, moved along with the
 /// Gaussians (e.g. an Adam moment buffer: `row_bytes` = 4 × width).
@@ -32,8 +47,9 @@ use latentam_gpu::{Buffer, Context, Recorder};
 /// # fn f(ctx: &Context, window: &mut LocalWindow, global: &mut GlobalMap, plan: &SyncPlan) -> latentam_core::Result<()> {
 /// // A per-Gaussian step count (one u32 a row) that moves with its Gaussian.
 /// let steps = Buffer::device(ctx, "steps", window.capacity() * 4)?;
-/// let mut rec = ctx.transfer_recorder()?;
-/// let pending = window.record_sync(&mut rec, plan, global, &[Companion { buffer: &steps, row_bytes: 4 }])?;
+/// let mut rec = ctx.recorder()?;
+/// let outbox = window.record_sync(&mut rec, plan, global, &[Companion { buffer: &steps, row_bytes: 4 }], None)?;
+/// let pending = window.record_outbox(&mut rec, outbox)?;
 /// rec.submit()?.wait()?;
 /// pending.apply(global)?;
 /// # Ok(())
@@ -43,7 +59,7 @@ use latentam_gpu::{Buffer, Context, Recorder};
 pub struct Companion<'a> {
     /// The buffer (at least capacity × `row_bytes`).
     pub buffer: &'a Buffer,
-    /// Bytes per row.
+    /// Bytes per row, a multiple of 4.
     pub row_bytes: u64,
 }
 
@@ -51,8 +67,10 @@ pub struct Companion<'a> {
 ///
 /// ```
 /// # fn f(window: &latentam_core::map::LocalWindow, global: &latentam_core::map::GlobalMap, camera: glam::DVec3) {
-/// let plan = window.plan(global, camera, 4.0); // keep everything within 4 m
+/// // Keep the blocks within 4 m, and those already resident within 4.5 m.
+/// let plan = window.plan(global, camera, 4.0, 0.5);
 /// println!("{} stay, {} leave, {} come in", plan.keep, plan.evict.len(), plan.fetch.len());
+/// println!("{} blocks in, {} out", plan.blocks_in, plan.blocks_out);
 /// if plan.over_capacity > 0 {
 ///     println!("{} Gaussians within 4 m do not fit the window", plan.over_capacity);
 /// }
@@ -60,25 +78,75 @@ pub struct Companion<'a> {
 /// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SyncPlan {
-    /// Rows whose Gaussians leave the window (outside the radius, or the
-    /// farthest when the capacity is exceeded), ascending.
+    /// Rows whose Gaussians leave the window, ascending.
     pub evict: Vec<u32>,
-    /// Gaussians that come in, nearest first.
+    /// Of those, the rows to copy back to the global map first (those of
+    /// blocks changed since their last copy), ascending. Rows evicted
+    /// without write-back are dropped: pruned, or unchanged.
+    pub write_back: Vec<u32>,
+    /// Gaussians that come in, block by block, nearest block first.
     pub fetch: Vec<VoxelKey>,
-    /// Residents within the radius that stay.
+    /// Residents that stay.
     pub keep: usize,
     /// Gaussians within the radius left out for lack of capacity.
     pub over_capacity: usize,
+    /// Blocks that come in (wholly or, to mend a block only partly
+    /// resident, in part).
+    pub blocks_in: usize,
+    /// Blocks that leave.
+    pub blocks_out: usize,
 }
 
-/// A recorded synchronisation: apply it once its submission completed.
+/// The rows a recorded synchronisation gathered into the window's outbox,
+/// to download with [`LocalWindow::record_outbox`].
+#[derive(Debug)]
+#[must_use = "the gathered rows must be downloaded and written back"]
+pub struct Outbox {
+    keys: Vec<VoxelKey>,
+}
+
+impl Outbox {
+    /// Rows gathered.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether nothing was gathered.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+}
+
+/// A plan's arriving Gaussians uploaded ahead into the window's inbox
+/// ([`LocalWindow::record_arrivals`]), for the sync of that plan to copy in
+/// on the GPU.
+#[derive(Debug)]
+#[must_use = "staged arrivals are for the sync of their plan"]
+pub struct StagedArrivals {
+    rows: usize,
+    /// Which Gaussians, to refuse another plan's.
+    fingerprint: u64,
+}
+
+/// A digest of a fetch list: staged arrivals serve only the plan they were
+/// staged for.
+fn fetch_fingerprint(keys: &[VoxelKey]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = rustc_hash::FxHasher::default();
+    keys.hash(&mut h);
+    h.finish()
+}
+
+/// A recorded download of window rows: apply it once its submission
+/// completed.
 ///
 /// ```no_run
 /// use latentam_core::map::{GlobalMap, LocalWindow};
 /// # fn f(ctx: &latentam_gpu::Context, window: &mut LocalWindow, global: &mut GlobalMap, camera: glam::DVec3) -> latentam_core::Result<()> {
-/// let plan = window.plan(global, camera, 4.0);
-/// let mut rec = ctx.transfer_recorder()?;
-/// let pending = window.record_sync(&mut rec, &plan, global, &[])?;
+/// let plan = window.plan(global, camera, 4.0, 0.5);
+/// let mut rec = ctx.recorder()?;
+/// let outbox = window.record_sync(&mut rec, &plan, global, &[], None)?;
+/// let pending = window.record_outbox(&mut rec, outbox)?;
 /// rec.submit()?.wait()?; // the download is complete only now
 /// let written_back = pending.apply(global)?;
 /// # Ok(())
@@ -86,16 +154,46 @@ pub struct SyncPlan {
 /// ```
 #[must_use = "the write-back must be applied to the global map"]
 pub struct PendingSync {
-    readback: GaussianReadback,
+    readback: Option<Readback>,
     keys: Vec<VoxelKey>,
 }
 
+impl Default for PendingSync {
+    /// Nothing to write back.
+    fn default() -> Self {
+        PendingSync {
+            readback: None,
+            keys: Vec::new(),
+        }
+    }
+}
+
 impl PendingSync {
+    /// Gaussians it writes back.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether it writes nothing back.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// The downloaded Gaussians with their keys. Errors if the submission
+    /// has not completed.
+    pub fn read(self) -> Result<(Vec<VoxelKey>, HostGaussians)> {
+        let host = match &self.readback {
+            Some(r) => unpack(r.bytes()?, self.keys.len()),
+            None => HostGaussians::default(),
+        };
+        Ok((self.keys, host))
+    }
+
     /// Writes the downloaded Gaussians back to the global map by key.
     /// Errors if the submission has not completed.
     pub fn apply(self, global: &mut GlobalMap) -> Result<usize> {
-        let host = self.readback.read()?;
-        for (i, key) in self.keys.iter().enumerate() {
+        let (keys, host) = self.read()?;
+        for (i, key) in keys.iter().enumerate() {
             if !global.write_back(*key, gaussian_at(&host, i)) {
                 return Err(Error::bad_input(
                     "global map",
@@ -105,7 +203,28 @@ impl PendingSync {
                 ));
             }
         }
-        Ok(self.keys.len())
+        Ok(keys.len())
+    }
+}
+
+/// `n` Gaussians packed field after field (the outbox's layout: every
+/// row's means, then every row's scales, ...), as host SoA.
+fn unpack(bytes: &[u8], n: usize) -> HostGaussians {
+    let mut at = 0;
+    let mut field = |width: u64| -> &[u8] {
+        let len = n * width as usize * 4;
+        let part = &bytes[at..at + len];
+        at += len;
+        part
+    };
+    let [m, s, q, c, o, l] = FIELD_WIDTHS.map(&mut field);
+    HostGaussians {
+        means: bytemuck::pod_collect_to_vec(m),
+        log_scales: bytemuck::pod_collect_to_vec(s),
+        quats: bytemuck::pod_collect_to_vec(q),
+        colors: bytemuck::pod_collect_to_vec(c),
+        opacity_logits: bytemuck::pod_collect_to_vec(o),
+        queries: bytemuck::pod_collect_to_vec(l),
     }
 }
 
@@ -131,6 +250,15 @@ pub fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
     h.queries.push(g.query);
 }
 
+/// A block with rows in the window.
+#[derive(Clone, Debug, Default)]
+struct ResidentBlock {
+    /// Its rows, in no particular order.
+    rows: Vec<u32>,
+    /// Training may have changed its rows since the global map's copy.
+    dirty: bool,
+}
+
 /// The resident Gaussians and their GPU buffers.
 ///
 /// ```no_run
@@ -140,20 +268,31 @@ pub fn push_gaussian(h: &mut HostGaussians, g: &Gaussian) {
 /// let ctx = Context::new(ContextOptions::default())?;
 /// let mut global = GlobalMap::new(0.02);
 /// let mut window = LocalWindow::new(&ctx, 100_000)?; // room for 100k Gaussians on the GPU
-/// let plan = window.plan(&global, glam::DVec3::ZERO, 5.0);
-/// let mut rec = ctx.transfer_recorder()?;
-/// let pending = window.record_sync(&mut rec, &plan, &global, &[])?;
+/// let plan = window.plan(&global, glam::DVec3::ZERO, 5.0, 0.5);
+/// let mut rec = ctx.recorder()?;
+/// let outbox = window.record_sync(&mut rec, &plan, &global, &[], None)?;
+/// let pending = window.record_outbox(&mut rec, outbox)?;
 /// rec.submit()?.wait()?;
 /// pending.apply(&mut global)?;
-/// println!("{} resident, {} rows free", window.len(), window.free());
+/// println!("{} resident in {} blocks, {} rows free", window.len(), window.blocks(), window.free());
 /// # Ok::<(), latentam_core::Error>(())
 /// ```
 pub struct LocalWindow {
     ctx: Context,
     params: GaussianBuffers,
+    /// The voxel key of every row.
     keys: Vec<VoxelKey>,
-    /// Rows in transit during compaction (grown as needed).
-    scratch: Option<Buffer>,
+    /// Every row's place in its block's row list.
+    place: Vec<u32>,
+    blocks: KeyMap<ResidentBlock>,
+    /// Row lists for the kernels (grown as needed).
+    index: Option<Buffer>,
+    /// Rows gathered for download, packed field after field (grown as
+    /// needed).
+    outbox: Option<Buffer>,
+    /// Arriving rows uploaded ahead of their sync, packed field after
+    /// field (grown as needed).
+    inbox: Option<Buffer>,
 }
 
 impl LocalWindow {
@@ -170,7 +309,11 @@ impl LocalWindow {
             ctx: ctx.clone(),
             params: GaussianBuffers::new(ctx, "window", capacity)?,
             keys: Vec::new(),
-            scratch: None,
+            place: Vec::new(),
+            blocks: KeyMap::default(),
+            index: None,
+            outbox: None,
+            inbox: None,
         })
     }
 
@@ -189,6 +332,24 @@ impl LocalWindow {
         self.keys.is_empty()
     }
 
+    /// Blocks with rows in the window.
+    pub fn blocks(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Whether `block` has rows in the window.
+    pub fn holds_block(&self, block: VoxelKey) -> bool {
+        self.blocks.contains_key(&block)
+    }
+
+    /// Whether the Gaussian of voxel `key` is resident (costs its block's
+    /// rows).
+    pub fn holds(&self, key: VoxelKey) -> bool {
+        self.blocks
+            .get(&GlobalMap::block_of(key))
+            .is_some_and(|b| b.rows.iter().any(|&r| self.keys[r as usize] == key))
+    }
+
     /// The voxel key of every resident row.
     pub fn keys(&self) -> &[VoxelKey] {
         &self.keys
@@ -199,136 +360,337 @@ impl LocalWindow {
         &self.params
     }
 
-    /// Which residents leave and which Gaussians come in for a camera at
-    /// `centre` keeping everything within `radius`: residents outside the
-    /// radius leave; when the Gaussians within it exceed the capacity, the
-    /// farthest are left out (residents among them evicted).
-    pub fn plan(&self, global: &GlobalMap, centre: DVec3, radius: f64) -> SyncPlan {
-        let mut wanted = global.within_by_distance(centre, radius);
-        let cap = self.capacity() as usize;
-        let over_capacity = wanted.len().saturating_sub(cap);
-        wanted.truncate(cap);
-        let wanted_set: KeySet = wanted.iter().map(|w| w.1).collect();
-        let resident: KeySet = self.keys.iter().copied().collect();
-        let evict: Vec<u32> = (0..self.keys.len() as u32)
-            .filter(|&r| !wanted_set.contains(&self.keys[r as usize]))
-            .collect();
-        let fetch: Vec<VoxelKey> = wanted
-            .iter()
-            .map(|w| w.1)
-            .filter(|k| !resident.contains(k))
-            .collect();
-        SyncPlan {
-            keep: self.keys.len() - evict.len(),
-            evict,
-            fetch,
-            over_capacity,
+    /// Rows still free.
+    pub fn free(&self) -> usize {
+        self.capacity() as usize - self.keys.len()
+    }
+
+    /// Host bytes of the row and block tables.
+    pub fn table_bytes(&self) -> u64 {
+        (self.keys.capacity() * (size_of::<VoxelKey>() + 4 + 4)
+            + self.blocks.len() * (size_of::<VoxelKey>() + size_of::<ResidentBlock>() + 16))
+            as u64
+    }
+
+    /// Training changed the resident rows: every resident block is dirty
+    /// (its global map copy is stale) until written back.
+    pub fn mark_trained(&mut self) {
+        for b in self.blocks.values_mut() {
+            b.dirty = true;
         }
     }
 
-    /// Records a synchronisation on `rec` (a transfer recorder, normally):
-    /// write-back download of every resident row, compaction over the
-    /// evicted rows, upload of the fetched Gaussians from `global`, and the
-    /// same moves for `companions` (fetched rows zeroed). The row → key
-    /// table is updated now; apply the returned [`PendingSync`] to the
-    /// global map once the submission has completed.
+    /// Rows whose global map copy may be stale (those of dirty blocks),
+    /// ascending.
+    pub fn dirty_rows(&self) -> Vec<u32> {
+        let mut rows: Vec<u32> = self
+            .blocks
+            .values()
+            .filter(|b| b.dirty)
+            .flat_map(|b| b.rows.iter().copied())
+            .collect();
+        rows.sort_unstable();
+        rows
+    }
+
+    /// Which blocks leave and which come in for a camera at `centre`:
+    /// blocks of the global map that come within `radius` are wanted,
+    /// nearest first while they fit the capacity; resident blocks stay
+    /// while they are within `radius + margin` and fit (so a camera
+    /// moving back and forth across a block's edge does not page it every
+    /// time). The plan costs the blocks near the camera and the rows that
+    /// move, not the window's or the map's size. A resident block that the
+    /// global map holds more of than the window (a restored window, say)
+    /// gets its missing Gaussians.
+    pub fn plan(&self, global: &GlobalMap, centre: DVec3, radius: f64, margin: f64) -> SyncPlan {
+        let radius = radius.max(0.0);
+        let reach = radius + margin.max(0.0);
+        let cap = self.capacity() as usize;
+        let mut used = 0usize;
+        let mut over_capacity = 0usize;
+        let mut wanted = KeySet::default();
+        let mut arriving: Vec<VoxelKey> = Vec::new();
+        let r2 = radius * radius;
+        for (d2, block, count) in global.blocks_near(centre, reach) {
+            let resident = self.blocks.contains_key(&block);
+            if !resident && d2 > r2 {
+                continue;
+            }
+            if used + count > cap {
+                if d2 <= r2 {
+                    over_capacity += count;
+                }
+                continue;
+            }
+            used += count;
+            wanted.insert(block);
+            if !resident {
+                arriving.push(block);
+            }
+        }
+        // Leaving: resident blocks not wanted.
+        let mut evict = Vec::new();
+        let mut write_back = Vec::new();
+        let mut blocks_out = 0;
+        for (block, b) in &self.blocks {
+            if wanted.contains(block) {
+                continue;
+            }
+            blocks_out += 1;
+            evict.extend_from_slice(&b.rows);
+            if b.dirty {
+                write_back.extend_from_slice(&b.rows);
+            }
+        }
+        evict.sort_unstable();
+        write_back.sort_unstable();
+        // Arriving: whole blocks, and what partly resident blocks lack.
+        let mut fetch: Vec<VoxelKey> = Vec::new();
+        for &block in &arriving {
+            fetch.extend(global.block_keys(block));
+        }
+        let mut blocks_in = arriving.len();
+        for block in wanted.iter().filter(|b| !arriving.contains(b)) {
+            let b = &self.blocks[block];
+            if b.rows.len() < global.block_len(*block) {
+                let have: KeySet = b.rows.iter().map(|&r| self.keys[r as usize]).collect();
+                fetch.extend(global.block_keys(*block).filter(|k| !have.contains(k)));
+                blocks_in += 1;
+            }
+        }
+        // A plan for a window over capacity (restored from a larger one)
+        // may not fit: record_sync refuses it.
+        SyncPlan {
+            keep: self.keys.len() - evict.len(),
+            evict,
+            write_back,
+            fetch,
+            over_capacity,
+            blocks_in,
+            blocks_out,
+        }
+    }
+
+    /// A plan that evicts `rows` (ascending, without duplicates) and
+    /// writes none of them back: pruning.
+    pub fn plan_removal(&self, rows: Vec<u32>) -> SyncPlan {
+        SyncPlan {
+            keep: self.keys.len().saturating_sub(rows.len()),
+            evict: rows,
+            ..SyncPlan::default()
+        }
+    }
+
+    /// Uploads `plan`'s arriving Gaussians from `global` into the window's
+    /// inbox, on `rec`: ahead of the sync, on a transfer batch that runs
+    /// beside training (it touches nothing but the inbox). Pass the result
+    /// to [`LocalWindow::record_sync`] with the same plan, in a batch that
+    /// waits for this one; nothing else may be staged in between.
+    pub fn record_arrivals<'a>(
+        &'a mut self,
+        rec: &mut Recorder<'a>,
+        plan: &SyncPlan,
+        global: &GlobalMap,
+    ) -> Result<StagedArrivals> {
+        let fetched = gather(global, &plan.fetch)?;
+        let n = plan.fetch.len() as u64;
+        let bytes = n.max(1) * GAUSSIAN_BYTES;
+        if self.inbox.as_ref().is_none_or(|b| b.bytes() < bytes) {
+            self.inbox = None;
+            self.inbox = Some(Buffer::device(
+                &self.ctx,
+                "window/inbox",
+                bytes + bytes / 2,
+            )?);
+        }
+        let inbox = self.inbox.as_ref().expect("grown above");
+        let data = fields_of(&fetched);
+        let mut parts: Vec<(&'a Buffer, u64, &[u8])> = Vec::with_capacity(6);
+        let mut at = 0u64;
+        for d in data {
+            parts.push((inbox, at, d));
+            at += d.len() as u64;
+        }
+        rec.upload_packed(&parts)?;
+        Ok(StagedArrivals {
+            rows: plan.fetch.len(),
+            fingerprint: fetch_fingerprint(&plan.fetch),
+        })
+    }
+
+    /// Records a synchronisation on `rec` (a compute recorder: the moves
+    /// are kernels): the rows to write back gathered into the outbox, the
+    /// compaction over the evicted rows, the fetched Gaussians copied in
+    /// after the residents (from `staged`, uploaded ahead, or else uploaded
+    /// now from `global`), and the same moves for `companions` (fetched
+    /// rows zeroed). The row and block tables are updated now; download the
+    /// returned [`Outbox`] with [`LocalWindow::record_outbox`] (on any
+    /// queue, after this batch) and apply that to the global map.
     pub fn record_sync<'a>(
         &'a mut self,
         rec: &mut Recorder<'a>,
         plan: &SyncPlan,
         global: &GlobalMap,
         companions: &[Companion<'a>],
-    ) -> Result<PendingSync> {
+        staged: Option<StagedArrivals>,
+    ) -> Result<Outbox> {
         let n = self.keys.len();
+        self.check_plan(plan)?;
         let keep = n - plan.evict.len();
         self.check_room(keep, plan.fetch.len(), companions)?;
-        let fetched = gather(global, &plan.fetch)?;
-        let largest_row = FIELD_WIDTHS
-            .iter()
-            .map(|w| w * 4)
-            .chain(companions.iter().map(|c| c.row_bytes))
-            .max()
-            .unwrap_or(4);
-        let scratch_bytes = plan.evict.len().min(keep.max(1)) as u64 * largest_row;
-        if self
-            .scratch
-            .as_ref()
-            .is_none_or(|b| b.bytes() < scratch_bytes)
-        {
-            self.scratch = None;
-            self.scratch = Some(Buffer::device(
-                &self.ctx,
-                "window/compaction",
-                scratch_bytes.max(largest_row),
-            )?);
-        }
-        let (params, keys, scratch) = (&self.params, &mut self.keys, &self.scratch);
-
-        // 1. Write-back of every resident row, before anything moves.
-        let readback = params.record_download(rec, n as u64)?;
-        let pending = PendingSync {
-            readback,
-            keys: keys.clone(),
+        let fetched = match &staged {
+            Some(s) => {
+                let fits = self
+                    .inbox
+                    .as_ref()
+                    .is_some_and(|b| b.bytes() >= s.rows as u64 * GAUSSIAN_BYTES);
+                if s.rows != plan.fetch.len()
+                    || s.fingerprint != fetch_fingerprint(&plan.fetch)
+                    || !fits
+                {
+                    return Err(Error::bad_input(
+                        "staged arrivals",
+                        "they were staged for another plan",
+                    ));
+                }
+                None
+            }
+            None => Some(gather(global, &plan.fetch)?),
         };
 
-        // 2. Compaction: live rows from the tail fill the holes below `keep`,
-        // through the scratch buffer (a copy within one buffer makes
-        // validation layers compare every pair of regions for overlap).
+        // Compaction: live rows from the tail fill the holes below `keep`.
         let mut evicted = vec![false; n];
         for &r in &plan.evict {
-            if let Some(e) = evicted.get_mut(r as usize) {
-                *e = true;
-            }
+            evicted[r as usize] = true;
         }
         let holes = plan.evict.iter().copied().filter(|&r| (r as usize) < keep);
         let movers = (keep as u32..n as u32).filter(|&r| !evicted[r as usize]);
-        let moves: Vec<(u32, u32)> = holes.zip(movers).collect();
-        let gather: Vec<(u64, u64, u64)> = runs(
-            moves
-                .iter()
-                .enumerate()
-                .map(|(i, &(_, s))| (s as u64, i as u64)),
-        );
-        let scatter: Vec<(u64, u64, u64)> = runs(
-            moves
-                .iter()
-                .enumerate()
-                .map(|(i, &(d, _))| (i as u64, d as u64)),
-        );
-        let rows: Vec<(&Buffer, u64)> = params
-            .fields()
-            .into_iter()
-            .zip(FIELD_WIDTHS)
-            .map(|(b, w)| (b, w * 4))
-            .chain(companions.iter().map(|c| (c.buffer, c.row_bytes)))
-            .collect();
-        if !moves.is_empty() {
-            let scratch = scratch.as_ref().expect("sized above");
-            for (buf, row) in rows {
-                let scale = |r: &[(u64, u64, u64)]| -> Vec<(u64, u64, u64)> {
-                    r.iter()
-                        .map(|&(s, d, len)| (s * row, d * row, len * row))
-                        .collect()
-                };
-                rec.copy_regions(buf, scratch, &scale(&gather))?;
-                rec.copy_regions(scratch, buf, &scale(&scatter))?;
-            }
-        }
-        for &(dst, src) in &moves {
-            keys[dst as usize] = keys[src as usize];
-        }
-        keys.truncate(keep);
+        let (from, to): (Vec<u32>, Vec<u32>) = movers.zip(holes).unzip();
+        let wb = plan.write_back.len();
+        let list: Vec<u32> = [&plan.write_back[..], &from, &to].concat();
+        self.grow_buffers(list.len() as u64, wb as u64)?;
 
+        let outbox_keys: Vec<VoxelKey> = plan
+            .write_back
+            .iter()
+            .map(|&r| self.keys[r as usize])
+            .collect();
+        self.forget_rows(&plan.evict);
+        self.move_rows_in_tables(&from, &to);
+        self.keys.truncate(keep);
+        self.place.truncate(keep);
+        self.add_rows(&plan.fetch);
+
+        let (params, index, outbox, inbox) = (&self.params, &self.index, &self.outbox, &self.inbox);
+        let index = index.as_ref().expect("grown above");
+        let outbox = outbox.as_ref().expect("grown above");
+        if !list.is_empty() {
+            rec.upload(index, 0, &list)?;
+        }
+        // 1. The rows to write back, before anything moves.
+        record_gather(rec, params, index, 0, wb as u32, outbox)?;
+        // 2. Compaction, every buffer whose rows follow the Gaussians.
+        let moves = RowList {
+            index,
+            first: wb as u32,
+            count: from.len() as u32,
+        };
+        for (buf, words) in row_buffers(params, companions) {
+            move_rows(rec, buf, words, moves)?;
+        }
         // 3. Fetched Gaussians after the residents.
-        record_fetch(rec, params, keep as u64, &fetched, companions)?;
-        keys.extend_from_slice(&plan.fetch);
-        Ok(pending)
+        match (&fetched, inbox) {
+            (Some(fetched), _) => record_fetch(rec, params, keep as u64, fetched, companions)?,
+            (None, Some(inbox)) => copy_staged(
+                rec,
+                params,
+                keep as u64,
+                plan.fetch.len() as u64,
+                inbox,
+                companions,
+            )?,
+            (None, None) => unreachable!("checked above"),
+        }
+        Ok(Outbox { keys: outbox_keys })
+    }
+
+    /// Records the download of what `outbox` gathered (one copy), on any
+    /// recorder submitted after the one that gathered it: the transfer
+    /// queue's, to run beside work that touches no Gaussian.
+    pub fn record_outbox<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        outbox: Outbox,
+    ) -> Result<PendingSync> {
+        if outbox.keys.is_empty() {
+            return Ok(PendingSync::default());
+        }
+        let buf = self.outbox.as_ref().ok_or_else(|| {
+            Error::bad_input("outbox", "nothing was gathered into this window's outbox")
+        })?;
+        let bytes = outbox.keys.len() as u64 * GAUSSIAN_BYTES;
+        let readback = rec.download(buf, 0, bytes)?;
+        Ok(PendingSync {
+            readback: Some(readback),
+            keys: outbox.keys,
+        })
+    }
+
+    /// Records the gathering and download of every dirty row (one
+    /// dispatch per field, one copy) and marks every block clean: apply
+    /// the result to bring the global map up to date.
+    pub fn record_write_back<'a>(&'a mut self, rec: &mut Recorder<'a>) -> Result<PendingSync> {
+        let rows = self.dirty_rows();
+        if rows.is_empty() {
+            return Ok(PendingSync::default());
+        }
+        self.grow_buffers(rows.len() as u64, rows.len() as u64)?;
+        for b in self.blocks.values_mut() {
+            b.dirty = false;
+        }
+        let keys: Vec<VoxelKey> = rows.iter().map(|&r| self.keys[r as usize]).collect();
+        let this: &'a LocalWindow = self;
+        let (index, outbox) = (
+            this.index.as_ref().expect("grown"),
+            this.outbox.as_ref().expect("grown"),
+        );
+        rec.upload(index, 0, &rows)?;
+        record_gather(rec, &this.params, index, 0, rows.len() as u32, outbox)?;
+        let readback = rec.download(outbox, 0, rows.len() as u64 * GAUSSIAN_BYTES)?;
+        Ok(PendingSync {
+            readback: Some(readback),
+            keys,
+        })
+    }
+
+    /// The dirty rows as the GPU holds them, with their keys, changing
+    /// nothing (through buffers of its own; waits).
+    pub fn read_dirty(&self, ctx: &Context) -> Result<(Vec<VoxelKey>, HostGaussians)> {
+        let rows = self.dirty_rows();
+        if rows.is_empty() {
+            return Ok((Vec::new(), HostGaussians::default()));
+        }
+        let index = ctx.upload_new("window/read index", &rows)?;
+        let outbox = Buffer::device(ctx, "window/read", rows.len() as u64 * GAUSSIAN_BYTES)?;
+        let mut rec = ctx.recorder()?;
+        record_gather(
+            &mut rec,
+            &self.params,
+            &index,
+            0,
+            rows.len() as u32,
+            &outbox,
+        )?;
+        let readback = rec.download(&outbox, 0, outbox.bytes())?;
+        rec.submit()?.wait()?;
+        let keys = rows.iter().map(|&r| self.keys[r as usize]).collect();
+        Ok((keys, unpack(readback.bytes()?, rows.len())))
     }
 
     /// Records the upload of `keys` (present in `global`, not resident)
     /// after the resident rows, without write-back or eviction: the cheap
-    /// way to bring a keyframe's new Gaussians in before Stage I. Errors
-    /// when they do not fit.
+    /// way to bring a keyframe's new Gaussians in before Stage I, and to
+    /// restore a saved window row for row. Errors when they do not fit.
     pub fn record_append<'a>(
         &'a mut self,
         rec: &mut Recorder<'a>,
@@ -339,13 +701,53 @@ impl LocalWindow {
         let n = self.keys.len();
         self.check_room(n, keys.len(), companions)?;
         let fetched = gather(global, keys)?;
+        self.add_rows(keys);
         record_fetch(rec, &self.params, n as u64, &fetched, companions)?;
-        self.keys.extend_from_slice(keys);
+        Ok(())
+    }
+
+    /// The keys to append so that new Gaussians `keys` (in the global map,
+    /// not resident) come in with their whole blocks: those in resident
+    /// blocks alone, those in other blocks with every Gaussian of their
+    /// block.
+    pub fn arrivals_for(&self, keys: &[VoxelKey], global: &GlobalMap) -> Vec<VoxelKey> {
+        let mut out = Vec::with_capacity(keys.len());
+        let mut whole = KeySet::default();
+        for &k in keys {
+            let block = GlobalMap::block_of(k);
+            if self.blocks.contains_key(&block) {
+                out.push(k);
+            } else if whole.insert(block) {
+                out.extend(global.block_keys(block));
+            }
+        }
+        out
+    }
+
+    /// Errors unless the plan's rows are resident, ascending and unique,
+    /// and the rows to write back are among those evicted.
+    fn check_plan(&self, plan: &SyncPlan) -> Result<()> {
+        let n = self.keys.len();
+        let bad = |why: String| Err(Error::bad_input("window sync plan", why));
+        let ascending = |rows: &[u32]| rows.windows(2).all(|w| w[0] < w[1]);
+        if !ascending(&plan.evict) || plan.evict.last().is_some_and(|&r| r as usize >= n) {
+            return bad(format!(
+                "evicted rows must be ascending, unique and below the {n} resident"
+            ));
+        }
+        if !ascending(&plan.write_back)
+            || plan
+                .write_back
+                .iter()
+                .any(|r| plan.evict.binary_search(r).is_err())
+        {
+            return bad("rows written back must be ascending and among those evicted".into());
+        }
         Ok(())
     }
 
     /// Errors unless `keep` residents and `incoming` Gaussians fit and every
-    /// companion buffer covers the capacity.
+    /// companion buffer covers the capacity in whole words.
     fn check_room(&self, keep: usize, incoming: usize, companions: &[Companion<'_>]) -> Result<()> {
         if keep + incoming > self.capacity() as usize {
             return Err(Error::budget(
@@ -357,29 +759,140 @@ impl LocalWindow {
             ));
         }
         for c in companions {
+            if c.row_bytes == 0 || !c.row_bytes.is_multiple_of(4) {
+                return Err(Error::bad_input(
+                    "window companion buffer",
+                    format!(
+                        "rows of {} bytes: rows move as whole 32-bit words",
+                        c.row_bytes
+                    ),
+                ));
+            }
             c.buffer
                 .ensure_bytes(self.capacity() * c.row_bytes, "window companion buffer")?;
         }
         Ok(())
     }
 
-    /// Rows still free.
-    pub fn free(&self) -> usize {
-        self.capacity() as usize - self.keys.len()
+    /// Grows the index buffer to `indices` and the outbox to `rows`.
+    fn grow_buffers(&mut self, indices: u64, rows: u64) -> Result<()> {
+        let index_bytes = indices.max(1) * 4;
+        if self.index.as_ref().is_none_or(|b| b.bytes() < index_bytes) {
+            // Room to grow by half again, so a window that pages a little
+            // more each time does not reallocate each time.
+            self.index = None;
+            self.index = Some(Buffer::device(
+                &self.ctx,
+                "window/row lists",
+                index_bytes + index_bytes / 2,
+            )?);
+        }
+        let outbox_bytes = rows.max(1) * GAUSSIAN_BYTES;
+        if self
+            .outbox
+            .as_ref()
+            .is_none_or(|b| b.bytes() < outbox_bytes)
+        {
+            self.outbox = None;
+            self.outbox = Some(Buffer::device(
+                &self.ctx,
+                "window/outbox",
+                outbox_bytes + outbox_bytes / 2,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// Takes `rows` out of their blocks' row lists (their keys stay until
+    /// the tables are truncated).
+    fn forget_rows(&mut self, rows: &[u32]) {
+        for &r in rows {
+            let block = GlobalMap::block_of(self.keys[r as usize]);
+            let Some(b) = self.blocks.get_mut(&block) else {
+                continue;
+            };
+            let at = self.place[r as usize] as usize;
+            b.rows.swap_remove(at);
+            if let Some(&moved) = b.rows.get(at) {
+                self.place[moved as usize] = at as u32;
+            }
+            if b.rows.is_empty() {
+                self.blocks.remove(&block);
+            }
+        }
+    }
+
+    /// Row `from[i]` now lives at row `to[i]`.
+    fn move_rows_in_tables(&mut self, from: &[u32], to: &[u32]) {
+        for (&s, &d) in from.iter().zip(to) {
+            let key = self.keys[s as usize];
+            let at = self.place[s as usize];
+            self.keys[d as usize] = key;
+            self.place[d as usize] = at;
+            if let Some(b) = self.blocks.get_mut(&GlobalMap::block_of(key)) {
+                b.rows[at as usize] = d;
+            }
+        }
+    }
+
+    /// Appends rows for `keys` to the tables (their blocks as they were,
+    /// clean when new).
+    fn add_rows(&mut self, keys: &[VoxelKey]) {
+        for &key in keys {
+            let row = self.keys.len() as u32;
+            let b = self.blocks.entry(GlobalMap::block_of(key)).or_default();
+            self.place.push(b.rows.len() as u32);
+            b.rows.push(row);
+            self.keys.push(key);
+        }
     }
 }
 
-/// Copy regions (source row, destination row, rows) covering the
-/// (source, destination) row pairs, merging runs where both advance by one.
-fn runs(pairs: impl Iterator<Item = (u64, u64)>) -> Vec<(u64, u64, u64)> {
-    let mut out: Vec<(u64, u64, u64)> = Vec::new();
-    for (s, d) in pairs {
-        match out.last_mut() {
-            Some((ls, ld, len)) if *ls + *len == s && *ld + *len == d => *len += 1,
-            _ => out.push((s, d, 1)),
-        }
+/// Every buffer whose rows follow the Gaussians, with its words per row:
+/// the six parameter fields, then the companions.
+fn row_buffers<'a>(
+    params: &'a GaussianBuffers,
+    companions: &[Companion<'a>],
+) -> Vec<(&'a Buffer, u32)> {
+    params
+        .fields()
+        .into_iter()
+        .zip(FIELD_WIDTHS)
+        .map(|(b, w)| (b, w as u32))
+        .chain(
+            companions
+                .iter()
+                .map(|c| (c.buffer, (c.row_bytes / 4) as u32)),
+        )
+        .collect()
+}
+
+/// Gathers the `count` rows listed from index `first` of `index` into
+/// `outbox`, field after field (`count` means, then `count` scales, ...).
+fn record_gather<'a>(
+    rec: &mut Recorder<'a>,
+    params: &'a GaussianBuffers,
+    index: &'a Buffer,
+    first: u32,
+    count: u32,
+    outbox: &'a Buffer,
+) -> Result<()> {
+    let rows = RowList {
+        index,
+        first,
+        count,
+    };
+    let mut word = 0u64;
+    for (buf, width) in params.fields().into_iter().zip(FIELD_WIDTHS) {
+        let to = Packed {
+            buffer: outbox,
+            word,
+        };
+        gather_rows(rec, buf, width as u32, rows, to)?;
+        word += count as u64 * width;
     }
-    out
+    debug_assert_eq!(word, count as u64 * GAUSSIAN_WORDS);
+    Ok(())
 }
 
 /// The Gaussians of `keys`, as host SoA.
@@ -397,7 +910,8 @@ fn gather(global: &GlobalMap, keys: &[VoxelKey]) -> Result<HostGaussians> {
     Ok(fetched)
 }
 
-/// Uploads `fetched` at row `first`; their companion rows start from zero.
+/// Uploads `fetched` at row `first` through one packed staging buffer;
+/// their companion rows start from zero.
 fn record_fetch<'a>(
     rec: &mut Recorder<'a>,
     params: &'a GaussianBuffers,
@@ -405,13 +919,68 @@ fn record_fetch<'a>(
     fetched: &HostGaussians,
     companions: &[Companion<'a>],
 ) -> Result<()> {
-    if fetched.means.is_empty() {
+    let n = fetched.means.len() as u64;
+    if n == 0 {
         return Ok(());
     }
-    params.record_upload(rec, first, fetched)?;
+    if first + n > params.capacity() {
+        return Err(Error::budget(
+            "the window capacity",
+            format!(
+                "{n} Gaussians at row {first} overflow a window of {}",
+                params.capacity()
+            ),
+        ));
+    }
+    let data = fields_of(fetched);
+    let parts: Vec<(&'a Buffer, u64, &[u8])> = params
+        .fields()
+        .into_iter()
+        .zip(FIELD_WIDTHS)
+        .zip(data)
+        .map(|((buf, w), d)| (buf, first * w * 4, d))
+        .collect();
+    rec.upload_packed(&parts)?;
     for c in companions {
-        let bytes = fetched.means.len() as u64 * c.row_bytes;
-        rec.fill_range_u32(c.buffer, first * c.row_bytes, bytes, 0)?;
+        rec.fill_range_u32(c.buffer, first * c.row_bytes, n * c.row_bytes, 0)?;
+    }
+    Ok(())
+}
+
+/// The six fields of host Gaussians as bytes, in field order.
+fn fields_of(h: &HostGaussians) -> [&[u8]; 6] {
+    [
+        bytemuck::cast_slice(&h.means),
+        bytemuck::cast_slice(&h.log_scales),
+        bytemuck::cast_slice(&h.quats),
+        bytemuck::cast_slice(&h.colors),
+        bytemuck::cast_slice(&h.opacity_logits),
+        bytemuck::cast_slice(&h.queries),
+    ]
+}
+
+/// Copies `n` Gaussians staged in `inbox` (packed field after field) to
+/// rows `first..first + n`, on the GPU; their companion rows start from
+/// zero.
+fn copy_staged<'a>(
+    rec: &mut Recorder<'a>,
+    params: &'a GaussianBuffers,
+    first: u64,
+    n: u64,
+    inbox: &'a Buffer,
+    companions: &[Companion<'a>],
+) -> Result<()> {
+    if n == 0 {
+        return Ok(());
+    }
+    let mut at = 0u64;
+    for (buf, w) in params.fields().into_iter().zip(FIELD_WIDTHS) {
+        let bytes = n * w * 4;
+        rec.copy(inbox, at, buf, first * w * 4, bytes)?;
+        at += bytes;
+    }
+    for c in companions {
+        rec.fill_range_u32(c.buffer, first * c.row_bytes, n * c.row_bytes, 0)?;
     }
     Ok(())
 }

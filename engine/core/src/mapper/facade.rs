@@ -332,15 +332,10 @@ impl Mapper {
         self.progress.stop_flag()
     }
 
-    /// Writes the GPU window back to the global map, so that
+    /// Writes the rows training changed back to the global map, so that
     /// the global map is current.
     pub(super) fn flush(&mut self) -> Result<()> {
-        let rows = self
-            .trainer
-            .as_ref()
-            .map(Trainer::window_rows)
-            .unwrap_or_default();
-        self.pager.flush(&self.ctx, &rows)
+        self.pager.flush(&self.ctx)
     }
 
     /// Writes the GPU window back to the global map. Unstable: for the

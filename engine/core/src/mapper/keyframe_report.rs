@@ -28,27 +28,40 @@ pub enum Integrated {
     Keyframe(Box<KeyframeReport>),
 }
 
-/// One re-synchronisation of the window with the global map.
+/// One re-synchronisation of the window with the global map, block by
+/// block.
 ///
 /// ```
 /// # fn f(report: &latentam_core::mapper::KeyframeReport) {
 /// for sync in &report.paging {
 ///     let how = if sync.blocking { "blocking" } else { "beside Stage II" };
-///     println!("paging ({how}): {} out, {} in, {} left out for room", sync.evicted, sync.fetched, sync.over_capacity);
+///     println!(
+///         "paging ({how}): {} blocks out, {} in; {} Gaussians out ({} written back), {} in; {} B up, {} B down",
+///         sync.blocks_out, sync.blocks_in, sync.evicted, sync.written_back, sync.fetched, sync.bytes_up, sync.bytes_down
+///     );
 /// }
 /// # }
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct PagingReport {
-    /// Resident Gaussians written back to the global map.
+    /// Gaussians copied back to the global map: those of the leaving
+    /// blocks that training changed since their last copy.
     pub written_back: usize,
-    /// Gaussians that left the window (outside the radius, or farthest
-    /// first when the window was full).
+    /// Gaussians that left the window (their blocks beyond the radius, or
+    /// farthest first when the window was full; pruned ones too).
     pub evicted: usize,
     /// Gaussians brought in from the global map.
     pub fetched: usize,
     /// Gaussians within the radius left out because the window was full.
     pub over_capacity: usize,
+    /// Blocks that came in.
+    pub blocks_in: usize,
+    /// Blocks that left.
+    pub blocks_out: usize,
+    /// Bytes uploaded: the arriving Gaussians and the row lists.
+    pub bytes_up: u64,
+    /// Bytes downloaded: the Gaussians written back.
+    pub bytes_down: u64,
     /// Whether it ran before Stage I (new Gaussians did not fit), rather
     /// than beside Stage II.
     pub blocking: bool,

@@ -13,6 +13,7 @@ use super::history::KeyframeRecord;
 use super::keyframe_report::{
     Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, PagingReport,
 };
+use super::pager::PreparedSync;
 use super::seeder::Coverage;
 use super::trainer::{StageOneReport, Trainer};
 use super::workspace::size_workspace;
@@ -99,9 +100,15 @@ impl Mapper {
         let new_keys = clock.step(Step::Seeding, |clock| {
             self.seed(frame, &mut record, seed, clock)
         })?;
+        // The window's next sync is planned now, its arrivals uploading
+        // beside Stage I.
+        let t_page = Instant::now();
+        let prepared = self.pager.prepare(&ctx, centre)?;
+        clock.timings.paging_cpu_ms += ms_since(t_page);
+        clock.lap(|c| &mut c.paging);
         let stage_one = clock.step(Step::StageOne, |_| self.stage_one(&record, seed, centre))?;
         let stage_two = clock.step(Step::StageTwo, |clock| {
-            self.stage_two_and_paging(centre, clock)
+            self.stage_two_and_paging(prepared, clock)
         })?;
         let exposure = self.remember(frame, record);
         let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
@@ -207,15 +214,23 @@ impl Mapper {
         Ok(report)
     }
 
-    /// Stage II, with the window paged around the camera beside it when the
-    /// camera moved far enough (Stage II reads no Gaussian). The paging
-    /// batch is submitted first so that it waits for Stage I only (see
-    /// `Recorder::submit`). Returns Stage II's loss.
-    fn stage_two_and_paging(&mut self, centre: DVec3, clock: &mut KeyframeClock) -> Result<f64> {
+    /// Stage II, with the window's prepared sync carried out beside it
+    /// (Stage II reads no Gaussian): the moves after Stage I on the compute
+    /// queue, the download of what leaves beside Stage II on the transfer
+    /// queue. The paging batches are submitted first so that they wait for
+    /// Stage I only (see `Recorder::submit`). Returns Stage II's loss.
+    fn stage_two_and_paging(
+        &mut self,
+        prepared: Option<PreparedSync>,
+        clock: &mut KeyframeClock,
+    ) -> Result<f64> {
         let trainer = self.trainer.as_ref().expect("ensured");
         let rows = trainer.window_rows();
         let t_page = Instant::now();
-        let paging = self.pager.follow(&self.ctx, centre, &rows)?;
+        let paging = match prepared {
+            Some(p) => Some(self.pager.follow(&self.ctx, p, &rows)?),
+            None => None,
+        };
         if paging.is_some() {
             clock.timings.paging_cpu_ms += ms_since(t_page);
             clock.lap(|c| &mut c.paging);

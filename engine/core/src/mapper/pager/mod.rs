@@ -1,7 +1,9 @@
 //! The paging part of the mapper: the CPU global map keyed by voxel and the
-//! GPU window of it around the camera (paper §III-D), kept in step. New
-//! Gaussians come into the window before Stage I; the window follows the
-//! camera beside Stage II on the transfer queue; it is written back when a
+//! GPU window of it around the camera (paper §III-D), kept in step block by
+//! block. New Gaussians come into the window with their blocks before
+//! Stage I; the window follows the camera after Stage I, its moves on the
+//! compute queue and the download of the leaving rows on the transfer queue
+//! beside Stage II; the rows training changed are written back when a
 //! reader needs the whole map; pruning removes Gaussians from both.
 
 use std::time::Instant;
@@ -9,20 +11,36 @@ use std::time::Instant;
 use glam::DVec3;
 
 use crate::map::{
-    push_gaussian, Companion, GlobalMap, KeySet, LocalWindow, PendingSync, SyncPlan, VoxelKey,
+    push_gaussian, Companion, GlobalMap, KeySet, LocalWindow, PendingSync, StagedArrivals,
+    SyncPlan, VoxelKey,
 };
 use crate::mapper::budget::WindowBudget;
 use crate::mapper::keyframe_report::PagingReport;
 use crate::mapper::seeder::Extent;
 use latentam_base::{HostGaussians, Result};
-use latentam_gpu::{Context, GpuSpan, Submission};
+use latentam_gpu::{Context, GpuSpan, Submission, SyncPoint};
 
 #[cfg(test)]
 mod tests;
 
-/// A paging batch in flight on the transfer queue.
+/// A window sync planned before Stage I, its arrivals uploading beside it
+/// (a detached batch on the transfer queue), to be carried out after it
+/// with [`Pager::follow`].
+pub(crate) struct PreparedSync {
+    plan: SyncPlan,
+    staged: Option<StagedArrivals>,
+    upload: Option<Submission>,
+    /// Bytes its upload sent.
+    bytes_up: u64,
+}
+
+/// A paging batch in flight: the arrivals' upload (ahead, beside Stage I),
+/// the moves on the compute queue, and the download of the leaving rows
+/// after them (on the transfer queue when the device has one).
 pub(crate) struct PagingRun {
-    submission: Submission,
+    upload: Option<Submission>,
+    moves: Submission,
+    download: Option<Submission>,
     pending: PendingSync,
     report: PagingReport,
 }
@@ -34,9 +52,10 @@ pub(crate) type PagingSpan = Option<(f64, Option<f64>)>;
 /// Where the window stands against the camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct PagerSettings {
-    /// Gaussians within this distance of the camera are kept resident.
+    /// Blocks within this distance of the camera are kept resident.
     pub radius: f64,
-    /// The window follows the camera once it moved this far.
+    /// The window follows the camera once it moved this far; resident
+    /// blocks stay until they are this far beyond the radius.
     pub sync_distance: f64,
 }
 
@@ -51,8 +70,15 @@ pub(crate) struct Pager {
     last_sync: Option<DVec3>,
     /// The last sync left Gaussians within the radius out of the window.
     partial: bool,
-    /// Training changed resident Gaussians since the last write-back.
-    dirty: bool,
+    /// Batches submitted without a wait (appends, pruning's moves): the
+    /// queue orders later work after them; their timestamps are collected
+    /// once a later wait shows them finished.
+    unwaited: Vec<Submission>,
+    /// The last batch that read the window's inbox.
+    inbox_read_by: Option<SyncPoint>,
+    /// Whether the transfer queue is a queue of its own (else what runs
+    /// "beside" compute runs after it).
+    dedicated_transfer: bool,
 }
 
 impl Pager {
@@ -65,7 +91,9 @@ impl Pager {
             budget: None,
             last_sync: None,
             partial: false,
-            dirty: false,
+            unwaited: Vec::new(),
+            inbox_read_by: None,
+            dedicated_transfer: false,
         }
     }
 
@@ -102,15 +130,13 @@ impl Pager {
 
     /// Host bytes of the map and the window's key table.
     pub(crate) fn cpu_bytes(&self) -> u64 {
-        self.global.bytes()
-            + self.window.as_ref().map_or(0, |w| {
-                w.len() as u64 * std::mem::size_of::<VoxelKey>() as u64
-            })
+        self.global.bytes() + self.window.as_ref().map_or(0, LocalWindow::table_bytes)
     }
 
     /// Creates the window, sized as `budget` says (first keyframe only).
     pub(crate) fn open_window(&mut self, ctx: &Context, budget: WindowBudget) -> Result<()> {
         self.window = Some(LocalWindow::new(ctx, budget.capacity)?);
+        self.dedicated_transfer = ctx.info().dedicated_transfer_queue;
         self.budget = Some(budget);
         Ok(())
     }
@@ -140,10 +166,11 @@ impl Pager {
         }
     }
 
-    /// Makes the global map's Gaussians `keys` resident for Stage I: into
-    /// free rows when they fit, else by re-centring the window on
-    /// `centre` at once. Returns the paging report and its host
-    /// milliseconds when it had to page.
+    /// Makes the global map's new Gaussians `keys` resident for Stage I,
+    /// with the rest of their blocks: into free rows when they fit (no
+    /// wait: Stage I runs after them on the same queue), else by
+    /// re-centring the window on `centre` at once. Returns the paging
+    /// report and its host milliseconds when it had to page.
     pub(crate) fn make_resident(
         &mut self,
         ctx: &Context,
@@ -152,20 +179,19 @@ impl Pager {
         centre: DVec3,
     ) -> Result<Option<(PagingReport, f64)>> {
         let window = self.window.as_ref().expect("opened at the first keyframe");
-        if keys.len() <= window.free() {
-            self.append(ctx, keys, rows)?;
+        let arrivals = window.arrivals_for(keys, &self.global);
+        if arrivals.len() <= window.free() {
+            self.append(ctx, &arrivals, rows)?;
             return Ok(None);
         }
         let t_page = Instant::now();
-        let plan = window.plan(&self.global, centre, self.settings.radius);
-        self.partial = plan.over_capacity > 0;
-        let run = self.submit(ctx, &plan, rows, true)?;
+        let run = self.page_around(ctx, centre, rows, true)?;
         let (report, _) = self.finish(run, None)?;
-        self.last_sync = Some(centre);
         Ok(Some((report, ms_since(t_page))))
     }
 
-    /// Uploads Gaussians of the global map into free window rows.
+    /// Uploads Gaussians of the global map into free window rows, in this
+    /// order (a saved window is restored row for row), without waiting.
     pub(crate) fn append(
         &mut self,
         ctx: &Context,
@@ -178,111 +204,261 @@ impl Pager {
         let window = self.window.as_mut().expect("opened at the first keyframe");
         let mut rec = ctx.recorder()?;
         window.record_append(&mut rec, keys, &self.global, rows)?;
-        rec.submit()?.wait()
+        self.unwaited.push(rec.submit()?);
+        Ok(())
     }
 
-    /// Training changed the resident Gaussians: a reader of the global map
-    /// needs a write-back first.
+    /// Training changed the resident Gaussians: their blocks are dirty
+    /// until written back.
     pub(crate) fn mark_trained(&mut self) {
-        self.dirty = true;
+        if let Some(w) = &mut self.window {
+            w.mark_trained();
+        }
     }
 
     /// When the camera moved more than the sync distance from where the
-    /// window was centred, re-centres it on `centre`: recorded and
-    /// submitted on the transfer queue, to finish with [`Pager::finish`].
-    pub(crate) fn follow(
-        &mut self,
-        ctx: &Context,
-        centre: DVec3,
-        rows: &[Companion<'_>],
-    ) -> Result<Option<PagingRun>> {
+    /// window was centred, plans the window around `centre` and uploads
+    /// the arriving blocks into the window's inbox on a detached transfer
+    /// batch, which runs beside Stage I (Stage I neither reads nor waits
+    /// for it). `None` when the camera did not move far enough, or no
+    /// block comes or goes.
+    pub(crate) fn prepare(&mut self, ctx: &Context, centre: DVec3) -> Result<Option<PreparedSync>> {
         let moved = self
             .last_sync
             .is_none_or(|p| p.distance(centre) > self.settings.sync_distance);
         if !moved {
             return Ok(None);
         }
-        let window = self.window.as_ref().expect("opened at the first keyframe");
-        let plan = window.plan(&self.global, centre, self.settings.radius);
-        let run = self.submit(ctx, &plan, rows, false)?;
-        self.last_sync = Some(centre);
-        Ok(Some(run))
+        let plan = self.plan_around(centre);
+        if plan.evict.is_empty() && plan.fetch.is_empty() {
+            return Ok(None);
+        }
+        let window = self.window.as_mut().expect("opened at the first keyframe");
+        if plan.fetch.is_empty() {
+            return Ok(Some(PreparedSync {
+                plan,
+                staged: None,
+                upload: None,
+                bytes_up: 0,
+            }));
+        }
+        let before = ctx.gpu_work();
+        let mut rec = ctx.transfer_recorder()?;
+        rec.detach();
+        rec.start_span();
+        // The inbox's last reader (the previous sync's moves) was waited
+        // for; name it anyway, since this batch waits for nothing else.
+        if let Some(point) = self.inbox_read_by {
+            rec.wait_for(point);
+        }
+        let staged = window.record_arrivals(&mut rec, &plan, &self.global)?;
+        let upload = rec.submit()?;
+        Ok(Some(PreparedSync {
+            plan,
+            staged: Some(staged),
+            upload: Some(upload),
+            bytes_up: (ctx.gpu_work() - before).uploaded_bytes,
+        }))
     }
 
-    /// Records and submits a window sync on the transfer queue (timed).
+    /// Carries out a prepared sync after Stage I: the moves (gathering
+    /// the leaving rows, compaction, the arrivals copied in from the inbox)
+    /// on the compute queue, the download of what leaves on the transfer
+    /// queue; finish it with [`Pager::finish`] after Stage II.
+    pub(crate) fn follow(
+        &mut self,
+        ctx: &Context,
+        prepared: PreparedSync,
+        rows: &[Companion<'_>],
+    ) -> Result<PagingRun> {
+        let PreparedSync {
+            plan,
+            staged,
+            upload,
+            bytes_up,
+        } = prepared;
+        let mut run = self.submit(ctx, &plan, rows, false, staged, upload.as_ref())?;
+        run.upload = upload;
+        run.report.bytes_up += bytes_up;
+        Ok(run)
+    }
+
+    /// The plan around `centre`, which becomes the window's centre.
+    fn plan_around(&mut self, centre: DVec3) -> SyncPlan {
+        let window = self.window.as_ref().expect("opened at the first keyframe");
+        let plan = window.plan(
+            &self.global,
+            centre,
+            self.settings.radius,
+            self.settings.sync_distance,
+        );
+        self.partial = plan.over_capacity > 0;
+        self.last_sync = Some(centre);
+        plan
+    }
+
+    /// Plans the window around `centre` and submits the sync at once
+    /// (arrivals uploaded in the same batch as the moves).
+    fn page_around(
+        &mut self,
+        ctx: &Context,
+        centre: DVec3,
+        rows: &[Companion<'_>],
+        blocking: bool,
+    ) -> Result<PagingRun> {
+        let plan = self.plan_around(centre);
+        self.submit(ctx, &plan, rows, blocking, None, None)
+    }
+
+    /// Records and submits a window sync (timed): the moves on the compute
+    /// queue, the download of what leaves on the transfer queue.
     fn submit(
         &mut self,
         ctx: &Context,
         plan: &SyncPlan,
         rows: &[Companion<'_>],
         blocking: bool,
+        staged: Option<StagedArrivals>,
+        upload: Option<&Submission>,
     ) -> Result<PagingRun> {
         let window = self.window.as_mut().expect("opened at the first keyframe");
+        let before = ctx.gpu_work();
+        let mut rec = ctx.recorder()?;
+        rec.start_span();
+        if let Some(u) = upload {
+            rec.wait_for(u.sync_point());
+        }
+        let outbox = window.record_sync(&mut rec, plan, &self.global, rows, staged)?;
+        let moves = rec.submit()?;
+        self.inbox_read_by = Some(moves.sync_point());
+        let (download, pending) = if outbox.is_empty() {
+            (None, PendingSync::default())
+        } else {
+            let mut rec = ctx.transfer_recorder()?;
+            rec.start_span();
+            let pending = window.record_outbox(&mut rec, outbox)?;
+            (Some(rec.submit()?), pending)
+        };
+        let moved = ctx.gpu_work() - before;
         let report = PagingReport {
-            written_back: window.len(),
+            written_back: pending.len(),
             evicted: plan.evict.len(),
             fetched: plan.fetch.len(),
             over_capacity: plan.over_capacity,
+            blocks_in: plan.blocks_in,
+            blocks_out: plan.blocks_out,
+            bytes_up: moved.uploaded_bytes,
+            bytes_down: moved.downloaded_bytes,
             blocking,
         };
-        let mut rec = ctx.transfer_recorder()?;
-        rec.start_span();
-        let pending = window.record_sync(&mut rec, plan, &self.global, rows)?;
-        let submission = rec.submit()?;
         Ok(PagingRun {
-            submission,
+            upload: None,
+            moves,
+            download,
             pending,
             report,
         })
     }
 
-    /// Waits for a sync and writes the window back to the global map.
-    /// Returns the report and, when timed, the GPU milliseconds and those
-    /// overlapping `beside`.
+    /// Waits for a sync (one host wait) and writes the rows that left back
+    /// to the global map. Returns the report and, when timed, the GPU
+    /// milliseconds and those overlapping `beside`.
     pub(crate) fn finish(
         &mut self,
         run: PagingRun,
         beside: Option<&GpuSpan>,
     ) -> Result<(PagingReport, PagingSpan)> {
-        let span = run.submission.wait_span()?;
-        run.pending.apply(&mut self.global)?;
-        self.dirty = false;
-        let timing = span.map(|s| (s.ms(), beside.map(|b| s.overlap_ms(b))));
-        Ok((run.report, timing))
+        let PagingRun {
+            upload,
+            moves,
+            download,
+            pending,
+            report,
+        } = run;
+        // The download waited for the moves on the GPU, and the moves for
+        // the upload: once the last is done, so are the others.
+        let (moves, download) = match download {
+            Some(d) => {
+                let d = d.wait_span()?;
+                (moves.finished_span()?, d)
+            }
+            None => (moves.wait_span()?, None),
+        };
+        let upload = match upload {
+            Some(u) => u.finished_span()?,
+            None => None,
+        };
+        self.collect_unwaited()?;
+        pending.apply(&mut self.global)?;
+        let spans = [&upload, &moves, &download];
+        if spans.iter().all(|s| s.is_none()) {
+            return Ok((report, None));
+        }
+        let gpu: f64 = spans
+            .iter()
+            .filter_map(|s| s.as_ref())
+            .map(GpuSpan::ms)
+            .sum();
+        // Hidden: the download's time beside Stage II, and, on a transfer
+        // queue of its own, the upload's time before the moves began (it
+        // ran beside Stage I: the moves were the first to wait for it).
+        let beside_two = match (&download, beside) {
+            (Some(d), Some(b)) => Some(d.overlap_ms(b)),
+            _ => None,
+        };
+        let beside_one = match (&upload, &moves) {
+            (Some(u), Some(m)) if self.dedicated_transfer => Some(u.ms_before(m)),
+            (Some(_), Some(_)) => Some(0.0),
+            _ => None,
+        };
+        let hidden = match (beside_one, beside_two) {
+            (None, None) => None,
+            (a, b) => Some(a.unwrap_or(0.0) + b.unwrap_or(0.0)),
+        };
+        Ok((report, Some((gpu, hidden))))
     }
 
-    /// Writes the window back to the global map (nothing moves), so that
-    /// [`Pager::global`] is current; nothing to do when no training step
-    /// ran since the last write-back.
-    pub(crate) fn flush(&mut self, ctx: &Context, rows: &[Companion<'_>]) -> Result<()> {
-        let Some(window) = &self.window else {
-            return Ok(());
-        };
-        if window.is_empty() || !self.dirty {
-            return Ok(());
+    /// Hands the timestamps of batches submitted without a wait to the
+    /// profiler, once finished.
+    fn collect_unwaited(&mut self) -> Result<()> {
+        for s in self.unwaited.drain(..) {
+            if s.is_done() {
+                s.finished_span()?;
+            }
         }
-        let plan = SyncPlan {
-            keep: window.len(),
-            ..SyncPlan::default()
-        };
-        let run = self.submit(ctx, &plan, rows, true)?;
-        self.finish(run, None)?;
         Ok(())
     }
 
-    /// Every Gaussian of the map as it stands, changing nothing: the
-    /// window's rows as the GPU holds them (when training changed them
-    /// since the last write-back), then the global map's others. Unlike
-    /// [`Pager::flush`] it writes nothing back, so taking it between
-    /// keyframes leaves mapping exactly as without it.
-    pub(crate) fn gaussians_now(&self, ctx: &Context) -> Result<HostGaussians> {
-        let mut resident = KeySet::default();
-        let mut out = HostGaussians::default();
-        if let Some(window) = self.window.as_ref().filter(|w| self.dirty && !w.is_empty()) {
-            out = window.params().download(ctx, window.len() as u64)?;
-            resident.extend(window.keys().iter().copied());
+    /// Writes the rows training changed back to the global map (one
+    /// gather, one copy, one wait), so that [`Pager::global`] is current;
+    /// nothing to do when no block is dirty.
+    pub(crate) fn flush(&mut self, ctx: &Context) -> Result<()> {
+        let Pager { window, global, .. } = self;
+        let Some(window) = window else {
+            return Ok(());
+        };
+        let mut rec = ctx.recorder()?;
+        let pending = window.record_write_back(&mut rec)?;
+        if pending.is_empty() {
+            return Ok(());
         }
-        let more = self.global.len().saturating_sub(resident.len());
+        rec.submit()?.wait()?;
+        pending.apply(global)?;
+        self.collect_unwaited()
+    }
+
+    /// Every Gaussian of the map as it stands, changing nothing: the rows
+    /// training changed as the GPU holds them, then the global map's
+    /// others (current for every clean block). Unlike [`Pager::flush`] it
+    /// writes nothing back, so taking it between keyframes leaves mapping
+    /// exactly as without it.
+    pub(crate) fn gaussians_now(&self, ctx: &Context) -> Result<HostGaussians> {
+        let (keys, mut out) = match &self.window {
+            Some(w) => w.read_dirty(ctx)?,
+            None => Default::default(),
+        };
+        let changed: KeySet = keys.into_iter().collect();
+        let more = self.global.len().saturating_sub(changed.len());
         out.means.reserve(more);
         out.log_scales.reserve(more);
         out.quats.reserve(more);
@@ -290,7 +466,7 @@ impl Pager {
         out.opacity_logits.reserve(more);
         out.queries.reserve(more);
         for (key, g) in self.global.iter() {
-            if !resident.contains(&key) {
+            if !changed.contains(&key) {
                 push_gaussian(&mut out, g);
             }
         }
@@ -300,7 +476,9 @@ impl Pager {
     /// Removes `superseded` Gaussians, and the resident ones that are
     /// nearly transparent (opacity below `min_opacity`) or too large (a
     /// scale above `max_scale` metres), from the window and the global
-    /// map, after writing the window back. Returns how many were removed.
+    /// map. Reads only the residents' opacities and scales (16 bytes a
+    /// row); the doomed rows are compacted away on the GPU without being
+    /// written back. Returns how many were removed.
     pub(crate) fn prune(
         &mut self,
         ctx: &Context,
@@ -314,9 +492,8 @@ impl Pager {
         };
         // Superseded guesses outside the window go at once.
         let mut removed = 0;
-        let resident: KeySet = window.keys().iter().copied().collect();
         superseded.retain(|key| {
-            if resident.contains(key) {
+            if window.holds(*key) {
                 return true;
             }
             removed += self.global.remove(*key).is_some() as usize;
@@ -326,7 +503,14 @@ impl Pager {
         if n == 0 {
             return Ok(removed);
         }
-        let host = window.params().download(ctx, n as u64)?;
+        let (log_scales, opacity_logits) = {
+            let fields = window.params().fields();
+            let mut rec = ctx.recorder()?;
+            let scales = rec.download(fields[1], 0, n as u64 * 12)?;
+            let opacities = rec.download(fields[4], 0, n as u64 * 4)?;
+            rec.submit()?.wait()?;
+            (scales.read::<[f32; 3]>()?, opacities.read::<f32>()?)
+        };
         let min_logit = {
             let o = min_opacity.clamp(1e-7, 1.0 - 1e-7);
             (o / (1.0 - o)).ln()
@@ -334,8 +518,8 @@ impl Pager {
         let max_log_scale = max_scale.max(1e-9).ln();
         let evict: Vec<u32> = (0..n)
             .filter(|&i| {
-                let o = host.opacity_logits[i];
-                let s = host.log_scales[i].iter().copied().fold(f32::MIN, f32::max);
+                let o = opacity_logits[i];
+                let s = log_scales[i].iter().copied().fold(f32::MIN, f32::max);
                 // NaN parameters are pruned too.
                 let keep =
                     o >= min_logit && s <= max_log_scale && !superseded.contains(&window.keys()[i]);
@@ -347,14 +531,11 @@ impl Pager {
             return Ok(removed);
         }
         let doomed: Vec<_> = evict.iter().map(|&r| window.keys()[r as usize]).collect();
-        let plan = SyncPlan {
-            keep: n - evict.len(),
-            evict,
-            fetch: Vec::new(),
-            over_capacity: 0,
-        };
-        let run = self.submit(ctx, &plan, rows, true)?;
-        self.finish(run, None)?;
+        let plan = window.plan_removal(evict);
+        let run = self.submit(ctx, &plan, rows, true, None, None)?;
+        // Nothing to download: the moves need no wait, later work on the
+        // compute queue runs after them.
+        self.unwaited.push(run.moves);
         for key in &doomed {
             self.global.remove(*key);
         }

@@ -1,7 +1,7 @@
 //! The pager against a plain reference: after every move each Gaussian is
 //! in one place, what training changed on the GPU reaches the global map
-//! when it is written back, and reading the map without a write-back sees
-//! the same.
+//! when its block leaves or the window is written back, and reading the
+//! map without a write-back sees the same.
 
 use bytemuck::Zeroable;
 use glam::DVec3;
@@ -14,8 +14,9 @@ use latentam_gpu::testing::with_context;
 const CAPACITY: u64 = 64;
 
 fn pager(ctx: &Context) -> Pager {
+    // 1 cm voxels: blocks of 0.64 m, small against the 2 m radius.
     let mut pager = Pager::new(
-        0.05,
+        0.01,
         PagerSettings {
             radius: 2.0,
             sync_distance: 0.5,
@@ -108,7 +109,7 @@ fn new_gaussians_are_appended_while_they_fit_and_page_the_window_when_not() {
         );
 
         // 40 more do not fit the 24 free rows: the window is re-centred at
-        // 5 m, keeping those within 2 m.
+        // 5 m, keeping the blocks within 2 m.
         let second = insert_line(&mut pager, 4.0, 40);
         let centre = DVec3::new(5.0, 0.0, 0.0);
         let (report, _) = pager
@@ -116,11 +117,21 @@ fn new_gaussians_are_appended_while_they_fit_and_page_the_window_when_not() {
             .unwrap()
             .unwrap();
         assert!(report.blocking);
+        assert!(report.blocks_in > 0 && report.blocks_out > 0, "{report:?}");
         check_one_place(&pager);
         let window = pager.window().unwrap();
+        let block_diagonal = 0.64 * 3f64.sqrt();
         for &key in window.keys() {
             let m = pager.global().get(key).unwrap().mean;
-            assert!((m[0] as f64 - 5.0).abs() <= 2.0 + 1e-6, "{m:?} resident");
+            assert!(
+                (m[0] as f64 - 5.0).abs() <= 2.0 + block_diagonal,
+                "{m:?} resident"
+            );
+        }
+        for (key, g) in pager.global().iter() {
+            if (g.mean[0] as f64 - 5.0).abs() <= 2.0 {
+                assert!(window.holds(key), "{:?} within 2 m is resident", g.mean);
+            }
         }
         assert_eq!(pager.last_sync(), Some(centre));
         assert_eq!(pager.global().len(), 80);
@@ -146,10 +157,10 @@ fn reading_the_map_without_a_write_back_equals_a_write_back_then_reading() {
             before,
             "gaussians_now wrote back"
         );
-        pager.flush(ctx, &[]).unwrap();
+        pager.flush(ctx).unwrap();
         assert_eq!(global_fingerprint(&pager), now);
         // Nothing trained since: a second flush and a reading change nothing.
-        pager.flush(ctx, &[]).unwrap();
+        pager.flush(ctx).unwrap();
         assert_eq!(fingerprint(&pager.gaussians_now(ctx).unwrap()), now);
     });
 }
@@ -167,20 +178,29 @@ fn following_the_camera_writes_leaving_rows_back_and_stays_consistent() {
             train(ctx, &mut pager, 0.01 * step as f32);
             let expected = fingerprint(&pager.gaussians_now(ctx).unwrap());
             centre.x += 1.3;
-            let run = pager
-                .follow(ctx, centre, &[])
-                .unwrap()
-                .expect("moved 1.3 m");
-            pager.finish(run, None).unwrap();
+            let prepared = pager.prepare(ctx, centre).unwrap().expect("moved 1.3 m");
+            let run = pager.follow(ctx, prepared, &[]).unwrap();
+            let (report, _) = pager.finish(run, None).unwrap();
             check_one_place(&pager);
-            assert_eq!(global_fingerprint(&pager), expected, "step {step}");
+            // Only what left was copied back, all of it trained.
+            assert_eq!(report.written_back, report.evicted, "step {step}");
+            assert!(report.written_back < CAPACITY as usize);
+            assert_eq!(
+                fingerprint(&pager.gaussians_now(ctx).unwrap()),
+                expected,
+                "step {step}"
+            );
             assert_eq!(pager.global().len(), 100);
             // Within the sync distance nothing moves.
             assert!(pager
-                .follow(ctx, centre + DVec3::new(0.2, 0.0, 0.0), &[])
+                .prepare(ctx, centre + DVec3::new(0.2, 0.0, 0.0))
                 .unwrap()
                 .is_none());
         }
+        // A write-back makes the global map what the readings saw.
+        let now = fingerprint(&pager.gaussians_now(ctx).unwrap());
+        pager.flush(ctx).unwrap();
+        assert_eq!(global_fingerprint(&pager), now);
     });
 }
 
@@ -192,10 +212,13 @@ fn pruning_removes_faint_residents_and_superseded_guesses_everywhere() {
         pager
             .make_resident(ctx, &keys[..40], &[], DVec3::ZERO)
             .unwrap();
+        // Whole blocks came in: the 40, and the rest of the last one's.
+        let resident = pager.resident();
+        assert!((40..50).contains(&resident), "{resident}");
         // Residents 0..5 fade out on the GPU.
         let window = pager.window().unwrap();
         let faint: Vec<VoxelKey> = window.keys()[..5].to_vec();
-        let mut host = window.params().download(ctx, 40).unwrap();
+        let mut host = window.params().download(ctx, resident as u64).unwrap();
         host.opacity_logits[..5].fill(-20.0);
         window.params().upload(ctx, 0, &host).unwrap();
         pager.mark_trained();
@@ -208,6 +231,16 @@ fn pruning_removes_faint_residents_and_superseded_guesses_everywhere() {
             assert!(!pager.global().contains(*key));
         }
         check_one_place(&pager);
-        assert_eq!(pager.resident(), 34);
+        assert_eq!(pager.resident(), resident - 6);
+        // The rows left are those that were not pruned, each its own.
+        let host = pager
+            .window()
+            .unwrap()
+            .params()
+            .download(ctx, resident as u64 - 6)
+            .unwrap();
+        for (row, key) in pager.window().unwrap().keys().iter().enumerate() {
+            assert_eq!(host.means[row], pager.global().get(*key).unwrap().mean);
+        }
     });
 }

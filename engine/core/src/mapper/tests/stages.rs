@@ -130,11 +130,13 @@ fn training_fixture(ctx: &latentam_gpu::Context, frames: &[Frame]) -> (LocalWind
         global.insert(g);
     }
     let mut window = LocalWindow::new(ctx, 4096).unwrap();
-    let plan = window.plan(&global, DVec3::ZERO, 5.0);
-    let mut rec = ctx.transfer_recorder().unwrap();
-    let pending = window.record_sync(&mut rec, &plan, &global, &[]).unwrap();
+    let plan = window.plan(&global, DVec3::ZERO, 5.0, 0.0);
+    let mut rec = ctx.recorder().unwrap();
+    let outbox = window
+        .record_sync(&mut rec, &plan, &global, &[], None)
+        .unwrap();
+    assert!(outbox.is_empty(), "nothing was resident to write back");
     rec.submit().unwrap().wait().unwrap();
-    pending.apply(&mut global).unwrap();
     assert_eq!(window.len(), global.len());
     let head = LatentHead::new(
         ctx,
