@@ -1,7 +1,9 @@
 //! The local window: the Gaussians near the camera, on the GPU, by block.
 //!
 //! The window pages whole blocks (cubes of [`BLOCK_VOXELS`](super::BLOCK_VOXELS) voxels of the
-//! global map) in and out. Rows `0..len` of its buffers hold the resident
+//! global map) in and out; only a keyframe's new Gaussians come in alone
+//! ([`LocalWindow::record_append`]), and the next plan completes their
+//! blocks if it wants them. Rows `0..len` of its buffers hold the resident
 //! Gaussians, densely; the CPU keeps each row's voxel key and, per resident
 //! block, its rows. The GPU holds the truth for what is resident: training
 //! changes rows there, and the global map's copy of a resident Gaussian is
@@ -78,12 +80,13 @@ pub struct Companion<'a> {
 /// ```
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SyncPlan {
-    /// Rows whose Gaussians leave the window, ascending.
+    /// Rows whose Gaussians leave the window, ascending. Those of blocks
+    /// training changed since their last copy are copied back to the
+    /// global map first, as the blocks stand when the sync is recorded
+    /// (a plan made before Stage I is carried out after it).
     pub evict: Vec<u32>,
-    /// Of those, the rows to copy back to the global map first (those of
-    /// blocks changed since their last copy), ascending. Rows evicted
-    /// without write-back are dropped: pruned, or unchanged.
-    pub write_back: Vec<u32>,
+    /// Drop the evicted rows without copying any back: pruning.
+    pub discard: bool,
     /// Gaussians that come in, block by block, nearest block first.
     pub fetch: Vec<VoxelKey>,
     /// Residents that stay.
@@ -95,6 +98,9 @@ pub struct SyncPlan {
     pub blocks_in: usize,
     /// Blocks that leave.
     pub blocks_out: usize,
+    /// The window's row tables this plan was made against: a plan is
+    /// refused once rows came or went since.
+    pub generation: u64,
 }
 
 /// The rows a recorded synchronisation gathered into the window's outbox,
@@ -293,6 +299,8 @@ pub struct LocalWindow {
     /// Arriving rows uploaded ahead of their sync, packed field after
     /// field (grown as needed).
     inbox: Option<Buffer>,
+    /// Counts changes of the row tables (see [`SyncPlan::generation`]).
+    generation: u64,
 }
 
 impl LocalWindow {
@@ -314,6 +322,7 @@ impl LocalWindow {
             index: None,
             outbox: None,
             inbox: None,
+            generation: 0,
         })
     }
 
@@ -430,7 +439,6 @@ impl LocalWindow {
         }
         // Leaving: resident blocks not wanted.
         let mut evict = Vec::new();
-        let mut write_back = Vec::new();
         let mut blocks_out = 0;
         for (block, b) in &self.blocks {
             if wanted.contains(block) {
@@ -438,12 +446,8 @@ impl LocalWindow {
             }
             blocks_out += 1;
             evict.extend_from_slice(&b.rows);
-            if b.dirty {
-                write_back.extend_from_slice(&b.rows);
-            }
         }
         evict.sort_unstable();
-        write_back.sort_unstable();
         // Arriving: whole blocks, and what partly resident blocks lack.
         let mut fetch: Vec<VoxelKey> = Vec::new();
         for &block in &arriving {
@@ -463,11 +467,12 @@ impl LocalWindow {
         SyncPlan {
             keep: self.keys.len() - evict.len(),
             evict,
-            write_back,
+            discard: false,
             fetch,
             over_capacity,
             blocks_in,
             blocks_out,
+            generation: self.generation,
         }
     }
 
@@ -477,6 +482,8 @@ impl LocalWindow {
         SyncPlan {
             keep: self.keys.len().saturating_sub(rows.len()),
             evict: rows,
+            discard: true,
+            generation: self.generation,
             ..SyncPlan::default()
         }
     }
@@ -566,15 +573,25 @@ impl LocalWindow {
         let holes = plan.evict.iter().copied().filter(|&r| (r as usize) < keep);
         let movers = (keep as u32..n as u32).filter(|&r| !evicted[r as usize]);
         let (from, to): (Vec<u32>, Vec<u32>) = movers.zip(holes).unzip();
-        let wb = plan.write_back.len();
-        let list: Vec<u32> = [&plan.write_back[..], &from, &to].concat();
+        // The leaving rows training changed, as the blocks stand now.
+        let write_back: Vec<u32> = match plan.discard {
+            true => Vec::new(),
+            false => plan
+                .evict
+                .iter()
+                .copied()
+                .filter(|&r| {
+                    let block = GlobalMap::block_of(self.keys[r as usize]);
+                    self.blocks.get(&block).is_some_and(|b| b.dirty)
+                })
+                .collect(),
+        };
+        let wb = write_back.len();
+        let list: Vec<u32> = [&write_back[..], &from, &to].concat();
         self.grow_buffers(list.len() as u64, wb as u64)?;
 
-        let outbox_keys: Vec<VoxelKey> = plan
-            .write_back
-            .iter()
-            .map(|&r| self.keys[r as usize])
-            .collect();
+        let outbox_keys: Vec<VoxelKey> =
+            write_back.iter().map(|&r| self.keys[r as usize]).collect();
         self.forget_rows(&plan.evict);
         self.move_rows_in_tables(&from, &to);
         self.keys.truncate(keep);
@@ -706,42 +723,19 @@ impl LocalWindow {
         Ok(())
     }
 
-    /// The keys to append so that new Gaussians `keys` (in the global map,
-    /// not resident) come in with their whole blocks: those in resident
-    /// blocks alone, those in other blocks with every Gaussian of their
-    /// block.
-    pub fn arrivals_for(&self, keys: &[VoxelKey], global: &GlobalMap) -> Vec<VoxelKey> {
-        let mut out = Vec::with_capacity(keys.len());
-        let mut whole = KeySet::default();
-        for &k in keys {
-            let block = GlobalMap::block_of(k);
-            if self.blocks.contains_key(&block) {
-                out.push(k);
-            } else if whole.insert(block) {
-                out.extend(global.block_keys(block));
-            }
-        }
-        out
-    }
-
-    /// Errors unless the plan's rows are resident, ascending and unique,
-    /// and the rows to write back are among those evicted.
+    /// Errors unless the plan was made against the window as it stands
+    /// and its rows are resident, ascending and unique.
     fn check_plan(&self, plan: &SyncPlan) -> Result<()> {
         let n = self.keys.len();
         let bad = |why: String| Err(Error::bad_input("window sync plan", why));
-        let ascending = |rows: &[u32]| rows.windows(2).all(|w| w[0] < w[1]);
-        if !ascending(&plan.evict) || plan.evict.last().is_some_and(|&r| r as usize >= n) {
+        if plan.generation != self.generation {
+            return bad("made before the window's rows last changed: plan again".into());
+        }
+        let ascending = plan.evict.windows(2).all(|w| w[0] < w[1]);
+        if !ascending || plan.evict.last().is_some_and(|&r| r as usize >= n) {
             return bad(format!(
                 "evicted rows must be ascending, unique and below the {n} resident"
             ));
-        }
-        if !ascending(&plan.write_back)
-            || plan
-                .write_back
-                .iter()
-                .any(|r| plan.evict.binary_search(r).is_err())
-        {
-            return bad("rows written back must be ascending and among those evicted".into());
         }
         Ok(())
     }
@@ -806,6 +800,7 @@ impl LocalWindow {
     /// Takes `rows` out of their blocks' row lists (their keys stay until
     /// the tables are truncated).
     fn forget_rows(&mut self, rows: &[u32]) {
+        self.generation += 1;
         for &r in rows {
             let block = GlobalMap::block_of(self.keys[r as usize]);
             let Some(b) = self.blocks.get_mut(&block) else {
@@ -838,6 +833,7 @@ impl LocalWindow {
     /// Appends rows for `keys` to the tables (their blocks as they were,
     /// clean when new).
     fn add_rows(&mut self, keys: &[VoxelKey]) {
+        self.generation += 1;
         for &key in keys {
             let row = self.keys.len() as u32;
             let b = self.blocks.entry(GlobalMap::block_of(key)).or_default();

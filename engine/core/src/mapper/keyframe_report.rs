@@ -34,7 +34,7 @@ pub enum Integrated {
 /// ```
 /// # fn f(report: &latentam_core::mapper::KeyframeReport) {
 /// for sync in &report.paging {
-///     let how = if sync.blocking { "blocking" } else { "beside Stage II" };
+///     let how = if sync.before_stage_one { "before Stage I" } else { "beside Stage II" };
 ///     println!(
 ///         "paging ({how}): {} blocks out, {} in; {} Gaussians out ({} written back), {} in; {} B up, {} B down",
 ///         sync.blocks_out, sync.blocks_in, sync.evicted, sync.written_back, sync.fetched, sync.bytes_up, sync.bytes_down
@@ -62,9 +62,10 @@ pub struct PagingReport {
     pub bytes_up: u64,
     /// Bytes downloaded: the Gaussians written back.
     pub bytes_down: u64,
-    /// Whether it ran before Stage I (new Gaussians did not fit), rather
-    /// than beside Stage II.
-    pub blocking: bool,
+    /// Whether it re-centred the window before Stage I (new Gaussians did
+    /// not fit the free rows) rather than after it, beside Stage II. The
+    /// host waits for neither before Stage II ends.
+    pub before_stage_one: bool,
 }
 
 /// What a keyframe asked of the GPU, by stage: submissions, host waits

@@ -176,9 +176,8 @@ impl Mapper {
 
         let rows = self.trainer.as_ref().expect("ensured").window_rows();
         let centre = frame.pose.translation;
-        if let Some((report, ms)) = self.pager.make_resident(&self.ctx, &keys, &rows, centre)? {
+        if let Some(ms) = self.pager.make_resident(&self.ctx, &keys, &rows, centre)? {
             clock.timings.paging_cpu_ms += ms;
-            clock.paging.push(report);
         }
         Ok(keys)
     }
@@ -227,11 +226,8 @@ impl Mapper {
         let trainer = self.trainer.as_ref().expect("ensured");
         let rows = trainer.window_rows();
         let t_page = Instant::now();
-        let paging = match prepared {
-            Some(p) => Some(self.pager.follow(&self.ctx, p, &rows)?),
-            None => None,
-        };
-        if paging.is_some() {
+        if let Some(p) = prepared {
+            self.pager.follow(&self.ctx, p, &rows)?;
             clock.timings.paging_cpu_ms += ms_since(t_page);
             clock.lap(|c| &mut c.paging);
         }
@@ -245,13 +241,21 @@ impl Mapper {
             .finish()?;
         clock.timings.stage_two_gpu_ms = span.map(|s| s.ms());
         clock.lap(|c| &mut c.stage_two);
-        if let Some(run) = paging {
-            let t_page = Instant::now();
-            let (report, gpu) = self.pager.finish(run, span.as_ref())?;
+        // Every sync of the keyframe (a re-centring before Stage I, the
+        // one beside Stage II) is finished here, with one host wait.
+        let t_page = Instant::now();
+        let settled = self.pager.settle(span.as_ref())?;
+        if !settled.is_empty() {
             clock.timings.paging_cpu_ms += ms_since(t_page);
-            clock.timings.paging_gpu_ms = gpu.map(|s| s.0);
-            clock.timings.paging_hidden_ms = gpu.and_then(|s| s.1);
-            clock.paging.push(report);
+            for (report, gpu) in settled {
+                if let Some((ms, hidden)) = gpu {
+                    *clock.timings.paging_gpu_ms.get_or_insert(0.0) += ms;
+                    if let Some(h) = hidden {
+                        *clock.timings.paging_hidden_ms.get_or_insert(0.0) += h;
+                    }
+                }
+                clock.paging.push(report);
+            }
             clock.lap(|c| &mut c.paging);
         }
         Ok(stage_two)

@@ -74,8 +74,12 @@ pub(crate) struct Pager {
     /// queue orders later work after them; their timestamps are collected
     /// once a later wait shows them finished.
     unwaited: Vec<Submission>,
+    /// Syncs submitted and not yet finished.
+    in_flight: Vec<PagingRun>,
     /// The last batch that read the window's inbox.
     inbox_read_by: Option<SyncPoint>,
+    /// The last download of the window's outbox.
+    outbox_read_by: Option<SyncPoint>,
     /// Whether the transfer queue is a queue of its own (else what runs
     /// "beside" compute runs after it).
     dedicated_transfer: bool,
@@ -92,7 +96,9 @@ impl Pager {
             last_sync: None,
             partial: false,
             unwaited: Vec::new(),
+            in_flight: Vec::new(),
             inbox_read_by: None,
+            outbox_read_by: None,
             dedicated_transfer: false,
         }
     }
@@ -166,28 +172,32 @@ impl Pager {
         }
     }
 
-    /// Makes the global map's new Gaussians `keys` resident for Stage I,
-    /// with the rest of their blocks: into free rows when they fit (no
-    /// wait: Stage I runs after them on the same queue), else by
-    /// re-centring the window on `centre` at once. Returns the paging
-    /// report and its host milliseconds when it had to page.
+    /// Makes the global map's new Gaussians `keys` resident for Stage I:
+    /// into free rows when they fit, else by re-centring the window on
+    /// `centre` first. They come alone, not with the rest of their blocks:
+    /// a block beyond the radius would otherwise come in for one new
+    /// Gaussian, train from a fresh optimiser state and leave again at
+    /// every keyframe; the next sync completes the blocks within the
+    /// radius. Neither way waits: Stage I runs after the moves on the same
+    /// queue, and a re-centring's download is finished by
+    /// [`Pager::settle`] after Stage II. Returns the host milliseconds of
+    /// paging when it re-centred.
     pub(crate) fn make_resident(
         &mut self,
         ctx: &Context,
         keys: &[VoxelKey],
         rows: &[Companion<'_>],
         centre: DVec3,
-    ) -> Result<Option<(PagingReport, f64)>> {
+    ) -> Result<Option<f64>> {
         let window = self.window.as_ref().expect("opened at the first keyframe");
-        let arrivals = window.arrivals_for(keys, &self.global);
-        if arrivals.len() <= window.free() {
-            self.append(ctx, &arrivals, rows)?;
+        if keys.len() <= window.free() {
+            self.append(ctx, keys, rows)?;
             return Ok(None);
         }
         let t_page = Instant::now();
         let run = self.page_around(ctx, centre, rows, true)?;
-        let (report, _) = self.finish(run, None)?;
-        Ok(Some((report, ms_since(t_page))))
+        self.in_flight.push(run);
+        Ok(Some(ms_since(t_page)))
     }
 
     /// Uploads Gaussians of the global map into free window rows, in this
@@ -264,13 +274,13 @@ impl Pager {
     /// Carries out a prepared sync after Stage I: the moves (gathering
     /// the leaving rows, compaction, the arrivals copied in from the inbox)
     /// on the compute queue, the download of what leaves on the transfer
-    /// queue; finish it with [`Pager::finish`] after Stage II.
+    /// queue; [`Pager::settle`] finishes it after Stage II.
     pub(crate) fn follow(
         &mut self,
         ctx: &Context,
         prepared: PreparedSync,
         rows: &[Companion<'_>],
-    ) -> Result<PagingRun> {
+    ) -> Result<()> {
         let PreparedSync {
             plan,
             staged,
@@ -280,7 +290,37 @@ impl Pager {
         let mut run = self.submit(ctx, &plan, rows, false, staged, upload.as_ref())?;
         run.upload = upload;
         run.report.bytes_up += bytes_up;
-        Ok(run)
+        self.in_flight.push(run);
+        Ok(())
+    }
+
+    /// Finishes every sync in flight, in order (one host wait for the
+    /// last; the GPU finished the others before it), writing what left
+    /// the window back to the global map. Returns each sync's report and,
+    /// when timed, its GPU milliseconds and those hidden beside `beside`
+    /// (Stage II's span).
+    pub(crate) fn settle(
+        &mut self,
+        beside: Option<&GpuSpan>,
+    ) -> Result<Vec<(PagingReport, PagingSpan)>> {
+        let runs = std::mem::take(&mut self.in_flight);
+        let mut out = Vec::with_capacity(runs.len());
+        // The last first: once it is done, so are those before it.
+        let mut runs: Vec<PagingRun> = runs;
+        if let Some(last) = runs.pop() {
+            let last = self.finish(last, beside, false)?;
+            for run in runs {
+                out.push(self.finish(run, beside, true)?);
+            }
+            out.push(last);
+        }
+        Ok(out)
+    }
+
+    /// Whether syncs are in flight (between seeding and the end of Stage
+    /// II), so that the global map lacks what left the window.
+    pub(crate) fn in_flight(&self) -> bool {
+        !self.in_flight.is_empty()
     }
 
     /// The plan around `centre`, which becomes the window's centre.
@@ -304,10 +344,10 @@ impl Pager {
         ctx: &Context,
         centre: DVec3,
         rows: &[Companion<'_>],
-        blocking: bool,
+        before_stage_one: bool,
     ) -> Result<PagingRun> {
         let plan = self.plan_around(centre);
-        self.submit(ctx, &plan, rows, blocking, None, None)
+        self.submit(ctx, &plan, rows, before_stage_one, None, None)
     }
 
     /// Records and submits a window sync (timed): the moves on the compute
@@ -317,7 +357,7 @@ impl Pager {
         ctx: &Context,
         plan: &SyncPlan,
         rows: &[Companion<'_>],
-        blocking: bool,
+        before_stage_one: bool,
         staged: Option<StagedArrivals>,
         upload: Option<&Submission>,
     ) -> Result<PagingRun> {
@@ -328,16 +368,27 @@ impl Pager {
         if let Some(u) = upload {
             rec.wait_for(u.sync_point());
         }
+        // The gather overwrites the outbox: after its last download.
+        if let Some(point) = self.outbox_read_by {
+            rec.wait_for(point);
+        }
         let outbox = window.record_sync(&mut rec, plan, &self.global, rows, staged)?;
         let moves = rec.submit()?;
         self.inbox_read_by = Some(moves.sync_point());
         let (download, pending) = if outbox.is_empty() {
             (None, PendingSync::default())
         } else {
+            // Detached: the compute queue's later work (Stage I after a
+            // re-centring, Stage II) does not wait for it; it waits for the
+            // moves by name, and the next gather for it.
             let mut rec = ctx.transfer_recorder()?;
+            rec.detach();
+            rec.wait_for(moves.sync_point());
             rec.start_span();
             let pending = window.record_outbox(&mut rec, outbox)?;
-            (Some(rec.submit()?), pending)
+            let download = rec.submit()?;
+            self.outbox_read_by = Some(download.sync_point());
+            (Some(download), pending)
         };
         let moved = ctx.gpu_work() - before;
         let report = PagingReport {
@@ -349,7 +400,7 @@ impl Pager {
             blocks_out: plan.blocks_out,
             bytes_up: moved.uploaded_bytes,
             bytes_down: moved.downloaded_bytes,
-            blocking,
+            before_stage_one,
         };
         Ok(PagingRun {
             upload: None,
@@ -360,13 +411,15 @@ impl Pager {
         })
     }
 
-    /// Waits for a sync (one host wait) and writes the rows that left back
-    /// to the global map. Returns the report and, when timed, the GPU
-    /// milliseconds and those overlapping `beside`.
-    pub(crate) fn finish(
+    /// Waits for a sync (one host wait, none when `done`: a later sync that
+    /// waited for it on the GPU was waited for) and writes the rows that
+    /// left back to the global map. Returns the report and, when timed, the
+    /// GPU milliseconds and those overlapping `beside`.
+    fn finish(
         &mut self,
         run: PagingRun,
         beside: Option<&GpuSpan>,
+        done: bool,
     ) -> Result<(PagingReport, PagingSpan)> {
         let PagingRun {
             upload,
@@ -377,12 +430,16 @@ impl Pager {
         } = run;
         // The download waited for the moves on the GPU, and the moves for
         // the upload: once the last is done, so are the others.
+        let last = |s: Submission| match done {
+            true => s.finished_span(),
+            false => s.wait_span(),
+        };
         let (moves, download) = match download {
             Some(d) => {
-                let d = d.wait_span()?;
+                let d = last(d)?;
                 (moves.finished_span()?, d)
             }
-            None => (moves.wait_span()?, None),
+            None => (last(moves)?, None),
         };
         let upload = match upload {
             Some(u) => u.finished_span()?,
@@ -433,6 +490,7 @@ impl Pager {
     /// gather, one copy, one wait), so that [`Pager::global`] is current;
     /// nothing to do when no block is dirty.
     pub(crate) fn flush(&mut self, ctx: &Context) -> Result<()> {
+        self.settle(None)?;
         let Pager { window, global, .. } = self;
         let Some(window) = window else {
             return Ok(());
@@ -453,6 +511,8 @@ impl Pager {
     /// writes nothing back, so taking it between keyframes leaves mapping
     /// exactly as without it.
     pub(crate) fn gaussians_now(&self, ctx: &Context) -> Result<HostGaussians> {
+        // Syncs are settled before a keyframe ends: readers come between.
+        debug_assert!(!self.in_flight(), "a reading while syncs are in flight");
         let (keys, mut out) = match &self.window {
             Some(w) => w.read_dirty(ctx)?,
             None => Default::default(),
