@@ -303,17 +303,25 @@ impl Pager {
         &mut self,
         beside: Option<&GpuSpan>,
     ) -> Result<Vec<(PagingReport, PagingSpan)>> {
-        let runs = std::mem::take(&mut self.in_flight);
-        let mut out = Vec::with_capacity(runs.len());
-        // The last first: once it is done, so are those before it.
-        let mut runs: Vec<PagingRun> = runs;
-        if let Some(last) = runs.pop() {
-            let last = self.finish(last, beside, false)?;
-            for run in runs {
-                out.push(self.finish(run, beside, true)?);
-            }
-            out.push(last);
+        let mut runs = std::mem::take(&mut self.in_flight);
+        // Wait for the last: once it is done, so are those before it (each
+        // sync's moves wait for the previous download).
+        let Some(last) = runs.pop() else {
+            return Ok(Vec::new());
+        };
+        let last = self.finish(last, beside, false)?;
+        let mut finished = Vec::with_capacity(runs.len() + 1);
+        for run in runs {
+            finished.push(self.finish(run, beside, true)?);
         }
+        finished.push(last);
+        // Written back in submission order.
+        let mut out = Vec::with_capacity(finished.len());
+        for (report, span, pending) in finished {
+            pending.apply(&mut self.global)?;
+            out.push((report, span));
+        }
+        self.collect_unwaited()?;
         Ok(out)
     }
 
@@ -412,15 +420,15 @@ impl Pager {
     }
 
     /// Waits for a sync (one host wait, none when `done`: a later sync that
-    /// waited for it on the GPU was waited for) and writes the rows that
-    /// left back to the global map. Returns the report and, when timed, the
-    /// GPU milliseconds and those overlapping `beside`.
+    /// waited for it on the GPU was waited for). Returns the report, when
+    /// timed the GPU milliseconds and those overlapping `beside`, and the
+    /// write-back to apply.
     fn finish(
         &mut self,
         run: PagingRun,
         beside: Option<&GpuSpan>,
         done: bool,
-    ) -> Result<(PagingReport, PagingSpan)> {
+    ) -> Result<(PagingReport, PagingSpan, PendingSync)> {
         let PagingRun {
             upload,
             moves,
@@ -445,11 +453,9 @@ impl Pager {
             Some(u) => u.finished_span()?,
             None => None,
         };
-        self.collect_unwaited()?;
-        pending.apply(&mut self.global)?;
         let spans = [&upload, &moves, &download];
         if spans.iter().all(|s| s.is_none()) {
-            return Ok((report, None));
+            return Ok((report, None, pending));
         }
         let gpu: f64 = spans
             .iter()
@@ -472,7 +478,7 @@ impl Pager {
             (None, None) => None,
             (a, b) => Some(a.unwrap_or(0.0) + b.unwrap_or(0.0)),
         };
-        Ok((report, Some((gpu, hidden))))
+        Ok((report, Some((gpu, hidden)), pending))
     }
 
     /// Hands the timestamps of batches submitted without a wait to the
