@@ -83,6 +83,20 @@ fn map_query_eval_profile_on_a_generated_log() {
     assert_eq!(calls["stage_two"]["host_waits"], 1, "{calls}");
     assert_eq!(report["keyframe_reports"].as_array().unwrap().len(), 8);
     assert!(report["kernels"].as_object().unwrap().len() > 10);
+    // Paging per keyframe is the mean of every sync's figures.
+    let keyframes = report["keyframe_reports"].as_array().unwrap();
+    for field in ["bytes_up", "bytes_down", "blocks_in", "blocks_out"] {
+        let sum: f64 = keyframes
+            .iter()
+            .flat_map(|k| k["paging"].as_array().unwrap())
+            .map(|p| p[field].as_f64().unwrap())
+            .sum();
+        let mean = report["paging_per_keyframe"][field].as_f64().unwrap();
+        assert!(
+            (mean - sum / 8.0).abs() <= 1e-9 * sum.max(1.0),
+            "{field}: {mean} vs {sum} / 8"
+        );
+    }
 
     // report.html: three plots over the keyframes and the kernel table,
     // with nothing fetched from elsewhere.

@@ -21,7 +21,9 @@ use super::handle::LiveMapper;
 use super::log_run_types::{Kept, LogRun, LogRunOptions, RunObserver, Written};
 use super::options::LiveOptions;
 use super::tally::Tally;
-use crate::mapper::{Ending, GpuWorkReport, HostWaits, Mapper, RunFolder, RunReport};
+use crate::mapper::{
+    Ending, GpuWorkReport, HostWaits, Mapper, PagingPerKeyframe, RunFolder, RunReport,
+};
 use latentam_base::files::write_bytes_atomically;
 use latentam_base::{Error, Result};
 use latentam_gpu::GpuModel;
@@ -216,6 +218,7 @@ impl LogRun {
                 (Some(g), Some(h)) if g > 0.0 => Some(h / g),
                 _ => None,
             },
+            paging_per_keyframe: PagingPerKeyframe::of(&self.keyframes),
             dedicated_transfer_queue: ctx.info().dedicated_transfer_queue,
             embedding_model: self.mapper.embedding_model().map(str::to_string),
             ingest: self.ingest.clone(),

@@ -51,8 +51,10 @@ const GAUSSIAN_WORDS: u64 = GAUSSIAN_BYTES / 4;
 /// let steps = Buffer::device(ctx, "steps", window.capacity() * 4)?;
 /// let mut rec = ctx.recorder()?;
 /// let outbox = window.record_sync(&mut rec, plan, global, &[Companion { buffer: &steps, row_bytes: 4 }], None)?;
-/// let pending = window.record_outbox(&mut rec, outbox)?;
-/// rec.submit()?.wait()?;
+/// rec.submit()?; // the moves
+/// let mut download = ctx.transfer_recorder()?;
+/// let pending = window.record_outbox(&mut download, outbox)?;
+/// download.submit()?.wait()?;
 /// pending.apply(global)?;
 /// # Ok(())
 /// # }
@@ -152,8 +154,10 @@ fn fetch_fingerprint(keys: &[VoxelKey]) -> u64 {
 /// let plan = window.plan(global, camera, 4.0, 0.5);
 /// let mut rec = ctx.recorder()?;
 /// let outbox = window.record_sync(&mut rec, &plan, global, &[], None)?;
-/// let pending = window.record_outbox(&mut rec, outbox)?;
-/// rec.submit()?.wait()?; // the download is complete only now
+/// rec.submit()?; // the moves
+/// let mut download = ctx.transfer_recorder()?; // runs after them
+/// let pending = window.record_outbox(&mut download, outbox)?;
+/// download.submit()?.wait()?; // the download is complete only now
 /// let written_back = pending.apply(global)?;
 /// # Ok(())
 /// # }
@@ -277,8 +281,10 @@ struct ResidentBlock {
 /// let plan = window.plan(&global, glam::DVec3::ZERO, 5.0, 0.5);
 /// let mut rec = ctx.recorder()?;
 /// let outbox = window.record_sync(&mut rec, &plan, &global, &[], None)?;
-/// let pending = window.record_outbox(&mut rec, outbox)?;
-/// rec.submit()?.wait()?;
+/// rec.submit()?;
+/// let mut download = ctx.transfer_recorder()?;
+/// let pending = window.record_outbox(&mut download, outbox)?;
+/// download.submit()?.wait()?;
 /// pending.apply(&mut global)?;
 /// println!("{} resident in {} blocks, {} rows free", window.len(), window.blocks(), window.free());
 /// # Ok::<(), latentam_core::Error>(())

@@ -107,8 +107,12 @@ pub struct RunReport {
     /// The work per keyframe counted from the kernels' launch sizes, and
     /// the floor it puts on the time per keyframe on named GPUs.
     pub gpu_work: super::GpuWorkReport,
-    /// Share of the paging copies' GPU time hidden behind Stage II.
+    /// Share of paging's GPU time hidden behind training: the arrivals'
+    /// upload beside Stage I (on a transfer queue of its own) and the
+    /// download of what left beside Stage II.
     pub paging_hidden_share: Option<f64>,
+    /// What paging moved per keyframe, on average.
+    pub paging_per_keyframe: PagingPerKeyframe,
     /// Whether paging ran on a transfer queue of its own.
     pub dedicated_transfer_queue: bool,
     /// The embedding model named by the log, if any.
@@ -123,6 +127,54 @@ pub struct RunReport {
     pub kernels: BTreeMap<&'static str, KernelStats>,
     /// Every keyframe mapped in this run.
     pub keyframe_reports: Vec<KeyframeReport>,
+}
+
+/// What paging moved per keyframe, averaged over a run's keyframes (those
+/// that did not page count as nothing moved).
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::RunReport) {
+/// let p = &report.paging_per_keyframe;
+/// println!("{:.2} MB up, {:.2} MB down, {:.1} blocks in, {:.1} out per keyframe",
+///     p.bytes_up / 1e6, p.bytes_down / 1e6, p.blocks_in, p.blocks_out);
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PagingPerKeyframe {
+    /// Bytes uploaded: arriving Gaussians and row lists.
+    pub bytes_up: f64,
+    /// Bytes downloaded: Gaussians written back as their blocks left.
+    pub bytes_down: f64,
+    /// Blocks that came into the window.
+    pub blocks_in: f64,
+    /// Blocks that left it.
+    pub blocks_out: f64,
+}
+
+impl PagingPerKeyframe {
+    /// Over the keyframes' [`KeyframeReport::paging`](super::KeyframeReport::paging).
+    ///
+    /// ```
+    /// let none = latentam_core::mapper::PagingPerKeyframe::of(&[]);
+    /// assert_eq!(none.bytes_up, 0.0);
+    /// ```
+    pub fn of(keyframes: &[super::KeyframeReport]) -> Self {
+        let n = keyframes.len().max(1) as f64;
+        let mean = |f: &dyn Fn(&super::PagingReport) -> f64| {
+            keyframes
+                .iter()
+                .flat_map(|k| k.paging.iter())
+                .map(f)
+                .sum::<f64>()
+                / n
+        };
+        PagingPerKeyframe {
+            bytes_up: mean(&|p| p.bytes_up as f64),
+            bytes_down: mean(&|p| p.bytes_down as f64),
+            blocks_in: mean(&|p| p.blocks_in as f64),
+            blocks_out: mean(&|p| p.blocks_out as f64),
+        }
+    }
 }
 
 /// Host waits per keyframe (mean and most), in all and in Stage I and
