@@ -460,8 +460,8 @@ impl LocalWindow {
             fetch.extend(global.block_keys(block));
         }
         let mut blocks_in = arriving.len();
-        for block in wanted.iter().filter(|b| !arriving.contains(b)) {
-            let b = &self.blocks[block];
+        // Wanted and already resident: complete any partly resident one.
+        for (block, b) in wanted.iter().filter_map(|k| Some((k, self.blocks.get(k)?))) {
             if b.rows.len() < global.block_len(*block) {
                 let have: KeySet = b.rows.iter().map(|&r| self.keys[r as usize]).collect();
                 fetch.extend(global.block_keys(*block).filter(|k| !have.contains(k)));
@@ -508,15 +508,7 @@ impl LocalWindow {
         let fetched = gather(global, &plan.fetch)?;
         let n = plan.fetch.len() as u64;
         let bytes = n.max(1) * GAUSSIAN_BYTES;
-        if self.inbox.as_ref().is_none_or(|b| b.bytes() < bytes) {
-            self.inbox = None;
-            self.inbox = Some(Buffer::device(
-                &self.ctx,
-                "window/inbox",
-                bytes + bytes / 2,
-            )?);
-        }
-        let inbox = self.inbox.as_ref().expect("grown above");
+        let inbox = grow(&mut self.inbox, &self.ctx, "window/inbox", bytes)?;
         let data = fields_of(&fetched);
         let mut parts: Vec<(&'a Buffer, u64, &[u8])> = Vec::with_capacity(6);
         let mut at = 0u64;
@@ -776,30 +768,14 @@ impl LocalWindow {
 
     /// Grows the index buffer to `indices` and the outbox to `rows`.
     fn grow_buffers(&mut self, indices: u64, rows: u64) -> Result<()> {
-        let index_bytes = indices.max(1) * 4;
-        if self.index.as_ref().is_none_or(|b| b.bytes() < index_bytes) {
-            // Room to grow by half again, so a window that pages a little
-            // more each time does not reallocate each time.
-            self.index = None;
-            self.index = Some(Buffer::device(
-                &self.ctx,
-                "window/row lists",
-                index_bytes + index_bytes / 2,
-            )?);
-        }
+        grow(
+            &mut self.index,
+            &self.ctx,
+            "window/row lists",
+            indices.max(1) * 4,
+        )?;
         let outbox_bytes = rows.max(1) * GAUSSIAN_BYTES;
-        if self
-            .outbox
-            .as_ref()
-            .is_none_or(|b| b.bytes() < outbox_bytes)
-        {
-            self.outbox = None;
-            self.outbox = Some(Buffer::device(
-                &self.ctx,
-                "window/outbox",
-                outbox_bytes + outbox_bytes / 2,
-            )?);
-        }
+        grow(&mut self.outbox, &self.ctx, "window/outbox", outbox_bytes)?;
         Ok(())
     }
 
@@ -848,6 +824,36 @@ impl LocalWindow {
             self.keys.push(key);
         }
     }
+}
+
+/// The buffer in `slot`, replaced by one of `bytes` and half again when
+/// smaller (so that a window paging a little more each time does not
+/// reallocate each time; the old one is freed once the GPU is done with it).
+fn grow<'s>(
+    slot: &'s mut Option<Buffer>,
+    ctx: &Context,
+    name: &str,
+    bytes: u64,
+) -> Result<&'s Buffer> {
+    if slot.as_ref().is_none_or(|b| b.bytes() < bytes) {
+        *slot = None;
+        *slot = Some(Buffer::device(ctx, name, bytes + bytes / 2)?);
+    }
+    Ok(slot.as_ref().expect("set above"))
+}
+
+/// Zeroes rows `first..first + n` of every companion (arriving rows start
+/// their optimiser state afresh).
+fn zero_companions<'a>(
+    rec: &mut Recorder<'a>,
+    first: u64,
+    n: u64,
+    companions: &[Companion<'a>],
+) -> Result<()> {
+    for c in companions {
+        rec.fill_range_u32(c.buffer, first * c.row_bytes, n * c.row_bytes, 0)?;
+    }
+    Ok(())
 }
 
 /// Every buffer whose rows follow the Gaussians, with its words per row:
@@ -943,10 +949,7 @@ fn record_fetch<'a>(
         .map(|((buf, w), d)| (buf, first * w * 4, d))
         .collect();
     rec.upload_packed(&parts)?;
-    for c in companions {
-        rec.fill_range_u32(c.buffer, first * c.row_bytes, n * c.row_bytes, 0)?;
-    }
-    Ok(())
+    zero_companions(rec, first, n, companions)
 }
 
 /// The six fields of host Gaussians as bytes, in field order.
@@ -981,8 +984,5 @@ fn copy_staged<'a>(
         rec.copy(inbox, at, buf, first * w * 4, bytes)?;
         at += bytes;
     }
-    for c in companions {
-        rec.fill_range_u32(c.buffer, first * c.row_bytes, n * c.row_bytes, 0)?;
-    }
-    Ok(())
+    zero_companions(rec, first, n, companions)
 }

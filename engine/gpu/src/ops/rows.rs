@@ -118,9 +118,8 @@ pub fn move_rows<'a>(
     if count == 0 || width == 0 {
         return Ok(());
     }
-    let words = check_words(data, width, count)?;
-    data.ensure_bytes(width as u64 * 4, "rows data")?;
-    index.ensure_bytes((first as u64 + 2 * count as u64) * 4, "row moves")?;
+    // Two lists: the sources, then the destinations.
+    let words = check_rows(data, width, from_then_to, 2)?;
     rec.dispatch_linear(
         &ROWS_MOVE,
         words.div_ceil(THREADS) as u32,
@@ -133,8 +132,11 @@ pub fn move_rows<'a>(
     )
 }
 
-/// The kernels count words in 32 bits.
-fn check_words(data: &Buffer, width: u32, count: u32) -> Result<u64> {
+/// Checks `rows` (`lists` lists of `rows.count` indices one after
+/// another) against their buffers, and that the words to move fit the
+/// kernels' 32-bit counts; returns the words of one list's rows.
+fn check_rows(data: &Buffer, width: u32, rows: RowList<'_>, lists: u64) -> Result<u64> {
+    let count = rows.count;
     let words = count as u64 * width as u64;
     if words > u32::MAX as u64 || data.bytes() / 4 > u32::MAX as u64 {
         return Err(Error::bad_input(
@@ -146,6 +148,11 @@ fn check_words(data: &Buffer, width: u32, count: u32) -> Result<u64> {
             ),
         ));
     }
+    data.ensure_bytes(width as u64 * 4, "rows data")?;
+    rows.index.ensure_bytes(
+        (rows.first as u64 + lists * count as u64) * 4,
+        "row indices",
+    )?;
     Ok(words)
 }
 
@@ -165,7 +172,7 @@ fn record<'a>(
     if count == 0 || width == 0 {
         return Ok(());
     }
-    let words = check_words(data, width, count)?;
+    let words = check_rows(data, width, rows, 1)?;
     let word = u32::try_from(staging.word)
         .ok()
         .filter(|w| (*w as u64 + words) <= u32::MAX as u64)
@@ -175,11 +182,9 @@ fn record<'a>(
                 format!("staging from word {}: past 2^32 words", staging.word),
             )
         })?;
-    data.ensure_bytes(width as u64 * 4, "rows data")?;
     staging
         .buffer
         .ensure_bytes((word as u64 + words) * 4, "rows staging")?;
-    index.ensure_bytes((first as u64 + count as u64) * 4, "row indices")?;
     let kernel = if gather { &ROWS_GATHER } else { &ROWS_SCATTER };
     rec.dispatch_linear(
         kernel,
