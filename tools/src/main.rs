@@ -53,6 +53,19 @@ enum Command {
         /// Load the Vulkan validation layer and fail on any message.
         #[arg(long)]
         validation: bool,
+        /// Print every kernel's build time (pipeline creation and first
+        /// dispatch, where a driver may compile lazily), slowest first, and
+        /// write them as JSON to this file. Run with a fresh
+        /// MESA_SHADER_CACHE_DIR (or your driver's cache emptied) to see
+        /// what a new machine pays.
+        #[arg(long, value_name = "FILE.json")]
+        kernel_times: Option<std::path::PathBuf>,
+        /// Build only the kernels whose names contain one of these
+        /// (comma-separated), e.g. `--kernels raster_pool_columns`, and
+        /// skip the primitives' checks: to time or diagnose a few kernels
+        /// without building all of them.
+        #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+        kernels: Vec<String>,
     },
     /// The built-in scene end to end: generate it, map it, evaluate the
     /// map on held-out views, query it, and print a summary.
@@ -101,7 +114,11 @@ fn main() -> ExitCode {
     interrupt::file_size_limit_is_an_error();
     let result = match cli.command {
         Command::Devices => selfcheck::devices(),
-        Command::Selfcheck { validation } => selfcheck::run(validation),
+        Command::Selfcheck {
+            validation,
+            kernel_times,
+            kernels,
+        } => selfcheck::run(validation, kernel_times.as_deref(), &kernels),
         Command::Demo(args) => demo_cmd::run(args),
         Command::Map(args) => match map_cmd::run(args) {
             Ok(true) => return ExitCode::from(map_cmd::INTERRUPTED),

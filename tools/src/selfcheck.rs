@@ -63,7 +63,11 @@ struct Check {
     detail: String,
 }
 
-pub fn run(validation: bool) -> Result<()> {
+pub fn run(
+    validation: bool,
+    kernel_times: Option<&std::path::Path>,
+    only: &[String],
+) -> Result<()> {
     let opts = ContextOptions {
         validation: if validation {
             Validation::Required
@@ -75,17 +79,26 @@ pub fn run(validation: bool) -> Result<()> {
     let ctx = Context::new(opts)?;
     let log = ctx.validation_log();
     println!("device: {}", ctx.info().name);
-    let kernels = check_kernels(&ctx);
+    let kernels = check_kernels(&ctx, only);
+    if let Some(path) = kernel_times {
+        write_kernel_times(&ctx, path)?;
+    }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let checks = vec![
-        kernels,
-        check_scan(&ctx, &mut rng).context("scan")?,
-        check_reduce(&ctx, &mut rng).context("reduce")?,
-        check_gemm(&ctx, &mut rng).context("gemm")?,
-        check_softmax(&ctx, &mut rng).context("softmax")?,
-        check_sort(&ctx, &mut rng).context("sort")?,
-        check_atomic(&ctx, &mut rng).context("scatter-add")?,
-    ];
+    // A chosen few kernels are built alone: the primitives' checks would
+    // build theirs too.
+    let checks = if only.is_empty() {
+        vec![
+            kernels,
+            check_scan(&ctx, &mut rng).context("scan")?,
+            check_reduce(&ctx, &mut rng).context("reduce")?,
+            check_gemm(&ctx, &mut rng).context("gemm")?,
+            check_softmax(&ctx, &mut rng).context("softmax")?,
+            check_sort(&ctx, &mut rng).context("sort")?,
+            check_atomic(&ctx, &mut rng).context("scatter-add")?,
+        ]
+    } else {
+        vec![kernels]
+    };
     drop(ctx);
     let mut failed = 0;
     for c in &checks {
@@ -108,50 +121,55 @@ pub fn run(validation: bool) -> Result<()> {
     if failed > 0 {
         bail!("{failed} check(s) failed");
     }
-    println!(
-        "the kernels build, and all {} primitives match their CPU references",
-        checks.len() - 1
-    );
+    if only.is_empty() {
+        println!(
+            "the kernels build, and all {} primitives match their CPU references",
+            checks.len() - 1
+        );
+    } else {
+        println!("the chosen kernels build");
+    }
     Ok(())
 }
 
-/// Builds the pipeline of every kernel the device can run, one at a time
-/// and timed (a driver's compiler can reject or take long over one), and
-/// goes on past a failure to name every kernel that fails. A GPU's
+/// Builds every kernel the device can run as the mapper does before it is
+/// ready (pipelines created on all cores, each dispatched once empty: see
+/// `Context::warm_up`), and names every kernel that fails. A GPU's
 /// compiler may reject the largest column-layout blending kernels: the
 /// rasterizer then takes the pixel ones, so those are noted, not failed.
-fn check_kernels(ctx: &Context) -> Check {
-    let mut built: Vec<(&str, f64)> = Vec::new();
-    let (mut failed, mut fall_back) = (Vec::new(), Vec::new());
-    for k in latentam_shaders::ALL {
-        if !ctx.info().can_run(k) {
-            continue;
-        }
-        let start = std::time::Instant::now();
-        let seconds = || start.elapsed().as_secs_f64();
-        match ctx.kernel_builds(k) {
-            Ok(true) => built.push((k.name, seconds())),
-            Ok(false) if !ctx.info().is_cpu() && k.is_column_layout() => {
-                fall_back.push(format!("{} ({:.1} s)", k.name, seconds()))
-            }
-            Ok(false) => failed.push(format!(
-                "{} ({:.1} s): the driver cannot build it",
-                k.name,
-                seconds()
-            )),
-            Err(e) => failed.push(format!("{} ({:.1} s): {e}", k.name, seconds())),
+fn check_kernels(ctx: &Context, only: &[String]) -> Check {
+    let start = std::time::Instant::now();
+    let mut failed = Vec::new();
+    let chosen = |k: &latentam_shaders::Kernel| {
+        only.is_empty() || only.iter().any(|o| k.name.contains(o.as_str()))
+    };
+    if let Err(e) = ctx.warm_up_only(chosen) {
+        failed.push(format!("building stopped: {e}"));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let mut fall_back = Vec::new();
+    for (name, result) in ctx.kernel_build_failures() {
+        let column = latentam_shaders::ALL
+            .iter()
+            .any(|k| k.name == name && k.is_column_layout());
+        if !ctx.info().is_cpu() && column {
+            fall_back.push(name.to_string());
+        } else {
+            failed.push(format!("{name}: the driver cannot build it ({result})"));
         }
     }
-    built.sort_by(|a, b| b.1.total_cmp(&a.1));
-    let total: f64 = built.iter().map(|b| b.1).sum();
+    let mut built = ctx.kernel_build_times();
+    built.sort_by(|a, b| b.total_ms().total_cmp(&a.total_ms()));
+    let total: f64 = built.iter().map(|b| b.total_ms()).sum::<f64>() / 1e3;
     let slowest: Vec<String> = built
         .iter()
         .take(3)
-        .map(|(n, s)| format!("{n} {s:.2} s"))
+        .map(|b| format!("{} {:.2} s", b.kernel, b.total_ms() / 1e3))
         .collect();
     let mut detail = format!(
-        "{} built in {total:.1} s (slowest: {})",
+        "{} built in {wall:.1} s on {} threads, {total:.1} s of work (slowest: {})",
         built.len(),
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
         slowest.join(", ")
     );
     for f in &fall_back {
@@ -167,6 +185,43 @@ fn check_kernels(ctx: &Context) -> Check {
         ok: failed.is_empty(),
         detail,
     }
+}
+
+/// The per-kernel build table: printed slowest first and written as JSON.
+fn write_kernel_times(ctx: &Context, path: &std::path::Path) -> Result<()> {
+    let mut times = ctx.kernel_build_times();
+    times.sort_by(|a, b| b.total_ms().total_cmp(&a.total_ms()));
+    println!("kernel build times, slowest first (create + first dispatch, ms):");
+    for t in &times {
+        println!(
+            "  {:<40} {:>9.1} = {:>7.1} + {:>9.1}",
+            t.kernel,
+            t.total_ms(),
+            t.create_ms,
+            t.first_dispatch_ms
+        );
+    }
+    let rows: Vec<serde_json::Value> = times
+        .iter()
+        .map(|t| {
+            serde_json::json!({
+                "kernel": t.kernel,
+                "create_ms": t.create_ms,
+                "first_dispatch_ms": t.first_dispatch_ms,
+            })
+        })
+        .collect();
+    let doc = serde_json::json!({
+        "device": ctx.info().name,
+        "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
+        "pipeline_cache_loaded_bytes": ctx.info().pipeline_cache_loaded_bytes,
+        "time_to_ready_ms": ctx.time_to_ready_ms(),
+        "kernels": rows,
+    });
+    std::fs::write(path, serde_json::to_string_pretty(&doc)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
 }
 
 fn check_scan(ctx: &Context, r: &mut impl Rng) -> Result<Check> {

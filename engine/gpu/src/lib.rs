@@ -30,6 +30,7 @@ mod retire;
 pub mod testing;
 #[cfg(test)]
 mod tests;
+mod warm_up;
 mod work;
 
 pub use buffer::{Buffer, Readback};
@@ -45,6 +46,7 @@ pub use memory::{ByteCount, MemoryReport};
 pub use objects::LiveObjects;
 pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};
 pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
+pub use warm_up::KernelBuildTime;
 pub use work::{Floor, GpuModel, GpuWork, KernelWork};
 
 impl Context {
@@ -84,14 +86,6 @@ impl Context {
         }
     }
 
-    /// Creates the pipeline of every kernel this device can run
-    /// ([`DeviceInfo::can_run`]: not those needing features it lacks). lavapipe
-    /// compiles a pipeline on first use; call this before timing anything.
-    /// Returns the number of pipelines ready.
-    pub fn warm_up(&self) -> crate::Result<usize> {
-        self.warm_up_only(|_| true)
-    }
-
     /// Whether the driver builds `kernel`'s pipeline (building it now if it
     /// was not yet): `Ok(false)` when its compiler rejects it
     /// ([`Error::KernelBuild`]), remembered so that asking again costs
@@ -106,44 +100,6 @@ impl Context {
     /// (see [`Context::kernel_builds`]).
     pub fn kernel_build_failures(&self) -> Vec<(&'static str, ash::vk::Result)> {
         self.dev.pipelines.failures()
-    }
-
-    /// [`Context::warm_up`] for the kernels `keep` accepts: a client that
-    /// knows which variants it dispatches on this device (see
-    /// `latentam_core::mapper::warm_up`) spares the time of the others, which
-    /// every process pays even when the driver caches compiled pipelines.
-    pub fn warm_up_only(
-        &self,
-        keep: impl Fn(&latentam_shaders::Kernel) -> bool,
-    ) -> crate::Result<usize> {
-        let mut n = 0;
-        for k in latentam_shaders::ALL {
-            if !keep(k) || !self.info().can_run(k) {
-                continue;
-            }
-            self.dev
-                .pipelines
-                .get(&self.dev.raw, self.dev.pipeline_cache, k)?;
-            n += 1;
-        }
-        *self
-            .dev
-            .ready_after
-            .lock()
-            .unwrap_or_else(|e| e.into_inner()) = Some(self.dev.opened.elapsed());
-        Ok(n)
-    }
-
-    /// How long after the device was opened the last warm-up
-    /// ([`Context::warm_up_only`]) had every kernel ready, ms; `None`
-    /// before one. With a warm pipeline cache this is mostly the
-    /// driver's start.
-    pub fn time_to_ready_ms(&self) -> Option<f64> {
-        self.dev
-            .ready_after
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .map(|d| d.as_secs_f64() * 1e3)
     }
 
     /// Whether timestamps are being recorded.

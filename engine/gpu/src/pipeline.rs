@@ -40,18 +40,20 @@ impl PipelineCache {
         }
     }
 
+    /// `k`'s pipeline, created now if it was not yet. Creation runs outside
+    /// the cache's locks, so threads build different kernels at once
+    /// (`Context::warm_up_only`); two threads racing for the same kernel
+    /// keep the first one stored and destroy the other, never used.
     pub fn get(
         &self,
         dev: &ash::Device,
         cache: vk::PipelineCache,
         k: &'static Kernel,
     ) -> Result<Arc<Pipeline>> {
-        let mut map = self.map.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(p) = map.get(k.name) {
+        if let Some(p) = self.lock_map().get(k.name) {
             return Ok(p.clone());
         }
-        let mut failed = self.failed.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(&result) = failed.get(k.name) {
+        if let Some(&result) = self.lock_failed().get(k.name) {
             return Err(Error::KernelBuild {
                 kernel: k.name,
                 result,
@@ -67,22 +69,37 @@ impl PipelineCache {
         };
         match created {
             Ok(p) => {
+                let mut map = self.lock_map();
+                if let Some(first) = map.get(k.name) {
+                    // SAFETY: `p` was never handed out, so nothing uses it.
+                    unsafe { destroy(dev, &p) };
+                    return Ok(first.clone());
+                }
                 let p = Arc::new(p);
                 map.insert(k.name, p.clone());
                 Ok(p)
             }
             Err(e) => {
                 if let Error::KernelBuild { result, .. } = e {
-                    log::warn!(
-                        "the driver cannot build kernel {} ({result}); where it has another \
-                         variant (a column-layout blending kernel) the engine uses that",
-                        k.name
-                    );
-                    failed.insert(k.name, result);
+                    if self.lock_failed().insert(k.name, result).is_none() {
+                        log::warn!(
+                            "the driver cannot build kernel {} ({result}); where it has another \
+                             variant (a column-layout blending kernel) the engine uses that",
+                            k.name
+                        );
+                    }
                 }
                 Err(e)
             }
         }
+    }
+
+    fn lock_map(&self) -> std::sync::MutexGuard<'_, HashMap<&'static str, Arc<Pipeline>>> {
+        self.map.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn lock_failed(&self) -> std::sync::MutexGuard<'_, HashMap<&'static str, vk::Result>> {
+        self.failed.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Whether the driver builds `k` (see `Context::kernel_builds`).
@@ -105,6 +122,11 @@ impl PipelineCache {
         let mut v: Vec<_> = failed.iter().map(|(k, r)| (*k, *r)).collect();
         v.sort();
         v
+    }
+
+    /// The kernels whose pipelines exist.
+    pub fn built(&self) -> Vec<&'static str> {
+        self.lock_map().keys().copied().collect()
     }
 
     /// Pipelines created so far.

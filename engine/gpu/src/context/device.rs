@@ -64,6 +64,8 @@ pub(crate) struct Device {
     /// a caller warmed up was ready (see `Context::warm_up_only`).
     pub(crate) opened: std::time::Instant,
     pub(crate) ready_after: Mutex<Option<std::time::Duration>>,
+    /// What each kernel built by a warm-up cost (`Context::kernel_build_times`).
+    pub(crate) build_times: Mutex<Vec<crate::KernelBuildTime>>,
 }
 
 impl Device {

@@ -220,6 +220,7 @@ pub(super) fn open_device(
         work: Default::default(),
         opened: std::time::Instant::now(),
         ready_after: Mutex::new(None),
+        build_times: Mutex::new(Vec::new()),
     })
 }
 

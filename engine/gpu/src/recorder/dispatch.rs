@@ -112,6 +112,20 @@ impl<'a> Recorder<'a> {
         )
     }
 
+    /// An indirect dispatch of a kernel known only by its declaration, with
+    /// `buffers` in binding order: for building kernels ahead of use
+    /// (`Context::warm_up_only`), which dispatches every kernel of the
+    /// catalogue the same way.
+    pub(crate) fn dispatch_untyped_indirect(
+        &mut self,
+        kernel: &'static Kernel,
+        args: &'a Buffer,
+        buffers: &[&'a Buffer],
+    ) -> Result<()> {
+        let push = vec![0u8; kernel.push_constant_size as usize];
+        self.record_dispatch(kernel, Groups::Indirect(args, 0), buffers, &push)
+    }
+
     /// States the work of the next dispatch recorded, for a kernel whose
     /// work its launch does not show (`// @cost caller`, e.g. the blending
     /// passes, which walk tile lists whose lengths only the binning knows)

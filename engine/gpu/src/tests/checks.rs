@@ -122,3 +122,55 @@ fn buffers_larger_than_a_binding_are_refused() {
         assert!(matches!(err, crate::Error::Unsupported(_)), "{err}");
     });
 }
+
+/// A warm-up builds each chosen kernel once (on worker threads, each then
+/// run once empty), reports progress after each, logs what each cost,
+/// leaves out a kernel the driver rejects without failing, and costs
+/// nothing for kernels it built before.
+#[test]
+fn warm_up_builds_each_chosen_kernel_once() {
+    let o = ContextOptions {
+        rejected_kernels: vec!["scan_add".into()],
+        ..ContextOptions::default()
+    };
+    with_options(o, |ctx| {
+        let chosen = |k: &latentam_shaders::Kernel| {
+            k.name.starts_with("scan") || k.name.starts_with("reduce")
+        };
+        let mut expected: Vec<&str> = latentam_shaders::ALL
+            .iter()
+            .filter(|k| chosen(k) && ctx.info().can_run(k))
+            .map(|k| k.name)
+            .collect();
+        assert!(expected.len() >= 4 && expected.contains(&"scan_add"));
+        let n = expected.len();
+        let mut calls = Vec::new();
+        let ready = ctx
+            .warm_up_reporting(chosen, |built, of| calls.push((built, of)))
+            .unwrap();
+        assert_eq!(ready, n - 1, "all but the rejected kernel");
+        assert_eq!(calls, (1..=n).map(|b| (b, n)).collect::<Vec<_>>());
+        let times = ctx.kernel_build_times();
+        let mut built: Vec<&str> = times.iter().map(|t| t.kernel).collect();
+        built.sort();
+        expected.retain(|k| *k != "scan_add");
+        expected.sort();
+        assert_eq!(built, expected);
+        assert!(times
+            .iter()
+            .all(|t| t.create_ms > 0.0 && t.first_dispatch_ms > 0.0));
+        let failed: Vec<&str> = ctx.kernel_build_failures().iter().map(|f| f.0).collect();
+        assert_eq!(failed, ["scan_add"]);
+        assert!(ctx.time_to_ready_ms().is_some());
+
+        // Again: only the rejected kernel is tried (and refused at once).
+        let pipelines = ctx.live_objects().pipelines;
+        let mut again = Vec::new();
+        let ready = ctx
+            .warm_up_reporting(chosen, |built, of| again.push((built, of)))
+            .unwrap();
+        assert_eq!((ready, again), (n - 1, vec![(1, 1)]));
+        assert_eq!(ctx.kernel_build_times().len(), times.len());
+        assert_eq!(ctx.live_objects().pipelines, pipelines);
+    });
+}
