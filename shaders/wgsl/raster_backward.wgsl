@@ -16,17 +16,20 @@
 // plus (v_alpha_out - background . v_rgb) * T_final / (1 - alpha_i): the
 // front-to-back form, which replays the forward order exactly.
 //
-// COLUMNS variants give each invocation one 16-pixel tile column instead of
-// one pixel (see glsl/raster_forward.comp for why CPU drivers want that):
-// a Gaussian's data is loaded once per column, its gradients are summed
-// over the column in registers before the subgroup sum and the atomics, and
-// branches become selects, since those drivers run both sides anyway.
-// There the 8 invocations of a tile are one subgroup (the host picks the
-// SUBGROUP column variants only for subgroups of exactly 8): a shuffle
-// butterfly leaves the tile's sums in every invocation, and each adds a
-// share of them, so every atomic instruction does 8 useful additions. CPU
-// drivers run subgroup reductions and atomics lane by lane, and flushing a
-// Gaussian from one invocation cost as much as blending it.
+// COLUMNS variants give each of 16 invocations one 16-pixel tile column
+// instead of one pixel (see glsl/raster_forward.comp for why CPU drivers
+// want that): a Gaussian's data is loaded once per column, its gradients
+// are summed over the column in registers before the subgroup sum and the
+// atomics, and branches become selects, since those drivers run both sides
+// anyway. There each 8 invocations of a tile are one subgroup (the host
+// picks the SUBGROUP column variants only for subgroups of exactly 8): a
+// shuffle butterfly leaves the subgroup's sums in every invocation, and
+// each adds a share of them, so every atomic instruction does 8 useful
+// additions. CPU drivers run subgroup reductions and atomics lane by lane,
+// and flushing a Gaussian from one invocation cost as much as blending it.
+// (Two columns per invocation halve the flushes but took lavapipe's
+// compiler 3 to 4.5 times as long, 13.5 s against 4.2 s on a cold driver
+// cache, for no measurable gain at run time.)
 //
 // @capabilities SHADER_FLOAT32_ATOMIC SUBGROUP
 // @select COLUMNS ATTACHED SUBGROUP CAS
@@ -56,13 +59,13 @@
 //     GRAD_DETACHED 132 + GRAD_QUERY 256 * (1 - detach_query) is not
 //     host-known at dispatch: add it times contributors where known)
 //   raster_backward_columns[_cas|_plain|_plain_cas]:
-//     210 * 256 * I + 340 * I + 80 * P
+//     210 * 256 * I + 680 * I + 80 * P
 //   raster_backward_columns_attached[_cas|_plain|_plain_cas]:
-//     498 * 256 * I + 340 * I + 80 * P
+//     280 * 256 * I + 680 * I + 80 * P
 //     (branchless: every tested (entry, pixel) forms all its gradients
-//     with selects, 210, +288 for the attached query terms of the alpha
-//     gradient; per entry 340 for the sum over the 8 lanes and the 42
-//     atomic adds)
+//     with selects, 210, +70 for the attached query terms of the alpha
+//     gradient, a 32-channel dot product and the running sums; per entry and subgroup of 8 columns, two per tile, 340 for
+//     the sum over the 8 lanes and the 42 atomic adds)
 // bytes = 4 * I + 32 * V + 4 * n_tiles + 44 * P + Q + X + A, where
 //   X = 140 * U for the pixel and _attached variants, 12 * U for the
 //     detached column ones (colour, query per Gaussian, distinct once);
@@ -70,11 +73,13 @@
 //     128 * P (_attached), plus the upstream query gradient: 128 * P
 //     (query_source 0), 4 * P + 132 * R (1), 0 (2);
 //   A = atomics, 42 gradient words of 8 bytes per flush (CAS the same,
-//     retries not counted): 336 * I for the SUBGROUP variants (pixel ones
-//     a floor, one flush per entry as CostModel ENTRY_GRAD_BYTES; they do
-//     up to 256 / subgroup size), 336 * I for the pixel _plain ones too as
-//     a floor (they flush once per contributor), 2688 * I for the column
-//     _plain ones (each of the 8 invocations flushes every entry).
+//     retries not counted): 672 * I for the SUBGROUP column variants (each
+//     of a tile's two subgroups flushes every entry), 336 * I for the
+//     SUBGROUP pixel ones (a floor, one flush per entry as CostModel
+//     ENTRY_GRAD_BYTES; they do up to 256 / subgroup size), 336 * I for the
+//     pixel _plain ones too as a floor (they flush once per contributor),
+//     5376 * I for the column _plain ones (each of the 16 invocations
+//     flushes every entry).
 //
 // In the COLUMNS variants whether the query gradients reach opacity and
 // geometry is fixed at compile time (ATTACHED), since a run-time branch
@@ -90,10 +95,9 @@
 #include "raster.wgsl"
 
 #if COLUMNS
-// Pixels per invocation (two tile columns: t and t + 8), and invocations
-// per workgroup.
-const ROWS: u32 = 32u;
-const INVOCATIONS: u32 = 8u;
+// Pixels per invocation (one tile column), and invocations per workgroup.
+const ROWS: u32 = 16u;
+const INVOCATIONS: u32 = 16u;
 #else
 const ROWS: u32 = 1u;
 const INVOCATIONS: u32 = 256u;
@@ -234,7 +238,8 @@ fn flush(g: Grads, gaussian: u32, pair: u32) {
 }
 
 #if SUBGROUP
-// Sum over the 8 invocations of a column-layout tile, in every invocation.
+// Sum over the 8 invocations of a column-layout subgroup, in every
+// invocation.
 fn lane_sum(x: vec4<f32>) -> vec4<f32> {
     var y = x + subgroupShuffleXor(x, 1u);
     y += subgroupShuffleXor(y, 2u);
@@ -247,7 +252,7 @@ var<workgroup> sh_splat: array<vec4<f32>, BLEND_BATCH>;
 var<workgroup> sh_conic: array<vec4<f32>, BLEND_BATCH>;
 
 #if COLUMNS
-@compute @workgroup_size(8)
+@compute @workgroup_size(16)
 #else
 @compute @workgroup_size(256)
 #endif
@@ -292,16 +297,21 @@ fn raster_backward(
     var bg_term: array<f32, ROWS>;
     var trans: array<f32, ROWS>;
     var c_acc: array<vec4<f32>, ROWS>;
-    var v_q: array<vec4<f32>, 256>;
+    var v_q: array<vec4<f32>, 128>;
 #if ATTACHED
-    var q_final: array<vec4<f32>, 256>;
-    var q_acc: array<vec4<f32>, 256>;
+    // The query terms of the alpha gradient need the rendered and the
+    // running query only through their dot products with the upstream
+    // gradient: sum_c v_q,c . (q_final,c - q_<=i,c) = vq_final - vq_acc.
+    // Two numbers per pixel instead of 64, which quartered the driver's
+    // compile time.
+    var vq_final: array<f32, ROWS>;
+    var vq_acc: array<f32, ROWS>;
 #endif
     var my_walk = 0u;
-#unroll K 32
+#unroll K 16
     {
-        let px = px0 + 8u * (K / 16u);
-        let py = py0 + K % 16u;
+        let px = px0;
+        let py = py0 + K;
         walked[K] = 0u;
         var t_final = 1.0;
         c_final[K] = vec4<f32>(0.0);
@@ -311,11 +321,11 @@ fn raster_backward(
         var v_alpha_out = 0.0;
 #unroll C 8
         v_q[8u * K + C] = vec4<f32>(0.0);
-#if ATTACHED
-        q_final[8u * K + C] = vec4<f32>(0.0);
-        q_acc[8u * K + C] = vec4<f32>(0.0);
-#endif
 #endunroll
+#if ATTACHED
+        vq_final[K] = 0.0;
+        vq_acc[K] = 0.0;
+#endif
         if (px < v.size.x && py < v.size.y) {
             let p = v.offsets.y + py * v.size.x + px;
             let st = state[p];
@@ -329,7 +339,7 @@ fn raster_backward(
 #unroll C 8
             v_q[8u * K + C] = upstream_query(up, C);
 #if ATTACHED
-            q_final[8u * K + C] = query_image[8u * p + C];
+            vq_final[K] += dot(v_q[8u * K + C], query_image[8u * p + C]);
 #endif
 #endunroll
         }
@@ -378,9 +388,9 @@ fn raster_backward(
 #endunroll
             g.mean_opacity = vec4<f32>(0.0);
             g.conic = vec4<f32>(0.0);
-#unroll K 32
+#unroll K 16
             {
-                let d = s.xy - vec2<f32>(f32(px0 + 8u * (K / 16u)), f32(py0 + K % 16u));
+                let d = s.xy - vec2<f32>(f32(px0), f32(py0 + K));
                 let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
                 let vis = exp(-sigma);
                 let alpha = min(MAX_ALPHA, s.w * vis);
@@ -398,13 +408,16 @@ fn raster_backward(
                 g.query[C] = select(g.query[C], g.query[C] + w * v_q[8u * K + C], hit);
 #endunroll
 #if ATTACHED
-#unroll C 8
                 {
-                    let qa = q_acc[8u * K + C] + w * f_q[C];
-                    q_acc[8u * K + C] = select(q_acc[8u * K + C], qa, hit);
-                    v_alpha += dot(v_q[8u * K + C], f_q[C] * trans[K] - (q_final[8u * K + C] - qa) * ra);
-                }
+                    // sum_c v_q,c . (f_c T - (q_final,c - q_<=i,c) / (1 - alpha)).
+                    var vf = 0.0;
+#unroll C 8
+                    vf += dot(v_q[8u * K + C], f_q[C]);
 #endunroll
+                    let vqa = vq_acc[K] + w * vf;
+                    vq_acc[K] = select(vq_acc[K], vqa, hit);
+                    v_alpha += vf * trans[K] - (vq_final[K] - vqa) * ra;
+                }
 #endif
                 // Clamped alphas do not depend on opacity or shape.
                 let shaped = hit && s.w * vis <= MAX_ALPHA;

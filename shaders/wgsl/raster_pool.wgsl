@@ -16,8 +16,8 @@
 // One pixel per invocation (GPUs): where a subgroup's pixels all lie in one
 // region (most of an image), they are summed with subgroupAdd and one
 // invocation adds the row; elsewhere each pixel adds its own. COLUMNS
-// variants (CPU drivers, see glsl/raster_forward.comp): each of 8
-// invocations blends two 16-pixel tile columns, and a column whose pixels
+// variants (CPU drivers, see glsl/raster_forward.comp): each of 16
+// invocations blends one 16-pixel tile column, and a column whose pixels
 // share a region adds one row for the column.
 //
 // The region of pixel p is labels[p] (0xffffffff: none); from offsets_at,
@@ -59,8 +59,9 @@
 #include "raster.wgsl"
 
 #if COLUMNS
-const ROWS: u32 = 32u;
-const INVOCATIONS: u32 = 8u;
+// Pixels per invocation (one tile column), and invocations per workgroup.
+const ROWS: u32 = 16u;
+const INVOCATIONS: u32 = 16u;
 #else
 const INVOCATIONS: u32 = 256u;
 #endif
@@ -131,7 +132,7 @@ var<workgroup> sh_splat: array<vec4<f32>, BLEND_BATCH>;
 var<workgroup> sh_conic: array<vec4<f32>, BLEND_BATCH>;
 
 #if COLUMNS
-@compute @workgroup_size(8)
+@compute @workgroup_size(16)
 #else
 @compute @workgroup_size(256)
 #endif
@@ -157,20 +158,19 @@ fn raster_pool(
     let local_tile = tile - v.offsets.x;
     let start = ranges[tile].start;
 #if COLUMNS
-    let px0 = (local_tile % v.size.z) * TILE_SIZE + t;
+    let px = (local_tile % v.size.z) * TILE_SIZE + t;
     let py0 = (local_tile / v.size.z) * TILE_SIZE;
-    // Per pixel K (column px0 + 8 (K / 16), row py0 + K % 16), indexed by
-    // constants only (unrolled below).
+    // Per pixel K (row py0 + K of column px), indexed by constants only
+    // (unrolled below).
     var walked: array<u32, ROWS>;
     var region: array<u32, ROWS>;
     var share: array<f32, ROWS>;
     var trans: array<f32, ROWS>;
-    var q: array<vec4<f32>, 256>;
+    var q: array<vec4<f32>, 128>;
     var my_walk = 0u;
-#unroll K 32
+#unroll K 16
     {
-        let px = px0 + 8u * (K / 16u);
-        let py = py0 + K % 16u;
+        let py = py0 + K;
         walked[K] = 0u;
         region[K] = NO_REGION;
         share[K] = 0.0;
@@ -206,14 +206,14 @@ fn raster_pool(
             let s = sh_splat[j];
             let conic = sh_conic[j].xyz;
             let g = sh_gaussian[j];
-            // Loaded once for the 32 pixels.
+            // Loaded once for the column.
             var f: array<vec4<f32>, 8>;
 #unroll C 8
             f[C] = queries[8u * g + C];
 #endunroll
-#unroll K 32
+#unroll K 16
             {
-                let d = s.xy - vec2<f32>(f32(px0 + 8u * (K / 16u)), f32(py0 + K % 16u));
+                let d = s.xy - vec2<f32>(f32(px), f32(py0 + K));
                 let sigma = 0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) + conic.y * d.x * d.y;
                 let alpha = min(MAX_ALPHA, s.w * exp(-sigma));
                 let hit = base + j < walked[K] && sigma >= 0.0 && alpha >= MIN_ALPHA;
@@ -229,46 +229,42 @@ fn raster_pool(
         }
     }
 
-    // Column 0 (K 0..15), then column 1 (K 16..31): one row update for a
-    // column in one region, else one per pixel.
-    var same0 = true;
-    var same1 = true;
-    var sum0: array<vec4<f32>, 8>;
-    var sum1: array<vec4<f32>, 8>;
+    // One row update for a column in one region, else one per pixel.
+    var same = true;
+    var sum: array<vec4<f32>, 8>;
 #unroll K 16
     {
-        same0 = same0 && region[K] == region[0u];
-        same1 = same1 && region[K + 16u] == region[16u];
+        same = same && region[K] == region[0u];
 #unroll C 8
-        sum0[C] += q[8u * K + C] * share[K];
-        sum1[C] += q[8u * (K + 16u) + C] * share[K + 16u];
+        sum[C] += q[8u * K + C] * share[K];
 #endunroll
     }
 #endunroll
-    if (same0 && region[0u] != NO_REGION) {
-        add_row(region[0u], sum0);
+    if (same && region[0u] != NO_REGION) {
+        add_row(region[0u], sum);
     }
-    if (same1 && region[16u] != NO_REGION) {
-        add_row(region[16u], sum1);
-    }
+    // A column across regions adds pixel by pixel, from one call site in
+    // a loop: the pixel's values are picked by selects, since indexing the
+    // per-pixel arrays by the loop counter would take them out of
+    // registers, and 16 inlined row updates cost the driver's compiler far
+    // more than these selects cost at run time. A column in one region
+    // skips the loop.
+    for (var k = 0u; k < select(ROWS, 0u, same); k++) {
+        var r = NO_REGION;
+        var mine: array<vec4<f32>, 8>;
 #unroll K 16
-    {
-        if (!same0 && region[K] != NO_REGION) {
-            var mine: array<vec4<f32>, 8>;
+        {
+            let pick = k == K;
+            r = select(r, region[K], pick);
 #unroll C 8
-            mine[C] = q[8u * K + C] * share[K];
+            mine[C] = select(mine[C], q[8u * K + C] * share[K], pick);
 #endunroll
-            add_row(region[K], mine);
         }
-        if (!same1 && region[K + 16u] != NO_REGION) {
-            var mine: array<vec4<f32>, 8>;
-#unroll C 8
-            mine[C] = q[8u * (K + 16u) + C] * share[K + 16u];
 #endunroll
-            add_row(region[K + 16u], mine);
+        if (r != NO_REGION) {
+            add_row(r, mine);
         }
     }
-#endunroll
 #else
     let px = (local_tile % v.size.z) * TILE_SIZE + t % TILE_SIZE;
     let py = (local_tile / v.size.z) * TILE_SIZE + t / TILE_SIZE;

@@ -34,8 +34,8 @@ pub(super) fn backward_kernel(
     settings: &RenderSettings,
 ) -> &'static KernelDef<push::RasterBackward, bind::RasterBackward> {
     let columns = columns(info, settings);
-    // The column kernels sum a tile's 8 invocations with a shuffle
-    // butterfly, which needs them to be exactly one subgroup.
+    // The column kernels sum each 8 of a tile's 16 invocations with a
+    // shuffle butterfly, which needs those 8 to be exactly one subgroup.
     let subgroup = if columns {
         info.subgroup_shuffle && info.subgroup_size == 8
     } else {

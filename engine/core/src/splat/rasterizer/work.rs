@@ -128,8 +128,8 @@ impl BatchCounts {
         let attached = kernel.name.contains("_attached");
         let flops = match (columns, attached) {
             (false, _) => 25.0 * TILE_PIXELS * self.entries + 80.0 * self.pixels,
-            (true, false) => (210.0 * TILE_PIXELS + 340.0) * self.entries + 80.0 * self.pixels,
-            (true, true) => (498.0 * TILE_PIXELS + 340.0) * self.entries + 80.0 * self.pixels,
+            (true, false) => (210.0 * TILE_PIXELS + 680.0) * self.entries + 80.0 * self.pixels,
+            (true, true) => (280.0 * TILE_PIXELS + 680.0) * self.entries + 80.0 * self.pixels,
         };
         let per_gaussian = if columns && !attached { 12.0 } else { 140.0 };
         let query_image = if attached || (!columns && !detach_query) {
@@ -142,10 +142,13 @@ impl BatchCounts {
         } else {
             0.0
         };
-        let atomics = if columns && kernel.name.contains("_plain") {
-            2688.0
-        } else {
-            336.0
+        // 42 words of 8 bytes per flush: per entry, every invocation of a
+        // _plain column tile (16), each subgroup of the others (2), or
+        // once (pixel layouts, a floor).
+        let atomics = match (columns, kernel.name.contains("_plain")) {
+            (true, true) => 5376.0,
+            (true, false) => 672.0,
+            (false, _) => 336.0,
         };
         Work {
             flops,
