@@ -109,6 +109,28 @@ fn duration(s: f64) -> String {
     }
 }
 
+/// Builds every kernel `mapper` can dispatch, with a status line
+/// "building kernels (n of N)" once it takes more than a second: on a
+/// machine whose driver has never compiled them, that is tens of seconds.
+fn build_kernels(mapper: &Mapper) -> Result<()> {
+    let start = Instant::now();
+    let mut line = StatusLine::default();
+    let mut shown = false;
+    mapper.warm_up_reporting(|built, of| {
+        let waited = start.elapsed().as_secs_f64();
+        if (waited >= 1.0 && line.due()) || (shown && built == of) {
+            line.show(&format!(
+                "building kernels ({built} of {of}) · {waited:.0} s"
+            ));
+            shown = true;
+        }
+    })?;
+    if shown {
+        line.finish();
+    }
+    Ok(())
+}
+
 /// Maps `opts.log` through the library's [`LogRun`], writing the run
 /// folder `folder` at every autosave (when given), with a status line,
 /// Ctrl-C handling and `report.html` beside the report; errors only when
@@ -120,7 +142,6 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         profiling: opts.profile,
         ..ContextOptions::default()
     })?;
-    latentam::warm_up(&ctx)?;
     let mapper = match (folder, &opts.resume) {
         (Some(folder), Some(settings)) => {
             let settings = |saved: &MapperConfig| {
@@ -139,6 +160,7 @@ pub fn map_log(opts: &RunOptions, folder: Option<&RunFolder>) -> Result<LogRun> 
         }
         _ => Mapper::with_context(&ctx, opts.config.clone())?,
     };
+    build_kernels(&mapper)?;
     // Profile the mapping, not the warm-up or the load.
     ctx.profiler_reset();
     interrupt::install();
@@ -322,9 +344,22 @@ pub fn summary(r: &RunReport) -> String {
                 n as f64 / 1e6
             ),
         };
+        let b = &r.kernel_builds;
+        let built = match b.slowest.first() {
+            Some((name, ms)) => format!(
+                "{} kernels built, {:.1} s of work, the slowest {name} {:.1} s",
+                b.kernels,
+                b.work_ms / 1e3,
+                ms / 1e3
+            ),
+            None => "no kernel to build".to_string(),
+        };
         s += &format!(
-            "ready for the first frame after {ready:.0} ms ({cache}; not counted below)\n"
+            "ready for the first frame after {ready:.0} ms ({built}; {cache}; not counted below)\n"
         );
+    }
+    if let Some(first) = r.first_keyframe_over_median {
+        s += &format!("first keyframe: {first:.2}x the median of the next five\n");
     }
     s += &format!(
         "Gaussians: {} in the map, {} on the GPU (window of {}); evicted {}, fetched {}\n",

@@ -97,9 +97,9 @@ pub fn run(
     generate(&opts.scene, &log, |_| {})?;
     let frames = McapFrames::open(&log, AssemblyConfig::default())
         .with_context(|| format!("opening {}", log.display()))?;
-    // Every pipeline up front, so the object counts compare like with like.
-    latentam::warm_up(ctx)?;
     let mut mapper = Mapper::with_context(ctx, opts.config.clone())?;
+    // Every pipeline up front, so the object counts compare like with like.
+    mapper.warm_up()?;
     let validation = ctx.validation_log();
     let per_lap = opts.scene.frames as f64 / opts.scene.laps as f64;
     let mut curve = Vec::new();

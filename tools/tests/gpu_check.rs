@@ -52,6 +52,14 @@ fn the_gpu_check_runs_every_step_and_writes_its_files() {
     for f in ["primitives.json", "raster.json", "latent.json", "live.json"] {
         json(f);
     }
+    // Every kernel's build time, each with its two parts.
+    let kernels = json("kernels.json");
+    let kernels = kernels["kernels"].as_array().unwrap();
+    assert!(kernels.len() > 40, "{} kernels", kernels.len());
+    for k in kernels {
+        assert!(k["create_ms"].as_f64().unwrap() > 0.0, "{k}");
+        assert!(k["first_dispatch_ms"].as_f64().unwrap() > 0.0, "{k}");
+    }
     // The per-pixel evaluation on the device agrees with the CPU's.
     let decode = json("decode.json");
     assert!(decode["device_ms_median"].as_f64().unwrap() > 0.0);

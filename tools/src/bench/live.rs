@@ -7,9 +7,10 @@
 //! then all of it at the scene's frame rate with `submit`, a thread
 //! rendering a view every 3 s, and an abort at the end. Measured: `submit`
 //! latency, query and render latency while keyframes run, mapping time per
-//! keyframe with and without queries, frames dropped, time to ready with a
-//! cold and a warm pipeline cache, the first keyframe's Stage I time
-//! against the later ones, and how long `abort` takes.
+//! keyframe with and without queries, frames dropped, time to ready on a
+//! new machine (the driver's shader cache and the engine's pipeline cache
+//! in empty folders) and again with the caches that start filled, the
+//! first keyframe against the next five, and how long `abort` takes.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -21,13 +22,14 @@ use latentam_base::HostGaussians;
 use latentam_core::latent::TextQuery;
 use latentam_core::live::{IndexSettings, LiveMapper, LiveOptions, MapSnapshot};
 use latentam_core::mapper::{
-    camera_of, DecoderFile, Integrated, Mapper, MapperConfig, MapperStats,
+    camera_of, first_keyframe_over_median, DecoderFile, Integrated, Mapper, MapperConfig,
+    MapperStats,
 };
 use latentam_gpu::{Context, ContextOptions};
 use latentam_io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 use rand::{Rng, SeedableRng};
 
-use super::common::{median, write_json};
+use super::common::write_json;
 
 mod report;
 use report::{FirstKeyframe, LargeSnapshot, Latencies, Pass, Ready, Report};
@@ -76,6 +78,14 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let scratch = std::env::temp_dir().join(format!("latentam-bench-live-{}", std::process::id()));
     std::fs::create_dir_all(&scratch)?;
+    // A new machine's start: the driver's own shader cache (Mesa's, and
+    // NVIDIA's) in an empty folder of the scratch space, set before any
+    // device is opened, while this process has no other thread.
+    let driver_cache = scratch.join("driver-cache");
+    std::fs::create_dir_all(&driver_cache)?;
+    for var in ["MESA_SHADER_CACHE_DIR", "__GL_SHADER_DISK_CACHE_PATH"] {
+        std::env::set_var(var, &driver_cache);
+    }
     let result = bench(&args, &scratch);
     let _ = std::fs::remove_dir_all(&scratch);
     result
@@ -112,11 +122,20 @@ fn bench(args: &Args, scratch: &Path) -> Result<()> {
         cold_ms,
         warm_ms,
         warm_cache_bytes: ctx.info().pipeline_cache_loaded_bytes,
+        cold_builds: first_cold.builds.clone(),
+        warm_builds: first_warm.builds.clone(),
     };
+    let (first_cold, first_warm) = (first_cold.first, first_warm.first);
     println!(
-        "time to ready: {cold_ms:.0} ms cold, {warm_ms:.0} ms warm; first keyframe's Stage I \
-         over the median of the next: {:.2} cold, {:.2} warm",
-        first_cold.first_over_median_of_later, first_warm.first_over_median_of_later
+        "time to ready: {cold_ms:.0} ms cold ({} kernels, {:.1} s of building), {warm_ms:.0} ms \
+         warm; the first keyframe over the median of the next five: {:.2} cold, {:.2} warm \
+         (Stage I: {:.2}, {:.2})",
+        ready.cold_builds.kernels,
+        ready.cold_builds.work_ms / 1e3,
+        first_cold.total_first_over_median_of_later,
+        first_warm.total_first_over_median_of_later,
+        first_cold.first_over_median_of_later,
+        first_warm.first_over_median_of_later
     );
 
     let (large, large_snapshot) = large_snapshot(args);
@@ -182,36 +201,43 @@ fn bench(args: &Args, scratch: &Path) -> Result<()> {
     write_json(args.json.as_deref(), &report)
 }
 
-/// Opens a context with its pipeline cache in `caches`, warms it up (the
-/// time to ready), and maps the first six keyframes synchronously for
-/// their Stage I times.
-fn open_and_map(caches: &Path, frames: &[Frame]) -> Result<(f64, Context, FirstKeyframe)> {
+/// A start and its first keyframes.
+struct Start {
+    builds: latentam_core::mapper::KernelBuilds,
+    first: FirstKeyframe,
+}
+
+/// Opens a context with its pipeline cache in `caches`, builds the
+/// mapper's kernels (the time to ready), and maps the first six keyframes
+/// synchronously for their times.
+fn open_and_map(caches: &Path, frames: &[Frame]) -> Result<(f64, Context, Start)> {
     let start = Instant::now();
     let ctx = Context::new(ContextOptions {
         pipeline_cache_dir: Some(caches.to_path_buf()),
         ..ContextOptions::default()
     })?;
-    latentam_core::mapper::warm_up(&ctx)?;
-    let ready_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut mapper = Mapper::with_context(&ctx, MapperConfig::default())?;
-    let mut stage_one_ms = Vec::new();
+    mapper.warm_up()?;
+    let ready_ms = start.elapsed().as_secs_f64() * 1e3;
+    let (mut stage_one_ms, mut total_ms) = (Vec::new(), Vec::new());
     for f in frames {
         if let Integrated::Keyframe(k) = mapper.integrate(f)? {
             stage_one_ms.push(k.timings.stage_one_ms);
+            total_ms.push(k.timings.total_ms);
             if stage_one_ms.len() == 6 {
                 break;
             }
         }
     }
-    let ratio = stage_one_ms[0] / median(&stage_one_ms[1..]);
-    Ok((
-        ready_ms,
-        ctx,
-        FirstKeyframe {
-            stage_one_ms,
-            first_over_median_of_later: ratio,
-        },
-    ))
+    let over = |ms: &[f64]| first_keyframe_over_median(ms).unwrap_or(f64::NAN);
+    let first = FirstKeyframe {
+        first_over_median_of_later: over(&stage_one_ms),
+        total_first_over_median_of_later: over(&total_ms),
+        stage_one_ms,
+        total_ms,
+    };
+    let builds = latentam_core::mapper::KernelBuilds::of(&ctx.kernel_build_times());
+    Ok((ready_ms, ctx, Start { builds, first }))
 }
 
 /// A snapshot of random Gaussians and a random decoder at the sizes asked

@@ -166,9 +166,9 @@ pub enum Which {
     /// submitted at 30 Hz, alone and with relevance queries at 2 Hz (on the
     /// live map and on a 100 000-Gaussian snapshot with K = 2000, d_f =
     /// 768) and renders: submit, query and render latencies, mapping
-    /// throughput with and without queries, drops, time to ready with a
-    /// cold and a warm pipeline cache, the first keyframe against the
-    /// later ones, and abort latency.
+    /// throughput with and without queries, drops, time to ready on a new
+    /// machine (empty driver and pipeline caches) and again with warm ones,
+    /// the first keyframe against the next five, and abort latency.
     Live(live::Args),
     /// The per-pixel evaluation of one view (every pixel's query decoded,
     /// its cosine to its region's target and its class among a

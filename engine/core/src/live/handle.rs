@@ -82,8 +82,8 @@ impl LiveMapper {
     pub fn load(dir: impl AsRef<Path>, options: LiveOptions) -> Result<Self> {
         let start = Instant::now();
         let ctx = latentam_gpu::Context::new(latentam_gpu::ContextOptions::default())?;
-        crate::mapper::warm_up(&ctx)?;
         let mapper = Mapper::load(&ctx, dir)?;
+        mapper.warm_up()?;
         let ready = start.elapsed().as_secs_f64() * 1e3;
         Self::spawn(mapper, options, Some(ready))
     }
@@ -94,8 +94,8 @@ impl LiveMapper {
     /// ```no_run
     /// use latentam_core::live::{LiveMapper, LiveOptions};
     /// let ctx = latentam_gpu::Context::new(Default::default())?;
-    /// latentam_core::mapper::warm_up(&ctx)?;
     /// let mapper = latentam_core::mapper::Mapper::load(&ctx, "runs/kitchen")?;
+    /// mapper.warm_up()?;
     /// let live = LiveMapper::start(mapper, LiveOptions::default())?;
     /// # Ok::<(), latentam_core::Error>(())
     /// ```

@@ -195,6 +195,14 @@ impl LogRun {
             device: ctx.info().name.clone(),
             time_to_ready_ms: ctx.time_to_ready_ms(),
             pipeline_cache_loaded_bytes: ctx.info().pipeline_cache_loaded_bytes,
+            kernel_builds: crate::mapper::KernelBuilds::of(&ctx.kernel_build_times()),
+            first_keyframe_over_median: crate::mapper::first_keyframe_over_median(
+                &self
+                    .keyframes
+                    .iter()
+                    .map(|k| k.timings.total_ms)
+                    .collect::<Vec<_>>(),
+            ),
             ending: self.ending.clone(),
             frames: self.frames,
             frames_skipped_as_already_mapped: self.skipped,

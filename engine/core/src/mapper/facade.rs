@@ -67,11 +67,11 @@ pub struct Mapper {
 }
 
 impl Mapper {
-    /// A mapper on the first suitable Vulkan device, with the pipeline of
-    /// every kernel mapping dispatches there created before it returns
-    /// ([`warm_up`](super::warm_up())), so the first keyframe does not wait
-    /// for kernel compilation (compiled pipelines are also kept between
-    /// processes: `ContextOptions::pipeline_cache_dir`).
+    /// A mapper on the first suitable Vulkan device, with every kernel it
+    /// can dispatch built before it returns ([`Mapper::warm_up`]), so the
+    /// first keyframe does not wait for kernel compilation (compiled
+    /// pipelines are also kept between processes:
+    /// `ContextOptions::pipeline_cache_dir`).
     ///
     /// ```no_run
     /// let mut config = latentam_core::mapper::MapperConfig::default();
@@ -81,19 +81,21 @@ impl Mapper {
     /// ```
     pub fn new(config: MapperConfig) -> Result<Self> {
         let ctx = Context::new(ContextOptions::default())?;
-        super::warm_up::warm_up(&ctx)?;
-        Self::with_context(&ctx, config)
+        let mapper = Self::with_context(&ctx, config)?;
+        mapper.warm_up()?;
+        Ok(mapper)
     }
 
     /// A mapper on a context of your choosing (device, validation,
     /// profiling). It sets the context's memory budget. Call
-    /// [`warm_up`](super::warm_up) on the context first to keep kernel
+    /// [`Mapper::warm_up`] before the first frame to keep kernel
     /// compilation out of the first keyframe.
     ///
     /// ```no_run
     /// use latentam_gpu::{Context, ContextOptions};
     /// let ctx = Context::new(ContextOptions { profiling: true, ..ContextOptions::default() })?;
     /// let mapper = latentam_core::mapper::Mapper::with_context(&ctx, latentam_core::mapper::MapperConfig::default())?;
+    /// mapper.warm_up()?;
     /// # Ok::<(), latentam_core::Error>(())
     /// ```
     pub fn with_context(ctx: &Context, config: MapperConfig) -> Result<Self> {

@@ -55,7 +55,9 @@ pub use run_folder::{
     folder_version, new_run_id, read_one_version, RunFolder, RunStaging, RUN_FOLDER_FILES,
     RUN_MARKER, STATE_FILE,
 };
-pub use run_report::{Ending, HostWaits, PagingPerKeyframe, RunReport};
+pub use run_report::{
+    first_keyframe_over_median, Ending, HostWaits, KernelBuilds, PagingPerKeyframe, RunReport,
+};
 pub use snapshot::MapSnapshot;
 pub use trainer::stage_two::StageTwoRun;
 pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};

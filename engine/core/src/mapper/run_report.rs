@@ -64,8 +64,17 @@ pub struct RunReport {
     /// figure and the kernel table.
     pub time_to_ready_ms: Option<f64>,
     /// Bytes of compiled pipelines the persistent pipeline cache gave at
-    /// start (0: a cold start).
+    /// start (0: a cold start, or a driver that keeps its own cache, as
+    /// Mesa's drivers do: see `kernel_builds` for what building cost).
     pub pipeline_cache_loaded_bytes: usize,
+    /// What building the kernels cost before the mapper was ready: seconds
+    /// on a machine whose driver has never compiled them, milliseconds
+    /// once its caches are warm.
+    pub kernel_builds: KernelBuilds,
+    /// The first keyframe's time over the median of the next five (of
+    /// those there are; `None` below two keyframes): above 1, the first
+    /// keyframe paid for something the others did not.
+    pub first_keyframe_over_median: Option<f64>,
     /// How the run ended.
     pub ending: Ending,
     /// Frames offered to the mapper in this run.
@@ -127,6 +136,73 @@ pub struct RunReport {
     pub kernels: BTreeMap<&'static str, KernelStats>,
     /// Every keyframe mapped in this run.
     pub keyframe_reports: Vec<KeyframeReport>,
+}
+
+/// What building the kernels cost in the run's process, from the device's
+/// build log (`Context::kernel_build_times`).
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::RunReport) {
+/// let b = &report.kernel_builds;
+/// println!("{} kernels built, {:.1} s of work", b.kernels, b.work_ms / 1e3);
+/// # }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct KernelBuilds {
+    /// Kernels built before the mapper was ready.
+    pub kernels: usize,
+    /// The sum of their build times (pipeline creation and first
+    /// dispatch), ms. Pipelines are created on all cores at once, so the
+    /// wall time (within `time_to_ready_ms`) can be less.
+    pub work_ms: f64,
+    /// The five slowest, slowest first: kernel and ms.
+    pub slowest: Vec<(String, f64)>,
+}
+
+impl KernelBuilds {
+    /// From a build log.
+    ///
+    /// ```
+    /// let none = latentam_core::mapper::KernelBuilds::of(&[]);
+    /// assert_eq!((none.kernels, none.work_ms), (0, 0.0));
+    /// ```
+    pub fn of(times: &[latentam_gpu::KernelBuildTime]) -> Self {
+        let mut sorted: Vec<_> = times.iter().collect();
+        sorted.sort_by(|a, b| b.total_ms().total_cmp(&a.total_ms()));
+        KernelBuilds {
+            kernels: times.len(),
+            work_ms: times.iter().map(|t| t.total_ms()).sum(),
+            slowest: sorted
+                .iter()
+                .take(5)
+                .map(|t| (t.kernel.to_string(), t.total_ms()))
+                .collect(),
+        }
+    }
+}
+
+/// The first keyframe's total time over the median of the next five;
+/// `None` below two keyframes.
+///
+/// ```
+/// use latentam_core::mapper::first_keyframe_over_median;
+/// assert_eq!(first_keyframe_over_median(&[30.0, 10.0, 20.0, 10.0]), Some(3.0));
+/// assert_eq!(first_keyframe_over_median(&[30.0]), None);
+/// ```
+pub fn first_keyframe_over_median(total_ms: &[f64]) -> Option<f64> {
+    let (first, next) = total_ms.split_first()?;
+    let mut next: Vec<f64> = next.iter().take(5).copied().collect();
+    if next.is_empty() {
+        return None;
+    }
+    next.sort_by(f64::total_cmp);
+    let n = next.len();
+    let median = if n % 2 == 1 {
+        next[n / 2]
+    } else {
+        0.5 * (next[n / 2 - 1] + next[n / 2])
+    };
+    Some(first / median.max(1e-9))
 }
 
 /// What paging moved per keyframe, averaged over a run's keyframes (those

@@ -70,6 +70,31 @@ impl GemmKernel {
             GemmKernel::Tiled
         }
     }
+
+    /// Whether `kernel` (a kernel of the catalogue) is one of this family's
+    /// variants: what building ahead of use needs, so that a device builds
+    /// only the family it dispatches.
+    ///
+    /// ```
+    /// use latentam_gpu::ops::GemmKernel;
+    ///
+    /// assert!(GemmKernel::Blocked.includes(&latentam_shaders::GEMM_BLOCKED_TN_SCALAR.kernel));
+    /// assert!(!GemmKernel::Tiled.includes(&latentam_shaders::GEMM_BLOCKED_TN.kernel));
+    /// ```
+    pub fn includes(self, kernel: &latentam_shaders::Kernel) -> bool {
+        let family: &[&KernelDef<push::Gemm, bind::Gemm>] = match self {
+            GemmKernel::Tiled => &[&GEMM_NN, &GEMM_TN, &GEMM_NT],
+            GemmKernel::Blocked => &[
+                &GEMM_BLOCKED_NN,
+                &GEMM_BLOCKED_TN,
+                &GEMM_BLOCKED_NT,
+                &GEMM_BLOCKED_NN_SCALAR,
+                &GEMM_BLOCKED_TN_SCALAR,
+                &GEMM_BLOCKED_NT_SCALAR,
+            ],
+        };
+        family.iter().any(|d| d.kernel.name == kernel.name)
+    }
 }
 
 /// Shape and scaling of one product `C = alpha·op(A)·op(B) + beta·C`

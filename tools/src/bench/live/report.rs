@@ -32,17 +32,26 @@ impl Latencies {
 /// Time from opening the device to every kernel compiled.
 #[derive(Serialize)]
 pub(super) struct Ready {
+    /// With empty driver and engine caches (a new machine), ms.
     pub(super) cold_ms: f64,
+    /// Again with the caches the cold start filled, ms.
     pub(super) warm_ms: f64,
     /// Bytes of the pipeline cache file the warm start loaded.
     pub(super) warm_cache_bytes: usize,
+    /// What building the kernels cost in each start.
+    pub(super) cold_builds: latentam_core::mapper::KernelBuilds,
+    pub(super) warm_builds: latentam_core::mapper::KernelBuilds,
 }
 
-/// The first keyframe's Stage I time against the later ones'.
+/// The first keyframe's times against the next five's.
 #[derive(Serialize)]
 pub(super) struct FirstKeyframe {
     pub(super) stage_one_ms: Vec<f64>,
+    pub(super) total_ms: Vec<f64>,
+    /// Stage I of the first keyframe over the median of the next five.
     pub(super) first_over_median_of_later: f64,
+    /// The whole first keyframe over the median of the next five.
+    pub(super) total_first_over_median_of_later: f64,
 }
 
 /// One pass of the scene through the live handle.

@@ -6,3 +6,4 @@ mod persist_files;
 mod persist_mutations;
 mod route;
 mod stages;
+mod warm_up;
