@@ -64,8 +64,10 @@
 //     280 * 256 * I + 680 * I + 80 * P
 //     (branchless: every tested (entry, pixel) forms all its gradients
 //     with selects, 210, +70 for the attached query terms of the alpha
-//     gradient, a 32-channel dot product and the running sums; per entry and subgroup of 8 columns, two per tile, 340 for
-//     the sum over the 8 lanes and the 42 atomic adds)
+//     gradient, a 32-channel dot product and the running sums; per entry
+//     680 for two flushes of 42 atomic adds and the sums over 8 lanes
+//     before them: one per subgroup of 8 columns, two per tile; the _plain
+//     ones flush from all 16 invocations, counted the same as a floor)
 // bytes = 4 * I + 32 * V + 4 * n_tiles + 44 * P + Q + X + A, where
 //   X = 140 * U for the pixel and _attached variants, 12 * U for the
 //     detached column ones (colour, query per Gaussian, distinct once);

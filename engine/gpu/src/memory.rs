@@ -44,6 +44,12 @@ pub struct MemoryReport {
     pub budget: Option<u64>,
 }
 
+/// The category of the warm-up's buffers (`Context::warm_up_only`: 64 KiB,
+/// alive only while it runs), counted but not held to the budget. A budget
+/// is the map's, and one too small for the map is reported as such at the
+/// first keyframe, not as a warm-up that could not start.
+pub(crate) const OUTSIDE_BUDGET: &str = "warm-up";
+
 /// Running totals of allocated bytes. Allocation requests that would exceed the
 /// budget are refused before they reach the driver.
 #[derive(Debug)]
@@ -61,10 +67,11 @@ impl MemoryAccounting {
         }
     }
 
-    /// Reserves `bytes` for `category`, or fails when over budget.
+    /// Reserves `bytes` for `category`, or fails when over budget (except
+    /// for [`OUTSIDE_BUDGET`]).
     pub fn reserve(&self, category: &str, name: &str, bytes: u64) -> Result<()> {
         let mut m = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(b) = m.budget {
+        if let Some(b) = m.budget.filter(|_| category != OUTSIDE_BUDGET) {
             if m.total.current + bytes > b {
                 return Err(Error::OutOfMemory(format!(
                     "allocating {bytes} bytes for `{name}` ({category}) would exceed the GPU \

@@ -13,9 +13,12 @@
 //! Pipelines are created on every core at once (`vkCreateComputePipelines`
 //! may be called from several threads, and the pipeline cache is internally
 //! synchronised). The dispatches go to the compute queue from the calling
-//! thread as each pipeline comes out, one submission each, so a driver's
-//! compilation at first dispatch overlaps the creation of the next ones,
-//! and each kernel's cost is measured on its own.
+//! thread as each pipeline comes out, one submission each, so that a
+//! driver's compilation at first dispatch can overlap the creation of the
+//! next ones (where the driver does not serialise the two), and each
+//! kernel's cost is measured on its own. A kernel counts as built once its
+//! empty dispatch ran: one whose pipeline was only created (by
+//! `Context::kernel_builds`) is dispatched by the next warm-up.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc;
@@ -45,6 +48,18 @@ impl KernelBuildTime {
     }
 }
 
+/// Makes the warm-up's workers take no further kernel when dropped.
+struct StopWorkers<'a> {
+    next: &'a AtomicUsize,
+    end: usize,
+}
+
+impl Drop for StopWorkers<'_> {
+    fn drop(&mut self) {
+        self.next.store(self.end, Ordering::Relaxed);
+    }
+}
+
 /// Bytes of the buffer bound at every binding of the empty dispatches: no
 /// invocation reads it, but a validation layer checks that each binding
 /// holds a live buffer of some size.
@@ -61,14 +76,15 @@ impl Context {
 
     /// [`Context::warm_up`] for the kernels `keep` accepts: a client that
     /// knows which variants it dispatches on this device (see
-    /// `latentam_core::mapper::warm_up`) spares the time of the others.
+    /// `latentam_core::mapper::Mapper::warm_up`) spares the time of the
+    /// others.
     /// Each kernel's pipeline is created (on all cores) and dispatched once
     /// with zero workgroups, so that a driver that compiles at first
     /// dispatch does it now rather than inside the caller's first piece of
     /// work. Kernels built before cost nothing. A kernel the driver
     /// rejects is left out (and remembered: see [`Context::kernel_builds`]);
     /// other errors are returned. Returns the number of kernels ready.
-    pub fn warm_up_only(&self, keep: impl Fn(&Kernel) -> bool + Sync) -> Result<usize> {
+    pub fn warm_up_only(&self, keep: impl Fn(&Kernel) -> bool) -> Result<usize> {
         self.warm_up_reporting(keep, |_, _| {})
     }
 
@@ -77,10 +93,10 @@ impl Context {
     /// machine whose driver cache is cold this takes seconds to minutes).
     pub fn warm_up_reporting(
         &self,
-        keep: impl Fn(&Kernel) -> bool + Sync,
+        keep: impl Fn(&Kernel) -> bool,
         mut progress: impl FnMut(usize, usize),
     ) -> Result<usize> {
-        let built = self.dev.pipelines.built();
+        let built: Vec<&str> = self.kernel_build_times().iter().map(|t| t.kernel).collect();
         let wanted: Vec<&'static Kernel> = latentam_shaders::ALL
             .iter()
             .copied()
@@ -110,8 +126,9 @@ impl Context {
         todo: &[&'static Kernel],
         progress: &mut impl FnMut(usize, usize),
     ) -> Result<usize> {
-        let stand_in = Buffer::device(self, "warm-up/stand-in", STAND_IN_BYTES)?;
-        let counts = Buffer::device(self, "warm-up/zero workgroups", 16)?;
+        let category = crate::memory::OUTSIDE_BUDGET;
+        let stand_in = Buffer::device(self, &format!("{category}/stand-in"), STAND_IN_BYTES)?;
+        let counts = Buffer::device(self, &format!("{category}/zero workgroups"), 16)?;
         let workers = std::thread::available_parallelism()
             .map_or(1, |n| n.get())
             .min(todo.len());
@@ -119,6 +136,13 @@ impl Context {
         let (tx, rx) = mpsc::channel::<(usize, f64, Result<()>)>();
         let mut ready = 0;
         std::thread::scope(|s| -> Result<()> {
+            // However this thread leaves the scope (an error, a panic in
+            // `progress`), the workers take no further kernel, so the
+            // scope's wait is for the kernels they hold, not for all.
+            let _stop = StopWorkers {
+                next: &next,
+                end: todo.len(),
+            };
             for _ in 0..workers {
                 let tx = tx.clone();
                 let next = &next;
@@ -138,7 +162,6 @@ impl Context {
                 });
             }
             drop(tx);
-            let mut first_error = None;
             for (done, (i, create_ms, made)) in rx.iter().enumerate() {
                 let k = todo[i];
                 let outcome = made.and_then(|()| self.first_dispatch(k, &stand_in, &counts));
@@ -158,16 +181,13 @@ impl Context {
                     // Logged and remembered by the pipeline cache; a caller
                     // with another variant falls back on it.
                     Err(Error::KernelBuild { .. }) => {}
-                    Err(e) => {
-                        // Stop the workers early; the first error is the one
-                        // returned.
-                        next.store(todo.len(), Ordering::Relaxed);
-                        first_error.get_or_insert(e);
-                    }
+                    // A lost device or exhausted memory: the rest would fail
+                    // too.
+                    Err(e) => return Err(e),
                 }
                 progress(done + 1, todo.len());
             }
-            first_error.map_or(Ok(()), Err)
+            Ok(())
         })?;
         Ok(ready)
     }

@@ -119,6 +119,10 @@ pub fn run(args: Args) -> Result<()> {
         "latentam-ros: DDS domain {domain}, topics under {}",
         args.namespace
     );
+    eprintln!(
+        "latentam-ros: building the mapper's kernels (seconds; tens of seconds where the GPU \
+         driver has never compiled them)"
+    );
     let live = Arc::new(LiveMapper::new(config, LiveOptions::default())?);
     eprintln!(
         "mapper ready in {:.0} ms; waiting for the input topics",

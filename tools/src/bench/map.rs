@@ -227,9 +227,11 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         profiling: true,
         ..ContextOptions::default()
     })?;
-    latentam_core::mapper::warm_up(&ctx)?;
     let atoms = cfg.atoms;
     let mut mapper = Mapper::with_context(&ctx, cfg)?;
+    // The kernels of this configuration (its blending layout), not the
+    // defaults', so no keyframe builds one.
+    mapper.warm_up()?;
     let mut gpu_calls = Vec::new();
     let frames = McapFrames::open(path, AssemblyConfig::default())
         .with_context(|| format!("opening {}", path.display()))?;

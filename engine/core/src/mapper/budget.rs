@@ -207,7 +207,7 @@ impl MemorySplit {
                 "features" => &mut split.features,
                 "latent" | "decoder" | "kmeans" | "head" | "trust_region" | "feature_loss"
                 | "relevance" => &mut split.latent_head,
-                "staging" => &mut split.staging,
+                "staging" | "warm-up" => &mut split.staging,
                 _ => &mut split.window,
             };
             *part += bytes.peak;

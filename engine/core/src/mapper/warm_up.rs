@@ -40,7 +40,20 @@ impl Mapper {
     /// # Ok::<(), latentam_core::Error>(())
     /// ```
     pub fn warm_up(&self) -> crate::Result<usize> {
-        self.warm_up_reporting(|_, _| {})
+        // Callers without a progress line of their own (the live handle,
+        // the ROS node, the Python and C bindings) see one in the log when
+        // building takes long.
+        let start = std::time::Instant::now();
+        let mut said = start;
+        self.warm_up_reporting(|built, of| {
+            if said.elapsed().as_secs_f64() >= 5.0 {
+                said = std::time::Instant::now();
+                log::info!(
+                    "building kernels ({built} of {of}), {:.0} s so far",
+                    start.elapsed().as_secs_f64()
+                );
+            }
+        })
     }
 
     /// [`Mapper::warm_up`], calling `progress(built, of)` after each kernel

@@ -275,7 +275,7 @@ impl Rasterizer {
     /// Names of the blending kernels a rasterizer with `settings` dispatches
     /// on `info`'s device (forward with and without query channels,
     /// backward, pooling): the only `raster_*` kernels worth compiling
-    /// ahead of time there (see [`crate::mapper::warm_up`]).
+    /// ahead of time there (see [`crate::mapper::Mapper::warm_up`]).
     pub fn blend_kernel_names(info: &DeviceInfo, settings: &RenderSettings) -> [&'static str; 4] {
         [
             forward_kernel(info, settings, Channels::All).kernel.name,

@@ -123,6 +123,9 @@ impl<'a> Recorder<'a> {
         buffers: &[&'a Buffer],
     ) -> Result<()> {
         let push = vec![0u8; kernel.push_constant_size as usize];
+        // It does no work (zero workgroups), stated so, so that no kernel
+        // of the warm-up counts as a dispatch of unknown work.
+        self.next_work = Some(latentam_shaders::Work::default());
         self.record_dispatch(kernel, Groups::Indirect(args, 0), buffers, &push)
     }
 

@@ -143,6 +143,12 @@ fn warm_up_builds_each_chosen_kernel_once() {
             .map(|k| k.name)
             .collect();
         assert!(expected.len() >= 4 && expected.contains(&"scan_add"));
+        // A pipeline created but never dispatched is not built yet.
+        let scan_blocks = latentam_shaders::ALL
+            .iter()
+            .find(|k| k.name == "scan_blocks")
+            .unwrap();
+        assert!(ctx.kernel_builds(scan_blocks).unwrap());
         let n = expected.len();
         let mut calls = Vec::new();
         let ready = ctx
