@@ -17,6 +17,7 @@ mod counters;
 mod device_limits_tests;
 mod host_spans;
 mod host_time;
+mod kernel_build_time;
 mod memory;
 mod objects;
 pub mod ops;
@@ -41,12 +42,12 @@ pub use context::{
 pub use counters::GpuCalls;
 pub use host_spans::HostSpan;
 pub use host_time::{ClockSync, HostSample, HOST_WAIT};
+pub use kernel_build_time::KernelBuildTime;
 pub use latentam_base::{Error, Result};
 pub use memory::{ByteCount, MemoryReport};
 pub use objects::LiveObjects;
 pub use profiler::{KernelStats, Profiler, Sample, DEFAULT_TRACE_SAMPLES};
 pub use recorder::{GpuSpan, QueueKind, Recorder, Submission, SyncPoint};
-pub use warm_up::KernelBuildTime;
 pub use work::{Floor, GpuModel, GpuWork, KernelWork};
 
 impl Context {
