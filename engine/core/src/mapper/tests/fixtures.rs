@@ -4,6 +4,7 @@
 use glam::{DQuat, DVec3};
 
 use crate::map::{KeyframeConfig, KeyframePolicy};
+use crate::mapper::MapperConfig;
 use latentam_io::{
     encode_floats, CameraPose, ColorImage, DepthData, DepthImage, Dtype, EmbeddingLayout,
     Embeddings, Frame, Intrinsics, LabelImage, PixelFormat,
@@ -81,5 +82,18 @@ pub(crate) fn every_frame_a_keyframe() -> KeyframeConfig {
     KeyframeConfig {
         policy: KeyframePolicy::Interval(1),
         ..Default::default()
+    }
+}
+
+/// A small map of the fixture's keyframes: every frame a keyframe, a window
+/// of 8192 Gaussians, 16 atoms, the fixture's two regions kept.
+pub(crate) fn small_map_config() -> MapperConfig {
+    MapperConfig {
+        keyframes: every_frame_a_keyframe(),
+        window_capacity: Some(8192),
+        atoms: 16,
+        max_regions: 64,
+        min_region_pixels: 4,
+        ..MapperConfig::default()
     }
 }

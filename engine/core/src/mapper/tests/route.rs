@@ -332,18 +332,6 @@ fn guessed_surface_that_a_later_keyframe_contradicts_is_removed() {
     });
 }
 
-/// The small map the tests of setting limits build.
-fn limits_config() -> MapperConfig {
-    MapperConfig {
-        keyframes: every_frame_a_keyframe(),
-        window_capacity: Some(8192),
-        atoms: 16,
-        max_regions: 64,
-        min_region_pixels: 4,
-        ..MapperConfig::default()
-    }
-}
-
 /// Maps `keyframes` frames with `cfg`, then checks that a query scores
 /// every Gaussian finitely and that the map saves (a diverged one would
 /// not). Returns the mapper and the query's embedding.
@@ -390,7 +378,7 @@ fn float_settings_at_their_limits_keep_every_output_finite() {
             opacity,
             ..SeedingConfig::default()
         },
-        ..limits_config()
+        ..small_map_config()
     };
     for past in [
         at(MIN_TEMPERATURE / 2.0, 0.05, 0.75, 0.9),
@@ -448,7 +436,7 @@ fn learning_rates_at_their_maximum_keep_every_output_finite() {
             queries: top,
         },
         stage_two_iterations: 20,
-        ..limits_config()
+        ..small_map_config()
     };
     assert!(cfg.validate().is_ok());
     with_context(|ctx| _ = map_query_and_save(ctx, cfg, 4));

@@ -10,34 +10,23 @@ use crate::mapper::*;
 use crate::splat::BlendLayout;
 use latentam_gpu::testing::with_context;
 
-fn small(cfg: MapperConfig) -> MapperConfig {
-    MapperConfig {
-        keyframes: every_frame_a_keyframe(),
-        window_capacity: Some(8192),
-        atoms: 16,
-        max_regions: 64,
-        min_region_pixels: 4,
-        ..cfg
-    }
-}
-
 #[test]
 fn a_warmed_up_mapper_builds_no_kernel_while_it_maps() {
     let configs = [
-        ("the defaults", small(MapperConfig::default())),
+        ("the defaults", small_map_config()),
         (
             "query gradients reaching geometry",
-            small(MapperConfig {
+            MapperConfig {
                 attach_feature_gradients: true,
-                ..MapperConfig::default()
-            }),
+                ..small_map_config()
+            },
         ),
         (
             "the pixel layout",
-            small(MapperConfig {
+            MapperConfig {
                 blend_layout: BlendLayout::Pixels,
-                ..MapperConfig::default()
-            }),
+                ..small_map_config()
+            },
         ),
     ];
     for (name, cfg) in configs {
