@@ -1,10 +1,11 @@
 """A Foxglove WebSocket client for `latentam map --live`: connects (retrying
 until the server is up), subscribes to every advertised channel, and checks
-each message as `foxglove_check.py` checks a file: against the JSON Schema
-the channel advertises (`jsonschema`) and by building Foxglove's own
-published message type from it (`foxglove-sdk`). Prints a JSON summary per
-topic (messages, the last message's size and content digest) for the Rust
-test to compare with the map the run saved.
+each message as `foxglove_check.py` checks a file: decoded with Google's
+`protobuf` runtime from the schema the channel advertises, then rebuilt as
+Foxglove's own published message type (`foxglove-sdk`), which must encode
+to the same bytes. Prints a JSON summary per topic (messages, the last
+message's size and content digest) for the Rust test to compare with the
+map the run saved.
 
 usage: live_view_check.py URL TOPIC... (waits until every TOPIC got a message)
 """
@@ -16,10 +17,9 @@ import struct
 import sys
 import time
 
-import jsonschema
 import websockets
 
-from foxglove_check import BUILDERS, unpack
+from foxglove_check import decode_and_check, message_class, pose_list, unpack
 
 # The Foxglove SDK server speaks the WebSocket protocol under this name.
 PROTOCOL = "foxglove.sdk.v1"
@@ -39,23 +39,20 @@ async def connect(url, deadline):
 
 
 def summarise(schema_name, m):
-    entry = {"schema": schema_name, "frame_id": m["frame_id"]}
+    entry = {"schema": schema_name, "frame_id": m.frame_id}
     if schema_name == "foxglove.PointCloud":
         entry["points"] = unpack(m)
-        entry["fields"] = [f["name"] for f in m["fields"]]
+        entry["fields"] = [f.name for f in m.fields]
+        entry["point_stride"] = m.point_stride
     elif schema_name == "foxglove.PosesInFrame":
-        entry["poses"] = [
-            [p["position"][a] for a in "xyz"] + [p["orientation"][a] for a in "xyzw"]
-            for p in m["poses"]
-        ]
+        entry["poses"] = [pose_list(p) for p in m.poses]
     elif schema_name == "foxglove.PoseInFrame":
-        p = m["pose"]
-        entry["pose"] = [p["position"][a] for a in "xyz"] + [p["orientation"][a] for a in "xyzw"]
+        entry["pose"] = pose_list(m.pose)
     elif schema_name == "foxglove.RawImage":
-        data = base64.b64decode(m["data"])
-        assert len(data) == m["step"] * m["height"], (len(data), m["step"], m["height"])
-        entry["size"] = [m["width"], m["height"]]
-        entry["encoding"] = m["encoding"]
+        data = m.data
+        assert len(data) == m.step * m.height, (len(data), m.step, m.height)
+        entry["size"] = [m.width, m.height]
+        entry["encoding"] = m.encoding
         entry["mean"] = sum(data) / max(len(data), 1)
     return entry
 
@@ -83,9 +80,12 @@ async def main(url, wanted):
             elif op["op"] == "advertise":
                 new = []
                 for c in op["channels"]:
+                    assert c["encoding"] == "protobuf", c
+                    # A binary schema travels base64-encoded.
+                    c["class"] = message_class(
+                        c["schemaName"], c["schemaEncoding"], base64.b64decode(c["schema"])
+                    )
                     channels[c["id"]] = c
-                    assert c["encoding"] == "json", c
-                    assert c["schemaEncoding"] == "jsonschema", c
                     subscriptions[next_id] = c
                     new.append({"id": next_id, "channelId": c["id"]})
                     next_id += 1
@@ -94,9 +94,7 @@ async def main(url, wanted):
         assert frame[0] == MESSAGE_DATA, frame[0]
         sub, stamp = struct.unpack_from("<IQ", frame, 1)
         channel = subscriptions[sub]
-        m = json.loads(frame[13:])
-        jsonschema.validate(m, json.loads(channel["schema"]))
-        BUILDERS[channel["schemaName"]](m).encode()
+        m = decode_and_check(channel["schemaName"], channel["class"], frame[13:])
         entry = summarise(channel["schemaName"], m)
         entry["stamp"] = stamp
         entry["bytes"] = len(frame) - 13

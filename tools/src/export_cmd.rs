@@ -19,7 +19,7 @@ use latentam_view::{heat_rgba, topic_word, write_foxglove_file, Cloud};
 pub struct Args {
     /// Run folder written by `latentam map`.
     pub dir: PathBuf,
-    /// Write a Foxglove file (MCAP, JSON messages with JSON Schema):
+    /// Write a Foxglove file (MCAP, Foxglove's protobuf messages):
     /// `/latentam/map` (foxglove.PointCloud: position, colour, alpha =
     /// opacity, and an `opacity` field), `/latentam/relevance/WORD` per
     /// vocabulary word (a `relevance` field: the softmax over the

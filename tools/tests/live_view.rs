@@ -1,6 +1,6 @@
 //! `latentam map --live`: a Foxglove WebSocket client (Python
-//! `websockets`, checking each message against its advertised JSON Schema
-//! and Foxglove's published types) connects while a generated log maps,
+//! `websockets`, decoding each message with the protobuf schema its
+//! channel advertises and checking it against Foxglove's published types) connects while a generated log maps,
 //! subscribes to every topic and receives the map, trajectory, camera
 //! pose, keyframe image, render and a relevance cloud. Everything runs
 //! in a network namespace of its own that holds only loopback, so no
@@ -114,10 +114,18 @@ fn a_foxglove_client_watches_the_map_grow() {
                 "{axis} = {v} outside {lo:?}..{hi:?}"
             );
         }
-        let o = p["opacity"].as_f64().unwrap();
-        assert!((0.0..=1.0).contains(&o));
-        assert!((p["alpha"].as_f64().unwrap() - (o * 255.0).round()).abs() <= 1.0);
+        // On the wire the opacity is a byte, as the alpha is.
+        assert_eq!(p["opacity"], p["alpha"]);
     }
+    // 17 bytes a point and a header of a few hundred.
+    let map = &t["/latentam/map"];
+    assert_eq!(map["point_stride"], 17);
+    let bytes = map["bytes"].as_u64().unwrap() as usize;
+    assert!(
+        bytes <= 17 * cloud.len() + 400,
+        "{bytes} bytes for {} points",
+        cloud.len()
+    );
 
     // The trajectory and the camera: keyframe poses of the saved run.
     let saved_poses = read_tum(&run.join("trajectory.txt")).unwrap();
@@ -150,13 +158,13 @@ fn a_foxglove_client_watches_the_map_grow() {
     let rel = &t[format!("/latentam/relevance/{word}").as_str()];
     let points = rel["points"].as_array().unwrap();
     assert!(!points.is_empty() && points.len() <= 300);
-    assert!(points
-        .iter()
-        .all(|p| (0.0..=1.0).contains(&p["relevance"].as_f64().unwrap())));
+    // Bytes: probability × 255, rounded.
+    let relevance = |p: &serde_json::Value| p["relevance"].as_f64().unwrap() / 255.0;
+    assert!(points.iter().all(|p| (0.0..=1.0).contains(&relevance(p))));
     assert!(
         points
             .iter()
-            .any(|p| p["relevance"].as_f64().unwrap() > 1.0 / vocab.names.len() as f64),
+            .any(|p| relevance(p) > 1.0 / vocab.names.len() as f64),
         "some points are more relevant than chance"
     );
     assert!(read("map.err").contains("live view (port 8765):"));

@@ -11,8 +11,8 @@ use latentam_base::{Error, Result};
 
 use crate::topics::Topics;
 
-/// Writes a Foxglove file (MCAP, zstd chunks, JSON messages with JSON
-/// Schema) at `path` whole or not at all: `body` publishes the messages
+/// Writes a Foxglove file (MCAP, zstd chunks, Foxglove's protobuf
+/// messages with their schemas) at `path` whole or not at all: `body` publishes the messages
 /// on the topics it is given, whose messages are in `frame_id`.
 ///
 /// ```no_run

@@ -1,6 +1,6 @@
 //! latentam maps in Foxglove, through the official `foxglove` crate: the
-//! same topics and JSON-encoded Foxglove message types (with their JSON
-//! Schemas) are written to MCAP files ([`write_foxglove_file`], behind
+//! same topics and Foxglove message types (protobuf, with the schemas the
+//! crate carries) are written to MCAP files ([`write_foxglove_file`], behind
 //! `latentam export --foxglove`) and served live over the Foxglove
 //! WebSocket protocol while a map grows ([`LiveView`], behind
 //! `latentam map --live`).
@@ -18,7 +18,6 @@ mod file;
 mod live;
 mod map_points;
 mod messages;
-pub mod schemas;
 mod topics;
 
 #[cfg(test)]
@@ -31,7 +30,6 @@ pub use live::{
 };
 pub use map_points::{heat, heat_rgba, MapPoints};
 pub use messages::{
-    point_cloud, pose_in_frame, poses_in_frame, raw_image, topic_word, Cloud, RgbImage,
-    CLOUD_POINT_STRIDE,
+    point_cloud, pose_in_frame, poses_in_frame, raw_image, topic_word, Cloud, PointValue, RgbImage,
 };
 pub use topics::Topics;

@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use foxglove::messages::{PointCloud, PoseInFrame, PosesInFrame, RawImage};
 use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{WebSocketServer, WebSocketServerHandle};
 
@@ -20,8 +21,7 @@ use latentam_core::live::{KeyframeImage, LiveReader, MapSnapshot};
 use latentam_io::{CameraPose, Vocabulary};
 
 use crate::map_points::{heat_rgba, MapPoints};
-use crate::messages::{topic_word, Cloud, RgbImage};
-use crate::schemas;
+use crate::messages::{topic_word, Cloud, PointValue, RgbImage};
 use crate::topics::Topics;
 
 /// The map's points (`foxglove.PointCloud`, an `opacity` field).
@@ -62,7 +62,8 @@ pub struct ViewOptions {
     /// The world frame of the map and poses.
     pub frame_id: String,
     /// Most points in a published cloud: a larger map is shown by an
-    /// even subset (20 bytes a point, about 27 as JSON).
+    /// even subset (17 bytes a point on the wire, see
+    /// [`PointValue::Unorm8`]).
     pub point_budget: usize,
     /// Least time between two publications of the map.
     pub min_interval: Duration,
@@ -199,7 +200,8 @@ impl LiveView {
     /// Starts the server on `options.listen` and the publisher thread
     /// reading `reader`. Errors when the address cannot be bound.
     pub fn serve(reader: LiveReader, options: ViewOptions) -> Result<LiveView> {
-        let topics = Arc::new(Topics::new(&options.frame_id));
+        // Clouds carry their values as bytes: 17 bytes a point on the wire.
+        let topics = Arc::new(Topics::new(&options.frame_id).with_point_value(PointValue::Unorm8));
         let subscriptions = Arc::new(Subscriptions::default());
         let server = WebSocketServer::new()
             .name(concat!("latentam ", env!("CARGO_PKG_VERSION")))
@@ -217,22 +219,15 @@ impl LiveView {
         let listen = options.listen;
         // Every topic is there before the first keyframe, so a client can
         // subscribe to it at once.
-        for (topic, schema) in [
-            (MAP_TOPIC, schemas::POINT_CLOUD),
-            (TRAJECTORY_TOPIC, schemas::POSES_IN_FRAME),
-            (CAMERA_TOPIC, schemas::POSE_IN_FRAME),
-            (IMAGE_TOPIC, schemas::RAW_IMAGE),
-        ] {
-            topics.advertise(topic, schema)?;
-        }
+        topics.advertise::<PointCloud>(MAP_TOPIC)?;
+        topics.advertise::<PosesInFrame>(TRAJECTORY_TOPIC)?;
+        topics.advertise::<PoseInFrame>(CAMERA_TOPIC)?;
+        topics.advertise::<RawImage>(IMAGE_TOPIC)?;
         if options.render_width > 0 {
-            topics.advertise(RENDER_TOPIC, schemas::RAW_IMAGE)?;
+            topics.advertise::<RawImage>(RENDER_TOPIC)?;
         }
         for w in &options.words {
-            topics.advertise(
-                &format!("{RELEVANCE_PREFIX}{}", w.topic),
-                schemas::POINT_CLOUD,
-            )?;
+            topics.advertise::<PointCloud>(&w.relevance_topic())?;
         }
         let stop = Arc::new(AtomicBool::new(false));
         let stats = Arc::new(Mutex::new(ViewStats::default()));

@@ -1,13 +1,13 @@
 //! Files written through the foxglove crate read back with the `mcap`
 //! crate: schemas, encodings, stamps and every packed byte.
 
-use base64::Engine as _;
-use serde_json::{json, Value};
+use foxglove::messages::packed_element_field::NumericType;
+use foxglove::messages::{PointCloud, PosesInFrame, RawImage, Timestamp};
+use foxglove::{Decode, Encode};
 
 use latentam_io::CameraPose;
 
-use crate::schemas::{POINT_CLOUD, POSES_IN_FRAME, RAW_IMAGE};
-use crate::{write_foxglove_file, Cloud, RgbImage, CLOUD_POINT_STRIDE};
+use crate::{point_cloud, write_foxglove_file, Cloud, PointValue, RgbImage};
 
 fn temp_file(name: &str) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("latentam-view-{}-{name}", std::process::id()));
@@ -26,12 +26,12 @@ fn a_file_reads_back_with_its_fields_schemas_and_stamps() {
         translation: glam::DVec3::new(1.0, 2.0, 3.0),
     };
     let rgb: Vec<u8> = (0..2 * 3 * 3).map(|i| i as u8).collect();
+    let cloud = Cloud {
+        positions: &positions,
+        colours: &colours,
+        value: ("relevance", &values),
+    };
     write_foxglove_file(&path, "map", |topics| {
-        let cloud = Cloud {
-            positions: &positions,
-            colours: &colours,
-            value: ("relevance", &values),
-        };
         topics.cloud("/c", 1_500_000_000, &cloud)?;
         topics.poses("/p", 2_000_000_001, &[pose, pose])?;
         let image = RgbImage {
@@ -49,66 +49,86 @@ fn a_file_reads_back_with_its_fields_schemas_and_stamps() {
         .map(Result::unwrap)
         .collect();
     assert_eq!(messages.len(), 3);
+    for (m, name) in messages.iter().zip([
+        "foxglove.PointCloud",
+        "foxglove.PosesInFrame",
+        "foxglove.RawImage",
+    ]) {
+        let schema = m.channel.schema.as_ref().unwrap();
+        assert_eq!(
+            (schema.name.as_str(), schema.encoding.as_str()),
+            (name, "protobuf")
+        );
+        assert_eq!(m.channel.message_encoding, "protobuf");
+    }
     let cloud_msg = &messages[0];
-    let schema = cloud_msg.channel.schema.as_ref().unwrap();
-    assert_eq!(
-        (schema.name.as_str(), schema.encoding.as_str()),
-        (POINT_CLOUD, "jsonschema")
-    );
-    assert_eq!(cloud_msg.channel.message_encoding, "json");
     assert_eq!(cloud_msg.log_time, 1_500_000_000);
-    let v: Value = serde_json::from_slice(&cloud_msg.data).unwrap();
-    assert_eq!(v["timestamp"], json!({ "sec": 1, "nsec": 500_000_000 }));
-    assert_eq!(v["frame_id"], "map");
-    assert_eq!(v["point_stride"], CLOUD_POINT_STRIDE);
-    let data = base64::engine::general_purpose::STANDARD
-        .decode(v["data"].as_str().unwrap())
-        .unwrap();
-    assert_eq!(data.len(), 2 * CLOUD_POINT_STRIDE);
-    let fields = v["fields"].as_array().unwrap();
+    let c = PointCloud::decode(&cloud_msg.data[..]).unwrap();
+    assert_eq!(c.timestamp, Some(Timestamp::new(1, 500_000_000)));
+    assert_eq!(c.frame_id, "map");
+    let stride = PointValue::Float32.stride();
+    assert_eq!(
+        (c.point_stride as usize, c.data.len()),
+        (stride, 2 * stride)
+    );
+    let data = &c.data;
     let at = |name: &str| {
-        fields.iter().find(|f| f["name"] == name).unwrap()["offset"]
-            .as_u64()
-            .unwrap() as usize
+        let f = c.fields.iter().find(|f| f.name == name).unwrap();
+        f.offset as usize
     };
     let f32_at = |i: usize, off: usize| {
-        f32::from_le_bytes(
-            data[i * CLOUD_POINT_STRIDE + off..][..4]
-                .try_into()
-                .unwrap(),
-        )
+        f32::from_le_bytes(data[i * stride + off..][..4].try_into().unwrap())
     };
     for i in 0..2 {
         assert_eq!(f32_at(i, at("x")), positions[i][0]);
         assert_eq!(f32_at(i, at("z")), positions[i][2]);
         assert_eq!(f32_at(i, at("relevance")), values[i]);
-        assert_eq!(data[i * CLOUD_POINT_STRIDE + at("blue")], colours[i][2]);
-        assert_eq!(data[i * CLOUD_POINT_STRIDE + at("alpha")], colours[i][3]);
+        assert_eq!(data[i * stride + at("blue")], colours[i][2]);
+        assert_eq!(data[i * stride + at("alpha")], colours[i][3]);
     }
-    let p: Value = serde_json::from_slice(&messages[1].data).unwrap();
+    let p = PosesInFrame::decode(&messages[1].data[..]).unwrap();
+    assert_eq!(p.poses.len(), 2);
+    assert_eq!(p.poses[1].position.as_ref().unwrap().z, 3.0);
+    assert_eq!(p.timestamp, Some(Timestamp::new(2, 1)));
+    let i = RawImage::decode(&messages[2].data[..]).unwrap();
+    assert_eq!((i.width, i.height, i.step), (3, 2, 9));
     assert_eq!(
-        messages[1].channel.schema.as_ref().unwrap().name,
-        POSES_IN_FRAME
+        (i.frame_id.as_str(), i.encoding.as_str()),
+        ("camera", "rgb8")
     );
-    assert_eq!(p["poses"].as_array().unwrap().len(), 2);
-    assert_eq!(p["poses"][1]["position"]["z"], 3.0);
-    assert_eq!(p["timestamp"], json!({ "sec": 2, "nsec": 1 }));
-    let i: Value = serde_json::from_slice(&messages[2].data).unwrap();
-    assert_eq!(messages[2].channel.schema.as_ref().unwrap().name, RAW_IMAGE);
-    assert_eq!(
-        (
-            i["width"].as_u64(),
-            i["height"].as_u64(),
-            i["step"].as_u64()
-        ),
-        (Some(3), Some(2), Some(9))
-    );
-    assert_eq!(i["frame_id"], "camera");
-    let pixels = base64::engine::general_purpose::STANDARD
-        .decode(i["data"].as_str().unwrap())
-        .unwrap();
-    assert_eq!(pixels, rgb);
+    assert_eq!(&i.data[..], &rgb[..]);
     std::fs::remove_dir_all(path.parent().unwrap()).unwrap();
+}
+
+/// The live view's packing: a byte per value, 17 bytes a point, values
+/// clamped to [0, 1] and rounded.
+#[test]
+fn byte_values_pack_seventeen_bytes_a_point() {
+    let values = [0.0, 0.5, 1.0, -3.0, 7.0, f32::NAN, 0.2];
+    let n = values.len();
+    let positions: Vec<[f32; 3]> = (0..n).map(|i| [i as f32, 0.5, -1.0]).collect();
+    let colours: Vec<[u8; 4]> = (0..n).map(|i| [i as u8, 9, 8, 7]).collect();
+    let cloud = Cloud {
+        positions: &positions,
+        colours: &colours,
+        value: ("opacity", &values),
+    };
+    let m = point_cloud("map", 0, &cloud, PointValue::Unorm8).unwrap();
+    assert_eq!((m.point_stride, m.data.len()), (17, 17 * n));
+    let field = m.fields.iter().find(|f| f.name == "opacity").unwrap();
+    assert_eq!(field.offset, 16);
+    assert_eq!(field.r#type, NumericType::Uint8 as i32);
+    let got: Vec<u8> = (0..n).map(|i| m.data[i * 17 + 16]).collect();
+    assert_eq!(got, [0, 128, 255, 0, 255, 0, 51]);
+    for i in 0..n {
+        let x = f32::from_le_bytes(m.data[i * 17..][..4].try_into().unwrap());
+        assert_eq!(x, i as f32);
+        assert_eq!(m.data[i * 17 + 12], i as u8);
+    }
+    // Encoded, the message is the points and a fixed header.
+    let mut bytes = Vec::new();
+    m.encode(&mut bytes).unwrap();
+    assert!(bytes.len() < 17 * n + 200, "{} bytes", bytes.len());
 }
 
 #[test]

@@ -16,7 +16,7 @@ pub struct LiveViewArgs {
     /// serves every interface.
     #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub live: Option<SocketAddr>,
-    /// Most points in a live map cloud (about 27 bytes each as sent): a
+    /// Most points in a live map cloud (17 bytes each as sent): a
     /// larger map is shown by an even subset.
     #[arg(long, value_name = "N", default_value_t = 100_000, requires = "live")]
     pub live_points: usize,
