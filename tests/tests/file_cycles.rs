@@ -29,6 +29,7 @@ const ROOTS: &[&str] = &[
     "tools/src/lib.rs",
     "tools/src/main.rs",
     "tools/args/src/lib.rs",
+    "tools/report/src/lib.rs",
     "tools/scene/src/lib.rs",
     "tools/ros/src/main.rs",
     "fuzz/targets/src/lib.rs",

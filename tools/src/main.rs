@@ -25,7 +25,6 @@ mod profile_cmd;
 mod query_args;
 mod query_cmd;
 mod render_cmd;
-mod report_html;
 mod selfcheck;
 
 #[derive(Parser)]

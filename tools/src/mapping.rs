@@ -285,7 +285,7 @@ impl RunObserver for CliObserver {
 
     fn write_extra_files(&mut self, dir: &Path, report: &RunReport) -> latentam::Result<()> {
         let path = dir.join("report.html");
-        let html = crate::report_html::report_html(report).map_err(|e| latentam::Error::Io {
+        let html = latentam_report::report_html(report).map_err(|e| latentam::Error::Io {
             path: path.clone(),
             source: std::io::Error::other(format!("{e:#}")),
         })?;

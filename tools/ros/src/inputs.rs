@@ -12,7 +12,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use futures::StreamExt;
-use latentam::frames::{AssemblyConfig, PlannedInput, Vocabulary};
+use latentam::frames::{AssemblyConfig, IngestReport, PlannedInput, Vocabulary};
 use latentam::logs::{Channel, RawMessage};
 use latentam::LiveMapper;
 
@@ -45,7 +45,7 @@ pub struct InputStats {
 pub struct Inputs {
     pub topics: Vec<Channel>,
     pub stats: Arc<Mutex<InputStats>>,
-    assembler: Option<JoinHandle<()>>,
+    assembler: Option<JoinHandle<IngestReport>>,
     stop: Arc<AtomicBool>,
 }
 
@@ -174,12 +174,12 @@ impl Inputs {
                 let mut arrived: Option<Instant> = None;
                 loop {
                     if st.load(Ordering::SeqCst) {
-                        return;
+                        break;
                     }
                     let (i, data, at) = match messages.recv_timeout(Duration::from_millis(50)) {
                         Ok(m) => m,
                         Err(mpsc::RecvTimeoutError::Timeout) => continue,
-                        Err(mpsc::RecvTimeoutError::Disconnected) => return,
+                        Err(mpsc::RecvTimeoutError::Disconnected) => break,
                     };
                     let channel = &channels_read[i];
                     if channel.topic == color {
@@ -194,7 +194,7 @@ impl Inputs {
                     stats.messages += 1;
                     if let Err(e) = pushed {
                         stats.error.get_or_insert(e.to_string());
-                        return;
+                        break;
                     }
                     if stats.vocabulary.is_none() {
                         stats.vocabulary = assembler.vocabulary().cloned().map(Arc::new);
@@ -218,6 +218,7 @@ impl Inputs {
                         }
                     }
                 }
+                assembler.report().clone()
             })?;
         Ok(Inputs {
             topics: read,
@@ -228,12 +229,11 @@ impl Inputs {
     }
 
     /// Stops taking messages and lets go of the mapper (the reader
-    /// threads, which wait on DDS, end with the process).
-    pub fn stop(&mut self) {
+    /// threads, which wait on DDS, end with the process); what the inputs
+    /// held and what of them was skipped (`None` after a first call).
+    pub fn stop(&mut self) -> Option<IngestReport> {
         self.stop.store(true, Ordering::SeqCst);
-        if let Some(t) = self.assembler.take() {
-            let _ = t.join();
-        }
+        self.assembler.take().and_then(|t| t.join().ok())
     }
 }
 

@@ -7,7 +7,11 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context as _, Result};
 use latentam::frames::Vocabulary;
 use latentam::messages::{RosMessage, StringMessage};
-use latentam::{softmax_rows, LiveMapper, LiveOptions, MapSnapshot, Scoring, TextQuery};
+use latentam::runs::{RunFolder, Written};
+use latentam::{
+    softmax_rows, Ending, LiveMapper, LiveOptions, LogRun, MapSnapshot, RunObserver, RunReport,
+    Scoring, TextQuery,
+};
 use latentam_args::interrupt;
 use latentam_view::MapPoints;
 
@@ -123,7 +127,14 @@ pub fn run(args: Args) -> Result<()> {
         "latentam-ros: building the mapper's kernels (seconds; tens of seconds where the GPU \
          driver has never compiled them)"
     );
-    let live = Arc::new(LiveMapper::new(config, LiveOptions::default())?);
+    // A run folder's report lists every keyframe.
+    let options = LiveOptions {
+        keep_keyframe_reports: args.out.is_some(),
+        ..LiveOptions::default()
+    };
+    let started = Instant::now();
+    let live = Arc::new(LiveMapper::new(config, options)?);
+    let reader = live.reader();
     eprintln!(
         "mapper ready in {:.0} ms; waiting for the input topics",
         live.status().ready_ms.unwrap_or(0.0)
@@ -141,14 +152,32 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let result = serve(&args, &live, &mut inputs, own);
-    inputs.stop();
+    let ingest = inputs.stop().unwrap_or_default();
     if let Some(view) = view {
         view.close();
     }
     let live = Arc::try_unwrap(live).map_err(|_| anyhow::anyhow!("the mapper is still in use"))?;
-    let mut mapper = live.finish()?;
+    let mapper = live.finish()?;
     if let Some(out) = &args.out {
-        save_run_folder(&mut mapper, out)?;
+        let ending = match &result {
+            Ok(()) => Ending::Interrupted,
+            Err(e) => Ending::Failed(format!("{e:#}")),
+        };
+        let keyframes = reader.take_keyframe_reports();
+        let run = LogRun {
+            frames: ingest.frames,
+            not_keyframes: ingest.frames.saturating_sub(keyframes.len() as u64),
+            mapper,
+            log: format!("ros2:{}", args.namespace).into(),
+            skipped: 0,
+            keyframes,
+            wall_s: started.elapsed().as_secs_f64(),
+            ending,
+            ingest,
+            autosaved_at: None,
+            autosave_failures: Vec::new(),
+        };
+        save_run_folder(run, out)?;
     }
     result
 }
@@ -357,18 +386,36 @@ fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
 /// (written whole, see `Mapper::save`), then the map as a PLY, the
 /// keyframe trajectory and the effective configuration, as `latentam map`
 /// leaves them (it adds the report of a log's run, which a node has not).
-fn save_run_folder(mapper: &mut latentam::Mapper, out: &std::path::Path) -> Result<()> {
-    let state = mapper.save(out)?;
-    let map = mapper.snapshot()?;
-    map.export_ply(&out.join("map.ply"))?;
-    latentam::interchange::write_tum(&out.join("trajectory.txt"), &map.trajectory)?;
-    latentam::files::write_bytes_atomically(
-        &out.join("config.toml"),
-        mapper.config().to_toml().as_bytes(),
-    )?;
-    eprintln!(
-        "saved {} (and map.ply, trajectory.txt, config.toml beside it)",
-        state.display()
-    );
+/// Writes the run folder `out` as `latentam map` does, whole or not at
+/// all: the resumable state, `map.ply`, `trajectory.txt`, `config.toml`,
+/// `report.json` and `report.html`.
+fn save_run_folder(mut run: LogRun, out: &std::path::Path) -> Result<()> {
+    let folder = RunFolder::lock(out)?;
+    match run.write_folder(&folder, &mut HtmlReport)? {
+        Written::Saved(report) => eprintln!(
+            "saved {} ({} keyframes; report.json and report.html beside the map)",
+            out.display(),
+            report.keyframes
+        ),
+        Written::Kept(why) => eprintln!("{} kept as it was: {why}", out.display()),
+    }
     Ok(())
+}
+
+/// Adds `report.html` beside `report.json`.
+struct HtmlReport;
+
+impl RunObserver for HtmlReport {
+    fn write_extra_files(
+        &mut self,
+        dir: &std::path::Path,
+        report: &RunReport,
+    ) -> latentam::Result<()> {
+        let path = dir.join("report.html");
+        let html = latentam_report::report_html(report).map_err(|e| latentam::Error::Io {
+            path: path.clone(),
+            source: std::io::Error::other(format!("{e:#}")),
+        })?;
+        latentam::files::write_bytes_atomically(&path, html.as_bytes())
+    }
 }

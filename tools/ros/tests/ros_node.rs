@@ -149,6 +149,31 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     let tum = latentam::interchange::read_tum(&dir.join("run/trajectory.txt")).unwrap();
     assert_eq!(tum.len(), trajectory.len());
     assert!(dir.join("run/config.toml").is_file());
+    // Its report, as `latentam map` writes it: every keyframe of the
+    // trajectory, the inputs counted, ended by Ctrl-C, and report.html.
+    let report: serde_json::Value =
+        serde_json::from_str(&read("run/report.json")).expect("run/report.json");
+    assert_eq!(report["ending"], "interrupted", "{}", report["ending"]);
+    assert_eq!(report["log"], "ros2:/latentam");
+    assert_eq!(
+        report["keyframe_reports"].as_array().unwrap().len(),
+        trajectory.len()
+    );
+    assert_eq!(
+        report["keyframes"].as_u64().unwrap() as usize,
+        trajectory.len()
+    );
+    assert!(
+        report["ingest"]["messages"].as_u64().unwrap()
+            >= summary["published_messages"].as_u64().unwrap() - 2
+    );
+    assert!(report["frames"].as_u64().unwrap() >= num("frames_submitted"));
+    let html = read("run/report.html");
+    assert!(
+        html.starts_with("<!DOCTYPE html>") && html.contains("<svg"),
+        "{}",
+        &html[..html.len().min(200)]
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -133,6 +133,7 @@ impl LiveMapper {
                 fatal: false,
                 wants_index: false,
                 outcomes: None,
+                keyframe_reports: options.keep_keyframe_reports.then(Vec::new),
             }),
             work: Condvar::new(),
             room: Condvar::new(),

@@ -187,11 +187,15 @@ impl LogRun {
         RunReport {
             run_id: run_id.to_string(),
             // Absolute, so that a tool run from another directory finds
-            // the same log.
-            log: std::path::absolute(&self.log)
-                .unwrap_or_else(|_| self.log.clone())
-                .display()
-                .to_string(),
+            // the same log; an input that is no file (a ROS 2 graph's
+            // topics) is named as given.
+            log: if self.log.exists() {
+                std::path::absolute(&self.log).unwrap_or_else(|_| self.log.clone())
+            } else {
+                self.log.clone()
+            }
+            .display()
+            .to_string(),
             device: ctx.info().name.clone(),
             time_to_ready_ms: ctx.time_to_ready_ms(),
             pipeline_cache_loaded_bytes: ctx.info().pipeline_cache_loaded_bytes,

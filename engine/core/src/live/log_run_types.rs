@@ -189,7 +189,8 @@ impl std::fmt::Display for Kept {
 pub struct LogRun {
     /// The mapper, holding the map.
     pub mapper: Mapper,
-    /// The input log.
+    /// The input log (or, for a run from live topics, what names them,
+    /// e.g. `ros2:/latentam`).
     pub log: PathBuf,
     /// Frames offered to the mapper in this run.
     pub frames: u64,

@@ -37,6 +37,11 @@ pub struct LiveOptions {
     /// How long dropping the handle waits for the worker to end before
     /// leaving it to end on its own.
     pub drop_timeout: Duration,
+    /// Keep each keyframe's report (about 4 kB) until
+    /// [`LiveReader::take_keyframe_reports`](super::LiveReader::take_keyframe_reports)
+    /// takes it, for a run folder's `report.json`; off by default, so a
+    /// handle nobody reads does not grow.
+    pub keep_keyframe_reports: bool,
 }
 
 impl Default for LiveOptions {
@@ -49,6 +54,7 @@ impl Default for LiveOptions {
             snapshot_every: 1,
             stop_on_rejected: false,
             drop_timeout: Duration::from_secs(10),
+            keep_keyframe_reports: false,
         }
     }
 }

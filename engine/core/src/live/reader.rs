@@ -234,6 +234,19 @@ impl LiveReader {
         st.keyframes
     }
 
+    /// The reports of the keyframes mapped since the last call, oldest
+    /// first, when [`LiveOptions::keep_keyframe_reports`](super::LiveOptions::keep_keyframe_reports)
+    /// is set (empty otherwise). A reader kept past
+    /// [`LiveMapper::finish`](super::LiveMapper::finish) takes the last ones.
+    pub fn take_keyframe_reports(&self) -> Vec<crate::mapper::KeyframeReport> {
+        self.shared
+            .lock()
+            .keyframe_reports
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
     /// Whether the worker still runs (it has not ended, whatever stopped
     /// it).
     pub fn is_running(&self) -> bool {

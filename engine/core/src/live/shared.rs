@@ -63,6 +63,8 @@ pub(super) struct State {
     pub fatal: bool,
     pub wants_index: bool,
     pub outcomes: Option<Vec<Outcome>>,
+    /// Reports of the keyframes not taken yet, when the options keep them.
+    pub keyframe_reports: Option<Vec<crate::mapper::KeyframeReport>>,
 }
 
 pub(super) struct Shared {

@@ -157,6 +157,9 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
         }
         Ok(_) => {}
     }
+    if let (Some(reports), Ok(Integrated::Keyframe(k))) = (&mut st.keyframe_reports, &outcome) {
+        reports.push((**k).clone());
+    }
     if let Some(outcomes) = &mut st.outcomes {
         outcomes.push(Outcome {
             frame: q.frame,

@@ -55,7 +55,8 @@ pub enum Ending {
 pub struct RunReport {
     /// Shared by every file of this version of the run folder.
     pub run_id: String,
-    /// The input log, as an absolute path.
+    /// The input log, as an absolute path (a run from live topics names
+    /// them instead, e.g. `ros2:/latentam`).
     pub log: String,
     /// The Vulkan device it ran on.
     pub device: String,
