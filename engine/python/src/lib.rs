@@ -174,9 +174,24 @@ impl Mapper {
         Ok(d)
     }
 
-    /// The map after the last keyframe (never waits for mapping).
+    /// The map after the last keyframe (never waits for mapping); after
+    /// `finish` or `abort`, the whole final map.
     fn snapshot(&self, py: Python<'_>) -> PyResult<Snapshot> {
-        let inner = self.with_live(py, |live| Ok(live.snapshot()))?;
+        let inner = py
+            .allow_threads(|| {
+                let state = self.state.read().unwrap_or_else(|e| e.into_inner());
+                match &*state {
+                    State::Live(live) => Ok(live.snapshot()),
+                    State::Finished(mapper) => mapper
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .snapshot()
+                        .map(std::sync::Arc::new)
+                        .map_err(Some),
+                    State::Gone => Err(None),
+                }
+            })
+            .map_err(py_error)?;
         Ok(Snapshot { inner })
     }
 

@@ -145,6 +145,14 @@ def test_snapshots_queries_and_renders(scene):
     assert view["color"].shape == (h, w, 3) and view["depth"].shape == (h, w)
     assert view["alpha"].max() > 0.5
     mapper.finish()
+    # After finishing, the snapshot is the final map: the same Gaussians
+    # (in the map's order, which paging may have changed), keyframes and
+    # relevance.
+    final = mapper.snapshot()
+    assert len(final) == n and final.keyframes == 6
+    before, after = np.lexsort(s.means.T), np.lexsort(final.means.T)
+    assert np.array_equal(final.means[after], s.means[before])
+    assert np.allclose(final.query(texts[1])[after], one[before], atol=1e-6)
 
 
 def base_frame(scene):

@@ -127,7 +127,8 @@ class Mapper:
     def status(self) -> Dict[str, Any]:
         """Queue depth, frames dropped by reason, latencies (ms), the last error."""
     def snapshot(self) -> Snapshot:
-        """The map after the last keyframe; never waits for mapping."""
+        """The map after the last keyframe; never waits for mapping. After
+        ``finish`` or ``abort``, the whole final map."""
     def query(self, text_embedding: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """Cosine relevance of every Gaussian of the newest indexed snapshot."""
     def query_names(
