@@ -3,18 +3,26 @@ Cyclone DDS, the `cyclonedds` package): publishes a log's messages as a
 robot would (ROS 2 topic and type names, CDR, at the recorded rate),
 waits until the node has mapped them, asks a relevance query, and prints
 a JSON summary of what the node published: the map cloud, the keyframe
-trajectory, the status, and the query's relevance cloud.
+trajectory, the status, the query's relevance cloud, and the node's entry
+in the ROS 2 graph (`ros_discovery_info`, its readers and writers matched
+to the endpoints DDS discovery reports).
 
 usage: ros_node_check.py LOG [--counts]  (in a network namespace holding only
 loopback; --counts gives point counts instead of every point, for benchmarks)
 """
 
 import json
+import os
 import struct
 import sys
 import time
 from dataclasses import dataclass
 
+from cyclonedds.builtin import (
+    BuiltinDataReader,
+    BuiltinTopicDcpsPublication,
+    BuiltinTopicDcpsSubscription,
+)
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
@@ -177,6 +185,31 @@ class DiagnosticArray(IdlStruct, typename=typename("diagnostic_msgs/msg/Diagnost
     status: sequence[DiagnosticStatus]
 
 
+# rmw_dds_common's Gid: 24 bytes up to Humble, 16 from Iron on.
+GID_BYTES = 24 if os.environ.get("ROS_DISTRO") in ("foxy", "galactic", "humble") else 16
+
+
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, GID_BYTES]
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str
+    node_name: str
+    reader_gid_seq: sequence[Gid]
+    writer_gid_seq: sequence[Gid]
+
+
+@dataclass
+class ParticipantEntitiesInfo(
+    IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
+):
+    gid: Gid
+    node_entities_info_seq: sequence[NodeEntitiesInfo]
+
+
 TYPES = {
     "sensor_msgs/msg/Image": Image,
     "sensor_msgs/msg/CameraInfo": CameraInfo,
@@ -208,8 +241,32 @@ def cloud_points(c):
     return out
 
 
+def find_node(graph_reader, name, namespace):
+    """The newest entry of the node `namespace`/`name` on
+    ros_discovery_info, if one arrived."""
+    found = None
+    for info in graph_reader.read(N=64):
+        for node in info.node_entities_info_seq:
+            if node.node_name == name and node.node_namespace == namespace:
+                found = node
+    return found
+
+
+def endpoint_topics(dp, gids, builtin):
+    """The DDS topics of the endpoints whose GUIDs are among `gids`, as
+    DDS discovery reports them (what `ros2 node info` joins)."""
+    guids = {bytes(g.data[:16]) for g in gids}
+    reader = BuiltinDataReader(dp, builtin)
+    return sorted({e.topic_name for e in reader.read(N=1024) if e.key.bytes in guids})
+
+
 def main(log, counts_only=False):
+    started = time.monotonic()
     dp = DomainParticipant(0)
+    graph_reader = DataReader(
+        dp, Topic(dp, "ros_discovery_info", ParticipantEntitiesInfo, qos=LATCHED), qos=LATCHED
+    )
+    graph_seconds = None
     with open(log, "rb") as f:
         messages = [
             (channel.topic, schema.name, m.log_time, m.data)
@@ -236,6 +293,8 @@ def main(log, counts_only=False):
     while not colour.get_matched_subscriptions():
         if time.monotonic() > deadline:
             raise SystemExit("the node never subscribed to the colour images")
+        if graph_seconds is None and find_node(graph_reader, "latentam", "/"):
+            graph_seconds = time.monotonic() - started
         time.sleep(0.1)
     time.sleep(0.5)
 
@@ -307,9 +366,23 @@ def main(log, counts_only=False):
     if relevance is None:
         raise SystemExit("no reply to the query")
 
+    node = find_node(graph_reader, "latentam", "/")
+    if node is None:
+        raise SystemExit("the node is not in ros_discovery_info")
+    graph_seconds = graph_seconds if graph_seconds is not None else time.monotonic() - started
+    graph = {
+        "seconds_after_client_start": graph_seconds,
+        "gid_bytes": GID_BYTES,
+        "writers": endpoint_topics(dp, node.writer_gid_seq, BuiltinTopicDcpsPublication),
+        "readers": endpoint_topics(dp, node.reader_gid_seq, BuiltinTopicDcpsSubscription),
+        "writer_gids": len(node.writer_gid_seq),
+        "reader_gids": len(node.reader_gid_seq),
+    }
+
     maps = map_reader.read(N=16)
     paths = path_reader.read(N=16)
     summary = {
+        "graph": graph,
         "published_frames": published_frames,
         "published_messages": len(messages),
         "status": status,

@@ -3,14 +3,18 @@
 //! and encoded by `latentam::messages`, exactly as when they come from a
 //! bag).
 
+use std::sync::Mutex;
 use std::time::Duration;
 
 use bytes::Bytes;
 use rustdds::no_key::{DataReader, DataWriter};
 use rustdds::policy::{Durability, History, Reliability};
 use rustdds::{
-    DomainParticipant, QosPolicies, QosPolicyBuilder, RepresentationIdentifier, TopicKind,
+    DomainParticipant, QosPolicies, QosPolicyBuilder, RTPSEntity, RepresentationIdentifier,
+    TopicKind,
 };
+
+use crate::graph::{self, ParticipantEntities};
 
 /// A ROS 2 topic name (`/camera/color/image_raw`) as DDS names it
 /// (`rt/camera/color/image_raw`).
@@ -143,11 +147,21 @@ pub type RawReader = DataReader<RawMessage, RawAdapter>;
 pub type RawWriter = DataWriter<RawMessage, RawAdapter>;
 
 /// The DDS side of the node: one participant, one publisher and one
-/// subscriber.
+/// subscriber, and the node's entry in the ROS 2 graph.
 pub struct Dds {
     pub participant: DomainParticipant,
     publisher: rustdds::Publisher,
     subscriber: rustdds::Subscriber,
+    /// The GUIDs of the node's readers and writers, for the graph.
+    endpoints: Mutex<Endpoints>,
+    /// The writer of `ros_discovery_info`.
+    discovery: RawWriter,
+}
+
+#[derive(Default)]
+struct Endpoints {
+    readers: Vec<[u8; 16]>,
+    writers: Vec<[u8; 16]>,
 }
 
 impl Dds {
@@ -162,11 +176,46 @@ impl Dds {
         let subscriber = participant
             .create_subscriber(&qos)
             .map_err(|e| anyhow::anyhow!("a DDS subscriber: {e:?}"))?;
+        // As rmw implementations publish it: reliable, transient-local,
+        // the last sample kept for participants that join later.
+        let latched = Profile::Latched.qos();
+        let topic = participant
+            .create_topic(
+                graph::DISCOVERY_TOPIC.to_string(),
+                graph::DISCOVERY_TYPE.to_string(),
+                &latched,
+                TopicKind::NoKey,
+            )
+            .map_err(|e| anyhow::anyhow!("the topic {}: {e:?}", graph::DISCOVERY_TOPIC))?;
+        let discovery = publisher
+            .create_datawriter_no_key::<RawMessage, RawAdapter>(&topic, Some(latched))
+            .map_err(|e| anyhow::anyhow!("publishing {}: {e:?}", graph::DISCOVERY_TOPIC))?;
         Ok(Dds {
             participant,
             publisher,
             subscriber,
+            endpoints: Mutex::new(Endpoints::default()),
+            discovery,
         })
+    }
+
+    /// Publishes the node `name` in `namespace` with every reader and
+    /// writer made so far on `ros_discovery_info` (again after each new
+    /// one, as rmw implementations do).
+    pub fn announce(&self, namespace: &str, name: &str) -> anyhow::Result<()> {
+        let endpoints = self.endpoints.lock().unwrap_or_else(|e| e.into_inner());
+        let message = ParticipantEntities {
+            participant: self.participant.guid().to_bytes(),
+            namespace,
+            name,
+            readers: &endpoints.readers,
+            writers: &endpoints.writers,
+            gid_bytes: graph::gid_bytes(std::env::var("ROS_DISTRO").ok().as_deref()),
+        }
+        .encode();
+        self.discovery
+            .write(RawMessage(message), None)
+            .map_err(|e| anyhow::anyhow!("publishing {}: {e:?}", graph::DISCOVERY_TOPIC))
     }
 
     fn topic(
@@ -193,9 +242,16 @@ impl Dds {
         profile: Profile,
     ) -> anyhow::Result<RawReader> {
         let topic = self.topic(ros_topic, ros_type, profile)?;
-        self.subscriber
+        let reader = self
+            .subscriber
             .create_datareader_no_key::<RawMessage, RawAdapter>(&topic, Some(profile.qos()))
-            .map_err(|e| anyhow::anyhow!("reading {ros_topic}: {e:?}"))
+            .map_err(|e| anyhow::anyhow!("reading {ros_topic}: {e:?}"))?;
+        self.endpoints
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .readers
+            .push(reader.guid().to_bytes());
+        Ok(reader)
     }
 
     /// A writer of `ros_topic`, of type `ros_type`.
@@ -206,9 +262,16 @@ impl Dds {
         profile: Profile,
     ) -> anyhow::Result<RawWriter> {
         let topic = self.topic(ros_topic, ros_type, profile)?;
-        self.publisher
+        let writer = self
+            .publisher
             .create_datawriter_no_key::<RawMessage, RawAdapter>(&topic, Some(profile.qos()))
-            .map_err(|e| anyhow::anyhow!("publishing {ros_topic}: {e:?}"))
+            .map_err(|e| anyhow::anyhow!("publishing {ros_topic}: {e:?}"))?;
+        self.endpoints
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .writers
+            .push(writer.guid().to_bytes());
+        Ok(writer)
     }
 
     /// The ROS 2 topics some participant publishes now, with their types.

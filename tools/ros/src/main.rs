@@ -11,6 +11,7 @@
 
 mod args;
 mod dds;
+mod graph;
 mod inputs;
 mod node;
 mod outputs;

@@ -17,6 +17,7 @@ use latentam_view::MapPoints;
 
 use crate::args::Args;
 use crate::dds::{Dds, Profile, RawMessage, RawReader, RawWriter};
+use crate::graph;
 use crate::inputs::{self, Inputs};
 use crate::outputs;
 
@@ -119,6 +120,10 @@ pub fn run(args: Args) -> Result<()> {
     interrupt::install();
     let dds = Dds::join(domain)?;
     let own = Own::new(&dds, &args.namespace)?;
+    // In the ROS 2 graph at once, with its own topics; again below once
+    // it reads its inputs.
+    let (node_ns, node_name) = graph::node_of(&args.namespace);
+    dds.announce(&node_ns, &node_name)?;
     eprintln!(
         "latentam-ros: DDS domain {domain}, topics under {}",
         args.namespace
@@ -144,6 +149,7 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("input: {line}");
     }
     let mut inputs = Inputs::start(&dds, planned, channels, &assembly, live.clone())?;
+    dds.announce(&node_ns, &node_name)?;
     for c in &inputs.topics {
         eprintln!("reading {} ({})", c.topic, c.schema_name);
     }

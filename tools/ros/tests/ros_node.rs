@@ -1,8 +1,8 @@
 //! `latentam-ros` against an independent DDS implementation: a Cyclone
 //! DDS publisher (Python `cyclonedds`) plays a generated log as ROS 2
 //! topics at its recorded rate; the node maps it, publishes the map, the
-//! trajectory and its status, answers a relevance query, and saves its
-//! run folder on SIGINT. What Cyclone received is checked against that
+//! trajectory and its status, answers a relevance query, is found in the
+//! ROS 2 graph (`ros_discovery_info`), and saves its run folder on SIGINT. What Cyclone received is checked against that
 //! saved map. Everything runs in a network namespace of its own holding
 //! only loopback (multicast routed on it for discovery), so no packet
 //! leaves the test.
@@ -67,6 +67,33 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     let summary: serde_json::Value = serde_json::from_str(&read("summary.json")).unwrap();
     let status = &summary["status"];
     let num = |k: &str| status[k].as_str().unwrap().parse::<u64>().unwrap();
+
+    // The node is in the ROS 2 graph (`ros_discovery_info`) as
+    // `/latentam`, and the GUIDs it lists are its endpoints as DDS
+    // discovery reports them: what `ros2 node info` joins.
+    let graph = &summary["graph"];
+    let topics = |k: &str| -> Vec<String> {
+        graph[k]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t.as_str().unwrap().to_string())
+            .collect()
+    };
+    let (writers, readers) = (topics("writers"), topics("readers"));
+    for t in ["map", "trajectory", "status", "query/relevance", "saved"] {
+        assert!(writers.contains(&format!("rt/latentam/{t}")), "{graph}");
+    }
+    assert_eq!(graph["writer_gids"], writers.len(), "{graph}");
+    for t in [
+        "rt/latentam/query",
+        "rt/latentam/save",
+        "rt/camera/color/image_raw",
+    ] {
+        assert!(readers.contains(&t.to_string()), "{graph}");
+    }
+    assert_eq!(graph["reader_gids"], readers.len(), "{graph}");
+    assert!(graph["seconds_after_client_start"].as_f64().unwrap() < 60.0);
 
     // Every message arrived, every frame was taken or dropped by policy.
     assert_eq!(
