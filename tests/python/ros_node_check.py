@@ -7,8 +7,14 @@ trajectory, the status, the query's relevance cloud, and the node's entry
 in the ROS 2 graph (`ros_discovery_info`, its readers and writers matched
 to the endpoints DDS discovery reports).
 
-usage: ros_node_check.py LOG [--counts]  (in a network namespace holding only
-loopback; --counts gives point counts instead of every point, for benchmarks)
+It also calls the node's services as a `rmw_cyclonedds_cpp` client does
+(the request's fields after a 16-byte header of client id and sequence
+number, which the reply carries back): a query, a query of the wrong
+dimension, and a save into SAVE_DIR.
+
+usage: ros_node_check.py LOG [--counts] [--save-dir SAVE_DIR]  (in a network
+namespace holding only loopback; --counts gives point counts instead of
+every point, for benchmarks)
 """
 
 import json
@@ -26,7 +32,17 @@ from cyclonedds.builtin import (
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint16, uint32
+from cyclonedds.idl.types import (
+    array,
+    float64,
+    int32,
+    int64,
+    sequence,
+    uint8,
+    uint16,
+    uint32,
+    uint64,
+)
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -185,6 +201,66 @@ class DiagnosticArray(IdlStruct, typename=typename("diagnostic_msgs/msg/Diagnost
     status: sequence[DiagnosticStatus]
 
 
+# Services as rmw_cyclonedds_cpp carries them: a header of client id and
+# sequence number before the fields, echoed in the reply.
+@dataclass
+class QueryRequest(IdlStruct, typename="latentam_msgs::srv::dds_::Query_Request_"):
+    client: uint64
+    seq: int64
+    query: TextEmbeddings
+
+
+@dataclass
+class QueryResponse(IdlStruct, typename="latentam_msgs::srv::dds_::Query_Response_"):
+    client: uint64
+    seq: int64
+    success: bool
+    message: str
+    relevance: PointCloud2
+
+
+@dataclass
+class SaveRequest(IdlStruct, typename="latentam_msgs::srv::dds_::Save_Request_"):
+    client: uint64
+    seq: int64
+    directory: str
+
+
+@dataclass
+class SaveResponse(IdlStruct, typename="latentam_msgs::srv::dds_::Save_Response_"):
+    client: uint64
+    seq: int64
+    success: bool
+    message: str
+
+
+class Client:
+    """A service client of the node's service `name`."""
+
+    def __init__(self, dp, name, request_type, response_type):
+        self.writer = DataWriter(
+            dp, Topic(dp, f"rq/latentam/{name}Request", request_type, qos=DEFAULT), qos=DEFAULT
+        )
+        self.reader = DataReader(
+            dp, Topic(dp, f"rr/latentam/{name}Reply", response_type, qos=DEFAULT), qos=DEFAULT
+        )
+        self.name = name
+
+    def call(self, request, timeout=120):
+        deadline = time.monotonic() + timeout
+        while not (self.writer.get_matched_subscriptions() and self.reader.get_matched_publications()):
+            if time.monotonic() > deadline:
+                raise SystemExit(f"the service {self.name} never matched")
+            time.sleep(0.1)
+        self.writer.write(request)
+        while time.monotonic() < deadline:
+            for reply in self.reader.take(N=8):
+                if (reply.client, reply.seq) == (request.client, request.seq):
+                    return reply
+            time.sleep(0.05)
+        raise SystemExit(f"no reply from the service {self.name}")
+
+
 # rmw_dds_common's Gid: 24 bytes up to Humble, 16 from Iron on.
 GID_BYTES = 24 if os.environ.get("ROS_DISTRO") in ("foxy", "galactic", "humble") else 16
 
@@ -260,9 +336,11 @@ def endpoint_topics(dp, gids, builtin):
     return sorted({e.topic_name for e in reader.read(N=1024) if e.key.bytes in guids})
 
 
-def main(log, counts_only=False):
+def main(log, counts_only=False, save_dir=None):
     started = time.monotonic()
     dp = DomainParticipant(0)
+    query_service = Client(dp, "query", QueryRequest, QueryResponse)
+    save_service = Client(dp, "save", SaveRequest, SaveResponse)
     graph_reader = DataReader(
         dp, Topic(dp, "ros_discovery_info", ParticipantEntitiesInfo, qos=LATCHED), qos=LATCHED
     )
@@ -366,6 +444,30 @@ def main(log, counts_only=False):
     if relevance is None:
         raise SystemExit("no reply to the query")
 
+    # The same query as a service, then one of the wrong dimension, then
+    # a save.
+    client = 0x1234_5678_9ABC_DEF0
+    reply = query_service.call(QueryRequest(client, 1, query))
+    wrong = query_service.call(
+        QueryRequest(client, 2, TextEmbeddings(**{**query.__dict__, "dim": 3, "data": query.data[: 3 * size]}))
+    )
+    services = {
+        "query": {
+            "success": reply.success,
+            "message": reply.message,
+            "same_points_as_the_topic": cloud_points(reply.relevance) == cloud_points(relevance),
+            "points": len(cloud_points(reply.relevance)),
+        },
+        "wrong_query": {
+            "success": wrong.success,
+            "message": wrong.message,
+            "points": len(cloud_points(wrong.relevance)),
+        },
+    }
+    if save_dir:
+        saved = save_service.call(SaveRequest(client, 3, save_dir))
+        services["save"] = {"success": saved.success, "message": saved.message}
+
     node = find_node(graph_reader, "latentam", "/")
     if node is None:
         raise SystemExit("the node is not in ros_discovery_info")
@@ -383,6 +485,7 @@ def main(log, counts_only=False):
     paths = path_reader.read(N=16)
     summary = {
         "graph": graph,
+        "services": services,
         "published_frames": published_frames,
         "published_messages": len(messages),
         "status": status,
@@ -409,4 +512,6 @@ def main(log, counts_only=False):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], "--counts" in sys.argv[2:])
+    args = sys.argv[2:]
+    save_dir = args[args.index("--save-dir") + 1] if "--save-dir" in args else None
+    main(sys.argv[1], "--counts" in args, save_dir)

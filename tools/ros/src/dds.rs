@@ -218,22 +218,6 @@ impl Dds {
             .map_err(|e| anyhow::anyhow!("publishing {}: {e:?}", graph::DISCOVERY_TOPIC))
     }
 
-    fn topic(
-        &self,
-        ros_topic: &str,
-        ros_type: &str,
-        profile: Profile,
-    ) -> anyhow::Result<rustdds::Topic> {
-        self.participant
-            .create_topic(
-                dds_topic(ros_topic),
-                dds_type(ros_type),
-                &profile.qos(),
-                TopicKind::NoKey,
-            )
-            .map_err(|e| anyhow::anyhow!("the topic {ros_topic} ({ros_type}): {e:?}"))
-    }
-
     /// A reader of `ros_topic`, of type `ros_type`.
     pub fn reader(
         &self,
@@ -241,17 +225,8 @@ impl Dds {
         ros_type: &str,
         profile: Profile,
     ) -> anyhow::Result<RawReader> {
-        let topic = self.topic(ros_topic, ros_type, profile)?;
-        let reader = self
-            .subscriber
-            .create_datareader_no_key::<RawMessage, RawAdapter>(&topic, Some(profile.qos()))
-            .map_err(|e| anyhow::anyhow!("reading {ros_topic}: {e:?}"))?;
-        self.endpoints
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .readers
-            .push(reader.guid().to_bytes());
-        Ok(reader)
+        self.raw_reader(&dds_topic(ros_topic), &dds_type(ros_type), profile)
+            .map_err(|e| anyhow::anyhow!("reading {ros_topic}: {e:#}"))
     }
 
     /// A writer of `ros_topic`, of type `ros_type`.
@@ -261,11 +236,59 @@ impl Dds {
         ros_type: &str,
         profile: Profile,
     ) -> anyhow::Result<RawWriter> {
-        let topic = self.topic(ros_topic, ros_type, profile)?;
+        self.raw_writer(&dds_topic(ros_topic), &dds_type(ros_type), profile)
+            .map_err(|e| anyhow::anyhow!("publishing {ros_topic}: {e:#}"))
+    }
+
+    fn topic(
+        &self,
+        dds_topic: &str,
+        dds_type: &str,
+        profile: Profile,
+    ) -> anyhow::Result<rustdds::Topic> {
+        self.participant
+            .create_topic(
+                dds_topic.to_string(),
+                dds_type.to_string(),
+                &profile.qos(),
+                TopicKind::NoKey,
+            )
+            .map_err(|e| anyhow::anyhow!("the DDS topic {dds_topic} ({dds_type}): {e:?}"))
+    }
+
+    /// A reader of the DDS topic `dds_topic` (named as DDS names it, e.g. a
+    /// service's `rq/...Request`), of DDS type `dds_type`.
+    pub fn raw_reader(
+        &self,
+        dds_topic: &str,
+        dds_type: &str,
+        profile: Profile,
+    ) -> anyhow::Result<RawReader> {
+        let topic = self.topic(dds_topic, dds_type, profile)?;
+        let reader = self
+            .subscriber
+            .create_datareader_no_key::<RawMessage, RawAdapter>(&topic, Some(profile.qos()))
+            .map_err(|e| anyhow::anyhow!("a reader of {dds_topic}: {e:?}"))?;
+        self.endpoints
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .readers
+            .push(reader.guid().to_bytes());
+        Ok(reader)
+    }
+
+    /// A writer of the DDS topic `dds_topic`, of DDS type `dds_type`.
+    pub fn raw_writer(
+        &self,
+        dds_topic: &str,
+        dds_type: &str,
+        profile: Profile,
+    ) -> anyhow::Result<RawWriter> {
+        let topic = self.topic(dds_topic, dds_type, profile)?;
         let writer = self
             .publisher
             .create_datawriter_no_key::<RawMessage, RawAdapter>(&topic, Some(profile.qos()))
-            .map_err(|e| anyhow::anyhow!("publishing {ros_topic}: {e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("a writer of {dds_topic}: {e:?}"))?;
         self.endpoints
             .lock()
             .unwrap_or_else(|e| e.into_inner())

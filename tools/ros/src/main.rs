@@ -15,6 +15,7 @@ mod graph;
 mod inputs;
 mod node;
 mod outputs;
+mod services;
 
 use std::process::ExitCode;
 

@@ -20,8 +20,9 @@ use crate::dds::{Dds, Profile, RawMessage, RawReader, RawWriter};
 use crate::graph;
 use crate::inputs::{self, Inputs};
 use crate::outputs;
+use crate::services::{Mapping, Service};
 
-/// The node's own topics under its namespace.
+/// The node's own topics and services under its namespace.
 struct Own {
     map: RawWriter,
     trajectory: RawWriter,
@@ -30,6 +31,8 @@ struct Own {
     saved: RawWriter,
     query: RawReader,
     save: RawReader,
+    query_service: Service,
+    save_service: Service,
 }
 
 fn join(ns: &str, name: &str) -> String {
@@ -37,7 +40,7 @@ fn join(ns: &str, name: &str) -> String {
 }
 
 impl Own {
-    fn new(dds: &Dds, ns: &str) -> Result<Self> {
+    fn new(dds: &Dds, ns: &str, mapping: Mapping) -> Result<Self> {
         let cloud = "sensor_msgs/msg/PointCloud2";
         Ok(Own {
             map: dds.writer(&join(ns, "map"), cloud, Profile::Latched)?,
@@ -59,6 +62,13 @@ impl Own {
                 Profile::Default,
             )?,
             save: dds.reader(&join(ns, "save"), "std_msgs/msg/String", Profile::Default)?,
+            query_service: Service::new(
+                dds,
+                &join(ns, "query"),
+                "latentam_msgs/srv/Query",
+                mapping,
+            )?,
+            save_service: Service::new(dds, &join(ns, "save"), "latentam_msgs/srv/Save", mapping)?,
         })
     }
 }
@@ -119,7 +129,8 @@ pub fn run(args: Args) -> Result<()> {
     };
     interrupt::install();
     let dds = Dds::join(domain)?;
-    let own = Own::new(&dds, &args.namespace)?;
+    let mapping = Mapping::of(std::env::var("RMW_IMPLEMENTATION").ok().as_deref());
+    let own = Own::new(&dds, &args.namespace, mapping)?;
     // In the ROS 2 graph at once, with its own topics; again below once
     // it reads its inputs.
     let (node_ns, node_name) = graph::node_of(&args.namespace);
@@ -233,7 +244,11 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
         }
         while let Some(bytes) = take(&mut own.query) {
             match answer(args, live, &bytes) {
-                Ok(cloud) => write(&own.relevance, cloud, "a query's relevance"),
+                Ok(a) => write(
+                    &own.relevance,
+                    outputs::map_cloud(&args.frame_id, a.stamp, &a.points, &a.fields),
+                    "a query's relevance",
+                ),
                 Err(e) => log::warn!("a query on {}/query: {e:#}", args.namespace),
             }
         }
@@ -248,6 +263,33 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
                 StringMessage { data: &reply }.encode(),
                 "a save reply",
             );
+        }
+        // The services: success, a message, and for a query its cloud
+        // (empty when it failed).
+        while let Some(request) = own.query_service.take() {
+            let answered = answer(args, live, &request.message);
+            own.query_service.reply(request, |w| {
+                let empty = Answer::default();
+                let (a, message) = match &answered {
+                    Ok(a) => (a, String::new()),
+                    Err(e) => (&empty, format!("{e:#}")),
+                };
+                w.bool(answered.is_ok());
+                w.string(&message);
+                outputs::map_cloud_fields(w, &args.frame_id, a.stamp, &a.points, &a.fields);
+            });
+        }
+        while let Some(request) = own.save_service.take() {
+            let saved = save(args, live, &request.message);
+            let message = match &saved {
+                Ok(path) => path.clone(),
+                Err(e) => format!("{e:#}"),
+            };
+            eprintln!("save service: {message}");
+            own.save_service.reply(request, |w| {
+                w.bool(saved.is_ok());
+                w.string(&message);
+            });
         }
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -351,7 +393,16 @@ fn publish_map(
 
 /// A query: one text embedding scores by cosine; several by a softmax
 /// over them; one `relevance_<name>` field each, on the map's points.
-fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Vec<u8>> {
+/// A query's answer: the map's points at the stamp of the snapshot it
+/// scored, with a relevance field per text.
+#[derive(Default)]
+struct Answer {
+    stamp: i64,
+    points: MapPoints,
+    fields: Vec<(String, Vec<f32>)>,
+}
+
+fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Answer> {
     let texts = Vocabulary::decode(bytes).map_err(|e| anyhow::anyhow!("{e}"))?;
     let n = texts.names.len();
     if n == 0 {
@@ -373,8 +424,11 @@ fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Vec<u8>> {
             (field, column(&values, n, k))
         })
         .collect();
-    let stamp = snapshot.trajectory.last().map_or(0, |&(s, _)| s);
-    Ok(outputs::map_cloud(&args.frame_id, stamp, &points, &extra))
+    Ok(Answer {
+        stamp: snapshot.trajectory.last().map_or(0, |&(s, _)| s),
+        points,
+        fields: extra,
+    })
 }
 
 /// A save request: the folder named in the message, else `--out`.
@@ -388,10 +442,6 @@ fn save(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<String> {
     Ok(live.save(&dir)?.display().to_string())
 }
 
-/// The run folder of a stopped node: the resumable state and the decoder
-/// (written whole, see `Mapper::save`), then the map as a PLY, the
-/// keyframe trajectory and the effective configuration, as `latentam map`
-/// leaves them (it adds the report of a log's run, which a node has not).
 /// Writes the run folder `out` as `latentam map` does, whole or not at
 /// all: the resumable state, `map.ply`, `trajectory.txt`, `config.toml`,
 /// `report.json` and `report.html`.

@@ -2,6 +2,7 @@
 //! keyframe trajectory as `nav_msgs/Path`, and its status as
 //! `diagnostic_msgs/DiagnosticArray`.
 
+use latentam::messages::cdr::{CdrWriter, Endian};
 use latentam::messages::{
     DiagnosticArray, DiagnosticStatus, Header, Path, PointCloud2, PointField, Pose, RosMessage,
 };
@@ -20,6 +21,20 @@ pub fn map_cloud(
     points: &MapPoints,
     extra: &[(String, Vec<f32>)],
 ) -> Vec<u8> {
+    let mut w = CdrWriter::new(Endian::Little);
+    map_cloud_fields(&mut w, frame_id, stamp_ns, points, extra);
+    w.finish()
+}
+
+/// [`map_cloud`]'s fields, written into `w` (a field of a larger
+/// message: a service's reply).
+pub fn map_cloud_fields(
+    w: &mut CdrWriter,
+    frame_id: &str,
+    stamp_ns: i64,
+    points: &MapPoints,
+    extra: &[(String, Vec<f32>)],
+) {
     let mut fields = vec![
         PointField {
             name: "x",
@@ -74,7 +89,7 @@ pub fn map_cloud(
             data.extend_from_slice(&values[i].to_le_bytes());
         }
     }
-    PointCloud2::unordered(Header::at(stamp_ns, frame_id), &fields, step, &data).encode()
+    PointCloud2::unordered(Header::at(stamp_ns, frame_id), &fields, step, &data).encode_fields(w)
 }
 
 /// The keyframe trajectory of `snapshot`, encoded.

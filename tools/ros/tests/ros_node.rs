@@ -23,9 +23,9 @@ fn scratch(name: &str) -> PathBuf {
 const SCRIPT: &str = r#"
 ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
 export CYCLONEDDS_URI='<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo" multicast="true"/></Interfaces></General></Domain></CycloneDDS>'
-"$NODE" --out "$DIR/run" --map-points 1000000 > "$DIR/node.out" 2> "$DIR/node.err" &
+RMW_IMPLEMENTATION=rmw_cyclonedds_cpp "$NODE" --out "$DIR/run" --map-points 1000000 > "$DIR/node.out" 2> "$DIR/node.err" &
 node=$!
-timeout 600 "$PY" "$CHECK" "$LOG" > "$DIR/summary.json" 2> "$DIR/client.err"
+RMW_IMPLEMENTATION=rmw_cyclonedds_cpp timeout 600 "$PY" "$CHECK" "$LOG" --save-dir "$DIR/by-service" > "$DIR/summary.json" 2> "$DIR/client.err"
 client=$?
 kill -INT $node
 wait $node
@@ -94,6 +94,33 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     }
     assert_eq!(graph["reader_gids"], readers.len(), "{graph}");
     assert!(graph["seconds_after_client_start"].as_f64().unwrap() < 60.0);
+    for t in ["rr/latentam/queryReply", "rr/latentam/saveReply"] {
+        assert!(writers.contains(&t.to_string()), "{graph}");
+    }
+    for t in ["rq/latentam/queryRequest", "rq/latentam/saveRequest"] {
+        assert!(readers.contains(&t.to_string()), "{graph}");
+    }
+
+    // The services, called as a Cyclone DDS client calls them: the query
+    // answers as the topic does; a query of the wrong dimension fails with
+    // a reason and no points; a save writes the map where it was asked.
+    let services = &summary["services"];
+    assert_eq!(services["query"]["success"], true, "{services}");
+    assert_eq!(services["query"]["same_points_as_the_topic"], true);
+    assert!(services["query"]["points"].as_u64().unwrap() > 100);
+    assert_eq!(services["wrong_query"]["success"], false);
+    assert_eq!(services["wrong_query"]["points"], 0);
+    assert!(
+        services["wrong_query"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("3-d"),
+        "{services}"
+    );
+    assert_eq!(services["save"]["success"], true, "{services}");
+    let saved = services["save"]["message"].as_str().unwrap();
+    assert!(saved.starts_with(dir.join("by-service").to_str().unwrap()));
+    assert!(Path::new(saved).is_file(), "{saved}");
 
     // Every message arrived, every frame was taken or dropped by policy.
     assert_eq!(
