@@ -22,6 +22,7 @@ import os
 import struct
 import sys
 import time
+import types
 from dataclasses import dataclass
 
 from cyclonedds.builtin import (
@@ -234,6 +235,105 @@ class SaveResponse(IdlStruct, typename="latentam_msgs::srv::dds_::Save_Response_
     message: str
 
 
+@dataclass
+class ParameterValue(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
+    type: uint8
+    bool_value: bool
+    integer_value: int64
+    double_value: float64
+    string_value: str
+    byte_array_value: sequence[uint8]
+    bool_array_value: sequence[bool]
+    integer_array_value: sequence[int64]
+    double_array_value: sequence[float64]
+    string_array_value: sequence[str]
+
+
+def parameter_value(**one):
+    fields = dict(
+        type=0, bool_value=False, integer_value=0, double_value=0.0, string_value="",
+        byte_array_value=[], bool_array_value=[], integer_array_value=[],
+        double_array_value=[], string_array_value=[],
+    )
+    fields.update(one)
+    return ParameterValue(**fields)
+
+
+@dataclass
+class Parameter(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
+    name: str
+    value: ParameterValue
+
+
+@dataclass
+class SetParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
+    successful: bool
+    reason: str
+
+
+@dataclass
+class ListParametersResult(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
+    names: sequence[str]
+    prefixes: sequence[str]
+
+
+@dataclass
+class FloatingPointRange(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
+    from_value: float64
+    to_value: float64
+    step: float64
+
+
+@dataclass
+class IntegerRange(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
+    from_value: int64
+    to_value: int64
+    step: uint64
+
+
+@dataclass
+class ParameterDescriptor(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
+    name: str
+    type: uint8
+    description: str
+    additional_constraints: str
+    read_only: bool
+    dynamic_typing: bool
+    floating_point_range: sequence[FloatingPointRange, 1]
+    integer_range: sequence[IntegerRange, 1]
+
+
+def rcl_service(name, request_fields, response_fields):
+    """The Cyclone request and response types of rcl_interfaces/srv/NAME."""
+    def make(suffix, fields):
+        # Through the metaclass's __prepare__, which takes the type name.
+        cls = types.new_class(
+            f"{name}{suffix}",
+            (IdlStruct,),
+            {"typename": f"rcl_interfaces::srv::dds_::{name}_{suffix}_"},
+            lambda ns: ns["__annotations__"].update({"client": uint64, "seq": int64, **fields}),
+        )
+        return dataclass(cls)
+    return make("Request", request_fields), make("Response", response_fields)
+
+
+GetParameters = rcl_service(
+    "GetParameters", {"names": sequence[str]}, {"values": sequence[ParameterValue]}
+)
+GetParameterTypes = rcl_service(
+    "GetParameterTypes", {"names": sequence[str]}, {"types": sequence[uint8]}
+)
+SetParameters = rcl_service(
+    "SetParameters", {"parameters": sequence[Parameter]}, {"results": sequence[SetParametersResult]}
+)
+ListParameters = rcl_service(
+    "ListParameters", {"prefixes": sequence[str], "depth": uint64}, {"result": ListParametersResult}
+)
+DescribeParameters = rcl_service(
+    "DescribeParameters", {"names": sequence[str]}, {"descriptors": sequence[ParameterDescriptor]}
+)
+
+
 class Client:
     """A service client of the node's service `name`."""
 
@@ -336,11 +436,59 @@ def endpoint_topics(dp, gids, builtin):
     return sorted({e.topic_name for e in reader.read(N=1024) if e.key.bytes in guids})
 
 
+def value_of(v):
+    """A ParameterValue as JSON: [type, value]."""
+    field = {
+        0: None, 1: "bool_value", 2: "integer_value", 3: "double_value", 4: "string_value",
+        6: "bool_array_value", 7: "integer_array_value", 8: "double_array_value",
+        9: "string_array_value",
+    }[v.type]
+    return [v.type, getattr(v, field) if field else None]
+
+
+def parameters(clients, client):
+    """What `ros2 param list / get / set / describe` would show."""
+    get_req, _ = GetParameters
+    listed = clients["list_parameters"].call(ListParameters[0](client, 10, [], 0)).result
+    names = ["voxel_size", "map_points", "map_every", "no_such_parameter"]
+    got = clients["get_parameters"].call(get_req(client, 11, names)).values
+    kinds = clients["get_parameter_types"].call(GetParameterTypes[0](client, 12, names)).types
+    wanted = [
+        Parameter("map_every", parameter_value(type=3, double_value=0.5)),
+        Parameter("voxel_size", parameter_value(type=3, double_value=0.02)),
+        Parameter("map_points", parameter_value(type=4, string_value="many")),
+    ]
+    set_results = clients["set_parameters"].call(SetParameters[0](client, 13, wanted)).results
+    after = clients["get_parameters"].call(get_req(client, 14, ["map_every", "voxel_size"])).values
+    described = clients["describe_parameters"].call(
+        DescribeParameters[0](client, 15, ["voxel_size", "map_every"])
+    ).descriptors
+    return {
+        "names": list(listed.names),
+        "prefixes": list(listed.prefixes),
+        "got": dict(zip(names, map(value_of, got))),
+        "types": list(kinds),
+        "set": [[r.successful, r.reason] for r in set_results],
+        "after": [value_of(v) for v in after],
+        "read_only": [d.read_only for d in described],
+    }
+
+
 def main(log, counts_only=False, save_dir=None):
     started = time.monotonic()
     dp = DomainParticipant(0)
     query_service = Client(dp, "query", QueryRequest, QueryResponse)
     save_service = Client(dp, "save", SaveRequest, SaveResponse)
+    param_clients = {
+        name: Client(dp, name, *types)
+        for name, types in [
+            ("get_parameters", GetParameters),
+            ("get_parameter_types", GetParameterTypes),
+            ("set_parameters", SetParameters),
+            ("list_parameters", ListParameters),
+            ("describe_parameters", DescribeParameters),
+        ]
+    }
     graph_reader = DataReader(
         dp, Topic(dp, "ros_discovery_info", ParticipantEntitiesInfo, qos=LATCHED), qos=LATCHED
     )
@@ -467,6 +615,7 @@ def main(log, counts_only=False, save_dir=None):
     if save_dir:
         saved = save_service.call(SaveRequest(client, 3, save_dir))
         services["save"] = {"success": saved.success, "message": saved.message}
+    services["parameters"] = parameters(param_clients, client)
 
     node = find_node(graph_reader, "latentam", "/")
     if node is None:

@@ -15,6 +15,8 @@ mod graph;
 mod inputs;
 mod node;
 mod outputs;
+mod param_services;
+mod params;
 mod services;
 
 use std::process::ExitCode;

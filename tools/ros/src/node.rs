@@ -20,6 +20,8 @@ use crate::dds::{Dds, Profile, RawMessage, RawReader, RawWriter};
 use crate::graph;
 use crate::inputs::{self, Inputs};
 use crate::outputs;
+use crate::param_services::ParameterServices;
+use crate::params::{Parameters, Publishing};
 use crate::services::{Mapping, Service};
 
 /// The node's own topics and services under its namespace.
@@ -33,6 +35,7 @@ struct Own {
     save: RawReader,
     query_service: Service,
     save_service: Service,
+    parameters: ParameterServices,
 }
 
 fn join(ns: &str, name: &str) -> String {
@@ -69,6 +72,7 @@ impl Own {
                 mapping,
             )?,
             save_service: Service::new(dds, &join(ns, "save"), "latentam_msgs/srv/Save", mapping)?,
+            parameters: ParameterServices::new(dds, ns, mapping)?,
         })
     }
 }
@@ -115,6 +119,16 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     let config = args.config.load()?;
+    let params = Parameters::new(
+        &config.to_toml(),
+        Publishing {
+            frame_id: args.frame_id.clone(),
+            map_every: args.map_every,
+            map_points: args.map_points,
+            words: args.words.clone(),
+            temperature: args.temperature,
+        },
+    )?;
     let assembly = args.input.assembly()?;
     args.live.check()?;
     let domain = match args.domain {
@@ -168,7 +182,7 @@ pub fn run(args: Args) -> Result<()> {
         Some(options) => Some(latentam::view::LiveView::serve(live.reader(), options)?),
         None => None,
     };
-    let result = serve(&args, &live, &mut inputs, own);
+    let result = serve(&args, &live, &mut inputs, own, params);
     let ingest = inputs.stop().unwrap_or_default();
     if let Some(view) = view {
         view.close();
@@ -200,10 +214,15 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Publishes and answers until Ctrl-C (or the inputs fail).
-fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> Result<()> {
-    let map_every = Duration::from_secs_f64(args.map_every);
+fn serve(
+    args: &Args,
+    live: &LiveMapper,
+    inputs: &mut Inputs,
+    mut own: Own,
+    mut params: Parameters,
+) -> Result<()> {
     let mut published: Option<u64> = None;
-    let mut last_map = Instant::now() - map_every;
+    let mut last_map = Instant::now() - Duration::from_secs_f64(params.publishing.map_every);
     let mut last_status = Instant::now() - Duration::from_secs(1);
     while !interrupt::requested() {
         let status = live.status();
@@ -216,8 +235,9 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
         if let Some(e) = error {
             bail!("reading the input topics: {e}");
         }
+        let map_every = Duration::from_secs_f64(params.publishing.map_every);
         if published != Some(status.keyframes) && last_map.elapsed() >= map_every {
-            publish_map(args, live, vocabulary.as_deref(), &own)?;
+            publish_map(&params.publishing, live, vocabulary.as_deref(), &own)?;
             published = Some(status.keyframes);
             last_map = Instant::now();
         }
@@ -243,10 +263,11 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
             last_status = Instant::now();
         }
         while let Some(bytes) = take(&mut own.query) {
-            match answer(args, live, &bytes) {
+            let p = &params.publishing;
+            match answer(p, live, &bytes) {
                 Ok(a) => write(
                     &own.relevance,
-                    outputs::map_cloud(&args.frame_id, a.stamp, &a.points, &a.fields),
+                    outputs::map_cloud(&p.frame_id, a.stamp, &a.points, &a.fields),
                     "a query's relevance",
                 ),
                 Err(e) => log::warn!("a query on {}/query: {e:#}", args.namespace),
@@ -267,7 +288,8 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
         // The services: success, a message, and for a query its cloud
         // (empty when it failed).
         while let Some(request) = own.query_service.take() {
-            let answered = answer(args, live, &request.message);
+            let p = &params.publishing;
+            let answered = answer(p, live, &request.message);
             own.query_service.reply(request, |w| {
                 let empty = Answer::default();
                 let (a, message) = match &answered {
@@ -276,7 +298,7 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
                 };
                 w.bool(answered.is_ok());
                 w.string(&message);
-                outputs::map_cloud_fields(w, &args.frame_id, a.stamp, &a.points, &a.fields);
+                outputs::map_cloud_fields(w, &p.frame_id, a.stamp, &a.points, &a.fields);
             });
         }
         while let Some(request) = own.save_service.take() {
@@ -291,6 +313,8 @@ fn serve(args: &Args, live: &LiveMapper, inputs: &mut Inputs, mut own: Own) -> R
                 w.string(&message);
             });
         }
+        own.parameters
+            .serve(&mut params, vocabulary.as_deref(), &args.namespace);
         std::thread::sleep(Duration::from_millis(20));
     }
     eprintln!("stopping: {}", summary(live, inputs));
@@ -321,7 +345,7 @@ fn summary(live: &LiveMapper, inputs: &Inputs) -> String {
 /// `n` embeddings back to back in `embeddings` (`points × n`), from the
 /// newest snapshot whose relevance index is built.
 fn scored_points(
-    args: &Args,
+    p: &Publishing,
     live: &LiveMapper,
     embeddings: &[f32],
     n: usize,
@@ -332,7 +356,7 @@ fn scored_points(
         relevance: Scoring::Cosine,
     };
     let answer = live.relevance(&query)?;
-    let points = MapPoints::of(&answer.snapshot.gaussians, args.map_points);
+    let points = MapPoints::of(&answer.snapshot.gaussians, p.map_points);
     let cosines = points.pick_rows(&answer.scores, n);
     Ok((answer.snapshot, points, cosines))
 }
@@ -345,18 +369,18 @@ fn column(rows: &[f32], n: usize, k: usize) -> Vec<f32> {
 /// The map cloud (with a relevance field per `--words` word once the
 /// vocabulary is known) and the trajectory.
 fn publish_map(
-    args: &Args,
+    p: &Publishing,
     live: &LiveMapper,
     vocabulary: Option<&Vocabulary>,
     own: &Own,
 ) -> Result<()> {
     let mut extra = Vec::new();
     let (snapshot, points) = match vocabulary {
-        Some(v) if !args.words.is_empty() && live.snapshot().decoder.is_some() => {
+        Some(v) if !p.words.is_empty() && live.snapshot().decoder.is_some() => {
             let n = v.names.len();
-            let (snapshot, points, cosines) = scored_points(args, live, &v.vectors, n)?;
-            let probabilities = softmax_rows(&cosines, n, args.temperature);
-            for w in &args.words {
+            let (snapshot, points, cosines) = scored_points(p, live, &v.vectors, n)?;
+            let probabilities = softmax_rows(&cosines, n, p.temperature);
+            for w in &p.words {
                 let Some(k) = v.names.iter().position(|name| name == w) else {
                     bail!(
                         "--words: `{w}` is not in the vocabulary; it has: {}",
@@ -373,26 +397,24 @@ fn publish_map(
         }
         _ => {
             let snapshot = live.snapshot();
-            let points = MapPoints::of(&snapshot.gaussians, args.map_points);
+            let points = MapPoints::of(&snapshot.gaussians, p.map_points);
             (snapshot, points)
         }
     };
     let stamp = snapshot.trajectory.last().map_or(0, |&(s, _)| s);
     write(
         &own.map,
-        outputs::map_cloud(&args.frame_id, stamp, &points, &extra),
+        outputs::map_cloud(&p.frame_id, stamp, &points, &extra),
         "the map",
     );
     write(
         &own.trajectory,
-        outputs::trajectory(&args.frame_id, &snapshot),
+        outputs::trajectory(&p.frame_id, &snapshot),
         "the trajectory",
     );
     Ok(())
 }
 
-/// A query: one text embedding scores by cosine; several by a softmax
-/// over them; one `relevance_<name>` field each, on the map's points.
 /// A query's answer: the map's points at the stamp of the snapshot it
 /// scored, with a relevance field per text.
 #[derive(Default)]
@@ -402,17 +424,19 @@ struct Answer {
     fields: Vec<(String, Vec<f32>)>,
 }
 
-fn answer(args: &Args, live: &LiveMapper, bytes: &[u8]) -> Result<Answer> {
+/// A query: one text embedding scores by cosine; several by a softmax
+/// over them; one `relevance_<name>` field each, on the map's points.
+fn answer(p: &Publishing, live: &LiveMapper, bytes: &[u8]) -> Result<Answer> {
     let texts = Vocabulary::decode(bytes).map_err(|e| anyhow::anyhow!("{e}"))?;
     let n = texts.names.len();
     if n == 0 {
         bail!("the query holds no embedding");
     }
-    let (snapshot, points, cosines) = scored_points(args, live, &texts.vectors, n)?;
+    let (snapshot, points, cosines) = scored_points(p, live, &texts.vectors, n)?;
     let values = if n == 1 {
         cosines
     } else {
-        softmax_rows(&cosines, n, args.temperature)
+        softmax_rows(&cosines, n, p.temperature)
     };
     let mut taken = Vec::new();
     let extra: Vec<(String, Vec<f32>)> = texts

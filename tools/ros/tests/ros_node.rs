@@ -122,6 +122,49 @@ fn a_cyclone_dds_robot_is_mapped_and_answered() {
     assert!(saved.starts_with(dir.join("by-service").to_str().unwrap()));
     assert!(Path::new(saved).is_file(), "{saved}");
 
+    // The parameters, through the standard parameter services: the
+    // mapper's configuration read-only, the publishing settings
+    // settable; a wrong type or a read-only key refused with a reason.
+    let params = &services["parameters"];
+    let names: Vec<&str> = params["names"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    for n in [
+        "voxel_size",
+        "map_every",
+        "map_points",
+        "frame_id",
+        "words",
+        "temperature",
+    ] {
+        assert!(names.contains(&n), "{params}");
+    }
+    assert!(
+        names.iter().any(|n| n.contains('.')),
+        "sections as dotted names: {params}"
+    );
+    assert!(!params["prefixes"].as_array().unwrap().is_empty());
+    let got = &params["got"];
+    assert_eq!(got["voxel_size"], serde_json::json!([3, 0.01]), "{params}");
+    assert_eq!(got["map_points"], serde_json::json!([2, 1_000_000]));
+    assert_eq!(got["map_every"], serde_json::json!([3, 1.0]));
+    assert_eq!(got["no_such_parameter"], serde_json::json!([0, null]));
+    assert_eq!(params["types"], serde_json::json!([3, 2, 3, 0]));
+    let set = params["set"].as_array().unwrap();
+    assert_eq!(set[0], serde_json::json!([true, ""]), "{params}");
+    assert_eq!(set[1][0], false);
+    assert!(
+        set[1][1].as_str().unwrap().contains("read-only"),
+        "{params}"
+    );
+    assert_eq!(set[2][0], false);
+    assert!(set[2][1].as_str().unwrap().contains("integer"), "{params}");
+    assert_eq!(params["after"], serde_json::json!([[3, 0.5], [3, 0.01]]));
+    assert_eq!(params["read_only"], serde_json::json!([true, false]));
+
     // Every message arrived, every frame was taken or dropped by policy.
     assert_eq!(
         num("messages_received"),
