@@ -94,12 +94,19 @@ impl Mapper {
         let centre = frame.pose.translation;
         let keyframe_span = ctx.host_span("keyframe");
 
-        clock.step(Step::Dictionary, |_| {
+        let dictionary_update = clock.step(Step::Dictionary, |_| {
             self.dictionary.update(&ctx, frame, &record)
         })?;
         let new_keys = clock.step(Step::Seeding, |clock| {
             self.seed(frame, &mut record, seed, clock)
         })?;
+        // Seeding waited for its render, which the queue ran after the
+        // dictionary's update: that one is done, and no wait of its own
+        // is needed (it waits, counted, only when seeding rendered
+        // nothing).
+        if let Some(update) = dictionary_update {
+            update.finished_span()?;
+        }
         // The window's next sync is planned now, its arrivals uploading
         // beside Stage I.
         let t_page = Instant::now();

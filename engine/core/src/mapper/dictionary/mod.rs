@@ -10,7 +10,7 @@ use crate::mapper::export::DecoderFile;
 use crate::mapper::history::{KeyframeRecord, RegionTargets};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
-use latentam_gpu::Context;
+use latentam_gpu::{Context, Submission};
 use latentam_io::{embedding_space, Frame, Vocabulary};
 
 #[cfg(test)]
@@ -122,19 +122,23 @@ impl Dictionary {
 
     /// Folds a keyframe's region embeddings into the dictionary by
     /// streaming k-means, creating the head (and taking the model as the
-    /// map's) at the first keyframe with embeddings.
+    /// map's) at the first keyframe with embeddings. Returns the update's
+    /// submission without waiting for it: the keyframe's next host wait
+    /// (seeding's render) covers it, and its timestamps are collected
+    /// then ([`Submission::finished_span`]); the atom count it reports is
+    /// the host's own.
     pub(crate) fn update(
         &mut self,
         ctx: &Context,
         frame: &Frame,
         record: &KeyframeRecord,
-    ) -> Result<()> {
+    ) -> Result<Option<Submission>> {
         if let Some(e) = &frame.embeddings {
             // `check_frame` refused any other model before anything changed.
             self.model.get_or_insert_with(|| e.model.clone());
         }
         let Some(r) = &record.regions else {
-            return Ok(());
+            return Ok(None);
         };
         if self.head.is_none() {
             self.head = Some(self.make_head(ctx, r.dim)?);
@@ -142,12 +146,12 @@ impl Dictionary {
         // `check_frame` refused another dimension before anything changed.
         let head = self.head.as_ref().expect("created above");
         let rows = nonzero_rows(r);
-        if !rows.is_empty() {
-            let mut rec = ctx.recorder()?;
-            head.record_keyframe_update(&mut rec, &rows)?;
-            rec.submit()?.wait()?;
+        if rows.is_empty() {
+            return Ok(None);
         }
-        Ok(())
+        let mut rec = ctx.recorder()?;
+        head.record_keyframe_update(&mut rec, &rows)?;
+        Ok(Some(rec.submit()?))
     }
 
     /// Each region's embedding projected through W into a query

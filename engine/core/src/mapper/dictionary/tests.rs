@@ -49,7 +49,9 @@ fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
         ));
         assert_eq!(dictionary.dim_for(&frame), Some(32));
 
-        dictionary.update(ctx, &frame, &record).unwrap();
+        // Not waited for, as the mapper leaves it: the read-backs below
+        // see the update through the queue's order alone.
+        let _ = dictionary.update(ctx, &frame, &record).unwrap();
         let head = dictionary.head().expect("created by the first embeddings");
         assert_eq!(head.config().dim, 32);
         assert_eq!(head.config().atoms, 16);
@@ -96,7 +98,9 @@ fn the_head_hands_out_its_decoder_and_projected_queries() {
         let mut dictionary = Dictionary::new(&config());
         let frame = keyframe(DVec3::ZERO);
         let record = KeyframeRecord::from_frame(&frame);
-        dictionary.update(ctx, &frame, &record).unwrap();
+        if let Some(s) = dictionary.update(ctx, &frame, &record).unwrap() {
+            s.wait().unwrap();
+        }
         let head = dictionary.head().unwrap();
         let file = dictionary.decoder_file(ctx).unwrap().unwrap();
         let atoms = head.atom_count() as usize;

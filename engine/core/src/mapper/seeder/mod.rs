@@ -12,7 +12,7 @@ use crate::map::{
     SeedingConfig, ViewCoverage, VoxelKey,
 };
 use crate::mapper::history::KeyframeRecord;
-use crate::splat::{Channels, Rasterizer};
+use crate::splat::Rasterizer;
 use latentam_base::Result;
 use latentam_io::Frame;
 
@@ -42,13 +42,8 @@ impl Coverage {
             return Ok(None);
         }
         // Coverage needs alpha and depth; exposure colour.
-        raster.forward_channels(
-            window.params(),
-            window.len() as u64,
-            &[record.camera],
-            Channels::Colour,
-        )?;
-        let (alpha, rgbd) = raster.download_alpha_rgbd(0)?;
+        let (alpha, rgbd) =
+            raster.render_alpha_rgbd(window.params(), window.len() as u64, &record.camera)?;
         let depth = rgbd.iter().map(|p| p[3]).collect();
         Ok(Some(Coverage { alpha, depth, rgbd }))
     }

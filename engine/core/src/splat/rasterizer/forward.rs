@@ -84,6 +84,49 @@ impl Rasterizer {
         Ok(stats)
     }
 
+    /// One camera's colour, depth and alpha (no query channels), read back
+    /// in the same submission that renders them: two host waits (the
+    /// measure, then the render with its read-back), where
+    /// [`Rasterizer::forward_channels`] then
+    /// [`Rasterizer::download_alpha_rgbd`] take three. Returns the alpha
+    /// and the colour-and-depth image as `download_alpha_rgbd` does.
+    pub fn render_alpha_rgbd(
+        &mut self,
+        gaussians: &GaussianBuffers,
+        count: u64,
+        camera: &Camera,
+    ) -> Result<(Vec<f32>, Vec<[f32; 4]>)> {
+        let batch = self
+            .measure(
+                gaussians,
+                count,
+                &[std::slice::from_ref(camera)],
+                Channels::Colour,
+            )?
+            .pop()
+            .expect("one batch measured");
+        let slot = batch.layout.views[0];
+        let n = slot.width as u64 * slot.height as u64;
+        let ctx = self.ctx.clone();
+        let (alpha, rgbd) = {
+            let mut rec = ctx.recorder()?;
+            self.record_binning(&mut rec, gaussians, &batch)?;
+            // As `forward_channels` records it (colour: no query image).
+            self.record_blend(&mut rec, gaussians, &batch, 0, self.query_band_pixels())?;
+            let images = self.images()?;
+            let rgbd = rec.download(&images.rgbd, slot.first_pixel * 16, n * 16)?;
+            let alpha = rec.download(&images.alpha, slot.first_pixel * 4, n * 4)?;
+            rec.submit()?.wait()?;
+            (alpha, rgbd)
+        };
+        self.banded_query = None;
+        self.last = batch;
+        Ok((
+            alpha.read::<f32>()?,
+            bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
+        ))
+    }
+
     /// Measures batches of views of Gaussians `0..count`, all in one
     /// submission and one host wait, and grows the rasterizer's buffers
     /// for the largest, so that any of them can then be recorded with

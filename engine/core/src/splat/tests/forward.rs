@@ -155,3 +155,39 @@ fn forward_handles_many_tiles_and_batches() {
         }
     });
 }
+
+/// Seeding's render: one camera's colour, depth and alpha rendered and
+/// read back in one submission, two host waits in all, and the very
+/// images the forward pass then a read-back give.
+#[test]
+fn colour_depth_and_alpha_render_and_read_back_in_two_waits() {
+    with_context(|ctx| {
+        let mut r = rng("colour_depth_and_alpha_render_and_read_back_in_two_waits");
+        let cam = random_camera(&mut r, 45, 31, 2.8);
+        let n = 400;
+        let host = awkward_scene(&mut r, n, &[cam]);
+        let buf = upload(ctx, &host);
+        for layout in LAYOUTS {
+            let mut raster = Rasterizer::new(ctx);
+            raster.settings.layout = layout;
+            let waits = ctx.host_waits();
+            let (alpha, rgbd) = raster.render_alpha_rgbd(&buf, n as u64, &cam).unwrap();
+            assert_eq!(ctx.host_waits() - waits, 2, "{layout:?}");
+            assert_eq!((alpha.len(), rgbd.len()), (45 * 31, 45 * 31));
+            assert!(
+                alpha.iter().any(|&a| a > 0.1),
+                "{layout:?}: the scene is in view"
+            );
+
+            let mut old = Rasterizer::new(ctx);
+            old.settings.layout = layout;
+            old.forward_channels(&buf, n as u64, &[cam], Channels::Colour)
+                .unwrap();
+            let (want_alpha, want_rgbd) = old.download_alpha_rgbd(0).unwrap();
+            assert_eq!(alpha, want_alpha, "{layout:?}: alpha");
+            assert_eq!(rgbd, want_rgbd, "{layout:?}: colour and depth");
+            // The render is the rasterizer's last batch, as after a forward.
+            assert_eq!(raster.download_alpha_rgbd(0).unwrap().0, alpha);
+        }
+    });
+}
