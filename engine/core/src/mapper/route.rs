@@ -144,7 +144,12 @@ impl Mapper {
     ) -> Result<Vec<VoxelKey>> {
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.pager.window().expect("ensured");
-        let coverage = Coverage::render(trainer.rasterizer(), window, record)?;
+        // New Gaussians in a region start from its embedding projected
+        // through the decoder's W, read back with the render.
+        let project =
+            record.regions.is_some() && self.cfg.seeding.query_init == QueryInit::Embedding;
+        let w = project.then(|| self.dictionary.w_buffer()).flatten();
+        let coverage = Coverage::render(trainer.rasterizer(), window, record, w)?;
         if self.cfg.exposure_compensation {
             // The last keyframe's where too little of the map is in view.
             let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
@@ -153,13 +158,13 @@ impl Mapper {
                 .and_then(|c| c.exposure(frame, record, self.cfg.seeding.depth_error))
                 .unwrap_or(last_gain);
         }
-        // New Gaussians in a region start from its embedding projected
-        // through the decoder's W.
         let projected = match &record.regions {
-            Some(r) if self.cfg.seeding.query_init == QueryInit::Embedding => self
-                .dictionary
-                .projected_queries(&self.ctx, r)?
-                .map(|q| (r, q)),
+            Some(r) if project => {
+                let read = coverage.as_ref().and_then(|c| c.w.as_deref());
+                self.dictionary
+                    .projected_queries(&self.ctx, r, read)?
+                    .map(|q| (r, q))
+            }
             _ => None,
         };
         let queries = projected.as_ref().map(|(r, queries)| RegionQueries {

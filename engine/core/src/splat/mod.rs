@@ -17,8 +17,8 @@ mod tests;
 pub use gaussians::{GaussianBuffers, GaussianReadback, FIELD_WIDTHS, GAUSSIAN_BYTES};
 pub use latentam_base::{Camera, HostGaussians, GUARD_BAND, QUERY_DIM};
 pub use rasterizer::{
-    BlendLayout, Channels, ForwardStats, PixelBuffers, QueryGradients, Rasterizer, RenderBatch,
-    RenderSettings, RenderedView,
+    BlendLayout, Channels, ColourRender, ForwardStats, PixelBuffers, QueryGradients, Rasterizer,
+    RenderBatch, RenderSettings, RenderedView,
 };
 pub use views::{BatchLayout, ViewSlot};
 

@@ -27,7 +27,7 @@ mod settings;
 mod variants;
 mod work;
 
-pub use batch::{ForwardStats, RenderBatch};
+pub use batch::{ColourRender, ForwardStats, RenderBatch};
 use grow::Grow;
 use images::QUERY_BYTES;
 pub use images::{PixelBuffers, RenderedView};

@@ -10,7 +10,7 @@ use crate::mapper::export::DecoderFile;
 use crate::mapper::history::{KeyframeRecord, RegionTargets};
 use crate::splat::QUERY_DIM;
 use latentam_base::{Error, Result};
-use latentam_gpu::{Context, Submission};
+use latentam_gpu::{Buffer, Context, Submission};
 use latentam_io::{embedding_space, Frame, Vocabulary};
 
 #[cfg(test)]
@@ -154,18 +154,30 @@ impl Dictionary {
         Ok(Some(rec.submit()?))
     }
 
+    /// The decoder's W, for a read-back riding along another submission
+    /// (`None` before there is a head).
+    pub(crate) fn w_buffer(&self) -> Option<&Buffer> {
+        self.head.as_ref().map(|h| h.w())
+    }
+
     /// Each region's embedding projected through W into a query
     /// (Eq. 4 read backwards), where new Gaussians of that region start;
-    /// `None` before there is a head. W is read back (32 × d_f).
+    /// `None` before there is a head. W (32 × d_f) is `read` when a
+    /// read-back of it came along another submission, else read back
+    /// here (a host wait).
     pub(crate) fn projected_queries(
         &self,
         ctx: &Context,
         regions: &RegionTargets,
+        read: Option<&[f32]>,
     ) -> Result<Option<Vec<Option<[f32; QUERY_DIM]>>>> {
         let Some(head) = &self.head else {
             return Ok(None);
         };
-        let w: Vec<f32> = ctx.download(head.w())?;
+        let w: std::borrow::Cow<'_, [f32]> = match read {
+            Some(w) => w.into(),
+            None => ctx.download::<f32>(head.w())?.into(),
+        };
         let dim = regions.dim as usize;
         Ok(Some(projected_queries(
             w.get(..QUERY_DIM * dim).unwrap_or(&[]),

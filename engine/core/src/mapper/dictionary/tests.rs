@@ -40,7 +40,7 @@ fn the_first_embeddings_create_the_head_and_fix_model_and_dimension() {
         assert!(dictionary.decoder_file(ctx).unwrap().is_none());
         let regions = record.regions.as_ref().unwrap();
         assert!(dictionary
-            .projected_queries(ctx, regions)
+            .projected_queries(ctx, regions, None)
             .unwrap()
             .is_none());
         assert!(matches!(
@@ -113,7 +113,17 @@ fn the_head_hands_out_its_decoder_and_projected_queries() {
         assert_eq!(file.w, w[..QUERY_DIM * 32]);
 
         let regions = record.regions.as_ref().unwrap();
-        let queries = dictionary.projected_queries(ctx, regions).unwrap().unwrap();
+        let queries = dictionary
+            .projected_queries(ctx, regions, None)
+            .unwrap()
+            .unwrap();
+        // W read back beside another submission projects the same.
+        let w = ctx.download::<f32>(dictionary.w_buffer().unwrap()).unwrap();
+        let read = dictionary
+            .projected_queries(ctx, regions, Some(&w))
+            .unwrap()
+            .unwrap();
+        assert_eq!(read, queries);
         assert_eq!(queries.len(), regions.count as usize);
         assert!(queries
             .iter()

@@ -14,6 +14,7 @@ use crate::map::{
 use crate::mapper::history::KeyframeRecord;
 use crate::splat::Rasterizer;
 use latentam_base::Result;
+use latentam_gpu::Buffer;
 use latentam_io::Frame;
 
 #[cfg(test)]
@@ -28,24 +29,34 @@ pub(crate) struct Coverage {
     pub depth: Vec<f32>,
     /// Colour and depth.
     pub rgbd: Vec<[f32; 4]>,
+    /// The decoder's W as it stood when the window was rendered, when
+    /// asked for: read back with the render, so that projecting region
+    /// embeddings needs no wait of its own.
+    pub w: Option<Vec<f32>>,
 }
 
 impl Coverage {
-    /// Renders `window` from the keyframe's camera; `None` while the
-    /// window is empty.
+    /// Renders `window` from the keyframe's camera, reading `w` back
+    /// beside it; `None` while the window is empty.
     pub(crate) fn render(
         raster: &mut Rasterizer,
         window: &LocalWindow,
         record: &KeyframeRecord,
+        w: Option<&Buffer>,
     ) -> Result<Option<Coverage>> {
         if window.is_empty() {
             return Ok(None);
         }
         // Coverage needs alpha and depth; exposure colour.
-        let (alpha, rgbd) =
-            raster.render_alpha_rgbd(window.params(), window.len() as u64, &record.camera)?;
-        let depth = rgbd.iter().map(|p| p[3]).collect();
-        Ok(Some(Coverage { alpha, depth, rgbd }))
+        let render =
+            raster.render_alpha_rgbd(window.params(), window.len() as u64, &record.camera, w)?;
+        let depth = render.rgbd.iter().map(|p| p[3]).collect();
+        Ok(Some(Coverage {
+            alpha: render.alpha,
+            depth,
+            rgbd: render.rgbd,
+            w: render.also,
+        }))
     }
 
     /// The keyframe's exposure against the map where the map renders its

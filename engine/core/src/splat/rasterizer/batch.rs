@@ -23,6 +23,19 @@ pub struct ForwardStats {
     pub intersections: u64,
 }
 
+/// One camera's colour, depth and alpha, rendered and read back in one
+/// submission by [`Rasterizer::render_alpha_rgbd`](super::Rasterizer::render_alpha_rgbd).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ColourRender {
+    /// Accumulated alpha per pixel.
+    pub alpha: Vec<f32>,
+    /// Colour and unnormalised depth (Σ wᵢzᵢ) per pixel.
+    pub rgbd: Vec<[f32; 4]>,
+    /// The other buffer asked for, read back after everything queued
+    /// before the render, as `f32` words.
+    pub also: Option<Vec<f32>>,
+}
+
 /// A batch of views, measured for rendering: its layout, the Gaussians it
 /// renders and the counts that size the pass. [`Rasterizer::measure`](super::Rasterizer::measure)
 /// makes them; [`Rasterizer::record_forward`](super::Rasterizer::record_forward), `record_pool` and

@@ -9,11 +9,11 @@ use latentam_shaders::{
 };
 
 use super::work::BatchCounts;
-use super::{Channels, ForwardStats, Rasterizer, RenderBatch, QUERY_BYTES};
+use super::{Channels, ColourRender, ForwardStats, Rasterizer, RenderBatch, QUERY_BYTES};
 use crate::splat::views::BatchLayout;
 use crate::splat::{Camera, GaussianBuffers};
 use latentam_base::{Error, Result};
-use latentam_gpu::Recorder;
+use latentam_gpu::{Buffer, Recorder};
 use latentam_shaders::bind;
 use latentam_shaders::shared::{PixelState, Splat, TileRange, TileRect, View};
 
@@ -88,14 +88,18 @@ impl Rasterizer {
     /// in the same submission that renders them: two host waits (the
     /// measure, then the render with its read-back), where
     /// [`Rasterizer::forward_channels`] then
-    /// [`Rasterizer::download_alpha_rgbd`] take three. Returns the alpha
-    /// and the colour-and-depth image as `download_alpha_rgbd` does.
+    /// [`Rasterizer::download_alpha_rgbd`] take three. The alpha and the
+    /// colour-and-depth image are as `download_alpha_rgbd` gives them;
+    /// `also` is a buffer read back in the same submission, after
+    /// everything queued before it (its `f32` words), so that a caller
+    /// needing another read-back at that point waits no extra time.
     pub fn render_alpha_rgbd(
         &mut self,
         gaussians: &GaussianBuffers,
         count: u64,
         camera: &Camera,
-    ) -> Result<(Vec<f32>, Vec<[f32; 4]>)> {
+        also: Option<&Buffer>,
+    ) -> Result<ColourRender> {
         let batch = self
             .measure(
                 gaussians,
@@ -108,7 +112,7 @@ impl Rasterizer {
         let slot = batch.layout.views[0];
         let n = slot.width as u64 * slot.height as u64;
         let ctx = self.ctx.clone();
-        let (alpha, rgbd) = {
+        let (alpha, rgbd, also) = {
             let mut rec = ctx.recorder()?;
             self.record_binning(&mut rec, gaussians, &batch)?;
             // As `forward_channels` records it (colour: no query image).
@@ -116,15 +120,17 @@ impl Rasterizer {
             let images = self.images()?;
             let rgbd = rec.download(&images.rgbd, slot.first_pixel * 16, n * 16)?;
             let alpha = rec.download(&images.alpha, slot.first_pixel * 4, n * 4)?;
+            let also = also.map(|b| rec.download(b, 0, b.bytes())).transpose()?;
             rec.submit()?.wait()?;
-            (alpha, rgbd)
+            (alpha, rgbd, also)
         };
         self.banded_query = None;
         self.last = batch;
-        Ok((
-            alpha.read::<f32>()?,
-            bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
-        ))
+        Ok(ColourRender {
+            alpha: alpha.read::<f32>()?,
+            rgbd: bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
+            also: also.map(|b| b.read::<f32>()).transpose()?,
+        })
     }
 
     /// Measures batches of views of Gaussians `0..count`, all in one

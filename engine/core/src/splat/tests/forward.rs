@@ -167,12 +167,23 @@ fn colour_depth_and_alpha_render_and_read_back_in_two_waits() {
         let n = 400;
         let host = awkward_scene(&mut r, n, &[cam]);
         let buf = upload(ctx, &host);
+        // Another buffer, read back beside the render.
+        let words: Vec<f32> = (0..37).map(|i| i as f32 * 0.5 - 3.0).collect();
+        let other = ctx.upload_new("test/other", &words).unwrap();
         for layout in LAYOUTS {
             let mut raster = Rasterizer::new(ctx);
             raster.settings.layout = layout;
             let waits = ctx.host_waits();
-            let (alpha, rgbd) = raster.render_alpha_rgbd(&buf, n as u64, &cam).unwrap();
+            let render = raster
+                .render_alpha_rgbd(&buf, n as u64, &cam, Some(&other))
+                .unwrap();
             assert_eq!(ctx.host_waits() - waits, 2, "{layout:?}");
+            let (alpha, rgbd) = (render.alpha, render.rgbd);
+            assert_eq!(
+                render.also.as_deref(),
+                Some(&words[..]),
+                "{layout:?}: the other buffer"
+            );
             assert_eq!((alpha.len(), rgbd.len()), (45 * 31, 45 * 31));
             assert!(
                 alpha.iter().any(|&a| a > 0.1),
