@@ -288,6 +288,17 @@ fn write_kernel_table(html: &mut String, report: &RunReport) -> Result<()> {
     Ok(())
 }
 
+/// Writes `report.html` for `report` into the run folder (or its staging
+/// folder) `dir`, whole or not at all.
+pub fn write_report_html(dir: &std::path::Path, report: &RunReport) -> latentam::Result<()> {
+    let path = dir.join("report.html");
+    let html = report_html(report).map_err(|e| latentam::Error::Io {
+        path: path.clone(),
+        source: std::io::Error::other(format!("{e:#}")),
+    })?;
+    latentam::files::write_bytes_atomically(&path, html.as_bytes())
+}
+
 /// The whole page for `report`.
 pub fn report_html(report: &RunReport) -> Result<String> {
     let mut html = String::new();

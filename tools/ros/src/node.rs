@@ -491,11 +491,6 @@ impl RunObserver for HtmlReport {
         dir: &std::path::Path,
         report: &RunReport,
     ) -> latentam::Result<()> {
-        let path = dir.join("report.html");
-        let html = latentam_report::report_html(report).map_err(|e| latentam::Error::Io {
-            path: path.clone(),
-            source: std::io::Error::other(format!("{e:#}")),
-        })?;
-        latentam::files::write_bytes_atomically(&path, html.as_bytes())
+        latentam_report::write_report_html(dir, report)
     }
 }
