@@ -94,6 +94,22 @@ impl Submission {
         if !self.is_done() {
             return self.wait_span();
         }
+        // A wait that is already satisfied returns at once; it is made
+        // anyway (not counted: nothing blocks) because a host wait, not a
+        // read of the counter, is what makes the batch's writes visible
+        // to host reads.
+        let sems = [self.dev.queue(self.point.transfer).timeline];
+        let values = [self.point.value];
+        // SAFETY: waiting on our own timeline semaphore, with no timeout.
+        unsafe {
+            self.dev.raw.wait_semaphores(
+                &vk::SemaphoreWaitInfo::default()
+                    .semaphores(&sems)
+                    .values(&values),
+                0,
+            )
+        }
+        .vk("vkWaitSemaphores")?;
         let span = self.collect_timestamps();
         self.dev.collect();
         Ok(span)

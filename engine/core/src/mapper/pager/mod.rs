@@ -419,8 +419,9 @@ impl Pager {
         })
     }
 
-    /// Waits for a sync (one host wait, none when `done`: a later sync that
-    /// waited for it on the GPU was waited for). Returns the report, when
+    /// Finishes a sync: a host wait only when it is still running (`done`:
+    /// a later sync that waited for it on the GPU was waited for; on a
+    /// single queue, Stage II's wait covered it). Returns the report, when
     /// timed the GPU milliseconds and those overlapping `beside`, and the
     /// write-back to apply.
     fn finish(
@@ -438,8 +439,11 @@ impl Pager {
         } = run;
         // The download waited for the moves on the GPU, and the moves for
         // the upload: once the last is done, so are the others.
+        // Not done yet only where it runs on a transfer queue of its
+        // own and outlasted Stage II: then it is waited for.
         let last = |s: Submission| match done {
             true => s.finished_span(),
+            false if s.is_done() => s.finished_span(),
             false => s.wait_span(),
         };
         let (moves, download) = match download {
