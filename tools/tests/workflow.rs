@@ -61,6 +61,10 @@ fn map_query_eval_profile_on_a_generated_log() {
     let gaussians = report["gaussians"].as_u64().unwrap() as usize;
     assert!(gaussians > 1000, "{gaussians} Gaussians");
     assert!(report["peak_gpu_bytes"].as_u64().unwrap() > 0);
+    // The process's peak RSS as the OS measured it: a mapping process
+    // with a Vulkan driver holds tens of megabytes at least.
+    let rss = report["peak_rss_bytes"].as_u64().unwrap();
+    assert!((50 << 20..64 << 30).contains(&rss), "{rss} bytes");
     // Host waits are counted per keyframe.
     let waits = &report["host_waits_per_keyframe"];
     let (mean, max) = (

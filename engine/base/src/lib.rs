@@ -26,6 +26,7 @@ mod error;
 pub mod faults;
 pub mod files;
 mod gaussians;
+pub mod process;
 #[doc(hidden)]
 pub mod random;
 pub mod settings;

@@ -175,6 +175,8 @@ struct Report {
     /// Peak GPU bytes by part (images, latent head, window, staging).
     peak_gpu_split: MemorySplit,
     peak_cpu_bytes: u64,
+    /// Peak resident memory of the process, as the OS measured it.
+    peak_rss_bytes: Option<u64>,
     gaussians: usize,
     evicted: u64,
     fetched: u64,
@@ -300,6 +302,7 @@ fn map(b: &MapBench, cfg: MapperConfig, path: &std::path::Path, source: String) 
         peak_gpu_bytes: stats.gpu_peak_bytes,
         peak_gpu_split: stats.gpu_peak_split,
         peak_cpu_bytes: stats.cpu_peak_bytes,
+        peak_rss_bytes: latentam_base::process::peak_rss_bytes(),
         gaussians: stats.gaussians,
         evicted: stats.evicted,
         fetched: stats.fetched,
@@ -462,8 +465,12 @@ fn print_report(r: &Report) {
         r.dedicated_transfer_queue
     );
     println!(
-        "GPU budget {} B, window {} Gaussians; peak GPU {} B, peak CPU {} B",
-        r.gpu_budget, r.window_capacity, r.peak_gpu_bytes, r.peak_cpu_bytes
+        "GPU budget {} B, window {} Gaussians; peak GPU {} B, peak CPU {} B, peak RSS {}",
+        r.gpu_budget,
+        r.window_capacity,
+        r.peak_gpu_bytes,
+        r.peak_cpu_bytes,
+        r.peak_rss_bytes.map_or("n/a".into(), |b| format!("{b} B"))
     );
     let sp = &r.peak_gpu_split;
     println!(

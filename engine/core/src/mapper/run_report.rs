@@ -103,8 +103,13 @@ pub struct RunReport {
     pub peak_gpu_bytes: u64,
     /// Peak GPU bytes by part (images, latent head, window, staging).
     pub peak_gpu_split: MemorySplit,
-    /// Peak bytes of the CPU map and its buffers.
+    /// Peak bytes of the CPU map and its buffers (counted by the mapper).
     pub peak_cpu_bytes: u64,
+    /// Peak resident memory of the whole process as the operating system
+    /// measured it (`getrusage`), bytes, when the report was made; `None`
+    /// where the platform does not say. It includes the driver's memory
+    /// (a CPU driver's GPU memory is host memory) and the caller's.
+    pub peak_rss_bytes: Option<u64>,
     /// Gaussians paged out to the CPU map.
     pub evicted: u64,
     /// Gaussians paged back in.
