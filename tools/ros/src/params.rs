@@ -205,9 +205,8 @@ impl Publishing {
             ("map_points", Value::Integer(i)) if *i >= 1 => self.map_points = *i as usize,
             ("map_points", Value::Integer(_)) => return Err("map_points must be at least 1".into()),
             ("words", Value::Strings(w)) => self.words = w.clone(),
-            ("temperature", Value::Double(t))
-                if *t > 0.0 && (*t as f32).is_finite() && *t as f32 > 0.0 =>
-            {
+            // Positive and finite as the f32 it becomes.
+            ("temperature", Value::Double(t)) if (*t as f32).is_finite() && *t as f32 > 0.0 => {
                 self.temperature = *t as f32
             }
             ("temperature", Value::Double(_)) => {

@@ -98,18 +98,7 @@ impl Submission {
         // anyway (not counted: nothing blocks) because a host wait, not a
         // read of the counter, is what makes the batch's writes visible
         // to host reads.
-        let sems = [self.dev.queue(self.point.transfer).timeline];
-        let values = [self.point.value];
-        // SAFETY: waiting on our own timeline semaphore, with no timeout.
-        unsafe {
-            self.dev.raw.wait_semaphores(
-                &vk::SemaphoreWaitInfo::default()
-                    .semaphores(&sems)
-                    .values(&values),
-                0,
-            )
-        }
-        .vk("vkWaitSemaphores")?;
+        self.wait_semaphore(0)?;
         let span = self.collect_timestamps();
         self.dev.collect();
         Ok(span)
@@ -122,18 +111,7 @@ impl Submission {
             self.dev.calls.waited();
         }
         let waiting = std::time::Instant::now();
-        let sems = [self.dev.queue(self.point.transfer).timeline];
-        let values = [self.point.value];
-        // SAFETY: waiting on our own timeline semaphore.
-        unsafe {
-            self.dev.raw.wait_semaphores(
-                &vk::SemaphoreWaitInfo::default()
-                    .semaphores(&sems)
-                    .values(&values),
-                u64::MAX,
-            )
-        }
-        .vk("vkWaitSemaphores")?;
+        self.wait_semaphore(u64::MAX)?;
         let mut recalibrate = false;
         if let (Some(p), false) = (&self.dev.profiler, self.calibration) {
             let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
@@ -149,6 +127,23 @@ impl Submission {
         }
         self.dev.collect();
         Ok(span)
+    }
+
+    /// Waits up to `timeout_ns` for this batch's point on its queue's
+    /// timeline.
+    fn wait_semaphore(&self, timeout_ns: u64) -> Result<()> {
+        let sems = [self.dev.queue(self.point.transfer).timeline];
+        let values = [self.point.value];
+        // SAFETY: waiting on our own timeline semaphore.
+        unsafe {
+            self.dev.raw.wait_semaphores(
+                &vk::SemaphoreWaitInfo::default()
+                    .semaphores(&sems)
+                    .values(&values),
+                timeout_ns,
+            )
+        }
+        .vk("vkWaitSemaphores")
     }
 
     fn collect_timestamps(&mut self) -> Option<GpuSpan> {
