@@ -62,10 +62,71 @@ pub const OCCUPANCY_VOXELS: i32 = 4;
 /// answers [`GlobalMap::is_near_occupied`].
 const OCCUPANCY_LEVELS: [i32; 4] = [2, OCCUPANCY_VOXELS, 8, 16];
 
+/// The Gaussians of one block of the global map, stored together: paging
+/// moves blocks, so a block that comes into the window is read as one run
+/// and a block is the unit a later tier (disk) would move whole.
+///
+/// The arrays are in insertion order; a removal moves the block's last
+/// Gaussian into the hole.
+#[derive(Clone, Debug, Default)]
+pub struct Block {
+    keys: Vec<VoxelKey>,
+    gaussians: Vec<Gaussian>,
+    /// Each voxel's index in the arrays, by its place in the block
+    /// ([`in_block`]): a block's own index is small and local, where one
+    /// map for every voxel grew with the map and missed the cache on
+    /// every lookup.
+    slot: rustc_hash::FxHashMap<u32, u32>,
+}
+
+impl Block {
+    /// The voxel keys, in the order of [`Block::gaussians`].
+    pub fn keys(&self) -> &[VoxelKey] {
+        &self.keys
+    }
+
+    /// The Gaussians, in the order of [`Block::keys`].
+    pub fn gaussians(&self) -> &[Gaussian] {
+        &self.gaussians
+    }
+
+    /// Gaussians in the block.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether the block holds none (a map never keeps an empty block).
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    fn index_of(&self, key: VoxelKey) -> Option<usize> {
+        self.slot.get(&in_block(key)).map(|&i| i as usize)
+    }
+
+    /// Approximate heap bytes.
+    fn bytes(&self) -> usize {
+        self.keys.capacity() * size_of::<VoxelKey>()
+            + self.gaussians.capacity() * size_of::<Gaussian>()
+            // A hashbrown entry and its control byte.
+            + self.slot.capacity() * (size_of::<(u32, u32)>() + 1)
+    }
+}
+
+/// A voxel's place inside its block: the three coordinates modulo
+/// [`BLOCK_VOXELS`], packed six bits each.
+fn in_block(key: VoxelKey) -> u32 {
+    let c = |v: i32| v.rem_euclid(BLOCK_VOXELS) as u32;
+    c(key.x) | (c(key.y) << 6) | (c(key.z) << 12)
+}
+
+const _: () = assert!(BLOCK_VOXELS <= 64, "in_block packs six bits an axis");
+
 /// The global map: at most one Gaussian per voxel of edge `voxel_size`; a
 /// Gaussian keeps the key of the voxel it was inserted in (means move by
-/// far less than a voxel during mapping). Radius queries go through a
-/// coarse cell index, so they cost what they return, not the map size.
+/// far less than a voxel during mapping). Gaussians are stored by block
+/// ([`Block`]), so radius queries and paging cost the blocks they touch,
+/// not the map size.
 ///
 /// ```
 /// use latentam_core::map::{Gaussian, GlobalMap};
@@ -76,16 +137,14 @@ const OCCUPANCY_LEVELS: [i32; 4] = [2, OCCUPANCY_VOXELS, 8, 16];
 /// let key = map.insert(g).expect("voxel was free");
 /// assert!(map.insert(g).is_none(), "one Gaussian per voxel");
 /// assert_eq!(map.within(glam::DVec3::new(0.1, 0.0, 1.0), 0.05), vec![key]);
+/// let block = map.block(GlobalMap::block_of(key)).expect("its block");
+/// assert_eq!(block.keys(), &[key]);
 /// ```
 #[derive(Clone, Debug)]
 pub struct GlobalMap {
     voxel_size: f64,
-    slot_of: KeyMap<u32>,
-    keys: Vec<VoxelKey>,
-    gaussians: Vec<Gaussian>,
-    cells: KeyMap<Vec<u32>>,
-    /// Position of each slot in its cell's list, for O(1) removal.
-    in_cell: Vec<u32>,
+    blocks: KeyMap<Block>,
+    len: usize,
     /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`.
     occupancy: [KeyMap<u32>; 4],
 }
@@ -99,11 +158,8 @@ impl GlobalMap {
         );
         GlobalMap {
             voxel_size,
-            slot_of: KeyMap::default(),
-            keys: Vec::new(),
-            gaussians: Vec::new(),
-            cells: KeyMap::default(),
-            in_cell: Vec::new(),
+            blocks: KeyMap::default(),
+            len: 0,
             occupancy: Default::default(),
         }
     }
@@ -115,12 +171,12 @@ impl GlobalMap {
 
     /// Number of Gaussians.
     pub fn len(&self) -> usize {
-        self.keys.len()
+        self.len
     }
 
     /// Whether the map is empty.
     pub fn is_empty(&self) -> bool {
-        self.keys.is_empty()
+        self.len == 0
     }
 
     /// The voxel of point `p`.
@@ -130,7 +186,9 @@ impl GlobalMap {
 
     /// Whether voxel `key` holds a Gaussian.
     pub fn contains(&self, key: VoxelKey) -> bool {
-        self.slot_of.contains_key(&key)
+        self.blocks
+            .get(&Self::block_of(key))
+            .is_some_and(|b| b.slot.contains_key(&in_block(key)))
     }
 
     /// Whether a Gaussian lies in the occupancy cell of `p` (edge
@@ -150,7 +208,7 @@ impl GlobalMap {
             Some(level) => self.occupied_around(p, level),
             None => self
                 .key_of(p)
-                .is_some_and(|k| k.neighbourhood().any(|n| self.slot_of.contains_key(&n))),
+                .is_some_and(|k| k.neighbourhood().any(|n| self.contains(n))),
         }
     }
 
@@ -172,16 +230,15 @@ impl GlobalMap {
     /// Inserts `g` under `key` (a saved map's key: optimised means may
     /// have left their seeding voxel); false if the voxel is taken.
     pub fn insert_at(&mut self, key: VoxelKey, g: Gaussian) -> bool {
-        if self.slot_of.contains_key(&key) {
-            return false;
-        }
-        let slot = self.keys.len() as u32;
-        self.slot_of.insert(key, slot);
-        self.keys.push(key);
-        self.gaussians.push(g);
-        let cell = self.cells.entry(key.coarse(BLOCK_VOXELS)).or_default();
-        self.in_cell.push(cell.len() as u32);
-        cell.push(slot);
+        let block = self.blocks.entry(Self::block_of(key)).or_default();
+        let index = block.keys.len() as u32;
+        match block.slot.entry(in_block(key)) {
+            std::collections::hash_map::Entry::Occupied(_) => return false,
+            std::collections::hash_map::Entry::Vacant(v) => v.insert(index),
+        };
+        block.keys.push(key);
+        block.gaussians.push(g);
+        self.len += 1;
         for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
             *grid.entry(key.coarse(r)).or_default() += 1;
         }
@@ -190,15 +247,19 @@ impl GlobalMap {
 
     /// The Gaussian in voxel `key`.
     pub fn get(&self, key: VoxelKey) -> Option<&Gaussian> {
-        self.slot_of.get(&key).map(|&s| &self.gaussians[s as usize])
+        let block = self.blocks.get(&Self::block_of(key))?;
+        block.index_of(key).map(|i| &block.gaussians[i])
     }
 
     /// Overwrites the Gaussian in voxel `key` (write-back from the GPU
     /// window); `false` if the voxel is empty.
     pub fn write_back(&mut self, key: VoxelKey, g: Gaussian) -> bool {
-        match self.slot_of.get(&key) {
-            Some(&s) => {
-                self.gaussians[s as usize] = g;
+        let Some(block) = self.blocks.get_mut(&Self::block_of(key)) else {
+            return false;
+        };
+        match block.index_of(key) {
+            Some(i) => {
+                block.gaussians[i] = g;
                 true
             }
             None => false,
@@ -207,7 +268,19 @@ impl GlobalMap {
 
     /// Removes the Gaussian in voxel `key` (pruning).
     pub fn remove(&mut self, key: VoxelKey) -> Option<Gaussian> {
-        let slot = self.slot_of.remove(&key)? as usize;
+        let block_key = Self::block_of(key);
+        let block = self.blocks.get_mut(&block_key)?;
+        let at = block.slot.remove(&in_block(key))? as usize;
+        // The block's last Gaussian takes its place.
+        block.keys.swap_remove(at);
+        let g = block.gaussians.swap_remove(at);
+        if let Some(&moved) = block.keys.get(at) {
+            block.slot.insert(in_block(moved), at as u32);
+        }
+        if block.keys.is_empty() {
+            self.blocks.remove(&block_key);
+        }
+        self.len -= 1;
         for (grid, &r) in self.occupancy.iter_mut().zip(&OCCUPANCY_LEVELS) {
             let occ = key.coarse(r);
             match grid.get_mut(&occ) {
@@ -216,34 +289,6 @@ impl GlobalMap {
                     grid.remove(&occ);
                 }
             }
-        }
-        // Out of its cell.
-        let cell_key = key.coarse(BLOCK_VOXELS);
-        let cell = self
-            .cells
-            .get_mut(&cell_key)
-            .expect("every slot is in its cell");
-        let at = self.in_cell[slot] as usize;
-        cell.swap_remove(at);
-        if let Some(&moved) = cell.get(at) {
-            self.in_cell[moved as usize] = at as u32;
-        }
-        if cell.is_empty() {
-            self.cells.remove(&cell_key);
-        }
-        // Out of the dense arrays: the last slot takes its place.
-        let last = self.keys.len() - 1;
-        let g = self.gaussians.swap_remove(slot);
-        self.keys.swap_remove(slot);
-        self.in_cell.swap_remove(slot);
-        if slot != last {
-            let moved_key = self.keys[slot];
-            self.slot_of.insert(moved_key, slot as u32);
-            let cell = self
-                .cells
-                .get_mut(&moved_key.coarse(BLOCK_VOXELS))
-                .expect("every slot is in its cell");
-            cell[self.in_cell[slot] as usize] = slot as u32;
         }
         Some(g)
     }
@@ -260,47 +305,55 @@ impl GlobalMap {
     /// Calls `take(key, squared distance)` for every Gaussian within
     /// `radius` of `centre`, in no particular order.
     fn visit_within(&self, centre: DVec3, radius: f64, mut take: impl FnMut(VoxelKey, f64)) {
-        let cell_edge = self.voxel_size * BLOCK_VOXELS as f64;
-        let lo = ((centre - radius) / cell_edge).floor();
-        let hi = ((centre + radius) / cell_edge).floor();
-        if !lo.is_finite() || !hi.is_finite() {
-            return;
-        }
         let r2 = radius * radius;
-        let mut take_cell = |cell: &Vec<u32>| {
-            for &s in cell {
-                let m = DVec3::from(self.gaussians[s as usize].mean.map(f64::from));
+        for (_, _, block) in self.blocks_in_box(centre, radius) {
+            for (key, g) in block.keys.iter().zip(&block.gaussians) {
+                let m = DVec3::from(g.mean.map(f64::from));
                 let d2 = (m - centre).length_squared();
                 if d2 <= r2 {
-                    take(self.keys[s as usize], d2);
+                    take(*key, d2);
                 }
             }
-        };
-        // Walk the box's cells or the occupied ones, whichever are fewer:
-        // the time is bounded by the map, not by radius ÷ cell size.
+        }
+    }
+
+    /// The occupied blocks in the box of half-edge `radius` around
+    /// `centre`, with their keys and lower corners: the box's blocks or
+    /// the occupied ones, whichever are fewer, so the time is bounded by
+    /// the map, not by radius ÷ block size.
+    fn blocks_in_box(&self, centre: DVec3, radius: f64) -> Vec<(VoxelKey, DVec3, &Block)> {
+        let edge = self.voxel_size * BLOCK_VOXELS as f64;
+        let lo = ((centre - radius) / edge).floor();
+        let hi = ((centre + radius) / edge).floor();
+        let mut out = Vec::new();
+        if !lo.is_finite() || !hi.is_finite() {
+            return out;
+        }
+        let corner = |b: VoxelKey| DVec3::new(b.x as f64, b.y as f64, b.z as f64) * edge;
         let span = hi - lo + 1.0;
-        let box_cells = span.x * span.y * span.z;
-        if box_cells > self.cells.len() as f64 {
+        if span.x * span.y * span.z > self.blocks.len() as f64 {
             let (lo, hi) = (lo.as_ivec3(), hi.as_ivec3());
-            for (k, cell) in &self.cells {
+            for (k, block) in &self.blocks {
                 if (lo.x..=hi.x).contains(&k.x)
                     && (lo.y..=hi.y).contains(&k.y)
                     && (lo.z..=hi.z).contains(&k.z)
                 {
-                    take_cell(cell);
+                    out.push((*k, corner(*k), block));
                 }
             }
         } else {
             for x in lo.x as i32..=hi.x as i32 {
                 for y in lo.y as i32..=hi.y as i32 {
                     for z in lo.z as i32..=hi.z as i32 {
-                        if let Some(cell) = self.cells.get(&VoxelKey { x, y, z }) {
-                            take_cell(cell);
+                        let k = VoxelKey { x, y, z };
+                        if let Some(block) = self.blocks.get(&k) {
+                            out.push((k, corner(k), block));
                         }
                     }
                 }
             }
         }
+        out
     }
 
     /// The block of voxel `key` (see [`BLOCK_VOXELS`]).
@@ -308,23 +361,27 @@ impl GlobalMap {
         key.coarse(BLOCK_VOXELS)
     }
 
-    /// Gaussians in `block`.
-    pub fn block_len(&self, block: VoxelKey) -> usize {
-        self.cells.get(&block).map_or(0, Vec::len)
+    /// The Gaussians of `block`, if it holds any.
+    pub fn block(&self, block: VoxelKey) -> Option<&Block> {
+        self.blocks.get(&block)
     }
 
-    /// The keys of the Gaussians in `block`, in no particular order.
+    /// Gaussians in `block`.
+    pub fn block_len(&self, block: VoxelKey) -> usize {
+        self.blocks.get(&block).map_or(0, Block::len)
+    }
+
+    /// The keys of the Gaussians in `block`, in the block's order.
     pub fn block_keys(&self, block: VoxelKey) -> impl Iterator<Item = VoxelKey> + '_ {
-        self.cells
+        self.blocks
             .get(&block)
             .into_iter()
-            .flatten()
-            .map(|&s| self.keys[s as usize])
+            .flat_map(|b| b.keys.iter().copied())
     }
 
     /// Occupied blocks.
     pub fn blocks(&self) -> usize {
-        self.cells.len()
+        self.blocks.len()
     }
 
     /// The occupied blocks that come within `radius` of `centre`, with
@@ -334,53 +391,45 @@ impl GlobalMap {
     /// occupied blocks, whichever are fewer: never a Gaussian.
     pub fn blocks_near(&self, centre: DVec3, radius: f64) -> Vec<(f64, VoxelKey, usize)> {
         let edge = self.voxel_size * BLOCK_VOXELS as f64;
-        let lo = ((centre - radius) / edge).floor();
-        let hi = ((centre + radius) / edge).floor();
-        let mut out = Vec::new();
-        if !lo.is_finite() || !hi.is_finite() {
-            return out;
-        }
         let r2 = radius * radius;
-        let mut take = |b: VoxelKey, cell: &Vec<u32>| {
-            let min = DVec3::new(b.x as f64, b.y as f64, b.z as f64) * edge;
-            let nearest = centre.clamp(min, min + edge);
-            let d2 = (nearest - centre).length_squared();
-            if d2 <= r2 {
-                out.push((d2, b, cell.len()));
-            }
-        };
-        let span = hi - lo + 1.0;
-        if span.x * span.y * span.z > self.cells.len() as f64 {
-            for (b, cell) in &self.cells {
-                take(*b, cell);
-            }
-        } else {
-            for x in lo.x as i32..=hi.x as i32 {
-                for y in lo.y as i32..=hi.y as i32 {
-                    for z in lo.z as i32..=hi.z as i32 {
-                        let b = VoxelKey { x, y, z };
-                        if let Some(cell) = self.cells.get(&b) {
-                            take(b, cell);
-                        }
-                    }
-                }
-            }
-        }
+        let mut out: Vec<(f64, VoxelKey, usize)> = self
+            .blocks_in_box(centre, radius)
+            .into_iter()
+            .filter_map(|(b, min, block)| {
+                let nearest = centre.clamp(min, min + edge);
+                let d2 = (nearest - centre).length_squared();
+                (d2 <= r2).then_some((d2, b, block.len()))
+            })
+            .collect();
         out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         out
     }
 
-    /// Every key and Gaussian, in no particular order.
+    /// Every key and Gaussian, block by block in block key order, and
+    /// within a block in its own order (so a map loaded from a save lists
+    /// its Gaussians as the saved one did, whatever the hash tables did).
     pub fn iter(&self) -> impl Iterator<Item = (VoxelKey, &Gaussian)> {
-        self.keys.iter().copied().zip(self.gaussians.iter())
+        let mut blocks: Vec<(&VoxelKey, &Block)> = self.blocks.iter().collect();
+        blocks.sort_unstable_by_key(|(k, _)| **k);
+        blocks
+            .into_iter()
+            .flat_map(|(_, b)| b.keys.iter().copied().zip(b.gaussians.iter()))
     }
 
-    /// Approximate heap bytes held (parameters, keys, hash tables).
+    /// Approximate heap bytes held (parameters, keys, indexes, occupancy
+    /// grids).
     pub fn bytes(&self) -> u64 {
-        let per = size_of::<Gaussian>() + size_of::<VoxelKey>() * 2 + 4 * 3 + 16;
-        (self.keys.capacity() * per
-            + (self.cells.len() + self.occupancy.iter().map(KeyMap::len).sum::<usize>()) * 64)
-            as u64
+        // A hashbrown entry of a key and a small value, with its control
+        // byte, rounded up.
+        let entry = size_of::<VoxelKey>() + 8 + 1;
+        let blocks: usize = self.blocks.values().map(Block::bytes).sum();
+        let tables = (self.blocks.capacity() * (entry + size_of::<Block>()))
+            + self
+                .occupancy
+                .iter()
+                .map(|g| g.capacity() * entry)
+                .sum::<usize>();
+        (blocks + tables) as u64
     }
 }
 
@@ -451,6 +500,25 @@ mod tests {
             let k = map.key_of(DVec3::from(p.map(f64::from))).unwrap();
             assert_eq!(map.get(k).unwrap().mean, *p);
         }
+        // Blocks hold exactly their own voxels, and their arrays agree
+        // with lookups by key.
+        let mut blocks: Vec<VoxelKey> = map.iter().map(|(k, _)| GlobalMap::block_of(k)).collect();
+        blocks.dedup();
+        assert_eq!(blocks.len(), map.blocks(), "iteration goes block by block");
+        for b in blocks {
+            let block = map.block(b).unwrap();
+            assert_eq!(block.len(), map.block_len(b));
+            for (k, g) in block.keys().iter().zip(block.gaussians()) {
+                assert_eq!(GlobalMap::block_of(*k), b);
+                assert_eq!(map.get(*k), Some(g));
+            }
+        }
+        // A map rebuilt in its own order iterates the same way.
+        let mut copy = GlobalMap::new(0.01);
+        for (k, g) in map.iter() {
+            assert!(copy.insert_at(k, *g));
+        }
+        assert!(map.iter().eq(copy.iter()));
     }
 
     #[test]

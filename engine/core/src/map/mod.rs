@@ -10,7 +10,7 @@ mod voxel;
 mod window;
 
 pub use exposure::{relative_exposure, ExposureTrack, EXPOSURE_RANGE};
-pub use global::{Gaussian, GlobalMap, BLOCK_VOXELS, OCCUPANCY_VOXELS};
+pub use global::{Block, Gaussian, GlobalMap, BLOCK_VOXELS, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
 pub use ply::{read_ply, unit_quat, write_map_ply, write_ply, write_ply_without_latents, PlyMap};
 pub use seeding::{

@@ -202,9 +202,30 @@ impl PendingSync {
     /// Writes the downloaded Gaussians back to the global map by key.
     /// Errors if the submission has not completed.
     pub fn apply(self, global: &mut GlobalMap) -> Result<usize> {
-        let (keys, host) = self.read()?;
-        for (i, key) in keys.iter().enumerate() {
-            if !global.write_back(*key, gaussian_at(&host, i)) {
+        let Some(readback) = &self.readback else {
+            return Ok(0);
+        };
+        let bytes = readback.bytes()?;
+        let n = self.keys.len();
+        if bytes.len() < n * GAUSSIAN_BYTES as usize {
+            return Err(Error::bad_input(
+                "window write-back",
+                format!("{} bytes downloaded for {n} Gaussians", bytes.len()),
+            ));
+        }
+        // Mapped memory is aligned far beyond 4 bytes on every driver;
+        // copy rather than fail if one is not.
+        let copied: Vec<f32>;
+        let words: &[f32] = match bytemuck::try_cast_slice(bytes) {
+            Ok(words) => words,
+            Err(_) => {
+                copied = bytemuck::pod_collect_to_vec(bytes);
+                &copied
+            }
+        };
+        let fields = packed_fields(words, n);
+        for (i, key) in self.keys.iter().enumerate() {
+            if !global.write_back(*key, fields.gaussian(i)) {
                 return Err(Error::bad_input(
                     "global map",
                     format!(
@@ -213,7 +234,51 @@ impl PendingSync {
                 ));
             }
         }
-        Ok(keys.len())
+        Ok(self.keys.len())
+    }
+}
+
+/// `n` Gaussians packed field after field, read in place.
+struct PackedFields<'a> {
+    means: &'a [[f32; 3]],
+    log_scales: &'a [[f32; 3]],
+    quats: &'a [[f32; 4]],
+    colors: &'a [[f32; 3]],
+    opacity_logits: &'a [f32],
+    queries: &'a [[f32; crate::splat::QUERY_DIM]],
+}
+
+impl PackedFields<'_> {
+    fn gaussian(&self, i: usize) -> Gaussian {
+        Gaussian {
+            mean: self.means[i],
+            log_scale: self.log_scales[i],
+            quat: self.quats[i],
+            color: self.colors[i],
+            opacity_logit: self.opacity_logits[i],
+            query: self.queries[i],
+        }
+    }
+}
+
+/// The fields of `n` Gaussians packed field after field (the outbox's
+/// layout), as slices of `words` (at least `n` Gaussians' worth).
+fn packed_fields(words: &[f32], n: usize) -> PackedFields<'_> {
+    let mut at = 0;
+    let mut field = |width: u64| -> &[f32] {
+        let len = n * width as usize;
+        let part = &words[at..at + len];
+        at += len;
+        part
+    };
+    let [m, s, q, c, o, l] = FIELD_WIDTHS.map(&mut field);
+    PackedFields {
+        means: bytemuck::cast_slice(m),
+        log_scales: bytemuck::cast_slice(s),
+        quats: bytemuck::cast_slice(q),
+        colors: bytemuck::cast_slice(c),
+        opacity_logits: bytemuck::cast_slice(o),
+        queries: bytemuck::cast_slice(l),
     }
 }
 
@@ -903,17 +968,38 @@ fn record_gather<'a>(
     Ok(())
 }
 
-/// The Gaussians of `keys`, as host SoA.
+/// The Gaussians of `keys`, as host SoA. A plan lists an arriving block's
+/// keys in the block's own order, so such a run is copied block by block
+/// with one lookup; other keys are looked up one by one.
 fn gather(global: &GlobalMap, keys: &[VoxelKey]) -> Result<HostGaussians> {
     let mut fetched = HostGaussians::default();
-    for k in keys {
-        let g = global.get(*k).ok_or_else(|| {
+    let n = keys.len();
+    fetched.means.reserve(n);
+    fetched.log_scales.reserve(n);
+    fetched.quats.reserve(n);
+    fetched.colors.reserve(n);
+    fetched.opacity_logits.reserve(n);
+    fetched.queries.reserve(n);
+    let mut at = 0;
+    while at < n {
+        let key = keys[at];
+        if let Some(block) = global.block(GlobalMap::block_of(key)) {
+            if keys[at..].starts_with(block.keys()) {
+                for g in block.gaussians() {
+                    push_gaussian(&mut fetched, g);
+                }
+                at += block.len();
+                continue;
+            }
+        }
+        let g = global.get(key).ok_or_else(|| {
             Error::bad_input(
                 "global map",
-                format!("sync fetches voxel {k:?}, which the global map does not have"),
+                format!("sync fetches voxel {key:?}, which the global map does not have"),
             )
         })?;
         push_gaussian(&mut fetched, g);
+        at += 1;
     }
     Ok(fetched)
 }
