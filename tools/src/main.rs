@@ -92,7 +92,8 @@ enum Command {
     /// of --config/--set.
     Config(config_cmd::Args),
     /// Write the built-in demo scene (two rooms and a corridor, a dozen
-    /// labelled objects, synthetic region embeddings) as an MCAP log.
+    /// labelled objects, synthetic region embeddings) as an MCAP log, or
+    /// with --rooms N a building of N rooms for long walks.
     GenScene(gen_scene::Args),
     /// Convert a TUM RGB-D, 7-Scenes or Replica (NICE-SLAM layout) folder
     /// to an MCAP log, optionally with per-frame embeddings.

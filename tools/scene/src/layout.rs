@@ -124,11 +124,11 @@ pub struct Scene {
 pub const HEIGHT: f32 = 2.5;
 const WALL: f32 = 0.1;
 
-fn rgb(r: u8, g: u8, b: u8) -> Vec3 {
+pub(crate) fn rgb(r: u8, g: u8, b: u8) -> Vec3 {
     Vec3::new(r as f32, g as f32, b as f32) / 255.0
 }
 
-fn cuboid(min: [f32; 3], max: [f32; 3]) -> Shape {
+pub(crate) fn cuboid(min: [f32; 3], max: [f32; 3]) -> Shape {
     Shape::Box {
         min: Vec3::from(min),
         max: Vec3::from(max),
@@ -153,7 +153,7 @@ impl Scene {
     /// Walls, floor and ceiling of one room-like space: `extent` is its
     /// interior (x0, y0, x1, y1); `openings` are y-ranges cut into its
     /// x0/x1 walls (doors to the corridor).
-    fn room(
+    pub(crate) fn room(
         &mut self,
         name: &str,
         extent: [f32; 4],
@@ -236,7 +236,7 @@ impl Scene {
         );
     }
 
-    fn object(
+    pub(crate) fn object(
         &mut self,
         class: u16,
         name: &str,
@@ -260,19 +260,29 @@ impl Scene {
         );
     }
 
+    /// A world with nothing in it yet (instance 0 is "nothing").
+    pub(crate) fn empty() -> Scene {
+        Scene {
+            surfaces: Vec::new(),
+            instances: vec![Instance {
+                class: 0,
+                name: "nothing".into(),
+            }],
+        }
+    }
+
+    /// Thickness of walls, floors and ceilings, metres.
+    pub(crate) fn wall_thickness() -> f32 {
+        WALL
+    }
+
     /// The demo world. It has no random parts: seeds only change the
     /// trajectory noise and the embeddings.
     //
     // Long because it is data: every surface and object of the demo world
     // in one place, to be read as a floor plan.
     pub fn two_rooms() -> Scene {
-        let mut s = Scene {
-            surfaces: Vec::new(),
-            instances: vec![Instance {
-                class: 0,
-                name: "nothing".into(),
-            }],
-        };
+        let mut s = Scene::empty();
         let door = (1.5, 2.5);
         s.room(
             "room A",

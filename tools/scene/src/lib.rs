@@ -17,6 +17,7 @@
 //! open-vocabulary queries and mIoU can be evaluated; the semantic images
 //! stay exact.
 
+mod building;
 mod geometry;
 mod layout;
 mod render;
@@ -34,9 +35,10 @@ use latentam_io::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+pub use building::{building, MAX_ROOMS, MIN_ROOMS};
 pub use layout::{Scene, CLASSES};
 pub use render::{intrinsics, render, View};
-pub use trajectory::{camera_pose, camera_pose_laps};
+pub use trajectory::{camera_pose, camera_pose_laps, CameraPath};
 
 /// What to generate.
 #[derive(Clone, Debug)]
@@ -73,6 +75,9 @@ pub struct SceneConfig {
     /// Auto-exposure: the camera's gain swings between `exp(-swing)` and
     /// `exp(swing)` over the run ([`exposure_gain`]); 0 keeps it at 1.
     pub exposure_swing: f32,
+    /// A building of this many rooms ([`building`]) instead of the demo
+    /// world's two.
+    pub rooms: Option<usize>,
 }
 
 impl Default for SceneConfig {
@@ -92,6 +97,7 @@ impl Default for SceneConfig {
             compression: Compression::Zstd,
             laps: 1,
             exposure_swing: 0.0,
+            rooms: None,
         }
     }
 }
@@ -128,6 +134,8 @@ pub struct SceneSummary {
     pub objects: usize,
     /// Classes in the vocabulary (without "unlabelled").
     pub classes: usize,
+    /// Length of one traversal of the camera path, metres.
+    pub path_metres: f32,
 }
 
 fn unit_gaussian(rng: &mut ChaCha8Rng, dim: usize) -> Vec<f32> {
@@ -278,6 +286,11 @@ fn check(config: &SceneConfig) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&config.mask_noise) {
         bail!("mask noise {} outside 0…1", config.mask_noise);
     }
+    if let Some(n) = config.rooms {
+        if !(MIN_ROOMS..=MAX_ROOMS).contains(&n) {
+            bail!("--rooms {n} outside {MIN_ROOMS}…{MAX_ROOMS}");
+        }
+    }
     if !(config.view_spread >= 0.0 && config.view_spread.is_finite()) {
         bail!("view spread {} must be finite and ≥ 0", config.view_spread);
     }
@@ -364,7 +377,10 @@ pub fn generate(
     mut progress: impl FnMut(usize),
 ) -> anyhow::Result<SceneSummary> {
     check(config)?;
-    let scene = Scene::two_rooms();
+    let (scene, path) = match config.rooms {
+        Some(n) => building(n),
+        None => (Scene::two_rooms(), CameraPath::demo()),
+    };
     let (class_vecs, instance_vecs) = embedding_tables(&scene, config);
     let partial = latentam_base::files::PartialFile::new(out)?;
     let mut log = LogWriter::create(partial.path(), config.compression)
@@ -380,7 +396,7 @@ pub fn generate(
         let stamp = START_NS + (i as f64 * 1e9 / config.fps).round() as i64;
         let t = stamp as u64;
         let header = Header::at(stamp, frame_id);
-        let (rotation, position) = camera_pose_laps(i, config.frames, config.laps);
+        let (rotation, position) = path.pose(i, config.frames, config.laps);
         let mut view = render(&scene, rotation, position, w, h);
         let gain = exposure_gain(config, i);
         if gain != 1.0 {
@@ -435,6 +451,10 @@ pub fn generate(
         ("size".to_string(), format!("{w}x{h}")),
         ("dim".to_string(), config.dim.to_string()),
     ]);
+    let mut meta = meta;
+    if let Some(n) = config.rooms {
+        meta.insert("rooms".to_string(), n.to_string());
+    }
     log.metadata("latentam", meta)?;
     log.finish()?;
     partial.commit()?;
@@ -443,6 +463,7 @@ pub fn generate(
         regions: regions_total,
         objects: scene.object_count(),
         classes: CLASSES.len() - 1,
+        path_metres: path.length(),
     })
 }
 

@@ -1,5 +1,6 @@
-//! The demo camera path: around room A, through the corridor, around room
-//! B, and back into room A, so a mapper's local window has to page.
+//! Camera paths: the demo's around room A, through the corridor, around
+//! room B, and back into room A, so a mapper's local window has to page;
+//! any other through waypoints ([`CameraPath`]).
 
 use glam::{Mat3, Vec2, Vec3};
 
@@ -34,67 +35,139 @@ fn catmull_rom(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, t: f32) -> Vec2 {
         + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
 }
 
-fn point(s: f32) -> Vec2 {
-    let n = WAYPOINTS.len();
-    let s = s.clamp(0.0, (n - 1) as f32 - 1e-4);
-    let i = s.floor() as usize;
-    let p = |k: isize| Vec2::from(WAYPOINTS[(i as isize + k).clamp(0, n as isize - 1) as usize]);
-    catmull_rom(p(-1), p(0), p(1), p(2), s - i as f32)
+/// Spline samples per segment between two waypoints, for walking the path
+/// at constant speed.
+const STEPS_PER_SEGMENT: usize = 300;
+
+/// A camera walk: waypoints on the floor joined by a Catmull-Rom spline,
+/// walked at constant speed at eye height, looking along the way and
+/// around (less in corridors).
+#[derive(Clone, Debug)]
+pub struct CameraPath {
+    waypoints: Vec<Vec2>,
+    /// Arc length at each spline sample.
+    lengths: Vec<f32>,
+    /// Rectangles `[x0, y0, x1, y1]` where the camera looks around less.
+    corridors: Vec<[f32; 4]>,
+    /// Spline samples over the whole path.
+    steps: usize,
+}
+
+impl CameraPath {
+    /// A path through `waypoints` (at least two), looking around less
+    /// inside `corridors`.
+    pub fn new(waypoints: Vec<Vec2>, corridors: Vec<[f32; 4]>) -> CameraPath {
+        let steps = STEPS_PER_SEGMENT * waypoints.len().saturating_sub(1);
+        CameraPath::sampled(waypoints, corridors, steps)
+    }
+
+    fn sampled(waypoints: Vec<Vec2>, corridors: Vec<[f32; 4]>, steps: usize) -> CameraPath {
+        assert!(waypoints.len() >= 2, "a path needs two waypoints");
+        let mut path = CameraPath {
+            waypoints,
+            lengths: Vec::new(),
+            corridors,
+            steps,
+        };
+        let seg = path.segments();
+        let mut lengths = vec![0.0f32; steps + 1];
+        let mut prev = path.point(0.0);
+        for (k, l) in lengths.iter_mut().enumerate().skip(1) {
+            let p = path.point(k as f32 / steps as f32 * seg);
+            *l = (p - prev).length();
+            prev = p;
+        }
+        for k in 1..=steps {
+            lengths[k] += lengths[k - 1];
+        }
+        path.lengths = lengths;
+        path
+    }
+
+    /// The demo world's path: around room A, through the corridor, around
+    /// room B, and back into room A.
+    pub fn demo() -> CameraPath {
+        // 4 000 samples, as the demo logs were always made with.
+        CameraPath::sampled(
+            WAYPOINTS.iter().map(|&p| Vec2::from(p)).collect(),
+            vec![[5.0, 0.0, 9.0, 4.0]],
+            4000,
+        )
+    }
+
+    /// Length of one traversal, metres.
+    pub fn length(&self) -> f32 {
+        *self.lengths.last().expect("at least one sample")
+    }
+
+    fn segments(&self) -> f32 {
+        (self.waypoints.len() - 1) as f32
+    }
+
+    fn point(&self, s: f32) -> Vec2 {
+        let n = self.waypoints.len();
+        let s = s.clamp(0.0, (n - 1) as f32 - 1e-4);
+        let i = s.floor() as usize;
+        let p = |k: isize| self.waypoints[(i as isize + k).clamp(0, n as isize - 1) as usize];
+        catmull_rom(p(-1), p(0), p(1), p(2), s - i as f32)
+    }
+
+    /// The pose of frame `i` of `frames` spread over `laps` traversals,
+    /// alternately forwards and backwards so the walk is continuous.
+    pub fn pose(&self, i: usize, frames: usize, laps: usize) -> (Mat3, Vec3) {
+        let laps = laps.max(1);
+        let u = laps as f32 * i as f32 / (frames.max(2) - 1) as f32;
+        let lap = (u.floor() as usize).min(laps - 1);
+        let f = u - lap as f32;
+        let backwards = lap % 2 == 1;
+        self.pose_at(if backwards { 1.0 - f } else { f }, backwards)
+    }
+
+    /// The pose at fraction `f` of the path's length, looking along the
+    /// direction of travel (`backwards`: towards the path's start).
+    fn pose_at(&self, f: f32, backwards: bool) -> (Mat3, Vec3) {
+        let steps = self.steps;
+        let seg = self.segments();
+        let target = self.length() * f.clamp(0.0, 1.0);
+        let k = self.lengths.partition_point(|&l| l < target).min(steps);
+        let s = k as f32 / steps as f32 * seg;
+        let pos = self.point(s);
+        let mut ahead = self.point((s + 0.05).min(seg)) - self.point((s - 0.05).max(0.0));
+        if backwards {
+            ahead = -ahead;
+        }
+        let mut yaw = ahead.y.atan2(ahead.x);
+        // Look around while walking, less in corridors.
+        let in_corridor = self
+            .corridors
+            .iter()
+            .any(|c| (c[0]..c[2]).contains(&pos.x) && (c[1]..c[3]).contains(&pos.y));
+        yaw += if in_corridor { 0.15 } else { 0.6 } * (s * 2.1).sin();
+        let forward = Vec3::new(
+            yaw.cos() * PITCH.cos(),
+            yaw.sin() * PITCH.cos(),
+            PITCH.sin(),
+        );
+        let right = forward.cross(Vec3::Z).normalize();
+        let down = forward.cross(right);
+        (
+            Mat3::from_cols(right, down, forward),
+            Vec3::new(pos.x, pos.y, EYE_HEIGHT),
+        )
+    }
 }
 
 /// Camera-to-world rotation (columns: camera x right, y down, z forward;
-/// world z up) and position of frame `i` of `frames`.
+/// world z up) and position of frame `i` of `frames` on the demo path.
 pub fn camera_pose(i: usize, frames: usize) -> (Mat3, Vec3) {
     camera_pose_laps(i, frames, 1)
 }
 
 /// The pose of frame `i` of `frames` spread over `laps` traversals of the
-/// path, alternately forwards and backwards so the walk is continuous
+/// demo path, alternately forwards and backwards so the walk is continuous
 /// (long runs revisit the same rooms again and again).
 pub fn camera_pose_laps(i: usize, frames: usize, laps: usize) -> (Mat3, Vec3) {
-    let laps = laps.max(1);
-    let u = laps as f32 * i as f32 / (frames.max(2) - 1) as f32;
-    let lap = (u.floor() as usize).min(laps - 1);
-    let f = u - lap as f32;
-    let backwards = lap % 2 == 1;
-    pose_at(if backwards { 1.0 - f } else { f }, backwards)
-}
-
-/// The pose at fraction `f` of the path's length, looking along the
-/// direction of travel (`backwards`: towards the path's start).
-fn pose_at(f: f32, backwards: bool) -> (Mat3, Vec3) {
-    // Sample the spline densely, then walk it at constant speed.
-    const STEPS: usize = 4000;
-    let seg = (WAYPOINTS.len() - 1) as f32;
-    let mut lengths = vec![0.0f32; STEPS + 1];
-    for k in 1..=STEPS {
-        let a = point((k - 1) as f32 / STEPS as f32 * seg);
-        let b = point(k as f32 / STEPS as f32 * seg);
-        lengths[k] = lengths[k - 1] + (b - a).length();
-    }
-    let target = lengths[STEPS] * f.clamp(0.0, 1.0);
-    let k = lengths.partition_point(|&l| l < target).min(STEPS);
-    let s = k as f32 / STEPS as f32 * seg;
-    let pos = point(s);
-    let mut ahead = point((s + 0.05).min(seg)) - point((s - 0.05).max(0.0));
-    if backwards {
-        ahead = -ahead;
-    }
-    let mut yaw = ahead.y.atan2(ahead.x);
-    // Look around while walking, less in the corridor.
-    let in_corridor = (5.0..9.0).contains(&pos.x);
-    yaw += if in_corridor { 0.15 } else { 0.6 } * (s * 2.1).sin();
-    let forward = Vec3::new(
-        yaw.cos() * PITCH.cos(),
-        yaw.sin() * PITCH.cos(),
-        PITCH.sin(),
-    );
-    let right = forward.cross(Vec3::Z).normalize();
-    let down = forward.cross(right);
-    (
-        Mat3::from_cols(right, down, forward),
-        Vec3::new(pos.x, pos.y, EYE_HEIGHT),
-    )
+    CameraPath::demo().pose(i, frames, laps)
 }
 
 #[cfg(test)]
