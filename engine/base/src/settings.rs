@@ -129,6 +129,8 @@ impl Setting for f32 {
 
 impl Setting for bool {}
 
+impl Setting for String {}
+
 impl<T: Setting> Setting for Option<T> {
     const INTEGER: bool = T::INTEGER;
 

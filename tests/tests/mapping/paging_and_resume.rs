@@ -56,7 +56,93 @@ fn a_tiny_gpu_budget_pages_and_maps_about_as_well_as_an_unbounded_run() {
 }
 
 fn gaussians_of(m: &Mapper) -> Vec<(VoxelKey, Gaussian)> {
-    m.internals().global.iter().map(|(k, g)| (k, *g)).collect()
+    m.internals().global.to_vec().unwrap()
+}
+
+/// A Gaussian's parameters as bits, to compare exactly.
+fn bits_of(g: &Gaussian) -> Vec<u32> {
+    let floats = (g.mean.iter().chain(&g.log_scale).chain(&g.quat))
+        .chain(g.color.iter().chain([&g.opacity_logit]).chain(&g.query));
+    floats.map(|x| x.to_bits()).collect()
+}
+
+#[test]
+fn a_map_spilled_to_disk_past_a_tiny_host_budget_is_the_map_kept_in_memory() {
+    // A window of a third of the map makes blocks leave it, as the tiny
+    // GPU budget above does; a host budget of one byte spills every block
+    // that left, at every keyframe, and the demo path's return to room A
+    // reads them back.
+    let ctx = context();
+    let spill = temp_dir("spill");
+    let tiny = |host_budget| MapperConfig {
+        window_capacity: Some(16_000),
+        host_budget,
+        spill_dir: Some(spill.display().to_string()),
+        ..config()
+    };
+    let mut kept = Mapper::with_context(&ctx, tiny(0)).unwrap();
+    let mut spilled = Mapper::with_context(&ctx, tiny(1)).unwrap();
+    let (mut written, mut read, mut most_on_disk) = (0, 0, 0);
+    for f in &scene().frames {
+        let a = kept.integrate(f).unwrap();
+        let b = spilled.integrate(f).unwrap();
+        if let (Integrated::Keyframe(a), Integrated::Keyframe(b)) = (a, b) {
+            assert_eq!(
+                a.disk,
+                Default::default(),
+                "nothing spills without a budget"
+            );
+            written += b.disk.blocks_written;
+            read += b.disk.blocks_read;
+            most_on_disk = most_on_disk.max(b.disk.spilled_gaussians);
+            assert_eq!((a.gaussians, a.resident), (b.gaussians, b.resident));
+            assert!(b.cpu_bytes < a.cpu_bytes || b.disk.spilled_blocks == 0);
+        }
+    }
+    eprintln!("spilled: {written} blocks written, {read} read back, at most {most_on_disk} Gaussians on disk");
+    assert!(written > 0 && read > 0 && most_on_disk > 1000);
+    // Nothing is left in the spill directory by name.
+    #[cfg(unix)]
+    assert_eq!(std::fs::read_dir(&spill).unwrap().count(), 0);
+    // Training on the GPU is not bit-reproducible (float atomics), so the
+    // two maps are compared as two runs are: the same structure at every
+    // keyframe (above), the same quality up to that noise (measured:
+    // 21.6908 dB both, depth L1 0.19693 both). Rendering reads the
+    // spilled blocks.
+    let (q, r) = (quality(&mut spilled), quality(&mut kept));
+    eprintln!("spilled: {q:?}\nkept: {r:?}");
+    assert!((q.psnr - r.psnr).abs() < 0.1, "{q:?} vs {r:?}");
+    assert!((q.depth_l1 - r.depth_l1).abs() < 0.005, "{q:?} vs {r:?}");
+    assert!(
+        (q.cosine_loss - r.cosine_loss).abs() < 0.05,
+        "{q:?} vs {r:?}"
+    );
+    assert_eq!(q.gaussians, r.gaussians);
+    // Every reader of the whole map sees the spilled blocks, bit for bit:
+    // the map (memory and disk), a snapshot, and a save loaded back.
+    let bits = |m: &Mapper| -> Vec<(VoxelKey, Vec<u32>)> {
+        gaussians_of(m)
+            .iter()
+            .map(|(k, g)| (*k, bits_of(g)))
+            .collect()
+    };
+    let on_disk = spilled.internals().global.spilled_len();
+    assert!(on_disk > 1000, "{on_disk} Gaussians on disk at the end");
+    let mut snapshot: Vec<Vec<u32>> = {
+        let s = spilled.snapshot().unwrap().to_gaussians();
+        s.iter().map(bits_of).collect()
+    };
+    let map = bits(&spilled);
+    let mut values: Vec<Vec<u32>> = map.iter().map(|(_, v)| v.clone()).collect();
+    snapshot.sort_unstable();
+    values.sort_unstable();
+    assert_eq!(snapshot, values);
+    let dir = temp_dir("spill-save").join("run");
+    spilled.save(&dir).unwrap();
+    let loaded = Mapper::load(&ctx, &dir).unwrap();
+    assert_eq!(bits(&loaded), map);
+    drop((kept, spilled, loaded));
+    assert_no_validation_errors(ctx);
 }
 
 #[test]
@@ -108,8 +194,8 @@ fn save_load_continue_matches_an_uninterrupted_run() {
     let r = reference();
     eprintln!("resumed: {q:?}\nreference: {r:?}");
     assert_eq!(loaded.stats().keyframes as usize, FRAMES / 4);
-    assert!((q.psnr - r.psnr).abs() < 0.5, "{q:?} vs {r:?}");
-    assert!((q.depth_l1 - r.depth_l1).abs() < 0.01, "{q:?} vs {r:?}");
+    assert!((q.psnr - r.psnr).abs() < 0.1, "{q:?} vs {r:?}");
+    assert!((q.depth_l1 - r.depth_l1).abs() < 0.005, "{q:?} vs {r:?}");
     assert!(
         (q.cosine_loss - r.cosine_loss).abs() < 0.05,
         "{q:?} vs {r:?}"

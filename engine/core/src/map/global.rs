@@ -2,8 +2,10 @@
 
 use glam::DVec3;
 
+use super::spill::{SpillFile, Spilled};
 use super::voxel::{KeyMap, VoxelKey};
 use crate::splat::QUERY_DIM;
+use latentam_base::Result;
 
 /// One Gaussian's parameters, as the optimiser sees them (see
 /// [`crate::splat::HostGaussians`] for the conventions).
@@ -77,6 +79,9 @@ pub struct Block {
     /// map for every voxel grew with the map and missed the cache on
     /// every lookup.
     slot: rustc_hash::FxHashMap<u32, u32>,
+    /// When the map last used it ([`GlobalMap::touch`]): the least
+    /// recently used blocks are spilled first.
+    used: u64,
 }
 
 impl Block {
@@ -140,13 +145,45 @@ const _: () = assert!(BLOCK_VOXELS <= 64, "in_block packs six bits an axis");
 /// let block = map.block(GlobalMap::block_of(key)).expect("its block");
 /// assert_eq!(block.keys(), &[key]);
 /// ```
-#[derive(Clone, Debug)]
 pub struct GlobalMap {
     voxel_size: f64,
+    /// The blocks in host memory.
     blocks: KeyMap<Block>,
+    /// Gaussians in host memory.
     len: usize,
-    /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`.
+    /// Gaussians per occupancy cell, one grid per `OCCUPANCY_LEVELS`, of
+    /// every block (in memory or spilled): "is this surface mapped" does
+    /// not depend on where a block is.
     occupancy: [KeyMap<u32>; 4],
+    /// The disk tier: where spilled blocks are, and their file (created
+    /// at the first spill).
+    spilled: KeyMap<Spilled>,
+    spilled_len: usize,
+    spill: Option<SpillFile>,
+    spill_dir: std::path::PathBuf,
+    /// Counts keyframes, for least-recently-used order.
+    clock: u64,
+    /// Blocks spilled and read back so far.
+    spill_counts: SpillCounts,
+}
+
+/// Blocks the disk tier wrote and read, since the map was made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SpillCounts {
+    /// Blocks written to disk.
+    pub written: u64,
+    /// Blocks read back into memory.
+    pub read: u64,
+}
+
+impl std::fmt::Debug for GlobalMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GlobalMap")
+            .field("voxel_size", &self.voxel_size)
+            .field("in_memory", &self.len)
+            .field("spilled", &self.spilled_len)
+            .finish_non_exhaustive()
+    }
 }
 
 impl GlobalMap {
@@ -161,7 +198,20 @@ impl GlobalMap {
             blocks: KeyMap::default(),
             len: 0,
             occupancy: Default::default(),
+            spilled: KeyMap::default(),
+            spilled_len: 0,
+            spill: None,
+            spill_dir: std::env::temp_dir(),
+            clock: 0,
+            spill_counts: SpillCounts::default(),
         }
+    }
+
+    /// Spills go to a scratch file in `dir` (the OS temporary directory
+    /// unless set; see [`GlobalMap::spill_to_budget`]). Takes effect for
+    /// the next scratch file.
+    pub fn set_spill_dir(&mut self, dir: impl Into<std::path::PathBuf>) {
+        self.spill_dir = dir.into();
     }
 
     /// Voxel edge, metres.
@@ -169,14 +219,34 @@ impl GlobalMap {
         self.voxel_size
     }
 
-    /// Number of Gaussians.
+    /// Number of Gaussians, in memory and spilled.
     pub fn len(&self) -> usize {
-        self.len
+        self.len + self.spilled_len
     }
 
     /// Whether the map is empty.
     pub fn is_empty(&self) -> bool {
-        self.len == 0
+        self.len() == 0
+    }
+
+    /// Gaussians spilled to disk.
+    pub fn spilled_len(&self) -> usize {
+        self.spilled_len
+    }
+
+    /// Blocks spilled to disk.
+    pub fn spilled_blocks(&self) -> usize {
+        self.spilled.len()
+    }
+
+    /// Bytes of the disk tier's scratch file.
+    pub fn disk_bytes(&self) -> u64 {
+        self.spill.as_ref().map_or(0, SpillFile::bytes)
+    }
+
+    /// Blocks written to disk and read back since the map was made.
+    pub fn spill_counts(&self) -> SpillCounts {
+        self.spill_counts
     }
 
     /// The voxel of point `p`.
@@ -184,7 +254,8 @@ impl GlobalMap {
         VoxelKey::of(p, self.voxel_size)
     }
 
-    /// Whether voxel `key` holds a Gaussian.
+    /// Whether voxel `key` holds a Gaussian in memory (a spilled block's
+    /// are not seen until it is read back: [`GlobalMap::load_near`]).
     pub fn contains(&self, key: VoxelKey) -> bool {
         self.blocks
             .get(&Self::block_of(key))
@@ -228,9 +299,17 @@ impl GlobalMap {
     }
 
     /// Inserts `g` under `key` (a saved map's key: optimised means may
-    /// have left their seeding voxel); false if the voxel is taken.
+    /// have left their seeding voxel); false if the voxel is taken, or
+    /// its block is spilled (read it back first: a block is never in
+    /// memory and on disk at once).
     pub fn insert_at(&mut self, key: VoxelKey, g: Gaussian) -> bool {
-        let block = self.blocks.entry(Self::block_of(key)).or_default();
+        let block_key = Self::block_of(key);
+        if self.spilled.contains_key(&block_key) {
+            return false;
+        }
+        let clock = self.clock;
+        let block = self.blocks.entry(block_key).or_default();
+        block.used = clock;
         let index = block.keys.len() as u32;
         match block.slot.entry(in_block(key)) {
             std::collections::hash_map::Entry::Occupied(_) => return false,
@@ -245,7 +324,7 @@ impl GlobalMap {
         true
     }
 
-    /// The Gaussian in voxel `key`.
+    /// The Gaussian in voxel `key`, if its block is in memory.
     pub fn get(&self, key: VoxelKey) -> Option<&Gaussian> {
         let block = self.blocks.get(&Self::block_of(key))?;
         block.index_of(key).map(|i| &block.gaussians[i])
@@ -266,7 +345,8 @@ impl GlobalMap {
         }
     }
 
-    /// Removes the Gaussian in voxel `key` (pruning).
+    /// Removes the Gaussian in voxel `key` (pruning), if its block is in
+    /// memory.
     pub fn remove(&mut self, key: VoxelKey) -> Option<Gaussian> {
         let block_key = Self::block_of(key);
         let block = self.blocks.get_mut(&block_key)?;
@@ -293,8 +373,8 @@ impl GlobalMap {
         Some(g)
     }
 
-    /// Keys of the Gaussians whose mean is within `radius` of `centre`, in
-    /// key order.
+    /// Keys of the Gaussians in memory whose mean is within `radius` of
+    /// `centre`, in key order.
     pub fn within(&self, centre: DVec3, radius: f64) -> Vec<VoxelKey> {
         let mut out = Vec::new();
         self.visit_within(centre, radius, |key, _| out.push(key));
@@ -366,9 +446,12 @@ impl GlobalMap {
         self.blocks.get(&block)
     }
 
-    /// Gaussians in `block`.
+    /// Gaussians in `block`, in memory or spilled.
     pub fn block_len(&self, block: VoxelKey) -> usize {
-        self.blocks.get(&block).map_or(0, Block::len)
+        match self.blocks.get(&block) {
+            Some(b) => b.len(),
+            None => self.spilled.get(&block).map_or(0, |s| s.count as usize),
+        }
     }
 
     /// The keys of the Gaussians in `block`, in the block's order.
@@ -379,12 +462,12 @@ impl GlobalMap {
             .flat_map(|b| b.keys.iter().copied())
     }
 
-    /// Occupied blocks.
+    /// Occupied blocks, in memory and spilled.
     pub fn blocks(&self) -> usize {
-        self.blocks.len()
+        self.blocks.len() + self.spilled.len()
     }
 
-    /// The occupied blocks that come within `radius` of `centre`, with
+    /// The blocks in memory that come within `radius` of `centre`, with
     /// the squared distance from `centre` to the nearest point of each
     /// (0 for the block holding it) and its Gaussians, nearest first (ties
     /// by block). Costs the blocks in the sphere's bounding box or the
@@ -405,9 +488,11 @@ impl GlobalMap {
         out
     }
 
-    /// Every key and Gaussian, block by block in block key order, and
-    /// within a block in its own order (so a map loaded from a save lists
-    /// its Gaussians as the saved one did, whatever the hash tables did).
+    /// Every key and Gaussian in memory, block by block in block key
+    /// order, and within a block in its own order (so a map loaded from a
+    /// save lists its Gaussians as the saved one did, whatever the hash
+    /// tables did). The whole map, spilled blocks too, is
+    /// [`GlobalMap::for_each_block`]'s.
     pub fn iter(&self) -> impl Iterator<Item = (VoxelKey, &Gaussian)> {
         let mut blocks: Vec<(&VoxelKey, &Block)> = self.blocks.iter().collect();
         blocks.sort_unstable_by_key(|(k, _)| **k);
@@ -416,14 +501,207 @@ impl GlobalMap {
             .flat_map(|(_, b)| b.keys.iter().copied().zip(b.gaussians.iter()))
     }
 
-    /// Approximate heap bytes held (parameters, keys, indexes, occupancy
-    /// grids).
+    /// Calls `visit(block, keys, gaussians)` for every block, in memory or
+    /// spilled (read from disk one at a time, not kept), in block key
+    /// order: the same order as [`GlobalMap::iter`] when nothing is
+    /// spilled. Stops at the first error, a spilled block that does not
+    /// read back intact included.
+    pub fn for_each_block(
+        &self,
+        mut visit: impl FnMut(VoxelKey, &[VoxelKey], &[Gaussian]) -> Result<()>,
+    ) -> Result<()> {
+        let mut order: Vec<VoxelKey> = self.blocks.keys().copied().collect();
+        order.extend(self.spilled.keys().copied());
+        order.sort_unstable();
+        for key in order {
+            match self.blocks.get(&key) {
+                Some(b) => visit(key, &b.keys, &b.gaussians)?,
+                None => {
+                    let (keys, gaussians) = self.read_spilled(key)?;
+                    visit(key, &keys, &gaussians)?
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Every key and Gaussian of the map, spilled blocks too, in the order
+    /// of [`GlobalMap::for_each_block`].
+    pub fn to_vec(&self) -> Result<Vec<(VoxelKey, Gaussian)>> {
+        let mut out = Vec::with_capacity(self.len());
+        self.for_each_block(|_, keys, gaussians| {
+            out.extend(keys.iter().copied().zip(gaussians.iter().copied()));
+            Ok(())
+        })?;
+        Ok(out)
+    }
+
+    /// Every key and Gaussian whose mean is within `radius` of `centre`,
+    /// spilled blocks read from disk (not kept), in key order (as
+    /// [`GlobalMap::within`]).
+    pub fn gaussians_within(
+        &self,
+        centre: DVec3,
+        radius: f64,
+    ) -> Result<Vec<(VoxelKey, Gaussian)>> {
+        let r2 = radius * radius;
+        let mut out: Vec<(VoxelKey, Gaussian)> = Vec::new();
+        let mut take = |keys: &[VoxelKey], gaussians: &[Gaussian]| {
+            for (k, g) in keys.iter().zip(gaussians) {
+                if (DVec3::from(g.mean.map(f64::from)) - centre).length_squared() <= r2 {
+                    out.push((*k, *g));
+                }
+            }
+        };
+        for (_, _, block) in self.blocks_in_box(centre, radius) {
+            take(&block.keys, &block.gaussians);
+        }
+        for block in self.spilled_near(centre, radius) {
+            let (keys, gaussians) = self.read_spilled(block)?;
+            take(&keys, &gaussians);
+        }
+        out.sort_unstable_by_key(|(k, _)| *k);
+        Ok(out)
+    }
+
+    /// Marks `block` used now (it stays in memory longer than blocks used
+    /// before).
+    pub fn touch(&mut self, block: VoxelKey) {
+        if let Some(b) = self.blocks.get_mut(&block) {
+            b.used = self.clock;
+        }
+    }
+
+    /// Advances the clock that orders blocks by last use (once a
+    /// keyframe).
+    pub fn tick(&mut self) {
+        self.clock += 1;
+    }
+
+    /// Writes the least recently used blocks in memory to disk until the
+    /// host bytes ([`GlobalMap::bytes`]) are within `budget`, never a
+    /// block `keep` names (those the GPU window holds, whose rows it will
+    /// write back). Returns the blocks spilled. The first spill creates
+    /// the scratch file (see [`GlobalMap::set_spill_dir`]).
+    pub fn spill_to_budget(
+        &mut self,
+        budget: u64,
+        keep: impl Fn(VoxelKey) -> bool,
+    ) -> Result<usize> {
+        let mut bytes = self.bytes();
+        if bytes <= budget {
+            return Ok(0);
+        }
+        let mut order: Vec<(u64, VoxelKey)> = self
+            .blocks
+            .iter()
+            .filter(|(k, _)| !keep(**k))
+            .map(|(k, b)| (b.used, *k))
+            .collect();
+        order.sort_unstable();
+        let mut spilled = 0;
+        for (_, key) in order {
+            if bytes <= budget {
+                break;
+            }
+            let file = match &mut self.spill {
+                Some(f) => f,
+                None => self.spill.insert(SpillFile::create(&self.spill_dir)?),
+            };
+            let block = &self.blocks[&key];
+            let at = file.write(key, &block.keys, &block.gaussians)?;
+            let block = self.blocks.remove(&key).expect("listed above");
+            bytes = bytes.saturating_sub(block.bytes() as u64);
+            self.len -= block.len();
+            self.spilled_len += block.len();
+            self.spilled.insert(key, at);
+            self.spill_counts.written += 1;
+            spilled += 1;
+        }
+        Ok(spilled)
+    }
+
+    /// Reads back into memory every spilled block that comes within
+    /// `radius` of `centre`. Returns how many.
+    pub fn load_near(&mut self, centre: DVec3, radius: f64) -> Result<usize> {
+        let blocks = self.spilled_near(centre, radius);
+        for &key in &blocks {
+            self.load(key)?;
+        }
+        Ok(blocks.len())
+    }
+
+    /// Reads spilled `block` back into memory; false when it is not
+    /// spilled.
+    pub fn load(&mut self, block: VoxelKey) -> Result<bool> {
+        if !self.spilled.contains_key(&block) {
+            return Ok(false);
+        }
+        let (keys, gaussians) = self.read_spilled(block)?;
+        let at = self.spilled.remove(&block).expect("checked above");
+        let slot = keys
+            .iter()
+            .enumerate()
+            .map(|(i, k)| (in_block(*k), i as u32))
+            .collect();
+        let n = keys.len();
+        self.blocks.insert(
+            block,
+            Block {
+                keys,
+                gaussians,
+                slot,
+                used: self.clock,
+            },
+        );
+        self.len += n;
+        self.spilled_len -= n;
+        self.spill_counts.read += 1;
+        let file = self.spill.as_mut().expect("a block was spilled");
+        if file.forget(at) {
+            file.compact(&mut self.spilled)?;
+        }
+        Ok(true)
+    }
+
+    fn read_spilled(&self, block: VoxelKey) -> Result<(Vec<VoxelKey>, Vec<Gaussian>)> {
+        let at = self.spilled[&block];
+        self.spill
+            .as_ref()
+            .expect("a block was spilled")
+            .read(block, at)
+    }
+
+    /// The spilled blocks that come within `radius` of `centre`.
+    fn spilled_near(&self, centre: DVec3, radius: f64) -> Vec<VoxelKey> {
+        if self.spilled.is_empty() {
+            return Vec::new();
+        }
+        let edge = self.voxel_size * BLOCK_VOXELS as f64;
+        let r2 = radius * radius;
+        let mut out: Vec<VoxelKey> = self
+            .spilled
+            .keys()
+            .copied()
+            .filter(|b| {
+                let min = DVec3::new(b.x as f64, b.y as f64, b.z as f64) * edge;
+                let nearest = centre.clamp(min, min + edge);
+                (nearest - centre).length_squared() <= r2
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
+    /// Approximate host bytes held (parameters, keys, indexes, occupancy
+    /// grids, where the spilled blocks are).
     pub fn bytes(&self) -> u64 {
         // A hashbrown entry of a key and a small value, with its control
         // byte, rounded up.
         let entry = size_of::<VoxelKey>() + 8 + 1;
         let blocks: usize = self.blocks.values().map(Block::bytes).sum();
         let tables = (self.blocks.capacity() * (entry + size_of::<Block>()))
+            + self.spilled.capacity() * (entry + size_of::<Spilled>())
             + self
                 .occupancy
                 .iter()
@@ -519,6 +797,99 @@ mod tests {
             assert!(copy.insert_at(k, *g));
         }
         assert!(map.iter().eq(copy.iter()));
+    }
+
+    #[test]
+    fn spilled_blocks_come_back_bit_exact_and_whole_map_readers_see_them() {
+        let dir = latentam_base::files::testing::TempDir::new("global-spill");
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let mut map = GlobalMap::new(0.02);
+        map.set_spill_dir(dir.path());
+        let mut truth: std::collections::BTreeMap<VoxelKey, Gaussian> = Default::default();
+        let bits =
+            |g: &Gaussian| -> Vec<u32> { bytemuck::cast_slice(std::slice::from_ref(g)).to_vec() };
+        for step in 0..40 {
+            // A camera walking along x inserts around itself.
+            let cam = DVec3::new(step as f64 * 0.5, 0.0, 0.0);
+            map.tick();
+            map.load_near(cam, 2.0).unwrap();
+            for _ in 0..300 {
+                let mut g = Gaussian::zeroed();
+                g.mean = [
+                    (cam.x + rng.random_range(-2.0..2.0)) as f32,
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-0.5..0.5),
+                ];
+                g.color = [rng.random(), rng.random(), rng.random()];
+                g.query[7] = rng.random();
+                if let Some(k) = map.insert(g) {
+                    truth.insert(k, g);
+                }
+            }
+            // Training changes what is near the camera.
+            for k in map.within(cam, 1.0) {
+                let mut g = *map.get(k).unwrap();
+                g.opacity_logit += 1.0;
+                assert!(map.write_back(k, g));
+                truth.insert(k, g);
+            }
+            let before = map.len();
+            let edge = 0.02 * BLOCK_VOXELS as f64;
+            let near_camera = |b: VoxelKey| ((b.x as f64 + 0.5) * edge - cam.x).abs() < 1.5;
+            map.spill_to_budget(300_000, near_camera).unwrap();
+            assert_eq!(map.len(), before, "spilling keeps every Gaussian");
+            assert!(map.bytes() <= 300_000 || map.spilled_blocks() > 0);
+        }
+        assert!(
+            map.spilled_blocks() > 10,
+            "{} spilled",
+            map.spilled_blocks()
+        );
+        let counts = map.spill_counts();
+        assert!(
+            counts.written > counts.read && counts.read > 0,
+            "{counts:?}"
+        );
+        // The whole map, from memory and disk, bit for bit.
+        let mut seen: Vec<(VoxelKey, Vec<u32>)> = Vec::new();
+        map.for_each_block(|b, keys, gaussians| {
+            assert!(keys.iter().all(|k| GlobalMap::block_of(*k) == b));
+            seen.extend(keys.iter().zip(gaussians).map(|(k, g)| (*k, bits(g))));
+            Ok(())
+        })
+        .unwrap();
+        seen.sort_unstable_by_key(|(k, _)| *k);
+        let want: Vec<(VoxelKey, Vec<u32>)> = truth.iter().map(|(k, g)| (*k, bits(g))).collect();
+        assert_eq!(seen, want);
+        // Radius reads see spilled blocks too, without reading them in.
+        let start = DVec3::new(0.0, 0.0, 0.0);
+        let mut near: Vec<Vec<u32>> = map
+            .gaussians_within(start, 1.0)
+            .unwrap()
+            .iter()
+            .map(|(_, g)| bits(g))
+            .collect();
+        let mut want: Vec<Vec<u32>> = truth
+            .values()
+            .filter(|g| (DVec3::from(g.mean.map(f64::from)) - start).length() <= 1.0)
+            .map(bits)
+            .collect();
+        near.sort_unstable();
+        want.sort_unstable();
+        assert_eq!(near, want);
+        // Walking back reads the start region in; nothing is lost.
+        let spilled = map.spilled_blocks();
+        assert!(map.load_near(start, 2.0).unwrap() > 0);
+        assert!(map.spilled_blocks() < spilled);
+        for (k, g) in map.iter() {
+            assert_eq!(bits(g), bits(&truth[&k]));
+        }
+        // A voxel of a spilled block is not taken twice.
+        let (&k, g) = truth
+            .iter()
+            .find(|(k, _)| !map.contains(**k))
+            .expect("something is still spilled");
+        assert!(!map.insert_at(k, *g));
     }
 
     #[test]

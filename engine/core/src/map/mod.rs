@@ -6,11 +6,12 @@ mod global;
 mod keyframes;
 pub mod ply;
 mod seeding;
+mod spill;
 mod voxel;
 mod window;
 
 pub use exposure::{relative_exposure, ExposureTrack, EXPOSURE_RANGE};
-pub use global::{Block, Gaussian, GlobalMap, BLOCK_VOXELS, OCCUPANCY_VOXELS};
+pub use global::{Block, Gaussian, GlobalMap, SpillCounts, BLOCK_VOXELS, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
 pub use ply::{read_ply, unit_quat, write_map_ply, write_ply, write_ply_without_latents, PlyMap};
 pub use seeding::{

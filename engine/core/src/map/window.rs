@@ -417,6 +417,11 @@ impl LocalWindow {
         self.blocks.len()
     }
 
+    /// The blocks with rows in the window, in no particular order.
+    pub fn block_keys(&self) -> impl Iterator<Item = VoxelKey> + '_ {
+        self.blocks.keys().copied()
+    }
+
     /// Whether `block` has rows in the window.
     pub fn holds_block(&self, block: VoxelKey) -> bool {
         self.blocks.contains_key(&block)

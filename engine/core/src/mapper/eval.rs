@@ -210,9 +210,10 @@ impl Evaluator {
     ) -> Result<(RenderedView, usize)> {
         let global = map.global;
         let mut host = HostGaussians::default();
-        for key in global.within(camera.cam_to_world.translation, radius) {
-            let g = global.get(key).expect("within() returns present keys");
-            push_gaussian(&mut host, g);
+        // Spilled blocks are read from disk for the render, not kept;
+        // in key order, as the same view of the same map always was.
+        for (_, g) in global.gaussians_within(camera.cam_to_world.translation, radius)? {
+            push_gaussian(&mut host, &g);
         }
         let n = host.means.len();
         if n == 0 {

@@ -104,13 +104,18 @@ impl Mapper {
         let pager = PagerSettings {
             radius: config.window_radius,
             sync_distance: config.sync_distance,
+            host_budget: config.host_budget,
         };
+        let mut pager = Pager::new(config.voxel_size, pager);
+        if let Some(dir) = &config.spill_dir {
+            pager.set_spill_dir(dir);
+        }
         Ok(Mapper {
             ctx: ctx.clone(),
             selector: KeyframeSelector::new(config.keyframes),
             dictionary: Dictionary::new(&config),
             seeder: Seeder::new(config.seeding),
-            pager: Pager::new(config.voxel_size, pager),
+            pager,
             trainer: None,
             history: History::with_cell(config.history_cell),
             trajectory: Vec::new(),

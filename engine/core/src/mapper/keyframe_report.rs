@@ -144,10 +144,39 @@ pub struct KeyframeTimings {
     pub paging_gpu_ms: Option<f64>,
     /// Of that, the time during which Stage II was running too.
     pub paging_hidden_ms: Option<f64>,
+    /// The global map's disk tier: reading spilled blocks back around the
+    /// camera before seeding, and spilling blocks past `host_budget`
+    /// after Stage II (0 while the map fits).
+    pub disk_ms: f64,
     /// Pruning.
     pub prune_ms: f64,
     /// The whole keyframe.
     pub total_ms: f64,
+}
+
+/// The global map's disk tier (see `host_budget`): what is spilled, and
+/// what this keyframe moved.
+///
+/// ```
+/// # fn f(report: &latentam_core::mapper::KeyframeReport) {
+/// let d = report.disk;
+/// println!("{} Gaussians in {} blocks on disk ({} B); {} blocks written, {} read back",
+///     d.spilled_gaussians, d.spilled_blocks, d.bytes, d.blocks_written, d.blocks_read);
+/// # }
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct DiskReport {
+    /// Gaussians spilled to disk.
+    pub spilled_gaussians: usize,
+    /// Blocks spilled to disk.
+    pub spilled_blocks: usize,
+    /// Bytes of the scratch file (records read back count until it is
+    /// compacted).
+    pub bytes: u64,
+    /// Blocks this keyframe wrote to disk.
+    pub blocks_written: u64,
+    /// Blocks this keyframe read back.
+    pub blocks_read: u64,
 }
 
 /// What a keyframe did.
@@ -188,8 +217,11 @@ pub struct KeyframeReport {
     pub resident: usize,
     /// GPU bytes allocated afterwards (allocator accounting).
     pub gpu_bytes: u64,
-    /// CPU bytes of the global map and the keyframe history afterwards.
+    /// CPU bytes of the global map (the blocks in memory) and the
+    /// keyframe history afterwards.
     pub cpu_bytes: u64,
+    /// The global map's disk tier afterwards.
+    pub disk: DiskReport,
     /// Dictionary atoms after this keyframe's update.
     pub atoms: u32,
     /// The camera's gain over the map's brightness when it took the
@@ -343,6 +375,7 @@ impl KeyframeTimings {
         sum.paging_cpu_ms += t.paging_cpu_ms;
         sum.paging_gpu_ms = opt(sum.paging_gpu_ms, t.paging_gpu_ms);
         sum.paging_hidden_ms = opt(sum.paging_hidden_ms, t.paging_hidden_ms);
+        sum.disk_ms += t.disk_ms;
         sum.prune_ms += t.prune_ms;
         sum.total_ms += t.total_ms;
     }

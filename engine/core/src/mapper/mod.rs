@@ -45,8 +45,8 @@ pub use facade::Internals;
 pub use facade::Mapper;
 pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
 pub use keyframe_report::{
-    Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, MapperStats,
-    PagingReport,
+    DiskReport, Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings,
+    MapperStats, PagingReport,
 };
 pub use persist::SavedState;
 pub use preset::Preset;

@@ -11,7 +11,8 @@ use glam::DVec3;
 use super::facade::Mapper;
 use super::history::KeyframeRecord;
 use super::keyframe_report::{
-    Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings, PagingReport,
+    DiskReport, Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings,
+    PagingReport,
 };
 use super::pager::PreparedSync;
 use super::seeder::Coverage;
@@ -94,6 +95,9 @@ impl Mapper {
         let centre = frame.pose.translation;
         let keyframe_span = ctx.host_span("keyframe");
 
+        // Spilled blocks near the camera come back before anything reads
+        // the map there.
+        let loaded = self.pager.load_around(centre, sight(frame))?;
         let dictionary_update = clock.step(Step::Dictionary, |_| {
             self.dictionary.update(&ctx, frame, &record)
         })?;
@@ -119,6 +123,9 @@ impl Mapper {
         })?;
         let exposure = self.remember(frame, record);
         let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
+        let spilled = self.pager.spill_to_budget()?;
+        clock.timings.disk_ms = loaded.ms + spilled.ms;
+        clock.disk_moves = (loaded.read, spilled.written);
 
         drop(keyframe_span);
         let trained = Trained {
@@ -324,6 +331,7 @@ impl Mapper {
             paging,
             start,
             work_before,
+            disk_moves: clock_disk,
             ..
         } = clock;
         timings.total_ms = ms_since(start);
@@ -348,12 +356,36 @@ impl Mapper {
             resident: self.pager.resident(),
             gpu_bytes: self.ctx.memory_report().total.current,
             cpu_bytes,
+            disk: DiskReport {
+                spilled_gaussians: self.pager.global().spilled_len(),
+                spilled_blocks: self.pager.global().spilled_blocks(),
+                bytes: self.pager.global().disk_bytes(),
+                blocks_read: clock_disk.0,
+                blocks_written: clock_disk.1,
+            },
             atoms: self.dictionary.head().map_or(0, |h| h.atom_count()),
             exposure: trained.exposure,
             gpu_calls: calls,
             gpu_work: KeyframeGpuWork::of(&work),
         })
     }
+}
+
+/// The distance from the camera to the farthest point `frame`'s depth
+/// measured (0 without depth): seeding and its checks look no farther.
+fn sight(frame: &Frame) -> f64 {
+    let depth = &frame.depth;
+    let far = (0..depth.len())
+        .filter_map(|i| depth.metres(i))
+        .filter(|z| z.is_finite())
+        .fold(0.0f32, f32::max) as f64;
+    // A ray through the image's farthest corner is this much longer than
+    // its depth.
+    let k = frame.intrinsics;
+    let (w, h) = (depth.width as f64, depth.height as f64);
+    let dx = k.cx.abs().max((w - k.cx).abs()) / k.fx.abs().max(1e-9);
+    let dy = k.cy.abs().max((h - k.cy).abs()) / k.fy.abs().max(1e-9);
+    far * (1.0 + dx * dx + dy * dy).sqrt()
 }
 
 /// What a keyframe's steps did to the map.
@@ -422,6 +454,8 @@ struct KeyframeClock {
     calls: KeyframeGpuCalls,
     timings: KeyframeTimings,
     paging: Vec<PagingReport>,
+    /// Blocks the disk tier read back and wrote.
+    disk_moves: (u64, u64),
 }
 
 impl KeyframeClock {
@@ -434,6 +468,7 @@ impl KeyframeClock {
             calls: KeyframeGpuCalls::default(),
             timings: KeyframeTimings::default(),
             paging: Vec::new(),
+            disk_moves: (0, 0),
         }
     }
 

@@ -343,6 +343,7 @@ impl KeyframeTimings {
             paging_cpu_ms: s(self.paging_cpu_ms),
             paging_gpu_ms: self.paging_gpu_ms.map(s),
             paging_hidden_ms: self.paging_hidden_ms.map(s),
+            disk_ms: s(self.disk_ms),
             prune_ms: s(self.prune_ms),
             total_ms: s(self.total_ms),
         }

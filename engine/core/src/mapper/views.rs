@@ -75,7 +75,11 @@ impl Mapper {
         // Made per call, not kept: its batch buffers would otherwise hold
         // tens of MB of the mapping budget between queries.
         let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
-        let queries: Vec<_> = self.pager.global().iter().map(|(_, g)| g.query).collect();
+        let mut queries = Vec::with_capacity(self.pager.global().len());
+        self.pager.global().for_each_block(|_, _, gaussians| {
+            queries.extend(gaussians.iter().map(|g| g.query));
+            Ok(())
+        })?;
         decoder.cosines(&self.ctx, &queries, embeddings)
     }
 
@@ -202,7 +206,13 @@ impl Mapper {
     /// queries decode to embeddings with the decoder.
     pub(crate) fn export_ply(&mut self, path: &Path) -> Result<()> {
         self.flush()?;
-        let gaussians: Vec<_> = self.pager.global().iter().map(|(_, g)| *g).collect();
+        let gaussians: Vec<_> = self
+            .pager
+            .global()
+            .to_vec()?
+            .into_iter()
+            .map(|(_, g)| g)
+            .collect();
         write_map_ply(path, &gaussians, self.dictionary.head().is_some())
     }
 

@@ -57,6 +57,20 @@ pub(crate) struct PagerSettings {
     /// The window follows the camera once it moved this far; resident
     /// blocks stay until they are this far beyond the radius.
     pub sync_distance: f64,
+    /// Host bytes the global map may hold before blocks spill to disk
+    /// (0: no limit).
+    pub host_budget: u64,
+}
+
+/// What the disk tier did during one keyframe.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct DiskMoves {
+    /// Host milliseconds it took.
+    pub ms: f64,
+    /// Blocks written.
+    pub written: u64,
+    /// Blocks read back.
+    pub read: u64,
 }
 
 /// The global map and its GPU window.
@@ -106,6 +120,62 @@ impl Pager {
     /// The global map, current up to the last write-back.
     pub(crate) fn global(&self) -> &GlobalMap {
         &self.global
+    }
+
+    /// Spills go to a scratch file in `dir` (see
+    /// [`GlobalMap::set_spill_dir`]).
+    pub(crate) fn set_spill_dir(&mut self, dir: &str) {
+        self.global.set_spill_dir(dir);
+    }
+
+    /// Reads back the spilled blocks near `centre` (before a keyframe
+    /// seeds or plans there): every block within the window's reach or
+    /// `sight` (the farthest point the keyframe sees), and a margin of two
+    /// blocks, so that seeding, its checks and the plan see the map whole
+    /// where they look. Returns what it moved.
+    pub(crate) fn load_around(&mut self, centre: DVec3, sight: f64) -> Result<DiskMoves> {
+        if self.global.spilled_blocks() == 0 {
+            return Ok(DiskMoves::default());
+        }
+        let t = Instant::now();
+        let edge = self.global.voxel_size() * crate::map::BLOCK_VOXELS as f64;
+        let reach = (self.settings.radius + self.settings.sync_distance).max(sight) + 2.0 * edge;
+        let read = self.global.load_near(centre, reach)? as u64;
+        Ok(DiskMoves {
+            ms: ms_since(t),
+            written: 0,
+            read,
+        })
+    }
+
+    /// After a keyframe: marks the window's blocks used, and spills the
+    /// blocks used longest ago, never a resident one, until the global
+    /// map is within the host budget. Syncs must be settled (what left
+    /// the window is written back). Returns what it moved.
+    pub(crate) fn spill_to_budget(&mut self) -> Result<DiskMoves> {
+        debug_assert!(!self.in_flight(), "spilling while syncs are in flight");
+        self.global.tick();
+        let Pager { global, window, .. } = self;
+        if let Some(w) = window {
+            for block in w.block_keys() {
+                global.touch(block);
+            }
+        }
+        if self.settings.host_budget == 0 {
+            return Ok(DiskMoves::default());
+        }
+        let t = Instant::now();
+        let window = self.window.as_ref();
+        let written = self
+            .global
+            .spill_to_budget(self.settings.host_budget, |b| {
+                window.is_some_and(|w| w.holds_block(b))
+            })? as u64;
+        Ok(DiskMoves {
+            ms: ms_since(t),
+            written,
+            read: 0,
+        })
     }
 
     /// The global map, for inserting new Gaussians (they reach the window
@@ -535,11 +605,14 @@ impl Pager {
         out.colors.reserve(more);
         out.opacity_logits.reserve(more);
         out.queries.reserve(more);
-        for (key, g) in self.global.iter() {
-            if !changed.contains(&key) {
-                push_gaussian(&mut out, g);
+        self.global.for_each_block(|_, keys, gaussians| {
+            for (key, g) in keys.iter().zip(gaussians) {
+                if !changed.contains(key) {
+                    push_gaussian(&mut out, g);
+                }
             }
-        }
+            Ok(())
+        })?;
         Ok(out)
     }
 
@@ -560,7 +633,13 @@ impl Pager {
         let Some(window) = &self.window else {
             return Ok(0);
         };
-        // Superseded guesses outside the window go at once.
+        // Superseded guesses outside the window go at once (read back
+        // first if their block was spilled).
+        for key in superseded.iter() {
+            if !window.holds(*key) {
+                self.global.load(GlobalMap::block_of(*key))?;
+            }
+        }
         let mut removed = 0;
         superseded.retain(|key| {
             if window.holds(*key) {

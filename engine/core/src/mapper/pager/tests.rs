@@ -20,6 +20,7 @@ fn pager(ctx: &Context) -> Pager {
         PagerSettings {
             radius: 2.0,
             sync_distance: 0.5,
+            host_budget: 0,
         },
     );
     let budget = WindowBudget {

@@ -31,7 +31,7 @@ impl Mapper {
         self.flush()?;
         let ctx = self.ctx.clone();
         let global = self.pager.global();
-        let map: Vec<(VoxelKey, Gaussian)> = global.iter().map(|(k, g)| (k, *g)).collect();
+        let map: Vec<(VoxelKey, Gaussian)> = global.to_vec()?;
         let window = self.download_window(&ctx)?;
         let head = self.download_head(&ctx)?;
         check_finite(path, &map, head.as_ref(), window.as_ref())?;
