@@ -222,6 +222,7 @@ impl LogRun {
             peak_gpu_split: stats.gpu_peak_split,
             peak_cpu_bytes: stats.cpu_peak_bytes,
             peak_rss_bytes: latentam_base::process::peak_rss_bytes(),
+            disk: stats.disk,
             evicted: stats.evicted,
             fetched: stats.fetched,
             ms_per_keyframe: t.per_keyframe(stats.keyframes),

@@ -262,6 +262,15 @@ impl Mapper {
         s.gpu_peak_split = super::budget::MemorySplit::of(&mem);
         s.cpu_bytes = self.cpu_bytes();
         s.cpu_peak_bytes = s.cpu_peak_bytes.max(s.cpu_bytes);
+        let global = self.pager.global();
+        let moved = global.spill_counts();
+        s.disk = super::DiskReport {
+            spilled_gaussians: global.spilled_len(),
+            spilled_blocks: global.spilled_blocks(),
+            bytes: global.disk_bytes(),
+            blocks_written: moved.written,
+            blocks_read: moved.read,
+        };
         s.embedding_dim = self.dictionary.head().map(|h| h.config().dim);
         s.embedding_model = self.dictionary.model().map(str::to_string);
         s.kept_keyframes = self.history.len();

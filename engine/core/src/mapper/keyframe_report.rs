@@ -155,7 +155,8 @@ pub struct KeyframeTimings {
 }
 
 /// The global map's disk tier (see `host_budget`): what is spilled, and
-/// what this keyframe moved.
+/// what was moved (by one keyframe in a [`KeyframeReport`], since the map
+/// was made in [`MapperStats`]).
 ///
 /// ```
 /// # fn f(report: &latentam_core::mapper::KeyframeReport) {
@@ -173,9 +174,9 @@ pub struct DiskReport {
     /// Bytes of the scratch file (records read back count until it is
     /// compacted).
     pub bytes: u64,
-    /// Blocks this keyframe wrote to disk.
+    /// Blocks written to disk.
     pub blocks_written: u64,
-    /// Blocks this keyframe read back.
+    /// Blocks read back.
     pub blocks_read: u64,
 }
 
@@ -313,6 +314,9 @@ pub struct MapperStats {
     pub evicted: u64,
     /// Gaussians fetched, summed over syncs.
     pub fetched: u64,
+    /// The global map's disk tier: what is spilled now, and the blocks
+    /// written and read since the map was made.
+    pub disk: DiskReport,
     /// Timings summed over keyframes.
     pub timings: KeyframeTimings,
     /// GPU work the keyframes recorded, per kernel, summed over keyframes

@@ -110,6 +110,9 @@ pub struct RunReport {
     /// where the platform does not say. It includes the driver's memory
     /// (a CPU driver's GPU memory is host memory) and the caller's.
     pub peak_rss_bytes: Option<u64>,
+    /// The global map's disk tier at the end, and the blocks it wrote and
+    /// read back over the map's life (see `host_budget`).
+    pub disk: super::DiskReport,
     /// Gaussians paged out to the CPU map.
     pub evicted: u64,
     /// Gaussians paged back in.
