@@ -234,6 +234,11 @@ impl GlobalMap {
         self.spilled_len
     }
 
+    /// Whether voxel `key`'s block is spilled to disk.
+    pub fn is_spilled(&self, key: VoxelKey) -> bool {
+        self.spilled.contains_key(&Self::block_of(key))
+    }
+
     /// Blocks spilled to disk.
     pub fn spilled_blocks(&self) -> usize {
         self.spilled.len()
@@ -889,6 +894,7 @@ mod tests {
             .iter()
             .find(|(k, _)| !map.contains(**k))
             .expect("something is still spilled");
+        assert!(map.is_spilled(k) && map.get(k).is_none());
         assert!(!map.insert_at(k, *g));
     }
 

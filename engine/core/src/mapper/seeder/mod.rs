@@ -150,7 +150,9 @@ impl Seeder {
         let superseded = &mut self.superseded;
         self.guesses.retain(|&key| {
             let Some(g) = global.get(key) else {
-                return false;
+                // Out of sight on disk: still a guess, checked once the
+                // camera is back; otherwise pruned away.
+                return global.is_spilled(key);
             };
             let Some((z, Some(measured))) = measured_at(frame, g.mean) else {
                 return true;
