@@ -130,9 +130,13 @@ pub struct KeyframeTimings {
     pub kmeans_ms: f64,
     /// Coverage render, seeding and bringing new Gaussians into the window.
     pub insertion_ms: f64,
-    /// Stage I.
+    /// Stage I, until its last step is submitted: the first step is not
+    /// waited for, so its GPU time shows in Stage II's wait (on one queue)
+    /// or Stage II's own (see `stage_two_gpu_ms` and the per-kernel
+    /// timings for the GPU's share).
     pub stage_one_ms: f64,
-    /// Stage II and the paging beside it, until both finished.
+    /// Stage II and the paging beside it, until both finished (and, with
+    /// them, Stage I's first step).
     pub stage_two_ms: f64,
     /// GPU time of Stage II's batch, when timestamps are available.
     pub stage_two_gpu_ms: Option<f64>,

@@ -60,7 +60,10 @@ pub use run_report::{
 };
 pub use snapshot::MapSnapshot;
 pub use trainer::stage_two::StageTwoRun;
-pub use trainer::{views_per_chunk, StageOneReport, Trainer, TrainerConfig, DEFAULT_CHUNK_PIXELS};
+pub use trainer::{
+    views_per_chunk, StageOneReport, SubmittedStageOne, Trainer, TrainerConfig,
+    DEFAULT_CHUNK_PIXELS,
+};
 pub use views::{Scored, Viewpoint};
 pub use warm_up::warm_up;
 pub use work_report::{GpuWorkReport, KernelWorkPerKeyframe};

@@ -16,7 +16,7 @@ use super::keyframe_report::{
 };
 use super::pager::PreparedSync;
 use super::seeder::Coverage;
-use super::trainer::{StageOneReport, Trainer};
+use super::trainer::{StageOneReport, SubmittedStageOne, Trainer};
 use super::workspace::size_workspace;
 use crate::map::{QueryInit, RegionQueries, VoxelKey};
 use latentam_base::Result;
@@ -121,6 +121,7 @@ impl Mapper {
         let stage_two = clock.step(Step::StageTwo, |clock| {
             self.stage_two_and_paging(prepared, clock)
         })?;
+        let stage_one = stage_one.finish()?;
         let exposure = self.remember(frame, record);
         let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
         let spilled = self.pager.spill_to_budget()?;
@@ -203,13 +204,15 @@ impl Mapper {
 
     /// Stage I: R1 steps on the keyframe and B past ones drawn among those
     /// the window can render; the report is the first step's (the losses
-    /// before this keyframe trained anything).
+    /// before this keyframe trained anything). The first step is not
+    /// waited for: nothing before Stage II's wait reads what it wrote on
+    /// the host, and Stage II, after it on the same queue, covers it.
     fn stage_one(
         &mut self,
         record: &KeyframeRecord,
         seed: u64,
         centre: DVec3,
-    ) -> Result<StageOneReport> {
+    ) -> Result<SubmittedStageOne> {
         let picks = self.history.sample_near(
             self.cfg.replay as usize,
             seed,
@@ -221,7 +224,7 @@ impl Mapper {
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.pager.window().expect("ensured");
         let head = self.dictionary.head();
-        let report = trainer.stage_one(&self.ctx, window, head, &batch)?;
+        let report = trainer.submit_stage_one(&self.ctx, window, head, &batch)?;
         for _ in 1..self.cfg.stage_one_iterations {
             if self.progress.hurried() {
                 break;

@@ -243,12 +243,8 @@ impl Trainer {
     ///
     /// Two host waits: one measures the batch (how many splats and tile
     /// intersections each chunk's rendering needs), one ends the step;
-    /// everything between is one submission.
-    //
-    // Why one long function: the recorder borrows the trainer's buffers
-    // (rasterizer images, pooled rows, gradients) until it is submitted,
-    // so the two passes cannot be methods taking `&mut self` while it is
-    // open; they are the two commented blocks below.
+    /// everything between is one submission. [`Trainer::submit_stage_one`]
+    /// leaves the second to the caller.
     pub fn stage_one(
         &mut self,
         ctx: &Context,
@@ -256,6 +252,25 @@ impl Trainer {
         head: Option<&LatentHead>,
         batch: &[&KeyframeRecord],
     ) -> Result<StageOneReport> {
+        self.submit_stage_one(ctx, window, head, batch)?.finish()
+    }
+
+    /// [`Trainer::stage_one`] without its last wait: the step is submitted,
+    /// and its losses are read by [`SubmittedStageOne::finish`], which
+    /// waits only if the step is not done by then (a later wait on the
+    /// same queue, Stage II's, covers it).
+    //
+    // Why one long function: the recorder borrows the trainer's buffers
+    // (rasterizer images, pooled rows, gradients) until it is submitted,
+    // so the two passes cannot be methods taking `&mut self` while it is
+    // open; they are the two commented blocks below.
+    pub fn submit_stage_one(
+        &mut self,
+        ctx: &Context,
+        window: &LocalWindow,
+        head: Option<&LatentHead>,
+        batch: &[&KeyframeRecord],
+    ) -> Result<SubmittedStageOne> {
         if batch.is_empty() || batch.len() > self.cfg.max_views as usize {
             return Err(Error::bad_input(
                 "keyframe batch",
@@ -435,17 +450,12 @@ impl Trainer {
                 )?;
             }
         }
-        rec.submit()?.wait()?;
-        if let Some(readback) = feature_readback {
-            report.feature = FeatureLoss::sum(&readback)?;
-        }
-        for readback in image_readbacks {
-            let v = readback.values()?;
-            report.image.l1 += v.l1;
-            report.image.ssim += v.ssim;
-            report.image.depth += v.depth;
-        }
-        Ok(report)
+        Ok(SubmittedStageOne {
+            submission: rec.submit()?,
+            report,
+            feature_readback,
+            image_readbacks,
+        })
     }
 
     /// Splits `batch` into chunks of whole views and gathers the regions:
@@ -514,6 +524,40 @@ impl Trainer {
             start = end;
         }
         Ok((chunks, rows, rows_per_view))
+    }
+}
+
+/// A Stage I step submitted and not yet waited for
+/// ([`Trainer::submit_stage_one`]).
+#[must_use = "finish it to read its losses"]
+pub struct SubmittedStageOne {
+    submission: latentam_gpu::Submission,
+    report: StageOneReport,
+    feature_readback: Option<latentam_gpu::Readback>,
+    image_readbacks: Vec<crate::loss::ImageLossReadback>,
+}
+
+impl SubmittedStageOne {
+    /// The step's report, its losses read back: a host wait only when the
+    /// step is still running.
+    pub fn finish(self) -> Result<StageOneReport> {
+        let SubmittedStageOne {
+            submission,
+            mut report,
+            feature_readback,
+            image_readbacks,
+        } = self;
+        submission.finished_span()?;
+        if let Some(readback) = feature_readback {
+            report.feature = FeatureLoss::sum(&readback)?;
+        }
+        for readback in image_readbacks {
+            let v = readback.values()?;
+            report.image.l1 += v.l1;
+            report.image.ssim += v.ssim;
+            report.image.depth += v.depth;
+        }
+        Ok(report)
     }
 }
 
