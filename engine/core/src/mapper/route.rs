@@ -97,7 +97,9 @@ impl Mapper {
 
         // Spilled blocks near the camera come back before anything reads
         // the map there.
-        let loaded = self.pager.load_around(centre, sight(frame))?;
+        let loaded = self
+            .pager
+            .load_around(centre, sight(frame, self.cfg.seeding.max_depth))?;
         let dictionary_update = clock.step(Step::Dictionary, |_| {
             self.dictionary.update(&ctx, frame, &record)
         })?;
@@ -375,13 +377,17 @@ impl Mapper {
 }
 
 /// The distance from the camera to the farthest point `frame`'s depth
-/// measured (0 without depth): seeding and its checks look no farther.
-fn sight(frame: &Frame) -> f64 {
+/// measured, up to `max_depth` (seeding's; 0 without depth): seeding and
+/// its checks look no farther. (A camera looking down a corridor sees tens
+/// of metres: reading all of that back at every keyframe would turn the
+/// disk tier over far faster than the camera moves.)
+fn sight(frame: &Frame, max_depth: f32) -> f64 {
     let depth = &frame.depth;
     let far = (0..depth.len())
         .filter_map(|i| depth.metres(i))
         .filter(|z| z.is_finite())
-        .fold(0.0f32, f32::max) as f64;
+        .fold(0.0f32, f32::max)
+        .min(max_depth) as f64;
     // A ray through the image's farthest corner is this much longer than
     // its depth.
     let k = frame.intrinsics;
