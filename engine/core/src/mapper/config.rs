@@ -53,13 +53,14 @@ settings! {
         /// GPU memory budget allows.
         pub window_capacity: Option<u64> = None
             => optional("1000000").range(1u32, MAX_WINDOW_CAPACITY),
-        /// Host memory budget of the global map, in bytes (its Gaussians,
-        /// about 210 bytes each, and their indexes). Past it, the blocks
-        /// used longest ago (0.64 m cubes at the default voxel size) are
-        /// written to a scratch file in `spill_dir` and read back when the
-        /// camera comes near them again; 0 keeps every block in memory.
-        /// The default suits a robot computer of 8 GB or more; on disk a
-        /// Gaussian takes 220 bytes.
+        /// Host memory budget of the global map's blocks, in bytes (their
+        /// Gaussians, about 210 bytes each with keys and indexes). Past it,
+        /// the blocks used longest ago (0.64 m cubes at the default voxel
+        /// size) are written to a scratch file in `spill_dir` and read back
+        /// when the camera comes near them again; 0 keeps every block in
+        /// memory. The map's occupancy grids stay in memory, outside the
+        /// budget. The default suits a robot computer of 8 GB or more; on
+        /// disk a Gaussian takes 196 bytes.
         pub host_budget: u64 = 2_000_000_000 => value(),
         /// Directory of the global map's scratch file once it outgrows
         /// `host_budget`; unset: the OS temporary directory ($TMPDIR, else
