@@ -2,57 +2,11 @@
 
 use glam::DVec3;
 
+pub use super::gaussian::Gaussian;
 use super::spill::{SpillFile, Spilled};
+pub use super::voxel::BLOCK_VOXELS;
 use super::voxel::{KeyMap, VoxelKey};
-use crate::splat::QUERY_DIM;
 use latentam_base::Result;
-
-/// One Gaussian's parameters, as the optimiser sees them (see
-/// [`crate::splat::HostGaussians`] for the conventions).
-///
-/// ```
-/// use bytemuck::Zeroable;
-/// use latentam_core::map::Gaussian;
-///
-/// // A 1 cm, 90 % opaque red Gaussian 1 m in front of the origin.
-/// let g = Gaussian {
-///     mean: [0.0, 0.0, 1.0],
-///     log_scale: [0.01f32.ln(); 3],
-///     quat: [1.0, 0.0, 0.0, 0.0],
-///     color: [1.0, 0.0, 0.0],
-///     opacity_logit: (0.9f32 / 0.1).ln(),
-///     ..Gaussian::zeroed() // query: all zero
-/// };
-/// let opacity = 1.0 / (1.0 + (-g.opacity_logit).exp());
-/// assert!((opacity - 0.9).abs() < 1e-6);
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-#[repr(C)]
-pub struct Gaussian {
-    /// Centre, world frame, metres.
-    pub mean: [f32; 3],
-    /// Log of the per-axis standard deviations.
-    pub log_scale: [f32; 3],
-    /// Rotation quaternion `(w, x, y, z)`.
-    pub quat: [f32; 4],
-    /// Linear RGB.
-    pub color: [f32; 3],
-    /// Opacity logit.
-    pub opacity_logit: f32,
-    /// Latent query.
-    pub query: [f32; QUERY_DIM],
-}
-
-/// Voxels per edge of a block: the cube the spatial index groups Gaussians
-/// by, and the unit the GPU window pages in and out (see
-/// [`LocalWindow`](super::LocalWindow)). At the default 1 cm voxel a block
-/// is 0.64 m. Against the default 6 m radius, the 4 300 blocks that touch
-/// the sphere hold 1.24 times its volume, and a plan walks the ~10 600
-/// blocks of its bounding cube, well under a millisecond. Edges of 32 and
-/// 16 voxels would bring the overshoot to 1.12 and 1.06 but multiply the
-/// blocks to walk (and to keep a row list for) by 8 and 64; 128 would
-/// overshoot by 1.56.
-pub const BLOCK_VOXELS: i32 = 64;
 
 /// Voxels per edge of the occupancy grid used for overlap tests: seeds are
 /// centimetres apart, so "is this surface mapped" is asked at a few voxels.

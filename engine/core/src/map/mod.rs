@@ -2,6 +2,7 @@
 //! to and from it, keyframe selection and the seeding of new Gaussians.
 
 mod exposure;
+mod gaussian;
 mod global;
 mod keyframes;
 pub mod ply;

@@ -29,8 +29,8 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use super::global::Gaussian;
-use super::voxel::{KeyMap, VoxelKey};
+use super::gaussian::Gaussian;
+use super::voxel::{KeyMap, VoxelKey, BLOCK_VOXELS};
 use latentam_base::{Error, Result};
 
 const MAGIC: [u8; 4] = *b"LTMB";
@@ -269,7 +269,7 @@ fn decode(
             }
         })
         .collect::<Vec<_>>();
-    if keys.iter().any(|k| k.coarse(super::BLOCK_VOXELS) != key) {
+    if keys.iter().any(|k| k.coarse(BLOCK_VOXELS) != key) {
         return Err("a voxel of another block".into());
     }
     let floats: Vec<f32> = record[keys_end..]
