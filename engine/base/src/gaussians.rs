@@ -55,6 +55,16 @@ impl HostGaussians {
         }
     }
 
+    /// Room for `more` Gaussians in every field.
+    pub fn reserve(&mut self, more: usize) {
+        self.means.reserve(more);
+        self.log_scales.reserve(more);
+        self.quats.reserve(more);
+        self.colors.reserve(more);
+        self.opacity_logits.reserve(more);
+        self.queries.reserve(more);
+    }
+
     /// Number of Gaussians; errors if the fields disagree.
     pub fn len(&self) -> Result<usize> {
         let n = self.means.len();

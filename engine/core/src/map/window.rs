@@ -285,21 +285,15 @@ fn packed_fields(words: &[f32], n: usize) -> PackedFields<'_> {
 /// `n` Gaussians packed field after field (the outbox's layout: every
 /// row's means, then every row's scales, ...), as host SoA.
 fn unpack(bytes: &[u8], n: usize) -> HostGaussians {
-    let mut at = 0;
-    let mut field = |width: u64| -> &[u8] {
-        let len = n * width as usize * 4;
-        let part = &bytes[at..at + len];
-        at += len;
-        part
-    };
-    let [m, s, q, c, o, l] = FIELD_WIDTHS.map(&mut field);
+    let words: Vec<f32> = bytemuck::pod_collect_to_vec(bytes);
+    let f = packed_fields(&words, n);
     HostGaussians {
-        means: bytemuck::pod_collect_to_vec(m),
-        log_scales: bytemuck::pod_collect_to_vec(s),
-        quats: bytemuck::pod_collect_to_vec(q),
-        colors: bytemuck::pod_collect_to_vec(c),
-        opacity_logits: bytemuck::pod_collect_to_vec(o),
-        queries: bytemuck::pod_collect_to_vec(l),
+        means: f.means.to_vec(),
+        log_scales: f.log_scales.to_vec(),
+        quats: f.quats.to_vec(),
+        colors: f.colors.to_vec(),
+        opacity_logits: f.opacity_logits.to_vec(),
+        queries: f.queries.to_vec(),
     }
 }
 
@@ -979,12 +973,7 @@ fn record_gather<'a>(
 fn gather(global: &GlobalMap, keys: &[VoxelKey]) -> Result<HostGaussians> {
     let mut fetched = HostGaussians::default();
     let n = keys.len();
-    fetched.means.reserve(n);
-    fetched.log_scales.reserve(n);
-    fetched.quats.reserve(n);
-    fetched.colors.reserve(n);
-    fetched.opacity_logits.reserve(n);
-    fetched.queries.reserve(n);
+    fetched.reserve(n);
     let mut at = 0;
     while at < n {
         let key = keys[at];

@@ -598,13 +598,7 @@ impl Pager {
             None => Default::default(),
         };
         let changed: KeySet = keys.into_iter().collect();
-        let more = self.global.len().saturating_sub(changed.len());
-        out.means.reserve(more);
-        out.log_scales.reserve(more);
-        out.quats.reserve(more);
-        out.colors.reserve(more);
-        out.opacity_logits.reserve(more);
-        out.queries.reserve(more);
+        out.reserve(self.global.len().saturating_sub(changed.len()));
         self.global.for_each_block(|_, keys, gaussians| {
             for (key, g) in keys.iter().zip(gaussians) {
                 if !changed.contains(key) {
