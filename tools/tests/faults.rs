@@ -249,6 +249,12 @@ fn sigkill_at_random_points_always_leaves_one_consistent_run() {
         if state.exists() {
             cmd.arg("--resume");
         }
+        if round >= 2 {
+            // The map spilled to disk past a one-byte host budget: saves
+            // stream it from the spill file and resumes stream it back.
+            cmd.args(["--set", "host_budget=1", "--set"])
+                .arg(format!("spill_dir={}", dir.display()));
+        }
         let mut child = cmd.spawn().unwrap();
         let spawned = Instant::now();
         if round % 2 == 0 {
@@ -306,7 +312,8 @@ fn sigkill_at_random_points_always_leaves_one_consistent_run() {
         .arg(&log)
         .arg("--out")
         .arg(&run)
-        .args(["--resume", "--no-trace"])
+        .args(["--resume", "--no-trace", "--set", "host_budget=1", "--set"])
+        .arg(format!("spill_dir={}", dir.display()))
         .output()
         .unwrap();
     assert!(
@@ -315,6 +322,7 @@ fn sigkill_at_random_points_always_leaves_one_consistent_run() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert_eq!(report(&run)["ending"], "complete");
+    assert!(report(&run)["disk"]["blocks_written"].as_u64() > Some(0));
     assert_eq!(consistent_run(&ctx, &run), (frames / 4) as u64);
     assert!(beside(&run).is_empty(), "{:?}", beside(&run));
     drop(ctx);

@@ -14,7 +14,10 @@ mod window;
 pub use exposure::{relative_exposure, ExposureTrack, EXPOSURE_RANGE};
 pub use global::{Block, Gaussian, GlobalMap, SpillCounts, BLOCK_VOXELS, OCCUPANCY_VOXELS};
 pub use keyframes::{overlap, KeyframeConfig, KeyframeDecision, KeyframePolicy, KeyframeSelector};
-pub use ply::{read_ply, unit_quat, write_map_ply, write_ply, write_ply_without_latents, PlyMap};
+pub use ply::{
+    read_ply, unit_quat, write_map_ply, write_map_ply_streamed, write_ply,
+    write_ply_without_latents, PlyMap,
+};
 pub use seeding::{
     seed_from_frame, QueryInit, RegionQueries, SeedingConfig, ViewCoverage, MAX_DEPTH_ERROR,
     MAX_SCALE_FACTOR,

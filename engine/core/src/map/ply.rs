@@ -36,4 +36,6 @@ mod write;
 
 pub use format::SH_C0;
 pub use read::{read_ply, PlyMap};
-pub use write::{unit_quat, write_map_ply, write_ply, write_ply_without_latents};
+pub use write::{
+    unit_quat, write_map_ply, write_map_ply_streamed, write_ply, write_ply_without_latents,
+};

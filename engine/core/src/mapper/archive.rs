@@ -7,7 +7,6 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use safetensors::tensor::TensorView;
 use safetensors::Dtype;
 
 use latentam_base::{Error, Result};
@@ -44,16 +43,63 @@ element!(u8, U8);
 element!(u16, U16);
 element!(u32, U32);
 
-/// Collects tensors and metadata, then writes them in one go.
+/// Writes a tensor's bytes into an archive, in order, as its producer
+/// reads them from wherever they live (see [`ArchiveWriter::stream`]).
+pub(crate) struct Sink<'w> {
+    out: &'w mut dyn std::io::Write,
+    crc: &'w mut crc32fast::Hasher,
+    written: u64,
+    /// Names the output in errors.
+    path: &'w Path,
+}
+
+impl Sink<'_> {
+    /// Appends `bytes` to the tensor.
+    pub fn put(&mut self, bytes: &[u8]) -> Result<()> {
+        self.crc.update(bytes);
+        self.written += bytes.len() as u64;
+        self.out
+            .write_all(bytes)
+            .map_err(|e| io_error(self.path, "writing", e))
+    }
+}
+
+/// Writes a streamed tensor's bytes into a [`Sink`].
+type Producer<'a> = Box<dyn FnOnce(&mut Sink<'_>) -> Result<()> + 'a>;
+
+/// A tensor's bytes: copied in, borrowed, or produced while the archive
+/// is written, so that a tensor larger than memory (the global map of an
+/// out-of-core run) goes from its source to the file without being
+/// gathered first.
+enum TensorData<'a> {
+    Held(Vec<u8>),
+    Borrowed(&'a [u8]),
+    Streamed(Producer<'a>),
+}
+
+struct PendingTensor<'a> {
+    name: String,
+    dtype: Dtype,
+    shape: Vec<usize>,
+    /// The byte size its dtype and shape give (`None` on overflow).
+    bytes: Option<usize>,
+    data: TensorData<'a>,
+}
+
+/// Collects tensors and metadata, then writes the archive in one pass:
+/// the header first (its offsets come from the shapes), then every tensor
+/// in name order, the checksum computed on the way and written into the
+/// header at the end. Memory stays that of the tensors held, whatever the
+/// size of the streamed ones.
 #[derive(Default)]
-pub(crate) struct ArchiveWriter {
-    tensors: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
+pub(crate) struct ArchiveWriter<'a> {
+    tensors: Vec<PendingTensor<'a>>,
     meta: HashMap<String, String>,
     /// Format name and version; unset: the map's.
     format: Option<(&'static str, u32)>,
 }
 
-impl ArchiveWriter {
+impl<'a> ArchiveWriter<'a> {
     /// An archive of another format than the saved map.
     pub fn with_format(name: &'static str, version: u32) -> Self {
         ArchiveWriter {
@@ -66,87 +112,214 @@ impl ArchiveWriter {
         self.meta.insert(key.to_string(), value.to_string());
     }
 
-    /// Adds `data` as a tensor of `shape` (row-major; the product of
-    /// `shape` must equal `data.len()`, or [`ArchiveWriter::into_bytes`]
-    /// fails).
+    fn push(&mut self, name: &str, dtype: Dtype, shape: &[usize], data: TensorData<'a>) {
+        let bytes = shape
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .and_then(|n| n.checked_mul(dtype.bitsize()))
+            .map(|bits| bits.div_ceil(8));
+        self.tensors.push(PendingTensor {
+            name: name.to_string(),
+            dtype,
+            shape: shape.to_vec(),
+            bytes,
+            data,
+        });
+    }
+
+    /// Adds `data` (copied) as a tensor of `shape` (row-major; the product
+    /// of `shape` must equal `data.len()`, or writing fails).
     pub fn tensor<T: Element>(&mut self, name: &str, shape: &[usize], data: &[T]) {
-        self.tensors.push((
-            name.to_string(),
-            T::DTYPE,
-            shape.to_vec(),
-            bytemuck::cast_slice(data).to_vec(),
-        ));
+        let bytes = bytemuck::cast_slice(data).to_vec();
+        self.push(name, T::DTYPE, shape, TensorData::Held(bytes));
+    }
+
+    /// [`ArchiveWriter::tensor`] without the copy: `data` is read when the
+    /// archive is written.
+    pub fn tensor_ref<T: Element>(&mut self, name: &str, shape: &[usize], data: &'a [T]) {
+        let bytes = bytemuck::cast_slice(data);
+        self.push(name, T::DTYPE, shape, TensorData::Borrowed(bytes));
     }
 
     /// Adds raw rows: `rows` × `row_bytes` bytes (checked like
     /// [`ArchiveWriter::tensor`]).
-    pub fn bytes(&mut self, name: &str, rows: usize, row_bytes: usize, data: Vec<u8>) {
-        self.tensors
-            .push((name.to_string(), Dtype::U8, vec![rows, row_bytes], data));
+    pub fn bytes(&mut self, name: &str, rows: usize, row_bytes: usize, data: &'a [u8]) {
+        self.push(
+            name,
+            Dtype::U8,
+            &[rows, row_bytes],
+            TensorData::Borrowed(data),
+        );
     }
 
-    /// The archive's bytes (write them with
-    /// [`latentam_base::files::write_bytes_atomically`]).
-    pub fn into_bytes(mut self) -> Result<Vec<u8>> {
+    /// A tensor of `T` and `shape` whose bytes `produce` writes into the
+    /// archive when it is written, exactly as many as the shape gives
+    /// (fewer or more is an error, and no file is left).
+    pub fn stream<T: Element>(
+        &mut self,
+        name: &str,
+        shape: &[usize],
+        produce: impl FnOnce(&mut Sink<'_>) -> Result<()> + 'a,
+    ) {
+        self.push(
+            name,
+            T::DTYPE,
+            shape,
+            TensorData::Streamed(Box::new(produce)),
+        );
+    }
+
+    /// The archive's bytes.
+    pub fn into_bytes(self) -> Result<Vec<u8>> {
+        let mut out = std::io::Cursor::new(Vec::new());
+        self.write_into(&mut out, Path::new("the archive"))?;
+        Ok(out.into_inner())
+    }
+
+    /// Writes the archive to `path`, replaced whole (through a partial
+    /// file, synced and renamed: a crash leaves the old file or the new).
+    pub fn write_file(self, path: &Path) -> Result<()> {
+        let mut failed = None;
+        let written = latentam_base::files::write_atomically(path, |out| {
+            self.write_into(out, path).map_err(|e| {
+                let io = std::io::Error::other(e.to_string());
+                failed = Some(e);
+                io
+            })
+        });
+        match (written, failed) {
+            (_, Some(e)) => Err(e),
+            (r, None) => r,
+        }
+    }
+
+    /// The header, then the tensors in name order; the checksum goes into
+    /// the header last (a fixed-width value, so nothing moves).
+    fn write_into<W: std::io::Write + std::io::Seek>(
+        mut self,
+        out: &mut W,
+        path: &Path,
+    ) -> Result<()> {
+        use safetensors::tensor::TensorInfo;
+        use serde_json::Value;
+        use std::collections::BTreeMap;
+        let ours = |why: String| Error::bad_input("writing an archive", why);
         let (format, version) = self.format.unwrap_or((FORMAT, VERSION));
         self.meta.insert("format".into(), format.into());
         self.meta.insert("version".into(), version.to_string());
-        // Checked at load: metadata and tensors alike.
-        let sum = checksum(
-            self.meta.iter().map(|(k, v)| (k.as_str(), v.as_str())),
-            self.tensors.iter().map(|(n, _, _, d)| (n.as_str(), &d[..])),
+        self.meta
+            .insert(CHECKSUM_KEY.into(), PENDING_CHECKSUM.into());
+        self.tensors.sort_by(|a, b| a.name.cmp(&b.name));
+        if let Some(w) = self.tensors.windows(2).find(|w| w[0].name == w[1].name) {
+            return Err(ours(format!("tensor `{}` added twice", w[0].name)));
+        }
+
+        // Sorted explicitly (BTreeMap), so the same state gives the same
+        // bytes in every process.
+        let mut header: BTreeMap<String, Value> = BTreeMap::new();
+        let mut at = 0usize;
+        for t in &self.tensors {
+            let size = t.bytes.ok_or_else(|| {
+                ours(format!(
+                    "tensor `{}` of shape {:?} is too large",
+                    t.name, t.shape
+                ))
+            })?;
+            let info = TensorInfo {
+                dtype: t.dtype,
+                shape: t.shape.clone(),
+                data_offsets: (at, at + size),
+            };
+            let info = serde_json::to_value(info).map_err(|e| ours(e.to_string()))?;
+            header.insert(t.name.clone(), info);
+            at += size;
+        }
+        let meta: BTreeMap<&String, &String> = self.meta.iter().collect();
+        header.insert(
+            "__metadata__".into(),
+            serde_json::to_value(meta).map_err(|e| ours(e.to_string()))?,
         );
-        self.meta.insert(CHECKSUM_KEY.into(), sum);
-        let views = self
-            .tensors
-            .iter()
-            .map(|(name, dtype, shape, data)| {
-                TensorView::new(*dtype, shape.clone(), data)
-                    .map(|v| (name.clone(), v))
-                    .map_err(|e| Error::bad_input(format!("tensor `{name}`"), e.to_string()))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let bytes = safetensors::serialize(views, Some(self.meta))
-            .map_err(|e| Error::bad_input("serialising the map", e.to_string()))?;
-        with_sorted_header(bytes)
+        let mut text = serde_json::to_vec(&header).map_err(|e| ours(e.to_string()))?;
+        // Padded with spaces to a multiple of 8, as safetensors pads it.
+        text.resize(text.len().next_multiple_of(8), b' ');
+        // JSON escapes the quotes inside values, so this is the entry.
+        let pending = format!("\"{CHECKSUM_KEY}\":\"{PENDING_CHECKSUM}\"");
+        let crc_at = text
+            .windows(pending.len())
+            .position(|w| w == pending.as_bytes())
+            .ok_or_else(|| ours("the header lost its checksum entry".into()))?
+            + format!("\"{CHECKSUM_KEY}\":\"").len();
+
+        let io = |e| io_error(path, "writing", e);
+        out.write_all(&(text.len() as u64).to_le_bytes())
+            .and_then(|_| out.write_all(&text))
+            .map_err(io)?;
+        let mut crc = Crc::default();
+        for (key, value) in &self.meta {
+            if key != CHECKSUM_KEY {
+                crc.entries.push((key.clone(), value.clone()));
+            }
+        }
+        let mut hasher = crc.start();
+        for t in self.tensors {
+            let size = t.bytes.unwrap_or(0);
+            field_start(&mut hasher, t.name.as_bytes());
+            hasher.update(&(size as u64).to_le_bytes());
+            let mut sink = Sink {
+                out: &mut *out,
+                crc: &mut hasher,
+                written: 0,
+                path,
+            };
+            match t.data {
+                TensorData::Held(bytes) => sink.put(&bytes)?,
+                TensorData::Borrowed(bytes) => sink.put(bytes)?,
+                TensorData::Streamed(produce) => produce(&mut sink)?,
+            }
+            if sink.written != size as u64 {
+                return Err(ours(format!(
+                    "tensor `{}` of shape {:?} came with {} bytes, not {size}",
+                    t.name, t.shape, sink.written
+                )));
+            }
+        }
+        let sum = format!("{:08x}", hasher.finalize());
+        let end = out.stream_position().map_err(io)?;
+        out.seek(std::io::SeekFrom::Start(8 + crc_at as u64))
+            .and_then(|_| out.write_all(sum.as_bytes()))
+            .and_then(|_| out.seek(std::io::SeekFrom::Start(end)))
+            .map_err(io)?;
+        Ok(())
     }
 }
 
-/// `bytes`, a file safetensors just wrote, with its metadata in key order.
-/// safetensors writes the metadata in the order of a `HashMap`, which
-/// differs from one process to the next: the same state would give other
-/// bytes on every save, and tests that mutate a saved file at random would
-/// not be reproducible from their seed. The entries are the same, so the
-/// compact JSON is no longer; it is padded with spaces to the original
-/// length (safetensors pads its header the same way), so the tensors'
-/// offsets hold.
-fn with_sorted_header(mut bytes: Vec<u8>) -> Result<Vec<u8>> {
-    use std::collections::BTreeMap;
-    let ours = |why: String| Error::bad_input("serialising the map", why);
-    let n = bytes
-        .get(..8)
-        .and_then(|b| b.try_into().ok())
-        .map(u64::from_le_bytes)
-        .and_then(|n| usize::try_from(n).ok())
-        .filter(|n| n.checked_add(8).is_some_and(|end| end <= bytes.len()))
-        .ok_or_else(|| ours("safetensors wrote no header".into()))?;
-    let header = &bytes[8..8 + n];
-    // Sorted explicitly (BTreeMap), not through serde_json's own map,
-    // whose order depends on a feature another crate may turn on.
-    let mut top: BTreeMap<String, serde_json::Value> =
-        serde_json::from_slice(header).map_err(|e| ours(e.to_string()))?;
-    if let Some(meta) = top.get_mut("__metadata__") {
-        let sorted: BTreeMap<String, serde_json::Value> =
-            serde_json::from_value(meta.take()).map_err(|e| ours(e.to_string()))?;
-        *meta = serde_json::to_value(sorted).map_err(|e| ours(e.to_string()))?;
+/// What the header holds for the checksum until the tensors are written:
+/// as wide as any checksum, so replacing it moves nothing.
+const PENDING_CHECKSUM: &str = "00000000";
+
+/// The metadata part of [`checksum`], kept to start a hasher that the
+/// tensors then continue.
+#[derive(Default)]
+struct Crc {
+    entries: Vec<(String, String)>,
+}
+
+impl Crc {
+    fn start(mut self) -> crc32fast::Hasher {
+        self.entries.sort();
+        let mut crc = crc32fast::Hasher::new();
+        for (key, value) in &self.entries {
+            field_start(&mut crc, key.as_bytes());
+            field_start(&mut crc, value.as_bytes());
+        }
+        crc
     }
-    let mut text = serde_json::to_vec(&top).map_err(|e| ours(e.to_string()))?;
-    if text.len() > n {
-        return Err(ours("the sorted header came out longer".into()));
-    }
-    text.resize(n, b' ');
-    bytes[8..8 + n].copy_from_slice(&text);
-    Ok(bytes)
+}
+
+/// One field of the checksum: its length, then its bytes.
+fn field_start(crc: &mut crc32fast::Hasher, bytes: &[u8]) {
+    crc.update(&(bytes.len() as u64).to_le_bytes());
+    crc.update(bytes);
 }
 
 fn io_error(path: &Path, what: &str, e: std::io::Error) -> Error {
@@ -187,10 +360,7 @@ pub fn checksum<'b>(
     tensors: impl Iterator<Item = (&'b str, &'b [u8])>,
 ) -> String {
     let mut crc = crc32fast::Hasher::new();
-    let mut field = |bytes: &[u8]| {
-        crc.update(&(bytes.len() as u64).to_le_bytes());
-        crc.update(bytes);
-    };
+    let mut field = |bytes: &[u8]| field_start(&mut crc, bytes);
     let mut meta: Vec<_> = meta.filter(|(key, _)| *key != CHECKSUM_KEY).collect();
     meta.sort();
     for (key, value) in meta {
@@ -251,9 +421,13 @@ pub fn join_resealed(header: &serde_json::Map<String, serde_json::Value>, data: 
     out
 }
 
+/// The metadata and tensors a header lists.
+type Header = (HashMap<String, String>, HashMap<String, Entry>);
+
 /// Reads only the header of the archive at `path` and checks that its
-/// tensors tile the rest of the file exactly.
-fn check_extent(path: &Path, what: &str) -> Result<()> {
+/// tensors tile the rest of the file exactly. Returns the header and the
+/// open file.
+fn check_extent(path: &Path, what: &str) -> Result<(Header, std::fs::File)> {
     use std::io::Read;
     let mut file = latentam_io::open_input(path).map_err(|e| io_error(path, "opening", e))?;
     let len = file
@@ -270,9 +444,9 @@ fn check_extent(path: &Path, what: &str) -> Result<()> {
             .read_to_end(&mut head)
             .map_err(|e| io_error(path, "reading", e))?;
     }
-    read_header_of(&head, len)
-        .map(|_| ())
-        .map_err(|why| Error::damaged(path, format!("not a latentam {what}: {why}")))
+    let header = read_header_of(&head, len)
+        .map_err(|why| Error::damaged(path, format!("not a latentam {what}: {why}")))?;
+    Ok((header, file))
 }
 
 /// Reads a safetensors header and checks every tensor's extent: element
@@ -375,10 +549,19 @@ fn read_header_of(
     Ok((meta, tensors))
 }
 
-/// A loaded archive: the file's bytes, owned (read from a path) or
-/// borrowed (parsed from memory).
+/// Where an archive's tensors are read from.
+enum Source<'a> {
+    /// The whole file in memory, owned (read from a path) or borrowed
+    /// (parsed from memory).
+    Bytes(Cow<'a, [u8]>),
+    /// The file itself, read a tensor (or a part of one) at a time: an
+    /// archive larger than memory.
+    File(std::sync::Mutex<std::fs::File>),
+}
+
+/// A loaded archive, checked: format, version, extents and checksum.
 pub(crate) struct Archive<'a> {
-    bytes: Cow<'a, [u8]>,
+    source: Source<'a>,
     meta: HashMap<String, String>,
     tensors: HashMap<String, Entry>,
     path: PathBuf,
@@ -401,6 +584,124 @@ impl Archive<'static> {
         let bytes = latentam_io::read_input(path).map_err(|e| io_error(path, "reading", e))?;
         Archive::parse_as(Cow::Owned(bytes), path, format, version, what)
     }
+
+    /// [`Archive::open`] without holding the file in memory: the header
+    /// is read and checked, the checksum verified by reading the file once
+    /// in pieces, and tensors are read from the file when asked for (see
+    /// [`Archive::for_each_rows`]). For maps larger than memory.
+    pub fn open_streaming(path: &Path) -> Result<Self> {
+        let ((meta, tensors), file) = check_extent(path, "map")?;
+        let file = std::sync::Mutex::new(file);
+        let mut buf = Vec::new();
+        check_archive(&meta, &tensors, path, FORMAT, VERSION, "map", |t, crc| {
+            let mut file = file.lock().unwrap_or_else(|e| e.into_inner());
+            for piece in pieces(t.range.clone()) {
+                read_range(&mut file, piece, &mut buf).map_err(|e| io_error(path, "reading", e))?;
+                crc.update(&buf);
+            }
+            Ok(())
+        })?;
+        Ok(Archive {
+            source: Source::File(file),
+            meta,
+            tensors,
+            path: path.to_path_buf(),
+        })
+    }
+}
+
+/// Bytes read from a file at a time.
+const PIECE: usize = 1 << 20;
+
+/// `range` cut into pieces of at most [`PIECE`] bytes.
+fn pieces(range: std::ops::Range<usize>) -> impl Iterator<Item = std::ops::Range<usize>> {
+    range
+        .clone()
+        .step_by(PIECE)
+        .map(move |at| at..(at + PIECE).min(range.end))
+}
+
+/// Reads `range` of `file` into `buf` (resized to it).
+fn read_range(
+    file: &mut std::fs::File,
+    range: std::ops::Range<usize>,
+    buf: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    use std::io::{Read, Seek};
+    buf.resize(range.len(), 0);
+    file.seek(std::io::SeekFrom::Start(range.start as u64))?;
+    file.read_exact(buf)
+}
+
+/// Checks an archive's header against the format, version and checksum it
+/// must have; `feed` hashes one tensor's bytes.
+fn check_archive(
+    meta: &HashMap<String, String>,
+    tensors: &HashMap<String, Entry>,
+    origin: &Path,
+    format: &str,
+    version: u32,
+    what: &str,
+    mut feed: impl FnMut(&Entry, &mut crc32fast::Hasher) -> Result<()>,
+) -> Result<()> {
+    let not_ours = |why: String| Error::damaged(origin, format!("not a latentam {what}: {why}"));
+    match meta.get("format").map(String::as_str) {
+        Some(f) if f == format => {}
+        other => return Err(not_ours(format!("format is {other:?}"))),
+    }
+    let found = meta.get("version").map(String::as_str).unwrap_or("none");
+    let legacy = found == LEGACY_VERSION.to_string();
+    if found != version.to_string() && !legacy {
+        let found: String = found.chars().take(32).collect();
+        return Err(Error::damaged(
+            origin,
+            format!(
+                "a version {found} {what}; this build reads versions {LEGACY_VERSION} and \
+                 {version}"
+            ),
+        ));
+    }
+    if !legacy && !meta.contains_key(CHECKSUM_KEY) {
+        return Err(Error::damaged(
+            origin,
+            format!(
+                "this {what} is damaged: a version {version} {what} without its checksum \
+                 (the `{CHECKSUM_KEY}` entry was removed); use another copy or the run's \
+                 last save"
+            ),
+        ));
+    }
+    if let Some(want) = meta.get(CHECKSUM_KEY) {
+        // As [`checksum`] computes it, the tensors fed piece by piece.
+        let mut crc = Crc::default();
+        for (key, value) in meta {
+            if key != CHECKSUM_KEY {
+                crc.entries.push((key.clone(), value.clone()));
+            }
+        }
+        let mut hasher = crc.start();
+        let mut names: Vec<&String> = tensors.keys().collect();
+        names.sort();
+        for name in names {
+            let t = &tensors[name];
+            field_start(&mut hasher, name.as_bytes());
+            hasher.update(&(t.range.len() as u64).to_le_bytes());
+            feed(t, &mut hasher)?;
+        }
+        let got = format!("{:08x}", hasher.finalize());
+        if *want != got {
+            let want: String = want.chars().take(16).collect();
+            return Err(Error::damaged(
+                origin,
+                format!(
+                    "this {what} is damaged: its checksum is {want:?}, its contents give \
+                     {got} (a byte changed on disk or in a copy); use another copy or the \
+                     run's last save"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl<'a> Archive<'a> {
@@ -414,56 +715,14 @@ impl<'a> Archive<'a> {
         version: u32,
         what: &str,
     ) -> Result<Self> {
-        let not_ours =
-            |why: String| Error::damaged(origin, format!("not a latentam {what}: {why}"));
-        let (meta, tensors) = read_header(&bytes).map_err(not_ours)?;
-        match meta.get("format").map(String::as_str) {
-            Some(f) if f == format => {}
-            other => return Err(not_ours(format!("format is {other:?}"))),
-        }
-        let found = meta.get("version").map(String::as_str).unwrap_or("none");
-        let legacy = found == LEGACY_VERSION.to_string();
-        if found != version.to_string() && !legacy {
-            let found: String = found.chars().take(32).collect();
-            return Err(Error::damaged(
-                origin,
-                format!(
-                    "a version {found} {what}; this build reads versions {LEGACY_VERSION} and \
-                     {version}"
-                ),
-            ));
-        }
-        if !legacy && !meta.contains_key(CHECKSUM_KEY) {
-            return Err(Error::damaged(
-                origin,
-                format!(
-                    "this {what} is damaged: a version {version} {what} without its checksum \
-                     (the `{CHECKSUM_KEY}` entry was removed); use another copy or the run's \
-                     last save"
-                ),
-            ));
-        }
-        if let Some(want) = meta.get(CHECKSUM_KEY) {
-            let got = checksum(
-                meta.iter().map(|(k, v)| (k.as_str(), v.as_str())),
-                tensors
-                    .iter()
-                    .map(|(n, t)| (n.as_str(), &bytes[t.range.clone()])),
-            );
-            if *want != got {
-                let want: String = want.chars().take(16).collect();
-                return Err(Error::damaged(
-                    origin,
-                    format!(
-                        "this {what} is damaged: its checksum is {want:?}, its contents give \
-                         {got} (a byte changed on disk or in a copy); use another copy or the \
-                         run's last save"
-                    ),
-                ));
-            }
-        }
+        let (meta, tensors) = read_header(&bytes)
+            .map_err(|why| Error::damaged(origin, format!("not a latentam {what}: {why}")))?;
+        check_archive(&meta, &tensors, origin, format, version, what, |t, crc| {
+            crc.update(&bytes[t.range.clone()]);
+            Ok(())
+        })?;
         Ok(Archive {
-            bytes,
+            source: Source::Bytes(bytes),
             meta,
             tensors,
             path: origin.to_path_buf(),
@@ -544,12 +803,56 @@ impl<'a> Archive<'a> {
     }
 
     fn data<T: Element>(&self, name: &str, t: &Entry) -> Result<Vec<T>> {
-        let raw = self
-            .bytes
-            .get(t.range.clone())
-            .filter(|b| b.len() % std::mem::size_of::<T>() == 0)
-            .ok_or_else(|| self.corrupt(format!("tensor `{name}` data out of range")))?;
-        Ok(bytemuck::allocation::pod_collect_to_vec(raw))
+        self.data_range(name, t.range.clone())
+    }
+
+    /// `range` of the file as values of `T`.
+    fn data_range<T: Element>(&self, name: &str, range: std::ops::Range<usize>) -> Result<Vec<T>> {
+        let out_of_range = || self.corrupt(format!("tensor `{name}` data out of range"));
+        if !range.len().is_multiple_of(std::mem::size_of::<T>()) {
+            return Err(out_of_range());
+        }
+        match &self.source {
+            Source::Bytes(bytes) => {
+                let raw = bytes.get(range).ok_or_else(out_of_range)?;
+                Ok(bytemuck::allocation::pod_collect_to_vec(raw))
+            }
+            Source::File(file) => {
+                let mut file = file.lock().unwrap_or_else(|e| e.into_inner());
+                let mut buf = Vec::new();
+                read_range(&mut file, range, &mut buf)
+                    .map_err(|e| io_error(&self.path, "reading", e))?;
+                Ok(bytemuck::allocation::pod_collect_to_vec(&buf))
+            }
+        }
+    }
+
+    /// Checks that tensor `name` is of `T` and exactly `shape`.
+    pub fn exact_shape<T: Element>(&self, name: &str, shape: &[usize]) -> Result<()> {
+        let t = self.entry::<T>(name)?;
+        if t.shape != shape {
+            return Err(self.corrupt(format!(
+                "tensor `{name}` has shape {:?}, expected {shape:?}",
+                t.shape
+            )));
+        }
+        Ok(())
+    }
+
+    /// Rows `first..first + count` of tensor `name` (rows along its first
+    /// dimension): a part of a tensor too large to read whole.
+    pub fn rows<T: Element>(&self, name: &str, first: usize, count: usize) -> Result<Vec<T>> {
+        let t = self.entry::<T>(name)?;
+        let rows = t.shape.first().copied().unwrap_or(1);
+        let end = first.checked_add(count).filter(|&e| e <= rows);
+        let Some(end) = end else {
+            return Err(self.corrupt(format!(
+                "rows {first}..{first}+{count} of tensor `{name}`, which has {rows}"
+            )));
+        };
+        let row_bytes = t.range.len().checked_div(rows).unwrap_or(0);
+        let start = t.range.start + first * row_bytes;
+        self.data_range(name, start..t.range.start + end * row_bytes)
     }
 
     /// Tensor `name` of exactly `shape`.

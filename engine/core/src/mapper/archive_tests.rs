@@ -12,7 +12,7 @@ fn round_trip_and_refusals() {
     w.meta("answer", 42);
     w.tensor("x", &[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
     w.tensor("k", &[2], &[-7i32, 9]);
-    w.bytes("raw", 1, 3, vec![1, 2, 3]);
+    w.bytes("raw", 1, 3, &[1, 2, 3]);
     latentam_base::files::write_bytes_atomically(&path, &w.into_bytes().unwrap()).unwrap();
     let a = Archive::open(&path).unwrap();
     assert_eq!(a.meta_parse::<u32>("answer").unwrap(), 42);
@@ -37,7 +37,7 @@ fn round_trip_and_refusals() {
     assert!(e.contains("not a latentam map"), "{e}");
     let views = vec![(
         "x".to_string(),
-        TensorView::new(Dtype::U8, vec![1], &[0u8]).unwrap(),
+        safetensors::tensor::TensorView::new(Dtype::U8, vec![1], &[0u8]).unwrap(),
     )];
     let mut meta = HashMap::new();
     meta.insert("format".to_string(), FORMAT.to_string());
@@ -45,6 +45,83 @@ fn round_trip_and_refusals() {
     std::fs::write(&path, safetensors::serialize(views, Some(meta)).unwrap()).unwrap();
     let e = Archive::open(&path).err().unwrap().to_string();
     assert!(e.contains("version 99"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn streamed_tensors_are_written_in_one_pass_and_read_back() {
+    let dir = std::env::temp_dir().join(format!("latentam-stream-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("s.map");
+    let values: Vec<f32> = (0..1000).map(|i| i as f32 * 0.5 - 7.0).collect();
+    let build = |values: &[f32]| {
+        let values = values.to_vec();
+        let mut w = ArchiveWriter::default();
+        w.meta("note", "streamed \"quoted\" crc32:00000000");
+        w.tensor("a/held", &[2], &[1u16, 2]);
+        w.stream::<f32>("b/streamed", &[10, 100], move |sink| {
+            values
+                .chunks(7)
+                .try_for_each(|c| sink.put(bytemuck::cast_slice(c)))
+        });
+        w.tensor_ref("c/borrowed", &[3], &[5i64, 6, 7]);
+        w
+    };
+    build(&values).write_file(&path).unwrap();
+    // The same bytes as written to memory, and a file the safetensors
+    // crate reads too.
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(bytes, build(&values).into_bytes().unwrap());
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    assert_eq!(st.tensor("b/streamed").unwrap().shape(), &[10, 100]);
+    // Its checksum checks: any changed byte of the streamed tensor is
+    // refused.
+    let a = Archive::open(&path).unwrap();
+    assert_eq!(a.exact::<f32>("b/streamed", &[10, 100]).unwrap(), values);
+    assert_eq!(a.flat::<i64>("c/borrowed").unwrap(), vec![5, 6, 7]);
+    assert_eq!(
+        a.meta("note").unwrap(),
+        "streamed \"quoted\" crc32:00000000"
+    );
+    let mut flipped = bytes.clone();
+    let at = bytes.len() - 30;
+    flipped[at] ^= 1;
+    assert!(parse(&flipped).is_err());
+    // Read from the file in parts: the same rows, the same refusal.
+    let streamed = Archive::open_streaming(&path).unwrap();
+    assert_eq!(
+        streamed.rows::<f32>("b/streamed", 3, 4).unwrap(),
+        values[300..700]
+    );
+    assert!(streamed.rows::<f32>("b/streamed", 8, 3).is_err());
+    let flipped_path = dir.join("flipped.map");
+    std::fs::write(&flipped_path, &flipped).unwrap();
+    let e = Archive::open_streaming(&flipped_path)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("checksum"), "{e}");
+    std::fs::remove_file(&flipped_path).unwrap();
+
+    // A producer that gives the wrong number of bytes, or fails, leaves
+    // the file as it was and nothing beside it.
+    for short in [true, false] {
+        let mut w = ArchiveWriter::default();
+        w.stream::<f32>("x", &[4], move |sink| {
+            if short {
+                sink.put(&[0u8; 12])
+            } else {
+                Err(Error::bad_input("the source", "gone"))
+            }
+        });
+        let e = w.write_file(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(if short { "12 bytes, not 16" } else { "gone" }),
+            "{e}"
+        );
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

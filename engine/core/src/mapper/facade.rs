@@ -207,9 +207,9 @@ impl Mapper {
         // The state and the decoder of one version, even while a writer
         // swaps the folder.
         let state = read_one_version(dir, || {
-            let state = SavedState::read(&dir.join(STATE_FILE))?;
+            let state = SavedState::read_streaming(&dir.join(STATE_FILE))?;
             let decoder = dir.join(DECODER_FILE);
-            if let (Some(id), true) = (state.run_id(), decoder.exists()) {
+            if let (Some(id), true) = (state.0.run_id(), decoder.exists()) {
                 let theirs = DecoderFile::read(&decoder)?.run_id;
                 if theirs.as_deref() != Some(id) {
                     return Err(Error::damaged(
@@ -224,6 +224,7 @@ impl Mapper {
             }
             Ok(state)
         })?;
+        let (state, map) = state;
         let overrides = settings(state.config())?;
         // The settings that shape the saved state stay as saved: a change
         // asked for would be silently ignored, so it is refused.
@@ -239,7 +240,7 @@ impl Mapper {
                 ));
             }
         }
-        Self::from_saved(ctx, state, Some(overrides))
+        Self::from_saved(ctx, state, Some(map), Some(overrides))
     }
 
     /// Counts, memory and timings.

@@ -13,7 +13,7 @@ use super::facade::Mapper;
 use super::relevance_index::IndexSettings;
 use super::snapshot::MapSnapshot;
 use crate::latent::{DevicePixelDecoder, TextQuery};
-use crate::map::write_map_ply;
+use crate::map::write_map_ply_streamed;
 use crate::splat::{Camera, RenderedView};
 use latentam_base::{Error, Result};
 use latentam_io::{Frame, Vocabulary};
@@ -206,14 +206,12 @@ impl Mapper {
     /// queries decode to embeddings with the decoder.
     pub(crate) fn export_ply(&mut self, path: &Path) -> Result<()> {
         self.flush()?;
-        let gaussians: Vec<_> = self
-            .pager
-            .global()
-            .to_vec()?
-            .into_iter()
-            .map(|(_, g)| g)
-            .collect();
-        write_map_ply(path, &gaussians, self.dictionary.head().is_some())
+        let global = self.pager.global();
+        let latents = self.dictionary.head().is_some();
+        // Block by block: spilled blocks are read from disk one at a time.
+        write_map_ply_streamed(path, global.len(), latents, |put| {
+            global.for_each_block(|_, _, gaussians| put(gaussians))
+        })
     }
 
     /// The decoder as it stands (W, the dictionary and the temperature),

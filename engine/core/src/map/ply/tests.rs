@@ -430,3 +430,31 @@ fn failed_write_leaves_no_partial_file() {
         Err(Error::Io { .. })
     ));
 }
+
+#[test]
+fn a_streamed_map_writes_the_same_file_and_a_wrong_count_writes_none() {
+    let dir = TempDir::new("ply-streamed");
+    let gaussians = random_gaussians(3000, 17);
+    let whole = dir.path().join("whole.ply");
+    write_map_ply(&whole, &gaussians, true).unwrap();
+    let streamed = dir.path().join("streamed.ply");
+    write_map_ply_streamed(&streamed, gaussians.len(), true, |put| {
+        gaussians.chunks(333).try_for_each(put)
+    })
+    .unwrap();
+    assert_eq!(
+        std::fs::read(&whole).unwrap(),
+        std::fs::read(&streamed).unwrap()
+    );
+    for count in [2999, 3001] {
+        let e = write_map_ply_streamed(&streamed, count, true, |put| put(&gaussians))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("3000 Gaussians written"), "{e}");
+        assert_eq!(
+            std::fs::read(&whole).unwrap(),
+            std::fs::read(&streamed).unwrap()
+        );
+        assert!(!partial_left(&streamed));
+    }
+}

@@ -43,6 +43,62 @@ pub fn write_map_ply(path: &Path, gaussians: &[Gaussian], has_embeddings: bool) 
     write_ply_as(path, gaussians, &[], has_embeddings)
 }
 
+/// [`write_map_ply`] of a map of `count` Gaussians that `visit` hands
+/// over a chunk at a time (a map larger than memory, read from disk as it
+/// is written). Handing over another number of Gaussians than `count`, or
+/// an error from `visit`, leaves no file and `path` as it was.
+pub fn write_map_ply_streamed(
+    path: &Path,
+    count: usize,
+    has_embeddings: bool,
+    visit: impl FnOnce(&mut dyn FnMut(&[Gaussian]) -> Result<()>) -> Result<()>,
+) -> Result<()> {
+    let header = header_text(count, has_embeddings, std::iter::empty());
+    let mut failed = None;
+    let written = write_atomically(path, |out| {
+        out.write_all(header.as_bytes())?;
+        let mut rows: Vec<f32> = Vec::new();
+        let mut seen = 0usize;
+        let visited = visit(&mut |gaussians| {
+            seen += gaussians.len();
+            for chunk in gaussians.chunks(ROWS_PER_CHUNK) {
+                rows.clear();
+                for g in chunk {
+                    push_row(&mut rows, g, has_embeddings);
+                }
+                if cfg!(target_endian = "big") {
+                    for v in &mut rows {
+                        *v = f32::from_bits(v.to_bits().swap_bytes());
+                    }
+                }
+                out.write_all(bytemuck::cast_slice(&rows))
+                    .map_err(|source| Error::Io {
+                        path: path.to_path_buf(),
+                        source,
+                    })?;
+            }
+            Ok(())
+        })
+        .and_then(|()| {
+            (seen == count).then_some(()).ok_or_else(|| {
+                Error::bad_input(
+                    path.display().to_string(),
+                    format!("{seen} Gaussians written for a header of {count}"),
+                )
+            })
+        });
+        visited.map_err(|e| {
+            let io = std::io::Error::other(e.to_string());
+            failed = Some(e);
+            io
+        })
+    });
+    match (written, failed) {
+        (_, Some(e)) => Err(e),
+        (r, None) => r,
+    }
+}
+
 /// A quaternion scaled to unit length (computed in f64); the identity for
 /// one of zero or non-finite length.
 pub fn unit_quat(q: [f32; 4]) -> [f32; 4] {

@@ -217,11 +217,6 @@ impl Pager {
         Ok(())
     }
 
-    /// Puts a loaded state's Gaussian at `key`; false when it is taken.
-    pub(crate) fn restore_gaussian(&mut self, key: VoxelKey, g: crate::map::Gaussian) -> bool {
-        self.global.insert_at(key, g)
-    }
-
     /// Sets where a loaded state's window was last centred.
     pub(crate) fn restore_last_sync(&mut self, at: Option<DVec3>) {
         self.last_sync = at;

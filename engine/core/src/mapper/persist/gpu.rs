@@ -1,10 +1,12 @@
 //! Between a mapper and its saved state: downloading the GPU state into an
 //! archive, and creating the GPU buffers of a loaded one.
 
-use super::write::StateRef;
+use super::write::{ChunkVisitor, MapRows, StateRef};
 use super::*;
+use crate::map::GlobalMap;
 use crate::mapper::facade::Mapper;
 use crate::mapper::progress::Progress;
+use crate::mapper::seeder::Seeder;
 
 /// Reads a whole device buffer as bytes (first `bytes` kept).
 fn download_bytes(ctx: &Context, buf: &Buffer, bytes: u64) -> Result<Vec<u8>> {
@@ -30,22 +32,15 @@ impl Mapper {
         self.progress.check_consistent()?;
         self.flush()?;
         let ctx = self.ctx.clone();
-        let global = self.pager.global();
-        let map: Vec<(VoxelKey, Gaussian)> = global.to_vec()?;
         let window = self.download_window(&ctx)?;
         let head = self.download_head(&ctx)?;
-        check_finite(path, &map, head.as_ref(), window.as_ref())?;
-        let guesses: Vec<u8> = map
-            .iter()
-            .map(|(key, _)| {
-                if self.seeder.is_superseded(key) {
-                    SUPERSEDED
-                } else {
-                    GUESSED * self.seeder.is_guess(key) as u8
-                }
-            })
-            .collect();
-        let bytes = StateRef {
+        check_finite(path, head.as_ref(), window.as_ref())?;
+        let map = LiveRows {
+            global: self.pager.global(),
+            seeder: &self.seeder,
+            path,
+        };
+        let archive = StateRef {
             run_id: Some(run_id),
             config: &self.cfg,
             counters: self.progress.counters(),
@@ -53,7 +48,6 @@ impl Mapper {
             selector: self.selector.state(),
             last_sync: self.pager.last_sync(),
             map: &map,
-            guesses: &guesses,
             head: head.as_ref(),
             history: (0..self.history.len())
                 .filter_map(|i| self.history.get(i))
@@ -67,9 +61,8 @@ impl Mapper {
                 .collect(),
             window: window.as_ref(),
         }
-        .into_bytes()?;
-        drop(map);
-        latentam_base::files::write_bytes_atomically(path, &bytes)
+        .into_archive()?;
+        archive.write_file(path)
     }
 
     /// The window's residents and their optimiser rows, from the GPU.
@@ -133,8 +126,8 @@ impl Mapper {
     #[cfg(any(test, feature = "testing"))]
     #[doc(hidden)]
     pub fn load_file(ctx: &Context, path: &Path, overrides: Option<MapperConfig>) -> Result<Self> {
-        let state = SavedState::read(path)?;
-        Self::from_saved(ctx, state, overrides)
+        let (state, map) = SavedState::read_streaming(path)?;
+        Self::from_saved(ctx, state, Some(map), overrides)
     }
 
     /// A mapper on `ctx` with the state `saved`: creates the GPU buffers
@@ -143,9 +136,15 @@ impl Mapper {
     /// (budget, learning rates...) when given; the settings that shape the
     /// saved state (voxel size, dictionary size, replay count, window
     /// capacity) are kept.
+    ///
+    /// The global map is `saved`'s, or read from `streamed` when given
+    /// (`saved` was then read without it): inserted a chunk at a time and
+    /// spilled to the host budget as it comes, so loading holds no more of
+    /// the map than mapping would.
     pub(in crate::mapper) fn from_saved(
         ctx: &Context,
         saved: SavedState,
+        streamed: Option<StreamedMap>,
         overrides: Option<MapperConfig>,
     ) -> Result<Self> {
         let corrupt = |why: String| Error::damaged(&saved.origin, why);
@@ -159,8 +158,13 @@ impl Mapper {
         m.dictionary.restore_model(saved.model);
         m.selector.restore(saved.selector.0, saved.selector.1);
         m.pager.restore_last_sync(saved.last_sync);
-        for ((key, g), flag) in saved.map.into_iter().zip(saved.guesses) {
-            if !m.pager.restore_gaussian(key, g) {
+        let restore = |m: &mut Mapper, key: VoxelKey, g: Gaussian, flag: u8| -> Result<()> {
+            // A block spilled while the file was read comes back first
+            // (a file of an older version need not list a block's
+            // Gaussians together).
+            let global = m.pager.global_mut();
+            global.load(GlobalMap::block_of(key))?;
+            if !global.insert_at(key, g) {
                 return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
             }
             match flag {
@@ -168,6 +172,19 @@ impl Mapper {
                 SUPERSEDED => m.seeder.restore_superseded(key),
                 _ => {}
             }
+            Ok(())
+        };
+        for ((key, g), flag) in saved.map.into_iter().zip(saved.guesses) {
+            restore(&mut m, key, g, flag)?;
+        }
+        if let Some(streamed) = &streamed {
+            // 64 Ki Gaussians (12 MiB) at a time.
+            streamed.for_each_chunk(1 << 16, |(keys, gaussians, flags)| {
+                for ((&key, &g), &flag) in keys.iter().zip(&gaussians).zip(&flags) {
+                    restore(&mut m, key, g, flag)?;
+                }
+                m.pager.spill_to_budget().map(|_| ())
+            })?;
         }
 
         // Latent head.
@@ -206,6 +223,14 @@ impl Mapper {
         if let Some(w) = saved.window {
             let dim = m.dictionary.head().map(|h| h.config().dim);
             m.ensure_workspace(w.view_pixels, dim)?;
+            // Every resident is in the map, its block in memory.
+            let global = m.pager.global_mut();
+            for &key in &w.keys {
+                global.load(GlobalMap::block_of(key))?;
+                if !global.contains(key) {
+                    return Err(corrupt(format!("window voxel {key:?} is not in the map")));
+                }
+            }
             let trainer = m
                 .trainer
                 .as_ref()
@@ -250,47 +275,70 @@ fn upload_state(
     Ok(())
 }
 
-/// Refuses to save a diverged map: loading refuses non-finite values, so
-/// refusing them here too keeps a diverged map from replacing a good save.
-fn check_finite(
-    path: &Path,
-    map: &[(VoxelKey, Gaussian)],
-    head: Option<&SavedHead>,
-    window: Option<&SavedWindow>,
-) -> Result<()> {
-    // Loading refuses non-finite values; refusing them here too keeps a
-    // diverged map from replacing a good save.
-    let diverged = |why: String| {
-        Error::damaged(
-            path,
-            format!("the map has diverged and is not saved (it would not load): {why}"),
-        )
-    };
-    for (key, g) in map {
-        if !bytemuck::cast_slice::<Gaussian, f32>(std::slice::from_ref(g))
-            .iter()
-            .all(|x| x.is_finite())
-        {
-            return Err(diverged(format!(
-                "the Gaussian of voxel {key:?} is not finite"
-            )));
-        }
+/// The error that refuses to save a diverged map: loading refuses
+/// non-finite values, so refusing them here too keeps a diverged map from
+/// replacing a good save.
+fn diverged(path: &Path, why: String) -> Error {
+    Error::damaged(
+        path,
+        format!("the map has diverged and is not saved (it would not load): {why}"),
+    )
+}
+
+/// A live mapper's global map as a save writes it: block by block, spilled
+/// blocks read from disk one at a time, each Gaussian checked finite.
+struct LiveRows<'a> {
+    global: &'a GlobalMap,
+    seeder: &'a Seeder,
+    /// The file being written (names it in errors).
+    path: &'a Path,
+}
+
+impl MapRows for LiveRows<'_> {
+    fn len(&self) -> usize {
+        self.global.len()
     }
+
+    fn for_each_chunk(&self, visit: &mut ChunkVisitor<'_>) -> Result<()> {
+        let mut flags = Vec::new();
+        self.global.for_each_block(|_, keys, gaussians| {
+            flags.clear();
+            for (key, g) in keys.iter().zip(gaussians) {
+                if !bytemuck::bytes_of(g)
+                    .chunks_exact(4)
+                    .all(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]]).is_finite())
+                {
+                    let why = format!("the Gaussian of voxel {key:?} is not finite");
+                    return Err(diverged(self.path, why));
+                }
+                flags.push(if self.seeder.is_superseded(key) {
+                    SUPERSEDED
+                } else {
+                    GUESSED * self.seeder.is_guess(key) as u8
+                });
+            }
+            visit(keys, gaussians, &flags)
+        })
+    }
+}
+
+/// Refuses to save a diverged latent head or window (see [`diverged`]).
+fn check_finite(path: &Path, head: Option<&SavedHead>, window: Option<&SavedWindow>) -> Result<()> {
     if let Some(h) = head {
         for (name, v) in [
             ("head/W", &h.w),
             ("head/D", &h.atoms),
             ("head/D0", &h.anchors),
         ] {
-            finite(v, name).map_err(diverged)?;
+            finite(v, name).map_err(|why| diverged(path, why))?;
         }
         for (i, t) in h.adam.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
-            finite_bytes(t, &format!("head/adam/{i}")).map_err(diverged)?;
+            finite_bytes(t, &format!("head/adam/{i}")).map_err(|why| diverged(path, why))?;
         }
     }
     if let Some(w) = window {
         for (i, t) in w.state.iter().enumerate().filter(|(i, _)| i % 3 != 2) {
-            finite_bytes(t, &format!("window/state/{i}")).map_err(diverged)?;
+            finite_bytes(t, &format!("window/state/{i}")).map_err(|why| diverged(path, why))?;
         }
     }
     Ok(())

@@ -4,6 +4,11 @@
 //! k-means weights), the keyframe history, the keyframe selector and the
 //! counters. One archive file ([`super::archive`]), written atomically.
 //!
+//! A save streams the global map into the file block by block (spilled
+//! blocks read from disk one at a time), and a resume reads it back a
+//! chunk at a time, spilling to the host budget as it goes: neither holds
+//! the whole map in memory.
+//!
 //! Loading is two steps: [`SavedState::parse`] reads and checks the whole
 //! file on the CPU (any file: it returns an error for anything malformed
 //! and never panics), then `Mapper::from_saved` creates the GPU
@@ -14,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DAffine3, DMat3, DQuat, DVec3};
 
-use super::archive::{Archive, ArchiveWriter, FORMAT, VERSION};
+use super::archive::{Archive, ArchiveWriter, Sink, FORMAT, VERSION};
 use super::config::{MapperConfig, WHOLE_CONFIGURATION};
 use super::history::{KeyframeRecord, RegionTargets};
 use super::progress::Counters;
@@ -163,6 +168,64 @@ fn config_message(e: Error) -> String {
     }
 }
 
+/// A saved global map left in its file, read a chunk at a time and
+/// checked as [`SavedState::parse`] checks it (finite, plausible, flags in
+/// range; duplicates are found where the chunks are inserted).
+pub(crate) struct StreamedMap {
+    archive: Archive<'static>,
+    /// Gaussians in it.
+    len: usize,
+}
+
+/// A chunk of a streamed map: keys, Gaussians and guess flags.
+pub(super) type MapChunk = (Vec<VoxelKey>, Vec<Gaussian>, Vec<u8>);
+
+impl StreamedMap {
+    /// Calls `visit` with every chunk of at most `rows` Gaussians, in the
+    /// file's order, each checked.
+    pub(super) fn for_each_chunk(
+        &self,
+        rows: usize,
+        mut visit: impl FnMut(MapChunk) -> Result<()>,
+    ) -> Result<()> {
+        let a = &self.archive;
+        let n = self.len;
+        let has_flags = a.has("map/guess");
+        if has_flags {
+            a.exact_shape::<u8>("map/guess", &[n])?;
+        }
+        a.exact_shape::<f32>("map/gaussians", &[n, GAUSSIAN_FLOATS])?;
+        for first in (0..n).step_by(rows.max(1)) {
+            let count = rows.max(1).min(n - first);
+            let keys = keys_from_i32(&a.rows::<i32>("map/keys", first, count)?);
+            let floats = a.rows::<f32>("map/gaussians", first, count)?;
+            let flags = if has_flags {
+                a.rows::<u8>("map/guess", first, count)?
+            } else {
+                vec![0; count]
+            };
+            if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
+                return Err(a.corrupt(format!("map/guess holds the flag {f}")));
+            }
+            let mut gaussians = Vec::with_capacity(count);
+            for (key, g) in keys.iter().zip(floats.chunks_exact(GAUSSIAN_FLOATS)) {
+                if !g.iter().all(|x| x.is_finite()) {
+                    return Err(a.corrupt(format!(
+                        "the Gaussian of voxel {key:?} holds non-finite values"
+                    )));
+                }
+                let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
+                if let Some(why) = read::implausible(&g) {
+                    return Err(a.corrupt(format!("the Gaussian of voxel {key:?} {why}")));
+                }
+                gaussians.push(g);
+            }
+            visit((keys, gaussians, flags))?;
+        }
+        Ok(())
+    }
+}
+
 /// The latent head as saved.
 #[derive(Clone, Debug, PartialEq)]
 pub(super) struct SavedHead {
@@ -249,6 +312,21 @@ impl SavedState {
     /// Reads and checks the state saved in `path` ([`SavedState::parse`]).
     pub fn read(path: &Path) -> Result<Self> {
         Self::from_archive(&Archive::open(path)?)
+    }
+
+    /// [`SavedState::read`] but for the global map, which stays in the
+    /// file, to be read a chunk at a time ([`StreamedMap`]): what loading a
+    /// map larger than the host budget holds at once. The file's checksum
+    /// is verified here, reading it once in pieces.
+    pub(crate) fn read_streaming(path: &Path) -> Result<(Self, StreamedMap)> {
+        let archive = Archive::open_streaming(path)?;
+        let state = Self::from_archive_parts(&archive, false)?;
+        let bad = |why: String| archive.corrupt(why);
+        let len = match archive.shape::<i32>("map/keys")? {
+            &[n, 3] => n,
+            s => return Err(bad(format!("map/keys has shape {s:?}, expected [n, 3]"))),
+        };
+        Ok((state, StreamedMap { archive, len }))
     }
 
     /// A small, valid state built on the CPU: six Gaussians, four of them

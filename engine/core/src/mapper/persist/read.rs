@@ -13,6 +13,13 @@ type Voxels = HashSet<VoxelKey>;
 
 impl SavedState {
     pub(super) fn from_archive(a: &Archive<'_>) -> Result<Self> {
+        Self::from_archive_parts(a, true)
+    }
+
+    /// [`SavedState::from_archive`], the global map read (and its window
+    /// keys checked against it) only when `with_map`; else the map is left
+    /// in the archive for [`StreamedMap`].
+    pub(super) fn from_archive_parts(a: &Archive<'_>, with_map: bool) -> Result<Self> {
         let config = MapperConfig::from_toml(a.meta("config")?)
             .map_err(|e| a.corrupt(format!("saved mapper configuration: {}", config_message(e))))?;
         // Sizes that shape GPU allocations, before anything is read.
@@ -20,8 +27,13 @@ impl SavedState {
         let counters = Self::parse_counters(a)?;
         let model = a.meta("model").ok().map(str::to_string);
         let (selector, last_sync) = Self::parse_selector(a)?;
-        let (map, seen) = Self::parse_map(a)?;
-        let guesses = Self::parse_guesses(a, map.len())?;
+        let (map, seen, guesses) = if with_map {
+            let (map, seen) = Self::parse_map(a)?;
+            let guesses = Self::parse_guesses(a, map.len())?;
+            (map, Some(seen), guesses)
+        } else {
+            (Vec::new(), None, Vec::new())
+        };
         let head = Self::parse_head(a, &config)?;
         let history = Self::parse_history(a, head.as_ref().map(|h| h.dim))?;
         if history.len() as u64 > counters.keyframes {
@@ -38,7 +50,7 @@ impl SavedState {
         let window = match window_meta {
             None => None,
             Some((capacity, view_pixels)) => {
-                Some(Self::parse_window(a, capacity, view_pixels, &seen)?)
+                Some(Self::parse_window(a, capacity, view_pixels, seen.as_ref())?)
             }
         };
         Ok(SavedState {
@@ -262,7 +274,7 @@ impl SavedState {
         a: &Archive<'_>,
         capacity: u64,
         view_pixels: u64,
-        seen: &HashSet<VoxelKey>,
+        seen: Option<&HashSet<VoxelKey>>,
     ) -> Result<SavedWindow> {
         let bad = |why: String| a.corrupt(why);
         let rows = match a.shape::<i32>("window/keys")? {
@@ -277,7 +289,7 @@ impl SavedState {
         let keys = keys_from_i32(&a.exact::<i32>("window/keys", &[rows, 3])?);
         let mut resident = HashSet::with_capacity(rows);
         for k in &keys {
-            if !seen.contains(k) {
+            if seen.is_some_and(|seen| !seen.contains(k)) {
                 return Err(bad(format!("window voxel {k:?} is not in the map")));
             }
             if !resident.insert(*k) {
@@ -551,7 +563,7 @@ fn parse_regions(
 /// rotation of (near) zero length, or a scale beyond what any map holds (a
 /// log-scale outside [`LOG_SCALE_RANGE`]; e⁸⁸ overflows f32). Any finite
 /// opacity logit is an opacity.
-fn implausible(g: &Gaussian) -> Option<String> {
+pub(super) fn implausible(g: &Gaussian) -> Option<String> {
     let q = g.quat.iter().map(|x| x * x).sum::<f32>().sqrt();
     if !(1e-6..=1e6).contains(&q) {
         return Some(format!(

@@ -89,7 +89,7 @@ fn a_mapped_state_parses_loads_and_survives_mutations() {
         let mut applied = 0;
         for (state, what) in accepted.into_iter().take(16) {
             let r = catch_unwind(AssertUnwindSafe(|| {
-                Mapper::from_saved(ctx, state, None).map(drop)
+                Mapper::from_saved(ctx, state, None, None).map(drop)
             }));
             match r {
                 Err(_) => panic!("from_saved panicked on an accepted mutation: {what}"),
@@ -127,6 +127,23 @@ fn a_diverged_map_is_not_saved() {
         let e = m.save_file(&path).unwrap_err().to_string();
         assert!(e.contains("diverged") && e.contains("head/W"), "{e}");
         assert_eq!(std::fs::read(&path).unwrap(), good);
+        // A Gaussian of the global map gone NaN, far from the window: the
+        // map streams into the file and the save stops there, naming its
+        // voxel, leaving the last save and no partial file.
+        w[5] = 0.0;
+        ctx.upload(m.dictionary.head().unwrap().w(), 0, &w).unwrap();
+        let far = crate::map::VoxelKey {
+            x: 10_000,
+            y: 0,
+            z: 0,
+        };
+        let mut g = *m.pager.global().iter().next().unwrap().1;
+        g.query[3] = f32::NAN;
+        assert!(m.pager.global_mut().insert_at(far, g));
+        let e = m.save_file(&path).unwrap_err().to_string();
+        assert!(e.contains("diverged") && e.contains("10000"), "{e}");
+        assert_eq!(std::fs::read(&path).unwrap(), good);
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
         std::fs::remove_dir_all(&dir).ok();
     });
 }
@@ -272,4 +289,61 @@ fn implausible_gaussians_are_refused() {
             "{e}"
         );
     }
+}
+
+/// A saved map larger than the host budget loads a chunk at a time, each
+/// chunk's blocks spilled before the next is read; the map that results
+/// is the saved one, guesses included, and a voxel saved twice is refused
+/// even when its first copy was spilled by then.
+#[test]
+fn a_map_over_the_host_budget_loads_a_chunk_at_a_time() {
+    use crate::map::VoxelKey;
+    with_context(|ctx| {
+        let dir = std::env::temp_dir().join(format!("latentam-streamed-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.latentam");
+        let mut state = SavedState::example();
+        // Three chunks' worth of Gaussians over many blocks, after the
+        // example's six (four of them resident).
+        let template = state.map[2].1;
+        for i in 0..150_000i32 {
+            let key = VoxelKey {
+                x: 100 + i % 97,
+                y: (i / 97) % 89,
+                z: i / (97 * 89),
+            };
+            let mut g = template;
+            g.query[0] = i as f32;
+            state.map.push((key, g));
+            state.guesses.push((i % 3 == 0) as u8);
+        }
+        std::fs::write(&path, state.to_bytes().unwrap()).unwrap();
+        let budget = MapperConfig {
+            host_budget: 1,
+            spill_dir: Some(dir.to_string_lossy().into_owned()),
+            ..state.config().clone()
+        };
+        let m = Mapper::load_file(ctx, &path, Some(budget.clone())).unwrap();
+        let global = m.pager.global();
+        assert!(global.spilled_blocks() > 0 && global.spill_counts().written > 0);
+        let mut loaded = global.to_vec().unwrap();
+        let mut saved = state.map.clone();
+        loaded.sort_by_key(|(k, _)| *k);
+        saved.sort_by_key(|(k, _)| *k);
+        assert!(loaded.len() == saved.len() && loaded == saved);
+        for ((key, _), flag) in state.map.iter().zip(&state.guesses) {
+            assert_eq!(m.seeder.is_guess(key), *flag == 1, "{key:?}");
+        }
+        drop(m);
+
+        // The same voxel again in the last chunk: its first copy's block
+        // was spilled long before.
+        let first = state.map[10];
+        state.map.push(first);
+        state.guesses.push(0);
+        std::fs::write(&path, state.to_bytes().unwrap()).unwrap();
+        let e = Mapper::load_file(ctx, &path, Some(budget)).err().unwrap();
+        assert!(e.to_string().contains("appears twice"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    });
 }
