@@ -184,7 +184,7 @@ fn queries_while_mapping_see_consistent_snapshots_and_the_map_matches_a_synchron
         pipelines,
         "a pipeline was compiled while mapping"
     );
-    let exact = mapper.relevance(&chair, Scored::Gaussians).unwrap();
+    let exact = mapper.relevance_decoded(&chair).unwrap();
     let by_mean: HashMap<[u32; 3], f32> = mapper
         .snapshot()
         .unwrap()

@@ -16,6 +16,7 @@ mod latent;
 mod live;
 mod map;
 mod primitives;
+mod query;
 mod raster;
 mod soak;
 
@@ -176,6 +177,11 @@ pub enum Which {
     /// inputs: time per view, atoms a pixel's embedding needs, per-kernel
     /// breakdown.
     Decode(decode::Args),
+    /// Relevance of every Gaussian of a saved map to an embedding, query
+    /// after query, with the map loaded under a host budget: the first
+    /// query (which builds the relevance index, reading blocks past the
+    /// budget from disk), p50 and p99 latency of the others, peak RSS.
+    Query(query::Args),
 }
 
 pub fn run(which: Which) -> Result<()> {
@@ -216,6 +222,7 @@ pub fn run(which: Which) -> Result<()> {
         Which::Soak(args) => soak::run_bench(args),
         Which::Live(args) => live::run(args),
         Which::Decode(args) => decode::run(args),
+        Which::Query(args) => query::run(args),
         Which::Map {
             frames,
             width,

@@ -321,3 +321,47 @@ fn bench_ingest_writes_json_with_every_measurement() {
         .iter()
         .all(|r| r["cpu_ms_per_frame"].as_f64().unwrap() > 0.0));
 }
+
+#[test]
+fn bench_query_scores_a_spilled_map_and_writes_json() {
+    let dir = common::scratch("bench-query");
+    let log = common::gen_scene(&dir, 12);
+    let run = dir.join("run");
+    run_ok(&[
+        "map".as_ref(),
+        log.as_os_str(),
+        "--out".as_ref(),
+        run.as_os_str(),
+        "--no-trace".as_ref(),
+    ]);
+    let spill = dir.join("spill").display().to_string();
+    let v = bench_json(
+        "query",
+        &[
+            "query",
+            run.to_str().unwrap(),
+            "--runs",
+            "5",
+            "--host-budget",
+            "1",
+            "--spill-dir",
+            &spill,
+        ],
+    );
+    let gaussians = v["gaussians"].as_u64().unwrap();
+    assert!(gaussians > 0);
+    assert_eq!(v["gaussians"], common::report(&run)["gaussians"]);
+    // A one-byte budget: everything but nothing is spilled once loaded.
+    assert!(v["spilled_gaussians"].as_u64().unwrap() > 0, "{v}");
+    assert_eq!(v["runs"], 5);
+    assert_eq!(v["query_ms"].as_array().unwrap().len(), 5);
+    let (p50, p99, max) = (
+        v["p50_ms"].as_f64().unwrap(),
+        v["p99_ms"].as_f64().unwrap(),
+        v["max_ms"].as_f64().unwrap(),
+    );
+    assert!(0.0 < p50 && p50 <= p99 && p99 <= max, "{v}");
+    assert!(v["first_query_ms"].as_f64().unwrap() > 0.0);
+    assert!(v["peak_rss_bytes"].as_u64().unwrap() > 0);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -22,6 +22,7 @@ use std::sync::atomic::AtomicBool;
 
 use super::eval::Evaluator;
 use super::history::History;
+use super::relevance_index::RelevanceIndex;
 use crate::map::{ExposureTrack, KeyframeSelector};
 use latentam_io::CameraPose;
 
@@ -64,6 +65,10 @@ pub struct Mapper {
     pub(super) progress: Progress,
     /// Renders views for `render*` and `evaluate` (made on first use).
     pub(super) evaluator: Option<Evaluator>,
+    /// Every Gaussian's attention, for relevance queries: built on the
+    /// first query, dropped by the next keyframe (only keyframes change the
+    /// map and the decoder).
+    pub(super) relevance_index: Option<RelevanceIndex>,
 }
 
 impl Mapper {
@@ -122,6 +127,7 @@ impl Mapper {
             exposure: ExposureTrack::default(),
             progress: Progress::default(),
             evaluator: None,
+            relevance_index: None,
             cfg: config,
         })
     }

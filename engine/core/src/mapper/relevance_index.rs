@@ -91,6 +91,18 @@ impl RelevanceIndex {
         settings: IndexSettings,
         cancel: Option<&AtomicBool>,
     ) -> Result<Self> {
+        Self::build_streamed(decoder, settings, cancel, |add| add(queries))
+    }
+
+    /// [`RelevanceIndex::build`] of the queries `feed` hands over a batch
+    /// at a time (a map read block by block from memory and disk): what is
+    /// held is the batch and the index, never every query at once.
+    pub(crate) fn build_streamed(
+        decoder: &DecoderView<'_>,
+        settings: IndexSettings,
+        cancel: Option<&AtomicBool>,
+        feed: impl FnOnce(&mut dyn FnMut(&[[f32; QUERY_DIM]]) -> Result<()>) -> Result<()>,
+    ) -> Result<Self> {
         let start = std::time::Instant::now();
         let d = decoder.dim;
         let k = decoder.atoms.len() / d.max(1);
@@ -99,46 +111,48 @@ impl RelevanceIndex {
         }
         let shared = Shared::new(decoder, k);
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let chunk = queries.len().div_ceil(threads).max(256);
-        let parts: Vec<Part> = std::thread::scope(|scope| {
-            let handles: Vec<_> = queries
-                .chunks(chunk)
-                .map(|qs| {
-                    let shared = &shared;
-                    scope.spawn(move || shared.index(qs, decoder, settings, cancel))
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("index worker"))
-                .collect::<Option<Vec<Part>>>()
-        })
-        .ok_or_else(|| {
-            // Only a closing live handle cancels a build.
-            Error::Stopped(std::sync::Arc::new(Error::bad_input(
-                "the relevance index",
-                "its build was cancelled: the live mapper is closing",
-            )))
-        })?;
         let mut index = RelevanceIndex {
             dim: d,
             atoms: decoder.atoms.to_vec(),
-            offsets: Vec::with_capacity(queries.len() + 1),
+            offsets: vec![0],
             entries: Vec::new(),
-            inv_norms: Vec::with_capacity(queries.len()),
+            inv_norms: Vec::new(),
             max_dropped: 0.0,
             build_ms: 0.0,
         };
-        index.offsets.push(0);
-        for part in parts {
-            let base = index.entries.len() as u32;
-            index
-                .offsets
-                .extend(part.offsets[1..].iter().map(|o| o + base));
-            index.entries.extend(part.entries);
-            index.inv_norms.extend(part.inv_norms);
-            index.max_dropped = index.max_dropped.max(part.max_dropped);
-        }
+        feed(&mut |queries| {
+            let chunk = queries.len().div_ceil(threads).max(256);
+            let parts: Vec<Part> = std::thread::scope(|scope| {
+                let handles: Vec<_> = queries
+                    .chunks(chunk)
+                    .map(|qs| {
+                        let shared = &shared;
+                        scope.spawn(move || shared.index(qs, decoder, settings, cancel))
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().expect("index worker"))
+                    .collect::<Option<Vec<Part>>>()
+            })
+            .ok_or_else(|| {
+                // Only a closing live handle cancels a build.
+                Error::Stopped(std::sync::Arc::new(Error::bad_input(
+                    "the relevance index",
+                    "its build was cancelled: the live mapper is closing",
+                )))
+            })?;
+            for part in parts {
+                let base = index.entries.len() as u32;
+                index
+                    .offsets
+                    .extend(part.offsets[1..].iter().map(|o| o + base));
+                index.entries.extend(part.entries);
+                index.inv_norms.extend(part.inv_norms);
+                index.max_dropped = index.max_dropped.max(part.max_dropped);
+            }
+            Ok(())
+        })?;
         index.build_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(index)
     }

@@ -58,6 +58,9 @@ impl Mapper {
             self.progress.count_frame(frame.stamp_ns);
             return Ok(Integrated::Skipped);
         }
+        // A keyframe changes the map and the decoder, even one that fails
+        // part-way.
+        self.relevance_index = None;
         // The first keyframe sizes the window against the budget before any
         // GPU work, so a configuration that cannot map fails here, with the
         // setting to change, and with the map as it was.

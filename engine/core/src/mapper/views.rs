@@ -10,7 +10,7 @@ use glam::DAffine3;
 use super::eval::{Evaluator, MapParts, ViewMetrics};
 use super::export::DecoderFile;
 use super::facade::Mapper;
-use super::relevance_index::IndexSettings;
+use super::relevance_index::{DecoderView, IndexSettings, RelevanceIndex};
 use super::snapshot::MapSnapshot;
 use crate::latent::{DevicePixelDecoder, TextQuery};
 use crate::map::write_map_ply_streamed;
@@ -61,6 +61,43 @@ impl Mapper {
     /// row-major), in the order of the global map's `iter` (the window
     /// written back first).
     pub(crate) fn cosines(&mut self, embeddings: &[f32]) -> Result<Vec<f32>> {
+        self.check_query_dim(embeddings)?;
+        if self.relevance_index.is_none() {
+            self.flush()?;
+            let decoder = self.decoder()?.ok_or(Error::NoEmbeddings)?;
+            let view = DecoderView {
+                w: &decoder.w,
+                atoms: &decoder.atoms,
+                dim: decoder.dim as usize,
+                temperature: decoder.temperature,
+                eps: decoder.eps,
+            };
+            // Block by block into batches of at most this many queries
+            // (16 MiB): a map spilled to disk is read one block at a time.
+            const BATCH: usize = 1 << 17;
+            let global = self.pager.global();
+            let index =
+                RelevanceIndex::build_streamed(&view, IndexSettings::default(), None, |add| {
+                    let mut queries = Vec::with_capacity(BATCH.min(global.len()));
+                    global.for_each_block(|_, _, gaussians| {
+                        if queries.len() + gaussians.len() > BATCH && !queries.is_empty() {
+                            add(&queries)?;
+                            queries.clear();
+                        }
+                        queries.extend(gaussians.iter().map(|g| g.query));
+                        Ok(())
+                    })?;
+                    add(&queries)
+                })?;
+            self.relevance_index = Some(index);
+        }
+        let index = self.relevance_index.as_ref().expect("built above");
+        index.cosines(embeddings)
+    }
+
+    /// Refuses `embeddings` that are not whole vectors of the map's
+    /// embedding dimension.
+    fn check_query_dim(&self, embeddings: &[f32]) -> Result<()> {
         let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
         let dim = head.config().dim as usize;
         if embeddings.is_empty() || !embeddings.len().is_multiple_of(dim) {
@@ -70,17 +107,26 @@ impl Mapper {
                 context: Some("a query, or several back to back".into()),
             });
         }
+        Ok(())
+    }
+
+    /// [`Mapper::relevance`] of every Gaussian decoded in full on the GPU
+    /// (paper Eq. 5), not through the relevance index: the reference the
+    /// index is tested against. Unstable: for the engine's tests.
+    #[cfg(any(test, feature = "testing"))]
+    #[doc(hidden)]
+    pub fn relevance_decoded(&mut self, query: &TextQuery) -> Result<Vec<f32>> {
+        self.check_query_dim(&query.embeddings)?;
         self.flush()?;
-        let head = self.dictionary.head().expect("checked above");
-        // Made per call, not kept: its batch buffers would otherwise hold
-        // tens of MB of the mapping budget between queries.
+        let head = self.dictionary.head().ok_or(Error::NoEmbeddings)?;
         let mut decoder = DevicePixelDecoder::from_head(&self.ctx, head)?;
         let mut queries = Vec::with_capacity(self.pager.global().len());
         self.pager.global().for_each_block(|_, _, gaussians| {
             queries.extend(gaussians.iter().map(|g| g.query));
             Ok(())
         })?;
-        decoder.cosines(&self.ctx, &queries, embeddings)
+        let cosines = decoder.cosines(&self.ctx, &queries, &query.embeddings)?;
+        Ok(query.relevance_of(&cosines))
     }
 
     /// Relevance to `query` (the cosine with one embedding, the cosines
@@ -90,6 +136,13 @@ impl Mapper {
     /// [`Mapper::render`]. With several embeddings and
     /// [`Relevance::Cosine`](crate::latent::Relevance::Cosine) the result
     /// holds one row of cosines per Gaussian or pixel.
+    ///
+    /// Gaussians are scored through an index of each one's attention over
+    /// the atoms ([`RelevanceIndex`]: paper Eq. 5 factorised, the smallest
+    /// 10⁻³ of each Gaussian's attention left out), built on the first
+    /// query after a keyframe by reading the map block by block (spilled
+    /// blocks from disk): later queries cost a few multiply-adds a
+    /// Gaussian. Pixels are decoded in full on the GPU.
     ///
     /// ```no_run
     /// # fn f(mapper: &mut latentam_core::mapper::Mapper, frame: &latentam_io::Frame, vocabulary: &latentam_io::Vocabulary) -> latentam_core::Result<()> {

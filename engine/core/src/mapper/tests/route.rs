@@ -441,3 +441,44 @@ fn learning_rates_at_their_maximum_keep_every_output_finite() {
     assert!(cfg.validate().is_ok());
     with_context(|ctx| _ = map_query_and_save(ctx, cfg, 4));
 }
+
+/// Relevance of every Gaussian goes through the mapper's index of their
+/// attention (built on the first query, dropped by the next keyframe):
+/// it matches every Gaussian decoded in full on the GPU, before and after
+/// a keyframe changes the map, with random query embeddings.
+#[test]
+fn relevance_through_the_index_matches_the_decoder_and_follows_keyframes() {
+    use crate::latent::TextQuery;
+    use rand::{Rng, SeedableRng};
+    with_context(|ctx| {
+        let (mut mapper, _) = map_query_and_save(ctx, small_map_config(), 3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(54);
+        let mut check = |mapper: &mut Mapper| {
+            let e: Vec<f32> = (0..DIM).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let q = TextQuery::embedding(e);
+            let fast = mapper.relevance(&q, Scored::Gaussians).unwrap();
+            let exact = mapper.relevance_decoded(&q).unwrap();
+            assert_eq!(fast.len(), mapper.stats().gaussians);
+            assert_eq!(fast.len(), exact.len());
+            let worst = fast
+                .iter()
+                .zip(&exact)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
+            assert!(worst < 1e-2, "index off the decoder by {worst}");
+            fast
+        };
+        check(&mut mapper);
+        let before = mapper.stats().gaussians;
+        let mut f = keyframe(DVec3::new(0.3, 0.0, 0.1));
+        f.stamp_ns = 10;
+        mapper.integrate(f).unwrap();
+        assert!(
+            mapper.relevance_index.is_none(),
+            "a keyframe keeps a stale index"
+        );
+        check(&mut mapper);
+        assert!(mapper.relevance_index.is_some());
+        eprintln!("{before} -> {} Gaussians", mapper.stats().gaussians);
+    });
+}
