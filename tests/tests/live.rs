@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use latentam_core::latent::TextQuery;
 use latentam_core::live::{LiveMapper, LiveOptions};
 use latentam_core::map::{Gaussian, VoxelKey};
-use latentam_core::mapper::{camera_of, Mapper, MapperConfig, Scored};
+use latentam_core::mapper::{camera_of, Mapper, MapperConfig};
 use latentam_gpu::{Context, ContextOptions, Validation};
 use latentam_io::{AssemblyConfig, Frame, McapFrames, Vocabulary};
 
