@@ -273,3 +273,36 @@ def test_errors_say_what_to_fix_by_their_class(scene, tmp_path):
     assert str(state) in str(caught.value)
     # The budget kind sits under GPU memory errors.
     assert issubclass(latentam.BudgetError, latentam.GpuMemoryError)
+
+
+def test_a_host_budget_set_from_python_spills_the_map_where_asked(scene, tmp_path):
+    """host_budget and spill_dir as a robot's Python code sets them: the
+    map spills to the folder named (its scratch file unlinked at once, so
+    the folder stays empty), saves and loads like the map kept in memory,
+    and a spill folder that cannot be made stops mapping with an error
+    naming it."""
+    frames = frames_of(scene)
+    spill = tmp_path / "spill"
+    spilled = latentam.Mapper(config=f'host_budget = 1\nspill_dir = "{spill}"', **NO_DROPS)
+    in_memory = latentam.Mapper(**NO_DROPS)
+    for frame in frames:
+        spilled.submit(**frame)
+        in_memory.submit(**frame)
+    spilled.finish()
+    in_memory.finish()
+    assert spill.is_dir() and list(spill.iterdir()) == []
+    spilled.save(tmp_path / "spilled")
+    ours = latentam.Mapper.load(tmp_path / "spilled").snapshot()
+    theirs = in_memory.snapshot()
+    assert ours.keyframes == theirs.keyframes == 6
+    # Float rounding differs between runs (atomic adds); the map does not.
+    assert abs(len(ours) - len(theirs)) <= len(theirs) // 200, (len(ours), len(theirs))
+
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    mapper = latentam.Mapper(config=f'host_budget = 1\nspill_dir = "{blocked}"', **NO_DROPS)
+    with pytest.raises(latentam.Error) as raised:
+        for frame in frames:
+            mapper.submit(**frame)
+        mapper.finish()
+    assert str(blocked) in str(raised.value), raised.value
