@@ -1,6 +1,7 @@
-//! Long-run soak of the mapper on the demo scene walked lap after lap:
-//! per keyframe the GPU bytes, CPU bytes, Gaussians, kept keyframes, live
-//! Vulkan objects and validation messages, and a verdict per lap. Shared by
+//! Long-run soak of the mapper on the demo scene (or a building of rooms)
+//! walked lap after lap: per keyframe the GPU bytes, CPU bytes, Gaussians,
+//! kept keyframes, live Vulkan objects, validation messages, paging and
+//! the disk tier, and a verdict per lap. Shared by
 //! `latentam bench soak` and the test suite's short soak.
 //!
 //! What a bounded run looks like: after the first lap (every room seen)
@@ -35,6 +36,14 @@ pub struct SoakPoint {
     pub objects: LiveObjects,
     pub validation_messages: usize,
     pub ms: f64,
+    /// Paging of this keyframe: bytes up and down, host time.
+    pub paging_bytes_up: u64,
+    pub paging_bytes_down: u64,
+    pub paging_cpu_ms: f64,
+    /// Gaussians on disk afterwards, and the disk tier's time this
+    /// keyframe (see `host_budget`).
+    pub spilled_gaussians: usize,
+    pub disk_ms: f64,
 }
 
 /// Per lap: the largest values seen and the state at its end.
@@ -48,6 +57,23 @@ pub struct LapSummary {
     pub end_kept_keyframes: usize,
     pub end_objects: LiveObjects,
     pub ms_per_keyframe: f64,
+    /// Means over the lap's keyframes.
+    pub paging_bytes_per_keyframe: f64,
+    pub paging_cpu_ms_per_keyframe: f64,
+    pub disk_ms_per_keyframe: f64,
+    pub end_spilled_gaussians: usize,
+}
+
+/// Paging per keyframe against the map's size: the keyframes in order,
+/// cut into tenths, each with its mean map size and paging. Flat paging
+/// while the map grows is what paging by block promises.
+#[derive(Clone, Debug, Serialize)]
+pub struct PagingByMapSize {
+    pub first_keyframe: u64,
+    pub gaussians: f64,
+    pub paging_bytes_per_keyframe: f64,
+    pub paging_cpu_ms_per_keyframe: f64,
+    pub disk_ms_per_keyframe: f64,
 }
 
 /// The soak's result.
@@ -61,6 +87,7 @@ pub struct SoakReport {
     pub wall_s: f64,
     pub curve: Vec<SoakPoint>,
     pub laps_summary: Vec<LapSummary>,
+    pub paging_by_map_size: Vec<PagingByMapSize>,
     /// Largest GPU bytes after the first lap over the first lap's largest
     /// (1.0 = flat).
     pub gpu_growth_after_first_lap: f64,
@@ -122,11 +149,20 @@ pub fn run(
                 objects: ctx.live_objects(),
                 validation_messages: validation.errors().len(),
                 ms: t.elapsed().as_secs_f64() * 1e3,
+                paging_bytes_up: k.paging.iter().map(|p| p.bytes_up).sum(),
+                paging_bytes_down: k.paging.iter().map(|p| p.bytes_down).sum(),
+                paging_cpu_ms: k.timings.paging_cpu_ms,
+                spilled_gaussians: k.disk.spilled_gaussians,
+                disk_ms: k.timings.disk_ms,
             });
         }
         progress(i + 1);
     }
     let wall_s = start.elapsed().as_secs_f64();
+    let mean = |pts: &[&SoakPoint], f: &dyn Fn(&SoakPoint) -> f64| {
+        pts.iter().map(|p| f(p)).sum::<f64>() / pts.len().max(1) as f64
+    };
+    let paging_bytes = |p: &SoakPoint| (p.paging_bytes_up + p.paging_bytes_down) as f64;
     let laps_summary: Vec<LapSummary> = (0..opts.scene.laps)
         .filter_map(|lap| {
             let pts: Vec<&SoakPoint> = curve.iter().filter(|p| p.lap == lap).collect();
@@ -140,7 +176,23 @@ pub fn run(
                 end_kept_keyframes: end.kept_keyframes,
                 end_objects: end.objects,
                 ms_per_keyframe: pts.iter().map(|p| p.ms).sum::<f64>() / pts.len() as f64,
+                paging_bytes_per_keyframe: mean(&pts, &paging_bytes),
+                paging_cpu_ms_per_keyframe: mean(&pts, &|p| p.paging_cpu_ms),
+                disk_ms_per_keyframe: mean(&pts, &|p| p.disk_ms),
+                end_spilled_gaussians: end.spilled_gaussians,
             })
+        })
+        .collect();
+    let all: Vec<&SoakPoint> = curve.iter().collect();
+    let tenth = all.len().div_ceil(10).max(1);
+    let paging_by_map_size = all
+        .chunks(tenth)
+        .map(|pts| PagingByMapSize {
+            first_keyframe: pts[0].keyframe,
+            gaussians: mean(pts, &|p| p.gaussians as f64),
+            paging_bytes_per_keyframe: mean(pts, &paging_bytes),
+            paging_cpu_ms_per_keyframe: mean(pts, &|p| p.paging_cpu_ms),
+            disk_ms_per_keyframe: mean(pts, &|p| p.disk_ms),
         })
         .collect();
     let Some(first) = laps_summary.first() else {
@@ -169,13 +221,14 @@ pub fn run(
         validation_messages: validation.errors().len(),
         curve,
         laps_summary,
+        paging_by_map_size,
     })
 }
 
-/// A table of the laps.
+/// A table of the laps, then paging against the map's size.
 pub fn lap_table(r: &SoakReport) -> String {
     let mut s = format!(
-        "{:>4} {:>9} {:>12} {:>12} {:>10} {:>9} {:>8} {:>8} {:>10}\n",
+        "{:>4} {:>9} {:>12} {:>12} {:>10} {:>9} {:>8} {:>8} {:>10} {:>12} {:>11} {:>9}\n",
         "lap",
         "keyframes",
         "max GPU MB",
@@ -184,12 +237,15 @@ pub fn lap_table(r: &SoakReport) -> String {
         "kept kf",
         "buffers",
         "pools",
-        "ms per kf"
+        "ms per kf",
+        "paging kB/kf",
+        "paging ms/kf",
+        "disk ms/kf"
     );
     for l in &r.laps_summary {
         let o = &l.end_objects;
         s += &format!(
-            "{:>4} {:>9} {:>12.1} {:>12.2} {:>10} {:>9} {:>8} {:>8} {:>10.0}\n",
+            "{:>4} {:>9} {:>12.1} {:>12.2} {:>10} {:>9} {:>8} {:>8} {:>10.0} {:>12.1} {:>11.2} {:>9.2}\n",
             l.lap,
             l.keyframes,
             l.max_gpu_bytes as f64 / 1e6,
@@ -198,7 +254,24 @@ pub fn lap_table(r: &SoakReport) -> String {
             l.end_kept_keyframes,
             o.buffers,
             o.command_pools + o.descriptor_pools + o.query_pools,
-            l.ms_per_keyframe
+            l.ms_per_keyframe,
+            l.paging_bytes_per_keyframe / 1e3,
+            l.paging_cpu_ms_per_keyframe,
+            l.disk_ms_per_keyframe
+        );
+    }
+    s += &format!(
+        "\n{:>14} {:>12} {:>12} {:>11} {:>9}\n",
+        "from keyframe", "Gaussians", "paging kB/kf", "paging ms/kf", "disk ms/kf"
+    );
+    for t in &r.paging_by_map_size {
+        s += &format!(
+            "{:>14} {:>12.0} {:>12.1} {:>11.2} {:>9.2}\n",
+            t.first_keyframe,
+            t.gaussians,
+            t.paging_bytes_per_keyframe / 1e3,
+            t.paging_cpu_ms_per_keyframe,
+            t.disk_ms_per_keyframe
         );
     }
     s

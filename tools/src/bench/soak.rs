@@ -31,6 +31,10 @@ pub struct Args {
     /// Image height.
     #[arg(long, default_value_t = 48, value_parser = clap::value_parser!(u32).range(16..=4096))]
     height: u32,
+    /// Walk a building of this many rooms along corridors instead of the
+    /// demo room (2 to 1000): a map that grows through the first lap.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=1000))]
+    rooms: Option<u64>,
     /// Embedding dimension of the scene.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u64).range(1..=8192))]
     dim: u64,
@@ -69,6 +73,7 @@ pub fn run_bench(args: Args) -> Result<()> {
         width: args.width,
         height: args.height,
         dim: args.dim as usize,
+        rooms: args.rooms.map(|n| n as usize),
         ..SceneConfig::default()
     };
     let scratch = std::env::temp_dir().join(format!("latentam-soak-{}", std::process::id()));
