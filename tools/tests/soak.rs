@@ -63,6 +63,24 @@ fn a_long_walk_keeps_gpu_memory_flat_leaks_nothing_and_grows_with_the_space_seen
         .map(|l| l.end_cpu_bytes as f64)
         .collect();
     assert!(cpu[3] < 1.15 * cpu[2], "CPU bytes per lap {cpu:?}");
+    // Paging against the map's size: the keyframes in tenths, in order,
+    // their figures the means of the curve's.
+    let tenths = &r.paging_by_map_size;
+    assert_eq!(tenths.len(), 10, "{tenths:?}");
+    assert_eq!(tenths[0].first_keyframe, r.curve[0].keyframe);
+    assert!(tenths
+        .windows(2)
+        .all(|w| w[0].first_keyframe < w[1].first_keyframe));
+    let per = r.curve.len().div_ceil(10);
+    let mean_bytes = r.curve[..per]
+        .iter()
+        .map(|p| (p.paging_bytes_up + p.paging_bytes_down) as f64)
+        .sum::<f64>()
+        / per as f64;
+    assert!((tenths[0].paging_bytes_per_keyframe - mean_bytes).abs() <= 1e-6 * mean_bytes.max(1.0));
+    // Nothing spills under the default host budget (the disk tier's time
+    // is its check alone).
+    assert!(r.curve.iter().all(|p| p.spilled_gaussians == 0));
     drop(ctx);
     let errors = log.errors();
     assert!(errors.is_empty(), "{}", errors.join("\n"));
