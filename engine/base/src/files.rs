@@ -109,6 +109,39 @@ pub fn write_atomically(
     write_through(&partial, path, body)
 }
 
+/// [`write_atomically`] with a body whose errors are the engine's own (a
+/// source read while the file is written, a check on the way): the first
+/// such error is returned as it was, the partial file removed and `path`
+/// left as it was.
+///
+/// ```no_run
+/// use std::io::Write;
+/// latentam_base::files::write_atomically_with("out/notes.txt".as_ref(), |w| {
+///     w.write_all(b"mapped\n").map_err(|source| latentam_base::Error::Io {
+///         path: "out/notes.txt".into(),
+///         source,
+///     })
+/// })?;
+/// # Ok::<(), latentam_base::Error>(())
+/// ```
+pub fn write_atomically_with(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    let mut failed = None;
+    let written = write_atomically(path, |out| {
+        body(out).map_err(|e| {
+            let io = std::io::Error::other(e.to_string());
+            failed = Some(e);
+            io
+        })
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => written,
+    }
+}
+
 /// [`write_atomically`], for files that several processes or threads
 /// may write at once (a cache): every writer has a partial file of its
 /// own and renames it whole into place, and the last one wins.

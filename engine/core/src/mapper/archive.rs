@@ -179,18 +179,7 @@ impl<'a> ArchiveWriter<'a> {
     /// Writes the archive to `path`, replaced whole (through a partial
     /// file, synced and renamed: a crash leaves the old file or the new).
     pub fn write_file(self, path: &Path) -> Result<()> {
-        let mut failed = None;
-        let written = latentam_base::files::write_atomically(path, |out| {
-            self.write_into(out, path).map_err(|e| {
-                let io = std::io::Error::other(e.to_string());
-                failed = Some(e);
-                io
-            })
-        });
-        match (written, failed) {
-            (_, Some(e)) => Err(e),
-            (r, None) => r,
-        }
+        latentam_base::files::write_atomically_with(path, |out| self.write_into(out, path))
     }
 
     /// The header, then the tensors in name order; the checksum goes into
@@ -254,13 +243,7 @@ impl<'a> ArchiveWriter<'a> {
         out.write_all(&(text.len() as u64).to_le_bytes())
             .and_then(|_| out.write_all(&text))
             .map_err(io)?;
-        let mut crc = Crc::default();
-        for (key, value) in &self.meta {
-            if key != CHECKSUM_KEY {
-                crc.entries.push((key.clone(), value.clone()));
-            }
-        }
-        let mut hasher = crc.start();
+        let mut hasher = meta_hasher(self.meta.iter().map(|(k, v)| (k.as_str(), v.as_str())));
         for t in self.tensors {
             let size = t.bytes.unwrap_or(0);
             field_start(&mut hasher, t.name.as_bytes());
@@ -297,23 +280,17 @@ impl<'a> ArchiveWriter<'a> {
 /// as wide as any checksum, so replacing it moves nothing.
 const PENDING_CHECKSUM: &str = "00000000";
 
-/// The metadata part of [`checksum`], kept to start a hasher that the
-/// tensors then continue.
-#[derive(Default)]
-struct Crc {
-    entries: Vec<(String, String)>,
-}
-
-impl Crc {
-    fn start(mut self) -> crc32fast::Hasher {
-        self.entries.sort();
-        let mut crc = crc32fast::Hasher::new();
-        for (key, value) in &self.entries {
-            field_start(&mut crc, key.as_bytes());
-            field_start(&mut crc, value.as_bytes());
-        }
-        crc
+/// The metadata part of [`checksum`]: a hasher that has taken every entry
+/// but the checksum itself, in key order, for the tensors to continue.
+fn meta_hasher<'b>(meta: impl Iterator<Item = (&'b str, &'b str)>) -> crc32fast::Hasher {
+    let mut meta: Vec<_> = meta.filter(|(key, _)| *key != CHECKSUM_KEY).collect();
+    meta.sort();
+    let mut crc = crc32fast::Hasher::new();
+    for (key, value) in meta {
+        field_start(&mut crc, key.as_bytes());
+        field_start(&mut crc, value.as_bytes());
     }
+    crc
 }
 
 /// One field of the checksum: its length, then its bytes.
@@ -359,14 +336,8 @@ pub fn checksum<'b>(
     meta: impl Iterator<Item = (&'b str, &'b str)>,
     tensors: impl Iterator<Item = (&'b str, &'b [u8])>,
 ) -> String {
-    let mut crc = crc32fast::Hasher::new();
+    let mut crc = meta_hasher(meta);
     let mut field = |bytes: &[u8]| field_start(&mut crc, bytes);
-    let mut meta: Vec<_> = meta.filter(|(key, _)| *key != CHECKSUM_KEY).collect();
-    meta.sort();
-    for (key, value) in meta {
-        field(key.as_bytes());
-        field(value.as_bytes());
-    }
     let mut tensors: Vec<_> = tensors.collect();
     tensors.sort_by_key(|(name, _)| *name);
     for (name, data) in tensors {
@@ -673,13 +644,7 @@ fn check_archive(
     }
     if let Some(want) = meta.get(CHECKSUM_KEY) {
         // As [`checksum`] computes it, the tensors fed piece by piece.
-        let mut crc = Crc::default();
-        for (key, value) in meta {
-            if key != CHECKSUM_KEY {
-                crc.entries.push((key.clone(), value.clone()));
-            }
-        }
-        let mut hasher = crc.start();
+        let mut hasher = meta_hasher(meta.iter().map(|(k, v)| (k.as_str(), v.as_str())));
         let mut names: Vec<&String> = tensors.keys().collect();
         names.sort();
         for name in names {

@@ -61,6 +61,19 @@ pub(crate) struct DecoderView<'a> {
     pub eps: f32,
 }
 
+impl<'a> DecoderView<'a> {
+    /// The view of a decoder file's W, atoms and temperature.
+    pub fn of(decoder: &'a crate::mapper::DecoderFile) -> Self {
+        DecoderView {
+            w: &decoder.w,
+            atoms: &decoder.atoms,
+            dim: decoder.dim as usize,
+            temperature: decoder.temperature,
+            eps: decoder.eps,
+        }
+    }
+}
+
 /// Each Gaussian's attention over the atoms, kept sparse, and the norm of
 /// its decoded embedding: what relevance queries read.
 ///

@@ -143,13 +143,7 @@ impl MapSnapshot {
         if let Some(index) = self.index.get() {
             return Ok(index);
         }
-        let view = DecoderView {
-            w: &decoder.w,
-            atoms: &decoder.atoms,
-            dim: decoder.dim as usize,
-            temperature: decoder.temperature,
-            eps: decoder.eps,
-        };
+        let view = DecoderView::of(decoder);
         let built = RelevanceIndex::build(&self.gaussians.queries, &view, self.settings, cancel)?;
         Ok(self.index.get_or_init(|| built))
     }

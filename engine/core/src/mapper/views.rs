@@ -65,13 +65,7 @@ impl Mapper {
         if self.relevance_index.is_none() {
             self.flush()?;
             let decoder = self.decoder()?.ok_or(Error::NoEmbeddings)?;
-            let view = DecoderView {
-                w: &decoder.w,
-                atoms: &decoder.atoms,
-                dim: decoder.dim as usize,
-                temperature: decoder.temperature,
-                eps: decoder.eps,
-            };
+            let view = DecoderView::of(&decoder);
             // Block by block into batches of at most this many queries
             // (16 MiB): a map spilled to disk is read one block at a time.
             const BATCH: usize = 1 << 17;

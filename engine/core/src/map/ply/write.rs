@@ -7,7 +7,7 @@ use std::path::Path;
 use super::format::*;
 use crate::map::Gaussian;
 use crate::splat::QUERY_DIM;
-use latentam_base::files::write_atomically;
+use latentam_base::files::{write_atomically, write_atomically_with};
 use latentam_base::{Error, Result};
 
 /// Writes `gaussians` to `path` as a binary little-endian PLY in the Inria
@@ -54,49 +54,44 @@ pub fn write_map_ply_streamed(
     visit: impl FnOnce(&mut dyn FnMut(&[Gaussian]) -> Result<()>) -> Result<()>,
 ) -> Result<()> {
     let header = header_text(count, has_embeddings, std::iter::empty());
-    let mut failed = None;
-    let written = write_atomically(path, |out| {
-        out.write_all(header.as_bytes())?;
+    write_atomically_with(path, |out| {
+        let io = |source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        out.write_all(header.as_bytes()).map_err(io)?;
         let mut rows: Vec<f32> = Vec::new();
         let mut seen = 0usize;
-        let visited = visit(&mut |gaussians| {
+        visit(&mut |gaussians| {
             seen += gaussians.len();
             for chunk in gaussians.chunks(ROWS_PER_CHUNK) {
                 rows.clear();
                 for g in chunk {
                     push_row(&mut rows, g, has_embeddings);
                 }
-                if cfg!(target_endian = "big") {
-                    for v in &mut rows {
-                        *v = f32::from_bits(v.to_bits().swap_bytes());
-                    }
-                }
-                out.write_all(bytemuck::cast_slice(&rows))
-                    .map_err(|source| Error::Io {
-                        path: path.to_path_buf(),
-                        source,
-                    })?;
+                write_rows(out, &mut rows).map_err(io)?;
             }
             Ok(())
-        })
-        .and_then(|()| {
-            (seen == count).then_some(()).ok_or_else(|| {
-                Error::bad_input(
-                    path.display().to_string(),
-                    format!("{seen} Gaussians written for a header of {count}"),
-                )
-            })
-        });
-        visited.map_err(|e| {
-            let io = std::io::Error::other(e.to_string());
-            failed = Some(e);
-            io
-        })
-    });
-    match (written, failed) {
-        (_, Some(e)) => Err(e),
-        (r, None) => r,
+        })?;
+        if seen != count {
+            return Err(Error::bad_input(
+                path.display().to_string(),
+                format!("{seen} Gaussians written for a header of {count}"),
+            ));
+        }
+        Ok(())
+    })
+}
+
+/// Writes `rows` (f32 values) as little-endian bytes, swapping them in
+/// place first on a big-endian machine.
+fn write_rows(out: &mut impl Write, rows: &mut [f32]) -> std::io::Result<()> {
+    if cfg!(target_endian = "big") {
+        for v in rows.iter_mut() {
+            *v = f32::from_bits(v.to_bits().swap_bytes());
+        }
     }
+    out.write_all(bytemuck::cast_slice(rows))
 }
 
 /// A quaternion scaled to unit length (computed in f64); the identity for
@@ -133,12 +128,7 @@ pub(super) fn write_ply_as(
                 push_row(&mut rows, g, latents);
                 rows.extend(extra.iter().map(|(_, values)| values[first + i]));
             }
-            if cfg!(target_endian = "big") {
-                for v in &mut rows {
-                    *v = f32::from_bits(v.to_bits().swap_bytes());
-                }
-            }
-            out.write_all(bytemuck::cast_slice(&rows))?;
+            write_rows(out, &mut rows)?;
         }
         Ok(())
     })

@@ -159,12 +159,13 @@ impl Mapper {
         m.selector.restore(saved.selector.0, saved.selector.1);
         m.pager.restore_last_sync(saved.last_sync);
         let restore = |m: &mut Mapper, key: VoxelKey, g: Gaussian, flag: u8| -> Result<()> {
-            // A block spilled while the file was read comes back first
-            // (a file of an older version need not list a block's
-            // Gaussians together).
+            // A block spilled while the file was read comes back, and the
+            // insertion is tried again (a file of an older version need not
+            // list a block's Gaussians together).
             let global = m.pager.global_mut();
-            global.load(GlobalMap::block_of(key))?;
-            if !global.insert_at(key, g) {
+            let inserted = global.insert_at(key, g)
+                || (global.load(GlobalMap::block_of(key))? && global.insert_at(key, g));
+            if !inserted {
                 return Err(corrupt(format!("voxel {key:?} appears twice in the map")));
             }
             match flag {
@@ -304,10 +305,8 @@ impl MapRows for LiveRows<'_> {
         self.global.for_each_block(|_, keys, gaussians| {
             flags.clear();
             for (key, g) in keys.iter().zip(gaussians) {
-                if !bytemuck::bytes_of(g)
-                    .chunks_exact(4)
-                    .all(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]]).is_finite())
-                {
+                let values: &[f32] = bytemuck::cast_slice(std::slice::from_ref(g));
+                if !values.iter().all(|x| x.is_finite()) {
                     let why = format!("the Gaussian of voxel {key:?} is not finite");
                     return Err(diverged(self.path, why));
                 }

@@ -204,22 +204,12 @@ impl StreamedMap {
             } else {
                 vec![0; count]
             };
-            if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
-                return Err(a.corrupt(format!("map/guess holds the flag {f}")));
-            }
-            let mut gaussians = Vec::with_capacity(count);
-            for (key, g) in keys.iter().zip(floats.chunks_exact(GAUSSIAN_FLOATS)) {
-                if !g.iter().all(|x| x.is_finite()) {
-                    return Err(a.corrupt(format!(
-                        "the Gaussian of voxel {key:?} holds non-finite values"
-                    )));
-                }
-                let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
-                if let Some(why) = read::implausible(&g) {
-                    return Err(a.corrupt(format!("the Gaussian of voxel {key:?} {why}")));
-                }
-                gaussians.push(g);
-            }
+            read::check_flags(a, &flags)?;
+            let gaussians = keys
+                .iter()
+                .zip(floats.chunks_exact(GAUSSIAN_FLOATS))
+                .map(|(key, g)| read::checked_gaussian(a, key, g))
+                .collect::<Result<Vec<_>>>()?;
             visit((keys, gaussians, flags))?;
         }
         Ok(())

@@ -192,16 +192,7 @@ impl SavedState {
             if !seen.insert(key) {
                 return Err(bad(format!("voxel {key:?} appears twice in the map")));
             }
-            if !g.iter().all(|x| x.is_finite()) {
-                return Err(bad(format!(
-                    "the Gaussian of voxel {key:?} holds non-finite values"
-                )));
-            }
-            let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
-            if let Some(why) = implausible(&g) {
-                return Err(bad(format!("the Gaussian of voxel {key:?} {why}")));
-            }
-            map.push((key, g));
+            map.push((key, checked_gaussian(a, &key, g)?));
         }
 
         Ok((map, seen))
@@ -214,9 +205,7 @@ impl SavedState {
             return Ok(vec![0; n]);
         }
         let flags = a.exact::<u8>("map/guess", &[n])?;
-        if let Some(f) = flags.iter().find(|&&f| f > SUPERSEDED) {
-            return Err(a.corrupt(format!("map/guess holds the flag {f}")));
-        }
+        check_flags(a, &flags)?;
         Ok(flags)
     }
 
@@ -559,11 +548,34 @@ fn parse_regions(
     }
 }
 
+/// Saved Gaussian `g` of voxel `key` (its floats), when it is finite and
+/// plausible ([`implausible`]).
+pub(super) fn checked_gaussian(a: &Archive<'_>, key: &VoxelKey, g: &[f32]) -> Result<Gaussian> {
+    if !g.iter().all(|x| x.is_finite()) {
+        return Err(a.corrupt(format!(
+            "the Gaussian of voxel {key:?} holds non-finite values"
+        )));
+    }
+    let g: Gaussian = bytemuck::pod_read_unaligned(bytemuck::cast_slice(g));
+    if let Some(why) = implausible(&g) {
+        return Err(a.corrupt(format!("the Gaussian of voxel {key:?} {why}")));
+    }
+    Ok(g)
+}
+
+/// Refuses guess flags other than measured, [`GUESSED`] and [`SUPERSEDED`].
+pub(super) fn check_flags(a: &Archive<'_>, flags: &[u8]) -> Result<()> {
+    match flags.iter().find(|&&f| f > SUPERSEDED) {
+        Some(f) => Err(a.corrupt(format!("map/guess holds the flag {f}"))),
+        None => Ok(()),
+    }
+}
+
 /// Why a saved Gaussian cannot be one the mapper made, if it cannot: a
 /// rotation of (near) zero length, or a scale beyond what any map holds (a
 /// log-scale outside [`LOG_SCALE_RANGE`]; e⁸⁸ overflows f32). Any finite
 /// opacity logit is an opacity.
-pub(super) fn implausible(g: &Gaussian) -> Option<String> {
+fn implausible(g: &Gaussian) -> Option<String> {
     let q = g.quat.iter().map(|x| x * x).sum::<f32>().sqrt();
     if !(1e-6..=1e6).contains(&q) {
         return Some(format!(
