@@ -26,5 +26,6 @@ pub mod scan;
 pub mod softmax;
 pub mod sort;
 pub mod ssim;
+pub mod targets;
 
 pub use latentam_base::{Error, Result};

@@ -15,6 +15,8 @@ use latentam_base::{Error, Result};
 const MAX_REGIONS_SETTING: u32 = 1 << 24;
 /// Largest [`MapperConfig::replay`].
 const MAX_REPLAY: u32 = 1 << 16;
+/// Largest [`MapperConfig::replay_on_gpu`].
+const MAX_REPLAY_ON_GPU: u32 = 1 << 16;
 /// Largest [`MapperConfig::stage_one_iterations`] and
 /// [`MapperConfig::stage_two_iterations`].
 pub const MAX_ITERATIONS: u32 = 1000;
@@ -87,6 +89,14 @@ settings! {
         /// with the space explored rather than with time. 0 keeps every
         /// keyframe (the paper's setting).
         pub history_cell: f64 = 0.25 => value().range(0.0, MAX_DISTANCE).unit("metres"),
+        /// Keyframes whose colour and depth targets stay on the GPU (5
+        /// bytes a pixel each; at most an eighth of gpu_budget and one
+        /// buffer), so that replaying them uploads nothing; the one
+        /// replayed longest ago makes room first. Replay draws uniformly
+        /// among the keyframes near the camera, so about this many over
+        /// their number are found on the GPU. 0 uploads every target at
+        /// every Stage I step.
+        pub replay_on_gpu: u32 = 32 => value().range(0u32, MAX_REPLAY_ON_GPU),
         /// Stage I iterations per keyframe (R1): joint steps on the
         /// Gaussians, W and D over the keyframe and its replayed ones; the
         /// paper uses 1. Each costs one Stage I (render, backward, Adam

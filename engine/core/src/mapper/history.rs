@@ -172,6 +172,27 @@ impl KeyframeRecord {
     }
 }
 
+/// What names a kept keyframe's targets on the GPU (see
+/// [`Trainer::submit_stage_one`](super::Trainer::submit_stage_one)): unique
+/// in the process, so a key never names two keyframes, even across
+/// histories, loads and mappers.
+///
+/// ```
+/// use latentam_core::mapper::ReplayKey;
+/// assert_ne!(ReplayKey::fresh(), ReplayKey::fresh());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ReplayKey(u64);
+
+impl ReplayKey {
+    /// A key no other keyframe has.
+    pub fn fresh() -> ReplayKey {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        ReplayKey(NEXT.fetch_add(1, Ordering::Relaxed))
+    }
+}
+
 /// Where a keyframe was taken from: a cell of the camera position and a
 /// bin of its viewing direction (8 azimuths × 3 elevations).
 type ViewBin = (i64, i64, i64, u8);
@@ -217,6 +238,7 @@ fn view_bin(camera: &Camera, cell: f64) -> ViewBin {
 #[derive(Debug, Default)]
 pub struct History {
     records: Vec<KeyframeRecord>,
+    keys: Vec<ReplayKey>,
     bytes: u64,
     cell: f64,
     bins: HashMap<ViewBin, usize>,
@@ -235,18 +257,32 @@ impl History {
     /// Adds a keyframe, replacing the one from the same cell and direction
     /// when there is one; returns its index.
     pub fn push(&mut self, record: KeyframeRecord) -> usize {
+        self.push_keyed(record, ReplayKey::fresh())
+    }
+
+    /// [`History::push`] under `key`: the key the keyframe's targets were
+    /// kept on the GPU under when it trained as the new keyframe, so that
+    /// replaying it finds them there.
+    pub fn push_keyed(&mut self, record: KeyframeRecord, key: ReplayKey) -> usize {
         self.bytes += record.bytes();
         if self.cell > 0.0 {
             let bin = view_bin(&record.camera, self.cell);
             if let Some(&i) = self.bins.get(&bin) {
                 self.bytes -= self.records[i].bytes();
                 self.records[i] = record;
+                self.keys[i] = key;
                 return i;
             }
             self.bins.insert(bin, self.records.len());
         }
         self.records.push(record);
+        self.keys.push(key);
         self.records.len() - 1
+    }
+
+    /// The key of keyframe `i` (see [`ReplayKey`]).
+    pub fn key(&self, i: usize) -> Option<ReplayKey> {
+        self.keys.get(i).copied()
     }
 
     /// Number of keyframes.

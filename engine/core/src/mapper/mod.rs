@@ -43,7 +43,7 @@ pub use export::{DecoderFile, DECODER_FILE, DECODER_FORMAT, DECODER_VERSION};
 #[cfg(any(test, feature = "testing"))]
 pub use facade::Internals;
 pub use facade::Mapper;
-pub use history::{camera_of, History, KeyframeRecord, RegionTargets};
+pub use history::{camera_of, History, KeyframeRecord, RegionTargets, ReplayKey};
 pub use keyframe_report::{
     DiskReport, Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings,
     MapperStats, PagingReport,
@@ -61,7 +61,7 @@ pub use run_report::{
 pub use snapshot::MapSnapshot;
 pub use trainer::stage_two::StageTwoRun;
 pub use trainer::{
-    views_per_chunk, StageOneReport, SubmittedStageOne, Trainer, TrainerConfig,
+    views_per_chunk, KeptTargets, StageOneReport, SubmittedStageOne, Trainer, TrainerConfig,
     DEFAULT_CHUNK_PIXELS,
 };
 pub use views::{Scored, Viewpoint};

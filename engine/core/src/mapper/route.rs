@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::facade::Mapper;
-use super::history::KeyframeRecord;
+use super::history::{KeyframeRecord, ReplayKey};
 use super::keyframe_report::{
     DiskReport, Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings,
     PagingReport,
@@ -122,12 +122,17 @@ impl Mapper {
         let prepared = self.pager.prepare(&ctx, centre)?;
         clock.timings.paging_cpu_ms += ms_since(t_page);
         clock.lap(|c| &mut c.paging);
-        let stage_one = clock.step(Step::StageOne, |_| self.stage_one(&record, seed, centre))?;
+        // The keyframe's targets are kept on the GPU under the key it will
+        // be replayed by.
+        let key = ReplayKey::fresh();
+        let stage_one = clock.step(Step::StageOne, |_| {
+            self.stage_one(&record, key, seed, centre)
+        })?;
         let stage_two = clock.step(Step::StageTwo, |clock| {
             self.stage_two_and_paging(prepared, clock)
         })?;
         let stage_one = stage_one.finish()?;
-        let exposure = self.remember(frame, record);
+        let exposure = self.remember(frame, record, key);
         let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
         let spilled = self.pager.spill_to_budget()?;
         clock.timings.disk_ms = loaded.ms + spilled.ms;
@@ -215,6 +220,7 @@ impl Mapper {
     fn stage_one(
         &mut self,
         record: &KeyframeRecord,
+        key: ReplayKey,
         seed: u64,
         centre: DVec3,
     ) -> Result<SubmittedStageOne> {
@@ -225,16 +231,22 @@ impl Mapper {
             self.cfg.window_radius,
         );
         let mut batch: Vec<&KeyframeRecord> = vec![record];
-        batch.extend(picks.iter().filter_map(|&i| self.history.get(i)));
+        let mut keys = vec![key];
+        for &i in &picks {
+            if let (Some(r), Some(k)) = (self.history.get(i), self.history.key(i)) {
+                batch.push(r);
+                keys.push(k);
+            }
+        }
         let trainer = self.trainer.as_mut().expect("ensured");
         let window = self.pager.window().expect("ensured");
         let head = self.dictionary.head();
-        let report = trainer.submit_stage_one(&self.ctx, window, head, &batch)?;
+        let report = trainer.submit_stage_one(&self.ctx, window, head, &batch, &keys)?;
         for _ in 1..self.cfg.stage_one_iterations {
             if self.progress.hurried() {
                 break;
             }
-            trainer.stage_one(&self.ctx, window, head, &batch)?;
+            trainer.stage_one(&self.ctx, window, head, &batch, &keys)?;
         }
         self.pager.mark_trained();
         Ok(report)
@@ -290,11 +302,11 @@ impl Mapper {
 
     /// Keeps the keyframe: its pose, its exposure and its record for
     /// replay. Returns its exposure.
-    fn remember(&mut self, frame: &Frame, record: KeyframeRecord) -> f32 {
+    fn remember(&mut self, frame: &Frame, record: KeyframeRecord, key: ReplayKey) -> f32 {
         let (stamp_ns, exposure) = (record.stamp_ns, record.exposure);
         self.trajectory.push((stamp_ns, frame.pose));
         self.exposure.push(stamp_ns, exposure);
-        self.history.push(record);
+        self.history.push_keyed(record, key);
         self.progress.keyframe_trained();
         exposure
     }

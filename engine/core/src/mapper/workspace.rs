@@ -6,7 +6,7 @@ use super::budget::{
     bytes_per_window_row, head_bytes, largest_row_bytes, pixel_bytes, window_budget, WindowBudget,
 };
 use super::config::MapperConfig;
-use super::trainer::{views_per_chunk, TrainerConfig, DEFAULT_CHUNK_PIXELS};
+use super::trainer::{kept_target_bytes, views_per_chunk, TrainerConfig, DEFAULT_CHUNK_PIXELS};
 use latentam_base::{Error, Result};
 use latentam_gpu::Context;
 
@@ -45,9 +45,17 @@ pub(crate) fn size_workspace(
             cfg.max_regions as u64,
         ),
     };
-    let in_use = ctx.memory_report().total.current;
-    let later = pixel_bytes(pixels, views, cfg.attach_feature_gradients) + later_head;
+    // Replayed keyframes' targets kept on the GPU: as many as asked, within
+    // an eighth of the budget and one buffer (one slot always exists:
+    // every target is expanded from one).
+    let slot = kept_target_bytes(pixels);
     let max_buffer = ctx.info().max_buffer_bytes();
+    let room = (budget / 8).min(max_buffer) / slot;
+    let kept_views = cfg.replay_on_gpu.min(room.min(u32::MAX as u64) as u32);
+    let in_use = ctx.memory_report().total.current;
+    let later = pixel_bytes(pixels, views, cfg.attach_feature_gradients)
+        + later_head
+        + kept_views.max(1) as u64 * slot;
     let sized = match cfg.window_capacity {
         Some(capacity) => {
             let buffer_limit_rows = max_buffer / largest_row_bytes(views);
@@ -88,6 +96,7 @@ pub(crate) fn size_workspace(
         learning_rates: cfg.learning_rates,
         attach_feature_gradients: cfg.attach_feature_gradients,
         blend_layout: cfg.blend_layout,
+        kept_views,
     };
     Ok((sized, trainer))
 }

@@ -482,3 +482,48 @@ fn relevance_through_the_index_matches_the_decoder_and_follows_keyframes() {
         eprintln!("{before} -> {} Gaussians", mapper.stats().gaussians);
     });
 }
+
+#[test]
+fn replayed_keyframes_upload_their_targets_once_when_kept_on_the_gpu() {
+    with_context(|ctx| {
+        let run = |replay_on_gpu| {
+            let cfg = MapperConfig {
+                replay: 3,
+                history_cell: 0.0,
+                replay_on_gpu,
+                ..small_map_config()
+            };
+            let mut mapper = Mapper::with_context(ctx, cfg).unwrap();
+            let mut uploaded = 0;
+            for i in 0..6 {
+                let mut f = keyframe(DVec3::new(0.05 * i as f64, 0.0, 0.0));
+                f.stamp_ns = i;
+                if let Integrated::Keyframe(k) = mapper.integrate(&f).unwrap() {
+                    uploaded += k.gpu_work.uploaded_bytes;
+                }
+            }
+            let trainer = mapper.trainer.as_ref().unwrap();
+            let uploads = trainer.kept_targets().uploads();
+            (uploads, uploaded, psnr_of_first_keyframe(ctx, &mapper))
+        };
+        // Every keyframe trains with up to 3 of the earlier ones: 1, 2, 3,
+        // 4, 4, 4 views.
+        let (none, none_bytes, none_psnr) = run(0);
+        assert_eq!(none, 18, "uploaded at every step when nothing is kept");
+        let (all, all_bytes, all_psnr) = run(32);
+        assert_eq!(all, 6, "each keyframe uploaded once, as it trains first");
+        let (two, _, _) = run(2);
+        assert!((7..18).contains(&two), "two slots for four views: {two}");
+        // Twelve views of 48×36 pixels at 5 bytes a pixel crossed no more.
+        assert!(
+            none_bytes - all_bytes >= 12 * 5 * (W * H) as u64,
+            "{none_bytes} → {all_bytes} bytes"
+        );
+        // Targets expand from either copy through the same kernel: the
+        // same training up to float atomics' summation order.
+        assert!(
+            (none_psnr - all_psnr).abs() < 0.5,
+            "{none_psnr} vs {all_psnr}"
+        );
+    });
+}

@@ -39,6 +39,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
                 },
                 attach_feature_gradients: false,
                 blend_layout: crate::splat::BlendLayout::Auto,
+                kept_views: 4,
             },
             DIM as u32,
         )
@@ -50,7 +51,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
             .unwrap()
             .queries;
         let first = trainer
-            .stage_one(ctx, &window, Some(&head), &batch)
+            .stage_one(ctx, &window, Some(&head), &batch, &[])
             .unwrap();
         assert_eq!(first.regions, 4, "two regions in each of two views");
         assert!(
@@ -62,7 +63,7 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
         let mut stage_two_last = stage_two_first;
         for _ in 0..40 {
             last = trainer
-                .stage_one(ctx, &window, Some(&head), &batch)
+                .stage_one(ctx, &window, Some(&head), &batch, &[])
                 .unwrap();
             stage_two_last = trainer.stage_two(ctx, Some(&head), 5).unwrap();
         }
@@ -111,10 +112,12 @@ fn stage_one_and_two_reduce_the_image_and_feature_losses() {
         );
 
         // Batches are checked.
-        assert!(trainer.stage_one(ctx, &window, Some(&head), &[]).is_err());
+        assert!(trainer
+            .stage_one(ctx, &window, Some(&head), &[], &[])
+            .is_err());
         let three: Vec<&KeyframeRecord> = vec![&records[0]; 3];
         assert!(trainer
-            .stage_one(ctx, &window, Some(&head), &three)
+            .stage_one(ctx, &window, Some(&head), &three, &[])
             .is_err());
     });
 }
@@ -189,12 +192,13 @@ fn streamed_stage_one_equals_the_batched_step() {
                     learning_rates: GaussianLearningRates::default(),
                     attach_feature_gradients: attach,
                     blend_layout: crate::splat::BlendLayout::Auto,
+                    kept_views: 4,
                 },
                 DIM as u32,
             )
             .unwrap();
             let report = trainer
-                .stage_one(ctx, &window, Some(&head), &batch)
+                .stage_one(ctx, &window, Some(&head), &batch, &[])
                 .unwrap();
             let n = window.len() as u64;
             let grads = trainer.gradients().download(ctx, n).unwrap();

@@ -5,7 +5,7 @@
 //! and D from the region queries Stage I pooled (the Gaussians are frozen,
 //! so those queries stay valid).
 
-use super::history::KeyframeRecord;
+use super::history::{KeyframeRecord, ReplayKey};
 use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
 use crate::map::Companion;
@@ -17,6 +17,11 @@ use crate::splat::{
 };
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context};
+
+mod kept_targets;
+
+pub(crate) use kept_targets::slot_bytes as kept_target_bytes;
+pub use kept_targets::KeptTargets;
 
 /// Pixels Stage I renders at once by default: a batch larger than this is
 /// streamed through the rasterizer in chunks of whole views, so the
@@ -37,6 +42,7 @@ pub const DEFAULT_CHUNK_PIXELS: u64 = 1 << 20;
 ///     chunk_pixels: DEFAULT_CHUNK_PIXELS, max_regions: 2048, min_region_pixels: 16,
 ///     weights: LossWeights::default(), learning_rates: GaussianLearningRates::default(),
 ///     attach_feature_gradients: false, blend_layout: BlendLayout::Auto,
+///     kept_views: 32,
 /// };
 /// assert_eq!(cfg.views_per_chunk(), 3); // 2^20 pixels hold three 640×480 views
 /// ```
@@ -64,6 +70,9 @@ pub struct TrainerConfig {
     pub attach_feature_gradients: bool,
     /// The blending kernels' layout (see [`BlendLayout`](crate::splat::BlendLayout)).
     pub blend_layout: crate::splat::BlendLayout,
+    /// Keyframes whose colour and depth targets stay on the GPU between
+    /// steps ([`KeptTargets`]; at least one slot is made).
+    pub kept_views: u32,
 }
 
 impl TrainerConfig {
@@ -87,7 +96,7 @@ pub fn views_per_chunk(view_pixels: u64, max_views: u32, chunk_pixels: u64) -> u
 /// # use latentam_gpu::Context; use latentam_core::{latent::LatentHead, map::LocalWindow};
 /// # use latentam_core::mapper::{KeyframeRecord, Trainer};
 /// # fn f(ctx: &Context, trainer: &mut Trainer, window: &LocalWindow, head: &LatentHead, batch: &[&KeyframeRecord]) -> latentam_core::Result<()> {
-/// let report = trainer.stage_one(ctx, window, Some(head), batch)?;
+/// let report = trainer.stage_one(ctx, window, Some(head), batch, &[])?;
 /// println!(
 ///     "image loss {:.4}, feature loss {:.4} over {} regions, {} visible pairs",
 ///     report.image.total(), report.feature, report.regions, report.raster.visible
@@ -134,7 +143,7 @@ struct Chunk {
 /// let mut trainer = Trainer::new(ctx, cfg, head.config().dim)?;
 /// let mut batch = vec![keyframe]; // the new keyframe first, then past ones
 /// batch.extend_from_slice(replayed);
-/// let stage_one = trainer.stage_one(ctx, window, Some(head), &batch)?;
+/// let stage_one = trainer.stage_one(ctx, window, Some(head), &batch, &[])?;
 /// let feature_loss = trainer.stage_two(ctx, Some(head), 10)?;
 /// # Ok(())
 /// # }
@@ -147,6 +156,7 @@ pub struct Trainer {
     grads: GaussianBuffers,
     optimizer: GaussianOptimizer,
     target: Buffer,
+    kept: KeptTargets,
     region_targets: Buffer,
     row_weights: Buffer,
     regions: u32,
@@ -182,6 +192,7 @@ impl Trainer {
             grads: GaussianBuffers::new(ctx, "trainer/grads", cfg.capacity)?,
             optimizer: GaussianOptimizer::new(ctx, capacity, cfg.learning_rates)?,
             target: Buffer::device(ctx, "pixels/target_rgbd", max_pixels * 16)?,
+            kept: KeptTargets::new(ctx, cfg.kept_views, cfg.max_view_pixels)?,
             row_weights: Buffer::device(
                 ctx,
                 "trainer/row_weights",
@@ -200,6 +211,11 @@ impl Trainer {
     /// The Gaussian optimiser (its state moves with the window's rows).
     pub fn optimizer(&self) -> &GaussianOptimizer {
         &self.optimizer
+    }
+
+    /// The keyframe targets kept on the GPU.
+    pub fn kept_targets(&self) -> &KeptTargets {
+        &self.kept
     }
 
     /// The optimiser's per-row state, which moves with the window's rows
@@ -245,14 +261,21 @@ impl Trainer {
     /// intersections each chunk's rendering needs), one ends the step;
     /// everything between is one submission. [`Trainer::submit_stage_one`]
     /// leaves the second to the caller.
+    ///
+    /// `keys` names the batch's keyframes, in order, for [`KeptTargets`]:
+    /// a keyframe whose targets are kept on the GPU under its key uploads
+    /// nothing; one that is not is uploaded and kept. Empty: nothing is
+    /// kept (every target is uploaded).
     pub fn stage_one(
         &mut self,
         ctx: &Context,
         window: &LocalWindow,
         head: Option<&LatentHead>,
         batch: &[&KeyframeRecord],
+        keys: &[ReplayKey],
     ) -> Result<StageOneReport> {
-        self.submit_stage_one(ctx, window, head, batch)?.finish()
+        self.submit_stage_one(ctx, window, head, batch, keys)?
+            .finish()
     }
 
     /// [`Trainer::stage_one`] without its last wait: the step is submitted,
@@ -270,7 +293,15 @@ impl Trainer {
         window: &LocalWindow,
         head: Option<&LatentHead>,
         batch: &[&KeyframeRecord],
+        keys: &[ReplayKey],
     ) -> Result<SubmittedStageOne> {
+        if !keys.is_empty() && keys.len() != batch.len() {
+            return Err(Error::bad_input(
+                "keyframe batch",
+                format!("{} keys for {} keyframes", keys.len(), batch.len()),
+            ));
+        }
+        let keys = if self.cfg.kept_views == 0 { &[] } else { keys };
         if batch.is_empty() || batch.len() > self.cfg.max_views as usize {
             return Err(Error::bad_input(
                 "keyframe batch",
@@ -394,15 +425,16 @@ impl Trainer {
                     .record_forward(&mut rec, window.params(), &sized[c])?;
                 report.forward_passes += 1;
             }
-            let mut target = Vec::with_capacity(chunk.layout.pixels as usize);
             let mut valid = Vec::with_capacity(chunk.views.len());
-            for k in &batch[chunk.views.clone()] {
-                target.extend(k.target_rgbd());
+            for (v, slot) in chunk.views.clone().zip(&chunk.layout.views) {
+                let k = batch[v];
+                let key = keys.get(v).copied();
+                self.kept
+                    .record_expand(&mut rec, k, key, &self.target, slot.first_pixel)?;
                 valid.push(k.valid_depth() as u64);
             }
             let images = self.raster.images()?;
             let image_grads = self.raster.image_grads()?;
-            rec.upload(&self.target, 0, &target)?;
             self.image_loss.record_part(
                 &mut rec,
                 &chunk.layout,
