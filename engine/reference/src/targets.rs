@@ -1,6 +1,7 @@
-//! A keyframe's supervision image from its compact form (kernel
-//! `glsl/target_unpack.comp`): RGB bytes over 255 × the keyframe's
-//! exposure gain, millimetre depth in metres (0, invalid, stays 0).
+//! A keyframe's Stage I inputs from their compact form (kernel
+//! `glsl/target_unpack.comp`): the supervision image (RGB bytes over 255 ×
+//! the keyframe's exposure gain, millimetre depth in metres, 0, invalid,
+//! staying 0) and the chunk's region row of each pixel.
 
 /// `[r, g, b, z]` per pixel from packed RGB bytes (3 per pixel) and
 /// millimetre depth: `r = rgb[3i] / (255 · exposure)`, and so on, `z =
@@ -21,6 +22,20 @@ pub fn unpack_target(rgb: &[u8], depth_mm: &[u16], exposure: f32) -> Vec<[f32; 4
         .collect()
 }
 
+/// The chunk's region row of each pixel of a view from the view's own
+/// rows (`local`, 0xffff: none): `row_base + local[i]`, or `NO_REGION`
+/// (0xffffffff) where it names none or the view has no regions
+/// (`has_labels` false).
+pub fn unpack_labels(local: &[u16], row_base: u32, has_labels: bool) -> Vec<u32> {
+    local
+        .iter()
+        .map(|&l| match (has_labels, l) {
+            (true, l) if l != u16::MAX => row_base + l as u32,
+            _ => u32::MAX,
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -32,5 +47,14 @@ mod tests {
         assert_eq!(t[1][3], 0.0, "no depth stays invalid");
         let bright = unpack_target(&[255, 255, 255], &[1], 2.0);
         assert_eq!(bright[0][..3], [0.5; 3]);
+    }
+
+    #[test]
+    fn local_rows_move_to_the_chunk_and_none_stays_none() {
+        assert_eq!(
+            unpack_labels(&[0, 3, u16::MAX], 10, true),
+            [10, 13, u32::MAX]
+        );
+        assert_eq!(unpack_labels(&[0, 3], 10, false), [u32::MAX; 2]);
     }
 }

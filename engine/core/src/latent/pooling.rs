@@ -420,6 +420,36 @@ impl RegionPooling {
         rec.upload(&self.offsets, 0, &regions.offsets)?;
         rec.upload(&self.members, 0, &regions.pixels)?;
         rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
+        self.record_offsets_at(rec, regions, first_row)
+    }
+
+    /// What the rasterizer's pooling and its backward pass read of
+    /// `regions` beside the per-pixel rows: the regions' offsets (after
+    /// the pixels in [`Self::labels`]) and the counts, for regions pooled
+    /// into rows `first_row..`. The per-pixel rows themselves are the
+    /// caller's to write into [`Self::labels`] (Stage I expands them from
+    /// keyframes kept on the GPU), and the member lists, which only
+    /// [`Self::record_forward`] reads, are left as they are.
+    pub fn record_offsets_at<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        regions: &Regions,
+        first_row: u32,
+    ) -> Result<()> {
+        let pixels = regions.pixel_region.len() as u64;
+        let rows = first_row as u64 + regions.len() as u64;
+        if rows > self.max_regions as u64 || pixels > self.max_pixels {
+            return Err(Error::bad_input(
+                "regions to pool",
+                format!(
+                    "{} regions from row {first_row} over {pixels} pixels; region pooling was \
+                     sized for {} over {}",
+                    regions.len(),
+                    self.max_regions,
+                    self.max_pixels
+                ),
+            ));
+        }
         rec.upload(&self.pixel_region, self.max_pixels * 4, &regions.offsets)?;
         self.regions.set(regions.len());
         self.first_row.set(first_row);

@@ -89,8 +89,8 @@ settings! {
         /// with the space explored rather than with time. 0 keeps every
         /// keyframe (the paper's setting).
         pub history_cell: f64 = 0.25 => value().range(0.0, MAX_DISTANCE).unit("metres"),
-        /// Keyframes whose colour and depth targets stay on the GPU (5
-        /// bytes a pixel each; at most an eighth of gpu_budget and one
+        /// Keyframes whose colour, depth and region rows stay on the GPU
+        /// (7 bytes a pixel each; at most an eighth of gpu_budget and one
         /// buffer), so that replaying them uploads nothing; the one
         /// replayed longest ago makes room first. Replay draws uniformly
         /// among the keyframes near the camera, so about this many over

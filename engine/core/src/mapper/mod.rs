@@ -61,8 +61,8 @@ pub use run_report::{
 pub use snapshot::MapSnapshot;
 pub use trainer::stage_two::StageTwoRun;
 pub use trainer::{
-    views_per_chunk, KeptTargets, StageOneReport, SubmittedStageOne, Trainer, TrainerConfig,
-    DEFAULT_CHUNK_PIXELS,
+    views_per_chunk, ChunkView, KeptTargets, Outputs, StageOneReport, SubmittedStageOne, Trainer,
+    TrainerConfig, DEFAULT_CHUNK_PIXELS,
 };
 pub use views::{Scored, Viewpoint};
 pub use warm_up::warm_up;

@@ -514,7 +514,8 @@ fn replayed_keyframes_upload_their_targets_once_when_kept_on_the_gpu() {
         assert_eq!(all, 6, "each keyframe uploaded once, as it trains first");
         let (two, _, _) = run(2);
         assert!((7..18).contains(&two), "two slots for four views: {two}");
-        // Twelve views of 48×36 pixels at 5 bytes a pixel crossed no more.
+        // Twelve views of 48×36 pixels at 5 bytes a pixel (colour and
+        // depth alone) crossed no more.
         assert!(
             none_bytes - all_bytes >= 12 * 5 * (W * H) as u64,
             "{none_bytes} → {all_bytes} bytes"

@@ -177,7 +177,10 @@ fn streamed_stage_one_equals_the_batched_step() {
         // A view without regions: it takes part in the image losses only.
         records[1].regions = None;
         let batch: Vec<&KeyframeRecord> = records.iter().collect();
-        let run = |chunk_pixels: u64, attach: bool| {
+        // Kept keyframes: chunks pooled before the last take their region
+        // rows again from the GPU copy Stage I made of them while pooling.
+        let keys: Vec<ReplayKey> = records.iter().map(|_| ReplayKey::fresh()).collect();
+        let run_keyed = |chunk_pixels: u64, attach: bool, keys: &[ReplayKey]| {
             let (window, head) = training_fixture(ctx, &frames);
             let mut trainer = Trainer::new(
                 ctx,
@@ -198,14 +201,17 @@ fn streamed_stage_one_equals_the_batched_step() {
             )
             .unwrap();
             let report = trainer
-                .stage_one(ctx, &window, Some(&head), &batch, &[])
+                .stage_one(ctx, &window, Some(&head), &batch, keys)
                 .unwrap();
+            let uploads = trainer.kept_targets().uploads();
+            assert_eq!(uploads, 4, "each view's colour once, kept or not");
             let n = window.len() as u64;
             let grads = trainer.gradients().download(ctx, n).unwrap();
             let w = ctx.download::<f32>(head.w()).unwrap();
             let d = ctx.download::<f32>(head.atoms()).unwrap();
             (report, grads, w, d)
         };
+        let run = |chunk_pixels: u64, attach: bool| run_keyed(chunk_pixels, attach, &[]);
         // Attached, the feature loss also reaches opacity and geometry.
         let detached_opacity = run(u64::MAX, false).1.opacity_logits;
         let attached_opacity = run(u64::MAX, true).1.opacity_logits;
@@ -224,6 +230,7 @@ fn streamed_stage_one_equals_the_batched_step() {
             let (streamed, g_streamed, w_streamed, d_streamed) = run(1, attach);
             // Two views a chunk: one chunk with and one without a region-free view.
             let (pairs, g_pairs, _, _) = run(2 * (W * H) as u64, attach);
+            let (kept, g_kept, _, _) = run_keyed(1, attach, &keys);
             assert_eq!((whole.chunks, whole.forward_passes), (1, 1));
             assert_eq!(streamed.chunks, 4);
             // Three chunks with regions rendered twice except the last pooled;
@@ -239,7 +246,7 @@ fn streamed_stage_one_equals_the_batched_step() {
                     "{what}: {a} vs {b}"
                 );
             };
-            for r in [&streamed, &pairs] {
+            for r in [&streamed, &pairs, &kept] {
                 close(whole.image.l1, r.image.l1, "L1");
                 close(whole.image.ssim, r.image.ssim, "SSIM");
                 close(whole.image.depth, r.image.depth, "depth");
@@ -264,7 +271,7 @@ fn streamed_stage_one_equals_the_batched_step() {
                 .iter()
                 .flat_map(|(_, v)| v.iter())
                 .fold(0.0f32, |m, x| m.max(x.abs()));
-            for other in [&g_streamed, &g_pairs] {
+            for other in [&g_streamed, &g_pairs, &g_kept] {
                 for ((name, a), (_, b)) in fields(&g_whole).into_iter().zip(fields(other)) {
                     // Fields with only rounding noise (the rotations of round
                     // Gaussians) are compared at the scale of the others.

@@ -21,7 +21,7 @@ use latentam_gpu::{Buffer, Context};
 mod kept_targets;
 
 pub(crate) use kept_targets::slot_bytes as kept_target_bytes;
-pub use kept_targets::KeptTargets;
+pub use kept_targets::{ChunkView, KeptTargets, Outputs};
 
 /// Pixels Stage I renders at once by default: a batch larger than this is
 /// streamed through the rasterizer in chunks of whole views, so the
@@ -380,7 +380,21 @@ impl Trainer {
                     .record_forward(&mut rec, window.params(), &sized[c])?;
                 report.forward_passes += 1;
                 self.pooling
-                    .record_upload_at(&mut rec, regions, chunk.first_row)?;
+                    .record_offsets_at(&mut rec, regions, chunk.first_row)?;
+                for (v, i) in chunk.views.clone().enumerate() {
+                    let view = ChunkView {
+                        record: batch[i],
+                        key: keys.get(i).copied(),
+                        view: v,
+                        regions: Some(regions),
+                    };
+                    let out = Outputs {
+                        target: None,
+                        labels: Some(self.pooling.labels()),
+                    };
+                    self.kept
+                        .record_expand(&mut rec, &chunk.layout, view, out)?;
+                }
                 let row_bytes = QUERY_DIM as u64 * 4;
                 rec.fill_range_u32(
                     self.pooling.pooled(),
@@ -425,13 +439,31 @@ impl Trainer {
                     .record_forward(&mut rec, window.params(), &sized[c])?;
                 report.forward_passes += 1;
             }
+            // The targets, and for a chunk pooled before the last one its
+            // region rows again (the pooling holds one chunk's at a time).
+            let relabel = match (&chunk.regions, head) {
+                (Some(regions), Some(_)) if Some(c) != live => {
+                    self.pooling
+                        .record_offsets_at(&mut rec, regions, chunk.first_row)?;
+                    true
+                }
+                _ => false,
+            };
             let mut valid = Vec::with_capacity(chunk.views.len());
-            for (v, slot) in chunk.views.clone().zip(&chunk.layout.views) {
-                let k = batch[v];
-                let key = keys.get(v).copied();
+            for (v, i) in chunk.views.clone().enumerate() {
+                let view = ChunkView {
+                    record: batch[i],
+                    key: keys.get(i).copied(),
+                    view: v,
+                    regions: chunk.regions.as_ref(),
+                };
+                let out = Outputs {
+                    target: Some(&self.target),
+                    labels: relabel.then(|| self.pooling.labels()),
+                };
                 self.kept
-                    .record_expand(&mut rec, k, key, &self.target, slot.first_pixel)?;
-                valid.push(k.valid_depth() as u64);
+                    .record_expand(&mut rec, &chunk.layout, view, out)?;
+                valid.push(batch[i].valid_depth() as u64);
             }
             let images = self.raster.images()?;
             let image_grads = self.raster.image_grads()?;
@@ -448,12 +480,9 @@ impl Trainer {
             // The pooled rows' gradients reach each pixel through its
             // region, with no per-pixel query gradient image.
             let query = match (&chunk.regions, head) {
-                (Some(regions), Some(head)) => {
-                    // The last chunk pooled still has its labels uploaded.
-                    if Some(c) != live {
-                        self.pooling
-                            .record_upload_at(&mut rec, regions, chunk.first_row)?;
-                    }
+                (Some(_), Some(head)) => {
+                    // The last chunk pooled still has its rows in place;
+                    // the others were written again above.
                     QueryGradients::Regions {
                         rows: head.grad_queries(),
                         first_row: chunk.first_row,
