@@ -90,12 +90,12 @@ settings! {
         /// keyframe (the paper's setting).
         pub history_cell: f64 = 0.25 => value().range(0.0, MAX_DISTANCE).unit("metres"),
         /// Keyframes whose colour, depth and region rows stay on the GPU
-        /// (7 bytes a pixel each; at most an eighth of gpu_budget and one
-        /// buffer), so that replaying them uploads nothing; the one
-        /// replayed longest ago makes room first. Replay draws uniformly
-        /// among the keyframes near the camera, so about this many over
-        /// their number are found on the GPU. 0 uploads every target at
-        /// every Stage I step.
+        /// (7 bytes a pixel each; at most a thirty-second of gpu_budget
+        /// and one buffer), so that replaying them uploads nothing; the
+        /// one replayed longest ago makes room first. Replay draws
+        /// uniformly among the keyframes near the camera, so about this
+        /// many over their number are found on the GPU. 0 uploads every
+        /// target at every Stage I step.
         pub replay_on_gpu: u32 = 32 => value().range(0u32, MAX_REPLAY_ON_GPU),
         /// Stage I iterations per keyframe (R1): joint steps on the
         /// Gaussians, W and D over the keyframe and its replayed ones; the

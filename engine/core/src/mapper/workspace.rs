@@ -46,11 +46,11 @@ pub(crate) fn size_workspace(
         ),
     };
     // Replayed keyframes' targets kept on the GPU: as many as asked, within
-    // an eighth of the budget and one buffer (one slot always exists:
+    // a thirty-second of the budget and one buffer (one slot always exists:
     // every target is expanded from one).
     let slot = kept_target_bytes(pixels);
     let max_buffer = ctx.info().max_buffer_bytes();
-    let room = (budget / 8).min(max_buffer) / slot;
+    let room = (budget / 32).min(max_buffer) / slot;
     let kept_views = cfg.replay_on_gpu.min(room.min(u32::MAX as u64) as u32);
     let in_use = ctx.memory_report().total.current;
     let later = pixel_bytes(pixels, views, cfg.attach_feature_gradients)
