@@ -403,24 +403,11 @@ impl RegionPooling {
         regions: &Regions,
         first_row: u32,
     ) -> Result<()> {
-        let pixels = regions.pixel_region.len() as u64;
-        let rows = first_row as u64 + regions.len() as u64;
-        if rows > self.max_regions as u64 || pixels > self.max_pixels {
-            return Err(Error::bad_input(
-                "regions to pool",
-                format!(
-                    "{} regions from row {first_row} over {pixels} pixels; region pooling was \
-                     sized for {} over {}",
-                    regions.len(),
-                    self.max_regions,
-                    self.max_pixels
-                ),
-            ));
-        }
+        // Checks the sizes before anything is recorded.
+        self.record_offsets_at(rec, regions, first_row)?;
         rec.upload(&self.offsets, 0, &regions.offsets)?;
         rec.upload(&self.members, 0, &regions.pixels)?;
-        rec.upload(&self.pixel_region, 0, &regions.pixel_region)?;
-        self.record_offsets_at(rec, regions, first_row)
+        rec.upload(&self.pixel_region, 0, &regions.pixel_region)
     }
 
     /// What the rasterizer's pooling and its backward pass read of
