@@ -167,11 +167,6 @@ impl KeptTargets {
         })
     }
 
-    /// Keyframes it holds at most.
-    pub fn capacity(&self) -> usize {
-        self.slots.borrow().held.len()
-    }
-
     /// Keyframes whose colour and depth were uploaded into it so far (the
     /// others were expanded from their GPU copy).
     pub fn uploads(&self) -> u64 {

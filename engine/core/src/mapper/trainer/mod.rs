@@ -70,8 +70,9 @@ pub struct TrainerConfig {
     pub attach_feature_gradients: bool,
     /// The blending kernels' layout (see [`BlendLayout`](crate::splat::BlendLayout)).
     pub blend_layout: crate::splat::BlendLayout,
-    /// Keyframes whose colour and depth targets stay on the GPU between
-    /// steps ([`KeptTargets`]; at least one slot is made).
+    /// Keyframes whose colour, depth and region rows stay on the GPU
+    /// between steps ([`KeptTargets`]; at least one slot is made; 0 keeps
+    /// none, whatever keys a batch brings).
     pub kept_views: u32,
 }
 
