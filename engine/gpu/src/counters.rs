@@ -1,5 +1,5 @@
-//! Counts of what the host asks of the GPU: submissions, host waits and
-//! dispatches. Each wait is a CPU–GPU round trip (20–100 µs on a discrete
+//! Counts of what the host asks of the GPU: submissions, host waits,
+//! dispatches and the bytes that cross the host link. Each wait is a CPU–GPU round trip (20–100 µs on a discrete
 //! GPU, plus the GPU idling while the host prepares the next batch), so a
 //! latency-critical caller wants them few and counted.
 
@@ -17,6 +17,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// ctx.upload(&buf, 0, &[1u32; 64])?;
 /// let used = ctx.gpu_calls() - before;
 /// assert_eq!((used.submissions, used.host_waits, used.dispatches), (1, 1, 0));
+/// assert_eq!((used.uploaded_bytes, used.downloaded_bytes), (256, 0));
 /// # Ok::<(), latentam_gpu::Error>(())
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -28,6 +29,12 @@ pub struct GpuCalls {
     pub host_waits: u64,
     /// Kernel dispatches recorded.
     pub dispatches: u64,
+    /// Bytes recorded to be copied from host-visible staging into device
+    /// buffers (as [`crate::GpuWork::uploaded_bytes`] counts them).
+    pub uploaded_bytes: u64,
+    /// Bytes recorded to be copied from device buffers into host-visible
+    /// staging.
+    pub downloaded_bytes: u64,
 }
 
 impl Sub for GpuCalls {
@@ -38,6 +45,10 @@ impl Sub for GpuCalls {
             submissions: self.submissions.saturating_sub(earlier.submissions),
             host_waits: self.host_waits.saturating_sub(earlier.host_waits),
             dispatches: self.dispatches.saturating_sub(earlier.dispatches),
+            uploaded_bytes: self.uploaded_bytes.saturating_sub(earlier.uploaded_bytes),
+            downloaded_bytes: self
+                .downloaded_bytes
+                .saturating_sub(earlier.downloaded_bytes),
         }
     }
 }
@@ -50,6 +61,8 @@ impl std::ops::Add for GpuCalls {
             submissions: self.submissions + other.submissions,
             host_waits: self.host_waits + other.host_waits,
             dispatches: self.dispatches + other.dispatches,
+            uploaded_bytes: self.uploaded_bytes + other.uploaded_bytes,
+            downloaded_bytes: self.downloaded_bytes + other.downloaded_bytes,
         }
     }
 }
@@ -60,6 +73,8 @@ pub(crate) struct CallCounters {
     submissions: AtomicU64,
     host_waits: AtomicU64,
     dispatches: AtomicU64,
+    uploaded_bytes: AtomicU64,
+    downloaded_bytes: AtomicU64,
 }
 
 impl CallCounters {
@@ -75,11 +90,21 @@ impl CallCounters {
         self.dispatches.fetch_add(1, Ordering::Relaxed);
     }
 
+    pub fn uploaded(&self, bytes: u64) {
+        self.uploaded_bytes.fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    pub fn downloaded(&self, bytes: u64) {
+        self.downloaded_bytes.fetch_add(bytes, Ordering::Relaxed);
+    }
+
     pub fn snapshot(&self) -> GpuCalls {
         GpuCalls {
             submissions: self.submissions.load(Ordering::Relaxed),
             host_waits: self.host_waits.load(Ordering::Relaxed),
             dispatches: self.dispatches.load(Ordering::Relaxed),
+            uploaded_bytes: self.uploaded_bytes.load(Ordering::Relaxed),
+            downloaded_bytes: self.downloaded_bytes.load(Ordering::Relaxed),
         }
     }
 }

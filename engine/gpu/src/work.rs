@@ -241,7 +241,7 @@ impl GpuModel {
     /// let mut work = GpuWork::default();
     /// // 1 TFLOP over 1 GB: compute-bound on an RTX 4090 (12.1 ms against 1 ms).
     /// work.kernels.insert("gemm_nn", KernelWork { dispatches: 1, uncounted: 0, flops: 1e12, bytes: 1e9 });
-    /// let calls = GpuCalls { submissions: 1, host_waits: 1, dispatches: 1 };
+    /// let calls = GpuCalls { submissions: 1, host_waits: 1, dispatches: 1, ..GpuCalls::default() };
     /// let floor = GpuModel::rtx_4090().floor(&work, calls, 1.0);
     /// assert!((floor.kernels_ms - 1e12 / 82.6e9).abs() < 1e-9);
     /// assert!((floor.total_ms - floor.kernels_ms - 0.002 - 0.030).abs() < 1e-9);

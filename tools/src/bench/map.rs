@@ -4,6 +4,7 @@
 //! and per keyframe the curves of GPU bytes, CPU bytes and Gaussians. At
 //! the end, the PSNR of re-rendered keyframes.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -11,8 +12,10 @@ use anyhow::{bail, Context as _, Result};
 use latentam_core::mapper::budget::MemorySplit;
 use latentam_core::mapper::eval::{add_iou, mean_iou};
 use latentam_core::mapper::GpuWorkReport;
-use latentam_core::mapper::{Integrated, KeyframeReport, KeyframeTimings, Mapper, MapperConfig};
-use latentam_gpu::{Context, ContextOptions, GpuModel};
+use latentam_core::mapper::{
+    Integrated, KeyframeGpuCalls, KeyframeReport, KeyframeTimings, Mapper, MapperConfig,
+};
+use latentam_gpu::{Context, ContextOptions, GpuCalls, GpuModel};
 use latentam_io::{read_vocabulary, AssemblyConfig, Frame, McapFrames};
 use serde::Serialize;
 
@@ -71,6 +74,19 @@ struct CurvePoint {
     paging_blocks_in: usize,
     paging_blocks_out: usize,
     paging_cpu_ms: f64,
+    /// GPU calls and host-link bytes by step.
+    #[serde(skip)]
+    calls: KeyframeGpuCalls,
+}
+
+/// What one step of a keyframe asked of the GPU, per keyframe: megabytes
+/// across the host link each way, host waits and dispatches.
+#[derive(Serialize)]
+struct StepCalls {
+    up_mb: f64,
+    down_mb: f64,
+    host_waits: f64,
+    dispatches: f64,
 }
 
 /// Paging per keyframe, mean over the keyframes after the first five
@@ -86,6 +102,11 @@ struct PagingPerKeyframe {
     cpu_ms: f64,
     /// Host waits of the whole keyframe.
     host_waits: f64,
+    /// Every byte across the host link, host wait and dispatch per
+    /// keyframe, by the step that recorded it (paging's own syncs under
+    /// `insertion` when new Gaussians re-centred the window before
+    /// Stage I, under `paging` beside Stage II).
+    by_step: BTreeMap<&'static str, StepCalls>,
 }
 
 impl PagingPerKeyframe {
@@ -103,6 +124,28 @@ impl PagingPerKeyframe {
             blocks_out: mean(&|p| p.paging_blocks_out as f64),
             cpu_ms: mean(&|p| p.paging_cpu_ms),
             host_waits: mean(&|p| p.host_waits as f64),
+            by_step: [
+                (
+                    "dictionary",
+                    (|c| c.dictionary) as fn(&KeyframeGpuCalls) -> GpuCalls,
+                ),
+                ("insertion", |c| c.insertion),
+                ("stage_one", |c| c.stage_one),
+                ("stage_two", |c| c.stage_two),
+                ("paging", |c| c.paging),
+                ("prune", |c| c.prune),
+            ]
+            .into_iter()
+            .map(|(name, step)| {
+                let calls = StepCalls {
+                    up_mb: mean(&|p| step(&p.calls).uploaded_bytes as f64) / 1e6,
+                    down_mb: mean(&|p| step(&p.calls).downloaded_bytes as f64) / 1e6,
+                    host_waits: mean(&|p| step(&p.calls).host_waits as f64),
+                    dispatches: mean(&|p| step(&p.calls).dispatches as f64),
+                };
+                (name, calls)
+            })
+            .collect(),
         })
     }
 }
@@ -358,6 +401,7 @@ impl CurvePoint {
             paging_blocks_in: k.paging.iter().map(|p| p.blocks_in).sum(),
             paging_blocks_out: k.paging.iter().map(|p| p.blocks_out).sum(),
             paging_cpu_ms: k.timings.paging_cpu_ms,
+            calls: k.gpu_calls,
         }
     }
 }
@@ -457,6 +501,13 @@ fn print_report(r: &Report) {
             p.cpu_ms,
             p.host_waits
         );
+        println!("per keyframe by step: MB up, MB down, host waits, dispatches");
+        for (name, c) in &p.by_step {
+            println!(
+                "  {name:<10} {:>8.2} {:>8.2} {:>6.2} {:>7.1}",
+                c.up_mb, c.down_mb, c.host_waits, c.dispatches
+            );
+        }
     }
     println!(
         "paging hidden behind Stage II: {} (dedicated transfer queue: {})",

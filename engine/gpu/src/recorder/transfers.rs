@@ -42,8 +42,14 @@ impl<'a> Recorder<'a> {
                     bytes: 2.0 * bytes as f64,
                 }),
             ),
-            (false, true) => work.uploaded(bytes),
-            (true, false) => work.downloaded(bytes),
+            (false, true) => {
+                work.uploaded(bytes);
+                self.dev.calls.uploaded(bytes);
+            }
+            (true, false) => {
+                work.downloaded(bytes);
+                self.dev.calls.downloaded(bytes);
+            }
             (false, false) => {}
         }
     }
