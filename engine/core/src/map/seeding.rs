@@ -7,7 +7,7 @@ use glam::DVec3;
 
 use super::global::{Gaussian, GlobalMap};
 use super::voxel::VoxelKey;
-use crate::splat::QUERY_DIM;
+use crate::splat::{PixelGrid, QUERY_DIM};
 use latentam_base::random::SplitMix;
 use latentam_base::settings;
 use latentam_base::settings::{Setting, MAX_DISTANCE};
@@ -172,6 +172,29 @@ impl SeedingConfig {
             2
         }
     }
+
+    /// The pixels of a `width` × `height` image with focal length `focal`
+    /// that are seed candidates: every [`SeedingConfig::pixel_stride`]-th
+    /// pixel across and down, at the centre of each stride cell. (An image
+    /// narrower than half a stride, one row say, still has its first pixel
+    /// as one: it would otherwise seed nothing at all.) Seeding reads what
+    /// the map renders only there.
+    ///
+    /// ```
+    /// use latentam_core::map::SeedingConfig;
+    /// use latentam_core::splat::PixelGrid;
+    /// let grid = SeedingConfig::default().candidate_grid(585.0, 640, 480);
+    /// assert_eq!(grid, PixelGrid { stride: 2, start: [1, 1] });
+    /// assert_eq!(grid.cells(640, 480), 320 * 240);
+    /// ```
+    pub fn candidate_grid(&self, focal: f64, width: u32, height: u32) -> PixelGrid {
+        let stride = self.pixel_stride(focal);
+        let start = |side: u32| (stride / 2).min(side.saturating_sub(1));
+        PixelGrid {
+            stride,
+            start: [start(width), start(height)],
+        }
+    }
 }
 
 impl RegionQueries<'_> {
@@ -188,22 +211,27 @@ impl RegionQueries<'_> {
 impl Setting for QueryInit {}
 
 /// How much of a keyframe the current map covers: what it renders at the
-/// keyframe's pose, per pixel.
+/// keyframe's pose, at a grid of its pixels (every pixel, or seeding's
+/// candidates alone: [`SeedingConfig::candidate_grid`]).
 ///
 /// ```
 /// use latentam_core::map::{seed_from_frame, GlobalMap, SeedingConfig, ViewCoverage};
+/// use latentam_core::splat::PixelGrid;
 /// # fn f(frame: &latentam_io::Frame, map: &GlobalMap, alpha: &[f32], depth: &[f32]) {
 /// // What the map renders at the frame's pose: only pixels it does not explain are seeded.
-/// let coverage = ViewCoverage { alpha, depth, partial: false, complete_within: None, exposure: 1.0 };
+/// let coverage = ViewCoverage { grid: PixelGrid::ALL, alpha, depth, partial: false, complete_within: None, exposure: 1.0 };
 /// let new = seed_from_frame(frame, Some(coverage), map, &SeedingConfig::default(), 7, None);
 /// println!("{} new Gaussians", new.len());
 /// # }
 /// ```
 #[derive(Clone, Copy, Debug)]
 pub struct ViewCoverage<'a> {
-    /// Accumulated alpha.
+    /// The pixels `alpha` and `depth` hold, cell by cell. A seed candidate
+    /// off the grid counts as unexplained.
+    pub grid: PixelGrid,
+    /// Accumulated alpha per cell.
     pub alpha: &'a [f32],
-    /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output).
+    /// Unnormalised depth `Σ wᵢ zᵢ` (the rasterizer's output) per cell.
     pub depth: &'a [f32],
     /// The render shows only part of the map near the camera (the GPU
     /// window was too small for all of it): a pixel it does not explain
@@ -219,6 +247,15 @@ pub struct ViewCoverage<'a> {
     /// The frame's gain over the map (`relative_exposure`): new Gaussians
     /// take the frame's colour divided by it, in the map's brightness.
     pub exposure: f32,
+}
+
+impl ViewCoverage<'_> {
+    /// Alpha and unnormalised depth at pixel `(u, v)` of a `width`-wide
+    /// image; `None` off the grid.
+    fn at(&self, u: u32, v: u32, width: u32) -> Option<(f32, f32)> {
+        let k = self.grid.cell(u, v, width)?;
+        Some((*self.alpha.get(k)?, *self.depth.get(k)?))
+    }
 }
 
 /// An initial query: a neighbour's (so a surface keeps one latent code
@@ -332,18 +369,26 @@ pub fn seed_from_frame(
     let voxel = map.voxel_size();
     let opacity = config.opacity.clamp(1e-4, 1.0 - 1e-4);
     let opacity_logit = (opacity / (1.0 - opacity)).ln();
-    let stride = config.pixel_stride(focal);
+    let grid = config.candidate_grid(focal, w, h);
+    let stride = grid.stride;
+    if let Some(r) = &rendered {
+        // A render of other pixels would leave candidates unexplained.
+        debug_assert!(
+            (r.grid == PixelGrid::ALL || r.grid == grid)
+                && r.alpha.len() as u64 == r.grid.cells(w, h)
+                && r.depth.len() == r.alpha.len(),
+            "coverage of {:?} ({} cells) for candidates {grid:?} of a {w}x{h} image",
+            r.grid,
+            r.alpha.len()
+        );
+    }
     let mut taken: HashSet<VoxelKey> = HashSet::new();
     let mut ring = Vec::new();
     let border_holes = (config.border_fill_radius > config.hole_fill_radius)
         .then(|| holes_reaching_the_edge(&frame.depth));
     let mut out = Vec::new();
-    // Candidates sit at the centre of each stride cell, but an image
-    // narrower than half a stride (one row, say) still has its first
-    // pixel as one: it would otherwise seed nothing at all.
-    let start = |side: u32| (stride / 2).min(side.saturating_sub(1));
-    for v in (start(h)..h).step_by(stride as usize) {
-        for u in (start(w)..w).step_by(stride as usize) {
+    for v in (grid.start[1]..h).step_by(stride as usize) {
+        for u in (grid.start[0]..w).step_by(stride as usize) {
             let i = (v * w + u) as usize;
             let Some(z) = frame
                 .depth
@@ -360,10 +405,10 @@ pub fn seed_from_frame(
             if z > config.max_depth {
                 continue;
             }
-            if let Some(r) = rendered {
-                let a = r.alpha[i];
+            let covered = rendered.and_then(|r| r.at(u, v, w));
+            if let Some((a, depth)) = covered {
                 let explained = a >= config.alpha_threshold
-                    && ((r.depth[i] / a.max(1e-6)) - z).abs() <= config.depth_error * z;
+                    && ((depth / a.max(1e-6)) - z).abs() <= config.depth_error * z;
                 if explained {
                     continue;
                 }
@@ -388,7 +433,7 @@ pub fn seed_from_frame(
             // seeded again unless the render has a hole there; closer views
             // (finer spacing) still refine coarser surface.
             let spacing = stride as f64 * z / focal;
-            let filled = rendered.is_some_and(|r| r.alpha[i] >= config.refill_alpha);
+            let filled = covered.is_some_and(|(a, _)| a >= config.refill_alpha);
             if filled && map.is_mapped_within(p, spacing) {
                 continue;
             }

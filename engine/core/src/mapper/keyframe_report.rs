@@ -87,11 +87,13 @@ pub struct KeyframeGpuCalls {
     pub insertion: GpuCalls,
     /// Stage I: one measuring wait and one for the step, per iteration.
     pub stage_one: GpuCalls,
-    /// Stage II: one wait for all its iterations.
+    /// Stage II: one wait for all its iterations (none on a keyframe that
+    /// prunes: pruning's scan, queued after it, is waited for instead).
     pub stage_two: GpuCalls,
     /// Re-synchronising the window beside Stage II.
     pub paging: GpuCalls,
-    /// Pruning, on the keyframes that prune.
+    /// Pruning, on the keyframes that prune: its scan of the window,
+    /// submitted after Stage II, whose one wait ends Stage II too.
     pub prune: GpuCalls,
 }
 

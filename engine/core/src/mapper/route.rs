@@ -14,7 +14,7 @@ use super::keyframe_report::{
     DiskReport, Integrated, KeyframeGpuCalls, KeyframeGpuWork, KeyframeReport, KeyframeTimings,
     PagingReport,
 };
-use super::pager::PreparedSync;
+use super::pager::{PreparedSync, PruneScan};
 use super::seeder::Coverage;
 use super::trainer::{StageOneReport, SubmittedStageOne, Trainer};
 use super::workspace::size_workspace;
@@ -128,12 +128,16 @@ impl Mapper {
         let stage_one = clock.step(Step::StageOne, |_| {
             self.stage_one(&record, key, seed, centre)
         })?;
-        let stage_two = clock.step(Step::StageTwo, |clock| {
-            self.stage_two_and_paging(prepared, clock)
+        let prunes = self.prunes_after_this_keyframe();
+        let (stage_two, prune_scan) = clock.step(Step::StageTwo, |clock| {
+            self.stage_two_and_paging(prepared, prunes, clock)
         })?;
         let stage_one = stage_one.finish()?;
         let exposure = self.remember(frame, record, key);
-        let pruned = clock.step(Step::Pruning, |_| self.prune_at_interval())?;
+        let pruned = clock.step(Step::Pruning, |_| match prunes {
+            true => self.prune(prune_scan),
+            false => Ok(0),
+        })?;
         let spilled = self.pager.spill_to_budget()?;
         clock.timings.disk_ms = loaded.ms + spilled.ms;
         clock.disk_moves = (loaded.read, spilled.written);
@@ -167,7 +171,8 @@ impl Mapper {
         let project =
             record.regions.is_some() && self.cfg.seeding.query_init == QueryInit::Embedding;
         let w = project.then(|| self.dictionary.w_buffer()).flatten();
-        let coverage = Coverage::render(trainer.rasterizer(), window, record, w)?;
+        let grid = self.seeder.candidate_grid(frame);
+        let coverage = Coverage::render(trainer.rasterizer(), window, record, grid, w)?;
         if self.cfg.exposure_compensation {
             // The last keyframe's where too little of the map is in view.
             let last_gain = self.exposure.iter().last().map_or(1.0, |(_, g)| g);
@@ -256,12 +261,15 @@ impl Mapper {
     /// (Stage II reads no Gaussian): the moves after Stage I on the compute
     /// queue, the download of what leaves beside Stage II on the transfer
     /// queue. The paging batches are submitted first so that they wait for
-    /// Stage I only (see `Recorder::submit`). Returns Stage II's loss.
+    /// Stage I only (see `Recorder::submit`). When the keyframe `prunes`,
+    /// the scan pruning reads is submitted after Stage II and its wait is
+    /// the one that ends Stage II. Returns Stage II's loss and the scan.
     fn stage_two_and_paging(
         &mut self,
         prepared: Option<PreparedSync>,
+        prunes: bool,
         clock: &mut KeyframeClock,
-    ) -> Result<f64> {
+    ) -> Result<(f64, Option<PruneScan>)> {
         let trainer = self.trainer.as_ref().expect("ensured");
         let rows = trainer.window_rows();
         let t_page = Instant::now();
@@ -275,9 +283,24 @@ impl Mapper {
             false => self.cfg.stage_two_iterations,
         };
         let head = self.dictionary.head();
-        let (stage_two, span) = trainer
-            .submit_stage_two(&self.ctx, head, iterations)?
-            .finish()?;
+        let run = trainer.submit_stage_two(&self.ctx, head, iterations)?;
+        let (min_opacity, max_scale) = (self.cfg.prune_min_opacity, self.cfg.prune_max_scale);
+        let mut scan = match prunes {
+            true => self
+                .pager
+                .submit_prune_scan(&self.ctx, min_opacity, max_scale)?,
+            false => None,
+        };
+        // The scan's wait, counted as pruning's, ends Stage II too.
+        let (stage_two, span) = match &mut scan {
+            Some(scan) => {
+                clock.lap(|c| &mut c.stage_two);
+                scan.wait()?;
+                clock.lap(|c| &mut c.prune);
+                run.finish_after_later_wait()?
+            }
+            None => run.finish()?,
+        };
         clock.timings.stage_two_gpu_ms = span.map(|s| s.ms());
         clock.lap(|c| &mut c.stage_two);
         // Every sync of the keyframe (a re-centring before Stage I, the
@@ -297,7 +320,7 @@ impl Mapper {
             }
             clock.lap(|c| &mut c.paging);
         }
-        Ok(stage_two)
+        Ok((stage_two, scan))
     }
 
     /// Keeps the keyframe: its pose, its exposure and its record for
@@ -311,22 +334,20 @@ impl Mapper {
         exposure
     }
 
-    /// Prunes every `prune_interval` keyframes; returns how many Gaussians
-    /// went.
-    fn prune_at_interval(&mut self) -> Result<usize> {
+    /// Whether the keyframe being mapped prunes once it is trained: every
+    /// `prune_interval` keyframes.
+    fn prunes_after_this_keyframe(&self) -> bool {
         let interval = self.cfg.prune_interval as u64;
-        if interval > 0 && self.progress.keyframes().is_multiple_of(interval) {
-            self.prune()
-        } else {
-            Ok(0)
-        }
+        interval > 0 && (self.progress.keyframes() + 1).is_multiple_of(interval)
     }
 
     /// Removes the resident Gaussians that are nearly transparent or too
     /// large ([`MapperConfig::prune_min_opacity`](super::MapperConfig::prune_min_opacity),
     /// `prune_max_scale`), and the guesses a keyframe saw float in front of
     /// its surface. Returns how many were removed.
-    pub(super) fn prune(&mut self) -> Result<usize> {
+    /// Reads `scan` when the window was scanned for it already (after
+    /// Stage II); scans it now otherwise.
+    fn prune(&mut self, scan: Option<PruneScan>) -> Result<usize> {
         let rows = self
             .trainer
             .as_ref()
@@ -335,7 +356,7 @@ impl Mapper {
         let superseded = self.seeder.take_superseded();
         let (min_opacity, max_scale) = (self.cfg.prune_min_opacity, self.cfg.prune_max_scale);
         self.pager
-            .prune(&self.ctx, &rows, superseded, min_opacity, max_scale)
+            .prune(&self.ctx, &rows, superseded, min_opacity, max_scale, scan)
     }
 
     /// The keyframe's report, its figures added to the run's.

@@ -8,6 +8,7 @@
 //! math, in `latentam_reference::raster`.
 
 mod gaussians;
+mod grid;
 mod rasterizer;
 mod views;
 
@@ -15,6 +16,7 @@ mod views;
 mod tests;
 
 pub use gaussians::{GaussianBuffers, GaussianReadback, FIELD_WIDTHS, GAUSSIAN_BYTES};
+pub use grid::PixelGrid;
 pub use latentam_base::{Camera, HostGaussians, GUARD_BAND, QUERY_DIM};
 pub use rasterizer::{
     BlendLayout, Channels, ColourRender, ForwardStats, PixelBuffers, QueryGradients, Rasterizer,

@@ -87,6 +87,9 @@ pub struct Rasterizer {
     ranges: Grow,
     state: Grow,
     grad_splats: Grow,
+    /// A render's values at a grid of pixels, gathered for read-back
+    /// ([`Rasterizer::render_alpha_rgbd`]).
+    grid_cells: Grow,
     images: Option<PixelBuffers>,
     image_grads: Option<PixelBuffers>,
     /// The last batch's query image, when it was rendered in bands (too
@@ -121,6 +124,7 @@ impl Rasterizer {
             ranges: Grow::new("raster/ranges"),
             state: Grow::new("pixels/blend_state"),
             grad_splats: Grow::new("raster/grad_splats"),
+            grid_cells: Grow::new("raster/grid_cells"),
             images: None,
             image_grads: None,
             banded_query: None,

@@ -2,6 +2,9 @@
 //! unexplained pixels, region queries, depth holes filled.
 
 use super::*;
+use crate::splat::PixelGrid;
+use latentam_base::random::SplitMix;
+use latentam_reference::grid::gather_grid;
 
 #[test]
 fn seeds_lie_on_the_measured_surface_once_per_voxel() {
@@ -89,6 +92,57 @@ fn images_thinner_than_half_a_stride_are_seeded() {
     }
 }
 
+/// Seeding reads the render only at its candidate pixels, so a render read
+/// back at those alone (what the mapper reads back) seeds exactly what the
+/// whole image does, at any stride.
+#[test]
+fn a_render_of_the_candidate_pixels_alone_seeds_what_the_whole_image_does() {
+    let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
+    let map = GlobalMap::new(0.01);
+    let n = (W * H) as usize;
+    let mut rng = SplitMix(0x5eed_c0fe);
+    // Random coverage: about half the pixels explained (alpha near 1,
+    // depth near the wall's 2 m), the rest holes, faint or misplaced.
+    let alpha: Vec<f32> = (0..n).map(|_| rng.uniform()).collect();
+    let depth: Vec<f32> = alpha
+        .iter()
+        .map(|&a| a * (1.8 + 0.4 * rng.uniform()))
+        .collect();
+    for stride in [1, 2, 3, 5] {
+        let config = SeedingConfig {
+            stride,
+            ..SeedingConfig::default()
+        };
+        let k = frame.intrinsics;
+        let grid = config.candidate_grid(0.5 * (k.fx + k.fy), W, H);
+        let (cols, cells) = (grid.cols(W), grid.cells(W, H) as u32);
+        let whole = ViewCoverage {
+            grid: PixelGrid::ALL,
+            alpha: &alpha,
+            depth: &depth,
+            partial: false,
+            complete_within: None,
+            exposure: 1.0,
+        };
+        let grid_alpha = gather_grid(&alpha, W, grid.stride, grid.start, cols, cells);
+        let grid_depth = gather_grid(&depth, W, grid.stride, grid.start, cols, cells);
+        let candidates = ViewCoverage {
+            grid,
+            alpha: &grid_alpha,
+            depth: &grid_depth,
+            ..whole
+        };
+        let want = seed_from_frame(&frame, Some(whole), &map, &config, 3, None);
+        let got = seed_from_frame(&frame, Some(candidates), &map, &config, 3, None);
+        assert!(!want.is_empty(), "stride {stride}: something to seed");
+        assert!(
+            want.len() < cells as usize,
+            "stride {stride}: some candidates explained"
+        );
+        assert_eq!(got, want, "stride {stride}");
+    }
+}
+
 #[test]
 fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() {
     let frame = wall_frame(DVec3::ZERO, DQuat::IDENTITY, 2000);
@@ -109,6 +163,7 @@ fn only_unexplained_pixels_are_seeded_and_new_seeds_inherit_neighbour_queries() 
         })
         .collect();
     let rendered = ViewCoverage {
+        grid: PixelGrid::ALL,
         partial: false,
         complete_within: None,
         alpha: &alpha,
@@ -180,6 +235,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
     let n = (W * H) as usize;
     let (alpha, depth) = (vec![0.0f32; n], vec![0.0f32; n]);
     let coverage = |complete_within| ViewCoverage {
+        grid: PixelGrid::ALL,
         alpha: &alpha,
         depth: &depth,
         partial: false,
@@ -209,6 +265,7 @@ fn mapped_surface_beyond_the_window_is_not_seeded_again() {
     assert!(config.refill_alpha <= 0.6);
     let faint = vec![0.6f32; n];
     let partly = ViewCoverage {
+        grid: PixelGrid::ALL,
         alpha: &faint,
         depth: &depth,
         partial: false,

@@ -18,10 +18,14 @@ use crate::mapper::budget::WindowBudget;
 use crate::mapper::keyframe_report::PagingReport;
 use crate::mapper::seeder::Extent;
 use latentam_base::{HostGaussians, Result};
-use latentam_gpu::{Context, GpuSpan, Submission, SyncPoint};
+use latentam_gpu::{Buffer, Context, GpuSpan, Submission, SyncPoint};
 
+mod prune_scan;
 #[cfg(test)]
 mod tests;
+
+use prune_scan::prune_bounds;
+pub(crate) use prune_scan::PruneScan;
 
 /// A window sync planned before Stage I, its arrivals uploading beside it
 /// (a detached batch on the transfer queue), to be carried out after it
@@ -97,6 +101,8 @@ pub(crate) struct Pager {
     /// Whether the transfer queue is a queue of its own (else what runs
     /// "beside" compute runs after it).
     dedicated_transfer: bool,
+    /// The pruning scan's mask (one bit a row), once pruning ran.
+    prune_mask: Option<Buffer>,
 }
 
 impl Pager {
@@ -114,6 +120,7 @@ impl Pager {
             inbox_read_by: None,
             outbox_read_by: None,
             dedicated_transfer: false,
+            prune_mask: None,
         }
     }
 
@@ -605,12 +612,28 @@ impl Pager {
         Ok(out)
     }
 
+    /// Submits the scan [`Pager::prune`] reads (see [`PruneScan`]), on
+    /// the compute queue after everything submitted so far; `None` before
+    /// the window holds anything.
+    pub(crate) fn submit_prune_scan(
+        &mut self,
+        ctx: &Context,
+        min_opacity: f32,
+        max_scale: f32,
+    ) -> Result<Option<PruneScan>> {
+        match &self.window {
+            Some(w) => PruneScan::submit(ctx, w, &mut self.prune_mask, min_opacity, max_scale),
+            None => Ok(None),
+        }
+    }
+
     /// Removes `superseded` Gaussians, and the resident ones that are
     /// nearly transparent (opacity below `min_opacity`) or too large (a
     /// scale above `max_scale` metres), from the window and the global
-    /// map. Reads only the residents' opacities and scales (16 bytes a
-    /// row); the doomed rows are compacted away on the GPU without being
-    /// written back. Returns how many were removed.
+    /// map. The residents are scanned on the GPU (`scan`, when submitted
+    /// earlier for this window: [`Pager::submit_prune_scan`]), and only
+    /// one bit a row is read back; the doomed rows are compacted away on
+    /// the GPU without being written back. Returns how many were removed.
     pub(crate) fn prune(
         &mut self,
         ctx: &Context,
@@ -618,6 +641,7 @@ impl Pager {
         mut superseded: KeySet,
         min_opacity: f32,
         max_scale: f32,
+        scan: Option<PruneScan>,
     ) -> Result<usize> {
         let Some(window) = &self.window else {
             return Ok(0);
@@ -641,30 +665,27 @@ impl Pager {
         if n == 0 {
             return Ok(removed);
         }
-        let (log_scales, opacity_logits) = {
-            let fields = window.params().fields();
-            let mut rec = ctx.recorder()?;
-            let scales = rec.download(fields[1], 0, n as u64 * 12)?;
-            let opacities = rec.download(fields[4], 0, n as u64 * 4)?;
-            rec.submit()?.wait()?;
-            (scales.read::<[f32; 3]>()?, opacities.read::<f32>()?)
+        let bounds = prune_bounds(min_opacity, max_scale);
+        let scanned = match scan {
+            Some(scan) => scan.rows(n, bounds)?,
+            None => None,
         };
-        let min_logit = {
-            let o = min_opacity.clamp(1e-7, 1.0 - 1e-7);
-            (o / (1.0 - o)).ln()
+        let marked = match scanned {
+            Some(marked) => marked,
+            // Not scanned for this window: scanned now, with a wait.
+            None => {
+                match PruneScan::submit(ctx, window, &mut self.prune_mask, min_opacity, max_scale)?
+                {
+                    Some(scan) => scan.rows(n, bounds)?.unwrap_or_default(),
+                    None => Vec::new(),
+                }
+            }
         };
-        let max_log_scale = max_scale.max(1e-9).ln();
-        let evict: Vec<u32> = (0..n)
-            .filter(|&i| {
-                let o = opacity_logits[i];
-                let s = log_scales[i].iter().copied().fold(f32::MIN, f32::max);
-                // NaN parameters are pruned too.
-                let keep =
-                    o >= min_logit && s <= max_log_scale && !superseded.contains(&window.keys()[i]);
-                !keep
-            })
-            .map(|i| i as u32)
-            .collect();
+        let keys = window.keys();
+        let mut evict = marked;
+        evict.extend((0..n as u32).filter(|&r| superseded.contains(&keys[r as usize])));
+        evict.sort_unstable();
+        evict.dedup();
         if evict.is_empty() {
             return Ok(removed);
         }

@@ -233,7 +233,7 @@ fn pruning_removes_faint_residents_and_superseded_guesses_everywhere() {
         pager.mark_trained();
         // One superseded guess resident, one paged out.
         let superseded: KeySet = [keys[20], keys[60]].into_iter().collect();
-        let removed = pager.prune(ctx, &[], superseded, 0.005, 0.5).unwrap();
+        let removed = pager.prune(ctx, &[], superseded, 0.005, 0.5, None).unwrap();
         assert_eq!(removed, 7);
         assert_eq!(pager.global().len(), 73);
         for key in faint.iter().chain([&keys[20], &keys[60]]) {
@@ -251,5 +251,65 @@ fn pruning_removes_faint_residents_and_superseded_guesses_everywhere() {
         for (row, key) in pager.window().unwrap().keys().iter().enumerate() {
             assert_eq!(host.means[row], pager.global().get(*key).unwrap().mean);
         }
+    });
+}
+
+/// The pruning scan on the GPU (`glsl/prune_mask.comp`) marks exactly the
+/// rows the CPU reference does, on random residents with faint, large
+/// and NaN parameters (63 rows: a partial last word), and a scan submitted
+/// early is read only for the window and bounds it scanned.
+#[test]
+fn the_pruning_scan_marks_what_the_reference_does() {
+    use latentam_base::random::SplitMix;
+    use latentam_reference::prune::prune_mask;
+    with_context(|ctx| {
+        let mut pager = pager(ctx);
+        let keys = insert_line(&mut pager, 0.0, 63);
+        pager.make_resident(ctx, &keys, &[], DVec3::ZERO).unwrap();
+        let window = pager.window().unwrap();
+        let n = window.len();
+        assert_eq!(n, 63);
+        let mut host = window.params().download(ctx, n as u64).unwrap();
+        let mut rng = SplitMix(0x9e3779b9);
+        for r in 0..n {
+            host.opacity_logits[r] = 12.0 * rng.uniform() - 8.0;
+            host.log_scales[r] = [0, 1, 2].map(|_| 3.0 * rng.uniform() - 2.5);
+        }
+        host.opacity_logits[7] = f32::NAN;
+        // Opaque, so that only their scales can mark them.
+        host.opacity_logits[8..=10].fill(5.0);
+        host.log_scales[8] = [f32::NAN, -3.0, -3.0];
+        host.log_scales[9] = [f32::NAN; 3];
+        host.log_scales[10] = [f32::NAN, 5.0, f32::NAN];
+        window.params().upload(ctx, 0, &host).unwrap();
+        for (min_opacity, max_scale) in [(0.005, 0.5), (0.3, 1.5), (0.9, 0.05)] {
+            let bounds = prune_bounds(min_opacity, max_scale);
+            let mask = prune_mask(&host.log_scales, &host.opacity_logits, bounds.0, bounds.1);
+            let want = prune_scan::marked_rows(&mask, n);
+            let scan = pager
+                .submit_prune_scan(ctx, min_opacity, max_scale)
+                .unwrap()
+                .unwrap();
+            let got = scan.rows(n, bounds).unwrap();
+            assert_eq!(got.as_ref(), Some(&want), "bounds {bounds:?}");
+            assert!(want.contains(&7) && want.contains(&10), "NaN rules");
+            assert!(!want.contains(&8) && !want.contains(&9), "NaN rules");
+            assert!(
+                !want.is_empty() && want.len() < n,
+                "{bounds:?}: some marked"
+            );
+            // Another window size or other bounds: not read.
+            let scan = pager
+                .submit_prune_scan(ctx, min_opacity, max_scale)
+                .unwrap();
+            assert_eq!(scan.unwrap().rows(n - 1, bounds).unwrap(), None);
+            let scan = pager
+                .submit_prune_scan(ctx, min_opacity, max_scale)
+                .unwrap();
+            let other = prune_bounds(min_opacity * 0.5, max_scale);
+            assert_eq!(scan.unwrap().rows(n, other).unwrap(), None);
+        }
+        // Bits past the rows stay clear.
+        assert_eq!(prune_scan::marked_rows(&[u32::MAX, u32::MAX], 40).len(), 40);
     });
 }

@@ -12,7 +12,7 @@ use crate::map::{
     SeedingConfig, ViewCoverage, VoxelKey,
 };
 use crate::mapper::history::KeyframeRecord;
-use crate::splat::Rasterizer;
+use crate::splat::{PixelGrid, Rasterizer};
 use latentam_base::Result;
 use latentam_gpu::Buffer;
 use latentam_io::Frame;
@@ -20,14 +20,17 @@ use latentam_io::Frame;
 #[cfg(test)]
 mod tests;
 
-/// The window rendered at a keyframe's pose, per pixel: what the map
-/// explains there.
+/// The window rendered at a keyframe's pose, at seeding's candidate
+/// pixels: what the map explains there. Only those pixels are read back
+/// (a quarter of the image at a stride of 2, a ninth at 3).
 pub(crate) struct Coverage {
-    /// Accumulated alpha.
+    /// The pixels rendered, cell by cell.
+    pub grid: PixelGrid,
+    /// Accumulated alpha per cell.
     pub alpha: Vec<f32>,
-    /// Unnormalised depth, as the rasterizer gives it.
+    /// Unnormalised depth per cell, as the rasterizer gives it.
     pub depth: Vec<f32>,
-    /// Colour and depth.
+    /// Colour and depth per cell.
     pub rgbd: Vec<[f32; 4]>,
     /// The decoder's W as it stood when the window was rendered, when
     /// asked for: read back with the render, so that projecting region
@@ -36,22 +39,25 @@ pub(crate) struct Coverage {
 }
 
 impl Coverage {
-    /// Renders `window` from the keyframe's camera, reading `w` back
-    /// beside it; `None` while the window is empty.
+    /// Renders `window` from the keyframe's camera at the pixels of
+    /// `grid`, reading `w` back beside it; `None` while the window is
+    /// empty.
     pub(crate) fn render(
         raster: &mut Rasterizer,
         window: &LocalWindow,
         record: &KeyframeRecord,
+        grid: PixelGrid,
         w: Option<&Buffer>,
     ) -> Result<Option<Coverage>> {
         if window.is_empty() {
             return Ok(None);
         }
         // Coverage needs alpha and depth; exposure colour.
-        let render =
-            raster.render_alpha_rgbd(window.params(), window.len() as u64, &record.camera, w)?;
+        let count = window.len() as u64;
+        let render = raster.render_alpha_rgbd(window.params(), count, &record.camera, grid, w)?;
         let depth = render.rgbd.iter().map(|p| p[3]).collect();
         Ok(Some(Coverage {
+            grid,
             alpha: render.alpha,
             depth,
             rgbd: render.rgbd,
@@ -60,16 +66,28 @@ impl Coverage {
     }
 
     /// The keyframe's exposure against the map where the map renders its
-    /// surface (within `depth_error` of the depth the frame measured);
-    /// `None` where too little of the map is in view to tell.
+    /// surface (within `depth_error` of the depth the frame measured), at
+    /// the rendered pixels; `None` where too little of the map is in view
+    /// to tell.
     pub(crate) fn exposure(
         &self,
         frame: &Frame,
         record: &KeyframeRecord,
         depth_error: f32,
     ) -> Option<f32> {
-        let measured = |i: usize| frame.depth.metres(i);
-        relative_exposure(&record.rgb, &self.rgbd, &self.alpha, measured, depth_error)
+        let width = record.camera.width;
+        let pixel = |k: usize| {
+            self.grid
+                .pixel(k, width)
+                .map(|(u, v)| (v * width + u) as usize)
+        };
+        let pixels: Vec<usize> = (0..self.alpha.len()).filter_map(pixel).collect();
+        let observed: Vec<u8> = pixels
+            .iter()
+            .flat_map(|&i| [0, 1, 2].map(|c| record.rgb.get(3 * i + c).copied().unwrap_or(0)))
+            .collect();
+        let measured = |k: usize| frame.depth.metres(*pixels.get(k)?);
+        relative_exposure(&observed, &self.rgbd, &self.alpha, measured, depth_error)
     }
 }
 
@@ -123,6 +141,7 @@ impl Seeder {
         let mut seeds = seed_from_frame(
             frame,
             coverage.map(|c| ViewCoverage {
+                grid: c.grid,
                 alpha: &c.alpha,
                 depth: &c.depth,
                 partial: extent.partial,
@@ -141,6 +160,14 @@ impl Seeder {
             }
         }
         seeds
+    }
+
+    /// The pixels of `frame` seeding looks at, where the map's render is
+    /// all it reads.
+    pub(crate) fn candidate_grid(&self, frame: &Frame) -> PixelGrid {
+        let k = frame.intrinsics;
+        let (w, h) = (frame.color.width, frame.color.height);
+        self.cfg.candidate_grid(0.5 * (k.fx + k.fy), w, h)
     }
 
     /// Guesses `frame` measures: kept where its depth agrees, marked for

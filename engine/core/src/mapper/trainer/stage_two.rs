@@ -86,10 +86,24 @@ impl StageTwoRun {
     /// Waits; returns the feature loss of the last step and when the work
     /// ran on the GPU (when it could be timed).
     pub fn finish(self) -> Result<(f64, Option<GpuSpan>)> {
+        self.finish_with(Submission::wait_span)
+    }
+
+    /// [`StageTwoRun::finish`] once a later batch on the compute queue was
+    /// waited for, which Stage II ran before: no host wait (one, counted,
+    /// if it is not finished after all).
+    pub fn finish_after_later_wait(self) -> Result<(f64, Option<GpuSpan>)> {
+        self.finish_with(Submission::finished_span)
+    }
+
+    fn finish_with(
+        self,
+        wait: impl FnOnce(Submission) -> Result<Option<GpuSpan>>,
+    ) -> Result<(f64, Option<GpuSpan>)> {
         match self.0 {
             None => Ok((0.0, None)),
             Some((submission, readback)) => {
-                let span = submission.wait_span()?;
+                let span = wait(submission)?;
                 Ok((FeatureLoss::sum(&readback)?, span))
             }
         }

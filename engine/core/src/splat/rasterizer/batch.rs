@@ -23,14 +23,18 @@ pub struct ForwardStats {
     pub intersections: u64,
 }
 
-/// One camera's colour, depth and alpha, rendered and read back in one
-/// submission by [`Rasterizer::render_alpha_rgbd`](super::Rasterizer::render_alpha_rgbd).
-#[derive(Clone, Debug, Default, PartialEq)]
+/// One camera's colour, depth and alpha at a grid of its pixels, rendered
+/// and read back in one submission by
+/// [`Rasterizer::render_alpha_rgbd`](super::Rasterizer::render_alpha_rgbd).
+#[derive(Clone, Debug, PartialEq)]
 pub struct ColourRender {
-    /// Accumulated alpha per pixel.
+    /// Accumulated alpha per cell of `grid`.
     pub alpha: Vec<f32>,
-    /// Colour and unnormalised depth (Σ wᵢzᵢ) per pixel.
+    /// Colour and unnormalised depth (Σ wᵢzᵢ) per cell.
     pub rgbd: Vec<[f32; 4]>,
+    /// The pixels rendered and read back (every pixel with
+    /// [`PixelGrid::ALL`](crate::splat::PixelGrid::ALL)).
+    pub grid: crate::splat::PixelGrid,
     /// The other buffer asked for, read back after everything queued
     /// before the render, as `f32` words.
     pub also: Option<Vec<f32>>,

@@ -5,13 +5,16 @@
 //! records one of them into any recorder, with no wait.
 
 use latentam_shaders::{
-    push, COMPACT_VISIBLE, EMIT_TILES, GATHER_COUNTS, PROJECT_FORWARD, TILE_RANGES,
+    push, COMPACT_VISIBLE, COVERAGE_GRID, EMIT_TILES, GATHER_COUNTS, PROJECT_FORWARD, TILE_RANGES,
 };
 
 use super::work::BatchCounts;
 use super::{Channels, ColourRender, ForwardStats, Rasterizer, RenderBatch, QUERY_BYTES};
 use crate::splat::views::BatchLayout;
-use crate::splat::{Camera, GaussianBuffers};
+use crate::splat::{Camera, GaussianBuffers, PixelGrid};
+
+/// Invocations per workgroup of `glsl/coverage_grid.comp`.
+const GRID_THREADS: u64 = 256;
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Recorder};
 use latentam_shaders::bind;
@@ -84,13 +87,16 @@ impl Rasterizer {
         Ok(stats)
     }
 
-    /// One camera's colour, depth and alpha (no query channels), read back
-    /// in the same submission that renders them: two host waits (the
-    /// measure, then the render with its read-back), where
-    /// [`Rasterizer::forward_channels`] then
-    /// [`Rasterizer::download_alpha_rgbd`] take three. The alpha and the
-    /// colour-and-depth image are as `download_alpha_rgbd` gives them;
-    /// `also` is a buffer read back in the same submission, after
+    /// One camera's colour, depth and alpha at the pixels of `grid` (no
+    /// query channels), rendered and read back in the same submission:
+    /// two host waits (the measure, then the render with its read-back),
+    /// where [`Rasterizer::forward_channels`] then
+    /// [`Rasterizer::download_alpha_rgbd`] take three. With
+    /// [`PixelGrid::ALL`] the alpha and the colour-and-depth image are as
+    /// `download_alpha_rgbd` gives them; with a coarser grid, their values
+    /// at its cells, row by row (gathered on the GPU by
+    /// `glsl/coverage_grid.comp`, so that only the cells cross the host
+    /// link). `also` is a buffer read back in the same submission, after
     /// everything queued before it (its `f32` words), so that a caller
     /// needing another read-back at that point waits no extra time.
     pub fn render_alpha_rgbd(
@@ -98,8 +104,25 @@ impl Rasterizer {
         gaussians: &GaussianBuffers,
         count: u64,
         camera: &Camera,
+        grid: PixelGrid,
         also: Option<&Buffer>,
     ) -> Result<ColourRender> {
+        let (width, height) = (camera.width, camera.height);
+        let cells = grid.cells(width, height);
+        if grid.stride == 0 || cells == 0 {
+            return Err(Error::bad_input(
+                "pixel grid",
+                format!("{grid:?} has no cell in a {width}x{height} view"),
+            ));
+        }
+        // The kernel's word indices are 32-bit: five words a cell, four a
+        // pixel of the image it reads.
+        if 5 * cells > u32::MAX as u64 || 4 * width as u64 * height as u64 > u32::MAX as u64 {
+            return Err(Error::bad_input(
+                "pixel grid",
+                format!("a {width}x{height} view is past 2^32 words"),
+            ));
+        }
         let batch = self
             .measure(
                 gaussians,
@@ -110,7 +133,9 @@ impl Rasterizer {
             .pop()
             .expect("one batch measured");
         let slot = batch.layout.views[0];
-        let n = slot.width as u64 * slot.height as u64;
+        if grid != PixelGrid::ALL {
+            self.grid_cells.ensure(&self.ctx, cells * 20)?;
+        }
         let ctx = self.ctx.clone();
         let (alpha, rgbd, also) = {
             let mut rec = ctx.recorder()?;
@@ -118,8 +143,40 @@ impl Rasterizer {
             // As `forward_channels` records it (colour: no query image).
             self.record_blend(&mut rec, gaussians, &batch, 0, self.query_band_pixels())?;
             let images = self.images()?;
-            let rgbd = rec.download(&images.rgbd, slot.first_pixel * 16, n * 16)?;
-            let alpha = rec.download(&images.alpha, slot.first_pixel * 4, n * 4)?;
+            let (rgbd, alpha) = if grid == PixelGrid::ALL {
+                let n = slot.width as u64 * slot.height as u64;
+                (
+                    rec.download(&images.rgbd, slot.first_pixel * 16, n * 16)?,
+                    rec.download(&images.alpha, slot.first_pixel * 4, n * 4)?,
+                )
+            } else {
+                let out = self.grid_cells.get();
+                let words = |w: u64| {
+                    u32::try_from(w).map_err(|_| Error::bad_input("pixel grid", "past 2^32 pixels"))
+                };
+                rec.dispatch_linear(
+                    &COVERAGE_GRID,
+                    cells.div_ceil(GRID_THREADS) as u32,
+                    bind::CoverageGridBuffers {
+                        rgbd: &images.rgbd,
+                        alpha: &images.alpha,
+                        cells: out,
+                    },
+                    &push::CoverageGrid {
+                        count: words(cells)?,
+                        cols: grid.cols(width),
+                        stride: grid.stride,
+                        start_u: grid.start[0],
+                        start_v: grid.start[1],
+                        width,
+                        first_pixel: words(slot.first_pixel)?,
+                    },
+                )?;
+                (
+                    rec.download(out, 0, cells * 16)?,
+                    rec.download(out, cells * 16, cells * 4)?,
+                )
+            };
             let also = also.map(|b| rec.download(b, 0, b.bytes())).transpose()?;
             rec.submit()?.wait()?;
             (alpha, rgbd, also)
@@ -129,6 +186,7 @@ impl Rasterizer {
         Ok(ColourRender {
             alpha: alpha.read::<f32>()?,
             rgbd: bytemuck::cast_slice(&rgbd.read::<f32>()?).to_vec(),
+            grid,
             also: also.map(|b| b.read::<f32>()).transpose()?,
         })
     }

@@ -2,6 +2,8 @@
 //! batches, query images in bands, many tiles.
 
 use super::*;
+use crate::splat::PixelGrid;
+use latentam_reference::grid::gather_grid;
 
 #[test]
 fn measured_batches_render_in_one_submission() {
@@ -175,7 +177,7 @@ fn colour_depth_and_alpha_render_and_read_back_in_two_waits() {
             raster.settings.layout = layout;
             let waits = ctx.host_waits();
             let render = raster
-                .render_alpha_rgbd(&buf, n as u64, &cam, Some(&other))
+                .render_alpha_rgbd(&buf, n as u64, &cam, PixelGrid::ALL, Some(&other))
                 .unwrap();
             assert_eq!(ctx.host_waits() - waits, 2, "{layout:?}");
             let (alpha, rgbd) = (render.alpha, render.rgbd);
@@ -200,5 +202,65 @@ fn colour_depth_and_alpha_render_and_read_back_in_two_waits() {
             // The render is the rasterizer's last batch, as after a forward.
             assert_eq!(raster.download_alpha_rgbd(0).unwrap().0, alpha);
         }
+    });
+}
+
+/// The render gathered at a grid of pixels on the GPU
+/// (`glsl/coverage_grid.comp`) holds, bit for bit, the whole image's values
+/// at those pixels (`latentam_reference::grid::gather_grid`), for grids of
+/// several strides and starts, in a view that is not the batch's first
+/// pixel row (odd sizes); only the cells are read back.
+#[test]
+fn a_render_read_back_at_a_grid_of_pixels_is_the_image_at_those_pixels() {
+    with_context(|ctx| {
+        let mut r = rng("a_render_read_back_at_a_grid_of_pixels_is_the_image_at_those_pixels");
+        let cam = random_camera(&mut r, 53, 37, 2.8);
+        let n = 500;
+        let host = awkward_scene(&mut r, n, &[cam]);
+        let buf = upload(ctx, &host);
+        let mut raster = Rasterizer::new(ctx);
+        let whole = raster
+            .render_alpha_rgbd(&buf, n as u64, &cam, PixelGrid::ALL, None)
+            .unwrap();
+        assert!(whole.alpha.iter().any(|&a| a > 0.1), "the scene is in view");
+        for (stride, start) in [
+            (2, [1, 1]),
+            (3, [1, 2]),
+            (5, [4, 0]),
+            (1, [2, 3]),
+            (60, [0, 0]),
+        ] {
+            let grid = PixelGrid { stride, start };
+            let (cols, cells) = (grid.cols(53), grid.cells(53, 37) as u32);
+            let before = ctx.gpu_work();
+            let got = raster
+                .render_alpha_rgbd(&buf, n as u64, &cam, grid, None)
+                .unwrap();
+            let down = (ctx.gpu_work() - before).downloaded_bytes;
+            let what = format!("stride {stride} from {start:?}");
+            assert_eq!(got.grid, grid, "{what}");
+            assert_eq!(
+                down,
+                cells as u64 * 20 + 8,
+                "{what}: the cells and the measure"
+            );
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let want_alpha = gather_grid(&whole.alpha, 53, stride, start, cols, cells);
+            assert_eq!(bits(&got.alpha), bits(&want_alpha), "{what}: alpha");
+            let want_rgbd = gather_grid(&whole.rgbd, 53, stride, start, cols, cells);
+            let flat = |v: &[[f32; 4]]| bits(bytemuck::cast_slice(v));
+            assert_eq!(
+                flat(&got.rgbd),
+                flat(&want_rgbd),
+                "{what}: colour and depth"
+            );
+        }
+        let empty = PixelGrid {
+            stride: 2,
+            start: [53, 0],
+        };
+        assert!(raster
+            .render_alpha_rgbd(&buf, n as u64, &cam, empty, None)
+            .is_err());
     });
 }
