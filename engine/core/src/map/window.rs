@@ -424,9 +424,18 @@ impl LocalWindow {
     /// Whether the Gaussian of voxel `key` is resident (costs its block's
     /// rows).
     pub fn holds(&self, key: VoxelKey) -> bool {
-        self.blocks
-            .get(&GlobalMap::block_of(key))
-            .is_some_and(|b| b.rows.iter().any(|&r| self.keys[r as usize] == key))
+        self.row_of(key).is_some()
+    }
+
+    /// The row of voxel `key`'s Gaussian, when it is resident (costs its
+    /// block's rows).
+    pub fn row_of(&self, key: VoxelKey) -> Option<u32> {
+        let block = self.blocks.get(&GlobalMap::block_of(key))?;
+        block
+            .rows
+            .iter()
+            .copied()
+            .find(|&r| self.keys[r as usize] == key)
     }
 
     /// The voxel key of every resident row.

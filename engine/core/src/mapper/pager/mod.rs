@@ -666,24 +666,22 @@ impl Pager {
             return Ok(removed);
         }
         let bounds = prune_bounds(min_opacity, max_scale);
-        let scanned = match scan {
+        let early = match scan {
             Some(scan) => scan.rows(n, bounds)?,
             None => None,
         };
-        let marked = match scanned {
+        // Not scanned for this window: scanned now, with a wait.
+        let mut evict = match early {
             Some(marked) => marked,
-            // Not scanned for this window: scanned now, with a wait.
-            None => {
-                match PruneScan::submit(ctx, window, &mut self.prune_mask, min_opacity, max_scale)?
-                {
-                    Some(scan) => scan.rows(n, bounds)?.unwrap_or_default(),
-                    None => Vec::new(),
-                }
-            }
+            None => PruneScan::submit(ctx, window, &mut self.prune_mask, min_opacity, max_scale)?
+                .map(|scan| scan.rows(n, bounds))
+                .transpose()?
+                .flatten()
+                .unwrap_or_default(),
         };
-        let keys = window.keys();
-        let mut evict = marked;
-        evict.extend((0..n as u32).filter(|&r| superseded.contains(&keys[r as usize])));
+        // Resident superseded guesses: found through their blocks, not by
+        // asking every row.
+        evict.extend(superseded.iter().filter_map(|&key| window.row_of(key)));
         evict.sort_unstable();
         evict.dedup();
         if evict.is_empty() {
