@@ -321,6 +321,57 @@ fn a_full_queue_drops_by_policy_and_abort_and_drop_return_promptly() {
 }
 
 #[test]
+fn snapshots_are_taken_for_readers_and_every_n_keyframes_only_when_asked() {
+    let (frames, _) = scene();
+    let ctx = context();
+    latentam_core::mapper::warm_up(&ctx).unwrap();
+    let mapped = |options: LiveOptions| {
+        let mapper = Mapper::with_context(&ctx, config()).unwrap();
+        let live = LiveMapper::start(mapper, options).unwrap();
+        for f in frames.iter().take(24) {
+            live.submit_waiting(f.clone(), Duration::from_secs(600))
+                .unwrap();
+        }
+        assert!(live.wait_idle(Duration::from_secs(600)));
+        live
+    };
+
+    // Nobody read: no copy of the map was taken.
+    let live = mapped(LiveOptions::default());
+    let s = live.status();
+    assert!(s.keyframes >= 3, "{s:?}");
+    assert_eq!(s.snapshots, 0, "{s:?}");
+    // What never waits shows the map the handle started with, and asks
+    // for a fresh one.
+    assert_eq!(live.latest_snapshot().keyframes, 0);
+    // A reader gets the last keyframe's map, in one copy however often
+    // it asks while nothing new is mapped.
+    let snapshot = live.snapshot();
+    assert_eq!(snapshot.keyframes, s.keyframes);
+    assert_eq!(snapshot.len(), s.gaussians);
+    assert_eq!(snapshot.stats.gpu_bytes, s.gpu_bytes);
+    assert_eq!(live.snapshot().keyframes, s.keyframes);
+    assert_eq!(live.latest_snapshot().keyframes, s.keyframes);
+    assert_eq!(live.status().snapshots, 1);
+    let mut mapper = live.finish().unwrap();
+    let voxels = |m: &mut Mapper| global_of(m).into_keys().collect::<Vec<_>>();
+    let want = voxels(&mut mapper);
+
+    // Every second keyframe, read or not; the same map either way (up to
+    // rounding noise: the same voxels).
+    let live = mapped(LiveOptions {
+        snapshot_every: 2,
+        ..LiveOptions::default()
+    });
+    let s = live.status();
+    assert_eq!(s.snapshots, s.keyframes / 2, "{s:?}");
+    let mut eager = live.finish().unwrap();
+    assert_eq!(voxels(&mut eager), want);
+    drop((mapper, eager));
+    assert_no_validation_errors(ctx);
+}
+
+#[test]
 fn a_reader_follows_keyframes_and_outlives_the_handle() {
     let (frames, _) = scene();
     let ctx = context();
@@ -335,7 +386,7 @@ fn a_reader_follows_keyframes_and_outlives_the_handle() {
         let reader = reader.clone();
         std::thread::spawn(move || {
             let seen = reader.wait_for_keyframe(0, Duration::from_secs(600));
-            // The snapshot of that keyframe is published before it counts.
+            // A snapshot read after the count shows that keyframe.
             (seen, reader.snapshot().keyframes, reader.last_keyframe())
         })
     };

@@ -12,8 +12,9 @@ use latentam_io::{AssemblyConfig, Frame, McapFrames};
 
 #[test]
 fn a_lost_device_reaches_the_caller_as_a_typed_error() {
-    // Enough submissions for the first keyframe, not for the run.
-    std::env::set_var("LATENTAM_FAULTS", "device_lost_after=60");
+    // Enough submissions for the first keyframes, not for the run (about
+    // a dozen a keyframe; snapshots add none, since nobody reads).
+    std::env::set_var("LATENTAM_FAULTS", "device_lost_after=35");
     let dir = std::env::temp_dir().join(format!("latentam-live-faults-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("scene.mcap");
@@ -46,7 +47,7 @@ fn a_lost_device_reaches_the_caller_as_a_typed_error() {
         matches!(stopped, latentam::Error::DeviceLost { .. }),
         "{stopped:?}"
     );
-    assert!(status.keyframes < 6, "{status:?}");
+    assert!((1..6).contains(&status.keyframes), "{status:?}");
     // The next call says so, with the cause to match on.
     let e = refused
         .or_else(|| live.submit(frames[0].clone()).err())
@@ -57,8 +58,8 @@ fn a_lost_device_reaches_the_caller_as_a_typed_error() {
         }
         other => panic!("{other:?}"),
     }
-    // Readers still see the last good snapshot (the device may have been
-    // lost while taking the next one).
+    // Readers still see the last good snapshot (here the one the handle
+    // started with: none was asked for before the device was lost).
     let snapshot = live.snapshot();
     assert!(snapshot.keyframes <= status.keyframes);
     assert_eq!(snapshot.len(), snapshot.stats.gaussians);

@@ -115,9 +115,9 @@ typedef struct LatentamMapperStatus {
   uint64_t dropped_superseded;
   // Frames the map refused (see the message of `last_error`).
   uint64_t dropped_rejected;
-  // Gaussians in the latest snapshot.
+  // Gaussians in the map after the last keyframe.
   uint64_t gaussians;
-  // The last keyframe's time from submission to its snapshot, ms (-1: none yet).
+  // The last keyframe's time from submission to the end of its mapping, ms (-1: none yet).
   double last_keyframe_latency_ms;
   // 1 once the mapper stopped on an error (the message says which).
   uint32_t stopped;

@@ -228,9 +228,9 @@ pub struct LatentamMapperStatus {
     pub dropped_superseded: u64,
     /// Frames the map refused (see the message of `last_error`).
     pub dropped_rejected: u64,
-    /// Gaussians in the latest snapshot.
+    /// Gaussians in the map after the last keyframe.
     pub gaussians: u64,
-    /// The last keyframe's time from submission to its snapshot, ms (-1: none yet).
+    /// The last keyframe's time from submission to the end of its mapping, ms (-1: none yet).
     pub last_keyframe_latency_ms: f64,
     /// 1 once the mapper stopped on an error (the message says which).
     pub stopped: u32,
@@ -261,7 +261,7 @@ pub unsafe extern "C" fn latentam_status(
             dropped_not_keyframe: s.dropped.not_keyframe,
             dropped_superseded: s.dropped.superseded,
             dropped_rejected: s.dropped.rejected,
-            gaussians: live.snapshot().len() as u64,
+            gaussians: s.gaussians as u64,
             last_keyframe_latency_ms: s.last_keyframe_latency_ms.unwrap_or(-1.0),
             stopped: s.stopped.is_some() as u32,
         };

@@ -158,6 +158,9 @@ impl Mapper {
         d.set_item("submitted", s.submitted)?;
         d.set_item("integrated", s.integrated)?;
         d.set_item("keyframes", s.keyframes)?;
+        d.set_item("gaussians", s.gaussians)?;
+        d.set_item("gpu_bytes", s.gpu_bytes)?;
+        d.set_item("snapshots", s.snapshots)?;
         let dropped = PyDict::new(py);
         dropped.set_item("not_keyframe", s.dropped.not_keyframe)?;
         dropped.set_item("superseded", s.dropped.superseded)?;
@@ -174,8 +177,9 @@ impl Mapper {
         Ok(d)
     }
 
-    /// The map after the last keyframe (never waits for mapping); after
-    /// `finish` or `abort`, the whole final map.
+    /// The map after the last keyframe: taken when asked, so it waits at
+    /// most for the frame being mapped; after `finish` or `abort`, the
+    /// whole final map.
     fn snapshot(&self, py: Python<'_>) -> PyResult<Snapshot> {
         let inner = py
             .allow_threads(|| {

@@ -115,9 +115,13 @@ def test_snapshots_queries_and_renders(scene):
         mapper.submit(**frame)
     while mapper.status()["integrated"] < len(frames):
         time.sleep(0.05)
+    # Nobody read the map while it was mapped: no copy of it was taken.
+    status = mapper.status()
+    assert status["snapshots"] == 0, status
     s = mapper.snapshot()
     n = len(s)
     assert n > 0 and s.keyframes == 6
+    assert n == status["gaussians"] and mapper.status()["snapshots"] == 1
     assert s.means.shape == (n, 3) and s.means.dtype == np.float32
     assert s.scales.shape == (n, 3) and (s.scales > 0).all()
     assert s.rotations.shape == (n, 4)

@@ -247,17 +247,17 @@ fn serve(
                 .lock()
                 .unwrap_or_else(|e| e.into_inner())
                 .clone();
-            let snapshot = live.snapshot();
+            // From the status, not a snapshot: a snapshot copies the map.
             let report = outputs::Report {
                 status: &status,
-                gaussians: snapshot.len(),
-                gpu_bytes: snapshot.stats.gpu_bytes,
+                gaussians: status.gaussians,
+                gpu_bytes: status.gpu_bytes,
                 messages: stats.messages,
                 frames: stats.frames,
                 refused: stats.refused,
                 queue_latency_p99_us: p99(&stats.queue_latency_us),
                 pairing_wait_p99_us: p99(&stats.pairing_wait_us),
-                stamp_ns: snapshot.trajectory.last().map_or(0, |&(s, _)| s),
+                stamp_ns: live.reader().last_keyframe().map_or(0, |k| k.stamp_ns),
             };
             write(&own.status, outputs::status(&report), "the status");
             last_status = Instant::now();

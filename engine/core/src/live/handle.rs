@@ -2,7 +2,7 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize};
 use std::sync::{Arc, Condvar, Mutex, RwLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -113,6 +113,7 @@ impl LiveMapper {
         let (last, since) = mapper.keyframe_rule_state();
         queue.start_after(last, since);
         let first = MapSnapshot::of(&mapper, options.index)?;
+        let stats = mapper.stats();
         let shared = Arc::new(Shared {
             state: Mutex::new(State {
                 queue,
@@ -132,6 +133,11 @@ impl LiveMapper {
                 stopped: None,
                 fatal: false,
                 wants_index: false,
+                snapshot_wanted: false,
+                published: 0,
+                snapshots: 0,
+                gaussians: stats.gaussians,
+                gpu_bytes: stats.gpu_bytes,
                 outcomes: None,
                 keyframe_reports: options.keep_keyframe_reports.then(Vec::new),
             }),
@@ -143,6 +149,7 @@ impl LiveMapper {
             indexed: RwLock::new(None),
             stop: mapper.stop_flag(),
             closing: AtomicBool::new(false),
+            readers: AtomicUsize::new(0),
             options,
             ready_ms,
         });
@@ -161,7 +168,7 @@ impl LiveMapper {
             .spawn(move || worker::index_snapshots(s))
             .map_err(spawn_err)?;
         Ok(LiveMapper {
-            reader: LiveReader { shared },
+            reader: LiveReader::first(shared),
             worker: Some(worker),
             indexer: Some(indexer),
         })
@@ -195,6 +202,17 @@ impl LiveMapper {
     /// frame back if there was still no room.
     pub fn submit_waiting(&self, frame: Frame, max_wait: Duration) -> Result<Option<Frame>> {
         frame.check()?;
+        self.submit_checked_waiting(frame, max_wait)
+    }
+
+    /// [`LiveMapper::submit_waiting`] for a frame that passed
+    /// `Frame::check` already: one given back to wait again (checking
+    /// reads every label of its mask).
+    pub(crate) fn submit_checked_waiting(
+        &self,
+        frame: Frame,
+        max_wait: Duration,
+    ) -> Result<Option<Frame>> {
         let bytes = frame_bytes(&frame);
         let deadline = Instant::now() + max_wait;
         let (mut st, room) = self.shared().wait_until(deadline, |st| {
@@ -219,10 +237,16 @@ impl LiveMapper {
         self.reader.status()
     }
 
-    /// The latest snapshot of the map (after the last keyframe, or the
-    /// map it started with). Never waits for mapping.
+    /// The map as of the last keyframe (see [`LiveReader::snapshot`]:
+    /// taken when read, it waits at most for the frame in progress).
     pub fn snapshot(&self) -> Arc<MapSnapshot> {
         self.reader.snapshot()
+    }
+
+    /// The newest snapshot taken, without waiting (see
+    /// [`LiveReader::latest_snapshot`]).
+    pub fn latest_snapshot(&self) -> Arc<MapSnapshot> {
+        self.reader.latest_snapshot()
     }
 
     /// Relevance of every Gaussian to `query` (see [`LiveReader::relevance`]).

@@ -26,9 +26,13 @@ pub struct LiveOptions {
     pub queue_bytes: u64,
     /// What the relevance index keeps of each Gaussian's attention.
     pub index: IndexSettings,
-    /// Publish a snapshot every this many keyframes (1: after each). A
-    /// snapshot copies the map to the host, which costs time at millions
-    /// of Gaussians.
+    /// Also take a snapshot every this many keyframes, read or not (1:
+    /// after each). 0, the default: only when a reader asks for one
+    /// ([`LiveReader::snapshot`](super::LiveReader::snapshot)). A snapshot
+    /// reads back every Gaussian the GPU changed and copies the map: tens
+    /// of milliseconds at a few hundred thousand Gaussians, more than a
+    /// keyframe's own work on a discrete GPU, so it is not taken for
+    /// nobody.
     pub snapshot_every: u64,
     /// Stop taking frames after one the map refuses for its content
     /// (what mapping a log wants); by default it is counted and dropped
@@ -51,7 +55,7 @@ impl Default for LiveOptions {
             queue_bytes: 512 << 20,
             keep_candidates: 1,
             index: IndexSettings::default(),
-            snapshot_every: 1,
+            snapshot_every: 0,
             stop_on_rejected: false,
             drop_timeout: Duration::from_secs(10),
             keep_keyframe_reports: false,

@@ -3,6 +3,7 @@
 //! what it answers.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
@@ -42,11 +43,18 @@ pub struct LiveStatus {
     pub integrated: u64,
     /// Keyframes mapped through this handle.
     pub keyframes: u64,
+    /// Gaussians in the map after the last keyframe.
+    pub gaussians: usize,
+    /// GPU memory the mapper held after the last keyframe, bytes.
+    pub gpu_bytes: u64,
+    /// Snapshots the worker took for readers (see [`LiveReader::snapshot`]).
+    pub snapshots: u64,
     /// Frames given up, by reason.
     pub dropped: DropCounts,
     /// Whether a frame is being mapped now.
     pub mapping: bool,
-    /// The last keyframe's time from `submit` to its snapshot, ms.
+    /// The last keyframe's time from `submit` to the end of its mapping
+    /// (and its snapshot, when one was taken with it), ms.
     pub last_keyframe_latency_ms: Option<f64>,
     /// The same from the frame's stamp, when the stamp is wall-clock time
     /// (a live camera's; not a log's), ms.
@@ -101,9 +109,29 @@ pub struct Relevance {
 /// });
 /// # }
 /// ```
-#[derive(Clone)]
 pub struct LiveReader {
     pub(super) shared: Arc<Shared>,
+}
+
+impl LiveReader {
+    /// The handle's own reader (the first one).
+    pub(super) fn first(shared: Arc<Shared>) -> Self {
+        shared.readers.fetch_add(1, Ordering::SeqCst);
+        LiveReader { shared }
+    }
+}
+
+// Counted, so that the worker knows when a reader outlives the handle.
+impl Clone for LiveReader {
+    fn clone(&self) -> Self {
+        Self::first(self.shared.clone())
+    }
+}
+
+impl Drop for LiveReader {
+    fn drop(&mut self) {
+        self.shared.readers.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 impl LiveReader {
@@ -122,6 +150,9 @@ impl LiveReader {
             submitted: st.submitted,
             integrated: st.integrated,
             keyframes: st.keyframes,
+            gaussians: st.gaussians,
+            gpu_bytes: st.gpu_bytes,
+            snapshots: st.snapshots,
             dropped: st.dropped,
             mapping: st.busy,
             last_keyframe_latency_ms: st.last_latency_ms,
@@ -134,16 +165,53 @@ impl LiveReader {
         }
     }
 
-    /// The latest snapshot of the map (after the last keyframe, or the
-    /// map it started with). Never waits for mapping.
+    /// The map as of the last keyframe mapped (or the map the handle
+    /// started with). Snapshots are taken when read: when the newest one
+    /// is older than the last keyframe, the worker takes one before its
+    /// next frame and this waits for it (at most the rest of the frame in
+    /// progress and the copy). A map nobody reads costs no copies; see
+    /// [`LiveReader::latest_snapshot`] for one that never waits, and
+    /// [`LiveOptions::snapshot_every`](super::LiveOptions::snapshot_every)
+    /// to take them whether read or not.
     pub fn snapshot(&self) -> Arc<MapSnapshot> {
+        let target = self.ask_for_snapshot();
+        drop(
+            self.shared
+                .wait_for(|st| st.published >= target || st.exited || st.fatal),
+        );
         self.shared.latest()
+    }
+
+    /// The newest snapshot taken, at once: it may be older than the last
+    /// keyframe. It also asks the worker for a fresh one after the frame
+    /// in progress, so a reader that polls it sees each keyframe's map
+    /// about one keyframe late, and a map nobody reads costs nothing.
+    pub fn latest_snapshot(&self) -> Arc<MapSnapshot> {
+        self.ask_for_snapshot();
+        self.shared.latest()
+    }
+
+    /// Asks the worker for a snapshot of the last keyframe when the
+    /// newest one is older; returns the keyframes it will show.
+    fn ask_for_snapshot(&self) -> u64 {
+        let mut st = self.shared.lock();
+        let target = st.keyframes;
+        if st.published < target && !st.snapshot_wanted {
+            st.snapshot_wanted = true;
+            drop(st);
+            self.shared.work.notify_one();
+        }
+        target
     }
 
     /// Relevance of every Gaussian to `query`, from the newest snapshot
     /// whose relevance index is built. From the first query on, an
     /// indexer thread indexes each new snapshot, so later queries do not
-    /// pay for it; the first one builds it on the calling thread.
+    /// pay for it; the first one takes a snapshot of the last keyframe (as
+    /// [`LiveReader::snapshot`]) and builds its index on the calling
+    /// thread. Each query asks for a fresh snapshot (as
+    /// [`LiveReader::latest_snapshot`]), so that queries asked after every
+    /// keyframe are answered from the map at most a keyframe or two old.
     pub fn relevance(&self, query: &TextQuery) -> Result<Relevance> {
         {
             let mut st = self.shared.lock();
@@ -152,6 +220,7 @@ impl LiveReader {
                 self.shared.index_wake.notify_all();
             }
         }
+        self.ask_for_snapshot();
         let indexed = self
             .shared
             .indexed
@@ -222,10 +291,7 @@ impl LiveReader {
 
     /// Waits until more than `seen` keyframes are mapped through the
     /// handle, the worker ends, or `max_wait` passes; the keyframes
-    /// mapped then. The snapshot of a keyframe is published before it is
-    /// counted, so [`LiveReader::snapshot`] then shows it (when
-    /// [`LiveOptions::snapshot_every`](super::LiveOptions::snapshot_every)
-    /// took one).
+    /// mapped then; [`LiveReader::snapshot`] then shows them.
     pub fn wait_for_keyframe(&self, seen: u64, max_wait: Duration) -> u64 {
         let deadline = Instant::now() + max_wait;
         let (st, _) = self

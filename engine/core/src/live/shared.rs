@@ -2,7 +2,7 @@
 //! loans of the mapper, the counters, and the snapshots.
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard, RwLock};
 use std::time::Instant;
 
@@ -62,6 +62,17 @@ pub(super) struct State {
     /// The worker stopped on a failure that left no usable map.
     pub fatal: bool,
     pub wants_index: bool,
+    /// A reader waits for a snapshot newer than the last one taken.
+    pub snapshot_wanted: bool,
+    /// Keyframes mapped through the handle when the last snapshot was
+    /// taken (it is current while this equals `keyframes`).
+    pub published: u64,
+    /// Snapshots taken by the worker.
+    pub snapshots: u64,
+    /// Gaussians in the map and the GPU bytes it held after the last
+    /// keyframe (or when the handle started).
+    pub gaussians: usize,
+    pub gpu_bytes: u64,
     pub outcomes: Option<Vec<Outcome>>,
     /// Reports of the keyframes not taken yet, when the options keep them.
     pub keyframe_reports: Option<Vec<crate::mapper::KeyframeReport>>,
@@ -69,9 +80,10 @@ pub(super) struct State {
 
 pub(super) struct Shared {
     pub state: Mutex<State>,
-    /// Wakes the worker: a frame, a loan, a close.
+    /// Wakes the worker: a frame, a loan, a snapshot wanted, a close.
     pub work: Condvar,
-    /// Wakes callers: room in the queue, a frame done, the worker gone.
+    /// Wakes callers: room in the queue, a frame done, a snapshot taken,
+    /// the worker gone.
     pub room: Condvar,
     /// Wakes the indexer: a snapshot, a first query, a close.
     pub index_wake: Condvar,
@@ -83,6 +95,8 @@ pub(super) struct Shared {
     pub stop: Arc<AtomicBool>,
     /// Set when the handle closes: the indexer gives up its build.
     pub closing: AtomicBool,
+    /// Live [`LiveReader`](super::LiveReader)s, the handle's own included.
+    pub readers: AtomicUsize,
     pub options: LiveOptions,
     pub ready_ms: Option<f64>,
 }
@@ -142,6 +156,15 @@ impl Shared {
         self.index_wake.notify_all();
     }
 
+    /// Waits (on `room`) until `done` holds: the guard.
+    pub fn wait_for(&self, done: impl Fn(&State) -> bool) -> MutexGuard<'_, State> {
+        let mut st = self.lock();
+        while !done(&st) {
+            st = self.room.wait(st).unwrap_or_else(|e| e.into_inner());
+        }
+        st
+    }
+
     /// Waits (on `room`) until `done` holds or `deadline` passes: the
     /// guard, and whether `done` holds.
     pub fn wait_until(
@@ -168,6 +191,28 @@ impl Shared {
 }
 
 impl State {
+    /// Whether the newest snapshot shows every keyframe mapped so far.
+    pub fn snapshot_current(&self) -> bool {
+        self.published >= self.keyframes
+    }
+
+    /// Counts a snapshot the worker tried to take of the map after
+    /// `keyframes` (`taken`: it succeeded; a failure stopped the worker,
+    /// which also ends the wait of any reader).
+    pub fn record_snapshot(&mut self, taken: bool, keyframes: u64) {
+        if taken {
+            self.published = keyframes;
+            self.snapshots += 1;
+        }
+        self.snapshot_wanted = false;
+    }
+
+    /// Whether the worker should take a snapshot before anything else:
+    /// a reader waits for one, and the map can give one.
+    pub fn snapshot_due(&self) -> bool {
+        self.snapshot_wanted && !self.snapshot_current() && !self.fatal
+    }
+
     /// What a call on a handle whose worker stopped returns.
     pub fn stopped_error(&self) -> Error {
         let cause = self.stopped.clone().unwrap_or_else(|| {

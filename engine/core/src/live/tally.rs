@@ -121,8 +121,16 @@ impl Tally {
     ) -> Option<Ending> {
         let stamp = frame.stamp_ns;
         let mut waiting = frame;
+        let mut checked = false;
         loop {
-            match live.submit_waiting(waiting, Duration::from_millis(50)) {
+            let wait = Duration::from_millis(50);
+            let submitted = match checked {
+                // Given back for want of room: checked the first time.
+                true => live.submit_checked_waiting(waiting, wait),
+                false => live.submit_waiting(waiting, wait),
+            };
+            checked = true;
+            match submitted {
                 Ok(None) => return None,
                 Ok(Some(back)) => waiting = back,
                 // The worker stopped: its outcome says why.

@@ -1,13 +1,14 @@
 //! The worker thread: it owns the mapper, maps queued frames one after
-//! another, serves loans of the mapper between them, and publishes a
-//! snapshot after each keyframe.
+//! another, serves loans of the mapper between them, and takes snapshots
+//! between them when a reader wants one (or every few keyframes, when the
+//! options ask for that).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
-use latentam_base::{Error, Result};
+use latentam_base::Error;
 
 use super::keyframe_image::KeyframeImage;
 use super::queue::Queued;
@@ -18,6 +19,8 @@ use crate::mapper::{camera_of, Integrated, Mapper};
 /// What the worker does next.
 enum Job {
     Lend(mpsc::Sender<Lent>),
+    /// A snapshot of the map as it stands after this many keyframes.
+    Publish(u64),
     Frame(Box<Queued>),
     Exit,
 }
@@ -39,8 +42,19 @@ pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
                     return None;
                 }
             },
+            Job::Publish(keyframes) => publish(&mapper, &shared, keyframes),
             Job::Frame(q) => map_one(&mut mapper, *q, &shared),
         }
+    }
+    // A reader that outlives a finished handle reads the final map.
+    let last = {
+        let st = shared.lock();
+        let outlived = shared.readers.load(Ordering::SeqCst) > 1;
+        let finished = st.close == Some(Close::Finish);
+        (outlived && finished && !st.snapshot_current() && !st.fatal).then_some(st.keyframes)
+    };
+    if let Some(keyframes) = last {
+        publish(&mapper, &shared, keyframes);
     }
     // Whatever asked to hurry is answered: the mapper maps normally again.
     mapper.stop_flag().store(false, Ordering::SeqCst);
@@ -58,6 +72,10 @@ fn next_job(shared: &Shared) -> Job {
             let n = st.queue.clear();
             st.dropped.aborted += n;
             break Job::Exit;
+        }
+        // Before the next frame: a reader waits for it.
+        if st.snapshot_due() {
+            break Job::Publish(st.keyframes);
         }
         if st.stopped.is_none() {
             if let Some(q) = st.queue.pop() {
@@ -99,17 +117,18 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
     // `submit` checked the frame.
     let result = catch_unwind(AssertUnwindSafe(|| mapper.integrate_checked(&q.frame)));
     let mut keyframe = false;
+    let mut snapshot = None;
     let outcome = match result {
         Ok(Ok(integrated)) => {
             if let Integrated::Keyframe(report) = &integrated {
                 keyframe = true;
-                // An aborting handle has no reader left to take one for.
-                let due = report.index % shared.options.snapshot_every.max(1) == 0
-                    && !shared.stop.load(Ordering::SeqCst);
-                if due {
-                    if let Err(e) = publish(mapper, shared) {
-                        shared.fail(e, true);
-                    }
+                // Taken before the keyframe is counted, so that a reader
+                // woken by the count finds it. An aborting handle has no
+                // reader left to take one for.
+                let every = shared.options.snapshot_every;
+                let due = (every > 0 && report.index % every == 0) || shared.lock().snapshot_wanted;
+                if due && !shared.stop.load(Ordering::SeqCst) {
+                    snapshot = Some(take_snapshot(mapper, shared));
                 }
                 keep_image(&q.frame, report.index, shared);
             }
@@ -144,9 +163,17 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
             }
             st.last_error = Some(e.clone());
         }
-        Ok(_) if keyframe => {
+        Ok(integrated) if keyframe => {
             let now = Instant::now();
             st.keyframes += 1;
+            if let Integrated::Keyframe(report) = integrated {
+                st.gaussians = report.gaussians;
+                st.gpu_bytes = report.gpu_bytes;
+            }
+            if let Some(taken) = snapshot {
+                let keyframes = st.keyframes;
+                st.record_snapshot(taken, keyframes);
+            }
             st.last_latency_ms = Some((now - q.submitted).as_secs_f64() * 1e3);
             st.last_stamp_latency_ms = stamp_latency_ms(q.frame.stamp_ns);
             st.last_keyframe_ms = Some((now - started).as_secs_f64() * 1e3);
@@ -197,12 +224,30 @@ fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
         .unwrap_or_else(|e| e.into_inner()) = Some(Arc::new(image));
 }
 
-/// Takes a snapshot of the map and makes it the one readers see.
-fn publish(mapper: &Mapper, shared: &Shared) -> Result<()> {
-    let snapshot = MapSnapshot::of(mapper, shared.options.index)?;
-    *shared.snapshot.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(snapshot);
-    shared.index_wake.notify_all();
-    Ok(())
+/// Takes a snapshot of the map (between frames) and makes it the one
+/// readers see, as of `keyframes` mapped through the handle; wakes the
+/// readers waiting for it.
+fn publish(mapper: &Mapper, shared: &Shared, keyframes: u64) {
+    let taken = take_snapshot(mapper, shared);
+    shared.lock().record_snapshot(taken, keyframes);
+    shared.room.notify_all();
+}
+
+/// Takes a snapshot of the map and makes it the one readers see; a
+/// failure stops the worker (the map could not be read back). Returns
+/// whether it was taken, for [`State::record_snapshot`].
+fn take_snapshot(mapper: &Mapper, shared: &Shared) -> bool {
+    match MapSnapshot::of(mapper, shared.options.index) {
+        Ok(snapshot) => {
+            *shared.snapshot.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(snapshot);
+            shared.index_wake.notify_all();
+            true
+        }
+        Err(e) => {
+            shared.fail(e, true);
+            false
+        }
+    }
 }
 
 /// The relevance indexer: while queries are being asked, it indexes each

@@ -1,6 +1,6 @@
 //! What a reader sees of a live map: an immutable copy taken between
 //! keyframes, shared behind an `Arc`, so reading it never waits for
-//! mapping.
+//! mapping once taken.
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
@@ -25,7 +25,7 @@ use std::path::Path;
 /// ```no_run
 /// # fn f(live: &latentam_core::live::LiveMapper, text_embedding: Vec<f32>) -> latentam_core::Result<()> {
 /// use latentam_core::latent::TextQuery;
-/// let snapshot = live.snapshot(); // never waits for the keyframe in progress
+/// let snapshot = live.snapshot(); // the map as of the last keyframe
 /// let scores = snapshot.relevance(&TextQuery::embedding(text_embedding))?;
 /// let best = (0..scores.len()).max_by(|&a, &b| scores[a].total_cmp(&scores[b]));
 /// if let Some(i) = best {

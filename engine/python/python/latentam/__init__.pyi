@@ -125,10 +125,14 @@ class Mapper:
         policy when the mapper falls behind (``status()["dropped"]``).
         """
     def status(self) -> Dict[str, Any]:
-        """Queue depth, frames dropped by reason, latencies (ms), the last error."""
+        """Queue depth, frames dropped by reason, latencies (ms), the map's
+        Gaussians and GPU bytes after the last keyframe, snapshots taken,
+        the last error."""
     def snapshot(self) -> Snapshot:
-        """The map after the last keyframe; never waits for mapping. After
-        ``finish`` or ``abort``, the whole final map."""
+        """The map after the last keyframe. Snapshots are taken when asked
+        for, so this waits at most for the frame being mapped (a map nobody
+        reads costs no copies). After ``finish`` or ``abort``, the whole
+        final map."""
     def query(self, text_embedding: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """Cosine relevance of every Gaussian of the newest indexed snapshot."""
     def query_names(
