@@ -190,9 +190,7 @@ impl Regions {
                 format!("region label {bad} but the message has {count} regions"),
             ));
         }
-        self.add(view, count, |slot, u, v| {
-            let lu = nearest(u, slot.width, img.width);
-            let lv = nearest(v, slot.height, img.height);
+        self.add(view, count, (img.width, img.height), |lv, lu| {
             let l = img.labels[(lv * img.width + lu) as usize];
             (l != NO_REGION_LABEL).then_some(l as u32)
         })
@@ -207,16 +205,20 @@ impl Regions {
                 format!("feature grid of {rows}x{cols} cells"),
             ));
         }
-        self.add(view, rows * cols, |slot, u, v| {
-            Some(nearest(v, slot.height, rows) * cols + nearest(u, slot.width, cols))
+        self.add(view, rows * cols, (cols, rows), |lv, lu| {
+            Some(lv * cols + lu)
         })
     }
 
+    /// Adds view `view`'s regions from a source of `source` (width,
+    /// height) cells laid over it: each pixel takes the region of the cell
+    /// under its centre, `label_of(row, column)` of that cell.
     fn add(
         &mut self,
         view: usize,
         count: u32,
-        label_of: impl Fn(&crate::splat::ViewSlot, u32, u32) -> Option<u32>,
+        source: (u32, u32),
+        label_of: impl Fn(u32, u32) -> Option<u32>,
     ) -> Result<&ViewRegions> {
         let Some(slot) = self.layout.views.get(view).copied() else {
             return Err(Error::bad_input(
@@ -233,12 +235,20 @@ impl Regions {
                 ),
             ));
         }
+        // The cell under each pixel is separable: its column from the
+        // pixel's column, its row from the pixel's row (computed once
+        // each, not per pixel: this runs over every pixel of every view
+        // Stage I trains on).
+        let columns: Vec<u32> = (0..slot.width)
+            .map(|u| nearest(u, slot.width, source.0))
+            .collect();
         let mut labels = Vec::with_capacity((slot.width * slot.height) as usize);
         let mut sizes = vec![0u32; count as usize];
         for v in 0..slot.height {
-            for u in 0..slot.width {
-                let l = label_of(&slot, u, v);
-                if let Some(l) = l {
+            let lv = nearest(v, slot.height, source.1);
+            for &lu in &columns {
+                let l = label_of(lv, lu).unwrap_or(NO_REGION);
+                if l != NO_REGION {
                     sizes[l as usize] += 1;
                 }
                 labels.push(l);
@@ -271,8 +281,10 @@ impl Regions {
             self.offsets.push(start);
         }
         self.pixels.resize(start as usize, 0);
-        for (i, l) in labels.iter().enumerate() {
-            let Some(l) = *l else { continue };
+        for (i, &l) in labels.iter().enumerate() {
+            if l == NO_REGION {
+                continue;
+            }
             let row = row_of[l as usize];
             if row == NO_REGION {
                 continue;
