@@ -202,14 +202,22 @@ impl Seeder {
     pub(crate) fn insert(
         &mut self,
         frame: &Frame,
-        mut seeds: Vec<Gaussian>,
+        seeds: Vec<Gaussian>,
         global: &mut GlobalMap,
     ) -> Vec<VoxelKey> {
         let centre = frame.pose.translation;
         let dist = |m: [f32; 3]| DVec3::from(m.map(f64::from)).distance_squared(centre);
-        seeds.sort_by(|a, b| dist(a.mean).total_cmp(&dist(b.mean)));
+        // Nearest first, ties in seeding's order: the distances computed
+        // once and sorted with their indices, not the Gaussians (184
+        // bytes each) with a distance computed at every comparison.
+        let mut order: Vec<(f64, u32)> = seeds
+            .iter()
+            .enumerate()
+            .map(|(i, g)| (dist(g.mean), i as u32))
+            .collect();
+        order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut keys = Vec::with_capacity(seeds.len());
-        for g in seeds {
+        for g in order.into_iter().map(|(_, i)| seeds[i as usize]) {
             let guessed = matches!(measured_at(frame, g.mean), Some((_, None)));
             if let Some(key) = global.insert(g) {
                 if guessed {
