@@ -51,7 +51,8 @@ def main() -> None:
     done = threading.Event()
 
     def watch() -> None:
-        # Reads the map while it is built: snapshots never wait for mapping.
+        # Reads the map while it is built: a snapshot waits at most for the
+        # frame being mapped.
         while not done.wait(1.0):
             s = mapper.snapshot()
             if len(s):

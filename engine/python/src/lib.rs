@@ -185,7 +185,13 @@ impl Mapper {
             .allow_threads(|| {
                 let state = self.state.read().unwrap_or_else(|e| e.into_inner());
                 match &*state {
-                    State::Live(live) => Ok(live.snapshot()),
+                    // Waited for without the lock, which `finish` and
+                    // `abort` take.
+                    State::Live(live) => {
+                        let reader = live.reader();
+                        drop(state);
+                        Ok(reader.snapshot())
+                    }
                     State::Finished(mapper) => mapper
                         .lock()
                         .unwrap_or_else(|e| e.into_inner())

@@ -454,7 +454,7 @@ fn ask(
             let t = Instant::now();
             probes.large.relevance(&text)?;
             large_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        } else if !live.snapshot().is_empty() {
+        } else if live.status().gaussians > 0 {
             let t = Instant::now();
             live.render(&camera)?;
             render_ms.push(t.elapsed().as_secs_f64() * 1e3);

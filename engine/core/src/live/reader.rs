@@ -11,7 +11,7 @@ use latentam_base::{Error, Result};
 
 use super::keyframe_image::KeyframeImage;
 use super::queue::DropCounts;
-use super::shared::Shared;
+use super::shared::{Close, Shared};
 use crate::latent::TextQuery;
 use crate::mapper::MapSnapshot;
 use crate::mapper::Mapper;
@@ -47,7 +47,8 @@ pub struct LiveStatus {
     pub gaussians: usize,
     /// GPU memory the mapper held after the last keyframe, bytes.
     pub gpu_bytes: u64,
-    /// Snapshots the worker took for readers (see [`LiveReader::snapshot`]).
+    /// Snapshots the worker took: for readers (see [`LiveReader::snapshot`])
+    /// and every [`LiveOptions::snapshot_every`](super::LiveOptions::snapshot_every) keyframes.
     pub snapshots: u64,
     /// Frames given up, by reason.
     pub dropped: DropCounts,
@@ -175,10 +176,11 @@ impl LiveReader {
     /// to take them whether read or not.
     pub fn snapshot(&self) -> Arc<MapSnapshot> {
         let target = self.ask_for_snapshot();
-        drop(
-            self.shared
-                .wait_for(|st| st.published >= target || st.exited || st.fatal),
-        );
+        // Not after an abort: the worker may be stuck on a GPU that
+        // stopped answering, and the handle's drop gives up on it.
+        drop(self.shared.wait_for(|st| {
+            st.published >= target || st.exited || st.fatal || st.close == Some(Close::Abort)
+        }));
         self.shared.latest()
     }
 
@@ -227,9 +229,11 @@ impl LiveReader {
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .clone();
+        // Once the worker is gone its indexer is too: the final snapshot
+        // is indexed here (once) rather than answering from an older one.
         let snapshot = match indexed {
-            Some(s) => s,
-            None => self.snapshot(),
+            Some(s) if self.is_running() || s.keyframes >= self.shared.latest().keyframes => s,
+            _ => self.snapshot(),
         };
         let scores = snapshot.relevance(query)?;
         Ok(Relevance { scores, snapshot })

@@ -154,6 +154,8 @@ impl Shared {
         self.closing.store(true, Ordering::SeqCst);
         self.work.notify_all();
         self.index_wake.notify_all();
+        // Readers waiting for a snapshot give up on an abort.
+        self.room.notify_all();
     }
 
     /// Waits (on `room`) until `done` holds: the guard.

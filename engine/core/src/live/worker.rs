@@ -28,6 +28,9 @@ enum Job {
 /// Runs until the handle closes; gives the mapper back (none if a loan
 /// never returned it).
 pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
+    // A panic outside a frame (frames catch their own) still ends the
+    // worker as a failure, so that no caller waits for it forever.
+    let _exit_on_panic = ExitOnPanic(&shared);
     loop {
         match next_job(&shared) {
             Job::Exit => break,
@@ -54,7 +57,10 @@ pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
         (outlived && finished && !st.snapshot_current() && !st.fatal).then_some(st.keyframes)
     };
     if let Some(keyframes) = last {
-        publish(&mapper, &shared, keyframes);
+        // The map itself is fine whatever becomes of this copy: a failure
+        // is reported, and `finish` still gives the mapper back.
+        let taken = take_snapshot(&mapper, &shared, false);
+        shared.lock().record_snapshot(taken, keyframes);
     }
     // Whatever asked to hurry is answered: the mapper maps normally again.
     mapper.stop_flag().store(false, Ordering::SeqCst);
@@ -126,9 +132,11 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
                 // woken by the count finds it. An aborting handle has no
                 // reader left to take one for.
                 let every = shared.options.snapshot_every;
-                let due = (every > 0 && report.index % every == 0) || shared.lock().snapshot_wanted;
+                // After every `every`-th keyframe (the report counts from 0).
+                let due =
+                    (every > 0 && (report.index + 1) % every == 0) || shared.lock().snapshot_wanted;
                 if due && !shared.stop.load(Ordering::SeqCst) {
-                    snapshot = Some(take_snapshot(mapper, shared));
+                    snapshot = Some(take_snapshot(mapper, shared, true));
                 }
                 keep_image(&q.frame, report.index, shared);
             }
@@ -143,12 +151,7 @@ fn map_one(mapper: &mut Mapper, q: Queued, shared: &Shared) {
             Err(e)
         }
         Err(panic) => {
-            let message = panic
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "(no message)".into());
-            let e = Arc::new(Error::Panicked(message));
+            let e = Arc::new(Error::Panicked(panic_message(&*panic)));
             shared.fail_shared(e.clone(), true);
             Err(e)
         }
@@ -228,24 +231,59 @@ fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
 /// readers see, as of `keyframes` mapped through the handle; wakes the
 /// readers waiting for it.
 fn publish(mapper: &Mapper, shared: &Shared, keyframes: u64) {
-    let taken = take_snapshot(mapper, shared);
+    let taken = take_snapshot(mapper, shared, true);
     shared.lock().record_snapshot(taken, keyframes);
     shared.room.notify_all();
 }
 
 /// Takes a snapshot of the map and makes it the one readers see; a
-/// failure stops the worker (the map could not be read back). Returns
-/// whether it was taken, for [`State::record_snapshot`].
-fn take_snapshot(mapper: &Mapper, shared: &Shared) -> bool {
-    match MapSnapshot::of(mapper, shared.options.index) {
+/// failure (or a panic) is the last error, and stops the worker when
+/// `fatal` (while mapping, a map that cannot be read back cannot be
+/// trusted either). Returns whether it was taken, for
+/// [`State::record_snapshot`](super::shared::State::record_snapshot).
+fn take_snapshot(mapper: &Mapper, shared: &Shared, fatal: bool) -> bool {
+    let taken = catch_unwind(AssertUnwindSafe(|| {
+        MapSnapshot::of(mapper, shared.options.index)
+    }))
+    .unwrap_or_else(|panic| Err(Error::Panicked(panic_message(&*panic))));
+    match taken {
         Ok(snapshot) => {
             *shared.snapshot.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(snapshot);
+            // Under the indexer's lock, so that it cannot miss the wake
+            // between its look at the newest snapshot and its wait.
+            drop(shared.lock());
             shared.index_wake.notify_all();
             true
         }
-        Err(e) => {
+        Err(e) if fatal => {
             shared.fail(e, true);
             false
+        }
+        Err(e) => {
+            shared.lock().last_error = Some(Arc::new(e));
+            false
+        }
+    }
+}
+
+/// The text of a caught panic.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".into())
+}
+
+/// Ends the worker as failed when its thread unwinds.
+struct ExitOnPanic<'a>(&'a Shared);
+
+impl Drop for ExitOnPanic<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0
+                .fail(Error::Panicked("the mapping worker panicked".into()), true);
+            self.0.exit();
         }
     }
 }
