@@ -198,7 +198,7 @@ impl LiveReader {
     fn ask_for_snapshot(&self) -> u64 {
         let mut st = self.shared.lock();
         let target = st.keyframes;
-        if st.published < target && !st.snapshot_wanted {
+        if !st.snapshot_current() && !st.snapshot_wanted {
             st.snapshot_wanted = true;
             drop(st);
             self.shared.work.notify_one();

@@ -199,8 +199,8 @@ impl State {
     }
 
     /// Counts a snapshot the worker tried to take of the map after
-    /// `keyframes` (`taken`: it succeeded; a failure stopped the worker,
-    /// which also ends the wait of any reader).
+    /// `keyframes` (`taken`: it succeeded; a failure while mapping stopped
+    /// the worker, which also ends the wait of any reader).
     pub fn record_snapshot(&mut self, taken: bool, keyframes: u64) {
         if taken {
             self.published = keyframes;

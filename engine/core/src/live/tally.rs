@@ -120,17 +120,13 @@ impl Tally {
         frames: &mut McapFrames,
     ) -> Option<Ending> {
         let stamp = frame.stamp_ns;
+        // Checked once, not each time it is given back for want of room.
+        if let Err(e) = frame.check() {
+            return Some(Ending::Failed(format!("mapping frame at {stamp} ns: {e}")));
+        }
         let mut waiting = frame;
-        let mut checked = false;
         loop {
-            let wait = Duration::from_millis(50);
-            let submitted = match checked {
-                // Given back for want of room: checked the first time.
-                true => live.submit_checked_waiting(waiting, wait),
-                false => live.submit_waiting(waiting, wait),
-            };
-            checked = true;
-            match submitted {
+            match live.submit_checked_waiting(waiting, Duration::from_millis(50)) {
                 Ok(None) => return None,
                 Ok(Some(back)) => waiting = back,
                 // The worker stopped: its outcome says why.

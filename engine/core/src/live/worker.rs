@@ -45,7 +45,7 @@ pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
                     return None;
                 }
             },
-            Job::Publish(keyframes) => publish(&mapper, &shared, keyframes),
+            Job::Publish(keyframes) => publish(&mapper, &shared, keyframes, true),
             Job::Frame(q) => map_one(&mut mapper, *q, &shared),
         }
     }
@@ -59,8 +59,7 @@ pub(super) fn run(mut mapper: Mapper, shared: Arc<Shared>) -> Option<Mapper> {
     if let Some(keyframes) = last {
         // The map itself is fine whatever becomes of this copy: a failure
         // is reported, and `finish` still gives the mapper back.
-        let taken = take_snapshot(&mapper, &shared, false);
-        shared.lock().record_snapshot(taken, keyframes);
+        publish(&mapper, &shared, keyframes, false);
     }
     // Whatever asked to hurry is answered: the mapper maps normally again.
     mapper.stop_flag().store(false, Ordering::SeqCst);
@@ -229,9 +228,10 @@ fn keep_image(frame: &latentam_io::Frame, keyframe: u64, shared: &Shared) {
 
 /// Takes a snapshot of the map (between frames) and makes it the one
 /// readers see, as of `keyframes` mapped through the handle; wakes the
-/// readers waiting for it.
-fn publish(mapper: &Mapper, shared: &Shared, keyframes: u64) {
-    let taken = take_snapshot(mapper, shared, true);
+/// readers waiting for it. A failure stops the worker when `fatal` (see
+/// [`take_snapshot`]).
+fn publish(mapper: &Mapper, shared: &Shared, keyframes: u64, fatal: bool) {
+    let taken = take_snapshot(mapper, shared, fatal);
     shared.lock().record_snapshot(taken, keyframes);
     shared.room.notify_all();
 }
