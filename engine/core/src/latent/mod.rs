@@ -21,7 +21,10 @@ pub use head::{LatentHead, LatentHeadConfig};
 pub use host_decoder::HostDecoder;
 pub use kmeans::{KMeansConfig, KMeansStep, StreamingKMeans, MAX_KMEANS_ATOMS};
 pub use pixel_decoder::{FactorisedDecoder, NORM_CUTOFF};
-pub use pooling::{LabelImage, RegionPooling, Regions, ViewRegions, NO_REGION, NO_REGION_LABEL};
+pub use pooling::{
+    LabelImage, RegionCounts, RegionPooling, RegionRows, RegionSource, Regions, ViewRegions,
+    NO_REGION, NO_REGION_LABEL,
+};
 pub use query_init::projected_queries;
 pub use relevance::{
     softmax_rows, Relevance, RelevanceScorer, TextQuery, MAX_TEMPERATURE, MIN_TEMPERATURE,

@@ -1,7 +1,9 @@
 //! Region pooling (regions as in paper Sec. III-B): rendered per-pixel queries averaged over each
 //! region of a view (a SAM-style mask or a coarse feature-grid cell), and the
-//! gradient sent back to the pixels. The region lists are built on the CPU
-//! ([`Regions`]) when a frame is ingested; the GPU side is
+//! gradient sent back to the pixels. A view's regions are counted on the
+//! CPU once ([`RegionCounts`]: which are kept, their sizes), the rows of a
+//! batch laid out from the counts ([`RegionRows`]), and the pixel lists
+//! built where a caller needs them ([`Regions`]); the GPU side is
 //! [`RegionPooling`] (kernels `glsl/region_pool.comp`,
 //! `glsl/region_pool_backward.comp`; CPU reference
 //! `latentam_reference::pooling`).
@@ -80,6 +82,399 @@ pub struct ViewRegions {
     pub empty: u32,
 }
 
+/// Where one view's regions come from, laid over the view: a label image
+/// with `count` regions, or a feature grid of `rows × cols` cells (one
+/// region per cell). View pixels take the cell under their centre.
+#[derive(Clone, Copy, Debug)]
+pub enum RegionSource<'a> {
+    /// A label image with labels `0..count` ([`NO_REGION_LABEL`] for none).
+    Labels {
+        /// The labels.
+        image: LabelImage<'a>,
+        /// Regions in the image's message.
+        count: u32,
+    },
+    /// A feature grid: cell (row, column) is region `row * cols + column`.
+    Grid {
+        /// Cell rows.
+        rows: u32,
+        /// Cell columns.
+        cols: u32,
+    },
+}
+
+impl RegionSource<'_> {
+    /// Regions the source numbers (kept or not).
+    pub fn count(&self) -> u32 {
+        match self {
+            RegionSource::Labels { count, .. } => *count,
+            RegionSource::Grid { rows, cols } => rows * cols,
+        }
+    }
+
+    /// Cells across and down.
+    fn cells(&self) -> (u32, u32) {
+        match self {
+            RegionSource::Labels { image, .. } => (image.width, image.height),
+            RegionSource::Grid { rows, cols } => (*cols, *rows),
+        }
+    }
+
+    /// Region of cell (`row`, `col`), [`NO_REGION`] for none.
+    fn region(&self, row: u32, col: u32) -> u32 {
+        match self {
+            RegionSource::Labels { image, .. } => {
+                match image.labels[(row * image.width + col) as usize] {
+                    NO_REGION_LABEL => NO_REGION,
+                    l => l as u32,
+                }
+            }
+            RegionSource::Grid { cols, .. } => row * cols + col,
+        }
+    }
+
+    /// An error naming `view` when the source is malformed: an empty grid,
+    /// a label image of the wrong length, or a label ≥ the count.
+    fn check(&self, view: usize) -> Result<()> {
+        match self {
+            RegionSource::Grid { rows, cols } => {
+                if *rows == 0 || *cols == 0 {
+                    return Err(Error::bad_input(
+                        format!("view {view}"),
+                        format!("feature grid of {rows}x{cols} cells"),
+                    ));
+                }
+            }
+            RegionSource::Labels { image, count } => {
+                if image.width == 0
+                    || image.height == 0
+                    || image.labels.len() as u64 != image.width as u64 * image.height as u64
+                {
+                    return Err(Error::bad_input(
+                        "label image",
+                        format!(
+                            "{}x{} with {} labels",
+                            image.width,
+                            image.height,
+                            image.labels.len()
+                        ),
+                    ));
+                }
+                if let Some(&bad) = image
+                    .labels
+                    .iter()
+                    .find(|&&l| l != NO_REGION_LABEL && l as u32 >= *count)
+                {
+                    return Err(Error::bad_input(
+                        format!("view {view}"),
+                        format!("region label {bad} but the message has {count} regions"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One view's regions, counted: which regions of its source are kept
+/// (they cover at least the minimum of pixels) and how many pixels each
+/// covers. It depends on the source, the view's size and the minimum only,
+/// not on the batch the view trains in, so Stage I counts a keyframe's
+/// regions once and keeps the counts for its replays.
+///
+/// Counting costs one step per source cell, not per pixel: the cell under
+/// a pixel is separable (its column from the pixel's column, its row from
+/// the pixel's row), so a cell covers (pixel rows onto its row) × (pixel
+/// columns onto its column) pixels.
+///
+/// ```
+/// use latentam_core::latent::{RegionCounts, RegionSource};
+///
+/// // A 2×2 grid over an 8×6 view: four regions of 4×3 pixels.
+/// let counts = RegionCounts::of(RegionSource::Grid { rows: 2, cols: 2 }, 8, 6, 10)?;
+/// assert_eq!(counts.sources, [0, 1, 2, 3]);
+/// assert_eq!(counts.sizes, [12, 12, 12, 12]);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RegionCounts {
+    /// The view's columns.
+    pub width: u32,
+    /// The view's rows.
+    pub height: u32,
+    /// The kept regions' indices in the source, in increasing order: the
+    /// view's pooled rows, in this order.
+    pub sources: Vec<u32>,
+    /// Pixels of each kept region.
+    pub sizes: Vec<u32>,
+    /// Regions with fewer pixels than the minimum (ignored).
+    pub too_small: u32,
+    /// Regions that cover no pixel of the view.
+    pub empty: u32,
+}
+
+impl RegionCounts {
+    /// The regions of `source` laid over a `width × height` view, kept when
+    /// they cover at least `min_pixels` pixels (at least 1). A malformed
+    /// source is an error.
+    pub fn of(source: RegionSource, width: u32, height: u32, min_pixels: u32) -> Result<Self> {
+        source.check(0)?;
+        Ok(Self::counted(source, width, height, min_pixels))
+    }
+
+    /// [`Self::of`] for a source already checked.
+    fn counted(source: RegionSource, width: u32, height: u32, min_pixels: u32) -> Self {
+        let count = source.count();
+        let (cells_x, cells_y) = source.cells();
+        let spans = |n: u32, m: u32| {
+            let mut per_cell = vec![0u32; m as usize];
+            for i in 0..n {
+                per_cell[nearest(i, n, m) as usize] += 1;
+            }
+            per_cell
+        };
+        let (per_col, per_row) = (spans(width, cells_x), spans(height, cells_y));
+        let mut sizes = vec![0u64; count as usize];
+        for (row, &rows) in per_row.iter().enumerate().filter(|(_, &n)| n > 0) {
+            for (col, &cols) in per_col.iter().enumerate().filter(|(_, &n)| n > 0) {
+                let r = source.region(row as u32, col as u32);
+                if r != NO_REGION {
+                    sizes[r as usize] += rows as u64 * cols as u64;
+                }
+            }
+        }
+        let mut out = RegionCounts {
+            width,
+            height,
+            ..Default::default()
+        };
+        for (region, &size) in sizes.iter().enumerate() {
+            if size == 0 {
+                out.empty += 1;
+            } else if size < min_pixels.max(1) as u64 {
+                out.too_small += 1;
+            } else {
+                out.sources.push(region as u32);
+                // At most the view's pixels, which a camera keeps below 2^32.
+                out.sizes.push(size as u32);
+            }
+        }
+        out
+    }
+
+    /// Pixels in kept regions.
+    pub fn members(&self) -> u64 {
+        self.sizes.iter().map(|&s| s as u64).sum()
+    }
+
+    /// Calls `f(pixel, row)` for every pixel of the view in row-major order
+    /// (`pixel` its index in the view), with `row` its kept region's row
+    /// among [`Self::sources`] (from 0), [`NO_REGION`] for none. `source`
+    /// must be the one counted (an error when its count differs or a label
+    /// is out of range).
+    pub fn for_each_pixel(&self, source: RegionSource, f: impl FnMut(usize, u32)) -> Result<()> {
+        for_each_pixel_row(&self.sources, self.width, self.height, source, f)
+    }
+}
+
+impl ViewRegions {
+    /// [`RegionCounts::for_each_pixel`] for this view, of `width × height`
+    /// pixels, with `source` the regions it was counted from; `row` is
+    /// local to the view (its [`Self::first_row`] is 0).
+    pub fn for_each_pixel(
+        &self,
+        width: u32,
+        height: u32,
+        source: RegionSource,
+        f: impl FnMut(usize, u32),
+    ) -> Result<()> {
+        for_each_pixel_row(&self.sources, width, height, source, f)
+    }
+}
+
+/// Calls `f(pixel, row)` for the pixels of a `width × height` view in
+/// row-major order, `row` the index among `sources` (kept regions, in
+/// increasing order) of the region of `source` under the pixel's centre,
+/// [`NO_REGION`] for none.
+fn for_each_pixel_row(
+    sources: &[u32],
+    width: u32,
+    height: u32,
+    source: RegionSource,
+    f: impl FnMut(usize, u32),
+) -> Result<()> {
+    source.check(0)?;
+    let count = source.count();
+    if let Some(&last) = sources.last().filter(|&&s| s >= count) {
+        return Err(Error::bad_input(
+            "region source",
+            format!("{count} regions, but region {last} was counted"),
+        ));
+    }
+    each_pixel_row(sources, width, height, source, f);
+    Ok(())
+}
+
+/// [`for_each_pixel_row`] for a source already checked against `sources`.
+fn each_pixel_row(
+    sources: &[u32],
+    width: u32,
+    height: u32,
+    source: RegionSource,
+    mut f: impl FnMut(usize, u32),
+) {
+    let mut row_of = vec![NO_REGION; source.count() as usize];
+    for (row, &s) in sources.iter().enumerate() {
+        row_of[s as usize] = row as u32;
+    }
+    let (cells_x, cells_y) = source.cells();
+    let columns: Vec<u32> = (0..width).map(|u| nearest(u, width, cells_x)).collect();
+    let mut pixel = 0;
+    for v in 0..height {
+        let cell_row = nearest(v, height, cells_y);
+        for &cell_col in &columns {
+            let r = source.region(cell_row, cell_col);
+            f(
+                pixel,
+                if r == NO_REGION {
+                    NO_REGION
+                } else {
+                    row_of[r as usize]
+                },
+            );
+            pixel += 1;
+        }
+    }
+}
+
+/// The pooled rows of a batch of views, without their pixels: each row's
+/// pixel count (as CSR offsets) and each view's rows. What Stage I keeps
+/// on the host for a chunk, where the pixels' rows are expanded on the GPU
+/// (see [`RegionPooling::record_offsets_at`]); [`Regions`] adds the pixel
+/// lists.
+///
+/// ```
+/// use latentam_core::latent::{RegionCounts, RegionRows, RegionSource};
+/// use latentam_core::splat::{BatchLayout, Camera};
+///
+/// let layout = BatchLayout::for_cameras(&[Camera::at_origin(8, 6); 2])?;
+/// let grid = RegionCounts::of(RegionSource::Grid { rows: 2, cols: 2 }, 8, 6, 1)?;
+/// let mut rows = RegionRows::new(&layout);
+/// rows.add(1, &grid)?; // the second view only
+/// assert_eq!(rows.offsets(), &[0, 12, 24, 36, 48]);
+/// assert_eq!(rows.rows_per_view(), [0, 4]);
+/// # Ok::<(), latentam_core::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct RegionRows {
+    layout: BatchLayout,
+    offsets: Vec<u32>,
+    views: Vec<ViewRegions>,
+}
+
+impl RegionRows {
+    /// No rows yet for the views of `layout`.
+    pub fn new(layout: &BatchLayout) -> Self {
+        RegionRows {
+            layout: layout.clone(),
+            offsets: vec![0],
+            views: Vec::new(),
+        }
+    }
+
+    /// Pooled rows (kept regions) over all views.
+    pub fn len(&self) -> u32 {
+        (self.offsets.len() - 1) as u32
+    }
+
+    /// Whether no region was kept.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// CSR offsets: row r covers `offsets[r]..offsets[r + 1]` of the
+    /// member pixels, grouped by row.
+    pub fn offsets(&self) -> &[u32] {
+        &self.offsets
+    }
+
+    /// Pixels in kept regions over all views.
+    pub fn members(&self) -> u64 {
+        *self.offsets.last().unwrap_or(&0) as u64
+    }
+
+    /// The batch's layout.
+    pub fn layout(&self) -> &BatchLayout {
+        &self.layout
+    }
+
+    /// Per view that has regions, in the order they were added.
+    pub fn views(&self) -> &[ViewRegions] {
+        &self.views
+    }
+
+    /// Pooled rows per view of the layout (0 for views without regions), as
+    /// [`crate::loss::mean_per_view_weights`] takes them.
+    pub fn rows_per_view(&self) -> Vec<u32> {
+        let mut counts = vec![0; self.layout.views.len()];
+        for v in &self.views {
+            counts[v.view] = v.sources.len() as u32;
+        }
+        counts
+    }
+
+    /// Adds view `view`'s counted regions as the next rows. Views must be
+    /// added in increasing order, and the counts must be of the view's
+    /// size; otherwise an error, and nothing changes.
+    pub fn add(&mut self, view: usize, counts: &RegionCounts) -> Result<&ViewRegions> {
+        let Some(slot) = self.layout.views.get(view).copied() else {
+            return Err(Error::bad_input(
+                format!("regions for view {view}"),
+                format!("the batch has {} views", self.layout.views.len()),
+            ));
+        };
+        if self.views.last().is_some_and(|v| v.view >= view) {
+            return Err(Error::bad_input(
+                format!("regions for view {view}"),
+                format!(
+                    "added after view {}; add views in order, once each",
+                    self.views.last().map_or(0, |v| v.view)
+                ),
+            ));
+        }
+        if (counts.width, counts.height) != (slot.width, slot.height)
+            || counts.sizes.len() != counts.sources.len()
+        {
+            return Err(Error::bad_input(
+                format!("regions for view {view}"),
+                format!(
+                    "counted over {}x{} pixels with {} sizes for {} regions; the view is {}x{}",
+                    counts.width,
+                    counts.height,
+                    counts.sizes.len(),
+                    counts.sources.len(),
+                    slot.width,
+                    slot.height
+                ),
+            ));
+        }
+        let first_row = self.len();
+        let mut end = self.members();
+        for &size in &counts.sizes {
+            end += size as u64;
+            self.offsets.push(end as u32);
+        }
+        self.views.push(ViewRegions {
+            view,
+            first_row,
+            sources: counts.sources.clone(),
+            too_small: counts.too_small,
+            empty: counts.empty,
+        });
+        Ok(self.views.last().expect("just pushed"))
+    }
+}
+
 /// The regions of a batch of views as pixel lists (CSR: region → batch pixel
 /// indices) plus the region of every pixel, ready for [`RegionPooling`].
 /// Regions are disjoint: each pixel has one label.
@@ -99,12 +494,10 @@ pub struct ViewRegions {
 /// ```
 #[derive(Clone, Debug)]
 pub struct Regions {
-    layout: BatchLayout,
+    rows: RegionRows,
     min_pixels: u32,
-    offsets: Vec<u32>,
     pixels: Vec<u32>,
     pixel_region: Vec<u32>,
-    views: Vec<ViewRegions>,
 }
 
 impl Regions {
@@ -112,28 +505,31 @@ impl Regions {
     /// `min_pixels` pixels (at least 1) will be ignored and counted.
     pub fn new(layout: &BatchLayout, min_pixels: u32) -> Self {
         Self {
-            layout: layout.clone(),
+            rows: RegionRows::new(layout),
             min_pixels: min_pixels.max(1),
-            offsets: vec![0],
             pixels: Vec::new(),
             pixel_region: vec![NO_REGION; layout.pixels as usize],
-            views: Vec::new(),
         }
+    }
+
+    /// The rows without their pixels.
+    pub fn rows(&self) -> &RegionRows {
+        &self.rows
     }
 
     /// Pooled rows (kept regions) over all views.
     pub fn len(&self) -> u32 {
-        (self.offsets.len() - 1) as u32
+        self.rows.len()
     }
 
     /// Whether no region was kept.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.rows.is_empty()
     }
 
     /// CSR offsets: region r owns `pixels()[offsets[r]..offsets[r + 1]]`.
     pub fn offsets(&self) -> &[u32] {
-        &self.offsets
+        self.rows.offsets()
     }
 
     /// Batch pixel indices, grouped by region.
@@ -148,17 +544,13 @@ impl Regions {
 
     /// Per view that has regions, in the order they were added.
     pub fn views(&self) -> &[ViewRegions] {
-        &self.views
+        self.rows.views()
     }
 
     /// Pooled rows per view of the layout (0 for views without regions), as
     /// [`crate::loss::mean_per_view_weights`] takes them.
     pub fn rows_per_view(&self) -> Vec<u32> {
-        let mut counts = vec![0; self.layout.views.len()];
-        for v in &self.views {
-            counts[v.view] = v.sources.len() as u32;
-        }
-        counts
+        self.rows.rows_per_view()
     }
 
     /// Adds the regions of view `view` from a label image with `count`
@@ -166,137 +558,49 @@ impl Regions {
     /// A label ≥ `count` or a label image of the wrong length is an error,
     /// and leaves the regions unchanged.
     pub fn add_labels(&mut self, view: usize, img: LabelImage, count: u32) -> Result<&ViewRegions> {
-        if img.width == 0
-            || img.height == 0
-            || img.labels.len() != (img.width * img.height) as usize
-        {
-            return Err(Error::bad_input(
-                "label image",
-                format!(
-                    "{}x{} with {} labels",
-                    img.width,
-                    img.height,
-                    img.labels.len()
-                ),
-            ));
-        }
-        if let Some(&bad) = img
-            .labels
-            .iter()
-            .find(|&&l| l != NO_REGION_LABEL && l as u32 >= count)
-        {
-            return Err(Error::bad_input(
-                format!("view {view}"),
-                format!("region label {bad} but the message has {count} regions"),
-            ));
-        }
-        self.add(view, count, (img.width, img.height), |lv, lu| {
-            let l = img.labels[(lv * img.width + lu) as usize];
-            (l != NO_REGION_LABEL).then_some(l as u32)
-        })
+        self.add(view, RegionSource::Labels { image: img, count })
     }
 
-    /// Adds the regions of view `view` as the cells of a `rows` × `cols`
-    /// feature grid laid over the image (cell index = row · cols + col).
+    /// Adds view `view`'s regions from a feature grid of `rows × cols`
+    /// cells laid over it (cell index = row * cols + col).
     pub fn add_grid(&mut self, view: usize, rows: u32, cols: u32) -> Result<&ViewRegions> {
-        if rows == 0 || cols == 0 {
-            return Err(Error::bad_input(
-                format!("view {view}"),
-                format!("feature grid of {rows}x{cols} cells"),
-            ));
-        }
-        self.add(view, rows * cols, (cols, rows), |lv, lu| {
-            Some(lv * cols + lu)
-        })
+        self.add(view, RegionSource::Grid { rows, cols })
     }
 
-    /// Adds view `view`'s regions from a source of `source` (width,
-    /// height) cells laid over it: each pixel takes the region of the cell
-    /// under its centre, `label_of(row, column)` of that cell.
-    fn add(
-        &mut self,
-        view: usize,
-        count: u32,
-        source: (u32, u32),
-        label_of: impl Fn(u32, u32) -> Option<u32>,
-    ) -> Result<&ViewRegions> {
-        let Some(slot) = self.layout.views.get(view).copied() else {
+    /// Adds view `view`'s regions from `source`; on an error nothing
+    /// changes.
+    pub fn add(&mut self, view: usize, source: RegionSource) -> Result<&ViewRegions> {
+        source.check(view)?;
+        let Some(slot) = self.rows.layout.views.get(view).copied() else {
             return Err(Error::bad_input(
                 format!("regions for view {view}"),
-                format!("the batch has {} views", self.layout.views.len()),
+                format!("the batch has {} views", self.rows.layout.views.len()),
             ));
         };
-        if self.views.last().is_some_and(|v| v.view >= view) {
-            return Err(Error::bad_input(
-                format!("regions for view {view}"),
-                format!(
-                    "added after view {}; add views in order, once each",
-                    self.views.last().map_or(0, |v| v.view)
-                ),
-            ));
-        }
-        // The cell under each pixel is separable: its column from the
-        // pixel's column, its row from the pixel's row (computed once
-        // each, not per pixel: this runs over every pixel of every view
-        // Stage I trains on).
-        let columns: Vec<u32> = (0..slot.width)
-            .map(|u| nearest(u, slot.width, source.0))
-            .collect();
-        let mut labels = Vec::with_capacity((slot.width * slot.height) as usize);
-        let mut sizes = vec![0u32; count as usize];
-        for v in 0..slot.height {
-            let lv = nearest(v, slot.height, source.1);
-            for &lu in &columns {
-                let l = label_of(lv, lu).unwrap_or(NO_REGION);
-                if l != NO_REGION {
-                    sizes[l as usize] += 1;
+        let counts = RegionCounts::counted(source, slot.width, slot.height, self.min_pixels);
+        let first_row = self.rows.add(view, &counts)?.first_row;
+        // Counting sort of the view's pixels by row: each row's pixels
+        // follow the offsets, in the view's row-major order.
+        let mut next: Vec<u32> =
+            self.rows.offsets[first_row as usize..self.rows.offsets.len() - 1].to_vec();
+        self.pixels.resize(self.rows.members() as usize, 0);
+        let (pixels, pixel_region) = (&mut self.pixels, &mut self.pixel_region);
+        each_pixel_row(
+            &counts.sources,
+            slot.width,
+            slot.height,
+            source,
+            |i, row| {
+                if row != NO_REGION {
+                    let p = slot.first_pixel as u32 + i as u32;
+                    let at = &mut next[row as usize];
+                    pixels[*at as usize] = p;
+                    *at += 1;
+                    pixel_region[p as usize] = first_row + row;
                 }
-                labels.push(l);
-            }
-        }
-        let mut out = ViewRegions {
-            view,
-            first_row: self.len(),
-            ..Default::default()
-        };
-        // Row of each input region, or NO_REGION when it is not kept.
-        let mut row_of = vec![NO_REGION; count as usize];
-        for (region, &size) in sizes.iter().enumerate() {
-            if size == 0 {
-                out.empty += 1;
-            } else if size < self.min_pixels {
-                out.too_small += 1;
-            } else {
-                row_of[region] = out.first_row + out.sources.len() as u32;
-                out.sources.push(region as u32);
-            }
-        }
-        // Counting sort of the view's pixels by row.
-        let base = self.pixels.len() as u32;
-        let mut next: Vec<u32> = Vec::with_capacity(out.sources.len());
-        let mut start = base;
-        for &src in &out.sources {
-            next.push(start);
-            start += sizes[src as usize];
-            self.offsets.push(start);
-        }
-        self.pixels.resize(start as usize, 0);
-        for (i, &l) in labels.iter().enumerate() {
-            if l == NO_REGION {
-                continue;
-            }
-            let row = row_of[l as usize];
-            if row == NO_REGION {
-                continue;
-            }
-            let p = slot.first_pixel as u32 + i as u32;
-            let slot_in_view = &mut next[(row - out.first_row) as usize];
-            self.pixels[*slot_in_view as usize] = p;
-            *slot_in_view += 1;
-            self.pixel_region[p as usize] = row;
-        }
-        self.views.push(out);
-        Ok(self.views.last().expect("just pushed"))
+            },
+        );
+        Ok(self.rows.views.last().expect("just added"))
     }
 }
 
@@ -416,8 +720,8 @@ impl RegionPooling {
         first_row: u32,
     ) -> Result<()> {
         // Checks the sizes before anything is recorded.
-        self.record_offsets_at(rec, regions, first_row)?;
-        rec.upload(&self.offsets, 0, &regions.offsets)?;
+        self.record_offsets_at(rec, regions.rows(), first_row)?;
+        rec.upload(&self.offsets, 0, regions.offsets())?;
         rec.upload(&self.members, 0, &regions.pixels)?;
         rec.upload(&self.pixel_region, 0, &regions.pixel_region)
     }
@@ -432,10 +736,10 @@ impl RegionPooling {
     pub fn record_offsets_at<'a>(
         &'a self,
         rec: &mut Recorder<'a>,
-        regions: &Regions,
+        regions: &RegionRows,
         first_row: u32,
     ) -> Result<()> {
-        let pixels = regions.pixel_region.len() as u64;
+        let pixels = regions.layout().pixels;
         let rows = first_row as u64 + regions.len() as u64;
         if rows > self.max_regions as u64 || pixels > self.max_pixels {
             return Err(Error::bad_input(
@@ -449,11 +753,11 @@ impl RegionPooling {
                 ),
             ));
         }
-        rec.upload(&self.pixel_region, self.max_pixels * 4, &regions.offsets)?;
+        rec.upload(&self.pixel_region, self.max_pixels * 4, regions.offsets())?;
         self.regions.set(regions.len());
         self.first_row.set(first_row);
         self.pixels.set(pixels);
-        self.member_pixels.set(regions.pixels.len() as u64);
+        self.member_pixels.set(regions.members());
         Ok(())
     }
 

@@ -99,6 +99,146 @@ fn regions_follow_the_label_images() {
     assert_eq!(in_regions, regions.pixels().len());
 }
 
+/// The region of every pixel of a `w × h` view under `source`, by
+/// integer arithmetic (the source cell whose span holds the pixel centre).
+fn brute_force_regions(source: RegionSource, w: u32, h: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for v in 0..h {
+        for u in 0..w {
+            out.push(match source {
+                RegionSource::Grid { rows, cols } => {
+                    ((2 * v + 1) * rows / (2 * h)) * cols + (2 * u + 1) * cols / (2 * w)
+                }
+                RegionSource::Labels { image, .. } => {
+                    let lu = (2 * u + 1) * image.width / (2 * w);
+                    let lv = (2 * v + 1) * image.height / (2 * h);
+                    match image.labels[(lv * image.width + lu) as usize] {
+                        NO_REGION_LABEL => NO_REGION,
+                        l => l as u32,
+                    }
+                }
+            });
+        }
+    }
+    out
+}
+
+#[test]
+fn counted_regions_match_the_pixels_on_random_sizes() {
+    let mut r = rng("counted_regions_match_the_pixels_on_random_sizes");
+    for _ in 0..200 {
+        let (w, h) = (r.random_range(1..70u32), r.random_range(1..50u32));
+        let (lw, lh) = (r.random_range(1..90u32), r.random_range(1..60u32));
+        let count = r.random_range(1..40u32);
+        let min = r.random_range(0..12u32);
+        let labels = random_labels(&mut r, lw, lh, count);
+        let source = if r.random_bool(0.3) {
+            RegionSource::Grid {
+                rows: lh.min(9),
+                cols: lw.min(9),
+            }
+        } else {
+            RegionSource::Labels {
+                image: LabelImage {
+                    width: lw,
+                    height: lh,
+                    labels: &labels,
+                },
+                count,
+            }
+        };
+        let counts = RegionCounts::of(source, w, h, min).unwrap();
+        let truth = brute_force_regions(source, w, h);
+        let mut sizes = vec![0u32; source.count() as usize];
+        for &l in truth.iter().filter(|&&l| l != NO_REGION) {
+            sizes[l as usize] += 1;
+        }
+        let kept: Vec<u32> = (0..source.count())
+            .filter(|&l| sizes[l as usize] >= min.max(1))
+            .collect();
+        assert_eq!(counts.sources, kept, "{w}x{h} over {lw}x{lh}");
+        let kept_sizes: Vec<u32> = kept.iter().map(|&l| sizes[l as usize]).collect();
+        assert_eq!(counts.sizes, kept_sizes);
+        assert_eq!(
+            counts.empty as usize,
+            sizes.iter().filter(|&&n| n == 0).count()
+        );
+        assert_eq!(
+            counts.too_small as usize,
+            sizes.iter().filter(|&&n| n > 0 && n < min.max(1)).count()
+        );
+        let mut rows = Vec::new();
+        counts
+            .for_each_pixel(source, |i, row| {
+                assert_eq!(i, rows.len());
+                rows.push(row);
+            })
+            .unwrap();
+        let want: Vec<u32> = truth
+            .iter()
+            .map(|&l| match kept.iter().position(|&k| k == l) {
+                Some(row) => row as u32,
+                None => NO_REGION,
+            })
+            .collect();
+        assert_eq!(rows, want);
+
+        // The same view second in a batch: its rows without pixels are
+        // those of the pixel lists.
+        let layout = layout(&[(5, 3), (w, h)]);
+        let mut lists = Regions::new(&layout, min);
+        lists.add_grid(0, 1, 2).unwrap();
+        lists.add(1, source).unwrap();
+        let mut without = RegionRows::new(&layout);
+        without
+            .add(
+                0,
+                &RegionCounts::of(RegionSource::Grid { rows: 1, cols: 2 }, 5, 3, min).unwrap(),
+            )
+            .unwrap();
+        let view = without.add(1, &counts).unwrap().clone();
+        assert_eq!(without.offsets(), lists.offsets());
+        assert_eq!(without.views(), lists.views());
+        assert_eq!(without.members(), lists.pixels().len() as u64);
+        let mut local = Vec::new();
+        view.for_each_pixel(w, h, source, |_, row| local.push(row))
+            .unwrap();
+        assert_eq!(local, rows);
+    }
+}
+
+#[test]
+fn counts_of_another_view_or_source_are_refused() {
+    let layout = layout(&[(8, 6)]);
+    let grid = RegionSource::Grid { rows: 2, cols: 3 };
+    let mut rows = RegionRows::new(&layout);
+    let wrong = RegionCounts::of(grid, 6, 8, 1).unwrap();
+    assert!(rows.add(0, &wrong).is_err());
+    assert!(rows.is_empty() && rows.views().is_empty() && rows.offsets() == [0]);
+    let counts = RegionCounts::of(grid, 8, 6, 1).unwrap();
+    assert!(rows.add(1, &counts).is_err(), "no view 1");
+    rows.add(0, &counts).unwrap();
+    assert!(rows.add(0, &counts).is_err(), "view 0 twice");
+    assert_eq!(rows.len(), 6);
+    // Six regions counted; a source of four cannot be the one.
+    let smaller = RegionSource::Grid { rows: 2, cols: 2 };
+    assert!(counts.for_each_pixel(smaller, |_, _| {}).is_err());
+    let labels = [0u16, 1, 7, NO_REGION_LABEL];
+    let bad = RegionSource::Labels {
+        image: LabelImage {
+            width: 2,
+            height: 2,
+            labels: &labels,
+        },
+        count: 3,
+    };
+    assert!(RegionCounts::of(bad, 8, 6, 1)
+        .unwrap_err()
+        .to_string()
+        .contains("label 7"));
+    assert!(RegionCounts::of(RegionSource::Grid { rows: 0, cols: 3 }, 8, 6, 1).is_err());
+}
+
 #[test]
 fn feature_grid_cells_become_regions() {
     let layout = layout(&[(16, 12)]);

@@ -5,6 +5,7 @@
 
 use std::collections::HashMap;
 
+use crate::latent::{LabelImage, RegionSource};
 use crate::splat::Camera;
 use latentam_base::random::SplitMix;
 use latentam_io::{EmbeddingLayout, Frame};
@@ -37,6 +38,27 @@ pub struct RegionTargets {
     pub vectors: Vec<f32>,
     /// Embedding dimension.
     pub dim: u32,
+}
+
+impl RegionTargets {
+    /// The regions as laid over the keyframe's view.
+    pub fn source(&self) -> RegionSource<'_> {
+        if self.grid {
+            RegionSource::Grid {
+                rows: self.height,
+                cols: self.width,
+            }
+        } else {
+            RegionSource::Labels {
+                image: LabelImage {
+                    width: self.width,
+                    height: self.height,
+                    labels: &self.labels,
+                },
+                count: self.count,
+            }
+        }
+    }
 }
 
 /// One keyframe as kept for replay.

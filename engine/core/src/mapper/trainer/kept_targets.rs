@@ -15,7 +15,7 @@
 use std::cell::RefCell;
 
 use super::super::history::{KeyframeRecord, ReplayKey};
-use crate::latent::{Regions, NO_REGION};
+use crate::latent::{RegionRows, ViewRegions, NO_REGION};
 use latentam_base::{Error, Result};
 use latentam_gpu::{Buffer, Context, Recorder};
 use latentam_shaders::{bind, push, TARGET_UNPACK};
@@ -110,7 +110,7 @@ pub struct ChunkView<'r> {
     /// Its index in the chunk.
     pub view: usize,
     /// The chunk's regions, when the chunk pools any.
-    pub regions: Option<&'r Regions>,
+    pub regions: Option<&'r RegionRows>,
 }
 
 /// Where [`KeptTargets::record_expand`] writes: the image loss's target
@@ -218,10 +218,9 @@ impl KeptTargets {
         let first_pixel = chunk_slot.first_pixel;
         // The view's regions in the chunk: its first row there and its
         // rows local to the view.
-        let own = view.regions.and_then(|r| {
-            let v = r.views().iter().find(|v| v.view == view.view)?;
-            Some((r, v.first_row))
-        });
+        let own = view
+            .regions
+            .and_then(|r| r.views().iter().find(|v| v.view == view.view));
 
         let mut slots = self.slots.borrow_mut();
         let slot = match view.key.and_then(|k| slots.find(k)) {
@@ -242,8 +241,8 @@ impl KeptTargets {
         }
         let own_labels = own.filter(|_| out.labels.is_some());
         let label_upload = own_labels.filter(|_| !held.is_some_and(|h| h.labels));
-        if let Some((regions, first_row)) = label_upload {
-            let local = local_rows(regions, first_pixel, pixels, first_row)?;
+        if let Some(regions) = label_upload {
+            let local = local_rows(record, regions)?;
             rec.upload(&self.packed, label_word * 4, &local)?;
         }
         if let Some(h) = &mut slots.held[slot] {
@@ -268,7 +267,7 @@ impl KeptTargets {
                 depth_word: words(depth_word)?,
                 label_word: words(label_word)?,
                 first_pixel: words(first_pixel)?,
-                row_base: own.map_or(0, |(_, first_row)| first_row),
+                row_base: own.map_or(0, |v| v.first_row),
                 write_target: out.target.is_some() as u32,
                 write_labels: out.labels.is_some() as u32,
                 has_labels: own.is_some() as u32,
@@ -280,36 +279,36 @@ impl KeptTargets {
     }
 }
 
-/// The region rows of a view's `pixels` pixels from `first_pixel` of a
-/// chunk's `regions`, local to the view (its first row `first_row` is 0),
-/// as 16-bit values with [`NO_LOCAL_ROW`] for none.
-fn local_rows(
-    regions: &Regions,
-    first_pixel: u64,
-    pixels: u64,
-    first_row: u32,
-) -> Result<Vec<u16>> {
-    let rows = &regions.pixel_region()[first_pixel as usize..(first_pixel + pixels) as usize];
-    rows.iter()
-        .map(|&r| match r {
-            NO_REGION => Ok(NO_LOCAL_ROW),
-            r => u16::try_from(r - first_row)
-                .ok()
-                .filter(|&l| l != NO_LOCAL_ROW)
-                .ok_or_else(|| {
-                    Error::bad_input(
-                        "keyframe regions",
-                        format!("more than {} regions in one view", NO_LOCAL_ROW),
-                    )
-                }),
-        })
-        .collect()
+/// The region row of each pixel of `record`, whose rows in its chunk are
+/// `view`'s, local to the view (its first row is 0), as 16-bit values
+/// with [`NO_LOCAL_ROW`] for none.
+fn local_rows(record: &KeyframeRecord, view: &ViewRegions) -> Result<Vec<u16>> {
+    let Some(targets) = &record.regions else {
+        return Err(Error::bad_input(
+            "keyframe regions",
+            "rows for a keyframe without regions",
+        ));
+    };
+    if view.sources.len() > NO_LOCAL_ROW as usize {
+        return Err(Error::bad_input(
+            "keyframe regions",
+            format!("more than {NO_LOCAL_ROW} regions in one view"),
+        ));
+    }
+    let (width, height) = (record.camera.width, record.camera.height);
+    let mut local = vec![NO_LOCAL_ROW; width as usize * height as usize];
+    view.for_each_pixel(width, height, targets.source(), |i, row| {
+        if row != NO_REGION {
+            local[i] = row as u16;
+        }
+    })?;
+    Ok(local)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::latent::LabelImage;
+    use crate::latent::{LabelImage, Regions};
     use crate::mapper::RegionTargets;
     use crate::splat::{BatchLayout, Camera};
     use latentam_gpu::testing::{rng, with_context};
@@ -430,7 +429,7 @@ mod tests {
                         record: &records[i],
                         key: Some(keys[i]),
                         view: v,
-                        regions: Some(&regions),
+                        regions: Some(regions.rows()),
                     };
                     let uploaded = kept.record_expand(&mut rec, &layout, view, out).unwrap();
                     assert_eq!(uploaded, !held.contains(&i), "keyframe {i} in {chunk:?}");
@@ -463,8 +462,14 @@ mod tests {
                     let n = k.camera.pixels();
                     let own = regions.views().iter().find(|x| x.view == v);
                     let base = own.map_or(0, |x| x.first_row);
-                    let local = match own {
-                        Some(_) => local_rows(&regions, at as u64, n, base).unwrap(),
+                    let local: Vec<u16> = match own {
+                        Some(_) => regions.pixel_region()[at..at + n as usize]
+                            .iter()
+                            .map(|&r| match r {
+                                NO_REGION => NO_LOCAL_ROW,
+                                r => (r - base) as u16,
+                            })
+                            .collect(),
                         None => vec![NO_LOCAL_ROW; n as usize],
                     };
                     assert_eq!(

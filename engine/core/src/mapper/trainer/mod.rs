@@ -5,8 +5,11 @@
 //! and D from the region queries Stage I pooled (the Gaussians are frozen,
 //! so those queries stay valid).
 
-use super::history::{KeyframeRecord, ReplayKey};
-use crate::latent::{LabelImage, LatentHead, RegionPooling, Regions};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use super::history::{KeyframeRecord, RegionTargets, ReplayKey};
+use crate::latent::{LatentHead, RegionCounts, RegionPooling, RegionRows};
 use crate::loss::{mean_per_view_weights, FeatureLoss, ImageLoss, ImageLossValues, LossWeights};
 use crate::map::Companion;
 use crate::map::LocalWindow;
@@ -128,7 +131,7 @@ struct Chunk {
     views: std::ops::Range<usize>,
     layout: BatchLayout,
     /// The chunk's regions, numbered from 0 within the chunk.
-    regions: Option<Regions>,
+    regions: Option<RegionRows>,
     /// Row of the chunk's first region among the batch's pooled rows.
     first_row: u32,
 }
@@ -161,7 +164,14 @@ pub struct Trainer {
     region_targets: Buffer,
     row_weights: Buffer,
     regions: u32,
+    /// Each keyframe's regions counted when it first trained, by key: a
+    /// keyframe's regions never change, and replays count them no more.
+    counted: HashMap<ReplayKey, Arc<RegionCounts>>,
 }
+
+/// Keyframes whose region counts [`Trainer`] keeps (a few kB each); past
+/// it, only those of the batch in hand are kept.
+const COUNTED_KEYFRAMES: usize = 4096;
 
 impl Trainer {
     /// Workspace for `cfg`; `dim` is the embedding dimension (the region
@@ -200,6 +210,7 @@ impl Trainer {
                 cfg.max_regions.max(1) as u64 * 4,
             )?,
             regions: 0,
+            counted: HashMap::new(),
             cfg,
         })
     }
@@ -302,7 +313,6 @@ impl Trainer {
                 format!("{} keys for {} keyframes", keys.len(), batch.len()),
             ));
         }
-        let keys = if self.cfg.kept_views == 0 { &[] } else { keys };
         if batch.is_empty() || batch.len() > self.cfg.max_views as usize {
             return Err(Error::bad_input(
                 "keyframe batch",
@@ -315,7 +325,8 @@ impl Trainer {
         }
         let count = window.len() as u64;
         let dim = head.map_or(0, |h| h.config().dim as usize);
-        let (chunks, rows, rows_per_view) = self.plan(batch, head.is_some(), dim)?;
+        let (chunks, rows, rows_per_view) = self.plan(batch, keys, head.is_some(), dim)?;
+        let keys = if self.cfg.kept_views == 0 { &[] } else { keys };
         let n: u32 = rows_per_view.iter().sum();
         if n > self.cfg.max_regions {
             return Err(Error::bad_input(
@@ -524,11 +535,15 @@ impl Trainer {
     /// the chunks, every region's target row (batch order) and the pooled
     /// rows of each view.
     fn plan(
-        &self,
+        &mut self,
         batch: &[&KeyframeRecord],
+        keys: &[ReplayKey],
         has_head: bool,
         dim: usize,
     ) -> Result<(Vec<Chunk>, Vec<f32>, Vec<u32>)> {
+        if self.counted.len() > COUNTED_KEYFRAMES {
+            self.counted.retain(|k, _| keys.contains(k));
+        }
         let mut chunks = Vec::new();
         let mut rows: Vec<f32> = Vec::new();
         let mut rows_per_view = vec![0u32; batch.len()];
@@ -545,7 +560,7 @@ impl Trainer {
             }
             let cams: Vec<Camera> = batch[start..end].iter().map(|k| k.camera).collect();
             let layout = BatchLayout::for_cameras(&cams)?;
-            let mut regions = Regions::new(&layout, self.cfg.min_region_pixels);
+            let mut regions = RegionRows::new(&layout);
             for (v, k) in batch[start..end].iter().enumerate() {
                 let (Some(r), true) = (&k.regions, has_head) else {
                     continue;
@@ -557,19 +572,8 @@ impl Trainer {
                         context: Some(format!("the keyframe at {} ns", k.stamp_ns)),
                     });
                 }
-                let view = if r.grid {
-                    regions.add_grid(v, r.height, r.width)?
-                } else {
-                    regions.add_labels(
-                        v,
-                        LabelImage {
-                            width: r.width,
-                            height: r.height,
-                            labels: &r.labels,
-                        },
-                        r.count,
-                    )?
-                };
+                let counts = self.counts(keys.get(start + v).copied(), k, r)?;
+                let view = regions.add(v, &counts)?;
                 rows_per_view[start + v] = view.sources.len() as u32;
                 for &s in &view.sources {
                     rows.extend_from_slice(&r.vectors[s as usize * dim..(s as usize + 1) * dim]);
@@ -586,6 +590,34 @@ impl Trainer {
             start = end;
         }
         Ok((chunks, rows, rows_per_view))
+    }
+
+    /// The regions of `record` (whose targets are `targets`) counted: kept
+    /// under `key` from the first time, when it has one.
+    fn counts(
+        &mut self,
+        key: Option<ReplayKey>,
+        record: &KeyframeRecord,
+        targets: &RegionTargets,
+    ) -> Result<Arc<RegionCounts>> {
+        let count = || {
+            RegionCounts::of(
+                targets.source(),
+                record.camera.width,
+                record.camera.height,
+                self.cfg.min_region_pixels,
+            )
+            .map(Arc::new)
+        };
+        let Some(key) = key else {
+            return count();
+        };
+        if let Some(c) = self.counted.get(&key) {
+            return Ok(c.clone());
+        }
+        let c = count()?;
+        self.counted.insert(key, c.clone());
+        Ok(c)
     }
 }
 
