@@ -40,6 +40,22 @@ fn planar_uv(p: Vec3, axis: usize) -> Vec2 {
 }
 
 impl Shape {
+    /// The axis-aligned box that holds the shape: (min, max).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        match *self {
+            Shape::Box { min, max } => (min, max),
+            Shape::Sphere { centre, radius } => (centre - radius, centre + radius),
+            Shape::Cylinder {
+                base,
+                radius,
+                height,
+            } => (
+                base - Vec3::new(radius, radius, 0.0),
+                base + Vec3::new(radius, radius, height),
+            ),
+        }
+    }
+
     /// The nearest hit with `t > t_min`, if any.
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_min: f32) -> Option<Hit> {
         match *self {
