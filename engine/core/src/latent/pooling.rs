@@ -262,11 +262,6 @@ impl RegionCounts {
         out
     }
 
-    /// Pixels in kept regions.
-    pub fn members(&self) -> u64 {
-        self.sizes.iter().map(|&s| s as u64).sum()
-    }
-
     /// Calls `f(pixel, row)` for every pixel of the view in row-major order
     /// (`pixel` its index in the view), with `row` its kept region's row
     /// among [`Self::sources`] (from 0), [`NO_REGION`] for none. `source`
@@ -423,16 +418,22 @@ impl RegionRows {
         counts
     }
 
+    /// Where view `view` lies in the batch; an error for a view the batch
+    /// does not have.
+    fn slot(&self, view: usize) -> Result<crate::splat::ViewSlot> {
+        self.layout.views.get(view).copied().ok_or_else(|| {
+            Error::bad_input(
+                format!("regions for view {view}"),
+                format!("the batch has {} views", self.layout.views.len()),
+            )
+        })
+    }
+
     /// Adds view `view`'s counted regions as the next rows. Views must be
     /// added in increasing order, and the counts must be of the view's
     /// size; otherwise an error, and nothing changes.
     pub fn add(&mut self, view: usize, counts: &RegionCounts) -> Result<&ViewRegions> {
-        let Some(slot) = self.layout.views.get(view).copied() else {
-            return Err(Error::bad_input(
-                format!("regions for view {view}"),
-                format!("the batch has {} views", self.layout.views.len()),
-            ));
-        };
+        let slot = self.slot(view)?;
         if self.views.last().is_some_and(|v| v.view >= view) {
             return Err(Error::bad_input(
                 format!("regions for view {view}"),
@@ -571,12 +572,7 @@ impl Regions {
     /// changes.
     pub fn add(&mut self, view: usize, source: RegionSource) -> Result<&ViewRegions> {
         source.check(view)?;
-        let Some(slot) = self.rows.layout.views.get(view).copied() else {
-            return Err(Error::bad_input(
-                format!("regions for view {view}"),
-                format!("the batch has {} views", self.rows.layout.views.len()),
-            ));
-        };
+        let slot = self.rows.slot(view)?;
         let counts = RegionCounts::counted(source, slot.width, slot.height, self.min_pixels);
         let first_row = self.rows.add(view, &counts)?.first_row;
         // Counting sort of the view's pixels by row: each row's pixels
